@@ -36,5 +36,9 @@ class InterlockTripped(RemoteCallError):
     """The cell's interlock holds: motion is refused until the job ends."""
 
 
+class ShuttingDown(RemoteCallError):
+    """The job is past its deadline (the grace window): motion is refused, finish up and return."""
+
+
 class RemoteAttributeError(AttributeError):
     """The remote object has no such public attribute (an ``AttributeError``, so defaults work)."""

@@ -24,6 +24,7 @@ from armnet_runtime.errors import (
     RemoteAttributeError,
     RemoteCallError,
     SafetyViolation,
+    ShuttingDown,
 )
 
 CONNECT_TIMEOUT_S = 5.0
@@ -50,6 +51,7 @@ _LEROBOT_ERRORS = frozenset({"DeviceNotConnectedError", "DeviceAlreadyConnectedE
 _ARMNET_ERRORS: dict[str, type[RemoteCallError]] = {
     "SafetyViolation": SafetyViolation,
     "InterlockTripped": InterlockTripped,
+    "ShuttingDown": ShuttingDown,
 }
 
 
