@@ -1,0 +1,1 @@
+"""Calibration files shipped for the simulated arms (package data)."""

@@ -1,0 +1,168 @@
+"""Serve a byte-level request handler on a pseudo-terminal, from one thread.
+
+This module owns the pty and nothing else: it knows no protocol. Design points
+from running the real SDK against a pty (reference §9, §10):
+
+- the slave is put in raw mode at creation and a slave fd is kept open for the
+  server's lifetime and never read, so the master never sees ``EIO`` when the
+  client closes, and the client may re-open the port as often as it likes;
+- replies go out in one write, promptly: LeRobot waits only ~50 ms, and a late
+  reply would be taken as the answer to the client's next request;
+- writes are non-blocking: when nobody drains the slave, replies are dropped as
+  on a bus with no listener, instead of wedging the thread;
+- the serving thread asks for a higher scheduling priority (best effort: it
+  needs ``CAP_SYS_NICE``), because a reply that misses the client's deadline is
+  a failed transaction; the thread sleeps in ``select`` between requests, so
+  the boost costs the machine nothing.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import select
+import threading
+import time
+import tty
+from collections.abc import Callable
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+#: How long a reply may wait for room in the pty buffer before it is dropped.
+WRITE_DEADLINE_S = 0.05
+#: Nice value requested for the serving thread (lower = scheduled sooner).
+BOOSTED_NICE = -10
+
+
+class PtyServer:
+    """A pty whose master side answers with ``handler(data, now) -> reply``."""
+
+    def __init__(
+        self,
+        handler: Callable[[bytes, float], bytes],
+        *,
+        link_path: str | Path | None = None,
+        latency_s: float = 0.0,
+        name: str = "armnet-sim",
+        clock: Callable[[], float] = time.monotonic,
+        boost_priority: bool = True,
+    ) -> None:
+        self._handler = handler
+        self._boost_priority = boost_priority
+        self._link = Path(link_path) if link_path is not None else None
+        self.latency_s = latency_s
+        self._name = name
+        self._clock = clock
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._device: str | None = None
+        self._wake_r: int | None = None
+        self._wake_w: int | None = None
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+
+    @property
+    def device(self) -> str:
+        """The ``/dev/pts/N`` path of the slave side."""
+        if self._device is None:
+            raise RuntimeError(f"{self._name} is not started; call start() first")
+        return self._device
+
+    @property
+    def port(self) -> str:
+        """The path to hand to pyserial / LeRobot: the stable symlink if one was asked for."""
+        return str(self._link) if self._link is not None and self._device else self.device
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError(f"{self._name} is already started")
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        self._master, self._slave = master, slave
+        self._device = os.ttyname(slave)
+        self._wake_r, self._wake_w = os.pipe()
+        if self._link is not None:
+            self._link.parent.mkdir(parents=True, exist_ok=True)
+            if self._link.is_symlink() or self._link.exists():
+                self._link.unlink()
+            self._link.symlink_to(self._device)
+        self._stopping.clear()
+        self._thread = threading.Thread(target=self._serve, name=self._name, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the thread, close the pty and remove the symlink; idempotent."""
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            self._stopping.set()
+            assert self._wake_w is not None
+            os.write(self._wake_w, b"x")
+            thread.join(timeout=5)
+        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+            if fd is not None:
+                os.close(fd)
+        self._master = self._slave = self._wake_r = self._wake_w = None
+        if self._link is not None and self._link.is_symlink():
+            self._link.unlink()
+        self._device = None
+
+    def _serve(self) -> None:
+        if self._boost_priority:
+            _boost_this_thread()
+        master, wake = self._master, self._wake_r
+        assert master is not None and wake is not None
+        while not self._stopping.is_set():
+            readable, _, _ = select.select([master, wake], [], [])
+            if wake in readable:
+                return
+            try:
+                data = os.read(master, 4096)
+            except BlockingIOError:
+                continue
+            except OSError as exc:
+                if exc.errno == errno.EIO:  # no slave open at this instant
+                    time.sleep(0.001)
+                    continue
+                raise
+            if not data:
+                continue
+            try:
+                reply = self._handler(data, self._clock())
+            except Exception:  # noqa: BLE001 - a bad frame must never kill the bus thread
+                log.exception("%s: handler failed; request dropped", self._name)
+                continue
+            if reply:
+                if self.latency_s > 0:
+                    time.sleep(self.latency_s)
+                self._write(master, reply)
+
+    def _write(self, master: int, reply: bytes) -> None:
+        deadline = time.monotonic() + WRITE_DEADLINE_S
+        view = memoryview(reply)
+        while view:
+            try:
+                sent = os.write(master, view)
+                view = view[sent:]
+            except BlockingIOError:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    log.warning(
+                        "%s: nobody reads the port; %d reply bytes dropped", self._name, len(view)
+                    )
+                    return
+                select.select([], [master], [], remaining)
+
+
+def _boost_this_thread() -> None:
+    """Lower this thread's nice value (Linux nice is per thread); ignore if not permitted."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BOOSTED_NICE)
+    except (PermissionError, OSError) as exc:
+        log.debug("cannot raise the simulator thread's priority: %s", exc)

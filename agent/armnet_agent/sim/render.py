@@ -1,0 +1,121 @@
+"""Draw the simulated joint state as a camera picture (pure: state in, pixels out).
+
+The picture is a schematic, not a photo: for each arm a side view of the
+shoulder-lift / elbow / wrist chain with the gripper jaws, plus one gauge per
+joint. It exists so a job's camera stream visibly changes when the arm moves
+and stays identical while it is still.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+JointAngles = Mapping[str, float]
+Image = npt.NDArray[np.uint8]
+
+_BACKGROUND = (32, 34, 40)
+_LINK = (230, 160, 40)
+_JOINT = (240, 240, 240)
+_GAUGE = (60, 180, 110)
+_TEXT = (200, 200, 200)
+_CHAIN = ("shoulder_lift", "elbow_flex", "wrist_flex")
+_LINK_LENGTHS = (0.42, 0.38, 0.2)
+
+
+def render_arms(arms: Mapping[str, JointAngles], width: int, height: int) -> Image:
+    """An RGB ``height x width x 3`` uint8 picture of every arm's joints (degrees)."""
+    image = np.empty((height, width, 3), dtype=np.uint8)
+    image[:] = _BACKGROUND
+    if not arms:
+        _text(image, "no arm attached", (8, height // 2), height)
+        return image
+    panel_w = width / len(arms)
+    for index, (name, joints) in enumerate(arms.items()):
+        x0 = int(index * panel_w)
+        x1 = int((index + 1) * panel_w)
+        # OpenCV draws only into contiguous arrays, so draw a panel and paste it.
+        panel = np.ascontiguousarray(image[:, x0:x1])
+        _draw_arm(panel, name, joints)
+        image[:, x0:x1] = panel
+    return image
+
+
+def _draw_arm(panel: Image, name: str, joints: JointAngles) -> None:
+    h, w = panel.shape[:2]
+    scene_h = int(h * 0.62)
+    _draw_chain(panel, joints, w, scene_h)
+    _draw_gauges(panel, joints, top=scene_h, w=w, h=h)
+    _text(panel, name, (6, max(12, h // 24)), h)
+
+
+def _draw_chain(panel: Image, joints: JointAngles, w: int, h: int) -> None:
+    scale = min(w, h) * 0.9
+    base = (w * 0.5, h * 0.92)
+    cv2.line(panel, _pt((base[0] - w * 0.2, base[1])), _pt((base[0] + w * 0.2, base[1])), _JOINT, 2)
+    # shoulder_pan has no side-view component: show it as the base's tilt marker.
+    pan = math.radians(joints.get("shoulder_pan", 0.0))
+    marker = (base[0] + math.sin(pan) * w * 0.15, base[1] - math.cos(pan) * h * 0.05)
+    cv2.line(panel, _pt(base), _pt(marker), _GAUGE, 2)
+    angle = math.pi / 2  # straight up at every joint's mid-range
+    point = base
+    for joint, length in zip(_CHAIN, _LINK_LENGTHS, strict=True):
+        angle -= math.radians(joints.get(joint, 0.0))
+        nxt = (
+            point[0] + math.cos(angle) * length * scale,
+            point[1] - math.sin(angle) * length * scale,
+        )
+        cv2.line(panel, _pt(point), _pt(nxt), _LINK, max(2, int(scale / 60)))
+        cv2.circle(panel, _pt(point), max(3, int(scale / 80)), _JOINT, -1)
+        point = nxt
+    _draw_gripper(panel, point, angle, joints, scale)
+
+
+def _draw_gripper(
+    panel: Image, tip: tuple[float, float], angle: float, joints: JointAngles, scale: float
+) -> None:
+    # The gripper reads 0..100 % closed..open in LeRobot terms; in degrees its range is
+    # about +-60, so map it to an opening of 5..45 degrees per jaw.
+    opening = math.radians(25 + max(-20.0, min(20.0, joints.get("gripper", 0.0) / 3)))
+    roll = math.radians(joints.get("wrist_roll", 0.0))
+    jaw = scale * 0.09
+    for side in (-1, 1):
+        a = angle + side * opening * (0.6 + 0.4 * math.cos(roll))
+        end = (tip[0] + math.cos(a) * jaw, tip[1] - math.sin(a) * jaw)
+        cv2.line(panel, _pt(tip), _pt(end), _JOINT, 2)
+
+
+def _draw_gauges(panel: Image, joints: JointAngles, *, top: int, w: int, h: int) -> None:
+    names = list(joints)
+    if not names:
+        return
+    row_h = (h - top) / len(names)
+    for row, name in enumerate(names):
+        y0 = top + row * row_h
+        y_mid = int(y0 + row_h / 2)
+        x_left, x_right = int(w * 0.38), int(w * 0.96)
+        cv2.rectangle(panel, (x_left, int(y0 + 2)), (x_right, int(y0 + row_h - 2)), _TEXT, 1)
+        centre = (x_left + x_right) // 2
+        value = max(-180.0, min(180.0, float(joints[name])))
+        end = int(centre + value / 180.0 * (x_right - x_left) / 2)
+        cv2.rectangle(
+            panel,
+            (min(centre, end), int(y0 + 4)),
+            (max(centre, end), int(y0 + row_h - 4)),
+            _GAUGE,
+            -1,
+        )
+        _text(panel, name[:13], (4, y_mid + 4), h)
+
+
+def _text(image: Image, text: str, origin: tuple[int, int], h: int) -> None:
+    size = max(0.3, h / 1200)
+    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, size, _TEXT, 1, cv2.LINE_AA)
+
+
+def _pt(p: tuple[float, float]) -> tuple[int, int]:
+    return int(round(p[0])), int(round(p[1]))

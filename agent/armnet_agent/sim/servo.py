@@ -1,0 +1,240 @@
+"""One simulated STS3215: its memory image, its joint, and its injected faults.
+
+The servo owns register semantics (read-only bytes, EEPROM persistence under
+``Lock``, torque enable, goal clamping to the position limits) and derives the
+``Present_*`` registers from the physics on every access. It is pure: time is
+passed in, nothing here blocks or does I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from . import control_table as ct
+from .physics import Drive, JointState, PhysicsParams, Telemetry, step, telemetry
+
+_REG = ct.BY_NAME
+
+
+@dataclass(frozen=True)
+class ServoFaults:
+    """Faults injected by tests; the defaults are a healthy servo."""
+
+    unplugged: bool = False  # no reply at all, writes do not arrive
+    corrupt_checksum: bool = False  # every reply carries a wrong checksum
+    error_bits: int = 0  # ORed into the ERR byte of every reply (e.g. ErrorBit.OVERLOAD)
+    corrupt_next: int = 0  # the next N replies carry a wrong checksum (transient noise)
+    drop_next: int = 0  # the next N replies are lost (requests are still obeyed)
+
+
+@dataclass(frozen=True)
+class ServoCalibration:
+    """The three EEPROM values a LeRobot calibration file sets on a servo."""
+
+    homing_offset: int
+    range_min: int
+    range_max: int
+
+
+class Servo:
+    """Memory image plus joint state of one servo on the bus."""
+
+    def __init__(
+        self,
+        servo_id: int,
+        *,
+        calibration: ServoCalibration | None = None,
+        params: PhysicsParams | None = None,
+        now: float = 0.0,
+    ) -> None:
+        self.params = params or PhysicsParams()
+        self.faults = ServoFaults()
+        self._memory = ct.default_memory(servo_id)
+        if calibration is not None:
+            self._set(_REG["Homing_Offset"], calibration.homing_offset)
+            self._set(_REG["Min_Position_Limit"], calibration.range_min)
+            self._set(_REG["Max_Position_Limit"], calibration.range_max)
+        # What a power cycle restores: the EEPROM as last saved with Lock = 0.
+        self._saved = bytes(self._memory)
+        self._pending: tuple[int, bytes] | None = None
+        self._time = now
+        low, high = self.limits()
+        rest = (low + high) / 2 if high > low else 2048
+        self.joint = JointState(
+            position=float(round(rest) + self.homing_offset()),
+            temperature=self.params.ambient_temperature,
+        )
+        self._power_on_ram()
+        self._refresh()
+
+    # -- identity and decoded registers -------------------------------------------------
+
+    @property
+    def servo_id(self) -> int:
+        return self._memory[_REG["ID"].address]
+
+    def get(self, name: str) -> int:
+        """A register's value, sign-magnitude decoded where the table says so."""
+        reg = _REG.get(name)
+        if reg is None:
+            raise KeyError(
+                f"unknown register {name!r}; names follow LeRobot's STS3215 control table"
+            )
+        raw = int.from_bytes(self._memory[reg.address : reg.address + reg.size], "little")
+        return raw if reg.sign_bit is None else ct.decode_sign_magnitude(raw, reg.sign_bit)
+
+    def homing_offset(self) -> int:
+        return self.get("Homing_Offset")
+
+    def limits(self) -> tuple[int, int]:
+        return self.get("Min_Position_Limit"), self.get("Max_Position_Limit")
+
+    def torque_on(self) -> bool:
+        return self.get("Torque_Enable") == 1
+
+    def present_position(self, now: float) -> int:
+        self.advance(now)
+        return self.get("Present_Position")
+
+    # -- bus-facing access --------------------------------------------------------------
+
+    def read(self, address: int, length: int, now: float) -> bytes:
+        self.advance(now)
+        end = min(ct.MEMORY_SIZE, address + length)
+        data = bytes(self._memory[address:end])
+        return data + bytes(length - len(data))
+
+    def write(self, address: int, data: bytes, now: float) -> None:
+        """Apply a WRITE: read-only bytes are skipped, EEPROM is saved only when unlocked."""
+        self.advance(now)
+        torque_before = self.torque_on()
+        locked = self.get("Lock") != 0
+        for offset, value in enumerate(data):
+            addr = address + offset
+            if addr >= ct.MEMORY_SIZE or ct.READ_ONLY_MASK[addr]:
+                continue
+            self._memory[addr] = value
+            if ct.is_persistent(addr) and not locked:
+                saved = bytearray(self._saved)
+                saved[addr] = value
+                self._saved = bytes(saved)
+        if self.torque_on() and not torque_before:
+            # Enabling torque holds the joint where it is, as the firmware does.
+            self._set(_REG["Goal_Position"], self.get("Present_Position"))
+        self._refresh()
+
+    def reg_write(self, address: int, data: bytes) -> None:
+        """REG_WRITE: buffer the write until ACTION."""
+        self._pending = (address, bytes(data))
+
+    def action(self, now: float) -> None:
+        if self._pending is not None:
+            address, data = self._pending
+            self._pending = None
+            self.write(address, data, now)
+
+    def take_reply_faults(self) -> tuple[bool, bool]:
+        """Faults for the reply about to be sent: (drop it, corrupt it); uses up transient ones."""
+        faults = self.faults
+        if faults.drop_next > 0:
+            self.faults = replace(faults, drop_next=faults.drop_next - 1)
+            return True, False
+        if faults.corrupt_next > 0:
+            self.faults = replace(faults, corrupt_next=faults.corrupt_next - 1)
+            return False, True
+        return False, faults.corrupt_checksum
+
+    def status_error(self) -> int:
+        return self.faults.error_bits & 0x7F
+
+    def replies_to_writes(self) -> bool:
+        return self.get("Response_Status_Level") != 0
+
+    # -- lifecycle ------------------------------------------------------------------------
+
+    def power_cycle(self, now: float) -> None:
+        """Drop RAM and unsaved EEPROM changes; the joint stays where it physically is."""
+        self.advance(now)
+        self._memory = bytearray(self._saved)
+        self._pending = None
+        self._power_on_ram()
+        self._refresh()
+
+    def factory_reset(self, now: float) -> None:
+        """RESET instruction: factory EEPROM, same id, saved immediately."""
+        servo_id = self.servo_id
+        self.advance(now)
+        self._memory = ct.default_memory(servo_id)
+        self._saved = bytes(self._memory)
+        self._power_on_ram()
+        self._refresh()
+
+    def move_by_hand(self, position: float, now: float) -> None:
+        """Put the joint at a physical position (ticks), like a person moving a limp arm."""
+        self.advance(now)
+        self.joint = replace(self.joint, position=float(position), velocity=0.0)
+        self._refresh()
+
+    def set_faults(self, faults: ServoFaults) -> None:
+        self.faults = faults
+        self._refresh()
+
+    # -- physics ------------------------------------------------------------------------
+
+    def advance(self, now: float) -> None:
+        """Integrate the joint up to ``now`` and refresh the derived registers."""
+        dt = now - self._time
+        if dt > 0:
+            self._time = now
+            self.joint = step(self.joint, self._drive(), dt, self.params)
+            self._refresh()
+
+    def _drive(self) -> Drive:
+        goal = self.get("Goal_Position")
+        low, high = self.limits()
+        if high > low:
+            goal = max(low, min(high, goal))
+        # Position mode only: in the other operating modes the joint is held still.
+        torque = self.torque_on() and self.get("Operating_Mode") == 0
+        return Drive(
+            torque_on=torque,
+            target=float(goal + self.homing_offset()) if torque else self.joint.position,
+            speed_limit=abs(self.get("Goal_Velocity")),
+            acceleration=self.get("Acceleration"),
+        )
+
+    def _refresh(self) -> None:
+        drive = self._drive()
+        reading: Telemetry = telemetry(self.joint, drive, self.params)
+        present = (round(self.joint.position) - self.homing_offset()) % ct.RESOLUTION
+        self._set(_REG["Present_Position"], present)
+        if not self.torque_on():
+            # With torque off the goal follows the joint, so re-enabling never jumps.
+            self._set(_REG["Goal_Position"], present)
+        self._set(_REG["Present_Velocity"], _clip(reading.velocity, 15))
+        self._set(_REG["Present_Load"], _clip(reading.load, 10))
+        self._set(_REG["Present_Current"], min(reading.current, 0xFFFF))
+        self._set(_REG["Present_Temperature"], max(0, min(255, reading.temperature)))
+        self._set(_REG["Present_Voltage"], reading.voltage)
+        self._set(_REG["Moving"], 1 if reading.moving else 0)
+        self._set(_REG["Status"], self.status_error())
+        self._set(_REG["Goal_Position_2"], self._memory_word(_REG["Goal_Position"]))
+
+    def _power_on_ram(self) -> None:
+        for reg in ct.REGISTERS:
+            if reg.area is ct.Area.RAM:
+                self._set(reg, reg.default)
+        self._set(_REG["Torque_Limit"], self.get("Max_Torque_Limit"))
+
+    def _memory_word(self, reg: ct.Register) -> int:
+        return int.from_bytes(self._memory[reg.address : reg.address + reg.size], "little")
+
+    def _set(self, reg: ct.Register, value: int) -> None:
+        if reg.sign_bit is not None:
+            value = ct.encode_sign_magnitude(value, reg.sign_bit)
+        self._memory[reg.address : reg.address + reg.size] = value.to_bytes(reg.size, "little")
+
+
+def _clip(value: int, sign_bit: int) -> int:
+    limit = (1 << sign_bit) - 1
+    return max(-limit, min(limit, value))

@@ -1,0 +1,121 @@
+"""``SimulatedBus``: a ``ServoBus`` served on a pty, safe to inspect from tests.
+
+It glues the pure pieces (frame parser, servo bus) to the ``PtyServer`` thread
+and guards them with one lock, so a test can read positions or inject a fault
+while the real SDK talks to the bus from another thread.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from types import TracebackType
+from typing import TypeVar
+
+from .bus_model import ServoBus
+from .protocol import FrameParser
+from .pty_server import PtyServer
+from .servo import Servo, ServoFaults
+
+T = TypeVar("T")
+
+
+class SimulatedBus:
+    """A set of simulated servos on one serial line (one pty)."""
+
+    def __init__(
+        self,
+        servos: Iterable[Servo],
+        *,
+        latency_ms: float = 0.0,
+        link_path: str | Path | None = None,
+        name: str = "armnet-sim",
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._model = ServoBus(servos)
+        self._parser = FrameParser()
+        self._server = PtyServer(
+            self._on_bytes,
+            link_path=link_path,
+            latency_s=latency_ms / 1000.0,
+            name=name,
+            clock=clock,
+        )
+
+    # -- lifecycle ----------------------------------------------------------------------
+
+    def start(self) -> SimulatedBus:
+        self._server.start()
+        return self
+
+    def stop(self) -> None:
+        self._server.stop()
+
+    def __enter__(self) -> SimulatedBus:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    @property
+    def port(self) -> str:
+        """The device path to give pyserial or ``FeetechMotorsBus(port=...)``."""
+        return self._server.port
+
+    @property
+    def device(self) -> str:
+        return self._server.device
+
+    @property
+    def running(self) -> bool:
+        return self._server.running
+
+    # -- configuration and inspection ----------------------------------------------------
+
+    @property
+    def latency_ms(self) -> float:
+        return self._server.latency_s * 1000.0
+
+    def set_latency_ms(self, latency_ms: float) -> None:
+        """Delay every reply by this much; over ~50 ms LeRobot gives up on each request."""
+        if latency_ms < 0:
+            raise ValueError("latency_ms must be >= 0")
+        self._server.latency_s = latency_ms / 1000.0
+
+    def inspect(self, fn: Callable[[ServoBus, float], T]) -> T:
+        """Run ``fn(bus_model, now)`` under the bus lock: the one way to touch servo state."""
+        with self._lock:
+            return fn(self._model, self._clock())
+
+    def set_faults(self, servo_id: int, faults: ServoFaults) -> None:
+        self.inspect(lambda bus, _now: _require(bus, servo_id).set_faults(faults))
+
+    def power_cycle(self) -> None:
+        """Unsaved EEPROM changes and all RAM settings are lost, as when the supply is cut."""
+
+        def cycle(bus: ServoBus, now: float) -> None:
+            for servo in bus:
+                servo.power_cycle(now)
+
+        self.inspect(cycle)
+
+    def _on_bytes(self, data: bytes, now: float) -> bytes:
+        with self._lock:
+            frames = self._parser.feed(data, now)
+            return b"".join(self._model.handle(frame, now) for frame in frames)
+
+
+def _require(bus: ServoBus, servo_id: int) -> Servo:
+    servo = bus.servo(servo_id)
+    if servo is None:
+        raise KeyError(f"no servo with id {servo_id} on this bus")
+    return servo
