@@ -24,7 +24,7 @@ from typing import Any
 
 import pytest
 from armnet_agent.sim.calibration import builtin_calibration, write_calibration
-from armnet_agent.sim.presets import SimulatedCell, build_cell
+from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.context import build_context
 from armnet_runtime.decorator import _clear_registration
 from armnet_runtime.endpoints import parse_endpoint
@@ -58,8 +58,8 @@ def work_dir() -> Iterator[Path]:
     shutil.rmtree(path, ignore_errors=True)
 
 
-def start_cell(preset: str, work_dir: Path) -> tuple[SimulatedCell, dict[str, Path]]:
-    cell = build_cell(preset, link_dir=work_dir).start()
+def start_cell(preset: str, work_dir: Path) -> tuple[SimulatedCellProcess, dict[str, Path]]:
+    cell = SimulatedCellProcess(preset, link_dir=work_dir).start()
     files = {
         name: write_calibration(work_dir / f"{name}.json", builtin_calibration(arm_cal))
         for name, arm_cal in {"arm": "so101", "left": "so101_left", "right": "so101_right"}.items()

@@ -1,0 +1,156 @@
+"""The cell as the connector sees it: arms, cameras, limits and the job's clocks.
+
+This module owns the connector's configuration model (pydantic, the boundary
+with files and with ``armnet run``) and the calibration file reader. It never
+opens a device.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic.alias_generators import to_camel
+
+#: LeRobot's motor model for every SO-101 joint.
+DEFAULT_MOTOR_MODEL = "sts3215"
+
+
+class _Model(BaseModel):
+    # camelCase keys (as in the Cell CRD) and snake_case (as in Python) both load.
+    model_config = ConfigDict(alias_generator=to_camel, populate_by_name=True, extra="forbid")
+
+
+class ArmConfig(_Model):
+    """One arm of the cell: the device the customer's ``port`` is mapped to, and its limits."""
+
+    port: str = Field(description="device path of the arm's servo bus on this host, e.g. /dev/ttyACM0")
+    calibration_file: Path | None = Field(
+        default=None, description="LeRobot calibration JSON of this arm (absolute limits, rest pose)"
+    )
+    robot_id: str | None = None
+    safety_limit: float | dict[str, float] | None = Field(
+        default=None,
+        description="LeRobot max_relative_target: largest step from the present position per "
+        "goal write, in the units of the write (one number for all motors, or per motor)",
+    )
+    rest_pose: dict[str, int] | None = Field(
+        default=None, description="raw servo ticks per motor; default: the middle of each calibrated range"
+    )
+    motor_model: str = DEFAULT_MOTOR_MODEL
+
+    @field_validator("safety_limit")
+    @classmethod
+    def _positive_limit(cls, value: float | dict[str, float] | None) -> float | dict[str, float] | None:
+        limits = value.values() if isinstance(value, dict) else [] if value is None else [value]
+        if any(limit <= 0 for limit in limits):
+            raise ValueError("safety_limit must be positive (or null for no relative limit)")
+        return value
+
+
+class CameraConfig(_Model):
+    """One camera of the cell, as OpenCV settings (the device side of ``OpenCVCameraConfig``)."""
+
+    index_or_path: int | str
+    fps: int | None = None
+    width: int | None = None
+    height: int | None = None
+    color_mode: str = "rgb"
+    rotation: int = 0
+    warmup_s: int = 1
+    fourcc: str | None = None
+
+
+class ConnectorConfig(_Model):
+    """Everything the connector needs to serve one job on one cell."""
+
+    arms: dict[str, ArmConfig]
+    default_arm: str | None = Field(
+        default=None, description="arm served when the customer's endpoint has no ?arm= (default: the only arm)"
+    )
+    cameras: dict[str, CameraConfig] = Field(default_factory=dict)
+    simulated: bool = False
+    timeout_seconds: float | None = Field(default=None, gt=0, description="job deadline; null: none")
+    grace_period_seconds: float = Field(default=10.0, ge=0)
+    reset_timeout_seconds: float = Field(default=300.0, gt=0)
+    disable_torque_on_shutdown: bool = True
+    rest_speed_ticks_per_second: float = Field(
+        default=600.0, gt=0, description="speed limit of return_to_rest, in raw servo ticks per second"
+    )
+    present_position_max_age_ms: float = Field(
+        default=25.0,
+        ge=0,
+        description="a Present_Position sync_read younger than this is reused by the safety check "
+        "instead of reading the bus again (0: always read)",
+    )
+
+    @model_validator(mode="after")
+    def _check_arms(self) -> ConnectorConfig:
+        if not self.arms:
+            raise ValueError("a cell needs at least one arm under 'arms'")
+        if self.default_arm is not None and self.default_arm not in self.arms:
+            raise ValueError(f"default_arm {self.default_arm!r} is not one of the arms {sorted(self.arms)}")
+        return self
+
+    def arm_for(self, selector: str | None) -> tuple[str, ArmConfig]:
+        """The arm a customer's endpoint selects; ``KeyError`` with a readable message if none."""
+        if selector is None:
+            name = self.default_arm or (next(iter(self.arms)) if len(self.arms) == 1 else None)
+            if name is None:
+                raise KeyError(
+                    f"this cell has several arms {sorted(self.arms)}: select one with ?arm=NAME "
+                    "in the port (ctx.arm(NAME).port does this)"
+                )
+            return name, self.arms[name]
+        if selector not in self.arms:
+            raise KeyError(f"this cell has no arm {selector!r}; its arms are {sorted(self.arms)}")
+        return selector, self.arms[selector]
+
+
+def load_config(path: str | Path) -> ConnectorConfig:
+    """Read a ``ConnectorConfig`` from a JSON or YAML file."""
+    text = Path(path).read_text()
+    data: Any
+    if str(path).endswith((".yaml", ".yml")):
+        import yaml
+
+        data = yaml.safe_load(text)
+    else:
+        data = json.loads(text)
+    return ConnectorConfig.model_validate(data)
+
+
+@dataclass(frozen=True)
+class MotorRange:
+    """The calibrated facts of one motor that safety and rest need (raw servo ticks)."""
+
+    id: int
+    range_min: int
+    range_max: int
+    drive_mode: int = 0
+
+    @property
+    def middle(self) -> int:
+        return (self.range_min + self.range_max) // 2
+
+
+def read_calibration_file(path: Path) -> dict[str, MotorRange]:
+    """Parse a LeRobot calibration JSON (``{motor: {id, drive_mode, homing_offset, range_min, range_max}}``)."""
+    data = json.loads(Path(path).read_text())
+    if not isinstance(data, dict):
+        raise ValueError(f"calibration file {path} must hold a JSON object keyed by motor name")
+    ranges: dict[str, MotorRange] = {}
+    for motor, entry in data.items():
+        try:
+            ranges[motor] = MotorRange(
+                id=int(entry["id"]),
+                range_min=int(entry["range_min"]),
+                range_max=int(entry["range_max"]),
+                drive_mode=int(entry.get("drive_mode", 0)),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"calibration file {path}: motor {motor!r} is malformed ({exc})") from exc
+    return ranges

@@ -1,0 +1,135 @@
+"""``Connector``: the two sockets of one cell, started and stopped together.
+
+This module owns the connector's lifetime (start the sockets and the deadline,
+stop: release every device, remove the sockets) and the facts its host reads
+at the end of a job. ``armnet run`` uses it in-process; ``armnet connector``
+wraps it in a process.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+
+from .cell import CellState, Counters
+from .config import ConnectorConfig
+from .hardware import CameraFactory
+from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs
+from .interlock import Interlock, TripReason
+from .server import UnixServer
+from .session import OperatorSession, RobotSession
+
+log = logging.getLogger(__name__)
+
+ROBOT_SOCKET = "robot.sock"
+OPERATOR_SOCKET = "operator.sock"
+
+
+class Connector:
+    """Serve one cell's ``robot.sock`` and ``operator.sock`` in ``socket_dir``.
+
+    ``on_grace_expired`` is called when the grace window after the deadline
+    closes: the host kills the job process then. ``camera_factory`` overrides
+    how camera requests are served (a simulated cell passes one that draws its
+    arms).
+    """
+
+    def __init__(
+        self,
+        config: ConnectorConfig,
+        socket_dir: str | Path,
+        *,
+        inputs: OperatorInputs | None = None,
+        completion: CompletionMonitor | None = None,
+        camera_factory: CameraFactory | None = None,
+        on_grace_expired: Callable[[], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.socket_dir = Path(socket_dir)
+        self.cell = CellState(
+            config,
+            inputs if inputs is not None else LocalOperatorInputs(),
+            completion=completion if completion is not None else NeverComplete(),
+            camera_factory=camera_factory,
+            on_grace_expired=on_grace_expired,
+        )
+        self._servers = [
+            UnixServer(self.socket_dir / ROBOT_SOCKET, lambda: RobotSession(self.cell), self._count_connection),
+            UnixServer(self.socket_dir / OPERATOR_SOCKET, lambda: OperatorSession(self.cell), self._count_connection),
+        ]
+        self._started = False
+
+    def _count_connection(self) -> None:
+        self.cell.counters.connections += 1
+
+    # -- lifetime ------------------------------------------------------------------
+
+    def start(self) -> Connector:
+        self.socket_dir.mkdir(parents=True, exist_ok=True)
+        started: list[UnixServer] = []
+        try:
+            for server in self._servers:
+                server.start()
+                started.append(server)
+        except BaseException:
+            for server in started:
+                server.stop()
+            raise
+        self.cell.deadline.start()
+        self._started = True
+        log.info("connector serving %s and %s in %s", ROBOT_SOCKET, OPERATOR_SOCKET, self.socket_dir)
+        return self
+
+    def stop(self) -> None:
+        """Stop serving, release every device (torque off if configured), remove the sockets."""
+        if not self._started:
+            return
+        self._started = False
+        self.cell.deadline.stop()
+        self.cell.interlock.trip(TripReason.SHUTDOWN, "the connector is shutting down")
+        for server in self._servers:
+            server.stop()
+        for handle in self.cell.live_handles():
+            self.cell.release(handle)
+        log.info("connector stopped")
+
+    def __enter__(self) -> Connector:
+        return self.start()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+    # -- what the host reads ---------------------------------------------------------
+
+    @property
+    def robot_endpoint(self) -> str:
+        return f"unix://{self.socket_dir / ROBOT_SOCKET}"
+
+    @property
+    def operator_endpoint(self) -> str:
+        return f"unix://{self.socket_dir / OPERATOR_SOCKET}"
+
+    @property
+    def deadline_passed(self) -> bool:
+        """The job ran past its timeout: its final status is ``timeout``."""
+        return self.cell.deadline.deadline_passed
+
+    @property
+    def grace_expired(self) -> bool:
+        return self.cell.deadline.grace_expired
+
+    def pass_deadline(self) -> None:
+        """Open the grace window now (e.g. the job was cancelled)."""
+        self.cell.deadline.pass_deadline()
+
+    @property
+    def interlock(self) -> Interlock:
+        return self.cell.interlock
+
+    @property
+    def counters(self) -> Counters:
+        return self.cell.counters

@@ -1,0 +1,171 @@
+"""Building the real (or simulated) device objects a job asks for, on the cell's devices.
+
+This module owns the mapping from what the customer passes (a connector
+endpoint as ``port``, a camera name as ``index_or_path``) to the cell's real
+devices, and the construction of the allow-listed classes. It never decides
+what a job may call on them (``allowlist``/``session`` do).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import inspect
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from armnet_runtime.endpoints import parse_endpoint
+
+from .config import ArmConfig, CameraConfig, ConnectorConfig, MotorRange
+from .errors import RequestError, not_allowed
+
+log = logging.getLogger(__name__)
+
+#: Builds the camera served for a request: (camera name, cell camera settings, the
+#: customer's camera config with ``index_or_path`` already mapped) -> a LeRobot Camera.
+CameraFactory = Callable[[str, CameraConfig, Any], Any]
+
+
+@dataclass
+class Handle:
+    """A live object of one connection: the real object plus what the customer sees of it."""
+
+    class_name: str
+    obj: Any
+    lock: threading.RLock
+    #: Attribute values shown to the customer instead of the real ones (``port``, ``config``).
+    overrides: dict[str, Any] = field(default_factory=dict)
+    arm: str | None = None
+    arm_config: ArmConfig | None = None
+    cell_ranges: dict[str, MotorRange] = field(default_factory=dict)
+    #: Latest Present_Position sync_read, per ``normalize`` flag: (monotonic time, values).
+    present: dict[bool, tuple[float, dict[str, float]]] = field(default_factory=dict)
+
+
+class DeviceLocks:
+    """One re-entrant lock per device: LeRobot's PortHandler is not thread-safe (reference §10)."""
+
+    def __init__(self) -> None:
+        self._locks: dict[str, threading.RLock] = {}
+        self._guard = threading.Lock()
+
+    def get(self, key: str) -> threading.RLock:
+        with self._guard:
+            return self._locks.setdefault(key, threading.RLock())
+
+
+def _bind(cls: type, args: list[Any], kwargs: dict[str, Any]) -> inspect.BoundArguments:
+    try:
+        return inspect.signature(cls).bind(*args, **kwargs)
+    except TypeError as exc:
+        raise RequestError("TypeError", f"{cls.__name__}(...): {exc}") from None
+
+
+def arm_selector(port: Any, config: ConnectorConfig) -> str | None:
+    """The arm named by the customer's ``port``: a connector endpoint (``?arm=``) or an arm name."""
+    if isinstance(port, str) and port in config.arms:
+        return port
+    if not isinstance(port, str):
+        raise not_allowed(f"port must be this cell's connector endpoint (a string), got {type(port).__name__}")
+    try:
+        return parse_endpoint(port).arm
+    except ValueError:
+        raise not_allowed(
+            f"port {port!r} is not this cell's connector endpoint; pass ctx.cell's port "
+            "(ARMNET_CELL_SOCKET, with ?arm=NAME on multi-arm cells): the connector maps it to the arm"
+        ) from None
+
+
+def create_feetech(
+    args: list[Any], kwargs: dict[str, Any], config: ConnectorConfig, locks: DeviceLocks,
+    ranges: dict[str, dict[str, MotorRange]],
+) -> Handle:
+    from lerobot.motors.feetech import FeetechMotorsBus
+
+    bound = _bind(FeetechMotorsBus, args, kwargs)
+    port = bound.arguments.get("port")
+    try:
+        arm_name, arm = config.arm_for(arm_selector(port, config))
+    except KeyError as exc:
+        raise RequestError("KeyError", str(exc.args[0])) from None
+    bound.arguments["port"] = arm.port
+    obj = FeetechMotorsBus(*bound.args, **bound.kwargs)
+    return Handle(
+        "FeetechMotorsBus", obj, locks.get(arm.port), overrides={"port": port},
+        arm=arm_name, arm_config=arm, cell_ranges=ranges.get(arm_name, {}),
+    )
+
+
+def find_camera(index_or_path: Any, config: ConnectorConfig) -> tuple[str, CameraConfig]:
+    """The cell camera a customer's ``index_or_path`` names (by camera name or configured index/path)."""
+    wanted = str(index_or_path)
+    if wanted in config.cameras:
+        return wanted, config.cameras[wanted]
+    for name, camera in config.cameras.items():
+        if str(camera.index_or_path) == wanted:
+            return name, camera
+    raise not_allowed(
+        f"camera {index_or_path!r} is not a camera of this cell; use one of {sorted(config.cameras)} "
+        "(ctx.camera_configs lists them)"
+    )
+
+
+def device_camera_config(requested: Any, camera: CameraConfig) -> Any:
+    """The customer's camera config pointed at the cell's device (other settings are the customer's)."""
+    source: int | Path = camera.index_or_path if isinstance(camera.index_or_path, int) else Path(camera.index_or_path)
+    return dataclasses.replace(requested, index_or_path=source)
+
+
+def opencv_camera_factory(name: str, camera: CameraConfig, requested: Any) -> Any:
+    from lerobot.cameras.opencv import OpenCVCamera
+
+    return OpenCVCamera(device_camera_config(requested, camera))
+
+
+def simulated_camera_factory(source: Any = None) -> CameraFactory:
+    """Serves ``OpenCVCamera`` requests with the simulator's camera, drawing ``source``'s joints."""
+
+    def build(name: str, camera: CameraConfig, requested: Any) -> Any:
+        from armnet_agent.sim.camera import SimulatedCamera
+
+        return SimulatedCamera(requested, source=source)
+
+    return build
+
+
+def create_camera(
+    args: list[Any], kwargs: dict[str, Any], config: ConnectorConfig, locks: DeviceLocks,
+    factory: CameraFactory,
+) -> Handle:
+    from lerobot.cameras.opencv import OpenCVCamera, OpenCVCameraConfig
+
+    bound = _bind(OpenCVCamera, args, kwargs)
+    requested = bound.arguments.get("config")
+    if not isinstance(requested, OpenCVCameraConfig):
+        raise RequestError(
+            "TypeError", f"OpenCVCamera(config) needs an OpenCVCameraConfig, got {type(requested).__name__}"
+        )
+    name, camera = find_camera(requested.index_or_path, config)
+    obj = factory(name, camera, requested)
+    return Handle(
+        "OpenCVCamera", obj, locks.get(f"camera:{name}"),
+        overrides={"config": requested, "index_or_path": requested.index_or_path},
+    )
+
+
+def create_arx5(args: list[Any], kwargs: dict[str, Any], locks: DeviceLocks) -> Handle:
+    try:
+        module = importlib.import_module("lerobot.robots.arx5")
+    except ImportError:
+        raise not_allowed(
+            "ARX5Arm is not available on this cell: its SDK is not installed on the connector"
+        ) from None
+    cls = getattr(module, "ARX5Arm", None)
+    if cls is None:
+        raise not_allowed("ARX5Arm is not available on this cell's ARX5 SDK")
+    bound = _bind(cls, args, kwargs)
+    return Handle("ARX5Arm", cls(*bound.args, **bound.kwargs), locks.get("arx5"))

@@ -1,0 +1,201 @@
+"""Operator inputs: teleop, outcomes, stop requests and reset confirmations.
+
+This module owns the small interface between the humans at a cell and the
+connector's ``operator.sock``, with an in-memory implementation that local mode
+feeds from a JSON-lines file or stdin (NATS/FMS feed the same interface later).
+It never touches hardware.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import threading
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+log = logging.getLogger(__name__)
+
+
+class OperatorInputs(Protocol):
+    """What the connector reads from the operator side. Producers call the setters."""
+
+    def set_teleop_action(self, action: dict[str, Any] | None) -> None: ...
+    def push_teleop_event(self, event: str) -> None: ...
+    def report_outcome(self, success: bool) -> None: ...
+    def request_stop(self) -> None: ...
+    def confirm_reset(self) -> None: ...
+
+    def latest_teleop_action(self) -> dict[str, Any] | None: ...
+    def next_teleop_event(self) -> str | None: ...
+    def take_outcome(self) -> bool | None: ...
+    def stop_requested(self) -> bool: ...
+    def wait_reset_confirmation(self, timeout_s: float) -> bool: ...
+
+
+class CompletionMonitor(Protocol):
+    """The cell's automated episode scoring (``is_complete`` on robot.sock)."""
+
+    def is_complete(self, *, block: bool) -> tuple[bool, bool]: ...
+
+
+class NeverComplete:
+    """Default monitor: a cell without automated scoring never declares an episode complete.
+
+    Human outcomes reach the job through ``get_completion`` on operator.sock, which the
+    SDK consults before it asks ``is_complete``.
+    """
+
+    def is_complete(self, *, block: bool) -> tuple[bool, bool]:
+        return False, False
+
+
+class LocalOperatorInputs:
+    """Thread-safe in-memory operator inputs.
+
+    ``auto_confirm_reset`` confirms every reset at once (scripted runs);
+    ``on_reset_requested`` is called when a reset starts to wait (a terminal
+    prompt, a notification), and may call ``confirm_reset`` from any thread.
+    Confirmations given before a reset starts are kept and consumed in order.
+    """
+
+    def __init__(
+        self,
+        *,
+        auto_confirm_reset: bool = False,
+        on_reset_requested: Callable[[LocalOperatorInputs], None] | None = None,
+    ) -> None:
+        self.auto_confirm_reset = auto_confirm_reset
+        self.on_reset_requested = on_reset_requested
+        self._cond = threading.Condition()
+        self._action: dict[str, Any] | None = None
+        self._events: deque[str] = deque()
+        self._outcome: bool | None = None
+        self._stop = False
+        self._confirmations = 0
+
+    def set_teleop_action(self, action: dict[str, Any] | None) -> None:
+        with self._cond:
+            self._action = action
+
+    def push_teleop_event(self, event: str) -> None:
+        with self._cond:
+            self._events.append(event)
+
+    def report_outcome(self, success: bool) -> None:
+        with self._cond:
+            self._outcome = bool(success)
+
+    def request_stop(self) -> None:
+        with self._cond:
+            self._stop = True
+
+    def confirm_reset(self) -> None:
+        with self._cond:
+            self._confirmations += 1
+            self._cond.notify_all()
+
+    def latest_teleop_action(self) -> dict[str, Any] | None:
+        with self._cond:
+            return self._action
+
+    def next_teleop_event(self) -> str | None:
+        with self._cond:
+            return self._events.popleft() if self._events else None
+
+    def take_outcome(self) -> bool | None:
+        with self._cond:
+            outcome, self._outcome = self._outcome, None
+            return outcome
+
+    def stop_requested(self) -> bool:
+        with self._cond:
+            return self._stop
+
+    def wait_reset_confirmation(self, timeout_s: float) -> bool:
+        if self.auto_confirm_reset:
+            return True
+        if self.on_reset_requested is not None:
+            self.on_reset_requested(self)
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._confirmations > 0, timeout=timeout_s):
+                return False
+            self._confirmations -= 1
+            return True
+
+
+def apply_input_line(inputs: OperatorInputs, line: str) -> None:
+    """Apply one JSON-lines input record; raise ``ValueError`` saying what is accepted.
+
+    Records: ``{"teleop_action": {...}|null}``, ``{"teleop_event": "next_episode"}``,
+    ``{"outcome": true|false}``, ``{"stop": true}``, ``{"confirm_reset": true}``.
+    """
+    record = json.loads(line)
+    if not isinstance(record, dict) or len(record) != 1:
+        raise ValueError(f"an input line is one JSON object with one key, got {line.strip()[:80]!r}")
+    (key, value), = record.items()
+    if key == "teleop_action" and (value is None or isinstance(value, dict)):
+        inputs.set_teleop_action(value)
+    elif key == "teleop_event" and isinstance(value, str):
+        inputs.push_teleop_event(value)
+    elif key == "outcome" and isinstance(value, bool):
+        inputs.report_outcome(value)
+    elif key == "stop" and value is True:
+        inputs.request_stop()
+    elif key == "confirm_reset" and value is True:
+        inputs.confirm_reset()
+    else:
+        raise ValueError(
+            f"unknown input {line.strip()[:80]!r}; accepted keys: teleop_action (object|null), "
+            "teleop_event (string), outcome (bool), stop (true), confirm_reset (true)"
+        )
+
+
+def feed_lines(inputs: OperatorInputs, lines: Iterable[str]) -> None:
+    """Apply every line (blank lines skipped; bad lines logged and skipped)."""
+    for line in lines:
+        if not line.strip():
+            continue
+        try:
+            apply_input_line(inputs, line)
+        except ValueError as exc:  # json.JSONDecodeError is a ValueError
+            log.warning("ignored operator input: %s", exc)
+
+
+@dataclass
+class InputFeeder:
+    """A daemon thread feeding ``inputs`` from a JSON-lines file path or ``-`` (stdin)."""
+
+    inputs: OperatorInputs
+    source: str
+    _thread: threading.Thread | None = field(default=None, init=False)
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="armnet-inputs", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        if self.source == "-":
+            feed_lines(self.inputs, sys.stdin)
+            return
+        with open(self.source, encoding="utf-8") as stream:
+            feed_lines(self.inputs, stream)
+
+
+def terminal_prompt(inputs: LocalOperatorInputs) -> None:
+    """``on_reset_requested`` for a person at the terminal: confirm with Enter on /dev/tty."""
+
+    def wait_for_enter() -> None:
+        try:
+            with open("/dev/tty", encoding="utf-8") as tty:
+                print("armnet: reset the cell workspace, then press Enter to confirm.", file=sys.stderr)
+                tty.readline()
+        except OSError as exc:
+            log.warning("cannot prompt for a reset confirmation on the terminal: %s", exc)
+            return
+        inputs.confirm_reset()
+
+    threading.Thread(target=wait_for_enter, name="armnet-reset-prompt", daemon=True).start()

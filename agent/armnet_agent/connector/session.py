@@ -1,0 +1,346 @@
+"""Request handling for one connection on ``robot.sock`` or ``operator.sock``.
+
+This module owns the ops of runtime/PROTOCOL.md: it validates each request's
+fields, reaches real objects only through the allow-list, routes motion through
+the guard, and turns every failure into a reply. It never reads or writes the
+socket (``server`` does) and never raises out of ``handle``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from armnet_runtime.wire import decode, encode
+
+from . import __version__
+from .allowlist import CLASSES, refusal
+from .cell import CellState, RolloutEvent
+from .errors import RequestError, failure_reply, not_allowed, protocol_error
+from .hardware import Handle, create_arx5, create_camera, create_feetech
+
+log = logging.getLogger(__name__)
+
+PROTOCOL_VERSION = 1
+MAX_OBJECTS_PER_CONNECTION = 256
+
+Reply = dict[str, Any]
+
+
+def _field(request: dict[str, Any], name: str, kind: type, *, default: Any = ...) -> Any:
+    value = request.get(name, default)
+    if value is ...:
+        raise protocol_error(f"request field {name!r} is required")
+    if default is not ... and value is default:
+        return value
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise protocol_error(f"request field {name!r} must be a {kind.__name__}, got {type(value).__name__}")
+    return value
+
+
+def _decoded(value: Any, what: str) -> Any:
+    try:
+        return decode(value)
+    except Exception as exc:  # noqa: BLE001 — hostile nesting and malformed tags alike are the client's fault
+        raise protocol_error(f"{what} is not valid tagged JSON: {exc}") from None
+
+
+def _arguments(request: dict[str, Any]) -> tuple[list[Any], dict[str, Any]]:
+    args = _decoded(_field(request, "args", list, default=[]), "args")
+    kwargs = _decoded(_field(request, "kwargs", dict, default={}), "kwargs")
+    if not isinstance(args, list) or not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
+        raise protocol_error("args must be a list and kwargs an object with string keys")
+    return args, kwargs
+
+
+def _encoded(value: Any, what: str) -> Any:
+    try:
+        return encode(value)
+    except Exception as exc:  # noqa: BLE001 — any unencodable value is the method's, not ours
+        raise RequestError("TypeError", f"{what} returned a value that cannot cross the socket: {exc}") from None
+
+
+class Session:
+    """One connection's state; ``handle`` answers every request with a reply dict."""
+
+    socket_name = ""
+
+    def __init__(self, cell: CellState) -> None:
+        self.cell = cell
+        self.ops: dict[str, Callable[[dict[str, Any]], Reply]] = {"hello": self.op_hello}
+
+    def handle(self, request: dict[str, Any]) -> Reply:
+        self.cell.counters.requests += 1
+        try:
+            op = request.get("op")
+            if not isinstance(op, str):
+                raise protocol_error("a request needs a string 'op'")
+            handler = self.ops.get(op)
+            if handler is None:
+                raise RequestError(
+                    "UnknownOp", f"op {op[:64]!r} is not served on {self.socket_name}.sock; ops: {sorted(self.ops)}"
+                )
+            return handler(request)
+        except Exception as exc:  # noqa: BLE001 — every failure becomes a reply; the connection stays usable
+            self.cell.counters.errors += 1
+            if not isinstance(exc, RequestError):
+                log.info("%s request failed: %s: %s", self.socket_name, type(exc).__name__, exc)
+            return failure_reply(exc)
+
+    def op_hello(self, request: dict[str, Any]) -> Reply:
+        return {
+            "ok": True, "protocol": PROTOCOL_VERSION,
+            "server": f"armnet-connector/{__version__}", "socket": self.socket_name,
+        }
+
+    def close(self) -> None:
+        """The client went away."""
+
+
+@dataclass
+class _Context:
+    """A context manager a call returned, driven by ``enter``/``exit``."""
+
+    parent: Handle
+    enter: Callable[[], Any]
+    exit: Callable[[BaseException | None], bool]
+
+
+class RobotSession(Session):
+    socket_name = "robot"
+
+    def __init__(self, cell: CellState) -> None:
+        super().__init__(cell)
+        self.objects: dict[str, Handle | _Context] = {}
+        self._counter = 0
+        self.ops.update(
+            create=self.op_create, getattr=self.op_getattr, setattr=self.op_setattr, call=self.op_call,
+            enter=self.op_enter, exit=self.op_exit, close=self.op_close,
+            return_to_rest=self.op_return_to_rest, is_complete=self.op_is_complete,
+        )
+
+    def _add(self, prefix: str, item: Handle | _Context) -> str:
+        if len(self.objects) >= MAX_OBJECTS_PER_CONNECTION:
+            raise not_allowed(f"a connection may hold at most {MAX_OBJECTS_PER_CONNECTION} objects; close some")
+        self._counter += 1
+        object_id = f"{prefix}{self._counter}"
+        self.objects[object_id] = item
+        return object_id
+
+    def _lookup(self, request: dict[str, Any]) -> Handle | _Context:
+        object_id = _field(request, "object_id", str)
+        item = self.objects.get(object_id)
+        if item is None:
+            raise RequestError("UnknownObject", f"object {object_id[:64]!r} is not a live object of this connection")
+        return item
+
+    def _handle(self, request: dict[str, Any]) -> Handle:
+        item = self._lookup(request)
+        if not isinstance(item, Handle):
+            raise RequestError("UnknownObject", "this object is a context manager: use enter/exit")
+        return item
+
+    def _context(self, request: dict[str, Any]) -> _Context:
+        item = self._lookup(request)
+        if not isinstance(item, _Context):
+            raise RequestError("UnknownObject", "this object is not a context manager")
+        return item
+
+    # -- objects ------------------------------------------------------------------
+
+    def op_create(self, request: dict[str, Any]) -> Reply:
+        class_name = _field(request, "class", str)
+        if class_name not in CLASSES:
+            raise not_allowed(refusal(class_name, "", kind="call") or "")
+        args, kwargs = _arguments(request)
+        cell = self.cell
+        if class_name == "FeetechMotorsBus":
+            handle = create_feetech(args, kwargs, cell.config, cell.locks, cell.ranges)
+        elif class_name == "OpenCVCamera":
+            assert cell.camera_factory is not None
+            handle = create_camera(args, kwargs, cell.config, cell.locks, cell.camera_factory)
+        else:
+            handle = create_arx5(args, kwargs, cell.locks)
+        object_id = self._add("o", handle)
+        cell.register(handle)
+        return {"ok": True, "object_id": object_id}
+
+    def op_getattr(self, request: dict[str, Any]) -> Reply:
+        handle = self._handle(request)
+        name = _field(request, "name", str)
+        why = refusal(handle.class_name, name, kind="get")
+        if why is not None:
+            raise not_allowed(why)
+        if name in CLASSES[handle.class_name].methods:
+            return {"ok": True, "callable": True}
+        if name in handle.overrides:
+            value = handle.overrides[name]
+        else:
+            with handle.lock:
+                value = getattr(handle.obj, name)
+        return {"ok": True, "callable": False, "value": _encoded(value, name)}
+
+    def op_setattr(self, request: dict[str, Any]) -> Reply:
+        handle = self._handle(request)
+        name = _field(request, "name", str)
+        why = refusal(handle.class_name, name, kind="set")
+        if why is not None:
+            raise not_allowed(why)
+        if "value" not in request:
+            raise protocol_error("setattr needs a 'value'")
+        value = _decoded(request["value"], "value")
+        with handle.lock:
+            setattr(handle.obj, name, value)
+        return {"ok": True}
+
+    def op_call(self, request: dict[str, Any]) -> Reply:
+        handle = self._handle(request)
+        method = _field(request, "method", str)
+        why = refusal(handle.class_name, method, kind="call")
+        if why is not None:
+            raise not_allowed(why)
+        args, kwargs = _arguments(request)
+        with handle.lock:
+            self.cell.guard.check(handle, method, args, kwargs)
+            if method == "torque_disabled":
+                return self._torque_disabled(handle, args, kwargs)
+            result = getattr(handle.obj, method)(*args, **kwargs)
+            if method == "sync_read":
+                self.cell.guard.remember_present(handle, args, kwargs, result)
+        if _is_context_manager(result):
+            context = _Context(handle, result.__enter__, lambda exc: bool(result.__exit__(
+                type(exc) if exc else None, exc, None)))
+            return {"ok": True, "context_manager": True, "object_id": self._add("c", context)}
+        return {"ok": True, "value": _encoded(result, method)}
+
+    def _torque_disabled(self, handle: Handle, args: list[Any], kwargs: dict[str, Any]) -> Reply:
+        # Driven here as disable/enable calls rather than LeRobot's generator, so that the
+        # re-enable at exit is refused once the interlock holds (the arm stays released).
+        if len(args) > 1 or set(kwargs) - {"motors"}:
+            raise RequestError("TypeError", "torque_disabled(motors=None) takes one optional argument")
+        motors = args[0] if args else kwargs.get("motors")
+        bus = handle.obj
+
+        def enter() -> None:
+            with handle.lock:
+                bus.disable_torque(motors)
+
+        def leave(exc: BaseException | None) -> bool:
+            with handle.lock:
+                if self.cell.interlock.tripped:
+                    log.warning("torque_disabled exit: the interlock holds, torque stays off")
+                else:
+                    bus.enable_torque(motors)
+            return False
+
+        return {"ok": True, "context_manager": True, "object_id": self._add("c", _Context(handle, enter, leave))}
+
+    def op_enter(self, request: dict[str, Any]) -> Reply:
+        context = self._context(request)
+        with context.parent.lock:
+            value = context.enter()
+        return {"ok": True, "value": _encoded(value, "__enter__")}
+
+    def op_exit(self, request: dict[str, Any]) -> Reply:
+        object_id = _field(request, "object_id", str)
+        context = self._context(request)
+        exc_type = _field(request, "exc_type", str, default=None)
+        exc_message = _field(request, "exc_message", str, default=None)
+        exc = _client_exception(exc_type, exc_message) if exc_type else None
+        self.objects.pop(object_id, None)
+        with context.parent.lock:
+            suppress = context.exit(exc)
+        return {"ok": True, "suppress": bool(suppress)}
+
+    def op_close(self, request: dict[str, Any]) -> Reply:
+        object_id = _field(request, "object_id", str)
+        item = self._lookup(request)
+        del self.objects[object_id]
+        if isinstance(item, Handle):
+            self.cell.release(item)
+        return {"ok": True}
+
+    def op_return_to_rest(self, request: dict[str, Any]) -> Reply:
+        self.cell.return_to_rest()
+        return {"ok": True}
+
+    def op_is_complete(self, request: dict[str, Any]) -> Reply:
+        block = _field(request, "block", bool, default=False)
+        complete, success = self.cell.completion.is_complete(block=bool(block))
+        return {"ok": True, "complete": bool(complete), "success": bool(success)}
+
+    def close(self) -> None:
+        handles = [item for item in self.objects.values() if isinstance(item, Handle)]
+        self.objects.clear()
+        for handle in handles:
+            self.cell.release(handle)
+
+
+_CLIENT_EXCEPTIONS: dict[str, type[Exception]] = {
+    cls.__name__: cls
+    for cls in (
+        ValueError, RuntimeError, KeyError, TypeError, TimeoutError, ConnectionError,
+        OSError, IndexError, AttributeError,
+    )
+}
+
+
+def _client_exception(exc_type: str, message: str | None) -> Exception:
+    """The exception the client's ``with`` body raised, rebuilt from its name (never imported)."""
+    cls = _CLIENT_EXCEPTIONS.get(exc_type, Exception)
+    return cls(message or exc_type)
+
+
+def _is_context_manager(value: Any) -> bool:
+    kind = type(value)
+    return hasattr(kind, "__enter__") and hasattr(kind, "__exit__")
+
+
+class OperatorSession(Session):
+    socket_name = "operator"
+
+    def __init__(self, cell: CellState) -> None:
+        super().__init__(cell)
+        self.ops.update(
+            reset=self.op_reset, get_teleop=self.op_get_teleop, get_teleop_event=self.op_get_teleop_event,
+            rollout_begin=self.op_rollout_begin, rollout_end=self.op_rollout_end,
+            get_completion=self.op_get_completion, shutdown_status=self.op_shutdown_status,
+            should_stop=self.op_should_stop,
+        )
+
+    def op_reset(self, request: dict[str, Any]) -> Reply:
+        self.cell.reset()
+        return {"ok": True}
+
+    def op_get_teleop(self, request: dict[str, Any]) -> Reply:
+        return {"ok": True, "action": _encoded(self.cell.inputs.latest_teleop_action(), "get_teleop")}
+
+    def op_get_teleop_event(self, request: dict[str, Any]) -> Reply:
+        return {"ok": True, "event": self.cell.inputs.next_teleop_event()}
+
+    def op_rollout_begin(self, request: dict[str, Any]) -> Reply:
+        index = _field(request, "index", int, default=None)
+        total = _field(request, "total", int, default=None)
+        controls = _field(request, "outcome_controls", bool, default=None)
+        self.cell.record_rollout(RolloutEvent("begin", self.cell.now(), index, total, controls))
+        return {"ok": True}
+
+    def op_rollout_end(self, request: dict[str, Any]) -> Reply:
+        self.cell.record_rollout(RolloutEvent("end", self.cell.now()))
+        return {"ok": True}
+
+    def op_get_completion(self, request: dict[str, Any]) -> Reply:
+        outcome = self.cell.inputs.take_outcome()
+        return {"ok": True, "reported": outcome is not None, "success": bool(outcome)}
+
+    def op_shutdown_status(self, request: dict[str, Any]) -> Reply:
+        deadline = self.cell.deadline
+        return {
+            "ok": True, "shutting_down": deadline.deadline_passed,
+            "grace_remaining_s": deadline.grace_remaining_s(),
+        }
+
+    def op_should_stop(self, request: dict[str, Any]) -> Reply:
+        return {"ok": True, "stop": self.cell.inputs.stop_requested()}
