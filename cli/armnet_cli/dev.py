@@ -1,0 +1,93 @@
+"""``armnet dev up``: the test bed's control plane, NATS and Podman API for manual use.
+
+Starts exactly what the pytest fixtures start (the library lives in
+``tests/testbed`` of a checkout), prints the variables to export, and stops
+everything on Ctrl-C. It needs a source checkout: the test bed is not shipped in
+the wheel on purpose (it is development tooling, not product code).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="dev_action", metavar="ACTION", required=True)
+    up = actions.add_parser("up", help="start kube-apiserver+etcd, NATS and the Podman API; "
+                                       "Ctrl-C stops them")
+    up.add_argument("--no-k8s", action="store_true", help="do not start etcd + kube-apiserver")
+    up.add_argument("--no-nats", action="store_true", help="do not start nats-server")
+    up.add_argument("--no-podman", action="store_true", help="do not start the Podman API service")
+    up.add_argument("--repo", type=Path, default=None,
+                    help="repository checkout holding tests/testbed (default: found from cwd)")
+
+
+def _find_checkout(start: Path) -> Path | None:
+    for candidate in (start, *start.parents):
+        if (candidate / "tests" / "testbed" / "__init__.py").is_file():
+            return candidate
+    here = Path(__file__).resolve()
+    for candidate in here.parents:
+        if (candidate / "tests" / "testbed" / "__init__.py").is_file():
+            return candidate
+    return None
+
+
+def _import_testbed(repo: Path | None) -> Any:
+    root = repo.resolve() if repo else _find_checkout(Path.cwd().resolve())
+    if root is None or not (root / "tests" / "testbed" / "__init__.py").is_file():
+        raise SystemExit("armnet dev up needs a source checkout of armnet (it uses tests/testbed): "
+                         "run it from the repository root, or pass --repo PATH")
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    import tests.testbed as testbed
+
+    return testbed
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.dev_action != "up":  # argparse enforces the choice; kept for clarity
+        return 2
+    testbed = _import_testbed(args.repo)
+    stop = threading.Event()
+    # Handlers, not KeyboardInterrupt: a shell may start us with SIGINT ignored.
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    with contextlib.ExitStack() as stack:
+        try:
+            lines = _start_all(testbed, args, stack)
+        except testbed.TestbedSetupError as exc:
+            print(f"armnet dev up: {exc}", file=sys.stderr)
+            return 1
+        print("\n# test bed is up; paste into your shell:")
+        for line in lines:
+            print(line)
+        print("# Ctrl-C stops everything and removes the temporary state.", flush=True)
+        stop.wait()
+        print("\nstopping the test bed ...", file=sys.stderr, flush=True)
+    return 0
+
+
+def _start_all(testbed: Any, args: argparse.Namespace, stack: contextlib.ExitStack) -> list[str]:
+    lines: list[str] = []
+    if not args.no_k8s:
+        plane = stack.enter_context(testbed.ControlPlane())
+        lines.append(f"export KUBECONFIG={plane.kubeconfig}")
+        lines.append(f"export PATH={Path(plane.kubectl_path).parent}:$PATH   # kubectl "
+                     f"matching the apiserver")
+        for name in ("tenant-a", "tenant-b"):
+            user = plane.user(name)
+            lines.append(f"# tenant {name}: KUBECONFIG={user.kubeconfig}")
+    if not args.no_nats:
+        nats = stack.enter_context(testbed.NatsServer())
+        lines.append(f"export NATS_URL={nats.url}")
+    if not args.no_podman:
+        podman = stack.enter_context(testbed.PodmanService())
+        lines.append(f"export DOCKER_HOST={podman.base_url}")
+    return lines

@@ -1,0 +1,107 @@
+"""``armnet run --image``'s launcher against the real engine (Podman via the Docker API).
+
+The job container is the test bed's base image with this machine's Python, venv
+and repository mounted read-only (a development stand-in for a runtime image);
+everything else is the production path: ``ContainerJob`` (explicit ulimits, the
+run directory bind-mounted, host network), the real connector and simulator of a
+``LocalCell``, and the shared supervisor following the container's log streams.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+
+import pytest
+from armnet_agent.local_run.cell_spec import build_job_env, resolve_spec
+from armnet_agent.local_run.container import ContainerJob
+from armnet_agent.local_run.session import LocalCell
+from armnet_agent.supervise import JobHooks, SupervisorLimits, supervise
+from armnet_core import JobResult, JobStatus
+
+from tests.testbed.plugin import Podman
+
+pytestmark = [pytest.mark.container, pytest.mark.timeout(600)]
+
+REPO = Path(__file__).resolve().parents[2]
+HOST_PYTHON_MOUNTS = {p: p for p in {sys.prefix, sys.base_prefix, str(REPO)}}
+
+
+def run_in_container(podman: Podman, image: str, script: Path, timeout: int, grace: float) -> JobResult:
+    spec = resolve_spec(embodiment=None, preset="so101", task=None, grace_seconds=grace)
+    run_dir = Path(tempfile.mkdtemp(prefix="armnet-run-"))
+    hooks = JobHooks()
+    with LocalCell(spec, run_dir, on_grace_expired=hooks.kill_now.set) as cell:
+        hooks.on_deadline = cell.pass_deadline
+        env = build_job_env(spec, cell.layout, job_id="ctr-test", timeout_seconds=timeout, args={"x": 3})
+        env.update(PATH=f"{sys.prefix}/bin:/usr/bin:/bin", PYTHONUNBUFFERED="1")
+        job = ContainerJob.start(podman.client, image, script, env, run_dir, extra_mounts=HOST_PYTHON_MOUNTS)
+        try:
+            return supervise(job, SupervisorLimits(timeout_seconds=timeout, grace_seconds=grace), hooks)
+        finally:
+            job.remove()
+
+
+def script(tmp_path: Path, body: str) -> Path:
+    path = tmp_path / "job.py"
+    path.write_text(textwrap.dedent(body))
+    return path
+
+
+def test_a_container_job_returns_its_value_and_reaches_the_connector(
+    podman: Podman, base_image: str, tmp_path: Path
+) -> None:
+    job = script(tmp_path, """
+        from armnet_runtime import Context, main
+        from armnet_runtime.transport import connector_request
+
+        @main
+        def run(ctx: Context):
+            ctx.report_progress("inside the container")
+            hello = connector_request(ctx.cell.robot_port, {"op": "hello"}, read_timeout=10)
+            return {"x": ctx.args["x"], "socket": hello["socket"], "shutting_down": ctx.cell.is_shutting_down()}
+    """)
+    result = run_in_container(podman, base_image, job, timeout=240, grace=5)
+    assert result.status is JobStatus.SUCCEEDED, f"{result}\n{result.stdout}\n{result.stderr}"
+    assert result.return_value == {"x": 3, "socket": "robot", "shutting_down": False}
+    assert "[armnet:progress] inside the container" in result.stdout
+
+
+def test_a_raise_in_a_container_job_is_failed_with_its_traceback(
+    podman: Podman, base_image: str, tmp_path: Path
+) -> None:
+    job = script(tmp_path, """
+        from armnet_runtime import Context, main
+
+        @main
+        def run(ctx: Context):
+            raise ValueError("boom from the container")
+    """)
+    result = run_in_container(podman, base_image, job, timeout=240, grace=5)
+    assert result.status is JobStatus.FAILED
+    assert result.exit_code == 1
+    assert result.traceback is not None and "ValueError: boom from the container" in result.traceback
+
+
+def test_a_container_ignoring_its_timeout_is_killed_at_the_end_of_the_grace_window(
+    podman: Podman, base_image: str, tmp_path: Path
+) -> None:
+    job = script(tmp_path, """
+        import time
+        from armnet_runtime import Context, main
+
+        @main
+        def run(ctx: Context):
+            print("ignoring the deadline", flush=True)
+            while True:
+                time.sleep(0.05)
+    """)
+    timeout, grace = 40, 2.0
+    result = run_in_container(podman, base_image, job, timeout=timeout, grace=grace)
+    assert result.status is JobStatus.TIMEOUT, str(result)
+    assert "ignoring the deadline" in result.stdout
+    assert result.started_at is not None and result.finished_at is not None
+    overrun = (result.finished_at - result.started_at).total_seconds() - (timeout + grace)
+    assert 0 <= overrun < 1.0, f"killed {overrun:.3f} s after the grace window closed"

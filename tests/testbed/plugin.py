@@ -1,0 +1,115 @@
+"""pytest plugin: session-scoped real services for the integration, container and e2e tiers.
+
+Fixtures (all start lazily, only when a test asks for them, and stop at session end):
+
+- ``k8s`` -> :class:`K8s`: etcd + kube-apiserver (TLS, RBAC, SA issuer, CRDs applied).
+- ``namespace`` -> ``str``: a fresh namespace per test, deleted afterwards.
+- ``nats_server`` -> ``str``: the ``nats://`` URL of a JetStream-enabled nats-server.
+- ``nats_service`` -> :class:`NatsServer` (``.url``, ``.restart()``); not named ``nats``
+  so it never shadows the ``nats`` package in a test.
+- ``podman`` -> :class:`Podman`: the Docker client on Podman's API socket.
+- ``base_image`` -> ``str``: the base image reference (``localhost/armnet-base:bookworm``).
+
+A missing binary, tool or image FAILS the test (``TestbedSetupError``) with a hint to
+run ``scripts/setup.sh``; nothing is skipped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.testbed.errors import TestbedSetupError
+from tests.testbed.images import BASE_IMAGE, build_image, require_base_image
+from tests.testbed.kube import ControlPlane, KubeUser
+from tests.testbed.natsd import NatsServer
+from tests.testbed.podman import PodmanService, ulimits
+
+K8s = ControlPlane  # the `k8s` fixture's type: .kubeconfig .url .admin_token .user() .kubectl()
+
+
+@dataclass(frozen=True)
+class Podman:
+    """What the ``podman`` fixture gives: the Docker client, its socket, and helpers."""
+
+    client: Any
+    socket_path: Path
+    base_url: str
+
+    def ulimits(self) -> list[Any]:
+        """Explicit ulimits every container needs on this engine (the API ignores defaults)."""
+        return ulimits()
+
+    def build_image(self, containerfile_dir_or_path: str | Path, tag: str, **kwargs: Any) -> Any:
+        return build_image(containerfile_dir_or_path, tag, client=self.client, **kwargs)
+
+
+def _start(what: str, start: Any, request: pytest.FixtureRequest) -> Any:
+    """Run ``start`` with output capture off, so progress lines reach the terminal."""
+    capture = request.config.pluginmanager.getplugin("capturemanager")
+    guard = capture.global_and_fixture_disabled() if capture else contextlib.nullcontext()
+    try:
+        with guard:
+            return start()
+    except TestbedSetupError as exc:
+        problem = str(exc)
+    pytest.fail(f"test bed: {what} is not available: {problem}", pytrace=False)
+
+
+@pytest.fixture(scope="session")
+def k8s(request: pytest.FixtureRequest) -> Iterator[ControlPlane]:
+    plane = ControlPlane()
+    _start("Kubernetes control plane", plane.start, request)
+    try:
+        yield plane
+    finally:
+        plane.stop()
+
+
+@pytest.fixture
+def namespace(k8s: ControlPlane, request: pytest.FixtureRequest) -> Iterator[str]:
+    name = k8s.create_namespace(request.node.name.removeprefix("test_"))
+    try:
+        yield name
+    finally:
+        k8s.delete_namespace(name)
+
+
+@pytest.fixture(scope="session")
+def nats_service(request: pytest.FixtureRequest) -> Iterator[NatsServer]:
+    server = NatsServer()
+    _start("nats-server", server.start, request)
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture(scope="session")
+def nats_server(nats_service: NatsServer) -> str:
+    return nats_service.url
+
+
+@pytest.fixture(scope="session")
+def podman(request: pytest.FixtureRequest) -> Iterator[Podman]:
+    service = PodmanService()
+    _start("Podman Docker-compatible API", service.start, request)
+    try:
+        yield Podman(client=service.client, socket_path=service.socket_path,
+                     base_url=service.base_url)
+    finally:
+        service.stop()
+
+
+@pytest.fixture(scope="session")
+def base_image(podman: Podman, request: pytest.FixtureRequest) -> str:
+    _start("container base image", lambda: require_base_image(podman.client), request)
+    return BASE_IMAGE
+
+
+__all__ = ["K8s", "KubeUser", "Podman"]
