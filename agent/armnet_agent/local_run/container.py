@@ -1,0 +1,140 @@
+"""Running the job in a container through the Docker API (Docker or Podman's service).
+
+The container gets the same env as a local subprocess, the run directory
+(sockets, calibration, cache, volume) bind-mounted at the same path so every
+endpoint and path in the env stays valid, the script's directory mounted
+read-only, host networking, and explicit ulimits (rootless Podman refuses the
+engine defaults on some hosts). It implements the supervisor's ``LaunchedJob``.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+PODMAN_SOCKET = "/run/podman/podman.sock"
+JOB_DIR_IN_CONTAINER = "/armnet-job"
+PING_TIMEOUT_S = 10
+ULIMITS = (("nofile", 4096, 16384), ("nproc", 4096, 32768))
+
+
+class EngineUnavailable(RuntimeError):
+    """No container engine answers; the message says how to get one."""
+
+
+def engine_url(environ: Mapping[str, str] | None = None) -> str:
+    """``DOCKER_HOST`` when set, else Podman's system service socket."""
+    environ = os.environ if environ is None else environ
+    return environ.get("DOCKER_HOST") or f"unix://{PODMAN_SOCKET}"
+
+
+def connect_engine(url: str | None = None) -> Any:
+    """A pinged ``docker.DockerClient``, or :class:`EngineUnavailable` with the fix."""
+    import docker
+    from docker.errors import DockerException
+
+    target = url or engine_url()
+    hint = (
+        f"no container engine answers at {target}. Start one (Podman: "
+        "`podman system service --time=0 unix:///run/podman/podman.sock &`, or Docker Engine) "
+        "or set DOCKER_HOST; or drop --image to run the script as a local subprocess."
+    )
+    try:
+        docker.DockerClient(base_url=target, timeout=PING_TIMEOUT_S).ping()
+    except DockerException as exc:
+        raise EngineUnavailable(f"{hint} ({exc})") from exc
+    # No read timeout on the client that follows the job: a job may print nothing for
+    # minutes, and a timed-out log stream would silently lose its result markers.
+    return docker.DockerClient(base_url=target, timeout=None)
+
+
+def container_command(script: Path) -> list[str]:
+    return ["armnet-runtime", f"{JOB_DIR_IN_CONTAINER}/{script.name}"]
+
+
+class ContainerJob:
+    """One job container; stdout/stderr are followed as two log streams."""
+
+    def __init__(self, client: Any, container: Any) -> None:
+        self._client = client
+        self._container = container
+        self._exit_code: int | None = None
+        self._done = threading.Event()
+        threading.Thread(target=self._wait, name="armnet-container-wait", daemon=True).start()
+
+    @classmethod
+    def start(
+        cls,
+        client: Any,
+        image: str,
+        script: Path,
+        env: Mapping[str, str],
+        run_dir: Path,
+        extra_mounts: Mapping[str, str] | None = None,
+    ) -> ContainerJob:
+        """Create and start the job container.
+
+        ``extra_mounts`` (host path -> container path, read-only) is for
+        development images that take their Python environment from the host.
+        """
+        from docker.types import Ulimit
+
+        script = script.resolve()
+        volumes = {
+            str(run_dir): {"bind": str(run_dir), "mode": "rw"},
+            str(script.parent): {"bind": JOB_DIR_IN_CONTAINER, "mode": "ro"},
+        }
+        for host, inside in (extra_mounts or {}).items():
+            volumes[host] = {"bind": inside, "mode": "ro"}
+        container = client.containers.create(
+            image,
+            command=container_command(script),
+            environment=dict(env),
+            volumes=volumes,
+            network_mode="host",
+            ulimits=[Ulimit(name=name, soft=soft, hard=hard) for name, soft, hard in ULIMITS],
+            labels={"armnet.io/job-id": env.get("ARMNET_JOB_ID", "")},
+            detach=True,
+        )
+        container.start()
+        return cls(client, container)
+
+    def _wait(self) -> None:
+        try:
+            status = self._container.wait()
+            self._exit_code = int(status.get("StatusCode", -1))
+        except Exception:  # noqa: BLE001 - the engine went away: report an unknown exit
+            self._exit_code = -1
+        finally:
+            self._done.set()
+
+    def _logs(self, stdout: bool) -> Iterator[bytes]:
+        yield from self._container.logs(stdout=stdout, stderr=not stdout, stream=True, follow=True)
+
+    def stdout_chunks(self) -> Iterator[bytes]:
+        return self._logs(stdout=True)
+
+    def stderr_chunks(self) -> Iterator[bytes]:
+        return self._logs(stdout=False)
+
+    def wait(self, timeout: float) -> int | None:
+        return self._exit_code if self._done.wait(max(timeout, 0.0)) else None
+
+    def kill(self) -> None:
+        from docker.errors import APIError
+
+        try:
+            self._container.kill(signal="SIGKILL")
+        except APIError:
+            pass  # already gone
+
+    def remove(self) -> None:
+        from docker.errors import APIError
+
+        try:
+            self._container.remove(force=True)
+        except APIError:
+            pass

@@ -1,0 +1,133 @@
+"""The in-process simulated cell of one local run: simulator, cameras, connector.
+
+This module owns starting and stopping them together on a run directory laid
+out by ``cell_spec.plan_layout``: it writes the calibration files (the same
+ones that seed the simulated servos, so LeRobot's ``connect()`` finds them
+calibrated), starts one simulated bus per arm, and serves the real connector on
+``<run_dir>/sockets``. The job deadline clock stays with the supervisor; the
+connector is only told when the deadline passes (``pass_deadline``).
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+
+from armnet_agent.connector import ArmConfig, CameraConfig, Connector, ConnectorConfig
+from armnet_agent.connector.hardware import simulated_camera_factory
+from armnet_agent.connector.inputs import InputFeeder, LocalOperatorInputs, terminal_prompt
+from armnet_agent.local_run.cell_spec import CellLayout, LocalCellSpec, plan_layout
+from armnet_agent.sim.calibration import builtin_calibration, load_calibration, write_calibration
+from armnet_agent.sim.presets import PRESETS, SimulatedCell, build_cell
+
+log = logging.getLogger(__name__)
+
+
+def build_connector_config(spec: LocalCellSpec, layout: CellLayout, ports: dict[str, str]) -> ConnectorConfig:
+    """The connector's view of the local cell: each arm's pty, calibration and limit, the cameras.
+
+    No ``timeout_seconds``: the supervisor owns the job clock and calls
+    ``Connector.pass_deadline`` at the deadline, so there is one clock only.
+    """
+    return ConnectorConfig(
+        arms={
+            arm.name: ArmConfig(
+                port=ports[arm.name],
+                calibration_file=arm.calibration_file,
+                robot_id=arm.robot_id,
+                safety_limit=spec.safety_limit,
+            )
+            for arm in layout.arms
+        },
+        cameras={
+            camera.name: CameraConfig(
+                index_or_path=camera.name, fps=camera.fps, width=camera.width, height=camera.height
+            )
+            for camera in spec.cameras
+        },
+        simulated=True,
+        timeout_seconds=None,
+        grace_period_seconds=spec.grace_seconds,
+        reset_timeout_seconds=spec.reset_timeout_seconds,
+    )
+
+
+class LocalCell:
+    """Context manager: a started simulated cell with its connector, torn down on exit."""
+
+    def __init__(
+        self,
+        spec: LocalCellSpec,
+        run_dir: Path,
+        *,
+        auto_confirm_reset: bool = False,
+        inputs_source: str | None = None,
+        on_grace_expired: Callable[[], None] | None = None,
+    ) -> None:
+        self.spec = spec
+        self.layout = plan_layout(spec, run_dir)
+        prompt = terminal_prompt if sys.stdin.isatty() and not auto_confirm_reset else None
+        self.inputs = LocalOperatorInputs(auto_confirm_reset=auto_confirm_reset, on_reset_requested=prompt)
+        self._inputs_source = inputs_source
+        self._on_grace_expired = on_grace_expired
+        self.sim: SimulatedCell | None = None
+        self.connector: Connector | None = None
+
+    def __enter__(self) -> LocalCell:
+        try:
+            self._start()
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+    def _start(self) -> None:
+        layout = self.layout
+        for directory in (layout.socket_dir, layout.calibration_dir, layout.cache_dir, layout.volume_dir):
+            directory.mkdir(parents=True, exist_ok=True)
+        calibrations = {}
+        shipped = {preset.name: preset.calibration for preset in PRESETS[self.spec.preset]}
+        for arm in layout.arms:
+            override = self.spec.calibration_files.get(arm.name)
+            calibration = load_calibration(override) if override else builtin_calibration(shipped[arm.name])
+            write_calibration(arm.calibration_file, calibration)
+            calibrations[arm.name] = calibration
+        self.sim = build_cell(self.spec.preset, calibrations=calibrations, latency_ms=self.spec.latency_ms).start()
+        config = build_connector_config(self.spec, layout, self.sim.ports())
+        self.connector = Connector(
+            config,
+            layout.socket_dir,
+            inputs=self.inputs,
+            camera_factory=simulated_camera_factory(source=self.sim),
+            on_grace_expired=self._on_grace_expired,
+        ).start()
+        if self._inputs_source is not None:
+            InputFeeder(self.inputs, self._inputs_source).start()
+
+    def pass_deadline(self) -> None:
+        """The job hit its timeout: trip the interlock and open the grace window."""
+        if self.connector is not None:
+            self.connector.pass_deadline()
+
+    def stop(self) -> None:
+        if self.connector is not None:
+            # Stopping trips the interlock by design; that is teardown, not news for the user.
+            connector_log = logging.getLogger("armnet_agent.connector")
+            level = connector_log.level
+            connector_log.setLevel(logging.ERROR)
+            try:
+                self.connector.stop()
+            finally:
+                connector_log.setLevel(level)
+            self.connector = None
+        if self.sim is not None:
+            self.sim.stop()
+            self.sim = None

@@ -1,0 +1,79 @@
+"""The supervisor against real child processes: output, deadline, grace, kill."""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+
+import pytest
+from armnet_agent.supervise import JobHooks, SubprocessJob, SupervisorLimits, supervise
+from armnet_agent.supervise.observe import EventKind, OutputEvent
+from armnet_core import JobStatus
+from armnet_runtime.markers import format_progress, format_result
+
+pytestmark = pytest.mark.unit
+
+
+def python_job(code: str) -> SubprocessJob:
+    return SubprocessJob.start([sys.executable, "-u", "-c", code], env=dict(os.environ))
+
+
+def test_output_lines_reach_the_callback_in_order_and_markers_are_parsed() -> None:
+    events: list[OutputEvent] = []
+    code = (
+        f"print('first'); print({format_progress('half way')!r}); "
+        f"print({format_result({'n': 2})!r})"
+    )
+    result = supervise(
+        python_job(code), SupervisorLimits(timeout_seconds=30), JobHooks(on_event=events.append)
+    )
+    assert result.status is JobStatus.SUCCEEDED
+    assert result.return_value == {"n": 2}
+    assert [e.kind for e in events] == [EventKind.LOG, EventKind.PROGRESS, EventKind.RESULT]
+    assert events[1].text == "half way"
+
+
+def test_a_job_past_its_deadline_gets_the_grace_window_then_is_killed() -> None:
+    opened = threading.Event()
+    hooks = JobHooks(on_deadline=opened.set)
+    result = supervise(
+        python_job("import time\nwhile True: time.sleep(0.1)"),
+        SupervisorLimits(timeout_seconds=0.5, grace_seconds=0.5),
+        hooks,
+    )
+    assert opened.is_set()
+    assert result.status is JobStatus.TIMEOUT
+    assert result.error is not None and "killed at the end" in result.error
+
+
+def test_the_kill_reaches_the_jobs_children_too() -> None:
+    code = (
+        "import subprocess, sys, time\n"
+        "child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])\n"
+        "print(child.pid, flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    result = supervise(python_job(code), SupervisorLimits(timeout_seconds=0.5, grace_seconds=0.1))
+    child_pid = int(result.stdout.split()[0])
+    with pytest.raises(ProcessLookupError):
+        for _ in range(50):
+            os.kill(child_pid, 0)
+            threading.Event().wait(0.05)
+
+
+def test_cancel_kills_the_job_and_reports_cancelled() -> None:
+    hooks = JobHooks()
+    hooks.cancel.set()
+    result = supervise(python_job("import time; time.sleep(60)"), SupervisorLimits(30), hooks)
+    assert result.status is JobStatus.CANCELLED
+
+
+def test_a_nonzero_exit_is_failed_and_keeps_stderr() -> None:
+    result = supervise(
+        python_job("import sys; print('bad thing', file=sys.stderr); sys.exit(7)"),
+        SupervisorLimits(timeout_seconds=30),
+    )
+    assert result.status is JobStatus.FAILED
+    assert result.exit_code == 7
+    assert "bad thing" in result.stderr
