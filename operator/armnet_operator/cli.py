@@ -1,0 +1,45 @@
+"""``armnet operator``: run the scheduling operator (flags override ARMNET_OPERATOR_* env)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from .errors import PermanentError
+from .settings import ENV_PREFIX, OperatorSettings, load_settings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    for name, field in OperatorSettings.model_fields.items():
+        if name == "identity":
+            continue
+        flag = "--" + name.replace("_", "-")
+        env = ENV_PREFIX + name.upper()
+        default = field.get_default(call_default_factory=False)
+        help_text = f"{field.description or name} (env {env}; default {default!r})"
+        parser.add_argument(flag, dest=name, default=None, help=help_text)
+    parser.add_argument("--identity", default=None, help="replica name in the leader Lease (default host-pid)")
+    parser.add_argument("--verbose", action="store_true", help="debug logging")
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    overrides = {name: getattr(args, name, None) for name in OperatorSettings.model_fields}
+    try:
+        settings = load_settings(overrides)
+    except PermanentError as error:
+        logging.getLogger("armnet.operator").error("%s", error)
+        return 2
+    import kopf  # heavy: only when actually running
+
+    from .handlers import build_registry
+
+    registry, _controller = build_registry(settings)
+    kopf.run(
+        registry=registry,
+        standalone=True,  # leader election is ours (a Lease), not kopf peering
+        clusterwide=not settings.namespaces,
+        namespaces=settings.namespaces,
+    )
+    return 0

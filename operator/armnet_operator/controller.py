@@ -1,0 +1,206 @@
+"""The running operator: a cache fed by watch events, and the reconcile loop.
+
+Level-based: every pass reads the whole cache and calls the pure core; watch
+events only mark the cache dirty so a pass runs soon. One asyncio task owns
+the loop, and only while this replica holds the Lease does it write.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from pydantic import ValidationError
+
+from .errors import OperatorError, PermanentError
+from .kube import KubeApi
+from .metrics import Metrics
+from .model import Cell, Job
+from .parsing import parse_cell, parse_job
+from .reconcile import Limits, Memory, reconcile_once
+from .settings import OperatorSettings
+
+log = logging.getLogger(__name__)
+DEBOUNCE_SECONDS = 0.05
+OVERLAY_SECONDS = 10.0
+
+
+class Cache:
+    """Latest parsed RobotJobs and Cells, by key, plus what we wrote ahead of the watch.
+
+    Our own writes reach the watch a little later; a pass that started in between
+    would act on the old resourceVersions and only collect conflicts. So each
+    written object is kept as an overlay until the watch delivers that version
+    (or a newer one), or for ``OVERLAY_SECONDS`` at most.
+    """
+
+    def __init__(self) -> None:
+        self.jobs: dict[str, Job] = {}
+        self.cells: dict[str, Cell] = {}
+        self._job_overlay: dict[str, tuple[Job, float]] = {}
+        self._cell_overlay: dict[str, tuple[Cell, float]] = {}
+        self._lock = threading.Lock()
+        self.changed = asyncio.Event()
+
+    def on_job(self, event_type: str | None, body: Mapping[str, Any]) -> None:
+        meta = body.get("metadata") or {}
+        key = f"{meta.get('namespace')}/{meta.get('name')}"
+        job = None if event_type == "DELETED" else parse_job(body)
+        with self._lock:
+            if job is None:
+                self.jobs.pop(key, None)
+                self._job_overlay.pop(key, None)
+            else:
+                self.jobs[key] = job
+                _settle(self._job_overlay, key, job.resource_version)
+        self.changed.set()
+
+    def on_cell(self, event_type: str | None, body: Mapping[str, Any]) -> None:
+        name = str((body.get("metadata") or {}).get("name"))
+        cell = None if event_type == "DELETED" else parse_cell(body)
+        with self._lock:
+            if cell is None:
+                self.cells.pop(name, None)
+                self._cell_overlay.pop(name, None)
+            else:
+                self.cells[name] = cell
+                _settle(self._cell_overlay, name, cell.resource_version)
+        self.changed.set()
+
+    def remember(self, jobs: Mapping[str, Job], cells: Mapping[str, Cell], deleted: set[str]) -> None:
+        stamp = time.monotonic()
+        with self._lock:
+            for key, job in jobs.items():
+                if key in self.jobs and key not in deleted:
+                    self._job_overlay[key] = (job, stamp)
+            for name, cell in cells.items():
+                if name in self.cells:
+                    self._cell_overlay[name] = (cell, stamp)
+
+    def snapshot(self) -> tuple[list[Job], list[Cell]]:
+        cutoff = time.monotonic() - OVERLAY_SECONDS
+        with self._lock:
+            jobs = dict(self.jobs)
+            cells = dict(self.cells)
+            for key, (job, stamp) in list(self._job_overlay.items()):
+                if stamp < cutoff or key not in jobs:
+                    del self._job_overlay[key]
+                else:
+                    jobs[key] = job
+            for name, (cell, stamp) in list(self._cell_overlay.items()):
+                if stamp < cutoff or name not in cells:
+                    del self._cell_overlay[name]
+                else:
+                    cells[name] = cell
+        return list(jobs.values()), list(cells.values())
+
+
+def _settle(overlay: dict[str, Any], key: str, seen_version: str) -> None:
+    """Drop the overlay once the watch shows our version or a later one."""
+    entry = overlay.get(key)
+    if entry is None:
+        return
+    ours = entry[0].resource_version
+    try:
+        caught_up = int(seen_version) >= int(ours)
+    except ValueError:  # resourceVersions are opaque in general; etcd's are integers
+        caught_up = seen_version == ours
+    if caught_up:
+        del overlay[key]
+
+
+class Controller:
+    def __init__(
+        self,
+        settings: OperatorSettings,
+        api: KubeApi,
+        metrics: Metrics,
+        clock: Callable[[], datetime] = lambda: datetime.now(UTC),
+    ) -> None:
+        self.settings = settings
+        self.api = api
+        self.metrics = metrics
+        self.clock = clock
+        self.cache = Cache()
+        self.memory = Memory()
+        self.limits = Limits(
+            position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=8
+        )
+        self.leading = False
+        self._renewed_at: datetime | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    def start(self) -> None:
+        self.cache.changed = asyncio.Event()  # bind to the running loop
+        self._task = asyncio.get_running_loop().create_task(self._run(), name="armnet-reconcile")
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.gather(self._task, return_exceptions=True)
+
+    async def _run(self) -> None:
+        period = self.settings.reconcile_period
+        while True:
+            try:
+                await asyncio.wait_for(self.cache.changed.wait(), timeout=period)
+                await asyncio.sleep(DEBOUNCE_SECONDS)  # let a burst of events land in one pass
+            except TimeoutError:
+                pass
+            self.cache.changed.clear()
+            try:
+                await asyncio.to_thread(self.reconcile)
+            except PermanentError as error:
+                self.metrics.errors.inc()
+                log.error("reconcile cannot proceed: %s", error)
+                await asyncio.sleep(period)
+            except (OperatorError, OSError, ValidationError) as error:
+                self.metrics.errors.inc()
+                log.warning("reconcile pass failed, retrying: %s", error)
+                await asyncio.sleep(min(1.0, period))
+
+    def _cells_in_scope(self, cells: list[Cell]) -> list[Cell]:
+        """A namespaced operator leaves alone cells held by jobs it cannot see.
+
+        Cells are cluster-scoped and may be shared by operators watching other
+        namespaces; without this, a claim by an unseen job looks abandoned.
+        """
+        if not self.settings.namespaces:
+            return cells
+        watched = set(self.settings.namespaces)
+        return [c for c in cells if not c.current_job or c.current_job.split("/")[0] in watched]
+
+    def reconcile(self) -> None:
+        """One pass (runs in a worker thread: the client is blocking)."""
+        now = self.clock()
+        duration = timedelta(seconds=self.settings.lease_duration)
+        # Renew at a third of the lease duration, not on every pass: passes come in bursts.
+        if self.leading and self._renewed_at and now - self._renewed_at < duration / 3:
+            leading = True
+        else:
+            leading = self.api.hold_lease(
+                self.settings.lease_namespace, self.settings.lease_name, duration, now
+            )
+            self._renewed_at = now if leading else None
+        if leading != self.leading:
+            log.info("%s leadership", "gained" if leading else "lost")
+            self.memory = Memory()
+        self.leading = leading
+        self.metrics.leader.set(1 if leading else 0)
+        if not leading:
+            return
+        started = time.perf_counter()
+        jobs, cells = self.cache.snapshot()
+        cells = self._cells_in_scope(cells)
+        outcome = reconcile_once(jobs, cells, now, self.settings.timing, self.api, self.memory, self.limits)
+        self.cache.remember(outcome.jobs_written, outcome.cells_written, outcome.deleted)
+        self.metrics.observe(outcome, jobs, cells, now)
+        self.metrics.pass_seconds.observe(time.perf_counter() - started)
+        if outcome.bound or outcome.conflicts:
+            log.info("pass: bound %d, %d conflict(s), %d write(s)",
+                     len(outcome.bound), outcome.conflicts, outcome.writes)

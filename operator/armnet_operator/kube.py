@@ -1,0 +1,177 @@
+"""The operator's only door to the Kubernetes API (besides kopf's watches).
+
+Implements ``reconcile.Api`` with the official client: JSON merge patches with
+resourceVersion preconditions, deletes with a UID precondition, Events, and the
+leader Lease. Maps HTTP errors onto the operator's error tree.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from datetime import UTC, datetime, timedelta
+from typing import Any, cast
+
+from kubernetes import client, config
+from kubernetes.client.exceptions import ApiException
+
+from .errors import Conflict, NotFound, PermanentError, TransientError
+from .leader import LeaseMove, LeaseView, decide_lease
+from .model import GROUP, VERSION, Job
+from .patches import Patch, Target
+
+log = logging.getLogger(__name__)
+
+
+def make_client(kubeconfig: str | None) -> client.ApiClient:
+    """In-cluster config when running in a pod, else the kubeconfig (``KUBECONFIG``)."""
+    if kubeconfig:
+        return cast(client.ApiClient, config.new_client_from_config(config_file=kubeconfig))  # type: ignore[no-untyped-call]
+    try:
+        config.load_incluster_config()  # type: ignore[no-untyped-call]
+    except config.ConfigException:
+        return cast(client.ApiClient, config.new_client_from_config())  # type: ignore[no-untyped-call]
+    return client.ApiClient()
+
+
+def _translate(error: ApiException, what: str) -> Exception:
+    if error.status == 409:
+        return Conflict(f"{what}: changed since it was read")
+    if error.status == 404:
+        return NotFound(f"{what}: not found")
+    if error.status in (401, 403):
+        return PermanentError(
+            f"{what}: forbidden ({error.reason}); grant the operator's ServiceAccount the RBAC "
+            "rules in helm/armnet (robotjobs, robotjobs/status, cells/status, events, leases)"
+        )
+    if error.status == 422:
+        return PermanentError(f"{what}: rejected by the API server: {error.body}")
+    return TransientError(f"{what}: HTTP {error.status} {error.reason}")
+
+
+class KubeApi:
+    def __init__(self, api_client: client.ApiClient, component: str, identity: str) -> None:
+        self.custom = client.CustomObjectsApi(api_client)
+        self.core = client.CoreV1Api(api_client)
+        self.leases = client.CoordinationV1Api(api_client)
+        self.component = component
+        self.identity = identity
+        self._events: queue.SimpleQueue[tuple[Job, str, str, str]] = queue.SimpleQueue()
+        threading.Thread(target=self._post_events, name="armnet-events", daemon=True).start()
+
+    # -------------------------------------------------------------- reconcile.Api
+    def patch(self, patch: Patch) -> dict[str, Any]:
+        what = f"{patch.target} {patch.namespace + '/' if patch.namespace else ''}{patch.name}"
+        try:
+            if patch.target is Target.CELL_STATUS:
+                return cast(dict[str, Any], self.custom.patch_cluster_custom_object_status(
+                    GROUP, VERSION, "cells", patch.name, patch.body
+                ))
+            if patch.target is Target.JOB_STATUS:
+                return cast(dict[str, Any], self.custom.patch_namespaced_custom_object_status(
+                    GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
+                ))
+            return cast(dict[str, Any], self.custom.patch_namespaced_custom_object(
+                GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
+            ))
+        except ApiException as error:
+            raise _translate(error, what) from error
+
+    def delete_job(self, namespace: str, name: str, uid: str) -> None:
+        body = client.V1DeleteOptions(preconditions=client.V1Preconditions(uid=uid or None))
+        try:
+            self.custom.delete_namespaced_custom_object(
+                GROUP, VERSION, namespace, "robotjobs", name, body=body
+            )
+        except ApiException as error:
+            raise _translate(error, f"delete robotjob {namespace}/{name}") from error
+
+    def post_event(self, job: Job, type_: str, reason: str, message: str) -> None:
+        """Queue the Event: a slow Events write must never delay a binding."""
+        self._events.put((job, type_, reason, message))
+
+    def _post_events(self) -> None:
+        while True:
+            job, type_, reason, message = self._events.get()
+            try:
+                self._post_event(job, type_, reason, message)
+            except Exception as error:  # noqa: BLE001 - events are best effort; keep the poster alive
+                log.debug("event %s for %s not posted: %s", reason, job.key, error)
+
+    def _post_event(self, job: Job, type_: str, reason: str, message: str) -> None:
+        now = datetime.now(UTC)
+        body = {
+            "metadata": {"generateName": f"{job.name}.", "namespace": job.namespace},
+            "involvedObject": {
+                "apiVersion": f"{GROUP}/{VERSION}", "kind": "RobotJob", "name": job.name,
+                "namespace": job.namespace, "uid": job.uid,
+            },
+            "type": type_, "reason": reason, "message": message[:1024],
+            "source": {"component": self.component},
+            "reportingComponent": self.component, "reportingInstance": self.identity,
+            "firstTimestamp": now.strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "lastTimestamp": now.strftime("%Y-%m-%dT%H:%M:%SZ"), "count": 1,
+        }
+        try:
+            self.core.create_namespaced_event(job.namespace, cast(client.CoreV1Event, client.CoreV1Event.from_dict(body)))
+        except ApiException as error:
+            raise _translate(error, f"event for {job.key}") from error
+
+    # -------------------------------------------------------------- leader Lease
+    def hold_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:
+        """Acquire or renew the Lease; True while this replica leads."""
+        try:
+            lease = self.leases.read_namespaced_lease(name, namespace)
+        except ApiException as error:
+            if error.status != 404:
+                raise _translate(error, f"lease {namespace}/{name}") from error
+            return self._create_lease(namespace, name, duration, now)
+        spec = lease.spec
+        renewed = spec.renew_time if spec else None
+        view = LeaseView(
+            holder=spec.holder_identity if spec else None,
+            renewed=renewed,
+            duration=timedelta(seconds=(spec.lease_duration_seconds if spec else None) or 15),
+            transitions=(spec.lease_transitions if spec else None) or 0,
+        )
+        move = decide_lease(view, self.identity, now)
+        if move is LeaseMove.FOLLOW:
+            return False
+        stamp = now.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        patch: dict[str, Any] = {
+            "metadata": {"resourceVersion": lease.metadata.resource_version if lease.metadata else None},
+            "spec": {"holderIdentity": self.identity, "renewTime": stamp,
+                     "leaseDurationSeconds": int(duration.total_seconds())},
+        }
+        if move is LeaseMove.ACQUIRE:
+            patch["spec"].update(acquireTime=stamp, leaseTransitions=view.transitions + 1)
+            log.info("acquiring leadership (lease %s/%s) from %s", namespace, name, view.holder)
+        try:
+            self.leases.patch_namespaced_lease(name, namespace, patch)
+        except ApiException as error:
+            if error.status == 409:
+                return False
+            raise _translate(error, f"lease {namespace}/{name}") from error
+        return True
+
+    def _create_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:
+        stamp = now.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        body = {
+            "metadata": {"name": name, "namespace": namespace},
+            "spec": {"holderIdentity": self.identity, "acquireTime": stamp, "renewTime": stamp,
+                     "leaseDurationSeconds": int(duration.total_seconds()), "leaseTransitions": 0},
+        }
+        try:
+            self.leases.create_namespaced_lease(namespace, cast(client.V1Lease, client.V1Lease.from_dict(body)))
+        except ApiException as error:
+            if error.status == 409:
+                return False
+            if error.status == 404:
+                raise PermanentError(
+                    f"lease namespace {namespace!r} does not exist; create it or set "
+                    "ARMNET_OPERATOR_LEASE_NAMESPACE (--lease-namespace)"
+                ) from error
+            raise _translate(error, f"lease {namespace}/{name}") from error
+        log.info("acquired leadership (new lease %s/%s)", namespace, name)
+        return True

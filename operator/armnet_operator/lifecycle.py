@@ -1,0 +1,190 @@
+"""Lifecycle decisions: repair, offline handling, cancellation, finalizers, TTL.
+
+Pure and level-based: given the whole snapshot and ``now`` it says what must
+change, whatever happened before (a crash between two writes, a lost watch
+event, a second replica). Applying an action twice is harmless because the
+edge writes every change with a resourceVersion precondition.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+
+from .health import derive_cell_phase, heartbeat_fresh, heartbeat_lost_for
+from .model import Cell, CellPhase, Job, JobPhase, Timing
+from .scheduling import occupied_cells
+
+
+@dataclass(frozen=True)
+class ReleaseCell:
+    cell: Cell
+    phase: CellPhase
+    reason: str
+
+
+@dataclass(frozen=True)
+class SetCellPhase:
+    cell: Cell
+    phase: CellPhase
+
+
+@dataclass(frozen=True)
+class RequeueJob:
+    job: Job
+    message: str
+
+
+@dataclass(frozen=True)
+class FinishJob:
+    job: Job
+    phase: JobPhase
+    reason: str
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class RequestCancel:
+    job: Job
+
+
+@dataclass(frozen=True)
+class AddFinalizer:
+    job: Job
+
+
+@dataclass(frozen=True)
+class RemoveFinalizer:
+    job: Job
+
+
+@dataclass(frozen=True)
+class DeleteJob:
+    job: Job
+
+
+Action = (
+    ReleaseCell
+    | SetCellPhase
+    | RequeueJob
+    | FinishJob
+    | RequestCancel
+    | AddFinalizer
+    | RemoveFinalizer
+    | DeleteJob
+)
+
+
+def plan_lifecycle(
+    jobs: Iterable[Job], cells: Iterable[Cell], now: datetime, timing: Timing
+) -> tuple[Action, ...]:
+    jobs = list(jobs)
+    cells = list(cells)
+    by_key = {job.key: job for job in jobs}
+    by_name = {cell.name: cell for cell in cells}
+    claimed = {cell.current_job for cell in cells if cell.current_job}
+    actions: list[Action] = []
+    actions.extend(_plan_cells(cells, jobs, by_key, now, timing))
+    for job in jobs:
+        actions.extend(_plan_job(job, by_name, job.key in claimed, now, timing))
+    return tuple(actions)
+
+
+def _plan_cells(
+    cells: list[Cell], jobs: list[Job], by_key: dict[str, Job], now: datetime, timing: Timing
+) -> list[Action]:
+    occupied = occupied_cells(jobs, cells)
+    actions: list[Action] = []
+    for cell in cells:
+        release = _release_reason(cell, by_key.get(cell.current_job or ""), now, timing)
+        if release is not None:
+            free_phase = derive_cell_phase(cell, False, now, timing.heartbeat_timeout)
+            actions.append(ReleaseCell(cell, free_phase, release))
+            continue
+        phase = derive_cell_phase(cell, cell.name in occupied, now, timing.heartbeat_timeout)
+        if phase != cell.phase:
+            actions.append(SetCellPhase(cell, phase))
+    return actions
+
+
+def _release_reason(cell: Cell, job: Job | None, now: datetime, timing: Timing) -> str | None:
+    """Why the cell's claim must go, or None if it stands (or there is none)."""
+    if not cell.current_job:
+        return None
+    if job is not None and job.active and job.cell_name == cell.name:
+        return None
+    if job is not None and job.terminal and job.cell_name == cell.name:
+        return f"job {job.key} finished ({job.phase})"
+    # Claimed but not bound: either the binder is between its two writes (wait)
+    # or it crashed there (repair). The grace tells the two apart.
+    if cell.claimed_at is not None and now - cell.claimed_at < timing.claim_grace:
+        return None
+    if job is None:
+        return f"job {cell.current_job} no longer exists"
+    return f"claim for job {job.key} was never completed"
+
+
+def _plan_job(
+    job: Job, cells: dict[str, Cell], claimed: bool, now: datetime, timing: Timing
+) -> list[Action]:
+    actions: list[Action] = []
+    if not job.deleting and not job.has_finalizer:
+        actions.append(AddFinalizer(job))
+    if job.terminal:
+        if job.deleting and job.has_finalizer and not claimed:
+            actions.append(RemoveFinalizer(job))
+        elif not job.deleting and _ttl_expired(job, now, timing):
+            actions.append(DeleteJob(job))
+        return actions
+    cell = cells.get(job.cell_name or "")
+    if job.cancel or job.deleting:
+        actions.extend(_plan_cancel(job, cell, now, timing))
+    elif job.active:
+        actions.extend(_plan_active(job, cell, now, timing))
+    return actions
+
+
+def _plan_cancel(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> list[Action]:
+    if not job.active:
+        return [FinishJob(job, JobPhase.CANCELLED, "Cancelled", None)]
+    if job.cancel_requested_at is None:
+        return [RequestCancel(job)]
+    agent_gone = cell is None or not heartbeat_fresh(cell, now, timing.heartbeat_timeout)
+    if agent_gone and now - job.cancel_requested_at >= timing.cancel_force_after:
+        error = (
+            f"cancelled without confirmation: the agent of cell {job.cell_name} did not "
+            f"report within {int(timing.cancel_force_after.total_seconds())}s"
+        )
+        return [FinishJob(job, JobPhase.CANCELLED, "CancelForced", error)]
+    return []
+
+
+def _plan_active(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> list[Action]:
+    name = job.cell_name
+    if cell is None:
+        if job.phase is JobPhase.DISPATCHED:
+            return [RequeueJob(job, f"cell {name} was deleted before the job started")]
+        return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost (deleted)")]
+    if job.phase is JobPhase.DISPATCHED:
+        bound_for = now - job.bound_at if job.bound_at else timedelta.max
+        if cell.current_job != job.key and bound_for >= timing.claim_grace:
+            return [RequeueJob(job, f"cell {name} does not hold this job's claim")]
+        if not heartbeat_fresh(cell, now, timing.heartbeat_timeout):
+            return [RequeueJob(job, f"cell {name} went offline before the job started")]
+        return []
+    if heartbeat_lost_for(cell, now, timing.heartbeat_timeout) >= timing.lost_grace:
+        return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost")]
+    return []
+
+
+def _ttl_expired(job: Job, now: datetime, timing: Timing) -> bool:
+    if job.finished_at is None:
+        return False
+    if job.ttl_seconds_after_finished is not None:
+        ttl = timedelta(seconds=job.ttl_seconds_after_finished)
+    elif timing.default_ttl is not None:
+        ttl = timing.default_ttl
+    else:
+        return False
+    return now - job.finished_at >= ttl

@@ -1,0 +1,171 @@
+"""The operator's view of RobotJobs and Cells: plain frozen data, no I/O.
+
+Everything the decision modules (``scheduling``, ``lifecycle``) reason about is
+defined here, together with the condition types and reasons that sit next to
+it. Parsing from Kubernetes bodies lives in ``parsing``; this module must never
+import kopf, kubernetes or the agent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from enum import StrEnum
+from typing import Any
+
+GROUP = "armnet.io"
+VERSION = "v1alpha1"
+FINALIZER = "armnet.io/release-cell"
+
+
+class JobPhase(StrEnum):
+    """``RobotJob.status.phase``: the values of ``armnet_core.JobStatus``."""
+
+    SUBMITTED = "submitted"
+    QUEUED = "queued"
+    DISPATCHED = "dispatched"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    TIMEOUT = "timeout"
+    CANCELLED = "cancelled"
+
+
+TERMINAL_PHASES = frozenset(
+    {JobPhase.SUCCEEDED, JobPhase.FAILED, JobPhase.TIMEOUT, JobPhase.CANCELLED}
+)
+ACTIVE_PHASES = frozenset({JobPhase.DISPATCHED, JobPhase.RUNNING})
+
+
+class CellPhase(StrEnum):
+    """``Cell.status.phase``, derived by the operator from spec, heartbeat and conditions."""
+
+    READY = "Ready"
+    BUSY = "Busy"
+    OFFLINE = "Offline"
+    FAULTED = "Faulted"
+    CORDONED = "Cordoned"
+
+
+class JobConditionType(StrEnum):
+    """Condition types the operator owns on a RobotJob (the agent owns the others)."""
+
+    QUEUED = "Queued"
+    BOUND = "Bound"
+    CANCEL_REQUESTED = "CancelRequested"
+
+
+class QueuedReason(StrEnum):
+    """Why a job waits: each names what a person can do about it."""
+
+    NO_CELL_FOR_EMBODIMENT = "NoCellForEmbodiment"
+    NO_CELL_FOR_EMBODIMENT_AND_TASK = "NoCellForEmbodimentAndTask"
+    ALL_CELLS_BUSY = "AllCellsBusy"
+    ALL_CELLS_UNAVAILABLE = "AllCellsUnavailable"
+    WAITING_FOR_CELL_RELEASE = "WaitingForCellRelease"
+
+
+class BoundReason(StrEnum):
+    CLAIMED_CELL = "ClaimedCell"
+    REQUEUED = "Requeued"
+
+
+class CellConditionType(StrEnum):
+    """Health conditions the agent reports on a Cell; any ``False`` one faults the cell."""
+
+    AGENT_CONNECTED = "AgentConnected"
+    HARDWARE_READY = "HardwareReady"
+    CALIBRATION_PRESENT = "CalibrationPresent"
+    CAMERAS_READY = "CamerasReady"
+    INTERLOCK_CLEAR = "InterlockClear"
+
+
+@dataclass(frozen=True)
+class Job:
+    """A RobotJob as the scheduler sees it. ``key`` is ``namespace/name``."""
+
+    namespace: str
+    name: str
+    created: datetime
+    embodiment: str
+    task: str | None = None
+    priority: int = 0
+    uid: str = ""
+    resource_version: str = ""
+    cancel: bool = False
+    deleting: bool = False
+    finalizers: tuple[str, ...] = (FINALIZER,)
+    phase: JobPhase | None = None
+    cell_name: str | None = None
+    job_id: str | None = None
+    queued_reason: str | None = None
+    queue_position: int | None = None
+    bound_at: datetime | None = None
+    queued_at: datetime | None = None
+    cancel_requested_at: datetime | None = None
+    finished_at: datetime | None = None
+    ttl_seconds_after_finished: int | None = None
+    conditions: tuple[Mapping[str, Any], ...] = ()
+
+    @property
+    def has_finalizer(self) -> bool:
+        return FINALIZER in self.finalizers
+
+    @property
+    def key(self) -> str:
+        return f"{self.namespace}/{self.name}"
+
+    @property
+    def terminal(self) -> bool:
+        return self.phase in TERMINAL_PHASES
+
+    @property
+    def active(self) -> bool:
+        return self.phase in ACTIVE_PHASES
+
+    @property
+    def waiting(self) -> bool:
+        """True while the job may still be bound: not yet dispatched and not being stopped."""
+        return (
+            self.phase in (None, JobPhase.SUBMITTED, JobPhase.QUEUED)
+            and not self.cancel
+            and not self.deleting
+        )
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A Cell as the scheduler sees it. ``current_job`` is the claim (``namespace/name``)."""
+
+    name: str
+    embodiment: str
+    task: str | None = None
+    resource_version: str = ""
+    node_name: str = ""
+    unschedulable: bool = False
+    phase: CellPhase | None = None
+    current_job: str | None = None
+    claimed_at: datetime | None = None
+    last_heartbeat: datetime | None = None
+    failing_conditions: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Timing:
+    """The clocks of the lifecycle: why each exists is in docs/operator.md."""
+
+    heartbeat_timeout: timedelta = timedelta(seconds=30)
+    claim_grace: timedelta = timedelta(seconds=10)
+    lost_grace: timedelta = timedelta(seconds=60)
+    cancel_force_after: timedelta = timedelta(seconds=60)
+    default_ttl: timedelta | None = timedelta(hours=24)
+
+
+def job_key(namespace: str, name: str) -> str:
+    return f"{namespace}/{name}"
+
+
+def split_key(key: str) -> tuple[str, str]:
+    namespace, _, name = key.partition("/")
+    return namespace, name

@@ -1,0 +1,141 @@
+"""Patch bodies for every write the operator makes, built purely from the models.
+
+Each body is a JSON merge patch that carries the observed
+``metadata.resourceVersion``: the API server then applies it only if nothing
+changed since we looked (409 Conflict otherwise). That precondition is what
+makes "claim the Cell first" safe against a second binder, and what stops a
+status write from clobbering the agent's. Lists (conditions, finalizers) are
+sent whole, which is safe for the same reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from enum import StrEnum
+from typing import Any
+
+from .conditions import format_time, set_condition
+from .model import (
+    FINALIZER,
+    BoundReason,
+    Cell,
+    CellPhase,
+    Job,
+    JobConditionType,
+    JobPhase,
+)
+from .scheduling import QueueEntry
+
+
+class Target(StrEnum):
+    CELL_STATUS = "cell-status"
+    JOB_STATUS = "job-status"
+    JOB = "job"
+
+
+@dataclass(frozen=True)
+class Patch:
+    target: Target
+    name: str
+    namespace: str
+    body: dict[str, Any]
+
+
+def _cell_status(cell: Cell, status: dict[str, Any]) -> Patch:
+    body = {"metadata": {"resourceVersion": cell.resource_version}, "status": status}
+    return Patch(Target.CELL_STATUS, cell.name, "", body)
+
+
+def _job_status(job: Job, status: dict[str, Any]) -> Patch:
+    body = {"metadata": {"resourceVersion": job.resource_version}, "status": status}
+    return Patch(Target.JOB_STATUS, job.name, job.namespace, body)
+
+
+def _conditions(job: Job) -> list[dict[str, Any]]:
+    return [dict(c) for c in job.conditions]
+
+
+def claim_cell(cell: Cell, job: Job, now: datetime) -> Patch:
+    status = {"currentJob": job.key, "claimedAt": format_time(now), "phase": CellPhase.BUSY.value}
+    return _cell_status(cell, status)
+
+
+def release_cell(cell: Cell, phase: CellPhase) -> Patch:
+    return _cell_status(cell, {"currentJob": None, "claimedAt": None, "phase": phase.value})
+
+
+def set_cell_phase(cell: Cell, phase: CellPhase) -> Patch:
+    return _cell_status(cell, {"phase": phase.value})
+
+
+def bind_job(job: Job, cell: Cell, now: datetime) -> Patch:
+    conditions = _conditions(job)
+    message = f"bound to cell {cell.name} (node {cell.node_name or 'unknown'})"
+    set_condition(conditions, JobConditionType.BOUND, True, BoundReason.CLAIMED_CELL, message, now)
+    set_condition(conditions, JobConditionType.QUEUED, False, "Bound", message, now)
+    status = {
+        "phase": JobPhase.DISPATCHED.value,
+        "cellName": cell.name,
+        "jobId": job.job_id or job.uid or job.key,
+        "queuedReason": None,
+        "queuePosition": None,
+        "conditions": conditions,
+    }
+    return _job_status(job, status)
+
+
+def queue_job(job: Job, entry: QueueEntry, now: datetime) -> Patch:
+    conditions = _conditions(job)
+    set_condition(conditions, JobConditionType.QUEUED, True, entry.reason, entry.message, now)
+    status = {
+        "phase": JobPhase.QUEUED.value,
+        "jobId": job.job_id or job.uid or job.key,
+        "queuedReason": entry.reason.value,
+        "queuePosition": entry.position,
+        "conditions": conditions,
+    }
+    return _job_status(job, status)
+
+
+def requeue_job(job: Job, message: str, now: datetime) -> Patch:
+    conditions = _conditions(job)
+    set_condition(conditions, JobConditionType.BOUND, False, BoundReason.REQUEUED, message, now)
+    set_condition(conditions, JobConditionType.QUEUED, True, BoundReason.REQUEUED, message, now)
+    status = {
+        "phase": JobPhase.QUEUED.value,
+        "cellName": None,
+        "queuedReason": BoundReason.REQUEUED.value,
+        "conditions": conditions,
+    }
+    return _job_status(job, status)
+
+
+def finish_job(job: Job, phase: JobPhase, reason: str, error: str | None, now: datetime) -> Patch:
+    conditions = _conditions(job)
+    set_condition(conditions, JobConditionType.QUEUED, False, reason, error or reason, now)
+    status: dict[str, Any] = {
+        "phase": phase.value,
+        "finishedAt": format_time(now),
+        "queuedReason": None,
+        "queuePosition": None,
+        "conditions": conditions,
+    }
+    if error is not None:
+        status["result"] = {"error": error}
+    return _job_status(job, status)
+
+
+def request_cancel(job: Job, now: datetime) -> Patch:
+    conditions = _conditions(job)
+    message = "the agent stops the job within the cell's grace period and reports cancelled"
+    set_condition(conditions, JobConditionType.CANCEL_REQUESTED, True, "Requested", message, now)
+    return _job_status(job, {"conditions": conditions})
+
+
+def set_finalizer(job: Job, present: bool) -> Patch:
+    finalizers = [f for f in job.finalizers if f != FINALIZER]
+    if present:
+        finalizers.append(FINALIZER)
+    body = {"metadata": {"resourceVersion": job.resource_version, "finalizers": finalizers}}
+    return Patch(Target.JOB, job.name, job.namespace, body)

@@ -1,0 +1,306 @@
+"""One reconcile pass: plan on a snapshot, then write, in a safe order.
+
+This is the one writer of bindings. It is synchronous and talks to the API
+through the small ``Api`` protocol, so the same code runs in the operator
+(real API server, in a worker thread) and in the property test (an in-memory
+world with the same optimistic-concurrency rules). It must never import kopf.
+
+Order inside a pass: lifecycle repairs first, then bindings (claim the Cell,
+then bind the job; undo the claim if the job moved), then queue status.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Mapping, MutableMapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timedelta
+from functools import partial
+from typing import Any, Protocol
+
+from . import patches
+from .errors import Conflict, NotFound, TransientError
+from .health import derive_cell_phase
+from .lifecycle import (
+    Action,
+    AddFinalizer,
+    DeleteJob,
+    FinishJob,
+    ReleaseCell,
+    RemoveFinalizer,
+    RequestCancel,
+    RequeueJob,
+    SetCellPhase,
+    plan_lifecycle,
+)
+from .model import Cell, Job, JobPhase, Timing
+from .parsing import parse_cell, parse_job
+from .scheduling import Binding, QueueEntry, plan_bindings
+
+log = logging.getLogger(__name__)
+
+
+class Api(Protocol):
+    def patch(self, patch: patches.Patch) -> dict[str, Any]:
+        """Apply the patch; raise Conflict on a failed precondition, NotFound if gone."""
+
+    def delete_job(self, namespace: str, name: str, uid: str) -> None: ...
+
+    def post_event(self, job: Job, type_: str, reason: str, message: str) -> None: ...
+
+
+@dataclass
+class Memory:
+    """What the writer remembers between passes (lost on restart, which is fine)."""
+
+    queue_written_at: MutableMapping[str, datetime] = field(default_factory=dict)
+    seen_phases: MutableMapping[str, JobPhase | None] = field(default_factory=dict)
+
+
+@dataclass
+class Outcome:
+    bound: list[tuple[Job, Cell]] = field(default_factory=list)
+    conflicts: int = 0
+    errors: int = 0
+    writes: int = 0
+    queue: dict[str, QueueEntry] = field(default_factory=dict)
+    jobs_written: dict[str, Job] = field(default_factory=dict)
+    cells_written: dict[str, Cell] = field(default_factory=dict)
+    deleted: set[str] = field(default_factory=set)
+
+    def merge(self, other: Outcome) -> None:
+        self.bound.extend(other.bound)
+        self.jobs_written.update(other.jobs_written)
+        self.cells_written.update(other.cells_written)
+        self.deleted.update(other.deleted)
+        self.conflicts += other.conflicts
+        self.errors += other.errors
+        self.writes += other.writes
+
+
+@dataclass(frozen=True)
+class Limits:
+    position_refresh: timedelta = timedelta(seconds=5)
+    max_queue_writes: int = 200
+    parallel_binds: int = 1
+
+
+def reconcile_once(
+    jobs: Iterable[Job],
+    cells: Iterable[Cell],
+    now: datetime,
+    timing: Timing,
+    api: Api,
+    memory: Memory,
+    limits: Limits = Limits(),
+) -> Outcome:
+    jobs, cells = list(jobs), list(cells)
+    outcome = Outcome()
+    _post_transitions(jobs, memory, api)
+    by_key = {j.key: j for j in jobs}
+    by_name = {c.name: c for c in cells}
+    groups: dict[str, list[Action]] = defaultdict(list)
+    for action in plan_lifecycle(jobs, cells, now, timing):
+        groups[_subject(action)].append(action)
+    for result in _parallel(limits.parallel_binds, [partial(_apply_group, g, now, api) for g in groups.values()]):
+        outcome.merge(result)
+    # Re-read what we wrote from the responses, so the scheduler works on current
+    # resourceVersions: a cell freed by a finished job takes the next one in this pass.
+    for key in outcome.deleted:
+        by_key.pop(key, None)
+    by_key.update(outcome.jobs_written)
+    by_name.update(outcome.cells_written)
+    plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
+    # Bindings touch disjoint cells and jobs, so they may run side by side: the
+    # preconditions, not the ordering, are what keep them safe.
+    for result in _parallel(limits.parallel_binds, [partial(_bind, b, now, api) for b in plan.bindings]):
+        outcome.merge(result)
+    outcome.queue = dict(plan.queued)
+    due = _queue_writes_due(plan.queued, by_key, now, memory, limits)
+    for result in _parallel(limits.parallel_binds, [partial(_queue, by_key[k], e, now, api) for k, e in due]):
+        outcome.merge(result)
+    for key in outcome.jobs_written:
+        if key in plan.queued:
+            memory.queue_written_at[key] = now
+    return outcome
+
+
+def _parallel(width: int, tasks: list[Callable[[], Outcome]]) -> list[Outcome]:
+    if width <= 1 or len(tasks) <= 1:
+        return [task() for task in tasks]
+    with ThreadPoolExecutor(min(width, len(tasks)), thread_name_prefix="armnet-write") as pool:
+        return list(pool.map(lambda task: task(), tasks))
+
+
+def _subject(action: Action) -> str:
+    if isinstance(action, ReleaseCell | SetCellPhase):
+        return f"cell:{action.cell.name}"
+    return f"job:{action.job.key}"
+
+
+def _apply_group(actions: list[Action], now: datetime, api: Api) -> Outcome:
+    """Actions on one object, in order, each on the version the previous one wrote."""
+    outcome = Outcome()
+    latest: Job | None = None
+    for action in actions:
+        if latest is not None and not isinstance(action, ReleaseCell | SetCellPhase):
+            action = replace(action, job=latest)
+        response = _apply(action, now, api, outcome)
+        if isinstance(action, DeleteJob):
+            outcome.deleted.add(action.job.key)
+        elif response is None:
+            return outcome
+        elif isinstance(action, ReleaseCell | SetCellPhase):
+            outcome.cells_written[action.cell.name] = parse_cell(response)
+        else:
+            latest = outcome.jobs_written[action.job.key] = parse_job(response)
+    return outcome
+
+
+def _post_transitions(jobs: list[Job], memory: Memory, api: Api) -> None:
+    """Events for what the agent did (start, finish), seen as phase changes between passes."""
+    first = not memory.seen_phases
+    current = {j.key: j.phase for j in jobs}
+    if not first:
+        for job in jobs:
+            before = memory.seen_phases.get(job.key)
+            if job.phase == before or job.phase is None:
+                continue
+            if job.phase is JobPhase.RUNNING:
+                _event(api, job, "Normal", "Started", f"job started on cell {job.cell_name}")
+            elif job.terminal and before in (JobPhase.DISPATCHED, JobPhase.RUNNING):
+                _event(api, job, "Normal", "Finished", f"job finished: {job.phase}")
+    memory.seen_phases.clear()
+    memory.seen_phases.update(current)
+
+
+def _apply(action: Action, now: datetime, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Write one lifecycle action; return the object as the server now has it, if written."""
+    match action:
+        case ReleaseCell(cell=cell, phase=phase, reason=reason):
+            log.info("releasing cell %s: %s", cell.name, reason)
+            return _write(api, patches.release_cell(cell, phase), outcome)
+        case SetCellPhase(cell=cell, phase=phase):
+            return _write(api, patches.set_cell_phase(cell, phase), outcome)
+        case RequeueJob(job=job, message=message):
+            written = _write(api, patches.requeue_job(job, message, now), outcome)
+            if written is not None:
+                _event(api, job, "Warning", "Requeued", message)
+            return written
+        case FinishJob(job=job, phase=phase, reason=reason, error=error):
+            written = _write(api, patches.finish_job(job, phase, reason, error, now), outcome)
+            if written is not None:
+                kind = "Normal" if phase is JobPhase.CANCELLED and error is None else "Warning"
+                _event(api, job, kind, reason, error or f"job {phase}")
+            return written
+        case RequestCancel(job=job):
+            written = _write(api, patches.request_cancel(job, now), outcome)
+            if written is not None:
+                _event(api, job, "Normal", "CancelRequested", "asked the agent to stop the job")
+            return written
+        case AddFinalizer(job=job):
+            return _write(api, patches.set_finalizer(job, True), outcome)
+        case RemoveFinalizer(job=job):
+            return _write(api, patches.set_finalizer(job, False), outcome)
+        case DeleteJob(job=job):
+            try:
+                api.delete_job(job.namespace, job.name, job.uid)
+                outcome.writes += 1
+            except NotFound:
+                pass
+            except TransientError as error:
+                _count(error, outcome)
+    return None
+
+
+def _bind(binding: Binding, now: datetime, api: Api) -> Outcome:
+    """Claim the cell, then bind the job; give the cell back if the job moved meanwhile."""
+    outcome = Outcome()
+    job, cell = binding.job, binding.cell
+    try:
+        claimed = api.patch(patches.claim_cell(cell, job, now))
+    except TransientError as error:
+        _count(error, outcome)
+        return outcome
+    outcome.cells_written[cell.name] = parse_cell(claimed)
+    try:
+        outcome.jobs_written[job.key] = parse_job(api.patch(patches.bind_job(job, cell, now)))
+    except TransientError as error:
+        _count(error, outcome)
+        # The job changed (cancelled, deleted, bound elsewhere): give the cell back now
+        # rather than waiting for the claim grace. If this fails too, the repair does it.
+        rv = str(claimed.get("metadata", {}).get("resourceVersion", ""))
+        free = Cell(**{**cell.__dict__, "resource_version": rv})
+        phase = derive_cell_phase(free, False, now, timedelta.max)
+        released = _write(api, patches.release_cell(free, phase), outcome)
+        if released is not None:
+            outcome.cells_written[cell.name] = parse_cell(released)
+        return outcome
+    outcome.writes += 2
+    outcome.bound.append((job, cell))
+    _event(api, job, "Normal", "Bound", f"bound to cell {cell.name}")
+    return outcome
+
+
+def _queue_writes_due(
+    queued: Mapping[str, QueueEntry],
+    jobs: Mapping[str, Job],
+    now: datetime,
+    memory: Memory,
+    limits: Limits,
+) -> list[tuple[str, QueueEntry]]:
+    due = [
+        (key, entry)
+        for key, entry in queued.items()
+        if _queue_write_due(jobs[key], entry, memory.queue_written_at.get(key), now, limits)
+    ]
+    return due[: limits.max_queue_writes]
+
+
+def _queue(job: Job, entry: QueueEntry, now: datetime, api: Api) -> Outcome:
+    outcome = Outcome()
+    written = _write(api, patches.queue_job(job, entry, now), outcome)
+    if written is not None:
+        outcome.jobs_written[job.key] = parse_job(written)
+    return outcome
+
+
+def _queue_write_due(
+    job: Job, entry: QueueEntry, last: datetime | None, now: datetime, limits: Limits
+) -> bool:
+    """Phase and reason changes go out at once; position-only changes are rate limited."""
+    if job.phase is not JobPhase.QUEUED or job.queued_reason != entry.reason:
+        return True
+    if job.queue_position == entry.position:
+        return False
+    return last is None or now - last >= limits.position_refresh
+
+
+def _write(api: Api, patch: patches.Patch, outcome: Outcome) -> dict[str, Any] | None:
+    try:
+        written = api.patch(patch)
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    outcome.writes += 1
+    return written
+
+
+def _count(error: TransientError, outcome: Outcome) -> None:
+    if isinstance(error, Conflict):
+        outcome.conflicts += 1
+    elif not isinstance(error, NotFound):
+        outcome.errors += 1
+        log.warning("write failed, retrying next pass: %s", error)
+
+
+def _event(api: Api, job: Job, type_: str, reason: str, message: str) -> None:
+    try:
+        api.post_event(job, type_, reason, message)
+    except Exception as error:  # noqa: BLE001 - events are best effort by design
+        log.debug("event not posted for %s: %s", job.key, error)
+
+
+__all__ = ["Api", "Limits", "Memory", "Outcome", "reconcile_once"]

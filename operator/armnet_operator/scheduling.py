@@ -1,0 +1,170 @@
+"""Scheduling: which waiting RobotJob goes to which free Cell, and why the rest wait.
+
+Pure: input is a snapshot of jobs and cells plus ``now``; output is a plan.
+Order is priority (higher first), then submission time (FIFO), then name, so
+the plan is deterministic. A job that matches no free cell never blocks the
+jobs behind it (no head-of-line blocking): each job draws from its own pool.
+
+Cost: one sort of the waiting jobs, then amortised O(1) per job, so the cost
+per decision grows only with log(queue length).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict, deque
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+
+from .health import derive_cell_phase, is_available
+from .model import Cell, CellPhase, Job, QueuedReason
+
+
+@dataclass(frozen=True)
+class Binding:
+    job: Job
+    cell: Cell
+
+
+@dataclass(frozen=True)
+class QueueEntry:
+    reason: QueuedReason
+    position: int
+    message: str
+
+
+@dataclass(frozen=True)
+class SchedulePlan:
+    bindings: tuple[Binding, ...]
+    queued: Mapping[str, QueueEntry]
+
+
+def order_key(job: Job) -> tuple[int, datetime, str, str]:
+    return (-job.priority, job.created, job.namespace, job.name)
+
+
+def occupied_cells(jobs: Iterable[Job], cells: Iterable[Cell]) -> set[str]:
+    """A cell is occupied if it holds a claim or an active job names it."""
+    taken = {cell.name for cell in cells if cell.current_job}
+    taken.update(job.cell_name for job in jobs if job.active and job.cell_name)
+    return taken
+
+
+class _Pools:
+    """Free, available cells by (embodiment, task) and by embodiment, popped lazily."""
+
+    def __init__(self, free: list[Cell]) -> None:
+        free.sort(key=lambda c: c.name)
+        self.by_pair: dict[tuple[str, str | None], deque[Cell]] = defaultdict(deque)
+        self.by_embodiment: dict[str, deque[Cell]] = defaultdict(deque)
+        for cell in free:
+            self.by_pair[(cell.embodiment, cell.task)].append(cell)
+            self.by_embodiment[cell.embodiment].append(cell)
+        self.taken: set[str] = set()
+
+    def pop(self, job: Job) -> Cell | None:
+        pool = (
+            self.by_embodiment.get(job.embodiment)
+            if job.task is None
+            else self.by_pair.get((job.embodiment, job.task))
+        )
+        while pool:
+            cell = pool.popleft()
+            if cell.name not in self.taken:
+                self.taken.add(cell.name)
+                return cell
+        return None
+
+
+class _Census:
+    """Counts of cells and available cells per embodiment and (embodiment, task)."""
+
+    def __init__(self, phases: Mapping[str, tuple[Cell, CellPhase]]) -> None:
+        self.total: dict[object, int] = defaultdict(int)
+        self.available: dict[object, int] = defaultdict(int)
+        for cell, phase in phases.values():
+            for key in (cell.embodiment, (cell.embodiment, cell.task)):
+                self.total[key] += 1
+                if is_available(phase):
+                    self.available[key] += 1
+
+    def reason(self, job: Job) -> tuple[QueuedReason, str]:
+        emb, task = job.embodiment, job.task
+        if not self.total.get(emb):
+            return (
+                QueuedReason.NO_CELL_FOR_EMBODIMENT,
+                f"no Cell has embodiment {emb!r}; register one (kubectl apply -f cell.yaml) "
+                "or fix spec.embodiment",
+            )
+        key: object = emb if task is None else (emb, task)
+        if task is not None and not self.total.get(key):
+            return (
+                QueuedReason.NO_CELL_FOR_EMBODIMENT_AND_TASK,
+                f"no Cell of embodiment {emb!r} is configured for task {task!r}; "
+                "drop spec.task to run on any cell of the embodiment",
+            )
+        if not self.available.get(key):
+            return (
+                QueuedReason.ALL_CELLS_UNAVAILABLE,
+                f"all {self.total[key]} matching Cell(s) are offline, faulted or cordoned",
+            )
+        return (
+            QueuedReason.ALL_CELLS_BUSY,
+            f"all {self.available[key]} available matching Cell(s) are busy",
+        )
+
+
+def plan_bindings(
+    jobs: Iterable[Job],
+    cells: Iterable[Cell],
+    now: datetime,
+    heartbeat_timeout: timedelta,
+) -> SchedulePlan:
+    """Bind waiting jobs to free available cells; give every other waiting job a reason."""
+    jobs = list(jobs)
+    cells = list(cells)
+    occupied = occupied_cells(jobs, cells)
+    claimed_jobs = {cell.current_job for cell in cells if cell.current_job}
+    phases = {
+        cell.name: (cell, derive_cell_phase(cell, cell.name in occupied, now, heartbeat_timeout))
+        for cell in cells
+    }
+    pools = _Pools([cell for cell, phase in phases.values() if phase is CellPhase.READY])
+    census = _Census(phases)
+
+    bindings: list[Binding] = []
+    queued: dict[str, QueueEntry] = {}
+    ahead_any: dict[str, int] = defaultdict(int)
+    ahead_untasked: dict[str, int] = defaultdict(int)
+    ahead_task: dict[tuple[str, str], int] = defaultdict(int)
+    for job in sorted((j for j in jobs if j.waiting), key=order_key):
+        if job.key in claimed_jobs:
+            # A half-done binding from a crash: wait for the repair to release the claim.
+            reason, message = (
+                QueuedReason.WAITING_FOR_CELL_RELEASE,
+                "a Cell still holds an unfinished claim on this job; it is released shortly",
+            )
+        else:
+            cell = pools.pop(job)
+            if cell is not None:
+                bindings.append(Binding(job, cell))
+                continue
+            reason, message = census.reason(job)
+        emb = job.embodiment
+        if job.task is None:
+            position = ahead_any[emb] + 1
+            ahead_untasked[emb] += 1
+        else:
+            position = ahead_task[(emb, job.task)] + ahead_untasked[emb] + 1
+            ahead_task[(emb, job.task)] += 1
+        ahead_any[emb] += 1
+        queued[job.key] = QueueEntry(reason, position, message)
+    return SchedulePlan(tuple(bindings), queued)
+
+
+def choose_cell(
+    job: Job, cells: Iterable[Cell], now: datetime, heartbeat_timeout: timedelta
+) -> Cell | None:
+    """The cell ``job`` would get if it were alone in the queue (for CLIs and tests)."""
+    plan = plan_bindings([job], cells, now, heartbeat_timeout)
+    return plan.bindings[0].cell if plan.bindings else None

@@ -1,0 +1,112 @@
+"""The CRDs on the real API server: defaults, readable rejections, CEL immutability, examples."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import uuid
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+pytestmark = pytest.mark.integration
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "crds" / "examples"
+
+
+def job(namespace: str, name: str | None = None, **spec: Any) -> dict[str, Any]:
+    body = {"image": "registry.example.com/team/pick:1.0", "embodiment": "lerobot/so-101", **spec}
+    return {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob",
+            "metadata": {"name": name or f"j-{uuid.uuid4().hex[:6]}", "namespace": namespace}, "spec": body}
+
+
+def apply(k8s: Any, doc: dict[str, Any], check: bool = True) -> subprocess.CompletedProcess[str]:
+    return k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump(doc), check=check)
+
+
+def rejected(k8s: Any, doc: dict[str, Any]) -> str:
+    result = apply(k8s, doc, check=False)
+    assert result.returncode != 0, f"accepted: {doc}"
+    return result.stderr
+
+
+def get(k8s: Any, namespace: str, name: str) -> dict[str, Any]:
+    return json.loads(k8s.kubectl("get", "robotjob", name, "-n", namespace, "-o", "json").stdout)
+
+
+def test_defaults_fill_in_the_optional_fields(k8s: Any, namespace: str) -> None:
+    apply(k8s, job(namespace, "plain"))
+    spec = get(k8s, namespace, "plain")["spec"]
+    assert (spec["timeoutSeconds"], spec["priority"], spec["cancel"], spec["detach"]) == (120, 0, False, False)
+    assert spec["args"] == {} and spec["secrets"] == {}
+
+
+@pytest.mark.parametrize(("spec", "says"), [
+    ({"timeoutSeconds": 0}, "spec.timeoutSeconds: Invalid value: 0: spec.timeoutSeconds in body should be greater than or equal to 1"),
+    ({"embodiment": ""}, "spec.embodiment"),
+    ({"image": "Not An Image!"}, "image must be an image reference like"),
+    ({"secrets": {"1BAD": "token"}}, "secrets keys must be environment variable names"),
+    ({"priority": 5000}, "spec.priority"),
+])
+def test_bad_specs_are_rejected_with_a_readable_message(k8s: Any, namespace: str, spec: dict[str, Any], says: str) -> None:
+    assert says in rejected(k8s, job(namespace, **spec))
+
+
+def test_embodiment_is_required(k8s: Any, namespace: str) -> None:
+    doc = job(namespace)
+    del doc["spec"]["embodiment"]
+    assert "spec.embodiment: Required value" in rejected(k8s, doc)
+
+
+def test_plausible_image_references_are_accepted(k8s: Any, namespace: str) -> None:
+    for image in ("localhost/pick:dev", "my-image:latest", "ghcr.io/org/team/pick:1.2.3",
+                  "registry.example.com:5000/x/y@sha256:" + "a" * 64):
+        apply(k8s, job(namespace, image=image))
+
+
+def test_the_spec_is_immutable_after_creation(k8s: Any, namespace: str) -> None:
+    apply(k8s, job(namespace, "fixed"))
+    changed = job(namespace, "fixed", image="registry.example.com/team/other:2.0")
+    assert "spec is immutable after creation except cancel" in rejected(k8s, changed)
+    with_task = job(namespace, "fixed", task="fold")
+    assert "spec is immutable after creation" in rejected(k8s, with_task)
+
+
+def test_cancel_can_be_set_but_not_undone(k8s: Any, namespace: str) -> None:
+    apply(k8s, job(namespace, "stop-me"))
+    apply(k8s, job(namespace, "stop-me", cancel=True))
+    assert "cancel cannot be undone" in rejected(k8s, job(namespace, "stop-me", cancel=False))
+
+
+def test_priority_changes_while_queued_but_not_once_bound(k8s: Any, namespace: str) -> None:
+    apply(k8s, job(namespace, "prio"))
+    k8s.kubectl("patch", "robotjob", "prio", "-n", namespace, "--subresource=status", "--type=merge",
+                "-p", '{"status":{"phase":"queued"}}')
+    apply(k8s, job(namespace, "prio", priority=7))
+    assert get(k8s, namespace, "prio")["spec"]["priority"] == 7
+    k8s.kubectl("patch", "robotjob", "prio", "-n", namespace, "--subresource=status", "--type=merge",
+                "-p", '{"status":{"phase":"running","cellName":"c"}}')
+    assert "spec.priority can only change while the job is queued" in rejected(k8s, job(namespace, "prio", priority=9))
+
+
+def test_a_bimanual_cell_must_name_both_arms(k8s: Any) -> None:
+    cell = {"apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": f"bi-{uuid.uuid4().hex[:6]}"},
+            "spec": {"embodiment": "lerobot/bimanual_so101", "nodeName": "h", "arms": {"left": {"port": "/dev/a"}}}}
+    assert "a bimanual cell needs spec.arms.left and spec.arms.right" in rejected(k8s, cell)
+
+
+def test_the_examples_are_valid(k8s: Any) -> None:
+    for path in sorted(EXAMPLES.glob("*.yaml")):
+        k8s.kubectl("apply", "--dry-run=server", "-f", str(path), *(["-n", "default"] if "job" in path.name else []))
+
+
+def test_kubectl_get_armnet_lists_jobs_and_cells_with_their_columns(k8s: Any, namespace: str) -> None:
+    apply(k8s, job(namespace, "shown", task="fold"))
+    out = k8s.kubectl("get", "armnet", "-n", namespace).stdout
+    assert "robotjob.armnet.io/shown" in out
+    header = k8s.kubectl("get", "rj", "-n", namespace).stdout.splitlines()[0].split()
+    assert header == ["NAME", "PHASE", "CELL", "EMBODIMENT", "AGE"]
+    cells = k8s.kubectl("get", "cells").stdout.splitlines()
+    assert not cells or cells[0].split() == ["NAME", "EMBODIMENT", "TASK", "PHASE", "JOB", "NODE", "AGE"]

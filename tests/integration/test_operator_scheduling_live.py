@@ -1,0 +1,380 @@
+"""The operator against the real kube-apiserver: binding, queueing, cancel, finalizer, TTL, offline.
+
+The operator runs in-process (``kopf.testing.KopfRunner``); the test plays the
+node agent's part by heartbeating Cells and patching RobotJob status exactly as
+the agent does. Each test uses its own namespace and a unique embodiment so
+cluster-scoped Cells from other tests never match its jobs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
+from typing import Any
+
+import kopf
+import pytest
+import yaml
+from armnet_operator.handlers import build_registry
+from armnet_operator.settings import load_settings
+from kopf.testing import KopfRunner
+from kubernetes import client, watch
+
+pytestmark = pytest.mark.integration
+
+G, V = "armnet.io", "v1alpha1"
+
+
+def stamp() -> str:
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+class Bed:
+    """The test's hands on the cluster: kubectl apply, agent-style status patches, waits."""
+
+    def __init__(self, k8s: Any, namespace: str) -> None:
+        self.k8s = k8s
+        self.ns = namespace
+        self.api = client.CustomObjectsApi(k8s.api_client())
+        self.core = client.CoreV1Api(k8s.api_client())
+        self.embodiment = f"test/{uuid.uuid4().hex[:8]}"
+        self.cells: list[str] = []
+        self.alive: set[str] = set()
+        self._stop = threading.Event()
+        self._beat = threading.Thread(target=self._heartbeat_loop, daemon=True)
+        self._beat.start()
+
+    # ---- submitting, as a user would
+    def apply(self, doc: dict[str, Any]) -> None:
+        self.k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump(doc))
+
+    def cell(self, name: str, task: str | None = None, unschedulable: bool = False, alive: bool = True) -> str:
+        name = f"{name}-{self.ns}"
+        spec: dict[str, Any] = {"embodiment": self.embodiment, "nodeName": "host-1",
+                                "unschedulable": unschedulable}
+        if task:
+            spec["task"] = task
+        self.apply({"apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name}, "spec": spec})
+        self.cells.append(name)
+        if alive:
+            self.beat(name)
+            self.alive.add(name)
+        return name
+
+    def job(self, name: str, embodiment: str | None = None, **spec: Any) -> str:
+        body = {"image": "localhost/armnet-test:dev", "embodiment": embodiment or self.embodiment, **spec}
+        self.apply({"apiVersion": f"{G}/{V}", "kind": "RobotJob",
+                    "metadata": {"name": name, "namespace": self.ns}, "spec": body})
+        return name
+
+    # ---- the agent's part
+    def beat(self, cell: str) -> None:
+        self.api.patch_cluster_custom_object_status(G, V, "cells", cell, {"status": {
+            "lastHeartbeatTime": stamp(),
+            "conditions": [{"type": "AgentConnected", "status": "True", "reason": "Heartbeat",
+                            "message": "", "lastTransitionTime": stamp()}]}})
+
+    def _heartbeat_loop(self) -> None:
+        while not self._stop.wait(0.5):
+            for cell in list(self.alive):
+                with contextlib.suppress(Exception):
+                    self.beat(cell)
+
+    def agent_sets(self, job: str, phase: str, **extra: Any) -> None:
+        status: dict[str, Any] = {"phase": phase, **extra}
+        if phase == "running":
+            status["startedAt"] = stamp()
+        if phase in ("succeeded", "failed", "cancelled", "timeout"):
+            status["finishedAt"] = stamp()
+        self.api.patch_namespaced_custom_object_status(G, V, self.ns, "robotjobs", job, {"status": status})
+
+    # ---- looking
+    def get_job(self, name: str) -> dict[str, Any] | None:
+        try:
+            return self.api.get_namespaced_custom_object(G, V, self.ns, "robotjobs", name)
+        except client.ApiException as error:
+            if error.status == 404:
+                return None
+            raise
+
+    def get_cell(self, name: str) -> dict[str, Any]:
+        return self.api.get_cluster_custom_object(G, V, "cells", name)
+
+    def wait(self, what: str, check: Callable[[], Any], timeout: float = 30) -> Any:
+        deadline = time.monotonic() + timeout
+        last: Any = None
+        while time.monotonic() < deadline:
+            last = check()
+            if last:
+                return last
+            time.sleep(0.2)
+        raise AssertionError(f"timed out after {timeout}s waiting for {what}; last: {last!r}")
+
+    def wait_job(self, name: str, **status: Any) -> dict[str, Any]:
+        def check() -> dict[str, Any] | None:
+            body = self.get_job(name)
+            got = (body or {}).get("status", {})
+            return body if all(got.get(k) == v for k, v in status.items()) else None
+        return self.wait(f"job {name} with {status}", check)
+
+    def condition(self, body: dict[str, Any], type_: str) -> dict[str, Any]:
+        return next(c for c in body["status"]["conditions"] if c["type"] == type_)
+
+    def events(self, name: str) -> list[str]:
+        events = self.core.list_namespaced_event(self.ns, field_selector=f"involvedObject.name={name}")
+        return [e.reason for e in events.items]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._beat.join(timeout=5)
+        for cell in self.cells:
+            self.k8s.kubectl("delete", "cell", cell, "--ignore-not-found", "--wait=false", check=False)
+
+
+@pytest.fixture
+def bed(k8s: Any, namespace: str) -> Iterator[Bed]:
+    bed = Bed(k8s, namespace)
+    try:
+        yield bed
+    finally:
+        bed.close()
+
+
+def operator_settings(k8s: Any, namespace: str, **overrides: Any) -> Any:
+    values = {
+        "namespaces": (namespace,), "kubeconfig": str(k8s.kubeconfig), "metrics_port": 0,
+        "lease_namespace": namespace, "lease_duration": 3, "heartbeat_timeout": 3,
+        "claim_grace": 2, "lost_grace": 2, "cancel_force_after": 2, "reconcile_period": 0.5,
+        "position_refresh": 0, "identity": f"replica-{uuid.uuid4().hex[:6]}",
+    }
+    values.update(overrides)
+    return load_settings(values, environ={})
+
+
+@contextlib.contextmanager
+def running_operator(k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch, **overrides: Any) -> Iterator[Any]:
+    monkeypatch.setenv("KUBECONFIG", str(k8s.kubeconfig))  # kopf's own login
+    registry, controller = build_registry(operator_settings(k8s, namespace, **overrides))
+    kopf_settings = kopf.OperatorSettings()
+    kopf_settings.watching.server_timeout = 10
+    args = ["run", "--standalone", "--namespace", namespace]
+    with KopfRunner(args, registry=registry, settings=kopf_settings, timeout=120) as runner:
+        yield controller
+    assert runner.exception is None, runner.output
+    assert runner.exit_code == 0, runner.output
+    assert "Traceback" not in runner.output, runner.output
+
+
+@pytest.fixture
+def operator(k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
+    with running_operator(k8s, namespace, monkeypatch) as controller:
+        yield controller
+
+
+def test_a_job_binds_to_a_ready_cell_which_names_it(bed: Bed, operator: Any) -> None:
+    cell = bed.cell("c1")
+    bed.job("pick")
+    body = bed.wait_job("pick", phase="dispatched", cellName=cell)
+    assert bed.get_cell(cell)["status"]["currentJob"] == f"{bed.ns}/pick"
+    assert bed.condition(body, "Bound")["status"] == "True"
+    assert body["status"]["jobId"] == body["metadata"]["uid"]
+    assert "armnet.io/release-cell" in body["metadata"]["finalizers"]
+    bed.wait("a Bound event", lambda: "Bound" in bed.events("pick"))
+
+
+def test_higher_priority_binds_first_and_the_rest_wait_with_a_position(bed: Bed, operator: Any) -> None:
+    bed.job("low-1")
+    bed.job("low-2")
+    bed.job("urgent", priority=10)
+    bed.wait_job("low-2", phase="queued", queuedReason="NoCellForEmbodiment")
+    cell = bed.cell("c1")
+    bed.wait_job("urgent", phase="dispatched", cellName=cell)
+    assert bed.wait_job("low-1", phase="queued", queuedReason="AllCellsBusy")["status"]["queuePosition"] == 1
+    assert bed.wait_job("low-2", queuePosition=2)["status"]["queuedReason"] == "AllCellsBusy"
+
+
+def test_queue_reasons_say_why_a_job_waits(bed: Bed, operator: Any) -> None:
+    bed.cell("cordoned", task="fold", unschedulable=True)
+    bed.job("no-embodiment", embodiment="test/nobody-has-this")
+    bed.job("no-task", task="stack")
+    bed.job("unavailable", task="fold")
+    bed.wait_job("no-embodiment", phase="queued", queuedReason="NoCellForEmbodiment")
+    body = bed.wait_job("no-task", phase="queued", queuedReason="NoCellForEmbodimentAndTask")
+    assert "drop spec.task" in bed.condition(body, "Queued")["message"]
+    bed.wait_job("unavailable", phase="queued", queuedReason="AllCellsUnavailable")
+
+
+def test_cancelling_a_queued_job_ends_it_at_once(bed: Bed, operator: Any) -> None:
+    bed.job("waits")
+    bed.wait_job("waits", phase="queued")
+    bed.k8s.kubectl("patch", "robotjob", "waits", "-n", bed.ns, "--type=merge", "-p", '{"spec":{"cancel":true}}')
+    assert bed.wait_job("waits", phase="cancelled")["status"]["finishedAt"]
+
+
+def test_cancelling_a_running_job_asks_the_agent_and_frees_the_cell_when_it_reports(bed: Bed, operator: Any) -> None:
+    cell = bed.cell("c1")
+    bed.job("long")
+    bed.wait_job("long", phase="dispatched")
+    bed.agent_sets("long", "running")
+    bed.k8s.kubectl("patch", "robotjob", "long", "-n", bed.ns, "--type=merge", "-p", '{"spec":{"cancel":true}}')
+    bed.wait("CancelRequested", lambda: any(
+        c["type"] == "CancelRequested" for c in (bed.get_job("long") or {}).get("status", {}).get("conditions", [])))
+    assert bed.get_job("long")["status"]["phase"] == "running"
+    bed.agent_sets("long", "cancelled")
+    bed.wait("the cell released", lambda: not bed.get_cell(cell)["status"].get("currentJob"))
+
+
+def test_deleting_a_running_job_waits_for_the_cell_to_be_released(bed: Bed, operator: Any) -> None:
+    cell = bed.cell("c1")
+    bed.job("doomed")
+    bed.wait_job("doomed", phase="dispatched")
+    bed.agent_sets("doomed", "running")
+    bed.k8s.kubectl("delete", "robotjob", "doomed", "-n", bed.ns, "--wait=false")
+    bed.wait("CancelRequested on the deleted job", lambda: any(
+        c["type"] == "CancelRequested" for c in (bed.get_job("doomed") or {}).get("status", {}).get("conditions", [])))
+    assert bed.get_job("doomed")["metadata"]["deletionTimestamp"]
+    bed.agent_sets("doomed", "cancelled")
+    bed.wait("the job gone", lambda: bed.get_job("doomed") is None)
+    assert not bed.get_cell(cell)["status"].get("currentJob")
+
+
+def test_a_finished_job_frees_its_cell_for_the_next_and_is_deleted_after_its_ttl(bed: Bed, operator: Any) -> None:
+    cell = bed.cell("c1")
+    bed.job("first", ttlSecondsAfterFinished=1)
+    bed.job("second")
+    bed.wait_job("first", phase="dispatched")
+    bed.agent_sets("first", "running")
+    bed.wait("a Started event", lambda: "Started" in bed.events("first"))
+    bed.agent_sets("first", "succeeded", result={"exitCode": 0, "returnValue": {"score": 1}})
+    bed.wait_job("second", phase="dispatched", cellName=cell)
+    bed.wait("first deleted by its TTL", lambda: bed.get_job("first") is None)
+    assert {"Bound", "Started", "Finished"} <= set(bed.events("first"))
+
+
+def test_a_job_dispatched_to_a_cell_that_goes_offline_is_requeued_to_another(bed: Bed, operator: Any) -> None:
+    flaky = bed.cell("a-flaky")
+    body = bed.wait_job(bed.job("j"), phase="dispatched", cellName=flaky)
+    bed.alive.discard(flaky)
+    spare = bed.cell("b-spare")
+    body = bed.wait_job("j", phase="dispatched", cellName=spare)
+    assert "Requeued" in bed.events("j")
+    bed.wait("the offline cell marked Offline and released", lambda: (
+        bed.get_cell(flaky)["status"].get("phase") == "Offline" and not bed.get_cell(flaky)["status"].get("currentJob")))
+    assert body["status"]["cellName"] == spare
+
+
+def test_a_running_job_on_a_lost_cell_fails_with_the_reason(bed: Bed, operator: Any) -> None:
+    cell = bed.cell("c1")
+    bed.job("j")
+    bed.wait_job("j", phase="dispatched")
+    bed.agent_sets("j", "running")
+    bed.alive.discard(cell)
+    body = bed.wait_job("j", phase="failed")
+    assert body["status"]["result"]["error"] == f"cell {cell} lost"
+
+
+def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
+    k8s: Any, namespace: str, bed: Bed, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Both replicas write at once; watch streams see every state each object goes through.
+
+    A job's own record is the binding: while it is active its cellName never changes, and
+    no two active jobs ever name one cell. (A replica whose job write loses the race gives
+    its provisional cell claim back at once; the agent ignores a claim the job does not
+    confirm, so that transient is not a binding.)
+    """
+    violations: list[str] = []
+    seen_jobs: dict[str, dict[str, Any]] = {}
+    bound_to: dict[str, str] = {}
+    seen_claims: dict[str, str] = {}
+    stop = threading.Event()
+
+    def watching(target: Callable[[], None]) -> Callable[[], None]:
+        def run() -> None:
+            try:
+                target()
+            except Exception as error:  # noqa: BLE001 - a broken watch must fail the test
+                if not stop.is_set():
+                    violations.append(f"watch broke, states were missed: {error!r}")
+        return run
+
+    def watch_jobs() -> None:
+        w = watch.Watch()
+        for event in w.stream(bed.api.list_namespaced_custom_object, G, V, bed.ns, "robotjobs", timeout_seconds=120):
+            if stop.is_set():
+                w.stop()
+                return
+            obj = event["object"]
+            name, status = obj["metadata"]["name"], obj.get("status", {})
+            seen_jobs[name] = status
+            active = [s.get("cellName") for s in seen_jobs.values() if s.get("phase") in ("dispatched", "running")]
+            if len(active) != len(set(active)):
+                violations.append(f"two active jobs on one cell: {sorted(active)}")
+            if status.get("phase") in ("dispatched", "running"):
+                if bound_to.setdefault(name, status["cellName"]) != status["cellName"]:
+                    violations.append(f"{name} moved from {bound_to[name]} to {status['cellName']} while active")
+            elif status.get("phase") == "queued":
+                bound_to.pop(name, None)
+
+    def watch_cells() -> None:
+        w = watch.Watch()
+        for event in w.stream(bed.api.list_cluster_custom_object, G, V, "cells", timeout_seconds=120):
+            if stop.is_set():
+                w.stop()
+                return
+            obj = event["object"]
+            if obj["metadata"]["name"] in bed.cells:
+                seen_claims[obj["metadata"]["name"]] = obj.get("status", {}).get("currentJob") or ""
+
+    def agent() -> None:
+        """Start each dispatched job, finish each running one: the cells turn over fast."""
+        while not stop.wait(0.2):
+            for name, status in list(seen_jobs.items()):
+                with contextlib.suppress(Exception):
+                    if status.get("phase") == "dispatched":
+                        bed.agent_sets(name, "running")
+                    elif status.get("phase") == "running":
+                        bed.agent_sets(name, "succeeded")
+
+    cells = [bed.cell(f"c{i}") for i in range(5)]
+    threads = [threading.Thread(target=t, daemon=True) for t in (watching(watch_jobs), watching(watch_cells), agent)]
+    for t in threads:
+        t.start()
+    # Separate Lease names: both replicas believe they lead, so both bind concurrently and
+    # only the resourceVersion preconditions keep them apart (the worst case on purpose).
+    with running_operator(k8s, namespace, monkeypatch, lease_name="replica-a") as a, \
+            running_operator(k8s, namespace, monkeypatch, lease_name="replica-b") as b:
+        docs = [{"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": f"j{i:02d}", "namespace": bed.ns},
+                 "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}} for i in range(50)]
+        bed.k8s.kubectl("apply", "-f", "-", input="\n---\n".join(json.dumps(d) for d in docs))
+        bed.wait("all 50 jobs succeeded", lambda: sum(
+            1 for s in seen_jobs.values() if s.get("phase") == "succeeded") == 50, timeout=180)
+        bed.wait("every cell released", lambda: not any(seen_claims.values()))
+    stop.set()
+    binds = [r.metrics.binds._value.get() for r in (a, b)]
+    conflicts = [r.metrics.conflicts._value.get() for r in (a, b)]
+    print(f"binds per replica {binds}, conflicts per replica {conflicts}")
+    assert violations == []
+    assert sum(binds) == 50, "every job is bound exactly once across both replicas"
+    assert {s.get("cellName") for s in seen_jobs.values()} <= set(cells)
+
+
+def test_with_a_shared_lease_only_the_leader_binds(
+    k8s: Any, namespace: str, bed: Bed, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cells = [bed.cell(f"c{i}") for i in range(3)]
+    with running_operator(k8s, namespace, monkeypatch) as a, running_operator(k8s, namespace, monkeypatch) as b:
+        for i in range(3):
+            bed.job(f"j{i}")
+        for i in range(3):
+            assert bed.wait_job(f"j{i}", phase="dispatched")["status"]["cellName"] in cells
+        leaders = [r for r in (a, b) if r.leading]
+        assert len(leaders) == 1
+        follower = b if leaders[0] is a else a
+        assert leaders[0].metrics.binds._value.get() == 3
+        assert follower.metrics.binds._value.get() == 0

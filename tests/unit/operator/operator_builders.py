@@ -1,0 +1,151 @@
+"""Fluent builders and a frozen clock for the operator's pure core.
+
+Tests read as specifications: ``a_job().with_embodiment("so-101").queued()``.
+Every builder returns a new frozen model, so a base can be shared safely.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import UTC, datetime, timedelta
+
+from armnet_operator.model import Cell, CellPhase, Job, JobPhase, Timing
+
+NOW = datetime(2026, 1, 1, 12, 0, 0, tzinfo=UTC)
+SO101 = "lerobot/so-101"
+BIMANUAL = "lerobot/bimanual_so101"
+TIMING = Timing(
+    heartbeat_timeout=timedelta(seconds=30),
+    claim_grace=timedelta(seconds=10),
+    lost_grace=timedelta(seconds=60),
+    cancel_force_after=timedelta(seconds=60),
+    default_ttl=timedelta(hours=1),
+)
+
+
+def ago(seconds: float) -> datetime:
+    return NOW - timedelta(seconds=seconds)
+
+
+class JobBuilder:
+    _counter = 0
+
+    def __init__(self) -> None:
+        JobBuilder._counter += 1
+        self.job = Job(
+            namespace="tenant-a",
+            name=f"job-{JobBuilder._counter:05d}",
+            created=ago(100),
+            embodiment=SO101,
+            uid=f"uid-{JobBuilder._counter}",
+            resource_version="1",
+        )
+
+    def _with(self, **changes: object) -> JobBuilder:
+        self.job = replace(self.job, **changes)  # type: ignore[arg-type]
+        return self
+
+    def named(self, name: str, namespace: str = "tenant-a") -> JobBuilder:
+        return self._with(name=name, namespace=namespace)
+
+    def with_embodiment(self, embodiment: str) -> JobBuilder:
+        return self._with(embodiment=embodiment)
+
+    def with_task(self, task: str) -> JobBuilder:
+        return self._with(task=task)
+
+    def with_priority(self, priority: int) -> JobBuilder:
+        return self._with(priority=priority)
+
+    def submitted_ago(self, seconds: float) -> JobBuilder:
+        return self._with(created=ago(seconds))
+
+    def with_ttl(self, seconds: int) -> JobBuilder:
+        return self._with(ttl_seconds_after_finished=seconds)
+
+    def without_finalizer(self) -> JobBuilder:
+        return self._with(finalizers=())
+
+    def cancelled_by_user(self) -> JobBuilder:
+        return self._with(cancel=True)
+
+    def being_deleted(self) -> JobBuilder:
+        return self._with(deleting=True)
+
+    def cancel_requested(self, seconds_ago: float) -> JobBuilder:
+        return self._with(cancel=True, cancel_requested_at=ago(seconds_ago))
+
+    def new(self) -> Job:
+        return self.job
+
+    def queued(self) -> Job:
+        return self._with(phase=JobPhase.QUEUED).job
+
+    def dispatched_to(self, cell: str, seconds_ago: float = 60) -> Job:
+        return self._with(phase=JobPhase.DISPATCHED, cell_name=cell, bound_at=ago(seconds_ago)).job
+
+    def running_on(self, cell: str) -> Job:
+        return self._with(phase=JobPhase.RUNNING, cell_name=cell, bound_at=ago(60)).job
+
+    def finished(self, phase: JobPhase = JobPhase.SUCCEEDED, seconds_ago: float = 10, cell: str | None = None) -> Job:
+        return self._with(phase=phase, finished_at=ago(seconds_ago), cell_name=cell).job
+
+
+class CellBuilder:
+    _counter = 0
+
+    def __init__(self) -> None:
+        CellBuilder._counter += 1
+        self.cell = Cell(
+            name=f"cell-{CellBuilder._counter:04d}",
+            embodiment=SO101,
+            resource_version="1",
+            last_heartbeat=ago(1),
+            phase=CellPhase.READY,
+        )
+
+    def _with(self, **changes: object) -> CellBuilder:
+        self.cell = replace(self.cell, **changes)  # type: ignore[arg-type]
+        return self
+
+    def named(self, name: str) -> CellBuilder:
+        return self._with(name=name)
+
+    def with_embodiment(self, embodiment: str) -> CellBuilder:
+        return self._with(embodiment=embodiment)
+
+    def with_task(self, task: str) -> CellBuilder:
+        return self._with(task=task)
+
+    def cordoned(self) -> CellBuilder:
+        return self._with(unschedulable=True)
+
+    def silent_for(self, seconds: float) -> CellBuilder:
+        return self._with(last_heartbeat=ago(seconds))
+
+    def never_heard_from(self) -> CellBuilder:
+        return self._with(last_heartbeat=None)
+
+    def failing(self, *conditions: str) -> CellBuilder:
+        return self._with(failing_conditions=tuple(conditions))
+
+    def in_phase(self, phase: CellPhase) -> CellBuilder:
+        return self._with(phase=phase)
+
+    def claimed_by(self, job: Job | str, seconds_ago: float = 60) -> CellBuilder:
+        key = job if isinstance(job, str) else job.key
+        return self._with(current_job=key, claimed_at=ago(seconds_ago), phase=CellPhase.BUSY)
+
+    def build(self) -> Cell:
+        return self.cell
+
+    def ready(self) -> Cell:
+        return self.cell
+
+
+def a_job() -> JobBuilder:
+    return JobBuilder()
+
+
+def a_cell() -> CellBuilder:
+    return CellBuilder()

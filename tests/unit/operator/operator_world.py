@@ -1,0 +1,127 @@
+"""An in-memory stand-in for the API server's optimistic concurrency, for property tests.
+
+It is not a Kubernetes mock for integration: it models exactly the two rules
+the binder's safety rests on (JSON merge patch, resourceVersion preconditions
+that fail with Conflict) so hypothesis can explore thousands of interleavings
+in seconds. The integration tests check the same code against the real server.
+"""
+
+from __future__ import annotations
+
+import copy
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from armnet_operator.conditions import format_time
+from armnet_operator.errors import Conflict, NotFound
+from armnet_operator.model import Job
+from armnet_operator.parsing import parse_cell, parse_job
+from armnet_operator.patches import Patch, Target
+
+
+class Crash(Exception):
+    """The operator process dies mid-pass."""
+
+
+def merge(target: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]:
+    for key, value in patch.items():
+        if value is None:
+            target.pop(key, None)
+        elif isinstance(value, dict) and isinstance(target.get(key), dict):
+            merge(target[key], value)
+        else:
+            target[key] = copy.deepcopy(value)
+    return target
+
+
+class World:
+    def __init__(self) -> None:
+        self.now = datetime(2026, 1, 1, tzinfo=UTC)
+        self.rv = 0
+        self.jobs: dict[str, dict[str, Any]] = {}
+        self.cells: dict[str, dict[str, Any]] = {}
+        self.crash_after: int | None = None
+        self.events: list[tuple[str, str]] = []
+
+    def _next_rv(self) -> str:
+        self.rv += 1
+        return str(self.rv)
+
+    def tick(self, seconds: float) -> None:
+        self.now += timedelta(seconds=seconds)
+
+    # ---- what users and agents do
+    def submit(self, name: str, embodiment: str, task: str | None, priority: int) -> None:
+        spec: dict[str, Any] = {"embodiment": embodiment, "priority": priority}
+        if task:
+            spec["task"] = task
+        meta = {"name": name, "namespace": "t", "uid": f"uid-{name}", "resourceVersion": self._next_rv(),
+                "creationTimestamp": format_time(self.now)}
+        self.jobs[f"t/{name}"] = {"metadata": meta, "spec": spec, "status": {}}
+
+    def add_cell(self, name: str, embodiment: str, task: str | None) -> None:
+        spec: dict[str, Any] = {"embodiment": embodiment}
+        if task:
+            spec["task"] = task
+        meta = {"name": name, "resourceVersion": self._next_rv()}
+        self.cells[name] = {"metadata": meta, "spec": spec, "status": {}}
+
+    def heartbeat(self, name: str) -> None:
+        cell = self.cells[name]
+        cell["status"]["lastHeartbeatTime"] = format_time(self.now)
+        cell["metadata"]["resourceVersion"] = self._next_rv()
+
+    def user_patch_job(self, key: str, spec: dict[str, Any]) -> None:
+        if key in self.jobs:
+            merge(self.jobs[key]["spec"], spec)
+            self.jobs[key]["metadata"]["resourceVersion"] = self._next_rv()
+
+    def agent_set_phase(self, key: str, phase: str) -> None:
+        body = self.jobs[key]
+        body["status"]["phase"] = phase
+        if phase in ("succeeded", "failed", "cancelled", "timeout"):
+            body["status"]["finishedAt"] = format_time(self.now)
+        body["metadata"]["resourceVersion"] = self._next_rv()
+
+    # ---- the operator's Api
+    def patch(self, patch: Patch) -> dict[str, Any]:
+        if self.crash_after is not None:
+            if self.crash_after == 0:
+                raise Crash()
+            self.crash_after -= 1
+        store = self.cells if patch.target is Target.CELL_STATUS else self.jobs
+        key = patch.name if patch.target is Target.CELL_STATUS else f"{patch.namespace}/{patch.name}"
+        if key not in store:
+            raise NotFound(key)
+        obj = store[key]
+        body = copy.deepcopy(patch.body)
+        wanted = body.get("metadata", {}).pop("resourceVersion", None)
+        if wanted is not None and wanted != obj["metadata"]["resourceVersion"]:
+            raise Conflict(key)
+        if patch.target is Target.JOB:
+            merge(obj["metadata"], body.get("metadata", {}))
+        else:
+            merge(obj.setdefault("status", {}), body.get("status", {}))
+        obj["metadata"]["resourceVersion"] = self._next_rv()
+        if obj["metadata"].get("deletionTimestamp") and not obj["metadata"].get("finalizers"):
+            del store[key]
+        return copy.deepcopy(obj)
+
+    def delete_job(self, namespace: str, name: str, uid: str) -> None:
+        key = f"{namespace}/{name}"
+        if key not in self.jobs:
+            raise NotFound(key)
+        if self.jobs[key]["metadata"].get("finalizers"):
+            self.jobs[key]["metadata"]["deletionTimestamp"] = format_time(self.now)
+            self.jobs[key]["metadata"]["resourceVersion"] = self._next_rv()
+        else:
+            del self.jobs[key]
+
+    def post_event(self, job: Job, type_: str, reason: str, message: str) -> None:
+        self.events.append((job.key, reason))
+
+    # ---- snapshots
+    def snapshot(self) -> tuple[list[Job], list[Any]]:
+        jobs = [parse_job(copy.deepcopy(b)) for b in self.jobs.values()]
+        cells = [parse_cell(copy.deepcopy(b)) for b in self.cells.values()]
+        return jobs, cells

@@ -1,0 +1,105 @@
+"""Boundaries: parsing bodies into models, patches with preconditions, settings, the Lease decision."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+from armnet_operator.errors import PermanentError
+from armnet_operator.leader import LeaseMove, LeaseView, decide_lease
+from armnet_operator.model import FINALIZER, CellPhase, JobPhase, QueuedReason
+from armnet_operator.parsing import parse_cell, parse_job
+from armnet_operator.patches import bind_job, claim_cell, release_cell, set_finalizer
+from armnet_operator.scheduling import QueueEntry
+from armnet_operator.settings import load_settings
+from operator_builders import NOW, a_cell, a_job, ago
+
+pytestmark = pytest.mark.unit
+
+
+def test_a_robotjob_body_parses_into_the_model() -> None:
+    job = parse_job({
+        "metadata": {"name": "j", "namespace": "t", "uid": "u", "resourceVersion": "7",
+                     "creationTimestamp": "2026-01-01T12:00:00Z", "finalizers": [FINALIZER]},
+        "spec": {"embodiment": "lerobot/so-101", "task": "fold", "priority": 3, "cancel": False},
+        "status": {"phase": "dispatched", "cellName": "c", "conditions": [
+            {"type": "Bound", "status": "True", "lastTransitionTime": "2026-01-01T12:00:05Z"}]},
+    })
+    assert (job.key, job.phase, job.cell_name, job.priority, job.has_finalizer) == ("t/j", JobPhase.DISPATCHED, "c", 3, True)
+    assert job.bound_at is not None and job.bound_at.second == 5
+
+
+def test_a_cell_body_parses_failing_health_conditions() -> None:
+    cell = parse_cell({
+        "metadata": {"name": "c", "resourceVersion": "3"},
+        "spec": {"embodiment": "lerobot/so-101", "nodeName": "h"},
+        "status": {"lastHeartbeatTime": "2026-01-01T12:00:00Z", "conditions": [
+            {"type": "InterlockClear", "status": "False"}, {"type": "Custom", "status": "False"}]},
+    })
+    assert cell.failing_conditions == ("InterlockClear",)
+
+
+def test_a_claim_carries_the_observed_resource_version() -> None:
+    patch = claim_cell(a_cell().named("c").ready(), a_job().named("j").queued(), NOW)
+    assert patch.body["metadata"] == {"resourceVersion": "1"}
+    assert patch.body["status"]["currentJob"] == "tenant-a/j"
+    assert patch.body["status"]["phase"] == CellPhase.BUSY
+
+
+def test_binding_sets_phase_cell_job_id_and_the_bound_condition() -> None:
+    job = a_job().named("j").queued()
+    status = bind_job(job, a_cell().named("c").ready(), NOW).body["status"]
+    assert (status["phase"], status["cellName"], status["jobId"]) == ("dispatched", "c", job.uid)
+    assert [c["type"] for c in status["conditions"]] == ["Bound", "Queued"]
+
+
+def test_releasing_deletes_the_claim_fields() -> None:
+    status = release_cell(a_cell().claimed_by("t/j").ready(), CellPhase.READY).body["status"]
+    assert status == {"currentJob": None, "claimedAt": None, "phase": "Ready"}
+
+
+def test_finalizer_patches_keep_other_finalizers() -> None:
+    job = a_job()._with(finalizers=("other.io/keep", FINALIZER)).queued()
+    assert set_finalizer(job, False).body["metadata"]["finalizers"] == ["other.io/keep"]
+
+
+def test_metrics_count_jobs_queue_depth_cells_and_bind_latency() -> None:
+    from armnet_operator.metrics import Metrics
+    from armnet_operator.reconcile import Outcome
+
+    metrics = Metrics()
+    bound = a_job().submitted_ago(3).queued()
+    waiting = a_job().with_task("fold").queued()
+    outcome = Outcome(bound=[(bound, a_cell().ready())], conflicts=2,
+                      queue={waiting.key: QueueEntry(QueuedReason.ALL_CELLS_BUSY, 1, "")})
+    metrics.observe(outcome, [bound, waiting], [a_cell().ready()], NOW)
+    sample = metrics.registry.get_sample_value
+    assert sample("armnet_robotjobs", {"phase": "queued"}) == 2
+    assert sample("armnet_queue_depth", {"embodiment": "lerobot/so-101", "task": "fold"}) == 1
+    assert sample("armnet_cells", {"phase": "Ready"}) == 1
+    assert sample("armnet_binding_conflicts_total") == 2
+    assert sample("armnet_bind_latency_seconds_sum") == 3.0
+
+
+def test_settings_come_from_env_and_flags_override_them() -> None:
+    env = {"ARMNET_OPERATOR_HEARTBEAT_TIMEOUT": "12", "ARMNET_OPERATOR_NAMESPACES": "a, b"}
+    settings = load_settings({"heartbeat_timeout": "7"}, environ=env)
+    assert settings.heartbeat_timeout == 7 and settings.namespaces == ("a", "b")
+    assert settings.timing.heartbeat_timeout == timedelta(seconds=7)
+    assert load_settings({}, environ={"ARMNET_OPERATOR_DEFAULT_TTL": "none"}).timing.default_ttl is None
+
+
+def test_bad_settings_name_the_variable_and_the_flag() -> None:
+    with pytest.raises(PermanentError, match="ARMNET_OPERATOR_HEARTBEAT_TIMEOUT .--heartbeat-timeout."):
+        load_settings({}, environ={"ARMNET_OPERATOR_HEARTBEAT_TIMEOUT": "-1"})
+
+
+@pytest.mark.parametrize(("lease", "move"), [
+    (None, LeaseMove.ACQUIRE),
+    (LeaseView("me", ago(100), timedelta(seconds=15)), LeaseMove.RENEW),
+    (LeaseView("other", ago(5), timedelta(seconds=15)), LeaseMove.FOLLOW),
+    (LeaseView("other", ago(16), timedelta(seconds=15)), LeaseMove.ACQUIRE),
+    (LeaseView("", None, timedelta(seconds=15)), LeaseMove.ACQUIRE),
+])
+def test_the_lease_is_taken_only_when_free_or_expired(lease: LeaseView | None, move: LeaseMove) -> None:
+    assert decide_lease(lease, "me", NOW) is move
