@@ -11,11 +11,11 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from types import TracebackType
 from typing import Any, TypeVar
 
 from .bus_model import ServoBus
 from .calibration import MotorCalibration
+from .lifecycle import StartStop
 from .physics import PhysicsParams
 from .protocol import ErrorBit
 from .servo import Servo, ServoFaults
@@ -47,7 +47,7 @@ SO101_MOTORS: tuple[MotorSpec, ...] = (
 )
 
 
-class SimulatedArm:
+class SimulatedArm(StartStop):
     """One arm: named STS3215 servos on their own pty, seeded from a calibration."""
 
     def __init__(
@@ -95,17 +95,6 @@ class SimulatedArm:
 
     def stop(self) -> None:
         self.bus.stop()
-
-    def __enter__(self) -> SimulatedArm:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
     @property
     def port(self) -> str:

@@ -11,10 +11,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 
 from .arm import SO101_MOTORS, MotorSpec, SimulatedArm
 from .calibration import Calibration, builtin_calibration
+from .lifecycle import StartStop
 
 
 @dataclass(frozen=True)
@@ -33,7 +33,7 @@ PRESETS: dict[str, tuple[ArmPreset, ...]] = {
 }
 
 
-class SimulatedCell:
+class SimulatedCell(StartStop):
     """The arms of one simulated robot cell, started and stopped together."""
 
     def __init__(self, arms: Mapping[str, SimulatedArm], preset: str = "custom") -> None:
@@ -71,17 +71,6 @@ class SimulatedCell:
     def stop(self) -> None:
         for arm in self.arms.values():
             arm.stop()
-
-    def __enter__(self) -> SimulatedCell:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
 
 def build_cell(

@@ -11,10 +11,10 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from types import TracebackType
 from typing import TypeVar
 
 from .bus_model import ServoBus
+from .lifecycle import StartStop
 from .protocol import FrameParser
 from .pty_server import PtyServer
 from .servo import Servo, ServoFaults
@@ -22,7 +22,7 @@ from .servo import Servo, ServoFaults
 T = TypeVar("T")
 
 
-class SimulatedBus:
+class SimulatedBus(StartStop):
     """A set of simulated servos on one serial line (one pty)."""
 
     def __init__(
@@ -54,17 +54,6 @@ class SimulatedBus:
 
     def stop(self) -> None:
         self._server.stop()
-
-    def __enter__(self) -> SimulatedBus:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
     @property
     def port(self) -> str:

@@ -281,6 +281,39 @@ class Cell:
             setattr(self, attribute, conn)
         return conn
 
+    def _poll(
+        self,
+        channel: str,
+        endpoint: Optional[str],
+        payload: dict[str, Any],
+        failure: str,
+        *,
+        refused: Optional[str] = None,
+    ) -> Optional[dict[str, Any]]:
+        """One bounded request on a polled channel (``teleop``, ``completion``, ``status``).
+
+        Returns the reply when it is ``ok``, else ``None``: a control loop must
+        never stall or crash on a poll, so the caller answers its neutral value.
+        ``None`` also when there is no endpoint; when the request failed, after a
+        throttled warning (``failure`` formatted with the endpoint and the
+        error; the failed request closed the connection, so the next call
+        reconnects); and when the connector refused, after the ``refused``
+        warning (formatted with its error) if one is given.
+        """
+        if not endpoint:
+            return None
+        conn = self._polled_connection(f"_{channel}_conn", endpoint)
+        try:
+            response = conn.request(payload)
+        except Exception as exc:  # noqa: BLE001 - a poll must never break the control loop
+            self._warn_throttled(f"_{channel}_last_error_log", failure, endpoint, exc)
+            return None
+        if not response.get("ok"):
+            if refused is not None:
+                logger.warning(refused, response.get("error"))
+            return None
+        return response
+
     def _warn_throttled(self, stamp_attribute: str, message: str, *args: object) -> None:
         now = time.monotonic()
         last: float = getattr(self, stamp_attribute)
@@ -290,21 +323,13 @@ class Cell:
 
     def _human_completion(self) -> Optional[bool]:
         """The operator's reported success/fail, or ``None`` if none is pending or it can't be read."""
-        endpoint = self._operator_endpoint()
-        if not endpoint:
-            return None
-        conn = self._polled_connection("_completion_conn", endpoint)
-        try:
-            response = conn.request({"op": "get_completion"})
-        except Exception as exc:  # noqa: BLE001 - a poll must never break the control loop
-            self._warn_throttled(
-                "_completion_last_error_log",
-                "completion read from %s failed (treating as not complete): %r",
-                endpoint,
-                exc,
-            )
-            return None
-        if not response.get("ok") or not response.get("reported"):
+        response = self._poll(
+            "completion",
+            self._operator_endpoint(),
+            {"op": "get_completion"},
+            "completion read from %s failed (treating as not complete): %r",
+        )
+        if response is None or not response.get("reported"):
             return None
         return bool(response.get("success", False))
 
@@ -348,18 +373,13 @@ class Cell:
 
         Returns False with no endpoint or when the status can't be read.
         """
-        endpoint = self._operator_endpoint()
-        if not endpoint:
-            return False
-        conn = self._polled_connection("_status_conn", endpoint)
-        try:
-            response = conn.request({"op": "shutdown_status"})
-        except Exception as exc:  # noqa: BLE001 - never let a status poll break the loop
-            self._warn_throttled(
-                "_status_last_error_log", "shutdown status read from %s failed: %r", endpoint, exc
-            )
-            return False
-        return bool(response.get("ok") and response.get("shutting_down"))
+        response = self._poll(
+            "status",
+            self._operator_endpoint(),
+            {"op": "shutdown_status"},
+            "shutdown status read from %s failed: %r",
+        )
+        return response is not None and bool(response.get("shutting_down"))
 
     def should_stop(self) -> bool:
         """True when local or remote control asks the job to stop safely.
@@ -374,16 +394,10 @@ class Cell:
                 raise RuntimeError(response.get("error", "local stop check failed"))
             return bool(response.get("stop", False))
         if self.operator_call_endpoint:
-            conn = self._polled_connection("_status_conn", self.operator_call_endpoint)
-            try:
-                response = conn.request(request)
-            except Exception as exc:  # noqa: BLE001 - a poll must never break the loop
-                self._warn_throttled(
-                    "_status_last_error_log", "stop check on %s failed: %r",
-                    self.operator_call_endpoint, exc,
-                )
-                return False
-            return bool(response.get("ok") and response.get("stop"))
+            polled = self._poll(
+                "status", self.operator_call_endpoint, request, "stop check on %s failed: %r"
+            )
+            return polled is not None and bool(polled.get("stop"))
         return False
 
     def get_teleop_action(self) -> Optional[dict[str, float]]:
@@ -393,21 +407,14 @@ class Cell:
         channel failed (the loop holds position; the next call reconnects).
         """
         endpoint = self._operator_endpoint()
-        if not endpoint:
-            return None
-        conn = self._polled_connection("_teleop_conn", endpoint)
-        try:
-            response = conn.request({"op": "get_teleop"})
-        except Exception as exc:  # noqa: BLE001 - a wedged channel must not stall the loop
-            self._warn_throttled(
-                "_teleop_last_error_log",
-                "teleop read from %s failed (holding position; will reconnect): %r",
-                endpoint,
-                exc,
-            )
-            return None
-        if not response.get("ok"):
-            logger.warning("teleop read returned error: %s", response.get("error"))
+        response = self._poll(
+            "teleop",
+            endpoint,
+            {"op": "get_teleop"},
+            "teleop read from %s failed (holding position; will reconnect): %r",
+            refused="teleop read returned error: %s",
+        )
+        if response is None:
             return None
         action = response.get("action")
         if not action or not isinstance(action, dict):
@@ -425,22 +432,14 @@ class Cell:
 
         Events: ``next_episode``, ``rerecord_episode``, ``stop_recording``.
         """
-        endpoint = self._operator_endpoint()
-        if not endpoint:
-            return None
-        conn = self._polled_connection("_teleop_conn", endpoint)
-        try:
-            response = conn.request({"op": "get_teleop_event"})
-        except Exception as exc:  # noqa: BLE001 - a wedged channel must not stall the loop
-            self._warn_throttled(
-                "_teleop_last_error_log",
-                "teleop event read from %s failed (will reconnect): %r",
-                endpoint,
-                exc,
-            )
-            return None
-        if not response.get("ok"):
-            logger.warning("teleop event read returned error: %s", response.get("error"))
+        response = self._poll(
+            "teleop",
+            self._operator_endpoint(),
+            {"op": "get_teleop_event"},
+            "teleop event read from %s failed (will reconnect): %r",
+            refused="teleop event read returned error: %s",
+        )
+        if response is None:
             return None
         event = response.get("event")
         return str(event) if event else None

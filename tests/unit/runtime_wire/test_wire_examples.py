@@ -23,8 +23,8 @@ from types import ModuleType
 from typing import Any
 
 import pytest
-from armnet_agent.sim.calibration import builtin_calibration, write_calibration
 from armnet_agent.sim import SimulatedCellProcess
+from armnet_agent.sim.calibration import builtin_calibration, write_calibration
 from armnet_runtime.context import build_context
 from armnet_runtime.decorator import _clear_registration
 from armnet_runtime.endpoints import parse_endpoint
