@@ -3,13 +3,16 @@
 One tick is what a LeRobot control loop does: ``sync_read("Present_Position")``
 then ``sync_write("Goal_Position", ...)`` (and, with ``--camera``, one
 ``read_latest`` of the ``front`` camera: the newest frame, no wait). The same
-simulated cell (simulator on a
-pty + the real connector, in a separate process so client and cell never share
-a GIL) is driven in alternating rounds by:
+simulated cell is driven, the two taking turns tick by tick (so both see the
+same machine load), by:
 
 - **direct**: the real ``FeetechMotorsBus`` (and the simulated camera) on the pty;
 - **proxy**: ``RemoteFeetechMotorsBus`` / ``RemoteOpenCVCamera`` -> robot.sock ->
   the connector -> the real ``FeetechMotorsBus`` on the same pty.
+
+The processes are those of a real cell: the simulated servos on a pty in one
+process (the hardware), the connector in another (the sidecar), the bench in a
+third (the job); nothing shares a GIL.
 
 It prints per-call latency p50/p99 for both, the overhead (proxy - direct) and
 the ratio, and the share of paced 100 Hz ticks that finished on time.
@@ -42,25 +45,45 @@ SO101_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wr
 
 
 def serve_cell() -> None:
-    """Child mode: start the local so101 cell, print its facts as JSON, run until stdin closes."""
-    from armnet_agent.local_run.cell_spec import resolve_spec
-    from armnet_agent.local_run.session import LocalCell
+    """Child mode: the connector of a local so101 cell, as its own process; runs until stdin closes.
+
+    The topology of a real cell: the simulated servos live in a third process
+    (``SimulatedCellProcess``, standing in for the hardware), this process is the
+    connector sidecar, and the bench's main process is the job. Nothing shares a GIL.
+    """
+    from armnet_agent.connector import Connector
+    from armnet_agent.connector.hardware import simulated_camera_factory
+    from armnet_agent.local_run.cell_spec import plan_layout, resolve_spec
+    from armnet_agent.local_run.session import build_connector_config
+    from armnet_agent.sim import SimulatedCellProcess
+    from armnet_agent.sim.calibration import builtin_calibration, write_calibration
+    from armnet_agent.sim.presets import PRESETS
 
     spec = resolve_spec(embodiment=None, preset="so101", task=None, grace_seconds=None)
-    with tempfile.TemporaryDirectory(prefix="armnet-bench-") as run_dir, LocalCell(spec, Path(run_dir)) as cell:
-        assert cell.sim is not None
-        arm = cell.layout.arms[0]
-        print(
-            json.dumps(
-                {
-                    "port": cell.sim.arm.port,
-                    "endpoint": arm.endpoint,
-                    "calibration_file": str(arm.calibration_file),
-                }
-            ),
-            flush=True,
-        )
-        sys.stdin.read()
+    with tempfile.TemporaryDirectory(prefix="armnet-bench-") as run_dir:
+        layout = plan_layout(spec, Path(run_dir))
+        for directory in (layout.socket_dir, layout.calibration_dir):
+            directory.mkdir(parents=True, exist_ok=True)
+        shipped = {preset.name: preset.calibration for preset in PRESETS[spec.preset]}
+        calibrations = {}
+        for arm in layout.arms:
+            calibrations[arm.name] = builtin_calibration(shipped[arm.name])
+            write_calibration(arm.calibration_file, calibrations[arm.name])
+        with SimulatedCellProcess(spec.preset, calibrations=calibrations) as sim:
+            config = build_connector_config(spec, layout, sim.ports())
+            with Connector(config, layout.socket_dir, camera_factory=simulated_camera_factory(source=sim)):
+                arm = layout.arms[0]
+                print(
+                    json.dumps(
+                        {
+                            "port": sim.arm.port,
+                            "endpoint": arm.endpoint,
+                            "calibration_file": str(arm.calibration_file),
+                        }
+                    ),
+                    flush=True,
+                )
+                sys.stdin.read()
 
 
 # ----------------------------------------------------------------- clients
@@ -123,12 +146,26 @@ def proxy_client(cell: dict[str, str], with_camera: bool) -> Client:
     return Client("proxy", bus, camera)
 
 
+class HelloProbe:
+    """The transport floor: one ``hello`` round trip on robot.sock per tick, after the same pause."""
+
+    name = "hello"
+
+    def __init__(self, cell: dict[str, str]) -> None:
+        from armnet_runtime.transport import PersistentConnection
+
+        self.conn = PersistentConnection(cell["endpoint"], timeout=5.0)
+
+    def close(self) -> None:
+        self.conn.close()
+
+
 # ----------------------------------------------------------------- measurement
 
 
 class Samples:
     def __init__(self) -> None:
-        self.calls: dict[str, list[float]] = {"sync_read": [], "sync_write": [], "camera": []}
+        self.calls: dict[str, list[float]] = {"sync_read": [], "sync_write": [], "camera": [], "hello": []}
         self.ticks = 0
         self.on_time = 0
         self.failed = 0
@@ -148,29 +185,45 @@ def timed(bucket: list[float], call: Callable[[], Any]) -> Any:
     return value
 
 
-def run_ticks(client: Client, ticks: int) -> Samples:
-    """Paced 100 Hz ticks; a tick is on time when its work ends before the next tick starts."""
-    samples = Samples()
-    start = client.start
+def tick_work(client: Client | HelloProbe, tick: int, samples: Samples) -> bool:
+    """One control tick's calls on ``client``; False when a bus reply was lost."""
+    if isinstance(client, HelloProbe):
+        probe = client
+        timed(samples.calls["hello"], lambda: probe.conn.request({"op": "hello"}))
+        return True
+    offset = WIGGLE_DEG * math.sin(tick / 20.0)
+    goals = {name: client.start[name] + (offset if name != "gripper" else 0.0) for name in SO101_JOINTS}
+    try:
+        timed(samples.calls["sync_read"], lambda: client.bus.sync_read("Present_Position"))
+        timed(samples.calls["sync_write"], lambda: client.bus.sync_write("Goal_Position", goals))
+        camera = client.camera
+        if camera is not None:
+            timed(samples.calls["camera"], lambda: camera.read_latest(max_age_ms=500))
+    except (ConnectionError, TimeoutError):
+        # A starved simulator misses a reply now and then on a loaded machine: count it, go on.
+        samples.failed += 1
+        return False
+    return True
+
+
+def run_ticks(clients: list[Client | HelloProbe], ticks: int) -> dict[str, Samples]:
+    """Paced 100 Hz ticks, the clients taking turns tick by tick.
+
+    Interleaving (rather than one block per client) gives both the same machine
+    load, which on a shared machine drifts over seconds. A tick is on time when
+    its work ends before the next tick starts.
+    """
+    samples = {client.name: Samples() for client in clients}
     next_tick = time.perf_counter()
-    for tick in range(ticks):
-        offset = WIGGLE_DEG * math.sin(tick / 20.0)
-        goals = {name: start[name] + (offset if name != "gripper" else 0.0) for name in SO101_JOINTS}
-        failed = False
-        try:
-            timed(samples.calls["sync_read"], lambda: client.bus.sync_read("Present_Position"))
-            timed(samples.calls["sync_write"], lambda goals=goals: client.bus.sync_write("Goal_Position", goals))
-            if client.camera is not None:
-                timed(samples.calls["camera"], lambda: client.camera.read_latest(max_age_ms=500))
-        except (ConnectionError, TimeoutError):
-            # A starved simulator misses a reply now and then on a loaded machine: count it, go on.
-            failed = True
-            samples.failed += 1
+    for tick in range(ticks * len(clients)):
+        client = clients[tick % len(clients)]
+        mine = samples[client.name]
+        ok = tick_work(client, tick // len(clients), mine)
         next_tick += TICK_S
-        samples.ticks += 1
+        mine.ticks += 1
         remaining = next_tick - time.perf_counter()
-        if remaining >= 0 and not failed:
-            samples.on_time += 1
+        if remaining >= 0 and ok:
+            mine.on_time += 1
             time.sleep(remaining)
         else:
             next_tick = time.perf_counter()  # late: restart the grid instead of bursting
@@ -185,7 +238,7 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[index]
 
 
-def report(direct: Samples, proxy: Samples, with_camera: bool) -> bool:
+def report(direct: Samples, proxy: Samples, hello: Samples, with_camera: bool) -> bool:
     print(f"ticks per mode: {direct.ticks} (100 Hz, paced)")
     print(f"{'call':<11}{'direct p50':>12}{'direct p99':>12}{'proxy p50':>12}{'proxy p99':>12}"
           f"{'ovh p50':>10}{'ovh p99':>10}{'ratio':>8}   (microseconds)")
@@ -197,6 +250,8 @@ def report(direct: Samples, proxy: Samples, with_camera: bool) -> bool:
         print(f"{call:<11}{d50:>12.0f}{d99:>12.0f}{p50:>12.0f}{p99:>12.0f}{o50:>10.0f}{o99:>10.0f}{p50 / d50:>8.2f}")
         if call != "camera":
             ok = ok and o50 <= TARGET_P50_US and o99 <= TARGET_P99_US
+    h50, h99 = (percentile(hello.calls["hello"], q) * 1e6 for q in (50, 99))
+    print(f"floor: a bare 'hello' round trip on robot.sock after the same pause: {h50:.0f} us p50, {h99:.0f} us p99")
     direct_share = direct.on_time / direct.ticks
     proxy_share = proxy.on_time / proxy.ticks
     print(f"failed ticks (bus reply lost): direct {direct.failed}, proxy {proxy.failed}")
@@ -210,7 +265,7 @@ def report(direct: Samples, proxy: Samples, with_camera: bool) -> bool:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ticks", type=int, default=500, help="ticks per mode per round (default 500 = 5 s)")
-    parser.add_argument("--rounds", type=int, default=2, help="alternating direct/proxy rounds (default 2)")
+    parser.add_argument("--rounds", type=int, default=2, help="rounds; each swaps which mode ticks first (default 2)")
     parser.add_argument("--camera", action="store_true", help="also read one camera frame per tick")
     parser.add_argument("--serve-cell", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -223,16 +278,21 @@ def main() -> int:
     try:
         assert cell_process.stdout is not None
         cell = json.loads(cell_process.stdout.readline())
-        totals = {"direct": Samples(), "proxy": Samples()}
-        for _ in range(args.rounds):
+        totals = {"direct": Samples(), "proxy": Samples(), "hello": Samples()}
+        clients: list[Client | HelloProbe] = []
+        try:
             for make in (direct_client, proxy_client):
-                client = make(cell, args.camera)
-                try:
-                    run_ticks(client, 20)  # warm-up: caches, first frame
-                    totals[client.name].extend(run_ticks(client, args.ticks))
-                finally:
-                    client.close()
-        report(totals["direct"], totals["proxy"], args.camera)
+                clients.append(make(cell, args.camera))
+            clients.append(HelloProbe(cell))
+            run_ticks(clients, 20)  # warm-up: caches, first frame
+            for _ in range(args.rounds):
+                for name, samples in run_ticks(clients, args.ticks).items():
+                    totals[name].extend(samples)
+                clients.append(clients.pop(0))  # rotate: no mode always goes first
+        finally:
+            for client in clients:
+                client.close()
+        report(totals["direct"], totals["proxy"], totals["hello"], args.camera)
     finally:
         if cell_process.stdin is not None:
             cell_process.stdin.close()

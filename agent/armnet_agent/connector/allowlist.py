@@ -85,11 +85,7 @@ def refusal(class_name: str, name: str, *, kind: str) -> str | None:
         return f"class {class_name!r} is not served by this cell; allowed: {sorted(CLASSES)}"
     if is_private(name):
         return f"{class_name}.{name} is private; only public LeRobot attributes are reachable"
-    allowed = {
-        "call": rules.methods,
-        "get": rules.methods | rules.readable,
-        "set": rules.writable,
-    }[kind]
+    allowed = rules.methods if kind == "call" else rules.writable if kind == "set" else rules.methods | rules.readable
     if name in allowed:
         return None
     verb = {"call": "called", "get": "read", "set": "assigned"}[kind]

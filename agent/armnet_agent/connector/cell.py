@@ -43,6 +43,8 @@ class Counters:
     safety_violations: int = 0
     objects_created: int = 0
     resets: int = 0
+    #: Bus reads repeated after a lost servo reply (see ``retry``).
+    bus_retries: int = 0
 
 
 @dataclass(frozen=True)

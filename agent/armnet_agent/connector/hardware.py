@@ -44,6 +44,8 @@ class Handle:
     cell_ranges: dict[str, MotorRange] = field(default_factory=dict)
     #: Latest Present_Position sync_read, per ``normalize`` flag: (monotonic time, values).
     present: dict[bool, tuple[float, dict[str, float]]] = field(default_factory=dict)
+    #: The safety facts of the motors last written, with the values they were built from.
+    facts_cache: tuple[tuple[Any, ...], dict[str, Any]] | None = None
 
 
 class DeviceLocks:

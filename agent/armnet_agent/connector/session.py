@@ -20,6 +20,7 @@ from .allowlist import CLASSES, refusal
 from .cell import CellState, RolloutEvent
 from .errors import RequestError, failure_reply, not_allowed, protocol_error
 from .hardware import Handle, create_arx5, create_camera, create_feetech
+from .retry import is_read, with_read_retry
 
 log = logging.getLogger(__name__)
 
@@ -179,8 +180,14 @@ class RobotSession(Session):
             value = handle.overrides[name]
         else:
             with handle.lock:
-                value = getattr(handle.obj, name)
+                if is_read(handle.class_name, name, kind="get"):
+                    value = with_read_retry(handle, name, lambda: getattr(handle.obj, name), on_retry=self._count_retry)
+                else:
+                    value = getattr(handle.obj, name)
         return {"ok": True, "callable": False, "value": _encoded(value, name)}
+
+    def _count_retry(self) -> None:
+        self.cell.counters.bus_retries += 1
 
     def op_setattr(self, request: dict[str, Any]) -> Reply:
         handle = self._handle(request)
@@ -206,7 +213,11 @@ class RobotSession(Session):
             self.cell.guard.check(handle, method, args, kwargs)
             if method == "torque_disabled":
                 return self._torque_disabled(handle, args, kwargs)
-            result = getattr(handle.obj, method)(*args, **kwargs)
+            bound = getattr(handle.obj, method)
+            if is_read(handle.class_name, method, kind="call"):
+                result = with_read_retry(handle, method, lambda: bound(*args, **kwargs), on_retry=self._count_retry)
+            else:
+                result = bound(*args, **kwargs)
             if method == "sync_read":
                 self.cell.guard.remember_present(handle, args, kwargs, result)
         if _is_context_manager(result):

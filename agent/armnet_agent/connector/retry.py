@@ -1,0 +1,110 @@
+"""Retrying bus reads that lost their reply, so a loaded machine does not fail a job.
+
+LeRobot waits ~50 ms for a servo's status packet. When the machine is busy, a
+reply now and then comes too late ("There is no status packet!", or "Missing
+motor IDs" from the ``connect`` handshake). A read changes nothing on the servos,
+so the connector may simply ask again: it waits for the late reply to land,
+drops it from the port's input buffer (else the next transaction would take it
+as its own answer) and repeats the call. Writes are never retried here: one
+that was applied must not be applied twice.
+
+This module owns which calls count as reads, which failures count as a lost
+reply (pure functions), and the retry loop. It never decides what a job may call.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from .hardware import Handle
+
+log = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
+
+#: How long to wait after a lost reply before asking again: longer than LeRobot's
+#: timeout, so a late reply has landed (and is dropped) before the retry is sent.
+RETRY_DELAY_S = 0.06
+#: Retries after the first attempt.
+MAX_RETRIES = 2
+
+#: Methods that only read the servos, per allow-listed class.
+READ_METHODS: dict[str, frozenset[str]] = {
+    "FeetechMotorsBus": frozenset(
+        {"sync_read", "read", "ping", "broadcast_ping", "read_calibration", "connect"}
+    ),
+}
+#: Properties that read the servos when they are read.
+READ_PROPERTIES: dict[str, frozenset[str]] = {
+    "FeetechMotorsBus": frozenset({"is_calibrated"}),
+}
+#: The ``connect`` handshake's message when a ping reply was lost.
+_HANDSHAKE_MISS = "Missing motor IDs"
+#: LeRobot's state errors: ConnectionError subclasses that are no lost reply.
+_STATE_ERRORS = frozenset({"DeviceNotConnectedError", "DeviceAlreadyConnectedError"})
+
+
+def is_read(class_name: str, name: str, *, kind: str) -> bool:
+    """Whether calling (``kind="call"``) or reading (``"get"``) ``name`` only reads the servos."""
+    table = READ_METHODS if kind == "call" else READ_PROPERTIES
+    return name in table.get(class_name, frozenset())
+
+
+def is_lost_reply(exc: BaseException, *, connecting: bool = False) -> bool:
+    """Whether ``exc`` is a servo reply that did not arrive in time (worth asking again)."""
+    if type(exc).__name__ in _STATE_ERRORS:
+        return False
+    if isinstance(exc, (ConnectionError, TimeoutError)):
+        return True
+    return connecting and isinstance(exc, RuntimeError) and _HANDSHAKE_MISS in str(exc)
+
+
+def drop_pending_input(bus: Any) -> None:
+    """Discard bytes waiting on the bus's serial port (late replies of the failed attempt)."""
+    serial = getattr(getattr(bus, "port_handler", None), "ser", None)
+    if serial is not None and getattr(serial, "is_open", False):
+        serial.reset_input_buffer()
+
+
+def _close_half_open(bus: Any) -> None:
+    """A failed ``connect`` handshake leaves the port open; close it so ``connect`` may run again."""
+    port = getattr(bus, "port_handler", None)
+    if port is not None and getattr(port, "is_open", False):
+        port.closePort()
+
+
+def with_read_retry(
+    handle: Handle,
+    what: str,
+    call: Callable[[], _T],
+    *,
+    on_retry: Callable[[], None],
+    sleep: Callable[[float], None] = time.sleep,
+) -> _T:
+    """Run the read ``call``; on a lost reply wait, drop stale input and retry (``MAX_RETRIES`` times).
+
+    The caller holds the device lock, so no other request uses the bus between
+    attempts. ``on_retry`` is called once per retry (the connector counts them).
+    """
+    connecting = what == "connect"
+    if connecting and getattr(handle.obj, "is_connected", False):
+        return call()  # already connected: LeRobot raises at once, nothing to retry
+    for attempt in range(MAX_RETRIES + 1):
+        try:
+            return call()
+        except Exception as exc:
+            if attempt == MAX_RETRIES or not is_lost_reply(exc, connecting=connecting):
+                raise
+            log.debug("%s.%s lost a reply (%s); retry %d of %d", handle.class_name, what,
+                      str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__,
+                      attempt + 1, MAX_RETRIES)
+            on_retry()
+            sleep(RETRY_DELAY_S)
+            if connecting:
+                _close_half_open(handle.obj)
+            else:
+                drop_pending_input(handle.obj)
+    raise AssertionError("unreachable")

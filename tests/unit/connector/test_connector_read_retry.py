@@ -1,0 +1,83 @@
+"""Lost servo replies: the connector asks again for reads, never for writes.
+
+The simulator's fault injection (``drop_replies``) loses a servo's next status
+packets, as a loaded machine does when a reply misses LeRobot's ~50 ms timeout.
+"""
+
+from __future__ import annotations
+
+import pytest
+from armnet_agent.connector.retry import MAX_RETRIES, is_lost_reply, is_read
+from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.fixture
+def connector(sim_cell, make_connector, cell_config):
+    return make_connector(cell_config(sim_cell))
+
+
+@pytest.fixture
+def remote(connector, motors, calibration):
+    bus = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
+    yield bus
+    if bus.is_connected:
+        bus.disconnect(disable_torque=False)
+
+
+def test_a_sync_read_that_lost_one_reply_succeeds_and_counts_a_retry(remote, sim_cell, connector) -> None:
+    remote.connect()
+    expected = sim_cell.arm.normalized_positions()
+    assert connector.counters.bus_retries == 0
+    sim_cell.arm.drop_replies("elbow_flex", 1)
+    values = remote.sync_read("Present_Position")
+    assert connector.counters.bus_retries == 1
+    assert values["elbow_flex"] == pytest.approx(expected["elbow_flex"], abs=0.5)
+    # The late reply was not left behind for the next transaction to swallow.
+    assert remote.read("Present_Position", "wrist_flex") == pytest.approx(expected["wrist_flex"], abs=0.5)
+    assert connector.counters.bus_retries == 1
+
+
+def test_a_connect_handshake_that_lost_a_ping_reply_succeeds(remote, sim_cell, connector) -> None:
+    sim_cell.arm.drop_replies("shoulder_lift", 1)
+    remote.connect()
+    assert remote.is_connected
+    assert connector.counters.bus_retries == 1
+    assert set(remote.sync_read("Present_Position")) == set(sim_cell.arm.motors)
+
+
+def test_a_read_that_keeps_failing_raises_after_the_retries(remote, sim_cell, connector) -> None:
+    remote.connect()
+    sim_cell.arm.drop_replies("gripper", MAX_RETRIES + 5)
+    with pytest.raises(ConnectionError, match="status packet"):
+        remote.read("Present_Position", "gripper")
+    assert connector.counters.bus_retries == MAX_RETRIES
+    sim_cell.arm.clear_faults("gripper")
+    assert "gripper" in remote.sync_read("Present_Position")
+
+
+def test_a_write_that_lost_its_reply_is_not_repeated(remote, sim_cell, connector) -> None:
+    remote.connect()
+    remote.write("Response_Status_Level", "wrist_roll", 1)  # the servo acknowledges writes
+    sim_cell.arm.drop_replies("wrist_roll", 1)
+    with pytest.raises(ConnectionError, match="status packet"):
+        remote.write("Torque_Enable", "wrist_roll", 1)
+    assert connector.counters.bus_retries == 0
+    assert sim_cell.arm.register("wrist_roll", "Torque_Enable") == 1  # it was applied, once
+
+
+def test_which_calls_and_failures_are_retried() -> None:
+    assert is_read("FeetechMotorsBus", "sync_read", kind="call")
+    assert is_read("FeetechMotorsBus", "is_calibrated", kind="get")
+    assert not is_read("FeetechMotorsBus", "sync_write", kind="call")
+    assert not is_read("FeetechMotorsBus", "write", kind="call")
+    assert not is_read("OpenCVCamera", "read", kind="call")
+    assert is_lost_reply(ConnectionError("Failed to sync read. [TxRxResult] There is no status packet!"))
+    assert is_lost_reply(TimeoutError("no reply"))
+    assert not is_lost_reply(DeviceNotConnectedError("not connected"))
+    assert not is_lost_reply(DeviceAlreadyConnectedError("already connected"))
+    assert not is_lost_reply(RuntimeError("[RxPacketError] Overload error!"))
+    assert not is_lost_reply(RuntimeError("motor check failed:\nMissing motor IDs:\n - 2"))
+    assert is_lost_reply(RuntimeError("motor check failed:\nMissing motor IDs:\n - 2"), connecting=True)
