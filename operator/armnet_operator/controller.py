@@ -18,7 +18,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from .errors import OperatorError, PermanentError
-from .kube import KubeApi
+from .kube import WRITERS, KubeApi
 from .metrics import Metrics
 from .model import Cell, Job
 from .parsing import parse_cell, parse_job
@@ -129,7 +129,7 @@ class Controller:
         self.cache = Cache()
         self.memory = Memory()
         self.limits = Limits(
-            position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=8
+            position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=WRITERS
         )
         self.leading = False
         self._renewed_at: datetime | None = None
@@ -197,7 +197,11 @@ class Controller:
         started = time.perf_counter()
         jobs, cells = self.cache.snapshot()
         cells = self._cells_in_scope(cells)
-        outcome = reconcile_once(jobs, cells, now, self.settings.timing, self.api, self.memory, self.limits)
+        self.api.writing(True)
+        try:
+            outcome = reconcile_once(jobs, cells, now, self.settings.timing, self.api, self.memory, self.limits)
+        finally:
+            self.api.writing(False)
         self.cache.remember(outcome.jobs_written, outcome.cells_written, outcome.deleted)
         self.metrics.observe(outcome, jobs, cells, now)
         self.metrics.pass_seconds.observe(time.perf_counter() - started)

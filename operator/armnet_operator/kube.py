@@ -14,6 +14,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any, cast
 
 from kubernetes import client, config
+from kubernetes.client import rest
 from kubernetes.client.exceptions import ApiException
 
 from .errors import Conflict, NotFound, PermanentError, TransientError
@@ -22,17 +23,31 @@ from .model import GROUP, VERSION, Job
 from .patches import Patch, Target
 
 log = logging.getLogger(__name__)
+EVENT_MAX_DELAY = 5.0
+WRITERS = 16  # concurrent writes within a pass (objects are disjoint; preconditions keep them safe)
+CONNECTIONS = WRITERS + 4  # + the Event poster, the Lease, headroom
 
 
 def make_client(kubeconfig: str | None) -> client.ApiClient:
     """In-cluster config when running in a pod, else the kubeconfig (``KUBECONFIG``)."""
     if kubeconfig:
-        return cast(client.ApiClient, config.new_client_from_config(config_file=kubeconfig))  # type: ignore[no-untyped-call]
+        return _pooled(cast(client.ApiClient, config.new_client_from_config(config_file=kubeconfig)))  # type: ignore[no-untyped-call]
     try:
         config.load_incluster_config()  # type: ignore[no-untyped-call]
     except config.ConfigException:
-        return cast(client.ApiClient, config.new_client_from_config())  # type: ignore[no-untyped-call]
-    return client.ApiClient()
+        return _pooled(cast(client.ApiClient, config.new_client_from_config()))  # type: ignore[no-untyped-call]
+    return _pooled(client.ApiClient())
+
+
+def _pooled(api_client: client.ApiClient) -> client.ApiClient:
+    """One kept-alive connection per concurrent writer (the client's default is 5 per core).
+
+    With fewer, urllib3 drops the surplus connections after each request and the
+    next write pays a fresh TLS handshake on both sides.
+    """
+    api_client.configuration.connection_pool_maxsize = CONNECTIONS
+    api_client.rest_client = rest.RESTClientObject(api_client.configuration)
+    return api_client
 
 
 def _translate(error: ApiException, what: str) -> Exception:
@@ -57,8 +72,22 @@ class KubeApi:
         self.leases = client.CoordinationV1Api(api_client)
         self.component = component
         self.identity = identity
-        self._events: queue.SimpleQueue[tuple[Job, str, str, str]] = queue.SimpleQueue()
+        self._events: queue.SimpleQueue[tuple[Job, str, str, str, datetime]] = queue.SimpleQueue()
+        self._quiet = threading.Event()
+        self._quiet.set()
         threading.Thread(target=self._post_events, name="armnet-events", daemon=True).start()
+
+    def writing(self, busy: bool) -> None:
+        """While a pass writes, Events wait (until ``EVENT_MAX_DELAY`` after they happened): binds first.
+
+        On a loaded API server every Event is one more write competing with the
+        claims and binds of a burst; posting them in the gaps between passes
+        keeps submit->bound short and loses nothing.
+        """
+        if busy:
+            self._quiet.clear()
+        else:
+            self._quiet.set()
 
     # -------------------------------------------------------------- reconcile.Api
     def patch(self, patch: Patch) -> dict[str, Any]:
@@ -78,6 +107,12 @@ class KubeApi:
         except ApiException as error:
             raise _translate(error, what) from error
 
+    def read_cell(self, name: str) -> dict[str, Any]:
+        try:
+            return cast(dict[str, Any], self.custom.get_cluster_custom_object(GROUP, VERSION, "cells", name))
+        except ApiException as error:
+            raise _translate(error, f"cell {name}") from error
+
     def delete_job(self, namespace: str, name: str, uid: str) -> None:
         body = client.V1DeleteOptions(preconditions=client.V1Preconditions(uid=uid or None))
         try:
@@ -89,18 +124,19 @@ class KubeApi:
 
     def post_event(self, job: Job, type_: str, reason: str, message: str) -> None:
         """Queue the Event: a slow Events write must never delay a binding."""
-        self._events.put((job, type_, reason, message))
+        self._events.put((job, type_, reason, message, datetime.now(UTC)))
 
     def _post_events(self) -> None:
         while True:
-            job, type_, reason, message = self._events.get()
+            job, type_, reason, message, when = self._events.get()
+            lag = (datetime.now(UTC) - when).total_seconds()
+            self._quiet.wait(max(0.0, EVENT_MAX_DELAY - lag))
             try:
-                self._post_event(job, type_, reason, message)
+                self._post_event(job, type_, reason, message, when)
             except Exception as error:  # noqa: BLE001 - events are best effort; keep the poster alive
                 log.debug("event %s for %s not posted: %s", reason, job.key, error)
 
-    def _post_event(self, job: Job, type_: str, reason: str, message: str) -> None:
-        now = datetime.now(UTC)
+    def _post_event(self, job: Job, type_: str, reason: str, message: str, now: datetime) -> None:
         body = {
             "metadata": {"generateName": f"{job.name}.", "namespace": job.namespace},
             "involvedObject": {
@@ -114,7 +150,8 @@ class KubeApi:
             "lastTimestamp": now.strftime("%Y-%m-%dT%H:%M:%SZ"), "count": 1,
         }
         try:
-            self.core.create_namespaced_event(job.namespace, cast(client.CoreV1Event, client.CoreV1Event.from_dict(body)))
+            # A plain dict: building the client's model objects costs more CPU than the request.
+            self.core.create_namespaced_event(job.namespace, cast(Any, body))
         except ApiException as error:
             raise _translate(error, f"event for {job.key}") from error
 

@@ -141,7 +141,13 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
 
 
 def _sections(body: Mapping[str, Any]) -> dict[str, Any]:
-    return {key: _plain(body.get(key) or {}) for key in ("metadata", "spec", "status")}
+    """The parts the models read; ``managedFields`` (large, unused) is skipped, not copied."""
+    meta = body.get("metadata") or {}
+    return {
+        "metadata": {key: _plain(item) for key, item in meta.items() if key != "managedFields"},
+        "spec": _plain(body.get("spec") or {}),
+        "status": _plain(body.get("status") or {}),
+    }
 
 
 def _plain(value: Any) -> Any:

@@ -5,15 +5,20 @@ through the small ``Api`` protocol, so the same code runs in the operator
 (real API server, in a worker thread) and in the property test (an in-memory
 world with the same optimistic-concurrency rules). It must never import kopf.
 
-Order inside a pass: lifecycle repairs first, then bindings (claim the Cell,
-then bind the job; undo the claim if the job moved), then queue status.
+Order inside a pass: lifecycle repairs first, then bindings (add the
+finalizer if missing, claim the Cell, then bind the job; undo the claim if the
+job moved), then queue status. A job whose only lifecycle action is "add the
+finalizer" gets it in its binding's chain or next to its queue-status write,
+not in a round of its own before the bindings: a burst of new jobs then starts
+binding at once instead of waiting for every finalizer of the pass. No job is
+ever claimed for or bound without the finalizer.
 """
 
 from __future__ import annotations
 
 import logging
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Mapping, MutableMapping
+from collections.abc import Callable, Iterable, Mapping, MutableMapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
@@ -35,7 +40,7 @@ from .lifecycle import (
     SetCellPhase,
     plan_lifecycle,
 )
-from .model import Cell, Job, JobPhase, Timing
+from .model import Cell, CellPhase, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
 from .scheduling import Binding, QueueEntry, plan_bindings
 
@@ -47,6 +52,9 @@ class Api(Protocol):
         """Apply the patch; raise Conflict on a failed precondition, NotFound if gone."""
 
     def delete_job(self, namespace: str, name: str, uid: str) -> None: ...
+
+    def read_cell(self, name: str) -> dict[str, Any]:
+        """The Cell as the server has it now; raise NotFound if gone."""
 
     def post_event(self, job: Job, type_: str, reason: str, message: str) -> None: ...
 
@@ -104,7 +112,10 @@ def reconcile_once(
     groups: dict[str, list[Action]] = defaultdict(list)
     for action in plan_lifecycle(jobs, cells, now, timing):
         groups[_subject(action)].append(action)
-    for result in _parallel(limits.parallel_binds, [partial(_apply_group, g, now, api) for g in groups.values()]):
+    finalizing = {k: g[0] for k, g in groups.items() if len(g) == 1 and isinstance(g[0], AddFinalizer)}
+    finalize = {a.job.key for a in finalizing.values() if isinstance(a, AddFinalizer)}
+    work = [partial(_apply_group, g, now, api) for k, g in groups.items() if k not in finalizing]
+    for result in _parallel(limits.parallel_binds, work):
         outcome.merge(result)
     # Re-read what we wrote from the responses, so the scheduler works on current
     # resourceVersions: a cell freed by a finished job takes the next one in this pass.
@@ -115,11 +126,13 @@ def reconcile_once(
     plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
     # Bindings touch disjoint cells and jobs, so they may run side by side: the
     # preconditions, not the ordering, are what keep them safe.
-    for result in _parallel(limits.parallel_binds, [partial(_bind, b, now, api) for b in plan.bindings]):
+    for result in _parallel(limits.parallel_binds, [partial(_bind, b, now, timing.heartbeat_timeout, api) for b in plan.bindings]):
         outcome.merge(result)
+    finalize.difference_update(b.job.key for b in plan.bindings)
     outcome.queue = dict(plan.queued)
-    due = _queue_writes_due(plan.queued, by_key, now, memory, limits)
-    for result in _parallel(limits.parallel_binds, [partial(_queue, by_key[k], e, now, api) for k, e in due]):
+    due = dict(_queue_writes_due(plan.queued, by_key, now, memory, limits))
+    work = [partial(_queue, by_key[k], k in finalize, due.get(k), now, api) for k in sorted(finalize | due.keys())]
+    for result in _parallel(limits.parallel_binds, work):
         outcome.merge(result)
     for key in outcome.jobs_written:
         if key in plan.queued:
@@ -127,7 +140,7 @@ def reconcile_once(
     return outcome
 
 
-def _parallel(width: int, tasks: list[Callable[[], Outcome]]) -> list[Outcome]:
+def _parallel(width: int, tasks: Sequence[Callable[[], Outcome]]) -> list[Outcome]:
     if width <= 1 or len(tasks) <= 1:
         return [task() for task in tasks]
     with ThreadPoolExecutor(min(width, len(tasks)), thread_name_prefix="armnet-write") as pool:
@@ -215,14 +228,54 @@ def _apply(action: Action, now: datetime, api: Api, outcome: Outcome) -> dict[st
     return None
 
 
-def _bind(binding: Binding, now: datetime, api: Api) -> Outcome:
-    """Claim the cell, then bind the job; give the cell back if the job moved meanwhile."""
-    outcome = Outcome()
-    job, cell = binding.job, binding.cell
+def _claim(
+    cell: Cell, job: Job, now: datetime, heartbeat_timeout: timedelta, api: Api, outcome: Outcome
+) -> dict[str, Any] | None:
+    """Claim the cell; on a conflict, re-read it once and retry if it is still free.
+
+    Agents heartbeat into the Cell's status, so a claim often loses only to a
+    newer ``lastHeartbeatTime``. The retry decides again on the fresh object and
+    carries its resourceVersion: a claim by anyone else shows in ``currentJob``
+    (claims come first), so this never takes a cell someone else holds.
+    """
     try:
-        claimed = api.patch(patches.claim_cell(cell, job, now))
+        return api.patch(patches.claim_cell(cell, job, now))
+    except Conflict as error:
+        _count(error, outcome)
     except TransientError as error:
         _count(error, outcome)
+        return None
+    try:
+        fresh = parse_cell(api.read_cell(cell.name))
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    same_pool = (fresh.embodiment, fresh.task) == (cell.embodiment, cell.task)
+    free = derive_cell_phase(fresh, False, now, heartbeat_timeout) is CellPhase.READY
+    if fresh.current_job is not None or not same_pool or not free:
+        return None
+    try:
+        return api.patch(patches.claim_cell(fresh, job, now))
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+
+
+def _bind(binding: Binding, now: datetime, heartbeat_timeout: timedelta, api: Api) -> Outcome:
+    """Finalizer, claim the cell, then bind the job; give the cell back if the job moved meanwhile.
+
+    The finalizer goes first so that a bound job cannot be deleted before its cell
+    is released; if that write fails, the cell is not touched.
+    """
+    outcome = Outcome()
+    job, cell = binding.job, binding.cell
+    if not job.has_finalizer:
+        finalized = _write(api, patches.set_finalizer(job, True), outcome)
+        if finalized is None:
+            return outcome
+        job = outcome.jobs_written[job.key] = parse_job(finalized)
+    claimed = _claim(cell, job, now, heartbeat_timeout, api, outcome)
+    if claimed is None:
         return outcome
     outcome.cells_written[cell.name] = parse_cell(claimed)
     try:
@@ -259,11 +312,18 @@ def _queue_writes_due(
     return due[: limits.max_queue_writes]
 
 
-def _queue(job: Job, entry: QueueEntry, now: datetime, api: Api) -> Outcome:
+def _queue(job: Job, finalize: bool, entry: QueueEntry | None, now: datetime, api: Api) -> Outcome:
+    """The finalizer (if due), then the queue status (if due), each on the latest version."""
     outcome = Outcome()
-    written = _write(api, patches.queue_job(job, entry, now), outcome)
-    if written is not None:
-        outcome.jobs_written[job.key] = parse_job(written)
+    if finalize:
+        written = _write(api, patches.set_finalizer(job, True), outcome)
+        if written is None:
+            return outcome
+        job = outcome.jobs_written[job.key] = parse_job(written)
+    if entry is not None:
+        written = _write(api, patches.queue_job(job, entry, now), outcome)
+        if written is not None:
+            outcome.jobs_written[job.key] = parse_job(written)
     return outcome
 
 

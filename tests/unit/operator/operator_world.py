@@ -107,6 +107,11 @@ class World:
             del store[key]
         return copy.deepcopy(obj)
 
+    def read_cell(self, name: str) -> dict[str, Any]:
+        if name not in self.cells:
+            raise NotFound(name)
+        return copy.deepcopy(self.cells[name])
+
     def delete_job(self, namespace: str, name: str, uid: str) -> None:
         key = f"{namespace}/{name}"
         if key not in self.jobs:

@@ -1,0 +1,135 @@
+"""The write order of one pass for new jobs: finalizer, claim, bind; never a claim without the finalizer.
+
+Also: a claim that lost only to a heartbeat is retried once on the fresh Cell.
+
+The finalizer of a new job is written in its binding's chain (or next to its
+queue status), not in a round of its own before the bindings; these tests pin
+the order that keeps deletion safe.
+"""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from typing import Any
+
+import pytest
+from armnet_operator.model import FINALIZER, Timing
+from armnet_operator.patches import Patch, Target
+from armnet_operator.reconcile import Limits, Memory, reconcile_once
+from operator_world import World
+
+pytestmark = pytest.mark.unit
+
+TIMING = Timing(
+    heartbeat_timeout=timedelta(seconds=30),
+    claim_grace=timedelta(seconds=10),
+    lost_grace=timedelta(seconds=60),
+    cancel_force_after=timedelta(seconds=60),
+    default_ttl=timedelta(seconds=300),
+)
+
+
+class RecordingWorld(World):
+    """The in-memory world, plus the order of the writes it received."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.writes: list[tuple[Target, str]] = []
+        self.before_write: Any = None
+        self.before_target: Target | None = None
+
+    def patch(self, patch: Patch) -> dict[str, Any]:
+        if self.before_write is not None and self.before_target in (None, patch.target):
+            hook, self.before_write = self.before_write, None
+            hook()
+        self.writes.append((patch.target, patch.name))
+        return super().patch(patch)
+
+
+def a_world(cells: int) -> RecordingWorld:
+    world = RecordingWorld()
+    for i in range(cells):
+        world.add_cell(f"c{i}", "so-101", None)
+        world.heartbeat(f"c{i}")
+    one_pass(world)  # cells get their phase
+    world.writes.clear()
+    return world
+
+
+def one_pass(world: World, parallel: int = 1) -> None:
+    jobs, cells = world.snapshot()
+    reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits(parallel_binds=parallel))
+
+
+def test_a_new_job_gets_finalizer_claim_and_bind_in_that_order_in_one_pass() -> None:
+    world = a_world(cells=1)
+    world.submit("j", "so-101", None, 0)
+    one_pass(world)
+    assert world.writes == [(Target.JOB, "j"), (Target.CELL_STATUS, "c0"), (Target.JOB_STATUS, "j")]
+    job = world.jobs["t/j"]
+    assert (job["status"]["phase"], job["status"]["cellName"]) == ("dispatched", "c0")
+    assert job["metadata"]["finalizers"] == [FINALIZER]
+    assert world.cells["c0"]["status"]["currentJob"] == "t/j"
+
+
+def test_a_failed_finalizer_write_leaves_the_cell_alone_and_the_next_pass_binds() -> None:
+    world = a_world(cells=1)
+    world.submit("j", "so-101", None, 0)
+    world.before_write = lambda: world.user_patch_job("t/j", {"priority": 2})  # the job moves under us
+    one_pass(world)
+    assert world.writes == [(Target.JOB, "j")]
+    assert "currentJob" not in world.cells["c0"]["status"]
+    one_pass(world)
+    assert world.jobs["t/j"]["status"]["phase"] == "dispatched"
+    assert world.jobs["t/j"]["metadata"]["finalizers"] == [FINALIZER]
+
+
+def test_a_job_that_waits_gets_its_finalizer_before_its_queue_status() -> None:
+    world = a_world(cells=0)
+    world.submit("j", "so-101", None, 0)
+    one_pass(world)
+    assert world.writes == [(Target.JOB, "j"), (Target.JOB_STATUS, "j")]
+    job = world.jobs["t/j"]
+    assert (job["status"]["phase"], job["metadata"]["finalizers"]) == ("queued", [FINALIZER])
+
+
+def test_a_burst_binds_every_job_with_its_finalizer_in_parallel() -> None:
+    world = a_world(cells=20)
+    for i in range(30):
+        world.submit(f"j{i:02d}", "so-101", None, 0)
+    one_pass(world, parallel=8)
+    bound = [b for b in world.jobs.values() if b["status"].get("phase") == "dispatched"]
+    assert len(bound) == 20
+    assert all(b["metadata"].get("finalizers") == [FINALIZER] for b in world.jobs.values())
+    claims = [c["status"].get("currentJob") for c in world.cells.values()]
+    assert sorted(claims) == sorted(f"t/{b['metadata']['name']}" for b in bound)
+
+
+def test_a_claim_that_lost_to_a_heartbeat_is_retried_on_the_fresh_cell() -> None:
+    world = a_world(cells=1)
+    world.submit("j", "so-101", None, 0)
+    world.before_target = Target.CELL_STATUS
+    world.before_write = lambda: world.heartbeat("c0")  # the agent writes between our read and claim
+    one_pass(world)
+    assert world.jobs["t/j"]["status"]["phase"] == "dispatched"
+    assert world.cells["c0"]["status"]["currentJob"] == "t/j"
+
+
+def test_a_claim_that_lost_to_another_claim_is_not_retried() -> None:
+    world = a_world(cells=1)
+    world.submit("j", "so-101", None, 0)
+    world.submit("other", "so-101", None, 0)
+    world.jobs["t/other"]["metadata"]["finalizers"] = [FINALIZER]
+
+    def someone_else_claims() -> None:
+        cell = world.cells["c0"]
+        cell["status"]["currentJob"] = "t/other"
+        cell["metadata"]["resourceVersion"] = world._next_rv()
+
+    jobs, cells = world.snapshot()
+    jobs = [j for j in jobs if j.name == "j"]  # this writer does not see the other job yet
+    world.before_target = Target.CELL_STATUS
+    world.before_write = someone_else_claims
+    reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits())
+    assert world.cells["c0"]["status"]["currentJob"] == "t/other"
+    assert world.jobs["t/j"]["status"].get("phase") != "dispatched"
