@@ -5,13 +5,14 @@ through the small ``Api`` protocol, so the same code runs in the operator
 (real API server, in a worker thread) and in the property test (an in-memory
 world with the same optimistic-concurrency rules). It must never import kopf.
 
-Order inside a pass: lifecycle repairs first, then bindings (add the
-finalizer if missing, claim the Cell, then bind the job; undo the claim if the
-job moved), then queue status. A job whose only lifecycle action is "add the
-finalizer" gets it in its binding's chain or next to its queue-status write,
-not in a round of its own before the bindings: a burst of new jobs then starts
-binding at once instead of waiting for every finalizer of the pass. No job is
-ever claimed for or bound without the finalizer.
+Order inside a pass: lifecycle repairs first, then bindings (claim the Cell,
+then bind the job; undo the claim if the job moved), then finalizers and queue
+status. A new job's finalizer is written after its bind (or just before its
+queue status), never in a round of its own before the bindings and never before
+its claim: submit->bound costs two writes, not three. The window this opens (a
+job deleted between its bind and its finalizer vanishes at once) is covered by
+the repair: its cell then names a job that no longer exists and is released
+after the claim grace, and until then nothing else is bound to it.
 """
 
 from __future__ import annotations
@@ -126,9 +127,14 @@ def reconcile_once(
     plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
     # Bindings touch disjoint cells and jobs, so they may run side by side: the
     # preconditions, not the ordering, are what keep them safe.
+    bound_before = len(outcome.bound)
     for result in _parallel(limits.parallel_binds, [partial(_bind, b, now, timing.heartbeat_timeout, api) for b in plan.bindings]):
         outcome.merge(result)
+    # Finalizers after the binds: off the submit->bound path. A job whose bind failed
+    # gets its finalizer next pass (it changed under us; this write would conflict).
     finalize.difference_update(b.job.key for b in plan.bindings)
+    finalize.update(j.key for j, _ in outcome.bound[bound_before:] if not j.has_finalizer)
+    by_key.update(outcome.jobs_written)
     outcome.queue = dict(plan.queued)
     due = dict(_queue_writes_due(plan.queued, by_key, now, memory, limits))
     work = [partial(_queue, by_key[k], k in finalize, due.get(k), now, api) for k in sorted(finalize | due.keys())]
@@ -262,24 +268,21 @@ def _claim(
 
 
 def _bind(binding: Binding, now: datetime, heartbeat_timeout: timedelta, api: Api) -> Outcome:
-    """Finalizer, claim the cell, then bind the job; give the cell back if the job moved meanwhile.
+    """Claim the cell, then bind the job; give the cell back if the job moved meanwhile.
 
-    The finalizer goes first so that a bound job cannot be deleted before its cell
-    is released; if that write fails, the cell is not touched.
+    Two writes, so submit->bound is short; the caller adds a new job's finalizer
+    afterwards. A job deleted before that finalizer vanishes at once: its bind
+    fails (the claim is given back here) or, once bound, its cell names a job that
+    no longer exists and the repair releases it after the claim grace.
     """
     outcome = Outcome()
     job, cell = binding.job, binding.cell
-    if not job.has_finalizer:
-        finalized = _write(api, patches.set_finalizer(job, True), outcome)
-        if finalized is None:
-            return outcome
-        job = outcome.jobs_written[job.key] = parse_job(finalized)
     claimed = _claim(cell, job, now, heartbeat_timeout, api, outcome)
     if claimed is None:
         return outcome
     outcome.cells_written[cell.name] = parse_cell(claimed)
     try:
-        outcome.jobs_written[job.key] = parse_job(api.patch(patches.bind_job(job, cell, now)))
+        bound = parse_job(api.patch(patches.bind_job(job, cell, now)))
     except TransientError as error:
         _count(error, outcome)
         # The job changed (cancelled, deleted, bound elsewhere): give the cell back now
@@ -291,6 +294,7 @@ def _bind(binding: Binding, now: datetime, heartbeat_timeout: timedelta, api: Ap
         if released is not None:
             outcome.cells_written[cell.name] = parse_cell(released)
         return outcome
+    outcome.jobs_written[job.key] = bound
     outcome.writes += 2
     outcome.bound.append((job, cell))
     _event(api, job, "Normal", "Bound", f"bound to cell {cell.name}")

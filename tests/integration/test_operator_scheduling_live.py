@@ -183,7 +183,11 @@ def test_a_job_binds_to_a_ready_cell_which_names_it(bed: Bed, operator: Any) -> 
     assert bed.get_cell(cell)["status"]["currentJob"] == f"{bed.ns}/pick"
     assert bed.condition(body, "Bound")["status"] == "True"
     assert body["status"]["jobId"] == body["metadata"]["uid"]
-    assert "armnet.io/release-cell" in body["metadata"]["finalizers"]
+    # The finalizer is written after the bind, off the submit->bound path.
+    bed.wait(
+        "the finalizer",
+        lambda: "armnet.io/release-cell" in (bed.get_job("pick") or {}).get("metadata", {}).get("finalizers", []),
+    )
     bed.wait("a Bound event", lambda: "Bound" in bed.events("pick"))
 
 

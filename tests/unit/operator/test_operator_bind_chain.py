@@ -1,14 +1,17 @@
-"""The write order of one pass for new jobs: finalizer, claim, bind; never a claim without the finalizer.
+"""The write order of one pass for new jobs: claim, bind, then the finalizer.
 
 Also: a claim that lost only to a heartbeat is retried once on the fresh Cell.
 
-The finalizer of a new job is written in its binding's chain (or next to its
-queue status), not in a round of its own before the bindings; these tests pin
-the order that keeps deletion safe.
+The finalizer of a new job is written after its bind (or just before its queue
+status), never before its claim: submit->bound costs two writes. These tests
+pin that order and the safety of the window it opens: a job deleted between its
+claim or bind and its finalizer vanishes at once, and its cell is released
+(at once, or by the repair after the claim grace) without ever holding two jobs.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from datetime import timedelta
 from typing import Any
 
@@ -61,27 +64,76 @@ def one_pass(world: World, parallel: int = 1) -> None:
     reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits(parallel_binds=parallel))
 
 
-def test_a_new_job_gets_finalizer_claim_and_bind_in_that_order_in_one_pass() -> None:
+def test_a_new_job_gets_claim_bind_and_finalizer_in_that_order_in_one_pass() -> None:
     world = a_world(cells=1)
     world.submit("j", "so-101", None, 0)
     one_pass(world)
-    assert world.writes == [(Target.JOB, "j"), (Target.CELL_STATUS, "c0"), (Target.JOB_STATUS, "j")]
+    assert world.writes == [(Target.CELL_STATUS, "c0"), (Target.JOB_STATUS, "j"), (Target.JOB, "j")]
     job = world.jobs["t/j"]
     assert (job["status"]["phase"], job["status"]["cellName"]) == ("dispatched", "c0")
     assert job["metadata"]["finalizers"] == [FINALIZER]
     assert world.cells["c0"]["status"]["currentJob"] == "t/j"
 
 
-def test_a_failed_finalizer_write_leaves_the_cell_alone_and_the_next_pass_binds() -> None:
+def test_a_failed_finalizer_write_keeps_the_binding_and_the_next_pass_adds_it() -> None:
     world = a_world(cells=1)
     world.submit("j", "so-101", None, 0)
-    world.before_write = lambda: world.user_patch_job("t/j", {"priority": 2})  # the job moves under us
+    world.before_target = Target.JOB
+    world.before_write = lambda: world.agent_set_phase("t/j", "running")  # the agent is quicker
+    one_pass(world)
+    job = world.jobs["t/j"]
+    assert (job["status"]["phase"], job["metadata"].get("finalizers")) == ("running", None)
+    assert world.cells["c0"]["status"]["currentJob"] == "t/j"
+    world.writes.clear()
     one_pass(world)
     assert world.writes == [(Target.JOB, "j")]
-    assert "currentJob" not in world.cells["c0"]["status"]
-    one_pass(world)
-    assert world.jobs["t/j"]["status"]["phase"] == "dispatched"
     assert world.jobs["t/j"]["metadata"]["finalizers"] == [FINALIZER]
+
+
+def _check_invariant(world: World) -> None:
+    claims = Counter(c["status"]["currentJob"] for c in world.cells.values() if c["status"].get("currentJob"))
+    assert all(n == 1 for n in claims.values()), f"a job is claimed by two cells: {claims}"
+    active = [b for b in world.jobs.values() if b["status"].get("phase") in ("dispatched", "running")]
+    on_cell = Counter(b["status"]["cellName"] for b in active)
+    assert all(n == 1 for n in on_cell.values()), f"two active jobs on one cell: {on_cell}"
+    for body in active:
+        cell = world.cells[body["status"]["cellName"]]
+        assert cell["status"].get("currentJob") == f"t/{body['metadata']['name']}"
+
+
+@pytest.mark.parametrize("deleted_before", [Target.CELL_STATUS, Target.JOB_STATUS, Target.JOB])
+def test_a_job_deleted_inside_its_chain_frees_its_cell_and_the_next_job_gets_it(deleted_before: Target) -> None:
+    """Deleted before its claim, before its bind, or between its bind and its finalizer.
+
+    Without the finalizer the job vanishes at once. Before the claim: nothing to
+    undo. Before the bind: the binder gives the claim back in the same chain.
+    Between bind and finalizer: the cell names a job that no longer exists, holds
+    it (no other bind) for the claim grace, then the repair releases it.
+    """
+    world = a_world(cells=1)
+    world.submit("gone", "so-101", None, 0)
+    world.before_target = deleted_before
+    world.before_write = lambda: world.delete_job("t", "gone", "")
+    one_pass(world)
+    assert "t/gone" not in world.jobs
+    _check_invariant(world)
+    world.submit("next", "so-101", None, 0)
+    held = world.cells["c0"]["status"].get("currentJob") == "t/gone"
+    assert held == (deleted_before is Target.JOB)
+    bound_after = None
+    for second in range(1, int(TIMING.claim_grace.total_seconds()) + 3):
+        world.tick(1)
+        world.heartbeat("c0")
+        one_pass(world)
+        _check_invariant(world)
+        if bound_after is None and world.jobs["t/next"]["status"].get("phase") == "dispatched":
+            bound_after = second
+    grace = int(TIMING.claim_grace.total_seconds())
+    assert bound_after == (grace if held else 1)
+    nxt = world.jobs["t/next"]
+    assert (nxt["status"]["phase"], nxt["status"]["cellName"]) == ("dispatched", "c0")
+    assert nxt["metadata"]["finalizers"] == [FINALIZER]
+    assert world.cells["c0"]["status"]["currentJob"] == "t/next"
 
 
 def test_a_job_that_waits_gets_its_finalizer_before_its_queue_status() -> None:
