@@ -18,11 +18,11 @@ import signal
 import threading
 from collections.abc import Mapping
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 from .arm import MotorSpec
 from .calibration import Calibration, MotorCalibration
+from .lifecycle import StartStop
 
 #: Arm methods the parent may call in the child; nothing else crosses the pipe.
 REMOTE_METHODS = frozenset(
@@ -85,7 +85,7 @@ class RemoteArm:
         return call
 
 
-class SimulatedCellProcess:
+class SimulatedCellProcess(StartStop):
     """A ``SimulatedCell`` living in a child process; same surface, arms are ``RemoteArm``s."""
 
     def __init__(
@@ -193,16 +193,6 @@ class SimulatedCellProcess:
                 process.terminate()
                 process.join(timeout=5)
 
-    def __enter__(self) -> SimulatedCellProcess:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
 
 def _child_main(
