@@ -1,7 +1,7 @@
 """The operator's only door to the Kubernetes API (besides kopf's watches).
 
 Implements ``reconcile.Api`` with the official client: JSON merge patches with
-resourceVersion preconditions, deletes with a UID precondition, Events, and the
+resourceVersion preconditions (JSON Patches for adding the finalizer), deletes with a UID precondition, Events, and the
 leader Lease. Maps HTTP errors onto the operator's error tree.
 """
 
@@ -101,11 +101,28 @@ class KubeApi:
                 return cast(dict[str, Any], self.custom.patch_namespaced_custom_object_status(
                     GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
                 ))
+            if patch.operations:
+                return cast(dict[str, Any], self.custom.patch_namespaced_custom_object(
+                    GROUP, VERSION, patch.namespace, "robotjobs", patch.name, list(patch.operations),
+                    _content_type="application/json-patch+json",
+                ))
             return cast(dict[str, Any], self.custom.patch_namespaced_custom_object(
                 GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
             ))
         except ApiException as error:
+            if patch.operations and error.status == 422:
+                # A JSON Patch op that cannot apply (a failed ``test``, a missing
+                # list): the object changed since we read it, like a 409.
+                raise Conflict(f"{what}: changed since it was read ({error.reason})") from error
             raise _translate(error, what) from error
+
+    def read_job(self, namespace: str, name: str) -> dict[str, Any]:
+        try:
+            return cast(dict[str, Any], self.custom.get_namespaced_custom_object(
+                GROUP, VERSION, namespace, "robotjobs", name
+            ))
+        except ApiException as error:
+            raise _translate(error, f"robotjob {namespace}/{name}") from error
 
     def read_cell(self, name: str) -> dict[str, Any]:
         try:

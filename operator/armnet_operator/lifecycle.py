@@ -129,7 +129,10 @@ def _plan_job(
     job: Job, cells: dict[str, Cell], claimed: bool, now: datetime, timing: Timing
 ) -> list[Action]:
     actions: list[Action] = []
-    if not job.deleting and not job.has_finalizer:
+    # Not on terminal jobs: they hold no cell the finalizer would protect (a cell
+    # still naming one is released by ``_plan_cells`` either way), and adding it
+    # would only make their deletion wait for one more write.
+    if not job.deleting and not job.terminal and not job.has_finalizer:
         actions.append(AddFinalizer(job))
     if job.terminal:
         if job.deleting and job.has_finalizer and not claimed:

@@ -5,7 +5,9 @@ Each body is a JSON merge patch that carries the observed
 changed since we looked (409 Conflict otherwise). That precondition is what
 makes "claim the Cell first" safe against a second binder, and what stops a
 status write from clobbering the agent's. Lists (conditions, finalizers) are
-sent whole, which is safe for the same reason.
+sent whole, which is safe for the same reason. The one exception is adding
+the finalizer (``add_finalizer``): a JSON Patch that appends, needing no
+resourceVersion and unable to drop anyone else's finalizer.
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ class Patch:
     name: str
     namespace: str
     body: dict[str, Any]
+    operations: tuple[dict[str, Any], ...] = ()
+    """RFC 6902 operations, sent as a JSON Patch instead of ``body`` when set."""
 
 
 def _cell_status(cell: Cell, status: dict[str, Any]) -> Patch:
@@ -131,6 +135,27 @@ def request_cancel(job: Job, now: datetime) -> Patch:
     message = "the agent stops the job within the cell's grace period and reports cancelled"
     set_condition(conditions, JobConditionType.CANCEL_REQUESTED, True, "Requested", message, now)
     return _job_status(job, {"conditions": conditions})
+
+
+def add_finalizer(job: Job) -> Patch:
+    """Add ``FINALIZER`` with a JSON Patch: no resourceVersion, no clobbering, no duplicate.
+
+    The agent writes the job's status right after its bind, so a merge patch of
+    the whole list with a resourceVersion often lost that race for nothing:
+    finalizers are not what the agent changed. Here a ``test`` pins only the
+    finalizer list as we saw it (absent: ``null``), then ``add`` appends to it
+    (``/-``) or creates it. The API server rejects the whole patch (422) if the
+    list changed meanwhile, so no one else's finalizer is dropped and ours is
+    never added twice; the caller treats that as a conflict and re-reads.
+    """
+    path = "/metadata/finalizers"
+    if job.finalizers:
+        test: dict[str, Any] = {"op": "test", "path": path, "value": list(job.finalizers)}
+        add: dict[str, Any] = {"op": "add", "path": f"{path}/-", "value": FINALIZER}
+    else:
+        test = {"op": "test", "path": path, "value": None}
+        add = {"op": "add", "path": path, "value": [FINALIZER]}
+    return Patch(Target.JOB, job.name, job.namespace, {}, (test, add))
 
 
 def set_finalizer(job: Job, present: bool) -> Patch:

@@ -57,6 +57,9 @@ class Api(Protocol):
     def read_cell(self, name: str) -> dict[str, Any]:
         """The Cell as the server has it now; raise NotFound if gone."""
 
+    def read_job(self, namespace: str, name: str) -> dict[str, Any]:
+        """The RobotJob as the server has it now; raise NotFound if gone."""
+
     def post_event(self, job: Job, type_: str, reason: str, message: str) -> None: ...
 
 
@@ -220,7 +223,7 @@ def _apply(action: Action, now: datetime, api: Api, outcome: Outcome) -> dict[st
                 _event(api, job, "Normal", "CancelRequested", "asked the agent to stop the job")
             return written
         case AddFinalizer(job=job):
-            return _write(api, patches.set_finalizer(job, True), outcome)
+            return _add_finalizer(job, api, outcome)
         case RemoveFinalizer(job=job):
             return _write(api, patches.set_finalizer(job, False), outcome)
         case DeleteJob(job=job):
@@ -320,7 +323,7 @@ def _queue(job: Job, finalize: bool, entry: QueueEntry | None, now: datetime, ap
     """The finalizer (if due), then the queue status (if due), each on the latest version."""
     outcome = Outcome()
     if finalize:
-        written = _write(api, patches.set_finalizer(job, True), outcome)
+        written = _add_finalizer(job, api, outcome)
         if written is None:
             return outcome
         job = outcome.jobs_written[job.key] = parse_job(written)
@@ -329,6 +332,34 @@ def _queue(job: Job, finalize: bool, entry: QueueEntry | None, now: datetime, ap
         if written is not None:
             outcome.jobs_written[job.key] = parse_job(written)
     return outcome
+
+
+def _add_finalizer(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Append the finalizer (no resourceVersion); if the list changed shape, re-read once.
+
+    The JSON Patch fails only when the finalizer list appeared or vanished since
+    the snapshot. The retry decides again on the fresh object: nothing to do if
+    the job already has the finalizer, is terminal (it is being released; the
+    finalizer would only delay its deletion) or is being deleted.
+    """
+    try:
+        written = api.patch(patches.add_finalizer(job))
+    except Conflict as error:
+        _count(error, outcome)
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    else:
+        outcome.writes += 1
+        return written
+    try:
+        fresh = parse_job(api.read_job(job.namespace, job.name))
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    if fresh.has_finalizer or fresh.terminal or fresh.deleting:
+        return None
+    return _write(api, patches.add_finalizer(fresh), outcome)
 
 
 def _queue_write_due(

@@ -382,3 +382,42 @@ def test_with_a_shared_lease_only_the_leader_binds(
         follower = b if leaders[0] is a else a
         assert leaders[0].metrics.binds._value.get() == 3
         assert follower.metrics.binds._value.get() == 0
+
+
+def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_absent_list(bed: Bed) -> None:
+    """Against the real server: append keeps others; a list that appeared since the read is a Conflict."""
+    from armnet_operator.errors import Conflict
+    from armnet_operator.kube import KubeApi, make_client
+    from armnet_operator.model import FINALIZER
+    from armnet_operator.parsing import parse_job
+    from armnet_operator.patches import add_finalizer
+
+    api = KubeApi(make_client(str(bed.k8s.kubeconfig)), "armnet-test", "test")
+    try:
+        bed.job("bare")
+        bare = parse_job(bed.wait("the job", lambda: bed.get_job("bare")))
+        written = api.patch(add_finalizer(bare))
+        assert written["metadata"]["finalizers"] == [FINALIZER]
+
+        bed.job("stale")
+        stale = parse_job(bed.wait("the job", lambda: bed.get_job("stale")))
+        bed.api.patch_namespaced_custom_object(
+            G, V, bed.ns, "robotjobs", "stale", {"metadata": {"finalizers": ["other.io/keep"]}}
+        )
+        with pytest.raises(Conflict):
+            api.patch(add_finalizer(stale))  # the test op sees the list that appeared
+        fresh = parse_job(api.read_job(bed.ns, "stale"))
+        written = api.patch(add_finalizer(fresh))
+        assert written["metadata"]["finalizers"] == ["other.io/keep", FINALIZER]
+        with pytest.raises(Conflict):
+            api.patch(add_finalizer(fresh))  # the list is no longer as seen: never a duplicate
+
+        bed.job("raced")
+        raced = parse_job(bed.wait("the job", lambda: bed.get_job("raced")))
+        bed.agent_sets("raced", "succeeded")  # the agent writes after our read
+        written = api.patch(add_finalizer(raced))  # no resourceVersion: no conflict
+        assert (written["metadata"]["finalizers"], written["status"]["phase"]) == ([FINALIZER], "succeeded")
+    finally:
+        for name in ("bare", "stale", "raced"):
+            with contextlib.suppress(Exception):
+                bed.api.patch_namespaced_custom_object(G, V, bed.ns, "robotjobs", name, {"metadata": {"finalizers": None}})

@@ -1,8 +1,8 @@
 """An in-memory stand-in for the API server's optimistic concurrency, for property tests.
 
-It is not a Kubernetes mock for integration: it models exactly the two rules
+It is not a Kubernetes mock for integration: it models exactly the rules
 the binder's safety rests on (JSON merge patch, resourceVersion preconditions
-that fail with Conflict) so hypothesis can explore thousands of interleavings
+that fail with Conflict, and the JSON Patch ops the finalizer uses) so hypothesis can explore thousands of interleavings
 in seconds. The integration tests check the same code against the real server.
 """
 
@@ -32,6 +32,32 @@ def merge(target: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]:
         else:
             target[key] = copy.deepcopy(value)
     return target
+
+
+def apply_json_patch(obj: dict[str, Any], operations: tuple[dict[str, Any], ...], key: str) -> None:
+    """The RFC 6902 ops the operator sends (``test``, ``add``), all or nothing, as the server does.
+
+    A failing op raises Conflict, which is what ``kube`` makes of the server's 422.
+    """
+    result = copy.deepcopy(obj)
+    for op in operations:
+        *parents, last = op["path"].strip("/").split("/")
+        node: Any = result
+        for part in parents:
+            if not isinstance(node, dict) or part not in node:
+                raise Conflict(f"{key}: no {op['path']}")
+            node = node[part]
+        if op["op"] == "test":
+            if (node.get(last) if isinstance(node, dict) else None) != op["value"]:
+                raise Conflict(f"{key}: test of {op['path']} failed")
+        elif op["op"] == "add" and isinstance(node, list) and last == "-":
+            node.append(copy.deepcopy(op["value"]))
+        elif op["op"] == "add" and isinstance(node, dict):
+            node[last] = copy.deepcopy(op["value"])
+        else:
+            raise Conflict(f"{key}: cannot {op['op']} {op['path']}")
+    obj.clear()
+    obj.update(result)
 
 
 class World:
@@ -94,6 +120,10 @@ class World:
         if key not in store:
             raise NotFound(key)
         obj = store[key]
+        if patch.operations:
+            apply_json_patch(obj, patch.operations, key)
+            obj["metadata"]["resourceVersion"] = self._next_rv()
+            return copy.deepcopy(obj)
         body = copy.deepcopy(patch.body)
         wanted = body.get("metadata", {}).pop("resourceVersion", None)
         if wanted is not None and wanted != obj["metadata"]["resourceVersion"]:
@@ -106,6 +136,12 @@ class World:
         if obj["metadata"].get("deletionTimestamp") and not obj["metadata"].get("finalizers"):
             del store[key]
         return copy.deepcopy(obj)
+
+    def read_job(self, namespace: str, name: str) -> dict[str, Any]:
+        key = f"{namespace}/{name}"
+        if key not in self.jobs:
+            raise NotFound(key)
+        return copy.deepcopy(self.jobs[key])
 
     def read_cell(self, name: str) -> dict[str, Any]:
         if name not in self.cells:

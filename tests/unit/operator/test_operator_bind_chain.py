@@ -75,19 +75,53 @@ def test_a_new_job_gets_claim_bind_and_finalizer_in_that_order_in_one_pass() -> 
     assert world.cells["c0"]["status"]["currentJob"] == "t/j"
 
 
-def test_a_failed_finalizer_write_keeps_the_binding_and_the_next_pass_adds_it() -> None:
+def test_the_agents_status_write_does_not_make_the_finalizer_write_fail() -> None:
     world = a_world(cells=1)
     world.submit("j", "so-101", None, 0)
     world.before_target = Target.JOB
     world.before_write = lambda: world.agent_set_phase("t/j", "running")  # the agent is quicker
     one_pass(world)
     job = world.jobs["t/j"]
-    assert (job["status"]["phase"], job["metadata"].get("finalizers")) == ("running", None)
+    assert (job["status"]["phase"], job["metadata"].get("finalizers")) == ("running", [FINALIZER])
     assert world.cells["c0"]["status"]["currentJob"] == "t/j"
     world.writes.clear()
     one_pass(world)
-    assert world.writes == [(Target.JOB, "j")]
-    assert world.jobs["t/j"]["metadata"]["finalizers"] == [FINALIZER]
+    assert world.writes == []
+
+
+def test_a_finalizer_list_that_appeared_meanwhile_is_kept_and_the_add_retried_once() -> None:
+    world = a_world(cells=1)
+    world.submit("j", "so-101", None, 0)
+
+    def another_controller_adds_its_finalizer() -> None:
+        world.jobs["t/j"]["metadata"]["finalizers"] = ["other.io/keep"]
+        world.jobs["t/j"]["metadata"]["resourceVersion"] = world._next_rv()
+
+    world.before_target = Target.JOB
+    world.before_write = another_controller_adds_its_finalizer
+    one_pass(world)
+    assert world.writes == [(Target.CELL_STATUS, "c0"), (Target.JOB_STATUS, "j"), (Target.JOB, "j"), (Target.JOB, "j")]
+    assert world.jobs["t/j"]["metadata"]["finalizers"] == ["other.io/keep", FINALIZER]
+
+
+def test_a_terminal_job_without_the_finalizer_gets_none_and_still_frees_its_cell_and_expires() -> None:
+    """A job that finished before its finalizer was written is being released: no finalizer write."""
+    world = a_world(cells=1)
+    world.submit("j", "so-101", None, 0)
+    one_pass(world)
+    del world.jobs["t/j"]["metadata"]["finalizers"]  # as if the agent had been quicker than the finalizer
+    world.agent_set_phase("t/j", "succeeded")
+    world.submit("next", "so-101", None, 0)
+    world.writes.clear()
+    one_pass(world)
+    assert (Target.JOB, "j") not in world.writes
+    assert world.jobs["t/j"]["metadata"].get("finalizers") is None
+    assert world.cells["c0"]["status"]["currentJob"] == "t/next"  # released, and rebound in the same pass
+    world.tick(TIMING.default_ttl.total_seconds() if TIMING.default_ttl else 0)
+    world.heartbeat("c0")
+    one_pass(world)
+    assert "t/j" not in world.jobs  # the TTL delete needs no finalizer removal
+    _check_invariant(world)
 
 
 def _check_invariant(world: World) -> None:

@@ -9,7 +9,14 @@ from armnet_operator.errors import PermanentError
 from armnet_operator.leader import LeaseMove, LeaseView, decide_lease
 from armnet_operator.model import FINALIZER, CellPhase, JobPhase, QueuedReason
 from armnet_operator.parsing import parse_cell, parse_job
-from armnet_operator.patches import bind_job, claim_cell, release_cell, set_finalizer
+from armnet_operator.patches import (
+    Target,
+    add_finalizer,
+    bind_job,
+    claim_cell,
+    release_cell,
+    set_finalizer,
+)
 from armnet_operator.scheduling import QueueEntry
 from armnet_operator.settings import load_settings
 from operator_builders import NOW, a_cell, a_job, ago
@@ -61,6 +68,25 @@ def test_releasing_deletes_the_claim_fields() -> None:
 def test_finalizer_patches_keep_other_finalizers() -> None:
     job = a_job()._with(finalizers=("other.io/keep", FINALIZER)).queued()
     assert set_finalizer(job, False).body["metadata"]["finalizers"] == ["other.io/keep"]
+
+
+def test_adding_the_finalizer_appends_to_the_list_as_seen_with_a_json_patch_and_no_resource_version() -> None:
+    job = a_job().named("j")._with(finalizers=("other.io/keep",)).queued()
+    patch = add_finalizer(job)
+    assert (patch.target, patch.name, patch.body) == (Target.JOB, "j", {})
+    assert patch.operations == (
+        {"op": "test", "path": "/metadata/finalizers", "value": ["other.io/keep"]},
+        {"op": "add", "path": "/metadata/finalizers/-", "value": FINALIZER},
+    )
+
+
+def test_adding_the_first_finalizer_tests_that_the_list_is_still_absent() -> None:
+    patch = add_finalizer(a_job().without_finalizer().queued())
+    assert patch.body == {}
+    assert patch.operations == (
+        {"op": "test", "path": "/metadata/finalizers", "value": None},
+        {"op": "add", "path": "/metadata/finalizers", "value": [FINALIZER]},
+    )
 
 
 def test_metrics_count_jobs_queue_depth_cells_and_bind_latency() -> None:

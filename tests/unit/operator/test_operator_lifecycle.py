@@ -134,6 +134,14 @@ def test_every_live_job_gets_the_finalizer():
     assert of_type(plan([job], []), AddFinalizer) == [AddFinalizer(job)]
 
 
+def test_a_finished_job_without_the_finalizer_gets_none_but_still_frees_its_cell():
+    job = a_job().named("j").without_finalizer().finished(JobPhase.SUCCEEDED, seconds_ago=1, cell="c")
+    claimed = a_cell().named("c").claimed_by(job).ready()
+    actions = plan([job], [claimed])
+    assert of_type(actions, AddFinalizer) == []
+    assert [a.cell.name for a in of_type(actions, ReleaseCell)] == ["c"]
+
+
 def test_a_finished_job_is_deleted_after_its_own_ttl():
     assert of_type(plan([a_job().with_ttl(5).finished(seconds_ago=6)], []), DeleteJob)
     assert not of_type(plan([a_job().with_ttl(60).finished(seconds_ago=6)], []), DeleteJob)
