@@ -372,7 +372,11 @@ def test_with_a_shared_lease_only_the_leader_binds(
     k8s: Any, namespace: str, bed: Bed, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     cells = [bed.cell(f"c{i}") for i in range(3)]
-    with running_operator(k8s, namespace, monkeypatch) as a, running_operator(k8s, namespace, monkeypatch) as b:
+    # A lease long enough that a pass slowed by a loaded machine cannot hand leadership over mid-test.
+    lease = {"lease_duration": 15}
+    with running_operator(k8s, namespace, monkeypatch, **lease) as a, running_operator(
+        k8s, namespace, monkeypatch, **lease
+    ) as b:
         for i in range(3):
             bed.job(f"j{i}")
         for i in range(3):
