@@ -19,9 +19,15 @@ from .scheduling import occupied_cells
 
 @dataclass(frozen=True)
 class ReleaseCell:
+    """Free the cell. ``recheck`` is set when the decision rests on this replica's view
+    of the claiming job (unbound, or missing), which a lagging watch can make stale:
+    the writer then reads the job from the server and asks ``release_reason`` again.
+    """
+
     cell: Cell
     phase: CellPhase
     reason: str
+    recheck: bool = False
 
 
 @dataclass(frozen=True)
@@ -97,10 +103,12 @@ def _plan_cells(
     occupied = occupied_cells(jobs, cells)
     actions: list[Action] = []
     for cell in cells:
-        release = _release_reason(cell, by_key.get(cell.current_job or ""), now, timing)
+        job = by_key.get(cell.current_job or "")
+        release = release_reason(cell, job, now, timing)
         if release is not None:
             free_phase = derive_cell_phase(cell, False, now, timing.heartbeat_timeout)
-            actions.append(ReleaseCell(cell, free_phase, release))
+            finished = job is not None and job.terminal and job.cell_name == cell.name
+            actions.append(ReleaseCell(cell, free_phase, release, recheck=not finished))
             continue
         phase = derive_cell_phase(cell, cell.name in occupied, now, timing.heartbeat_timeout)
         if phase != cell.phase:
@@ -108,8 +116,11 @@ def _plan_cells(
     return actions
 
 
-def _release_reason(cell: Cell, job: Job | None, now: datetime, timing: Timing) -> str | None:
-    """Why the cell's claim must go, or None if it stands (or there is none)."""
+def release_reason(cell: Cell, job: Job | None, now: datetime, timing: Timing) -> str | None:
+    """Why the cell's claim must go, or None if it stands (or there is none).
+
+    ``job`` is the job the claim names, as far as the caller knows (None: gone).
+    """
     if not cell.current_job:
         return None
     if job is not None and job.active and job.cell_name == cell.name:

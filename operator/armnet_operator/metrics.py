@@ -36,6 +36,10 @@ class Metrics:
         self.conflicts = Counter(
             "armnet_binding_conflicts_total", "Writes that lost a resourceVersion race", registry=r
         )
+        self.requeues = Counter(
+            "armnet_requeues_total", "Dispatched jobs put back in the queue (cell gone, offline or unclaimed)",
+            registry=r,
+        )
         self.errors = Counter("armnet_reconcile_errors_total", "Failed writes and reconcile passes", registry=r)
         self.leader = Gauge("armnet_operator_leader", "1 while this replica holds the Lease", registry=r)
         self.pass_seconds = Histogram("armnet_reconcile_seconds", "Duration of one reconcile pass", registry=r)
@@ -59,6 +63,7 @@ class Metrics:
             self.queue_wait.observe(max(0.0, (now - (job.queued_at or job.created)).total_seconds()))
         self.binds.inc(len(outcome.bound))
         self.conflicts.inc(outcome.conflicts)
+        self.requeues.inc(outcome.requeued)
         self.errors.inc(outcome.errors)
         phases = Tally(str(j.phase or JobPhase.SUBMITTED) for j in jobs)
         for phase in JobPhase:

@@ -40,6 +40,7 @@ from .lifecycle import (
     RequeueJob,
     SetCellPhase,
     plan_lifecycle,
+    release_reason,
 )
 from .model import Cell, CellPhase, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
@@ -75,6 +76,7 @@ class Memory:
 class Outcome:
     bound: list[tuple[Job, Cell]] = field(default_factory=list)
     conflicts: int = 0
+    requeued: int = 0
     errors: int = 0
     writes: int = 0
     queue: dict[str, QueueEntry] = field(default_factory=dict)
@@ -88,6 +90,7 @@ class Outcome:
         self.cells_written.update(other.cells_written)
         self.deleted.update(other.deleted)
         self.conflicts += other.conflicts
+        self.requeued += other.requeued
         self.errors += other.errors
         self.writes += other.writes
 
@@ -118,7 +121,7 @@ def reconcile_once(
         groups[_subject(action)].append(action)
     finalizing = {k: g[0] for k, g in groups.items() if len(g) == 1 and isinstance(g[0], AddFinalizer)}
     finalize = {a.job.key for a in finalizing.values() if isinstance(a, AddFinalizer)}
-    work = [partial(_apply_group, g, now, api) for k, g in groups.items() if k not in finalizing]
+    work = [partial(_apply_group, g, now, timing, api) for k, g in groups.items() if k not in finalizing]
     for result in _parallel(limits.parallel_binds, work):
         outcome.merge(result)
     # Re-read what we wrote from the responses, so the scheduler works on current
@@ -162,14 +165,14 @@ def _subject(action: Action) -> str:
     return f"job:{action.job.key}"
 
 
-def _apply_group(actions: list[Action], now: datetime, api: Api) -> Outcome:
+def _apply_group(actions: list[Action], now: datetime, timing: Timing, api: Api) -> Outcome:
     """Actions on one object, in order, each on the version the previous one wrote."""
     outcome = Outcome()
     latest: Job | None = None
     for action in actions:
         if latest is not None and not isinstance(action, ReleaseCell | SetCellPhase):
             action = replace(action, job=latest)
-        response = _apply(action, now, api, outcome)
+        response = _apply(action, now, timing, api, outcome)
         if isinstance(action, DeleteJob):
             outcome.deleted.add(action.job.key)
         elif response is None:
@@ -198,10 +201,14 @@ def _post_transitions(jobs: list[Job], memory: Memory, api: Api) -> None:
     memory.seen_phases.update(current)
 
 
-def _apply(action: Action, now: datetime, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Outcome) -> dict[str, Any] | None:
     """Write one lifecycle action; return the object as the server now has it, if written."""
     match action:
-        case ReleaseCell(cell=cell, phase=phase, reason=reason):
+        case ReleaseCell(cell=cell, phase=phase, reason=reason, recheck=recheck):
+            if recheck:
+                reason = _recheck_release(cell, now, timing, api, outcome)
+                if reason is None:
+                    return None
             log.info("releasing cell %s: %s", cell.name, reason)
             return _write(api, patches.release_cell(cell, phase), outcome)
         case SetCellPhase(cell=cell, phase=phase):
@@ -209,6 +216,7 @@ def _apply(action: Action, now: datetime, api: Api, outcome: Outcome) -> dict[st
         case RequeueJob(job=job, message=message):
             written = _write(api, patches.requeue_job(job, message, now), outcome)
             if written is not None:
+                outcome.requeued += 1
                 _event(api, job, "Warning", "Requeued", message)
             return written
         case FinishJob(job=job, phase=phase, reason=reason, error=error):
@@ -235,6 +243,25 @@ def _apply(action: Action, now: datetime, api: Api, outcome: Outcome) -> dict[st
             except TransientError as error:
                 _count(error, outcome)
     return None
+
+
+def _recheck_release(cell: Cell, now: datetime, timing: Timing, api: Api, outcome: Outcome) -> str | None:
+    """Decide a claim's release again on the claiming job as the server has it now.
+
+    This replica's watch may lag: a job another replica bound seconds ago can
+    still look queued (or not exist yet) here. Releasing its claim then would
+    strand a dispatched job on a cell the scheduler sees as free. One read, only
+    on this rare repair path, settles it; None means the claim stands.
+    """
+    namespace, _, name = (cell.current_job or "").partition("/")
+    try:
+        job: Job | None = parse_job(api.read_job(namespace, name)) if name else None
+    except NotFound:
+        job = None
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    return release_reason(cell, job, now, timing)
 
 
 def _claim(

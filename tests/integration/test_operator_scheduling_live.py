@@ -267,6 +267,7 @@ def test_a_job_dispatched_to_a_cell_that_goes_offline_is_requeued_to_another(bed
     spare = bed.cell("b-spare")
     body = bed.wait_job("j", phase="dispatched", cellName=spare)
     assert "Requeued" in bed.events("j")
+    assert operator.metrics.requeues._value.get() == 1
     bed.wait("the offline cell marked Offline and released", lambda: (
         bed.get_cell(flaky)["status"].get("phase") == "Offline" and not bed.get_cell(flaky)["status"].get("currentJob")))
     assert body["status"]["cellName"] == spare
@@ -362,9 +363,13 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
     stop.set()
     binds = [r.metrics.binds._value.get() for r in (a, b)]
     conflicts = [r.metrics.conflicts._value.get() for r in (a, b)]
-    print(f"binds per replica {binds}, conflicts per replica {conflicts}")
+    requeues = [r.metrics.requeues._value.get() for r in (a, b)]
+    print(f"binds per replica {binds}, conflicts {conflicts}, requeues {requeues}")
     assert violations == []
-    assert sum(binds) == 50, "every job is bound exactly once across both replicas"
+    # A requeue (e.g. a heartbeat late by more than the 3 s timeout on a loaded machine)
+    # legitimately binds that job once more; anything beyond that would be a double bind.
+    assert sum(binds) == 50 + sum(requeues), "every job is bound once per time it was queued"
+    assert sum(requeues) <= 10, f"requeues {requeues}: the repair is undoing good bindings"
     assert {s.get("cellName") for s in seen_jobs.values()} <= set(cells)
 
 

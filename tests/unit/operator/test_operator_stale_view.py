@@ -1,0 +1,89 @@
+"""A replica whose watch lags must not undo another replica's binding.
+
+The repair frees a claim its job does not confirm once ``claim_grace`` has
+passed. A replica that decides that on a lagging view (the job still queued,
+or not delivered yet) would free the cell of a job that is dispatched there:
+the job is then requeued and bound again, and meanwhile the scheduler sees the
+cell as free. The writer therefore asks the server for the job before such a
+release; these tests pin both sides of that decision.
+"""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+from armnet_operator.model import Timing
+from armnet_operator.reconcile import Limits, Memory, Outcome, reconcile_once
+from operator_world import World
+
+pytestmark = pytest.mark.unit
+
+TIMING = Timing(
+    heartbeat_timeout=timedelta(seconds=30),
+    claim_grace=timedelta(seconds=10),
+    lost_grace=timedelta(seconds=60),
+    cancel_force_after=timedelta(seconds=60),
+    default_ttl=None,
+)
+
+
+def bound_job_seen_late() -> tuple[World, list, list]:
+    """One cell, one job bound to it; and the job list as a lagging replica saw it before."""
+    world = World()
+    world.add_cell("c0", "so-101", None)
+    world.heartbeat("c0")
+    world.submit("j", "so-101", None, 0)
+    stale_jobs, _ = world.snapshot()
+    jobs, cells = world.snapshot()
+    reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits())
+    assert world.jobs["t/j"]["status"]["phase"] == "dispatched"
+    world.tick(TIMING.claim_grace.total_seconds() + 1)
+    world.heartbeat("c0")
+    _, fresh_cells = world.snapshot()
+    return world, stale_jobs, fresh_cells
+
+
+def lagging_pass(world: World, jobs: list, cells: list) -> Outcome:
+    return reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits())
+
+
+def test_a_claim_whose_job_still_looks_queued_here_stands_when_the_server_has_it_bound() -> None:
+    world, stale_jobs, cells = bound_job_seen_late()
+    outcome = lagging_pass(world, stale_jobs, cells)
+    assert world.cells["c0"]["status"]["currentJob"] == "t/j"
+    assert world.jobs["t/j"]["status"]["phase"] == "dispatched"
+    assert outcome.requeued == 0
+
+
+def test_a_claim_whose_job_has_not_reached_this_replica_yet_stands() -> None:
+    world, _, cells = bound_job_seen_late()
+    lagging_pass(world, [], cells)
+    assert world.cells["c0"]["status"]["currentJob"] == "t/j"
+
+
+def test_a_claim_whose_bind_never_happened_is_released_after_the_grace() -> None:
+    world, stale_jobs, cells = bound_job_seen_late()
+    del world.jobs["t/j"]["status"]["phase"]  # as if the binder crashed between claim and bind
+    world.jobs["t/j"]["status"].pop("cellName", None)
+    lagging_pass(world, stale_jobs, cells)
+    assert world.cells["c0"]["status"].get("currentJob") is None
+
+
+def test_a_claim_whose_job_is_gone_from_the_server_is_released_after_the_grace() -> None:
+    world, stale_jobs, cells = bound_job_seen_late()
+    del world.jobs["t/j"]
+    lagging_pass(world, stale_jobs, cells)
+    assert world.cells["c0"]["status"].get("currentJob") is None
+
+
+def test_a_dispatched_job_whose_cell_lost_its_claim_is_requeued_counted_and_bound_again() -> None:
+    world, _, _ = bound_job_seen_late()
+    world.cells["c0"]["status"]["currentJob"] = None
+    world.cells["c0"]["metadata"]["resourceVersion"] = "999"
+    jobs, cells = world.snapshot()
+    outcome = lagging_pass(world, jobs, cells)
+    assert outcome.requeued == 1
+    assert ("t/j", "Requeued") in world.events
+    assert [job.name for job, _ in outcome.bound] == ["j"], "the freed cell takes it back in the same pass"
+    assert world.cells["c0"]["status"]["currentJob"] == "t/j"
