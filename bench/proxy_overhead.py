@@ -146,6 +146,53 @@ def proxy_client(cell: dict[str, str], with_camera: bool) -> Client:
     return Client("proxy", bus, camera)
 
 
+def serve_echo(path: str) -> None:
+    """Child mode: the raw IPC floor, no armnet code: echo each line on a unix socket.
+
+    The same blocking readline/sendall a connector thread does, without parsing,
+    sessions or a bus: what two processes pay on this machine to hand a line over
+    and back (two wake-ups). The connector's added hop can never cost less.
+    """
+    import socket
+
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(path)
+    listener.listen(1)
+    print("ready", flush=True)
+    conn, _ = listener.accept()
+    reader = conn.makefile("rb")
+    for line in reader:
+        conn.sendall(line)
+
+
+class RawEchoProbe:
+    """One raw line round trip per tick to ``serve_echo``, after the same pause."""
+
+    name = "raw"
+
+    def __init__(self, run_dir: str) -> None:
+        import socket
+
+        path = os.path.join(run_dir, "echo.sock")
+        self.process = subprocess.Popen(
+            [sys.executable, __file__, "--serve-echo", path], stdout=subprocess.PIPE, text=True
+        )
+        assert self.process.stdout is not None
+        self.process.stdout.readline()
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(path)
+        self.reader = self.sock.makefile("rb")
+
+    def round_trip(self) -> bytes:
+        self.sock.sendall(b'{"op":"hello"}\n')
+        return self.reader.readline()
+
+    def close(self) -> None:
+        self.reader.close()
+        self.sock.close()
+        self.process.wait(timeout=10)
+
+
 class HelloProbe:
     """The transport floor: one ``hello`` round trip on robot.sock per tick, after the same pause."""
 
@@ -165,7 +212,7 @@ class HelloProbe:
 
 class Samples:
     def __init__(self) -> None:
-        self.calls: dict[str, list[float]] = {"sync_read": [], "sync_write": [], "camera": [], "hello": []}
+        self.calls: dict[str, list[float]] = {"sync_read": [], "sync_write": [], "camera": [], "hello": [], "raw": []}
         self.ticks = 0
         self.on_time = 0
         self.failed = 0
@@ -185,8 +232,11 @@ def timed(bucket: list[float], call: Callable[[], Any]) -> Any:
     return value
 
 
-def tick_work(client: Client | HelloProbe, tick: int, samples: Samples) -> bool:
+def tick_work(client: Client | HelloProbe | RawEchoProbe, tick: int, samples: Samples) -> bool:
     """One control tick's calls on ``client``; False when a bus reply was lost."""
+    if isinstance(client, RawEchoProbe):
+        timed(samples.calls["raw"], client.round_trip)
+        return True
     if isinstance(client, HelloProbe):
         probe = client
         timed(samples.calls["hello"], lambda: probe.conn.request({"op": "hello"}))
@@ -206,7 +256,7 @@ def tick_work(client: Client | HelloProbe, tick: int, samples: Samples) -> bool:
     return True
 
 
-def run_ticks(clients: list[Client | HelloProbe], ticks: int) -> dict[str, Samples]:
+def run_ticks(clients: list[Client | HelloProbe | RawEchoProbe], ticks: int) -> dict[str, Samples]:
     """Paced 100 Hz ticks, the clients taking turns tick by tick.
 
     Interleaving (rather than one block per client) gives both the same machine
@@ -238,11 +288,12 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[index]
 
 
-def report(direct: Samples, proxy: Samples, hello: Samples, with_camera: bool) -> bool:
+def report(direct: Samples, proxy: Samples, hello: Samples, raw: Samples, with_camera: bool) -> bool:
     print(f"ticks per mode: {direct.ticks} (100 Hz, paced)")
     print(f"{'call':<11}{'direct p50':>12}{'direct p99':>12}{'proxy p50':>12}{'proxy p99':>12}"
           f"{'ovh p50':>10}{'ovh p99':>10}{'ratio':>8}   (microseconds)")
     ok = True
+    r50 = percentile(raw.calls["raw"], 50) * 1e6
     for call in ("sync_read", "sync_write") + (("camera",) if with_camera else ()):
         d50, d99 = (percentile(direct.calls[call], q) * 1e6 for q in (50, 99))
         p50, p99 = (percentile(proxy.calls[call], q) * 1e6 for q in (50, 99))
@@ -251,7 +302,13 @@ def report(direct: Samples, proxy: Samples, hello: Samples, with_camera: bool) -
         if call != "camera":
             ok = ok and o50 <= TARGET_P50_US and o99 <= TARGET_P99_US
     h50, h99 = (percentile(hello.calls["hello"], q) * 1e6 for q in (50, 99))
+    r99 = percentile(raw.calls["raw"], 99) * 1e6
+    print(f"floor: a raw line round trip between two plain processes (no armnet code), after the same pause: "
+          f"{r50:.0f} us p50, {r99:.0f} us p99")
     print(f"floor: a bare 'hello' round trip on robot.sock after the same pause: {h50:.0f} us p50, {h99:.0f} us p99")
+    for call in ("sync_read", "sync_write"):
+        o50 = (percentile(proxy.calls[call], 50) - percentile(direct.calls[call], 50)) * 1e6
+        print(f"armnet's own share of the {call} overhead (p50 overhead - raw floor p50): {o50 - r50:.0f} us")
     direct_share = direct.on_time / direct.ticks
     proxy_share = proxy.on_time / proxy.ticks
     print(f"failed ticks (bus reply lost): direct {direct.failed}, proxy {proxy.failed}")
@@ -268,9 +325,13 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=2, help="rounds; each swaps which mode ticks first (default 2)")
     parser.add_argument("--camera", action="store_true", help="also read one camera frame per tick")
     parser.add_argument("--serve-cell", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--serve-echo", metavar="PATH", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve_cell:
         serve_cell()
+        return 0
+    if args.serve_echo:
+        serve_echo(args.serve_echo)
         return 0
     cell_process = subprocess.Popen(
         [sys.executable, __file__, "--serve-cell"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
@@ -278,12 +339,14 @@ def main() -> int:
     try:
         assert cell_process.stdout is not None
         cell = json.loads(cell_process.stdout.readline())
-        totals = {"direct": Samples(), "proxy": Samples(), "hello": Samples()}
-        clients: list[Client | HelloProbe] = []
+        totals = {"direct": Samples(), "proxy": Samples(), "hello": Samples(), "raw": Samples()}
+        clients: list[Client | HelloProbe | RawEchoProbe] = []
+        echo_dir = tempfile.TemporaryDirectory(prefix="armnet-bench-echo-")
         try:
             for make in (direct_client, proxy_client):
                 clients.append(make(cell, args.camera))
             clients.append(HelloProbe(cell))
+            clients.append(RawEchoProbe(echo_dir.name))
             run_ticks(clients, 20)  # warm-up: caches, first frame
             for _ in range(args.rounds):
                 for name, samples in run_ticks(clients, args.ticks).items():
@@ -292,7 +355,8 @@ def main() -> int:
         finally:
             for client in clients:
                 client.close()
-        report(totals["direct"], totals["proxy"], totals["hello"], args.camera)
+            echo_dir.cleanup()
+        report(totals["direct"], totals["proxy"], totals["hello"], totals["raw"], args.camera)
     finally:
         if cell_process.stdin is not None:
             cell_process.stdin.close()

@@ -39,6 +39,13 @@ MAX_LINE_BYTES = 64 * 1024 * 1024
 _RECV_CHUNK = 1 << 16
 _UNSET: Any = object()
 
+# Built once: ``json.dumps`` with options builds a new encoder on every call, and
+# ``json.loads`` of bytes sniffs their encoding first. On a control loop's hot path
+# (one request per bus call, after a sleep that left the caches cold) every extra
+# layer of Python shows up in the per-call overhead (bench/proxy_overhead.py).
+_encode_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+_decode_json = json.JSONDecoder().decode
+
 # Wire error types re-raised as the built-in exception of the same name, so that
 # customer code written against local LeRobot (``except ConnectionError``) keeps working.
 _BUILTIN_ERRORS = frozenset(
@@ -91,6 +98,7 @@ class PersistentConnection:
         self._timeout = timeout
         self._connect_timeout = connect_timeout
         self._sock: socket.socket | None = None
+        self._sock_timeout: float | None = None
         self._buffer = bytearray()
         self._lock = threading.Lock()
 
@@ -101,13 +109,16 @@ class PersistentConnection:
         default is the connection's). Any failure closes the connection.
         """
         wait = self._timeout if timeout is _UNSET else timeout
-        line = json.dumps(payload, separators=(",", ":"), allow_nan=False).encode() + b"\n"
+        line = _encode_json(payload).encode() + b"\n"
         with self._lock:
             try:
                 if self._sock is None:
                     self._sock = _connect(self._address, self._connect_timeout)
+                    self._sock_timeout = self._connect_timeout
                     self._buffer.clear()
-                self._sock.settimeout(wait)
+                if wait != self._sock_timeout:
+                    self._sock.settimeout(wait)
+                    self._sock_timeout = wait
                 self._sock.sendall(line)
                 return _parse_reply(self._read_line(wait))
             except BaseException:
@@ -116,6 +127,12 @@ class PersistentConnection:
 
     def _read_line(self, wait: float | None) -> bytes:
         assert self._sock is not None
+        if not self._buffer:
+            # The usual case: the whole reply arrives in one chunk, nothing before or after it.
+            chunk = self._receive(wait)
+            if chunk.find(b"\n") == len(chunk) - 1:
+                return chunk[:-1]
+            self._buffer += chunk
         while True:
             end = self._buffer.find(b"\n")
             if end >= 0:
@@ -124,17 +141,20 @@ class PersistentConnection:
                 return line
             if len(self._buffer) > MAX_LINE_BYTES:
                 raise ProtocolError(f"reply from {self.endpoint} exceeds {MAX_LINE_BYTES} bytes")
-            try:
-                chunk = self._sock.recv(_RECV_CHUNK)
-            except TimeoutError as exc:
-                raise ConnectorUnavailable(
-                    f"no reply from the cell connector at {self.endpoint} within {wait} s"
-                ) from exc
-            except OSError as exc:
-                raise ConnectorUnavailable(f"connection to {self.endpoint} failed: {exc}") from exc
-            if not chunk:
-                raise ConnectorUnavailable(f"the cell connector at {self.endpoint} closed the connection")
-            self._buffer += chunk
+            self._buffer += self._receive(wait)
+
+    def _receive(self, wait: float | None) -> bytes:
+        """The next non-empty chunk from the connector; ConnectorUnavailable if none comes."""
+        assert self._sock is not None
+        try:
+            chunk = self._sock.recv(_RECV_CHUNK)
+        except TimeoutError as exc:
+            raise ConnectorUnavailable(f"no reply from the cell connector at {self.endpoint} within {wait} s") from exc
+        except OSError as exc:
+            raise ConnectorUnavailable(f"connection to {self.endpoint} failed: {exc}") from exc
+        if not chunk:
+            raise ConnectorUnavailable(f"the cell connector at {self.endpoint} closed the connection")
+        return chunk
 
     def close(self) -> None:
         with self._lock:
@@ -146,6 +166,7 @@ class PersistentConnection:
                 self._sock.close()
             finally:
                 self._sock = None
+                self._sock_timeout = None
                 self._buffer.clear()
 
     def __enter__(self) -> PersistentConnection:
@@ -157,7 +178,7 @@ class PersistentConnection:
 
 def _parse_reply(line: bytes) -> dict[str, Any]:
     try:
-        reply = json.loads(line)
+        reply = _decode_json(line.decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ProtocolError(f"connector reply is not JSON: {line[:80]!r}") from exc
     if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
