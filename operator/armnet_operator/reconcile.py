@@ -181,7 +181,21 @@ def _apply_group(actions: list[Action], now: datetime, timing: Timing, api: Api)
             outcome.cells_written[action.cell.name] = parse_cell(response)
         else:
             latest = outcome.jobs_written[action.job.key] = parse_job(response)
+            if isinstance(action, AddFinalizer) and not decided_on_same_job(action.job, latest):
+                return outcome  # the rest was decided on a job that has changed since: next pass
     return outcome
+
+
+def decided_on_same_job(decided: Job, written: Job) -> bool:
+    """Whether a job written without a resourceVersion precondition is still the one we decided on.
+
+    The finalizer goes out as a JSON Patch without a resourceVersion, so it lands
+    even when this replica's view of the job is stale, and its response carries a
+    fresh resourceVersion. A status write chained after it with that version would
+    apply a decision made on the stale view (e.g. put a job that another replica
+    just bound back in the queue). Only the finalizer and the version may differ.
+    """
+    return replace(written, resource_version=decided.resource_version, finalizers=decided.finalizers) == decided
 
 
 def _post_transitions(jobs: list[Job], memory: Memory, api: Api) -> None:
@@ -353,7 +367,10 @@ def _queue(job: Job, finalize: bool, entry: QueueEntry | None, now: datetime, ap
         written = _add_finalizer(job, api, outcome)
         if written is None:
             return outcome
-        job = outcome.jobs_written[job.key] = parse_job(written)
+        fresh = outcome.jobs_written[job.key] = parse_job(written)
+        if not decided_on_same_job(job, fresh):
+            return outcome  # the queue status was decided on a stale view: next pass
+        job = fresh
     if entry is not None:
         written = _write(api, patches.queue_job(job, entry, now), outcome)
         if written is not None:

@@ -10,12 +10,13 @@ release; these tests pin both sides of that decision.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import timedelta
 
 import pytest
 from armnet_operator.model import Timing
 from armnet_operator.reconcile import Limits, Memory, Outcome, reconcile_once
-from operator_world import World
+from operator_world import Crash, World
 
 pytestmark = pytest.mark.unit
 
@@ -87,3 +88,58 @@ def test_a_dispatched_job_whose_cell_lost_its_claim_is_requeued_counted_and_boun
     assert ("t/j", "Requeued") in world.events
     assert [job.name for job, _ in outcome.bound] == ["j"], "the freed cell takes it back in the same pass"
     assert world.cells["c0"]["status"]["currentJob"] == "t/j"
+
+
+def a_ready_cell() -> World:
+    world = World()
+    world.add_cell("c0", "so-101", None)
+    world.heartbeat("c0")
+    jobs, cells = world.snapshot()
+    reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits())  # the cell gets its phase
+    return world
+
+
+def bound_without_finalizer() -> World:
+    """A job another replica claimed a cell for and bound, then crashed before its finalizer."""
+    world = a_ready_cell()
+    world.submit("j", "so-101", None, 0)
+    jobs, cells = world.snapshot()
+    world.crash_after = 2  # claim, bind; the finalizer write crashes
+    with pytest.raises(Crash):
+        reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits())
+    world.crash_after = None
+    assert world.jobs["t/j"]["status"]["phase"] == "dispatched"
+    assert not world.jobs["t/j"]["metadata"].get("finalizers")
+    return world
+
+
+def test_a_stale_replica_adding_the_finalizer_does_not_put_a_bound_job_back_in_the_queue() -> None:
+    """The finalizer lands without a resourceVersion; the queue write decided on the stale view must not follow."""
+    world = a_ready_cell()
+    world.submit("j", "so-101", None, 0)
+    stale_jobs, _ = world.snapshot()  # j as submitted: no phase, no finalizer
+    jobs, cells = world.snapshot()
+    world.crash_after = 2
+    with pytest.raises(Crash):
+        reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits())
+    world.crash_after = None
+    _, fresh_cells = world.snapshot()  # c0 now holds the claim: this replica would queue j
+    lagging_pass(world, stale_jobs, fresh_cells)
+    status = world.jobs["t/j"]["status"]
+    assert (status["phase"], status["cellName"]) == ("dispatched", "c0")
+    assert world.jobs["t/j"]["metadata"]["finalizers"], "the finalizer itself is safe to add and stays"
+
+
+def test_a_stale_replica_adding_the_finalizer_does_not_requeue_a_job_that_started_meanwhile() -> None:
+    world = bound_without_finalizer()
+    stale_jobs, cells = world.snapshot()  # j dispatched, no finalizer
+    world.agent_set_phase("t/j", "running")
+    world.tick(TIMING.claim_grace.total_seconds() + 1)
+    world.heartbeat("c0")
+    # This replica also missed the claim: its view says c0 does not hold j, so j looks stranded.
+    _, fresh_cells = world.snapshot()
+    unclaimed = [replace(c, current_job=None, claimed_at=None) for c in fresh_cells]
+    outcome = lagging_pass(world, stale_jobs, unclaimed)
+    assert world.jobs["t/j"]["status"]["phase"] == "running"
+    assert world.jobs["t/j"]["status"]["cellName"] == "c0"
+    assert outcome.requeued == 0 and ("t/j", "Requeued") not in world.events
