@@ -52,7 +52,13 @@ def test_the_armnet_operator_command_binds_a_job_and_exports_metrics(k8s: Any, n
             phase = out.strip()
             assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
         assert phase == "dispatched"
-        metrics = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
+        # The pass updates its metrics when it ends, a moment after its writes are visible.
+        deadline = time.monotonic() + 10
+        while True:
+            metrics = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
+            if "armnet_binds_total 1.0" in metrics or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
         assert "armnet_binds_total 1.0" in metrics
         assert "armnet_operator_leader 1.0" in metrics
     finally:
