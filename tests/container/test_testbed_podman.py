@@ -49,6 +49,23 @@ def _serve_once(sock_path: Path, received: list[str]) -> threading.Thread:
     return thread
 
 
+def run_to_exit(podman: Podman, image: str, command: list[str]) -> tuple[int, str]:
+    """Run a container to its exit; return its exit code and stdout.
+
+    Not ``containers.run(remove=True)``: that follows the log stream, and with
+    Podman 4.3's Docker API a follow attached after a fast container exited can
+    stay open forever. Waiting for the exit, then reading the finished log, cannot.
+    """
+    container = podman.client.containers.run(
+        image, command, network_mode="host", ulimits=podman.ulimits(), detach=True,
+    )
+    try:
+        exit_code = container.wait(timeout=120)["StatusCode"]
+        return exit_code, container.logs(stdout=True, stderr=False).decode()
+    finally:
+        container.remove(force=True)
+
+
 def test_a_container_reads_a_mount_talks_to_the_host_and_reports_exit_code_and_logs(
     podman: Podman, base_image: str,
 ) -> None:
@@ -78,12 +95,10 @@ def test_a_container_reads_a_mount_talks_to_the_host_and_reports_exit_code_and_l
 
 
 def test_containers_run_with_runc_and_the_explicit_ulimits(podman: Podman, base_image: str) -> None:
-    output = podman.client.containers.run(
-        base_image, ["bash", "-c", "ulimit -Sn; ulimit -Hn; ulimit -Su; ulimit -Hu"],
-        network_mode="host", ulimits=podman.ulimits(), remove=True,
-    ).decode().split()
+    exit_code, output = run_to_exit(podman, base_image, ["bash", "-c", "ulimit -Sn; ulimit -Hn; ulimit -Su; ulimit -Hu"])
 
-    assert output == ["4096", "16384", "4096", "32768"]
+    assert exit_code == 0
+    assert output.split() == ["4096", "16384", "4096", "32768"]
     assert podman.client.info()["DefaultRuntime"] == "runc"
 
 
@@ -95,11 +110,11 @@ def test_build_image_installs_this_repos_wheels_on_the_base_image(
 
     podman.build_image(fixture, tag)
     try:
-        output = podman.client.containers.run(
-            tag, ["python", "-c", "import armnet_runtime, armnet_core, pydantic; print('ok', pydantic.VERSION)"],
-            network_mode="host", ulimits=podman.ulimits(), remove=True,
-        ).decode()
+        exit_code, output = run_to_exit(
+            podman, tag, ["python", "-c", "import armnet_runtime, armnet_core, pydantic; print('ok', pydantic.VERSION)"]
+        )
     finally:
         podman.client.images.remove(tag, force=True)
 
+    assert exit_code == 0
     assert output.startswith("ok 2.")
