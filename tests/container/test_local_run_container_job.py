@@ -12,6 +12,7 @@ from __future__ import annotations
 import sys
 import tempfile
 import textwrap
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -105,3 +106,31 @@ def test_a_container_ignoring_its_timeout_is_killed_at_the_end_of_the_grace_wind
     assert result.started_at is not None and result.finished_at is not None
     overrun = (result.finished_at - result.started_at).total_seconds() - (timeout + grace)
     assert 0 <= overrun < 1.0, f"killed {overrun:.3f} s after the grace window closed"
+
+
+@pytest.mark.parametrize("grace", [0.0, ContainerJob.follow_grace_s])
+def test_a_container_jobs_output_arrives_whole_and_once_even_when_the_follow_drops_or_stalls(
+    podman: Podman, base_image: str, grace: float
+) -> None:
+    """50,000 fast lines: Podman 4.3's follow drops stretches of them as the container exits
+    (measured: 30-45 %); with no grace it is also closed the moment the container exits."""
+    lines = 50_000
+    container = podman.client.containers.create(
+        base_image, ["python3", "-c", f"import sys\nfor i in range({lines}): sys.stdout.write(f'line {{i}}\\n')"],
+        network_mode="host", ulimits=podman.ulimits(), detach=True,
+    )
+    container.start()
+    job = ContainerJob(podman.client, container)
+    job.follow_grace_s = grace
+    try:
+        output = b"".join(job.stdout_chunks()).decode()
+        assert job.wait(60) == 0
+    finally:
+        job.remove()
+    counts = Counter(output.splitlines())
+    expected = [f"line {i}" for i in range(lines)]
+    assert [line for line in expected if counts[line] != 1] == [], "every line exactly once"
+    # Podman may cut a line while dropping a stretch; such a fragment reaches the reader as
+    # well (it cannot be taken back), next to the whole line.
+    fragments = set(counts) - set(expected)
+    assert len(fragments) <= 5, f"fragments: {sorted(fragments)[:10]}"

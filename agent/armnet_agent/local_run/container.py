@@ -9,16 +9,23 @@ engine defaults on some hosts). It implements the supervisor's ``LaunchedJob``.
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from .log_recovery import DeliveredLines, missed_output
+
+log = logging.getLogger(__name__)
+
 PODMAN_SOCKET = "/run/podman/podman.sock"
 JOB_DIR_IN_CONTAINER = "/armnet-job"
 PING_TIMEOUT_S = 10
 ULIMITS = (("nofile", 4096, 16384), ("nproc", 4096, 32768))
+FOLLOW_GRACE_S = 1.0
+"""How long a followed log stream may stay open after the container exited."""
 
 
 class EngineUnavailable(RuntimeError):
@@ -111,8 +118,50 @@ class ContainerJob:
         finally:
             self._done.set()
 
+    follow_grace_s = FOLLOW_GRACE_S
+
     def _logs(self, stdout: bool) -> Iterator[bytes]:
-        yield from self._container.logs(stdout=stdout, stderr=not stdout, stream=True, follow=True)
+        """The stream's output as it comes, then whatever the follow missed.
+
+        With Podman 4.3's Docker API a follow can drop stretches of output when
+        the container exits while it is behind, or stay open after the exit; the
+        job's last lines carry its result marker. So a follow still open
+        ``follow_grace_s`` after the exit is closed, and once the container is
+        gone its finished log is compared with what the follow delivered (see
+        ``log_recovery``).
+        """
+        follow = self._container.logs(stdout=stdout, stderr=not stdout, stream=True, follow=True)
+        ended = threading.Event()
+
+        def close_when_stalled() -> None:
+            self._done.wait()
+            if not ended.wait(self.follow_grace_s):
+                try:
+                    follow.close()
+                except Exception:  # noqa: BLE001 - already closed, or a transport that cannot cancel
+                    log.debug("closing a stalled log follow failed", exc_info=True)
+
+        threading.Thread(target=close_when_stalled, name="armnet-log-follow-guard", daemon=True).start()
+        delivered = DeliveredLines()
+        try:
+            for chunk in follow:
+                delivered.add(chunk)
+                yield chunk
+        except Exception:  # noqa: BLE001 - a stream closed under the reader; the finished log covers it
+            log.debug("log follow ended with an error", exc_info=True)
+        finally:
+            ended.set()
+        self._done.wait()
+        try:
+            finished = self._container.logs(stdout=stdout, stderr=not stdout)
+        except Exception:  # noqa: BLE001 - the engine or the container is gone: the follow is all we have
+            log.warning("could not read the finished log to check the followed one", exc_info=True)
+            return
+        missed = missed_output(finished, delivered)
+        if missed:
+            log.info("the log follow missed %d bytes of %s; delivered from the finished log",
+                     len(missed), "stdout" if stdout else "stderr")
+            yield missed
 
     def stdout_chunks(self) -> Iterator[bytes]:
         return self._logs(stdout=True)
