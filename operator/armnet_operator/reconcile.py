@@ -181,8 +181,6 @@ def _apply_group(actions: list[Action], now: datetime, timing: Timing, api: Api)
             outcome.cells_written[action.cell.name] = parse_cell(response)
         else:
             latest = outcome.jobs_written[action.job.key] = parse_job(response)
-            if isinstance(action, AddFinalizer) and not decided_on_same_job(action.job, latest):
-                return outcome  # the rest was decided on a job that has changed since: next pass
     return outcome
 
 
@@ -367,10 +365,7 @@ def _queue(job: Job, finalize: bool, entry: QueueEntry | None, now: datetime, ap
         written = _add_finalizer(job, api, outcome)
         if written is None:
             return outcome
-        fresh = outcome.jobs_written[job.key] = parse_job(written)
-        if not decided_on_same_job(job, fresh):
-            return outcome  # the queue status was decided on a stale view: next pass
-        job = fresh
+        job = outcome.jobs_written[job.key] = parse_job(written)
     if entry is not None:
         written = _write(api, patches.queue_job(job, entry, now), outcome)
         if written is not None:
@@ -379,6 +374,23 @@ def _queue(job: Job, finalize: bool, entry: QueueEntry | None, now: datetime, ap
 
 
 def _add_finalizer(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Append the finalizer; return the job as written only if it is still the job we decided on.
+
+    Callers chain their next write (queue status, requeue, cancel) on the returned
+    version, and stop on None. A job that changed meanwhile still gets its
+    finalizer (recorded in ``outcome``), but the chain stops: see ``decided_on_same_job``.
+    """
+    written = _append_finalizer(job, api, outcome)
+    if written is None:
+        return None
+    fresh = parse_job(written)
+    if not decided_on_same_job(job, fresh):
+        outcome.jobs_written[job.key] = fresh
+        return None
+    return written
+
+
+def _append_finalizer(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
     """Append the finalizer (no resourceVersion); if the list changed shape, re-read once.
 
     The JSON Patch fails only when the finalizer list appeared or vanished since

@@ -65,6 +65,8 @@ def container_command(script: Path) -> list[str]:
 class ContainerJob:
     """One job container; stdout/stderr are followed as two log streams."""
 
+    follow_grace_s = FOLLOW_GRACE_S
+
     def __init__(self, client: Any, container: Any) -> None:
         self._client = client
         self._container = container
@@ -117,8 +119,6 @@ class ContainerJob:
             self._exit_code = -1
         finally:
             self._done.set()
-
-    follow_grace_s = FOLLOW_GRACE_S
 
     def _logs(self, stdout: bool) -> Iterator[bytes]:
         """The stream's output as it comes, then whatever the follow missed.
