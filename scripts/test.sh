@@ -12,6 +12,8 @@ echo "== ruff =="
 "$venv/bin/ruff" check .
 echo "== mypy (strict, runtime SDK) =="
 "$venv/bin/mypy"
+echo "== import-linter (checked layers, .importlinter) =="
+"$venv/bin/lint-imports" --no-cache --no-logo
 echo "== pytest =="
 export PATH="$venv/bin:$PATH"
 exec "$venv/bin/python" -m pytest "$@"
