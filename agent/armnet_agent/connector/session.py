@@ -19,6 +19,7 @@ from . import __version__
 from .allowlist import CLASSES, refusal
 from .cell import CellState, RolloutEvent
 from .errors import RequestError, failure_reply, not_allowed, protocol_error
+from .frames import FrameAreas, FramePublisher
 from .hardware import Handle, create_arx5, create_camera, create_feetech
 from .retry import is_read, with_read_retry
 
@@ -112,10 +113,12 @@ class _Context:
 class RobotSession(Session):
     socket_name = "robot"
 
-    def __init__(self, cell: CellState) -> None:
+    def __init__(self, cell: CellState, frames: FrameAreas | None = None) -> None:
         super().__init__(cell)
         self.objects: dict[str, Handle | _Context] = {}
         self._counter = 0
+        self._frame_areas = frames
+        self._publishers: dict[int, FramePublisher] = {}
         self.ops.update(
             create=self.op_create, getattr=self.op_getattr, setattr=self.op_setattr, call=self.op_call,
             enter=self.op_enter, exit=self.op_exit, close=self.op_close,
@@ -209,6 +212,7 @@ class RobotSession(Session):
         if why is not None:
             raise not_allowed(why)
         args, kwargs = _arguments(request)
+        shared_frame = handle.class_name == "OpenCVCamera" and method in FRAME_READS and _wants_shared_frame(request)
         with handle.lock:
             self.cell.guard.check(handle, method, args, kwargs)
             if method == "torque_disabled":
@@ -224,7 +228,29 @@ class RobotSession(Session):
             context = _Context(handle, result.__enter__, lambda exc: bool(result.__exit__(
                 type(exc) if exc else None, exc, None)))
             return {"ok": True, "context_manager": True, "object_id": self._add("c", context)}
+        if shared_frame:
+            frame = self._publish(handle, result)
+            if frame is not None:
+                return {"ok": True, "frame": frame}
         return {"ok": True, "value": _encoded(result, method)}
+
+    # -- camera frames through shared memory (frames.py; runtime/PROTOCOL.md) ----------
+
+    def _publish(self, handle: Handle, frame: Any) -> dict[str, Any] | None:
+        """The frame written to the handle's area, as a descriptor; None: send it inline."""
+        if self._frame_areas is None:
+            return None
+        publisher = self._publishers.get(id(handle))
+        if publisher is None:
+            publisher = self._frame_areas.publisher(str(handle.overrides.get("index_or_path", "")))
+            self._publishers[id(handle)] = publisher
+        stamp = getattr(handle.obj, "latest_timestamp", None)
+        return publisher.publish(frame, stamp if isinstance(stamp, float) else None)
+
+    def _forget_frames(self, handle: Handle) -> None:
+        publisher = self._publishers.pop(id(handle), None)
+        if publisher is not None:
+            publisher.close()
 
     def _torque_disabled(self, handle: Handle, args: list[Any], kwargs: dict[str, Any]) -> Reply:
         # Driven here as disable/enable calls rather than LeRobot's generator, so that the
@@ -271,6 +297,7 @@ class RobotSession(Session):
         del self.objects[object_id]
         if isinstance(item, Handle):
             self.cell.release(item)
+            self._forget_frames(item)
         return {"ok": True}
 
     def op_return_to_rest(self, request: dict[str, Any]) -> Reply:
@@ -287,6 +314,7 @@ class RobotSession(Session):
         self.objects.clear()
         for handle in handles:
             self.cell.release(handle)
+            self._forget_frames(handle)
 
 
 _CLIENT_EXCEPTIONS: dict[str, type[Exception]] = {
@@ -302,6 +330,20 @@ def _client_exception(exc_type: str, message: str | None) -> Exception:
     """The exception the client's ``with`` body raised, rebuilt from its name (never imported)."""
     cls = _CLIENT_EXCEPTIONS.get(exc_type, Exception)
     return cls(message or exc_type)
+
+
+FRAME_READS = frozenset({"read", "async_read", "read_latest"})
+"""Camera methods whose frame may travel through the frame area instead of the reply."""
+
+
+def _wants_shared_frame(request: dict[str, Any]) -> bool:
+    """The request's ``frames`` field: ``"shm"`` (descriptor), absent or ``"inline"`` (pixels in the reply)."""
+    mode = request.get("frames", "inline")
+    if mode == "shm":
+        return True
+    if mode == "inline":
+        return False
+    raise protocol_error(f"request field 'frames' must be 'shm' or 'inline', got {str(mode)[:32]!r}")
 
 
 def _is_context_manager(value: Any) -> bool:

@@ -1,0 +1,197 @@
+"""The connector's side of camera frames through shared memory: creating and writing frame areas.
+
+This module owns the frame areas of one connector (one job): a file per camera
+object in the socket directory, created fresh with mode 0440 (no one may open it
+for writing, the connector keeps the one writable mapping it made at creation),
+group-owned by the socket directory's group (the pod's ``fsGroup``), and removed
+when the camera object goes away. Each area holds a few slots used in turn; a
+frame is written under its slot's sequence word (a seqlock), so a reader copying
+an older frame sees that it was overwritten instead of a torn picture.
+
+It never reads anything back from an area (the customer can map it, so nothing
+in it is trusted) and never waits for a reader: a slow or dead reader costs the
+connector nothing. The byte layout is ``armnet_runtime.frames``'s.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import mmap
+import os
+import secrets
+import struct
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from armnet_runtime.frames import (
+    AREA_HEADER,
+    FRAME_DTYPE_KINDS,
+    HEADER_BYTES,
+    MAGIC,
+    MAX_DIMS,
+    MAX_FRAME_BYTES,
+    PAGE,
+    SLOT_HEADER,
+    VERSION,
+    slot_data_offset,
+    slot_header_offset,
+)
+
+log = logging.getLogger(__name__)
+
+SLOTS = 4
+"""Slots per area: a reader has three newer frames' time to finish its copy."""
+
+AREA_MODE = 0o440
+MEMORY_FILESYSTEMS = frozenset({"tmpfs", "ramfs", "hugetlbfs"})
+
+_seq = struct.Struct("<Q")
+
+
+def filesystem_type(path: Path) -> str:
+    """The type of the filesystem ``path`` lives on, from /proc/self/mountinfo ("" if unknown)."""
+    target = os.path.realpath(path)
+    best, kind = "", ""
+    try:
+        lines = Path("/proc/self/mountinfo").read_text().splitlines()
+    except OSError:
+        return ""
+    for line in lines:
+        fields = line.split(" - ", 1)
+        left = fields[0].split()
+        if len(fields) != 2 or len(left) < 5:
+            continue
+        mount = left[4].replace("\\040", " ")
+        inside = target == mount or target.startswith(mount.rstrip("/") + "/")
+        if inside and len(mount) >= len(best):
+            best, kind = mount, fields[1].split()[0]
+    return kind
+
+
+class FrameArea:
+    """One camera object's area: created on its first frame, replaced when a frame outgrows it."""
+
+    def __init__(self, directory: Path, camera: str, slot_bytes: int) -> None:
+        self.name = f"frames-{secrets.token_hex(8)}.shm"
+        self.path = directory / self.name
+        self.camera = camera
+        self.slot_bytes = slot_bytes
+        size = HEADER_BYTES + SLOTS * slot_bytes
+        flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+        fd = os.open(self.path, flags, AREA_MODE)
+        try:
+            os.fchmod(fd, AREA_MODE)  # whatever the umask left
+            group = os.stat(directory).st_gid
+            if os.fstat(fd).st_gid != group:
+                with contextlib.suppress(PermissionError):
+                    os.fchown(fd, -1, group)
+            os.ftruncate(fd, size)
+            self._map = mmap.mmap(fd, size, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+        except BaseException:
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+            raise
+        os.close(fd)
+        AREA_HEADER.pack_into(self._map, 0, MAGIC, VERSION, SLOTS, slot_bytes, HEADER_BYTES)
+        self._sequence = 0
+
+    def write(self, frame: Any, timestamp: float) -> dict[str, Any]:
+        """Write ``frame`` (a C-contiguous native ndarray that fits) into the next slot; its descriptor."""
+        import numpy as np
+
+        self._sequence += 1
+        sequence = self._sequence
+        slot = sequence % SLOTS
+        header = slot_header_offset(slot)
+        nbytes = frame.nbytes
+        _seq.pack_into(self._map, header, 2 * sequence - 1)  # odd: being written
+        start = slot_data_offset(HEADER_BYTES, self.slot_bytes, slot)
+        np.frombuffer(self._map, np.uint8, nbytes, start)[:] = frame.reshape(-1).view(np.uint8)
+        SLOT_HEADER.pack_into(self._map, header, 2 * sequence, nbytes, timestamp)  # even: whole
+        return {
+            "area": self.name, "camera": self.camera, "slot": slot, "sequence": sequence,
+            "shape": list(frame.shape), "dtype": frame.dtype.name, "timestamp": timestamp,
+        }
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.path.unlink()
+        with contextlib.suppress(BufferError):
+            self._map.close()
+
+
+class FramePublisher:
+    """Publishes one camera object's frames; ``publish`` returns a descriptor or None (send inline)."""
+
+    def __init__(self, directory: Path, camera: str) -> None:
+        self.directory = directory
+        self.camera = camera
+        self._area: FrameArea | None = None
+        self._lock = threading.Lock()
+        self._broken = False
+
+    def publish(self, frame: Any, timestamp: float | None = None) -> dict[str, Any] | None:
+        import numpy as np
+
+        if self._broken or type(frame) is not np.ndarray:
+            return None
+        if frame.dtype.kind not in FRAME_DTYPE_KINDS or frame.ndim > MAX_DIMS or frame.nbytes > MAX_FRAME_BYTES:
+            return None
+        if not frame.flags.c_contiguous or not frame.dtype.isnative:
+            frame = np.ascontiguousarray(frame, dtype=frame.dtype.newbyteorder("="))
+        stamp = time.monotonic() if timestamp is None else float(timestamp)
+        with self._lock:  # two threads of one connection must not share a slot
+            area = self._area
+            if area is None or frame.nbytes > area.slot_bytes:
+                area = self._replace_area(frame.nbytes)
+                if area is None:
+                    return None
+            return area.write(frame, stamp)
+
+    def _replace_area(self, nbytes: int) -> FrameArea | None:
+        if self._area is not None:
+            self._area.close()
+            self._area = None
+        slot_bytes = max(PAGE, -(-nbytes // PAGE) * PAGE)
+        try:
+            self._area = FrameArea(self.directory, self.camera, slot_bytes)
+        except OSError as exc:
+            self._broken = True
+            log.warning(
+                "camera %s: cannot create a frame area in %s (%s); its frames travel inline in the replies",
+                self.camera, self.directory, exc,
+            )
+            return None
+        return self._area
+
+    def close(self) -> None:
+        with self._lock:
+            if self._area is not None:
+                self._area.close()
+                self._area = None
+
+
+class FrameAreas:
+    """The frame areas of one connector: where they live, and a publisher per camera object."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = Path(directory)
+        self._checked = False
+        self._guard = threading.Lock()
+
+    def publisher(self, camera: str) -> FramePublisher:
+        with self._guard:
+            if not self._checked:
+                self._checked = True
+                kind = filesystem_type(self.directory)
+                if kind not in MEMORY_FILESYSTEMS:
+                    log.warning(
+                        "frame areas live in %s, on %s, not a memory filesystem: frames still work, but the "
+                        "kernel may write them back to disk. Mount a tmpfs there (in a pod: an emptyDir with "
+                        "medium: Memory).", self.directory, kind or "an unknown filesystem",
+                    )
+        return FramePublisher(self.directory, camera)
