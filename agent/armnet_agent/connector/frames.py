@@ -35,6 +35,8 @@ from armnet_runtime.frames import (
     MAX_FRAME_BYTES,
     PAGE,
     SLOT_HEADER,
+    STATE,
+    STATE_AT,
     VERSION,
     slot_data_offset,
     slot_header_offset,
@@ -96,8 +98,19 @@ class FrameArea:
                 self.path.unlink()
             raise
         os.close(fd)
+        self.newest = 0
         AREA_HEADER.pack_into(self._map, 0, MAGIC, VERSION, SLOTS, slot_bytes, HEADER_BYTES)
         self._sequence = 0
+        self._state_word = 0
+        self._connected = False
+
+    def set_state(self, connected: bool, newest: int | None = None) -> None:
+        """Update the state block under its seqlock: connected, and the newest frame (0: none)."""
+        self._connected = connected
+        self._state_word += 2
+        _seq.pack_into(self._map, STATE_AT, self._state_word - 1)
+        STATE.pack_into(self._map, STATE_AT, self._state_word - 1, int(connected), newest or 0)
+        _seq.pack_into(self._map, STATE_AT, self._state_word)
 
     def write(self, frame: Any, timestamp: float) -> dict[str, Any]:
         """Write ``frame`` (a C-contiguous native ndarray that fits) into the next slot; its descriptor."""
@@ -111,10 +124,14 @@ class FrameArea:
         _seq.pack_into(self._map, header, 2 * sequence - 1)  # odd: being written
         start = slot_data_offset(HEADER_BYTES, self.slot_bytes, slot)
         np.frombuffer(self._map, np.uint8, nbytes, start)[:] = frame.reshape(-1).view(np.uint8)
-        SLOT_HEADER.pack_into(self._map, header, 2 * sequence, nbytes, timestamp)  # even: whole
+        dims = list(frame.shape) + [0] * (MAX_DIMS - frame.ndim)
+        name = frame.dtype.name
+        SLOT_HEADER.pack_into(self._map, header, 2 * sequence, nbytes, timestamp, frame.ndim, name.encode(), *dims)
+        self.newest = sequence
+        self.set_state(self._connected, sequence)
         return {
             "area": self.name, "camera": self.camera, "slot": slot, "sequence": sequence,
-            "shape": list(frame.shape), "dtype": frame.dtype.name, "timestamp": timestamp,
+            "shape": list(frame.shape), "dtype": name, "timestamp": timestamp,
         }
 
     def close(self) -> None:
@@ -133,6 +150,7 @@ class FramePublisher:
         self._area: FrameArea | None = None
         self._lock = threading.Lock()
         self._broken = False
+        self._connected = False
 
     def publish(self, frame: Any, timestamp: float | None = None) -> dict[str, Any] | None:
         import numpy as np
@@ -150,7 +168,41 @@ class FramePublisher:
                 area = self._replace_area(frame.nbytes)
                 if area is None:
                     return None
+                area.set_state(self._connected)
             return area.write(frame, stamp)
+
+    def set_connected(self, connected: bool) -> None:
+        """The camera object was connected or disconnected; a disconnect forgets the newest frame.
+
+        While the area says "connected" with a fresh frame, the SDK serves
+        ``read_latest`` from it without a request; otherwise it asks.
+        """
+        with self._lock:
+            self._connected = connected
+            if self._area is not None:
+                if not connected:
+                    self._area.newest = 0
+                self._area.set_state(connected, self._area.newest)
+
+    def attach(self, camera: Any) -> bool:
+        """Publish every frame ``camera``'s capture thread stores, as it stores it.
+
+        LeRobot cameras (``OpenCVCamera`` and the simulator's) store each frame in
+        ``latest_frame``/``latest_timestamp`` under ``frame_lock`` and then set
+        ``new_frame_event``; the event is swapped for one that publishes first.
+        False (nothing attached) for a camera without those attributes.
+        """
+        event = getattr(camera, "new_frame_event", None)
+        if not isinstance(event, threading.Event) or not hasattr(camera, "frame_lock"):
+            return False
+        camera.new_frame_event = _PublishingEvent(self, camera, event.is_set())
+        return True
+
+    def _publish_stored(self, camera: Any) -> None:
+        with camera.frame_lock:
+            frame, stamp = camera.latest_frame, camera.latest_timestamp
+        if frame is not None:
+            self.publish(frame, stamp if isinstance(stamp, float) else None)
 
     def _replace_area(self, nbytes: int) -> FrameArea | None:
         if self._area is not None:
@@ -169,10 +221,34 @@ class FramePublisher:
         return self._area
 
     def close(self) -> None:
+        """The camera object is gone: readers fall back to asking (and learn it is gone); no more frames."""
         with self._lock:
+            self._broken = True
             if self._area is not None:
+                self._area.set_state(False)
                 self._area.close()
                 self._area = None
+
+
+class _PublishingEvent(threading.Event):
+    """A camera's ``new_frame_event`` that publishes the stored frame before waking the waiters."""
+
+    def __init__(self, publisher: FramePublisher, camera: Any, already_set: bool) -> None:
+        super().__init__()
+        self._publisher = publisher
+        self._camera = camera
+        self._failed = False
+        if already_set:
+            super().set()
+
+    def set(self) -> None:
+        if not self._failed:
+            try:
+                self._publisher._publish_stored(self._camera)
+            except Exception:  # noqa: BLE001 — the capture thread must keep running whatever happens here
+                self._failed = True
+                log.exception("camera %s: publishing frames failed; they are sent on request only", self._camera)
+        super().set()
 
 
 class FrameAreas:

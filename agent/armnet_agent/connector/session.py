@@ -169,6 +169,8 @@ class RobotSession(Session):
             handle = create_arx5(args, kwargs, cell.locks)
         object_id = self._add("o", handle)
         cell.register(handle)
+        if class_name == "OpenCVCamera":
+            self._attach_frames(handle)
         return {"ok": True, "object_id": object_id}
 
     def op_getattr(self, request: dict[str, Any]) -> Reply:
@@ -212,7 +214,10 @@ class RobotSession(Session):
         if why is not None:
             raise not_allowed(why)
         args, kwargs = _arguments(request)
-        shared_frame = handle.class_name == "OpenCVCamera" and method in FRAME_READS and _wants_shared_frame(request)
+        camera = handle.class_name == "OpenCVCamera"
+        shared_frame = camera and method in FRAME_READS and _wants_shared_frame(request)
+        if camera and method == "disconnect":
+            self._frames_connected(handle, False)  # first: the SDK stops serving frames locally at once
         with handle.lock:
             self.cell.guard.check(handle, method, args, kwargs)
             if method == "torque_disabled":
@@ -224,6 +229,8 @@ class RobotSession(Session):
                 result = bound(*args, **kwargs)
             if method == "sync_read":
                 self.cell.guard.remember_present(handle, args, kwargs, result)
+        if camera and method == "connect":
+            self._frames_connected(handle, True)
         if _is_context_manager(result):
             context = _Context(handle, result.__enter__, lambda exc: bool(result.__exit__(
                 type(exc) if exc else None, exc, None)))
@@ -236,14 +243,24 @@ class RobotSession(Session):
 
     # -- camera frames through shared memory (frames.py; runtime/PROTOCOL.md) ----------
 
-    def _publish(self, handle: Handle, frame: Any) -> dict[str, Any] | None:
-        """The frame written to the handle's area, as a descriptor; None: send it inline."""
+    def _attach_frames(self, handle: Handle) -> None:
+        """A publisher for a new camera object: its capture thread publishes every frame."""
         if self._frame_areas is None:
-            return None
+            return
+        publisher = self._frame_areas.publisher(str(handle.overrides.get("index_or_path", "")))
+        publisher.attach(handle.obj)
+        self._publishers[id(handle)] = publisher
+
+    def _frames_connected(self, handle: Handle, connected: bool) -> None:
+        publisher = self._publishers.get(id(handle))
+        if publisher is not None:
+            publisher.set_connected(connected and bool(handle.obj.is_connected))
+
+    def _publish(self, handle: Handle, frame: Any) -> dict[str, Any] | None:
+        """The frame a read returned, written to the handle's area, as a descriptor; None: send it inline."""
         publisher = self._publishers.get(id(handle))
         if publisher is None:
-            publisher = self._frame_areas.publisher(str(handle.overrides.get("index_or_path", "")))
-            self._publishers[id(handle)] = publisher
+            return None
         stamp = getattr(handle.obj, "latest_timestamp", None)
         return publisher.publish(frame, stamp if isinstance(stamp, float) else None)
 

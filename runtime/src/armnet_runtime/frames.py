@@ -21,6 +21,7 @@ import mmap
 import os
 import re
 import struct
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,14 +35,19 @@ HEADER_BYTES = PAGE
 """Slot data starts on the second page; the first holds the area and slot headers."""
 
 AREA_HEADER = struct.Struct("<8sIIQQ")
-"""magic, version, slot count, slot capacity in bytes, offset of slot 0's data."""
+"""At 0: magic, version, slot count, slot capacity in bytes, offset of slot 0's data."""
 
-SLOT_HEADER = struct.Struct("<QQd")
-"""seqlock word (2n-1 while frame n is written, 2n once it is whole), bytes, timestamp."""
+STATE_AT = 64
+STATE = struct.Struct("<QQQ")
+"""At 64: seqlock word (odd while it changes), connected (0/1), newest frame's sequence (0: none)."""
 
-SLOT_HEADERS_AT = 64
-SLOT_HEADER_STRIDE = 32
-MAX_SLOTS = 16
+SLOT_HEADERS_AT = 128
+SLOT_HEADER_STRIDE = 128
+SLOT_HEADER = struct.Struct("<QQdI4x16s8Q")
+"""Per slot: seqlock word (2n-1 while frame n is written, 2n once whole), bytes, timestamp,
+number of dimensions, dtype name, shape (8 dimensions at most)."""
+
+MAX_SLOTS = 15
 MAX_FRAME_BYTES = 64 * 1024 * 1024
 """Largest frame published through an area (a 4K RGB frame is ~25 MiB)."""
 
@@ -136,29 +142,54 @@ class FrameArea:
 
     def copy(self, frame: FrameDescriptor) -> Any:
         """The frame as a new ndarray (one copy); ``FrameOverwritten`` if the slot moved on meanwhile."""
+        if frame.slot >= self.slots:
+            raise ProtocolError(f"frame descriptor names slot {frame.slot}; area {self.name} has {self.slots}")
+        return self._copy(frame.slot, frame.sequence, frame.shape, frame.dtype)
+
+    def latest(self, max_age_ms: float) -> Any | None:
+        """The newest frame if the camera is connected and it is at most ``max_age_ms`` old, else None.
+
+        None means "ask the connector": it then answers with the real camera's own
+        error (not connected, no frame yet, too old) or a frame that just arrived.
+        """
+        state = self._map
+        word = _seq.unpack_from(state, STATE_AT)[0]
+        if word & 1:
+            return None
+        _, connected, sequence = STATE.unpack_from(state, STATE_AT)
+        if _seq.unpack_from(state, STATE_AT)[0] != word or not connected or not sequence:
+            return None
+        slot = sequence % self.slots
+        header = slot_header_offset(slot)
+        written, _, timestamp, ndim, dtype, *dims = SLOT_HEADER.unpack_from(state, header)
+        if written != 2 * sequence or ndim > MAX_DIMS or (time.perf_counter() - timestamp) * 1e3 > max_age_ms:
+            return None
+        try:
+            return self._copy(slot, sequence, tuple(dims[:ndim]), dtype.rstrip(b"\0").decode("ascii"))
+        except (FrameOverwritten, UnicodeDecodeError):
+            return None
+
+    def _copy(self, slot: int, sequence: int, shape: tuple[int, ...], dtype_name: str) -> Any:
         import numpy as np
 
         try:
-            dtype = np.dtype(frame.dtype)
+            dtype = np.dtype(dtype_name)
         except TypeError:
-            raise ProtocolError(f"frame descriptor 'dtype' {frame.dtype!r} is not a numpy dtype") from None
+            raise ProtocolError(f"frame dtype {dtype_name!r:.40} is not a numpy dtype") from None
         if dtype.kind not in FRAME_DTYPE_KINDS or not dtype.isnative:
-            raise ProtocolError(f"frame dtype {frame.dtype!r} is not allowed in a frame area")
-        nbytes = math.prod(frame.shape) * dtype.itemsize
-        if frame.slot >= self.slots or nbytes > self.slot_bytes:
-            raise ProtocolError(
-                f"frame descriptor does not fit area {self.name}: slot {frame.slot} of {self.slots}, "
-                f"{nbytes} bytes of {self.slot_bytes}"
-            )
-        header = slot_header_offset(frame.slot)
-        expected = 2 * frame.sequence
+            raise ProtocolError(f"frame dtype {dtype_name!r} is not allowed in a frame area")
+        nbytes = math.prod(shape) * dtype.itemsize
+        if nbytes > self.slot_bytes:
+            raise ProtocolError(f"a frame of shape {shape} and {dtype} does not fit area {self.name}'s slots")
+        header = slot_header_offset(slot)
+        expected = 2 * sequence
         if _seq.unpack_from(self._map, header)[0] != expected:
-            raise FrameOverwritten(f"frame {frame.sequence} is no longer in slot {frame.slot}")
-        start = slot_data_offset(self.data_offset, self.slot_bytes, frame.slot)
-        out = np.empty(frame.shape, dtype=dtype)
+            raise FrameOverwritten(f"frame {sequence} is no longer in slot {slot}")
+        start = slot_data_offset(self.data_offset, self.slot_bytes, slot)
+        out = np.empty(shape, dtype=dtype)
         out.reshape(-1).view(np.uint8)[:] = np.frombuffer(self._map, np.uint8, nbytes, start)
         if _seq.unpack_from(self._map, header)[0] != expected:
-            raise FrameOverwritten(f"frame {frame.sequence} was overwritten while it was copied")
+            raise FrameOverwritten(f"frame {sequence} was overwritten while it was copied")
         return out
 
     def close(self) -> None:
@@ -174,6 +205,7 @@ class FrameReader:
     def __init__(self, directory: Path) -> None:
         self.directory = directory
         self._areas: dict[str, FrameArea] = {}
+        self._current: FrameArea | None = None
 
     def copy(self, raw: Any) -> Any:
         """Parse a reply's descriptor and copy its frame out; ``ProtocolError``/``OSError`` when impossible."""
@@ -184,9 +216,16 @@ class FrameReader:
             for old in self._areas.values():  # a camera has one live area; a new name replaces it
                 old.close()
             self._areas = {frame.area: area}
+        self._current = area
         return area.copy(frame)
+
+    def latest(self, max_age_ms: float) -> Any | None:
+        """The newest frame of the area last used, without asking the connector; None: ask it."""
+        area = self._current
+        return area.latest(max_age_ms) if area is not None else None
 
     def close(self) -> None:
         for area in self._areas.values():
             area.close()
         self._areas.clear()
+        self._current = None

@@ -22,6 +22,9 @@ from armnet_runtime.wire import decode, encode
 
 logger = logging.getLogger("armnet_runtime.lerobot")
 
+DEFAULT_MAX_AGE_MS = 500
+"""``OpenCVCamera.read_latest``'s default in LeRobot 0.4.4."""
+
 OVERWRITTEN_RETRIES = 2
 """Calls repeated when a newer frame took the slot during the copy (only a many-threaded reader sees it)."""
 
@@ -34,6 +37,16 @@ def _frame_directory(endpoint: str) -> Path | None:
     if address.scheme != "unix" or not address.path:
         return None
     return Path(address.path).parent
+
+
+def _max_age_ms(args: tuple[Any, ...], kwargs: dict[str, Any]) -> float | None:
+    """``read_latest``'s ``max_age_ms`` when the call binds plainly (else None: let the connector bind it)."""
+    if len(args) + len(kwargs) > 1 or (kwargs and "max_age_ms" not in kwargs):
+        return None
+    value = args[0] if args else kwargs.get("max_age_ms", DEFAULT_MAX_AGE_MS)
+    if type(value) not in (int, float):
+        return None
+    return float(value)
 
 
 class FrameReads:
@@ -52,7 +65,19 @@ class FrameReads:
         return self._frame_call("async_read", args, kwargs)
 
     def read_latest(self, *args: Any, **kwargs: Any) -> Any:
-        """The newest frame at once; ``TimeoutError`` when it is older than ``max_age_ms`` (default 500)."""
+        """The newest frame at once; ``TimeoutError`` when it is older than ``max_age_ms`` (default 500).
+
+        Served from the frame area without a request while the connector marks the
+        camera connected and its newest frame is young enough; in every other case
+        the connector's camera answers (its error, or a frame that just arrived).
+        """
+        reader = self._frame_reader()
+        if reader is not None:
+            max_age = _max_age_ms(args, kwargs)
+            if max_age is not None:
+                frame = reader.latest(max_age)
+                if frame is not None:
+                    return frame
         return self._frame_call("read_latest", args, kwargs)
 
     def _frame_reader(self) -> FrameReader | None:
