@@ -110,6 +110,16 @@ class _Context:
     exit: Callable[[BaseException | None], bool]
 
 
+@dataclass(frozen=True, slots=True)
+class _CallPlan:
+    """The per-(object, method) facts of ``call`` that never change (see ``RobotSession._call_plan``)."""
+
+    handle: Handle
+    reads: bool
+    camera: bool
+    frame_read: bool
+
+
 class RobotSession(Session):
     socket_name = "robot"
 
@@ -119,6 +129,7 @@ class RobotSession(Session):
         self._counter = 0
         self._frame_areas = frames
         self._publishers: dict[int, FramePublisher] = {}
+        self._plans: dict[tuple[str, str], _CallPlan] = {}
         self.ops.update(
             create=self.op_create, getattr=self.op_getattr, setattr=self.op_setattr, call=self.op_call,
             enter=self.op_enter, exit=self.op_exit, close=self.op_close,
@@ -207,15 +218,36 @@ class RobotSession(Session):
             setattr(handle.obj, name, value)
         return {"ok": True}
 
-    def op_call(self, request: dict[str, Any]) -> Reply:
+    def _call_plan(self, request: dict[str, Any]) -> _CallPlan:
+        """What a call on (object, method) involves, checked once and reused for the same pair.
+
+        A control loop repeats the same few calls; the lookup, the allow-list
+        decision and the read/camera flags depend only on the pair, so later
+        calls pay one dict lookup. Object ids are never reused, and a plan goes
+        when its object is closed. The safety check is not part of a plan: it
+        runs on every call.
+        """
+        object_id, method = request.get("object_id"), request.get("method")
+        if type(object_id) is str and type(method) is str:
+            plan = self._plans.get((object_id, method))
+            if plan is not None:
+                return plan
         handle = self._handle(request)
         method = _field(request, "method", str)
         why = refusal(handle.class_name, method, kind="call")
         if why is not None:
             raise not_allowed(why)
-        args, kwargs = _arguments(request)
         camera = handle.class_name == "OpenCVCamera"
-        shared_frame = camera and method in FRAME_READS and _wants_shared_frame(request)
+        plan = _CallPlan(handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS)
+        if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
+            self._plans[(request["object_id"], method)] = plan
+        return plan
+
+    def op_call(self, request: dict[str, Any]) -> Reply:
+        plan = self._call_plan(request)
+        handle, method, camera = plan.handle, request["method"], plan.camera
+        args, kwargs = _arguments(request)
+        shared_frame = plan.frame_read and _wants_shared_frame(request)
         if camera and method == "disconnect":
             self._frames_connected(handle, False)  # first: the SDK stops serving frames locally at once
         with handle.lock:
@@ -223,7 +255,7 @@ class RobotSession(Session):
             if method == "torque_disabled":
                 return self._torque_disabled(handle, args, kwargs)
             bound = getattr(handle.obj, method)
-            if is_read(handle.class_name, method, kind="call"):
+            if plan.reads:
                 result = with_read_retry(handle, method, lambda: bound(*args, **kwargs), on_retry=self._count_retry)
             else:
                 result = bound(*args, **kwargs)
@@ -313,6 +345,7 @@ class RobotSession(Session):
         item = self._lookup(request)
         del self.objects[object_id]
         if isinstance(item, Handle):
+            self._plans = {key: plan for key, plan in self._plans.items() if plan.handle is not item}
             self.cell.release(item)
             self._forget_frames(item)
         return {"ok": True}
@@ -329,6 +362,7 @@ class RobotSession(Session):
     def close(self) -> None:
         handles = [item for item in self.objects.values() if isinstance(item, Handle)]
         self.objects.clear()
+        self._plans.clear()
         for handle in handles:
             self.cell.release(handle)
             self._forget_frames(handle)
