@@ -291,3 +291,15 @@ def test_a_protocol_line_carries_any_supported_value_exactly_whichever_codec_wri
     assert line.endswith(b"\n") and b"\n" not in line[:-1]
     assert loads_json(line[:-1]) == json.loads(line)
     assert same(decode(loads_json(line[:-1])["value"]), value)
+
+
+def test_without_orjson_the_standard_library_writes_the_same_lines(monkeypatch: pytest.MonkeyPatch) -> None:
+    from armnet_runtime import wire
+
+    payload = {"op": "call", "args": ["Goal_Position", {"elbow_flex": 12.5}], "kwargs": encode({"big": 2**70})}
+    fast_line = wire.dumps_line(payload)
+    monkeypatch.setattr(wire, "_orjson", None)  # as on an image without the 'fast' extra
+    assert wire.dumps_line(payload) == fast_line
+    assert wire.loads_json(fast_line[:-1]) == payload
+    with pytest.raises(ValueError):
+        wire.loads_json(b"{not json")
