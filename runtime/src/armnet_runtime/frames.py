@@ -52,6 +52,7 @@ MAX_FRAME_BYTES = 64 * 1024 * 1024
 """Largest frame published through an area (a 4K RGB frame is ~25 MiB)."""
 
 MAX_DIMS = 8
+KEPT_AREAS = 3
 FRAME_DTYPE_KINDS = frozenset("biuf")
 AREA_NAME = re.compile(r"frames-[A-Za-z0-9_-]{1,64}\.shm")
 """An area's file name: no path, so a descriptor can only name a file in the socket directory."""
@@ -200,7 +201,13 @@ class FrameArea:
 
 
 class FrameReader:
-    """The frame areas one proxy has mapped, by name, in the socket directory of its endpoint."""
+    """The frame areas one proxy has mapped, by name, in the socket directory of its endpoint.
+
+    A camera has one live area; when a frame outgrows it the connector makes a new
+    one (a new name). Superseded mappings stay open a little longer, so a thread
+    still copying from one is never cut off; the oldest are closed beyond
+    :data:`KEPT_AREAS`.
+    """
 
     def __init__(self, directory: Path) -> None:
         self.directory = directory
@@ -213,9 +220,9 @@ class FrameReader:
         area = self._areas.get(frame.area)
         if area is None:
             area = FrameArea(self.directory / frame.area)
-            for old in self._areas.values():  # a camera has one live area; a new name replaces it
-                old.close()
-            self._areas = {frame.area: area}
+            self._areas[frame.area] = area
+            while len(self._areas) > KEPT_AREAS:
+                self._areas.pop(next(iter(self._areas))).close()
         self._current = area
         return area.copy(frame)
 

@@ -136,3 +136,12 @@ def test_a_proxy_that_cannot_map_the_area_says_so_once_and_gets_exact_frames_inl
     assert all(np.array_equal(frame, expected) for frame in frames)
     fallbacks = [r for r in caplog.records if "travel inline" in r.getMessage()]
     assert len(fallbacks) == 1
+
+
+def test_a_frame_that_outgrows_its_area_moves_to_a_new_one_and_the_reader_follows(socket_dir: Path) -> None:
+    publisher, reader = FramePublisher(socket_dir, "front"), FrameReader(socket_dir)
+    small = publisher.publish(np.full((240, 320, 3), 1, np.uint8))
+    large = publisher.publish(np.full((480, 640, 3), 2, np.uint8))
+    assert small is not None and large is not None and small["area"] != large["area"]
+    assert not (socket_dir / small["area"]).exists()
+    assert np.array_equal(reader.copy(large), np.full((480, 640, 3), 2, np.uint8))

@@ -122,8 +122,3 @@ class FrameReads:
             "at a cost of milliseconds per frame. Mount the connector's socket directory into this container.",
             type(self).__name__, why,
         )
-
-    def _close_frames(self) -> None:
-        reader = self.__dict__.get("_frames")
-        if reader is not None:
-            reader.close()
