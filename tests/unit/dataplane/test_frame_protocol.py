@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -145,3 +146,15 @@ def test_a_frame_that_outgrows_its_area_moves_to_a_new_one_and_the_reader_follow
     assert small is not None and large is not None and small["area"] != large["area"]
     assert not (socket_dir / small["area"]).exists()
     assert np.array_equal(reader.copy(large), np.full((480, 640, 3), 2, np.uint8))
+
+
+def test_the_area_goes_away_with_the_connection_that_made_it(
+    connection: tuple[PersistentConnection, str], socket_dir: Path
+) -> None:
+    conn, object_id = connection
+    area = socket_dir / conn.request(a_read(object_id, frames="shm"))["frame"]["area"]
+    conn.close()
+    deadline = time.monotonic() + 10
+    while area.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)  # the connector notices the closed connection on its own thread
+    assert not area.exists()
