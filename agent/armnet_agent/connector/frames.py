@@ -47,6 +47,9 @@ log = logging.getLogger(__name__)
 SLOTS = 4
 """Slots per area: a reader has three newer frames' time to finish its copy."""
 
+FRAME_LOCK_WAIT_S = 0.05
+"""How long the capture thread waits for its camera's frame lock before skipping one publication."""
+
 AREA_MODE = 0o440
 MEMORY_FILESYSTEMS = frozenset({"tmpfs", "ramfs", "hugetlbfs"})
 
@@ -199,8 +202,15 @@ class FramePublisher:
         return True
 
     def _publish_stored(self, camera: Any) -> None:
-        with camera.frame_lock:
+        # Bounded: a camera that signalled while still holding its lock must not deadlock
+        # its own capture thread here; that frame is then published on request only.
+        lock = camera.frame_lock
+        if not lock.acquire(timeout=FRAME_LOCK_WAIT_S):
+            return
+        try:
             frame, stamp = camera.latest_frame, camera.latest_timestamp
+        finally:
+            lock.release()
         if frame is not None:
             self.publish(frame, stamp if isinstance(stamp, float) else None)
 
