@@ -23,6 +23,7 @@ import secrets
 import struct
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -144,12 +145,25 @@ class FrameArea:
             self._map.close()
 
 
+@dataclass
+class FrameCounters:
+    """What an operator watches of the frame path (exported with the connector's counters)."""
+
+    #: Frames written into an area (by capture threads and by reads).
+    published: int = 0
+    #: Areas created (one per camera object, plus one per frame-size growth).
+    areas: int = 0
+    #: Cameras whose frames go inline because no area could be created.
+    inline_cameras: int = 0
+
+
 class FramePublisher:
     """Publishes one camera object's frames; ``publish`` returns a descriptor or None (send inline)."""
 
-    def __init__(self, directory: Path, camera: str) -> None:
+    def __init__(self, directory: Path, camera: str, counters: FrameCounters | None = None) -> None:
         self.directory = directory
         self.camera = camera
+        self.counters = counters if counters is not None else FrameCounters()
         self._area: FrameArea | None = None
         self._lock = threading.Lock()
         self._broken = False
@@ -172,6 +186,7 @@ class FramePublisher:
                 if area is None:
                     return None
                 area.set_state(self._connected)
+            self.counters.published += 1
             return area.write(frame, stamp)
 
     def set_connected(self, connected: bool) -> None:
@@ -223,11 +238,13 @@ class FramePublisher:
             self._area = FrameArea(self.directory, self.camera, slot_bytes)
         except OSError as exc:
             self._broken = True
+            self.counters.inline_cameras += 1
             log.warning(
                 "camera %s: cannot create a frame area in %s (%s); its frames travel inline in the replies",
                 self.camera, self.directory, exc,
             )
             return None
+        self.counters.areas += 1
         return self._area
 
     def close(self) -> None:
@@ -266,6 +283,7 @@ class FrameAreas:
 
     def __init__(self, directory: Path) -> None:
         self.directory = Path(directory)
+        self.counters = FrameCounters()
         self._checked = False
         self._guard = threading.Lock()
 
@@ -280,4 +298,4 @@ class FrameAreas:
                         "kernel may write them back to disk. Mount a tmpfs there (in a pod: an emptyDir with "
                         "medium: Memory).", self.directory, kind or "an unknown filesystem",
                     )
-        return FramePublisher(self.directory, camera)
+        return FramePublisher(self.directory, camera, self.counters)

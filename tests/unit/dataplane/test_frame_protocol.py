@@ -158,3 +158,16 @@ def test_the_area_goes_away_with_the_connection_that_made_it(
     while area.exists() and time.monotonic() < deadline:
         time.sleep(0.01)  # the connector notices the closed connection on its own thread
     assert not area.exists()
+
+
+
+def test_the_connector_counts_frames_published_and_areas_created(make_connector: Callable[..., Connector]) -> None:
+    connector = make_connector().start()
+    with PersistentConnection(connector.robot_endpoint, timeout=10) as conn:
+        object_id = conn.request({"op": "create", "class": "OpenCVCamera", "args": [encode(a_config())], "kwargs": {}})[
+            "object_id"
+        ]
+        conn.request({"op": "call", "object_id": object_id, "method": "connect", "args": [], "kwargs": {}})
+        conn.request(a_read(object_id, frames="shm"))
+    counters = connector.frames.counters
+    assert counters.areas == 1 and counters.published >= 2 and counters.inline_cameras == 0
