@@ -25,7 +25,7 @@ if [ ! -f "$stamp" ]; then
 fi
 
 echo "[setup/python] installing armnet (editable) and dev tools"
-"${pip[@]}" install -c <(echo torch==2.13.0) -e "$here/runtime" -e "$here[dev]"
+"${pip[@]}" install -c <(echo torch==2.13.0) -e "$here/runtime[fast]" -e "$here[dev]"
 "$venv/bin/python" -c "import lerobot.motors.feetech, lerobot.cameras.opencv, scservo_sdk, armnet_runtime" \
   || { echo "[setup/python] LeRobot motors/cameras do not import; see shared reference lerobot-feetech.md §0" >&2; exit 1; }
 echo "[setup/python] ready: $venv"

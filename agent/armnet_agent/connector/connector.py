@@ -15,6 +15,7 @@ from types import TracebackType
 
 from .cell import CellState, Counters
 from .config import ConnectorConfig
+from .frames import FrameAreas
 from .hardware import CameraFactory
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
@@ -55,8 +56,12 @@ class Connector:
             camera_factory=camera_factory,
             on_grace_expired=on_grace_expired,
         )
+        # Camera frames reach the job through areas in the socket directory (frames.py).
+        self.frames = FrameAreas(self.socket_dir)
         self._servers = [
-            UnixServer(self.socket_dir / ROBOT_SOCKET, lambda: RobotSession(self.cell), self._count_connection),
+            UnixServer(
+                self.socket_dir / ROBOT_SOCKET, lambda: RobotSession(self.cell, self.frames), self._count_connection
+            ),
             UnixServer(self.socket_dir / OPERATOR_SOCKET, lambda: OperatorSession(self.cell), self._count_connection),
         ]
         self._started = False

@@ -20,6 +20,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from armnet_runtime.wire import dumps_line, loads_json
+
 from .errors import RequestError, protocol_error
 from .session import Session
 
@@ -29,13 +31,11 @@ MAX_LINE_BYTES = 64 * 1024 * 1024
 _ACCEPT_POLL_S = 0.2
 _RECV_CHUNK = 1 << 16
 
-_encode_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
-_decode_json = json.JSONDecoder().decode
 
 
 def encode_reply(reply: dict[str, Any]) -> bytes:
     try:
-        text = _encode_json(reply)
+        return dumps_line(reply)  # orjson when installed (armnet_runtime.wire)
     except (TypeError, ValueError) as exc:  # a session bug must still produce a well-formed reply
         text = json.dumps({"ok": False, "error": f"reply could not be encoded: {exc}", "error_type": "RuntimeError"})
     return text.encode() + b"\n"
@@ -44,8 +44,8 @@ def encode_reply(reply: dict[str, Any]) -> bytes:
 def parse_request(line: bytes) -> dict[str, Any]:
     """The request object of one line; ``RequestError(ProtocolError)`` when it is not one."""
     try:
-        request = _decode_json(line.decode())
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        request = loads_json(line)
+    except (ValueError, RecursionError) as exc:
         raise protocol_error(f"the request line is not JSON ({exc}); send one JSON object per line") from None
     if not isinstance(request, dict):
         raise protocol_error(f"a request must be a JSON object, got {type(request).__name__}")

@@ -19,6 +19,7 @@ from . import __version__
 from .allowlist import CLASSES, refusal
 from .cell import CellState, RolloutEvent
 from .errors import RequestError, failure_reply, not_allowed, protocol_error
+from .frames import FrameAreas, FramePublisher
 from .hardware import Handle, create_arx5, create_camera, create_feetech
 from .retry import is_read, with_read_retry
 
@@ -109,13 +110,26 @@ class _Context:
     exit: Callable[[BaseException | None], bool]
 
 
+@dataclass(frozen=True, slots=True)
+class _CallPlan:
+    """The per-(object, method) facts of ``call`` that never change (see ``RobotSession._call_plan``)."""
+
+    handle: Handle
+    reads: bool
+    camera: bool
+    frame_read: bool
+
+
 class RobotSession(Session):
     socket_name = "robot"
 
-    def __init__(self, cell: CellState) -> None:
+    def __init__(self, cell: CellState, frames: FrameAreas | None = None) -> None:
         super().__init__(cell)
         self.objects: dict[str, Handle | _Context] = {}
         self._counter = 0
+        self._frame_areas = frames
+        self._publishers: dict[int, FramePublisher] = {}
+        self._plans: dict[tuple[str, str], _CallPlan] = {}
         self.ops.update(
             create=self.op_create, getattr=self.op_getattr, setattr=self.op_setattr, call=self.op_call,
             enter=self.op_enter, exit=self.op_exit, close=self.op_close,
@@ -166,6 +180,8 @@ class RobotSession(Session):
             handle = create_arx5(args, kwargs, cell.locks)
         object_id = self._add("o", handle)
         cell.register(handle)
+        if class_name == "OpenCVCamera":
+            self._attach_frames(handle)
         return {"ok": True, "object_id": object_id}
 
     def op_getattr(self, request: dict[str, Any]) -> Reply:
@@ -202,29 +218,88 @@ class RobotSession(Session):
             setattr(handle.obj, name, value)
         return {"ok": True}
 
-    def op_call(self, request: dict[str, Any]) -> Reply:
+    def _call_plan(self, request: dict[str, Any]) -> _CallPlan:
+        """What a call on (object, method) involves, checked once and reused for the same pair.
+
+        A control loop repeats the same few calls; the lookup, the allow-list
+        decision and the read/camera flags depend only on the pair, so later
+        calls pay one dict lookup. Object ids are never reused, and a plan goes
+        when its object is closed. The safety check is not part of a plan: it
+        runs on every call.
+        """
+        object_id, method = request.get("object_id"), request.get("method")
+        if type(object_id) is str and type(method) is str:
+            plan = self._plans.get((object_id, method))
+            if plan is not None:
+                return plan
         handle = self._handle(request)
         method = _field(request, "method", str)
         why = refusal(handle.class_name, method, kind="call")
         if why is not None:
             raise not_allowed(why)
+        camera = handle.class_name == "OpenCVCamera"
+        plan = _CallPlan(handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS)
+        if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
+            self._plans[(request["object_id"], method)] = plan
+        return plan
+
+    def op_call(self, request: dict[str, Any]) -> Reply:
+        plan = self._call_plan(request)
+        handle, method, camera = plan.handle, request["method"], plan.camera
         args, kwargs = _arguments(request)
+        shared_frame = plan.frame_read and _wants_shared_frame(request)
+        if camera and method == "disconnect":
+            self._frames_connected(handle, False)  # first: the SDK stops serving frames locally at once
         with handle.lock:
             self.cell.guard.check(handle, method, args, kwargs)
             if method == "torque_disabled":
                 return self._torque_disabled(handle, args, kwargs)
             bound = getattr(handle.obj, method)
-            if is_read(handle.class_name, method, kind="call"):
+            if plan.reads:
                 result = with_read_retry(handle, method, lambda: bound(*args, **kwargs), on_retry=self._count_retry)
             else:
                 result = bound(*args, **kwargs)
             if method == "sync_read":
                 self.cell.guard.remember_present(handle, args, kwargs, result)
+        if camera and method == "connect":
+            self._frames_connected(handle, True)
         if _is_context_manager(result):
             context = _Context(handle, result.__enter__, lambda exc: bool(result.__exit__(
                 type(exc) if exc else None, exc, None)))
             return {"ok": True, "context_manager": True, "object_id": self._add("c", context)}
+        if shared_frame:
+            frame = self._publish(handle, result)
+            if frame is not None:
+                return {"ok": True, "frame": frame}
         return {"ok": True, "value": _encoded(result, method)}
+
+    # -- camera frames through shared memory (frames.py; runtime/PROTOCOL.md) ----------
+
+    def _attach_frames(self, handle: Handle) -> None:
+        """A publisher for a new camera object: its capture thread publishes every frame."""
+        if self._frame_areas is None:
+            return
+        publisher = self._frame_areas.publisher(str(handle.overrides.get("index_or_path", "")))
+        publisher.attach(handle.obj)
+        self._publishers[id(handle)] = publisher
+
+    def _frames_connected(self, handle: Handle, connected: bool) -> None:
+        publisher = self._publishers.get(id(handle))
+        if publisher is not None:
+            publisher.set_connected(connected and bool(handle.obj.is_connected))
+
+    def _publish(self, handle: Handle, frame: Any) -> dict[str, Any] | None:
+        """The frame a read returned, written to the handle's area, as a descriptor; None: send it inline."""
+        publisher = self._publishers.get(id(handle))
+        if publisher is None:
+            return None
+        stamp = getattr(handle.obj, "latest_timestamp", None)
+        return publisher.publish(frame, stamp if isinstance(stamp, float) else None)
+
+    def _forget_frames(self, handle: Handle) -> None:
+        publisher = self._publishers.pop(id(handle), None)
+        if publisher is not None:
+            publisher.close()
 
     def _torque_disabled(self, handle: Handle, args: list[Any], kwargs: dict[str, Any]) -> Reply:
         # Driven here as disable/enable calls rather than LeRobot's generator, so that the
@@ -270,7 +345,9 @@ class RobotSession(Session):
         item = self._lookup(request)
         del self.objects[object_id]
         if isinstance(item, Handle):
+            self._plans = {key: plan for key, plan in self._plans.items() if plan.handle is not item}
             self.cell.release(item)
+            self._forget_frames(item)
         return {"ok": True}
 
     def op_return_to_rest(self, request: dict[str, Any]) -> Reply:
@@ -285,8 +362,10 @@ class RobotSession(Session):
     def close(self) -> None:
         handles = [item for item in self.objects.values() if isinstance(item, Handle)]
         self.objects.clear()
+        self._plans.clear()
         for handle in handles:
             self.cell.release(handle)
+            self._forget_frames(handle)
 
 
 _CLIENT_EXCEPTIONS: dict[str, type[Exception]] = {
@@ -302,6 +381,20 @@ def _client_exception(exc_type: str, message: str | None) -> Exception:
     """The exception the client's ``with`` body raised, rebuilt from its name (never imported)."""
     cls = _CLIENT_EXCEPTIONS.get(exc_type, Exception)
     return cls(message or exc_type)
+
+
+FRAME_READS = frozenset({"read", "async_read", "read_latest"})
+"""Camera methods whose frame may travel through the frame area instead of the reply."""
+
+
+def _wants_shared_frame(request: dict[str, Any]) -> bool:
+    """The request's ``frames`` field: ``"shm"`` (descriptor), absent or ``"inline"`` (pixels in the reply)."""
+    mode = request.get("frames", "inline")
+    if mode == "shm":
+        return True
+    if mode == "inline":
+        return False
+    raise protocol_error(f"request field 'frames' must be 'shm' or 'inline', got {str(mode)[:32]!r}")
 
 
 def _is_context_manager(value: Any) -> bool:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import builtins
 import importlib
-import json
 import socket
 import threading
 from typing import Any
@@ -26,6 +25,7 @@ from armnet_runtime.errors import (
     SafetyViolation,
     ShuttingDown,
 )
+from armnet_runtime.wire import dumps_line, loads_json
 
 CONNECT_TIMEOUT_S = 5.0
 """How long to wait for the connector to accept a connection."""
@@ -39,12 +39,6 @@ MAX_LINE_BYTES = 64 * 1024 * 1024
 _RECV_CHUNK = 1 << 16
 _UNSET: Any = object()
 
-# Built once: ``json.dumps`` with options builds a new encoder on every call, and
-# ``json.loads`` of bytes sniffs their encoding first. On a control loop's hot path
-# (one request per bus call, after a sleep that left the caches cold) every extra
-# layer of Python shows up in the per-call overhead (bench/proxy_overhead.py).
-_encode_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
-_decode_json = json.JSONDecoder().decode
 
 # Wire error types re-raised as the built-in exception of the same name, so that
 # customer code written against local LeRobot (``except ConnectionError``) keeps working.
@@ -109,7 +103,7 @@ class PersistentConnection:
         default is the connection's). Any failure closes the connection.
         """
         wait = self._timeout if timeout is _UNSET else timeout
-        line = _encode_json(payload).encode() + b"\n"
+        line = dumps_line(payload)
         with self._lock:
             try:
                 if self._sock is None:
@@ -178,8 +172,8 @@ class PersistentConnection:
 
 def _parse_reply(line: bytes) -> dict[str, Any]:
     try:
-        reply = _decode_json(line.decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        reply = loads_json(line)
+    except (ValueError, RecursionError) as exc:
         raise ProtocolError(f"connector reply is not JSON: {line[:80]!r}") from exc
     if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
         raise ProtocolError(f"connector reply is not an object with a boolean 'ok': {line[:80]!r}")

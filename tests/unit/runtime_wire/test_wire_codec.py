@@ -235,7 +235,7 @@ def test_any_supported_value_round_trips_exactly(value: Any) -> None:
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.recursive(st.one_of(st.none(), st.booleans(), st.integers(), st.text(),
+@given(st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-(2**63), 2**64 - 1), st.text(),
                               st.floats(allow_nan=False, allow_infinity=False)),
                     lambda c: st.one_of(st.lists(c, max_size=4),
                                         st.dictionaries(st.text().filter(lambda k: k != TAG), c, max_size=4)),
@@ -244,7 +244,13 @@ def test_plain_json_stands_for_itself(value: Any) -> None:
     assert encode(value) == value
 
 
-tag_names = st.sampled_from(["ndarray", "npscalar", "bytes", "tuple", "dict", "float", "path", "enum", "dataclass"])
+@pytest.mark.parametrize("big", [2**64, -(2**63) - 1, 10**100])
+def test_an_integer_beyond_64_bits_travels_tagged_and_comes_back_exact(big: int) -> None:
+    assert encode(big) == {TAG: "int", "value": str(big)}
+    assert through_json(big) == big and type(through_json(big)) is int
+
+
+tag_names = st.sampled_from(["ndarray", "npscalar", "bytes", "tuple", "dict", "float", "int", "path", "enum", "dataclass"])
 json_any = st.recursive(
     st.one_of(st.none(), st.booleans(), st.integers(), st.text(max_size=8),
               st.floats(allow_nan=False, allow_infinity=False)),
@@ -274,3 +280,26 @@ def test_hostile_tagged_values_only_ever_raise_protocol_error(wire: dict[str, An
         decode(json.loads(json.dumps(wire)))
     except ProtocolError:
         pass
+
+
+@settings(max_examples=150, deadline=None)
+@given(values)
+def test_a_protocol_line_carries_any_supported_value_exactly_whichever_codec_writes_it(value: Any) -> None:
+    from armnet_runtime.wire import dumps_line, loads_json
+
+    line = dumps_line({"value": encode(value)})
+    assert line.endswith(b"\n") and b"\n" not in line[:-1]
+    assert loads_json(line[:-1]) == json.loads(line)
+    assert same(decode(loads_json(line[:-1])["value"]), value)
+
+
+def test_without_orjson_the_standard_library_writes_the_same_lines(monkeypatch: pytest.MonkeyPatch) -> None:
+    from armnet_runtime import wire
+
+    payload = {"op": "call", "args": ["Goal_Position", {"elbow_flex": 12.5}], "kwargs": encode({"big": 2**70})}
+    fast_line = wire.dumps_line(payload)
+    monkeypatch.setattr(wire, "_orjson", None)  # as on an image without the 'fast' extra
+    assert wire.dumps_line(payload) == fast_line
+    assert wire.loads_json(fast_line[:-1]) == payload
+    with pytest.raises(ValueError):
+        wire.loads_json(b"{not json")

@@ -1,18 +1,20 @@
 """``RemoteOpenCVCamera``: LeRobot's ``OpenCVCamera`` served by the cell connector.
 
 The camera config's ``index_or_path`` names a camera of the cell; the connector
-opens the real device (or the simulated one) and frames come back as arrays.
+opens the real device (or the simulated one) and frames come back as arrays,
+through the connector's shared-memory frame area (``frame_reads``).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from armnet_runtime.lerobot.frame_reads import FrameReads
 from armnet_runtime.lerobot.remote_feetech import cell_socket_endpoint
 from armnet_runtime.lerobot.remote_object import RemoteObjectProxy
 
 
-class RemoteOpenCVCamera(RemoteObjectProxy):
+class RemoteOpenCVCamera(FrameReads, RemoteObjectProxy):
     """Drop-in proxy for LeRobot's ``OpenCVCamera(config)``, reached through ``ARMNET_CELL_SOCKET``."""
 
     _remote_class = "OpenCVCamera"
