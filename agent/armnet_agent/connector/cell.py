@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -45,6 +46,12 @@ class Counters:
     resets: int = 0
     #: Bus reads repeated after a lost servo reply (see ``retry``).
     bus_retries: int = 0
+    #: Connections turned away at the per-socket cap or when no thread could serve them.
+    connections_refused: int = 0
+    #: ``accept`` failures (e.g. at the file-descriptor limit); the socket keeps serving.
+    accept_errors: int = 0
+    #: Connections closed for a request line over the line cap or the connector's buffer cap.
+    oversized_requests: int = 0
 
 
 @dataclass(frozen=True)
@@ -54,6 +61,9 @@ class RolloutEvent:
     index: int | None = None
     total: int | None = None
     outcome_controls: bool | None = None
+
+
+MAX_ROLLOUT_EVENTS = 1024
 
 
 @dataclass
@@ -66,7 +76,8 @@ class CellState:
     interlock: Interlock = field(default_factory=Interlock)
     locks: DeviceLocks = field(default_factory=DeviceLocks)
     counters: Counters = field(default_factory=Counters)
-    rollouts: list[RolloutEvent] = field(default_factory=list)
+    # The latest rollout events only: a job may begin millions of rollouts.
+    rollouts: deque[RolloutEvent] = field(default_factory=lambda: deque(maxlen=MAX_ROLLOUT_EVENTS))
 
     def __post_init__(self) -> None:
         self.ranges: dict[str, dict[str, MotorRange]] = {

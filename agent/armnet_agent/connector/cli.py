@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -55,5 +56,35 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     with Connector(config, args.socket_dir, inputs=inputs, on_grace_expired=stop.set):
         print(f"armnet connector: serving {args.socket_dir}/robot.sock and operator.sock", file=sys.stderr, flush=True)
-        stop.wait()
+        # Python runs a signal handler in the main thread only, and the kernel may
+        # deliver SIGTERM to any thread: a wait with no timeout can miss it for as
+        # long as the main thread sleeps. Waking up often lets the handler run.
+        while not stop.wait(SIGNAL_POLL_S):
+            pass
+        _exit_if_stop_hangs(stop_budget_s(config.grace_period_seconds))
     return 0
+
+
+SIGNAL_POLL_S = 0.1
+
+
+def stop_budget_s(grace_period_seconds: float) -> float:
+    """How long a clean stop may take before the process exits anyway: within the grace
+    window the host gives the connector (never less than a few seconds to release torque)."""
+    return max(5.0, grace_period_seconds - 1.0)
+
+
+def _exit_if_stop_hangs(budget_s: float) -> None:
+    """A last resort: if the clean stop below has not ended within ``budget_s``, exit
+    non-zero rather than hold the cell past the host's kill (which would skip our cleanup)."""
+
+    def give_up() -> None:
+        print(
+            f"armnet connector: a clean stop did not finish within {budget_s:g} s; exiting now",
+            file=sys.stderr, flush=True,
+        )
+        os._exit(70)
+
+    timer = threading.Timer(budget_s, give_up)
+    timer.daemon = True
+    timer.start()

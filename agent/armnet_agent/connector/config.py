@@ -73,6 +73,9 @@ class ConnectorConfig(_Model):
     )
     cameras: dict[str, CameraConfig] = Field(default_factory=dict)
     simulated: bool = False
+    max_connections: int = Field(
+        default=64, ge=1, le=4096, description="connections each socket serves at once; more are refused"
+    )
     timeout_seconds: float | None = Field(default=None, gt=0, description="job deadline; null: none")
     grace_period_seconds: float = Field(default=10.0, ge=0)
     reset_timeout_seconds: float = Field(default=300.0, gt=0)

@@ -9,6 +9,7 @@ wraps it in a process.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
@@ -19,13 +20,16 @@ from .frames import FrameAreas
 from .hardware import CameraFactory
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
-from .server import UnixServer
+from .server import BufferBudget, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession
 
 log = logging.getLogger(__name__)
 
 ROBOT_SOCKET = "robot.sock"
 OPERATOR_SOCKET = "operator.sock"
+STOP_THREADS_WAIT_S = 2.0
+"""How long ``stop`` waits for connection threads before releasing the devices: a call
+in flight may finish; a hung one does not hold back torque off."""
 
 
 class Connector:
@@ -58,16 +62,20 @@ class Connector:
         )
         # Camera frames reach the job through areas in the socket directory (frames.py).
         self.frames = FrameAreas(self.socket_dir)
+        # Both sockets share one cap on unfinished request bytes (server.py).
+        limits = ServerLimits(max_connections=config.max_connections)
+        budget = self.request_budget = BufferBudget()
         self._servers = [
             UnixServer(
-                self.socket_dir / ROBOT_SOCKET, lambda: RobotSession(self.cell, self.frames), self._count_connection
+                self.socket_dir / ROBOT_SOCKET, lambda: RobotSession(self.cell, self.frames), self.cell.counters,
+                limits=limits, budget=budget,
             ),
-            UnixServer(self.socket_dir / OPERATOR_SOCKET, lambda: OperatorSession(self.cell), self._count_connection),
+            UnixServer(
+                self.socket_dir / OPERATOR_SOCKET, lambda: OperatorSession(self.cell), self.cell.counters,
+                limits=limits, budget=budget,
+            ),
         ]
         self._started = False
-
-    def _count_connection(self) -> None:
-        self.cell.counters.connections += 1
 
     # -- lifetime ------------------------------------------------------------------
 
@@ -95,7 +103,10 @@ class Connector:
         self.cell.deadline.stop()
         self.cell.interlock.trip(TripReason.SHUTDOWN, "the connector is shutting down")
         for server in self._servers:
-            server.stop()
+            server.shut()
+        threads_deadline = time.monotonic() + STOP_THREADS_WAIT_S
+        for server in self._servers:
+            server.join(threads_deadline)
         for handle in self.cell.live_handles():
             self.cell.release(handle)
         log.info("connector stopped")

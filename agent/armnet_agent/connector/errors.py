@@ -8,6 +8,17 @@ from __future__ import annotations
 
 from typing import Any
 
+MAX_ERROR_CHARS = 2000
+"""Error text echoed to a client or a log line is cut here: a hostile job controls much
+of it (names, values, exception messages of its own arguments)."""
+
+
+def bounded(text: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """``text`` cut to ``limit`` characters, saying how much was cut."""
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}… ({len(text) - limit} more characters cut)"
+
 
 class RequestError(Exception):
     """A request the connector refuses; the reply is ``{"ok": false, "error_type": ...}``."""
@@ -19,7 +30,7 @@ class RequestError(Exception):
         self.extra = extra
 
     def reply(self) -> dict[str, Any]:
-        return {"ok": False, "error": self.message, "error_type": self.error_type, **self.extra}
+        return {"ok": False, "error": bounded(self.message), "error_type": self.error_type, **self.extra}
 
 
 def protocol_error(message: str) -> RequestError:
@@ -34,5 +45,5 @@ def failure_reply(exc: BaseException) -> dict[str, Any]:
     """The reply for an exception raised by a real LeRobot call: its type name and message."""
     if isinstance(exc, RequestError):
         return exc.reply()
-    message = str(exc) or type(exc).__name__
-    return {"ok": False, "error": message, "error_type": type(exc).__name__}
+    message = bounded(str(exc)) or type(exc).__name__
+    return {"ok": False, "error": message, "error_type": bounded(type(exc).__name__, 128)}

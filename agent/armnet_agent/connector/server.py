@@ -16,21 +16,73 @@ import logging
 import os
 import socket
 import threading
+import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from armnet_runtime.wire import dumps_line, loads_json
 
+from .cell import Counters
 from .errors import RequestError, protocol_error
+from .ratelog import RateLimitedLog
 from .session import Session
 
 log = logging.getLogger(__name__)
 
-MAX_LINE_BYTES = 64 * 1024 * 1024
+MAX_LINE_BYTES = 1 << 20
+"""A request line is control traffic (calls, small arguments): 1 MiB is far above
+any real one. Frames never travel in requests (replies carry them, by the data plane)."""
+MAX_BUFFERED_BYTES = 32 << 20
+"""Unfinished request lines held across every connection of one connector."""
+MAX_CONNECTIONS = 64
+"""Connections per socket; a job needs a handful (one per thread or process)."""
 _ACCEPT_POLL_S = 0.2
+_ACCEPT_BACKOFF_MAX_S = 1.0
+_REFUSAL_SEND_TIMEOUT_S = 0.5
 _RECV_CHUNK = 1 << 16
+_STOP_JOIN_S = 3.0  # stop() waits this long in all for the threads of one socket
 
+
+@dataclass(frozen=True)
+class ServerLimits:
+    """What one socket accepts; every value bounds what a hostile peer can make it hold."""
+
+    max_connections: int = MAX_CONNECTIONS
+    max_line_bytes: int = MAX_LINE_BYTES
+
+
+class BufferBudget:
+    """Bytes of unfinished request lines, shared by every connection of a connector.
+
+    Without a total, N connections each holding a line just under the line cap
+    hold N times the cap; with it, the connection that would go over is closed.
+    """
+
+    def __init__(self, limit: int = MAX_BUFFERED_BYTES) -> None:
+        self.limit = limit
+        self._used = 0
+        self._lock = threading.Lock()
+
+    @property
+    def used(self) -> int:
+        return self._used
+
+    def take(self, size: int) -> bool:
+        with self._lock:
+            if self._used + size > self.limit:
+                return False
+            self._used += size
+            return True
+
+    def give_back(self, size: int) -> None:
+        with self._lock:
+            self._used -= size
+
+
+class FramingError(Exception):
+    """The peer's bytes cannot be framed into a request line; the connection must close."""
 
 
 def encode_reply(reply: dict[str, Any]) -> bytes:
@@ -55,49 +107,100 @@ def parse_request(line: bytes) -> dict[str, Any]:
 class LineReader:
     """Newline-framed lines from a blocking socket, read with plain ``recv``.
 
-    ``next()`` returns a line with its newline; or, when the peer closed or a line
-    outgrew ``limit``, whatever is left without one (empty at a clean close).
+    ``next()`` returns a line with its newline; at the peer's close, whatever is
+    left without one (empty at a clean close). A line over ``limit`` bytes, or
+    bytes the shared ``budget`` cannot hold, raise ``FramingError``. Each byte is
+    scanned for the newline once, so framing stays linear in the line's length.
     """
 
-    def __init__(self, conn: socket.socket, limit: int = MAX_LINE_BYTES) -> None:
+    def __init__(self, conn: socket.socket, limit: int = MAX_LINE_BYTES, budget: BufferBudget | None = None) -> None:
         self._conn = conn
         self._limit = limit
+        self._budget = budget
         self._buffer = bytearray()
+        self._scanned = 0  # bytes of the buffer known to hold no newline
+        self._held = 0  # bytes charged to the budget
 
     def next(self) -> bytes:
         if not self._buffer:
             chunk = self._conn.recv(_RECV_CHUNK)
             if chunk.find(b"\n") == len(chunk) - 1:
                 return chunk  # the usual case: one whole request per chunk (or b"" at close)
-            self._buffer += chunk
+            self._append(chunk)
         while True:
-            end = self._buffer.find(b"\n")
+            end = self._buffer.find(b"\n", self._scanned)
             if end >= 0:
                 line = bytes(self._buffer[: end + 1])
-                del self._buffer[: end + 1]
+                del self._buffer[: end + 1]  # cheap: a bytearray drops its head in place
+                self._scanned = 0
+                self._release()
                 return line
+            self._scanned = len(self._buffer)
             if len(self._buffer) > self._limit:
-                return bytes(self._buffer)
+                raise FramingError(
+                    f"request line longer than {self._limit} bytes; the connection is closed "
+                    "(requests are small control messages: camera frames come back by the data plane)"
+                )
             chunk = self._conn.recv(_RECV_CHUNK)
             if not chunk:
                 rest = bytes(self._buffer)
                 self._buffer.clear()
+                self._scanned = 0
+                self._release()
                 return rest
-            self._buffer += chunk
+            self._append(chunk)
+
+    def _append(self, chunk: bytes) -> None:
+        if self._budget is not None:
+            if not self._budget.take(len(chunk)):
+                raise FramingError(
+                    "the connector is holding too many unfinished request lines; this connection is closed "
+                    "(finish each request line with a newline)"
+                )
+            self._held += len(chunk)
+        self._buffer += chunk
+
+    def _release(self) -> None:
+        """Give the budget back all but what the buffer still holds."""
+        if self._budget is not None and self._held > len(self._buffer):
+            self._budget.give_back(self._held - len(self._buffer))
+            self._held = len(self._buffer)
+
+    def close(self) -> None:
+        self._buffer.clear()
+        self._release()
 
 
 class UnixServer:
-    """Serves one unix socket; each connection gets its own thread and ``Session``."""
+    """Serves one unix socket; each connection gets its own thread and ``Session``.
 
-    def __init__(self, path: Path, session_factory: Callable[[], Session], on_connect: Callable[[], None]) -> None:
+    The accept loop survives every error: a failed ``accept`` (say at the
+    descriptor limit) backs off and is logged at most once per interval; a
+    connection over the cap, or one no thread can be started for, gets one
+    error line and is closed.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        session_factory: Callable[[], Session],
+        counters: Counters,
+        *,
+        limits: ServerLimits | None = None,
+        budget: BufferBudget | None = None,
+    ) -> None:
         self.path = Path(path)
         self._session_factory = session_factory
-        self._on_connect = on_connect
+        self._counters = counters
+        self._limits = limits if limits is not None else ServerLimits()
+        self._budget = budget if budget is not None else BufferBudget()
         self._listener: socket.socket | None = None
         self._stop = threading.Event()
         self._accept_thread: threading.Thread | None = None
         self._connections: dict[int, tuple[socket.socket, threading.Thread]] = {}
         self._lock = threading.Lock()
+        self._accept_log = RateLimitedLog(log)
+        self._refusal_log = RateLimitedLog(log)
 
     def start(self) -> None:
         with contextlib.suppress(FileNotFoundError):
@@ -113,38 +216,76 @@ class UnixServer:
 
     def _accept_loop(self) -> None:
         assert self._listener is not None
+        backoff_s = 0.0
         while not self._stop.is_set():
             try:
                 conn, _ = self._listener.accept()
             except TimeoutError:
                 continue
-            except OSError:
+            except OSError as exc:
                 if self._stop.is_set():
                     return
-                log.exception("accept failed on %s", self.path)
+                self._counters.accept_errors += 1
+                backoff_s = min(_ACCEPT_BACKOFF_MAX_S, max(0.01, backoff_s * 2))
+                self._accept_log.warning("accept on %s failed (%s); retrying in %.2f s", self.path.name, exc, backoff_s)
+                self._stop.wait(backoff_s)
                 continue
-            conn.settimeout(None)
-            self._on_connect()
-            thread = threading.Thread(target=self._serve, args=(conn,), name=f"armnet-conn-{self.path.name}", daemon=True)
-            with self._lock:
+            backoff_s = 0.0
+            try:
+                self._admit(conn)
+            except Exception as exc:  # noqa: BLE001 — nothing a peer does may end the accept loop
+                self._accept_log.warning("could not serve a connection on %s: %r", self.path.name, exc)
+                with contextlib.suppress(OSError):
+                    conn.close()
+
+    def _admit(self, conn: socket.socket) -> None:
+        conn.settimeout(None)
+        thread = threading.Thread(target=self._serve, args=(conn,), name=f"armnet-conn-{self.path.name}", daemon=True)
+        with self._lock:
+            if len(self._connections) >= self._limits.max_connections:
+                refusal = (
+                    f"{self.path.name} already serves {self._limits.max_connections} connections, its limit; "
+                    "close connections you no longer use (one per thread or process is enough)"
+                )
+            else:
                 self._connections[id(conn)] = (conn, thread)
-            thread.start()
+                refusal = None
+        if refusal is None:
+            self._counters.connections += 1
+            try:
+                thread.start()
+                return
+            except RuntimeError as exc:  # "can't start new thread": the host's thread limit
+                with self._lock:
+                    self._connections.pop(id(conn), None)
+                refusal = f"the connector cannot start a thread for this connection ({exc}); retry later"
+        self._counters.connections_refused += 1
+        self._refusal_log.warning("refused a connection on %s: %s", self.path.name, refusal)
+        self._refuse(conn, refusal)
+
+    @staticmethod
+    def _refuse(conn: socket.socket, message: str) -> None:
+        reply = {"ok": False, "error": message, "error_type": "TooManyConnections"}
+        with contextlib.suppress(OSError):
+            conn.settimeout(_REFUSAL_SEND_TIMEOUT_S)
+            conn.sendall(encode_reply(reply))
+        with contextlib.suppress(OSError):
+            conn.close()
 
     def _serve(self, conn: socket.socket) -> None:
-        session = self._session_factory()
+        session: Session | None = None
+        reader = LineReader(conn, self._limits.max_line_bytes, self._budget)
         try:
-            reader = LineReader(conn)
+            session = self._session_factory()
             while not self._stop.is_set():
-                line = reader.next()
-                if not line:
+                try:
+                    line = reader.next()
+                except FramingError as exc:
+                    self._counters.oversized_requests += 1
+                    conn.sendall(encode_reply(protocol_error(str(exc)).reply()))
                     return
                 if not line.endswith(b"\n"):
-                    if len(line) > MAX_LINE_BYTES:
-                        reply = protocol_error(
-                            f"request line longer than {MAX_LINE_BYTES} bytes; the connection is closed"
-                        ).reply()
-                        conn.sendall(encode_reply(reply))
-                    return  # oversized (cannot resync) or the client closed mid-line
+                    return  # the client closed, at a line's end or in its middle
                 try:
                     request = parse_request(line)
                 except RequestError as exc:
@@ -155,27 +296,44 @@ class UnixServer:
         except OSError as exc:
             log.debug("connection on %s ended: %s", self.path.name, exc)
         finally:
-            session.close()
+            reader.close()
+            if session is not None:
+                session.close()
             with self._lock:
                 self._connections.pop(id(conn), None)
             with contextlib.suppress(OSError):
                 conn.close()
 
     def stop(self) -> None:
+        """Stop accepting, end every connection; waits at most a few seconds in all."""
+        self.shut()
+        self.join(time.monotonic() + _STOP_JOIN_S)
+
+    def shut(self) -> None:
+        """Stop accepting and cut every connection, without waiting for their threads."""
         self._stop.set()
         if self._listener is not None:
             with contextlib.suppress(OSError):
                 self._listener.shutdown(socket.SHUT_RDWR)  # wakes accept() at once on Linux
             with contextlib.suppress(OSError):
                 self._listener.close()
-        if self._accept_thread is not None:
-            self._accept_thread.join(timeout=2)
         with self._lock:
             connections = list(self._connections.values())
         for conn, _ in connections:
             with contextlib.suppress(OSError):
                 conn.shutdown(socket.SHUT_RDWR)
-        for _, thread in connections:
-            thread.join(timeout=5)
         with contextlib.suppress(FileNotFoundError):
             self.path.unlink()
+
+    def join(self, deadline: float) -> None:
+        """Wait for the accept and connection threads until ``deadline`` (``time.monotonic``).
+
+        A thread still in a bus call at the deadline is left to finish on its
+        own (daemon): the interlock already refuses motion, and the cell's
+        release turns torque off under the device lock's own deadline.
+        """
+        threads = [self._accept_thread] if self._accept_thread is not None else []
+        with self._lock:
+            threads += [thread for _, thread in self._connections.values()]
+        for thread in threads:
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))

@@ -18,7 +18,7 @@ from armnet_runtime.wire import decode, encode
 from . import __version__
 from .allowlist import CLASSES, refusal
 from .cell import CellState, RolloutEvent
-from .errors import RequestError, failure_reply, not_allowed, protocol_error
+from .errors import RequestError, bounded, failure_reply, not_allowed, protocol_error
 from .frames import FrameAreas, FramePublisher
 from .hardware import Handle, create_arx5, create_camera, create_feetech
 from .retry import is_read, with_read_retry
@@ -39,6 +39,17 @@ def _field(request: dict[str, Any], name: str, kind: type, *, default: Any = ...
         return value
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
         raise protocol_error(f"request field {name!r} must be a {kind.__name__}, got {type(value).__name__}")
+    return value
+
+
+MAX_ROLLOUTS = 1_000_000
+
+
+def _rollout_count(request: dict[str, Any], name: str) -> int | None:
+    """A rollout index or total: a count a person can read (0..MAX_ROLLOUTS), or absent."""
+    value = _field(request, name, int, default=None)
+    if value is not None and not 0 <= value <= MAX_ROLLOUTS:
+        raise protocol_error(f"rollout {name} must be between 0 and {MAX_ROLLOUTS:,}, got {str(value)[:32]}")
     return value
 
 
@@ -88,7 +99,7 @@ class Session:
         except Exception as exc:  # noqa: BLE001 — every failure becomes a reply; the connection stays usable
             self.cell.counters.errors += 1
             if not isinstance(exc, RequestError):
-                log.info("%s request failed: %s: %s", self.socket_name, type(exc).__name__, exc)
+                log.info("%s request failed: %s: %s", self.socket_name, type(exc).__name__, bounded(str(exc)))
             return failure_reply(exc)
 
     def op_hello(self, request: dict[str, Any]) -> Reply:
@@ -425,8 +436,8 @@ class OperatorSession(Session):
         return {"ok": True, "event": self.cell.inputs.next_teleop_event()}
 
     def op_rollout_begin(self, request: dict[str, Any]) -> Reply:
-        index = _field(request, "index", int, default=None)
-        total = _field(request, "total", int, default=None)
+        index = _rollout_count(request, "index")
+        total = _rollout_count(request, "total")
         controls = _field(request, "outcome_controls", bool, default=None)
         self.cell.record_rollout(RolloutEvent("begin", self.cell.now(), index, total, controls))
         return {"ok": True}
