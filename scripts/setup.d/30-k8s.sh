@@ -1,9 +1,8 @@
 #!/usr/bin/env bash
 # Kubernetes test-bed binaries: kube-apiserver, kubectl, kubelet (one wrapper module,
 # see ../shared/reference/k8s-testbed.md §2 and k8s-node.md) and etcd (a SEPARATE
-# wrapper module, so
-# minimal version selection cannot move the Kubernetes dependency set), built with
-# the `go` tool from the module proxy into ~/.cache/armnet/k8s/v<version>/bin.
+# wrapper module, so minimal version selection cannot move the Kubernetes
+# dependency set), built with the `go` tool from the module proxy into ~/.cache/armnet/k8s/v<version>/bin.
 #
 # Why a wrapper: k8s.io/kubernetes replaces its staging modules with local paths,
 # so `go install k8s.io/kubernetes/cmd/...@v1.x` cannot work. We require the tag
