@@ -8,11 +8,18 @@ images imported without a registry (``podman save`` -> ``ctr images import``).
 Host changes and how they are undone (``stop()``; also after a crashed run):
 
 - containerd and kubelet state live in a temporary directory of their own
-  (containerd root/state/socket, runc root, kubelet root dir, pod logs); the
-  mounts the kubelet and containerd leave there are unmounted before removal.
+  (containerd state/socket, runc root, kubelet root dir, pod logs); the mounts
+  the kubelet and containerd leave there are unmounted before removal. Only
+  containerd's root (its content store and unpacked snapshots: an image cache,
+  like Podman's storage) persists, in ``~/.cache/armnet/node/containerd``, so a
+  warm start imports nothing; the containers in it are deleted at stop.
 - the node IP is an address the test bed adds to ``lo`` (the kubelet refuses
-  127.0.0.0/8 as node IP); nothing leaves the machine. Pods get a loopback-only
-  network (a CNI config with only the ``loopback`` plugin).
+  127.0.0.0/8 as node IP); nothing leaves the machine.
+- pods get an isolated network: a bridge the test bed creates (``armnet-node0``,
+  removed at stop) with no address on the host, no gateway, no masquerade and
+  no routes, so a pod reaches only other pods of this node. (A loopback-only CNI
+  config is not enough: containerd 1.6 fails every sandbox with "failed to find
+  network info" when the result has no ``eth0``.)
 - the sysctls the kubelet sets (``kernel.panic`` ...) are saved and restored.
 - no iptables changes: ``makeIPTablesUtilChains: false``.
 - the ``kubepods`` cgroups, ``/var/log/containers`` links, ``/run/containerd/s``
@@ -52,9 +59,13 @@ PAUSE_IMAGE = "localhost/armnet-pause:testbed"
 NODE_NAME = "armnet-node"
 # RFC 2544 benchmarking range: never routed on the internet, put on `lo` here.
 NODE_IP = "198.18.0.10"
-CNI_NETWORK = "armnet-node-loopback"
-IMAGE_CACHE = Path(os.environ.get("ARMNET_NODE_IMAGE_CACHE",
-                                  Path.home() / ".cache/armnet/node-images"))
+CNI_NETWORK = "armnet-node"
+POD_BRIDGE = "armnet-node0"
+POD_SUBNET = "198.18.128.0/24"
+CONTAINERD_ROOT = Path(os.environ.get("ARMNET_NODE_CONTAINERD_ROOT",
+                                     Path.home() / ".cache/armnet/node/containerd"))
+# Label on an imported image: the Podman image id it came from (re-import on change).
+SOURCE_LABEL = "armnet.io/podman-image-id"
 LOCK_PATH = Path("/run/lock/armnet-testbed-node.lock")
 # What the kubelet changes with protectKernelDefaults=false (pkg/kubelet/cm
 # setupKernelTunables); saved before it starts, restored after it stops.
@@ -67,13 +78,17 @@ CONTAINER_LOGS_DIR = Path("/var/log/containers")  # hard-coded in the kubelet
 SHIM_SOCKET_DIR = Path("/run/containerd/s")  # hard-coded in containerd 1.6
 CNI_RESULTS = Path("/var/lib/cni/results")
 NETNS_DIR = Path("/var/run/netns")
+# Hard-coded in the kubelet whatever --root-dir says: the device-plugin socket
+# directory (kubelet.sock and its checkpoint). Removed at stop if we created it.
+KUBELET_HOST_DIR = Path("/var/lib/kubelet")
+DEVICE_PLUGIN_DIR = KUBELET_HOST_DIR / "device-plugins"
 
 
 # ---------------------------------------------------------------------- config files
-def containerd_config(workdir: Path, cni_conf_dir: Path) -> str:
-    """containerd's config (schema 2): everything under ``workdir``, CRI as k8s-node.md says."""
+def containerd_config(workdir: Path, root: Path, cni_conf_dir: Path) -> str:
+    """containerd's config (schema 2): state under ``workdir``, CRI as k8s-node.md says."""
     return f"""version = 2
-root = "{workdir / 'root'}"
+root = "{root}"
 state = "{workdir / 'state'}"
 oom_score = 0
 disabled_plugins = ["io.containerd.snapshotter.v1.aufs", "io.containerd.snapshotter.v1.btrfs",
@@ -118,9 +133,14 @@ disabled_plugins = ["io.containerd.snapshotter.v1.aufs", "io.containerd.snapshot
 """
 
 
-def loopback_cni_config() -> dict[str, Any]:
-    """A pod network that is only the pod's own loopback: pods reach nothing else."""
-    return {"cniVersion": "0.4.0", "name": CNI_NETWORK, "plugins": [{"type": "loopback"}]}
+def pod_network_config(ipam_dir: Path) -> dict[str, Any]:
+    """An isolated pod network: a host bridge without address, gateway, NAT or routes."""
+    return {"cniVersion": "0.4.0", "name": CNI_NETWORK, "plugins": [{
+        "type": "bridge", "bridge": POD_BRIDGE, "isGateway": False, "isDefaultGateway": False,
+        "ipMasq": False, "hairpinMode": False,
+        "ipam": {"type": "host-local", "dataDir": str(ipam_dir),
+                 "ranges": [[{"subnet": POD_SUBNET}]]},
+    }]}
 
 
 def kubelet_config(*, socket: Path, node_ip: str, port: int, healthz_port: int,
@@ -205,6 +225,15 @@ def remove_cgroup_tree(name: str) -> None:
                 os.rmdir(dirpath)
 
 
+def remove_empty_dirs(top: Path) -> None:
+    """rmdir ``top`` and its subdirectories bottom-up; anything not empty stays."""
+    if not top.is_dir():
+        return
+    for dirpath, _dirs, _files in os.walk(top, topdown=False):
+        with contextlib.suppress(OSError):
+            os.rmdir(dirpath)
+
+
 def _proc_cmdline(pid: int) -> list[str]:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")
@@ -277,8 +306,10 @@ class Node:
 
         cni_dir = w / "cni"
         cni_dir.mkdir()
-        (cni_dir / "10-loopback.conflist").write_text(json.dumps(loopback_cni_config()))
-        (w / "containerd.toml").write_text(containerd_config(w, cni_dir))
+        (cni_dir / "10-armnet-node.conflist").write_text(
+            json.dumps(pod_network_config(w / "cni-ipam")))
+        CONTAINERD_ROOT.mkdir(parents=True, exist_ok=True)
+        (w / "containerd.toml").write_text(containerd_config(w, CONTAINERD_ROOT, cni_dir))
         self.socket = w / "containerd.sock"
         self.containerd_log = w / "containerd.log"
         t0 = time.monotonic()
@@ -290,9 +321,9 @@ class Node:
         progress(f"containerd up in {time.monotonic() - t0:.1f} s")
 
         t0 = time.monotonic()
-        for image in (PAUSE_IMAGE, *self.images):
-            self.import_image(image)
-        progress(f"imported {1 + len(self.images)} image(s) in {time.monotonic() - t0:.1f} s")
+        imported = [image for image in (PAUSE_IMAGE, *self.images) if self.import_image(image)]
+        progress(f"images: {len(imported)} imported ({', '.join(imported) or 'all cached'}) "
+                 f"in {time.monotonic() - t0:.1f} s")
 
         t0 = time.monotonic()
         pki = self.plane.pki
@@ -332,6 +363,7 @@ class Node:
                     proc.stop()
                 self._procs.clear()
             self._restore_host_state()
+            unmount_all(CONTAINERD_ROOT)
             if self._owns_workdir and self.workdir is not None:
                 unmount_all(self.workdir)
                 shutil.rmtree(self.workdir, ignore_errors=True)
@@ -345,32 +377,33 @@ class Node:
         self.stop()
 
     # ------------------------------------------------------------------ images
-    def import_image(self, image: str) -> None:
+    def import_image(self, image: str) -> bool:
         """Make a Podman image available to pods (``imagePullPolicy: Never``), same name.
 
-        The ``podman save`` archive is cached by image id, so a warm start only
-        runs the import.
+        Skipped when the node already has it from the same Podman image id (the
+        image cache persists); returns whether it imported.
         """
         inspect = subprocess.run(["podman", "image", "inspect", "--format", "{{.Id}}", image],
                                  capture_output=True, text=True, check=False)
         if inspect.returncode:
             raise TestbedSetupError(f"image {image} is not in podman: {inspect.stderr.strip()}")
-        image_id = inspect.stdout.strip()[:16]
-        stem = hashlib.sha256(image.encode()).hexdigest()[:12]
-        IMAGE_CACHE.mkdir(parents=True, exist_ok=True)
-        archive = IMAGE_CACHE / f"{stem}-{image_id}.tar"
-        if not archive.is_file():
-            for stale in IMAGE_CACHE.glob(f"{stem}-*.tar"):
-                stale.unlink(missing_ok=True)
-            partial = archive.with_suffix(".partial")
-            partial.unlink(missing_ok=True)
+        image_id = inspect.stdout.strip()
+        listed = self.ctr("images", "ls", f"name=={image}").stdout
+        if f"{SOURCE_LABEL}={image_id}" in listed:
+            return False
+        assert self.workdir is not None
+        archive = self.workdir / f"image-{hashlib.sha256(image.encode()).hexdigest()[:12]}.tar"
+        try:
             saved = subprocess.run(["podman", "save", "--format", "docker-archive", "-o",
-                                    str(partial), image], capture_output=True, text=True,
+                                    str(archive), image], capture_output=True, text=True,
                                    check=False)
             if saved.returncode:
                 raise RuntimeError(f"podman save {image} failed: {saved.stderr.strip()}")
-            partial.rename(archive)
-        self.ctr("images", "import", str(archive))
+            self.ctr("images", "import", str(archive))
+        finally:
+            archive.unlink(missing_ok=True)
+        self.ctr("images", "label", image, f"{SOURCE_LABEL}={image_id}")
+        return True
 
     def ctr(self, *args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
         """``ctr`` against this node's containerd, namespace ``k8s.io`` (the CRI's)."""
@@ -487,8 +520,8 @@ class Node:
             "node_ip": self.node_ip,
             "netns_before": sorted(p.name for p in NETNS_DIR.glob("*")) if NETNS_DIR.is_dir()
             else [],
-            "created": [str(p) for p in (CONTAINER_LOGS_DIR, SHIM_SOCKET_DIR.parent, NETNS_DIR)
-                        if not p.exists()],
+            "created": [str(p) for p in (CONTAINER_LOGS_DIR, SHIM_SOCKET_DIR.parent, NETNS_DIR,
+                                         KUBELET_HOST_DIR, CNI_RESULTS.parent) if not p.exists()],
             "pod_logs": str(self.workdir / "pod-logs") if self.workdir else "",
         }
         HOST_STATE.write_text(json.dumps(self._host))
@@ -496,6 +529,14 @@ class Node:
                                capture_output=True, text=True, check=False)
         if added.returncode and "File exists" not in added.stderr:
             raise RuntimeError(f"adding {self.node_ip} to lo failed: {added.stderr.strip()}")
+        # The pod bridge, made here (the CNI plugin reuses it) so that it has no
+        # IPv6 link-local address either: the host gets no address on the pod network.
+        bridge = subprocess.run(["ip", "link", "add", POD_BRIDGE, "type", "bridge"],
+                                capture_output=True, text=True, check=False)
+        if bridge.returncode and "File exists" not in bridge.stderr:
+            raise RuntimeError(f"creating bridge {POD_BRIDGE} failed: {bridge.stderr.strip()}")
+        with contextlib.suppress(OSError):
+            Path(f"/proc/sys/net/ipv6/conf/{POD_BRIDGE}/disable_ipv6").write_text("1")
 
     def _restore_host_state(self) -> None:
         host = self._host
@@ -504,6 +545,7 @@ class Node:
         write_sysctls(host["sysctls"])
         subprocess.run(["ip", "addr", "del", f"{host['node_ip']}/32", "dev", "lo"],
                        capture_output=True, check=False)
+        subprocess.run(["ip", "link", "delete", POD_BRIDGE], capture_output=True, check=False)
         remove_cgroup_tree("kubepods")
         pod_logs = host.get("pod_logs", "")
         if CONTAINER_LOGS_DIR.is_dir() and pod_logs:
@@ -521,9 +563,10 @@ class Node:
                 result.unlink(missing_ok=True)
         for created in reversed(host.get("created", [])):
             path = Path(created)
-            for leftover in (path / "s", path):  # /run/containerd/s, then /run/containerd
-                with contextlib.suppress(OSError):
-                    leftover.rmdir()
+            if path == KUBELET_HOST_DIR:
+                shutil.rmtree(path, ignore_errors=True)
+                continue
+            remove_empty_dirs(path)
         HOST_STATE.unlink(missing_ok=True)
         self._host = {}
 
