@@ -315,7 +315,7 @@ class Node:
         t0 = time.monotonic()
         proc = ManagedProcess("containerd", [containerd, "--config", str(w / "containerd.toml")],
                               self.containerd_log)
-        self._procs.append(proc)
+        self._track(proc)
         wait_until(lambda: self.ctr("version", check=False).returncode == 0, timeout=30,
                    what="containerd", alive=proc.ensure_running)
         progress(f"containerd up in {time.monotonic() - t0:.1f} s")
@@ -344,7 +344,7 @@ class Node:
             f"--root-dir={w / 'kubelet'}", f"--hostname-override={self.name}",
             f"--node-ip={self.node_ip}", "--v=1",
         ], self.kubelet_log)
-        self._procs.append(kubelet_proc)
+        self._track(kubelet_proc)
         wait_until(self.is_ready, timeout=self.ready_timeout, interval=0.3,
                    what=f"node {self.name} Ready", alive=kubelet_proc.ensure_running)
         progress(f"kubelet registered {self.name} Ready in {time.monotonic() - t0:.1f} s")
@@ -512,8 +512,9 @@ class Node:
     def _save_host_state(self) -> None:
         """Record what the node changes; a state file left by a crashed run wins."""
         if HOST_STATE.is_file():
-            progress(f"a previous test-bed node did not clean up ({HOST_STATE}); restoring it")
+            progress(f"a previous test-bed node did not clean up ({HOST_STATE}); undoing it")
             self._host = json.loads(HOST_STATE.read_text())
+            self._clean_up_after_crash()
             self._restore_host_state()
         self._host = {
             "sysctls": read_sysctls(),
@@ -523,6 +524,8 @@ class Node:
             "created": [str(p) for p in (CONTAINER_LOGS_DIR, SHIM_SOCKET_DIR.parent, NETNS_DIR,
                                          KUBELET_HOST_DIR, CNI_RESULTS.parent) if not p.exists()],
             "pod_logs": str(self.workdir / "pod-logs") if self.workdir else "",
+            "workdir": str(self.workdir) if self.workdir else "",
+            "owns_workdir": self._owns_workdir,
         }
         HOST_STATE.write_text(json.dumps(self._host))
         added = subprocess.run(["ip", "addr", "add", f"{self.node_ip}/32", "dev", "lo"],
@@ -537,6 +540,29 @@ class Node:
             raise RuntimeError(f"creating bridge {POD_BRIDGE} failed: {bridge.stderr.strip()}")
         with contextlib.suppress(OSError):
             Path(f"/proc/sys/net/ipv6/conf/{POD_BRIDGE}/disable_ipv6").write_text("1")
+
+    def _track(self, proc: ManagedProcess) -> None:
+        """Remember a started process, also on disk for the run after a crash."""
+        self._procs.append(proc)
+        self._host.setdefault("procs", []).append([proc.proc.pid, proc.argv])
+        HOST_STATE.write_text(json.dumps(self._host))
+
+    def _clean_up_after_crash(self) -> None:
+        """Processes and mounts a killed run left: only those it recorded as its own."""
+        for pid, argv in self._host.get("procs", []):
+            if _proc_cmdline(pid)[:len(argv)] == argv:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
+        old_workdir = self._host.get("workdir")
+        if old_workdir:
+            for pid in shim_pids(Path(old_workdir) / "containerd.sock"):
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
+            time.sleep(0.5)
+            unmount_all(Path(old_workdir))
+            unmount_all(CONTAINERD_ROOT)
+            if self._host.get("owns_workdir"):
+                shutil.rmtree(old_workdir, ignore_errors=True)
 
     def _restore_host_state(self) -> None:
         host = self._host
