@@ -85,6 +85,14 @@ def sidecar_pod(node: Node) -> dict[str, Any]:
     )
 
 
+def unprobed_sidecar_pod(node: Node) -> dict[str, Any]:
+    """The sidecar pod without its startup probe: nothing makes the main container wait."""
+    pod = sidecar_pod(node)
+    pod["metadata"]["name"] = "unprobed"
+    del pod["spec"]["initContainers"][0]["startupProbe"]
+    return pod
+
+
 def shared_memory_pod(node: Node) -> dict[str, Any]:
     mount = [{"name": "shm", "mountPath": "/shm"}]
     return node.pod_yaml(
@@ -105,7 +113,8 @@ def overdue_pod(node: Node) -> dict[str, Any]:
 def pods(k8s_node: Node, k8s: ControlPlane) -> Iterator[str]:
     """Creates every pod of this module at once; yields their namespace."""
     namespace = k8s.create_namespace("node")
-    manifests = [sidecar_pod(k8s_node), shared_memory_pod(k8s_node), overdue_pod(k8s_node)]
+    manifests = [sidecar_pod(k8s_node), unprobed_sidecar_pod(k8s_node),
+                 shared_memory_pod(k8s_node), overdue_pod(k8s_node)]
     k8s.kubectl("apply", "-n", namespace, "-f", "-",
                 input=json.dumps({"apiVersion": "v1", "kind": "List", "items": manifests}))
     try:
@@ -139,6 +148,14 @@ def test_main_container_starts_only_after_the_native_sidecar_serves_its_socket(
 
     assert pod["status"]["phase"] == "Succeeded", pod["status"]
     assert exit_code(pod, "main") == 0
+
+
+def test_without_a_startup_probe_the_main_container_does_not_wait_for_the_sidecar(
+        k8s_node: Node, pods: str) -> None:
+    pod = k8s_node.wait_for_pod(pods, "unprobed")
+
+    assert pod["status"]["phase"] == "Failed"
+    assert exit_code(pod, "main") == 1
 
 
 def test_memory_emptydir_is_a_tmpfs_shared_by_two_containers(k8s_node: Node, pods: str) -> None:

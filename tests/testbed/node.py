@@ -276,6 +276,8 @@ class Node:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Node:
         started = time.monotonic()
+        if os.geteuid() != 0:
+            raise TestbedSetupError("the test-bed node needs root (containerd, kubelet, cgroups)")
         bins = k8s_bin_dir()
         kubelet = require_tool("kubelet", bins / "kubelet")
         containerd = require_tool("containerd")
