@@ -277,7 +277,8 @@ class Node:
     def start(self) -> Node:
         started = time.monotonic()
         if os.geteuid() != 0:
-            raise TestbedSetupError("the test-bed node needs root (containerd, kubelet, cgroups)")
+            raise PermissionError("the test-bed node needs root (containerd, kubelet, cgroups): "
+                                  "run the node tests / armnet dev up as root, or --no-node")
         bins = k8s_bin_dir()
         kubelet = require_tool("kubelet", bins / "kubelet")
         containerd = require_tool("containerd")
@@ -289,10 +290,10 @@ class Node:
         for image in (PAUSE_IMAGE, *self.images):
             if subprocess.run(["podman", "image", "exists", image], check=False).returncode:
                 raise TestbedSetupError(f"image {image} is not in podman")
+        self._acquire_lock()
         if self.workdir is None:
             self.workdir = Path(tempfile.mkdtemp(prefix="armnet-node-"))
             self._owns_workdir = True
-        self._acquire_lock()
         try:
             self._start(containerd, kubelet)
         except BaseException:
@@ -491,7 +492,7 @@ class Node:
             except BlockingIOError:
                 if time.monotonic() > deadline:
                     lock.close()
-                    raise TestbedSetupError(
+                    raise TimeoutError(
                         f"another test-bed node holds {LOCK_PATH} (see `cat {LOCK_PATH}`) "
                         f"for more than {self.lock_timeout:.0f} s; stop it (armnet dev up / "
                         "a pytest session) and retry") from None
@@ -501,7 +502,7 @@ class Node:
                 time.sleep(1)
         lock.seek(0)
         lock.truncate()
-        lock.write(f"pid {os.getpid()} workdir {self.workdir}\n")
+        lock.write(f"pid {os.getpid()}: {' '.join(_proc_cmdline(os.getpid()))[:200]}\n")
         lock.flush()
         self._lock = lock
 
@@ -591,7 +592,9 @@ class Node:
                 result.unlink(missing_ok=True)
         for created in reversed(host.get("created", [])):
             path = Path(created)
-            if path == KUBELET_HOST_DIR:
+            if path == KUBELET_HOST_DIR or (
+                    path == SHIM_SOCKET_DIR.parent and not (path / "containerd.sock").exists()):
+                # Ours alone: the device-plugin dir; the sockets of shims killed at stop.
                 shutil.rmtree(path, ignore_errors=True)
                 continue
             remove_empty_dirs(path)
