@@ -6,7 +6,8 @@ http_port: 8222
 server_name: armnet-nats
 jetstream {
   store_dir: /data/jetstream
-  max_file_store: {{ $d.storageSize | quote }}
+  # nats-server units: K, M, G, T (powers of 1024), like the PVC's Ki, Mi, Gi, Ti
+  max_file_store: {{ $d.storageSize | trimSuffix "i" }}
 }
 {{- if $d.auth.enabled }}
 accounts {
