@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -26,7 +27,9 @@ from tests.testbed.kube import ControlPlane, KubeUser
 
 pytestmark = pytest.mark.integration
 
-RBAC_KINDS = {"ServiceAccount", "ClusterRole", "ClusterRoleBinding", "Role", "RoleBinding"}
+RBAC_KINDS = {"ServiceAccount", "ClusterRole", "ClusterRoleBinding", "Role", "RoleBinding",
+              "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
+CLUSTER_KINDS = {"ClusterRole", "ClusterRoleBinding", "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
 JOB_SECRET = "job-token"
 OTHER_SECRET = "other-token"
 
@@ -62,9 +65,12 @@ def forbidden(result: subprocess.CompletedProcess[str]) -> bool:
     return result.returncode != 0 and "Forbidden" in result.stderr
 
 
-def token_kubeconfig(plane: ControlPlane, account: str, namespace: str, path: Path) -> Path:
-    """A kubeconfig carrying a real, short-lived token of ``account`` (TokenRequest)."""
-    token = plane.kubectl("create", "token", account, "-n", namespace, "--duration=1h").stdout.strip()
+def token_kubeconfig(plane: ControlPlane, account: str, namespace: str, path: Path, *,
+                     bound_pod: str | None = None) -> Path:
+    """A kubeconfig carrying a real, short-lived token of ``account`` (TokenRequest); bound to
+    ``bound_pod`` it carries that pod's node, like the token the kubelet gives a pod."""
+    bound = ["--bound-object-kind=Pod", f"--bound-object-name={bound_pod}"] if bound_pod else []
+    token = plane.kubectl("create", "token", account, "-n", namespace, "--duration=1h", *bound).stdout.strip()
     config = yaml.safe_load(plane.kubeconfig.read_text())
     config["users"] = [{"name": account, "user": {"token": token}}]
     for context in config["contexts"]:
@@ -93,11 +99,12 @@ def release(k8s: ControlPlane, tmp_path_factory: pytest.TempPathFactory) -> Iter
         "crds": {"install": False},
         "jobNamespaces": [{"name": team_a, "secrets": [JOB_SECRET]}, {"name": team_b}],
         "rbac": {"tenants": {"cellReaderGroups": [tenants]}},
+        "agent": {"nodeBoundPods": True},
     }) if o["kind"] in RBAC_KINDS]
     manifest = yaml.safe_dump_all(objects)
     fullname = f"rbac-{suffix}-armnet"
     cluster_objects = [f"{o['kind'].lower()}/{o['metadata']['name']}" for o in objects
-                       if o["kind"] in {"ClusterRole", "ClusterRoleBinding"}]
+                       if o["kind"] in CLUSTER_KINDS]
     k8s.kubectl("apply", "-f", "-", input=manifest)
     try:
         for ns, name in ((team_a, JOB_SECRET), (team_a, OTHER_SECRET), (team_b, JOB_SECRET)):
@@ -184,6 +191,40 @@ def test_agent_account_writes_status_but_not_specs(release: Release) -> None:
     assert release.as_(release.agent, "get", "cells").returncode == 0
     assert not release.can(release.agent, "patch", "robotjobs")
     assert not release.can(release.agent, "patch", "cells")
+
+
+def pod(name: str, node: str, **spec: Any) -> str:
+    return json.dumps({"apiVersion": "v1", "kind": "Pod", "metadata": {"name": name}, "spec": {
+        "nodeName": node, "containers": [{"name": "main", "image": "localhost/job:dev"}], **spec}})
+
+
+def test_agent_creates_pods_only_on_the_node_it_runs_on(release: Release, tmp_path: Path) -> None:
+    node = f"robot-host-{uuid.uuid4().hex[:6]}"
+    plane = release.plane
+    plane.kubectl("create", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "Node",
+                                                         "metadata": {"name": node}}))
+    try:
+        # The agent's own pod as its DaemonSet would place it; its token names the node.
+        plane.kubectl("create", "-n", release.namespace, "-f", "-", input=pod(
+            "agent", node, serviceAccountName=f"{release.fullname}-agent"))
+        agent = token_kubeconfig(plane, f"{release.fullname}-agent", release.namespace,
+                                 tmp_path / "agent-on-node", bound_pod="agent")
+        # The API server loads a new policy from its informer (about a second): wait for it
+        # with dry runs (admission runs, nothing is stored), then try for real.
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and release.as_(
+                agent, "create", "--dry-run=server", "-n", release.team_a, "-f", "-",
+                input=pod("probe", "another-host")).returncode == 0:
+            time.sleep(0.3)
+        elsewhere = release.as_(agent, "create", "-n", release.team_a, "-f", "-",
+                                input=pod("job-elsewhere", "another-host"))
+        here = release.as_(agent, "create", "-n", release.team_a, "-f", "-", input=pod("job-here", node))
+
+        assert elsewhere.returncode != 0
+        assert "only on the node it runs on" in elsewhere.stderr, elsewhere.stderr
+        assert here.returncode == 0, here.stderr
+    finally:
+        plane.kubectl("delete", "node", node, "--wait=false", check=False)
 
 
 @pytest.mark.parametrize("account", ["operator", "agent"])
