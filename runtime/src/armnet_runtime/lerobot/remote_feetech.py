@@ -63,7 +63,7 @@ class RemoteFeetechMotorsBus(RemoteObjectProxy):
         at the rate the cell runs it, with a broadcast ping.
         """
         bus = cls(port, {}, *args, **kwargs)
-        bus.connect()
+        bus.connect(handshake=False)  # as LeRobot's scan_port: no motors to check yet
         try:
             found = bus.broadcast_ping()
             baudrate = int(bus.default_baudrate)
