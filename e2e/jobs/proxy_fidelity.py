@@ -5,9 +5,12 @@ types); e2e/test_lerobot_proxy_fidelity.py checks each against what LeRobot's
 own classes do on the simulator.
 """
 
-import json, time
+import json
+import time
 from pathlib import Path
+
 from armnet_runtime import Context, main
+from armnet_runtime.errors import RemoteCallError
 from lerobot.cameras import Camera
 from lerobot.cameras.opencv import OpenCVCamera, OpenCVCameraConfig
 from lerobot.motors import Motor, MotorCalibration, MotorNormMode
@@ -33,7 +36,7 @@ def run(ctx: Context):
     try:
         bus.setup_motor("gripper")
         seen["setup_motor"] = "accepted"
-    except Exception as exc:
+    except RemoteCallError as exc:  # the connector's refusal, naming the method
         seen["setup_motor"] = [type(exc).__name__, str(exc)[:200]]
     seen["ctrl_table_goal"] = list(bus.model_ctrl_table["sts3215"]["Goal_Position"])
     seen["baudrate"] = bus.port_handler.baudrate
@@ -42,7 +45,7 @@ def run(ctx: Context):
     try:
         FeetechMotorsBus(port="/dev/ttyUSB7", motors=motors)
         seen["foreign_port"] = "accepted"
-    except ConnectionError as exc:
+    except ConnectionError:
         seen["foreign_port"] = "ConnectionError"
     try:
         bus.sync_read("Present_Position", ["not_a_motor"])

@@ -28,7 +28,12 @@ import time
 from collections.abc import Callable
 from typing import Any, ClassVar, TypeVar
 
-from armnet_runtime.errors import ConnectorUnavailable, ProtocolError, RemoteAttributeError, RemoteCallError
+from armnet_runtime.errors import (
+    ConnectorUnavailable,
+    ProtocolError,
+    RemoteAttributeError,
+    RemoteCallError,
+)
 from armnet_runtime.transport import DEFAULT_CALL_TIMEOUT_S, PersistentConnection, check_response
 from armnet_runtime.wire import decode, encode
 
@@ -151,7 +156,7 @@ class RemoteObjectProxy:
     _create_args: list[Any]
     _create_kwargs: Any
     _methods: dict[str, Callable[..., Any]]
-    _missing: set[str]
+    _missing: dict[str, str]
     _connected: bool | None
     _connected_at: float
     _connect_call: tuple[tuple[Any, ...], dict[str, Any]] | None
@@ -167,7 +172,7 @@ class RemoteObjectProxy:
         init(self, "_create_args", encode_args(args))
         init(self, "_create_kwargs", encode(kwargs))
         init(self, "_methods", {})
-        init(self, "_missing", set())
+        init(self, "_missing", {})
         init(self, "_connected", None)
         init(self, "_connected_at", 0.0)
         init(self, "_connect_call", None)
@@ -272,18 +277,19 @@ class RemoteObjectProxy:
         method = self._methods.get(name)
         if method is not None:
             return method
-        if name in self._missing:
-            raise RemoteAttributeError(f"remote {self._remote_class} has no attribute {name!r}")
+        why = self._missing.get(name)
+        if why is not None:
+            raise RemoteAttributeError(why)
         try:
             reply = self._request({"op": "getattr", "name": name})
-        except AttributeError:
-            self._missing.add(name)
+        except AttributeError as exc:
+            self._missing[name] = str(exc) or f"remote {self._remote_class} has no attribute {name!r}"
             raise
         except RemoteCallError as exc:
             if exc.error_type != NOT_ALLOWED:
                 raise
             # Out of reach is absent, as far as Python's attribute protocol goes.
-            self._missing.add(name)
+            self._missing[name] = str(exc)
             raise RemoteAttributeError(str(exc)) from None
         if reply.get("callable"):
             method = self._method_proxy(name)
@@ -301,7 +307,7 @@ class RemoteObjectProxy:
             object.__setattr__(self, name, value)
             return
         self._request({"op": "setattr", "name": name, "value": encode(value)})
-        self._missing.discard(name)
+        self._missing.pop(name, None)
         self._methods.pop(name, None)
 
     def _method_proxy(self, name: str) -> Callable[..., Any]:
