@@ -17,7 +17,13 @@ from pathlib import Path
 import nats
 import nats.errors
 import pytest
-from armnet_agent.node.streams import JobStream, NatsLink, StreamSettings, line_msg_id
+from armnet_agent.node.streams import (
+    MAX_LINE_BYTES,
+    JobStream,
+    NatsLink,
+    StreamSettings,
+    line_msg_id,
+)
 from nats.js.api import ConsumerConfig, DeliverPolicy
 
 from tests.testbed.natsd import NatsServer
@@ -163,3 +169,18 @@ def test_a_link_without_a_url_does_nothing_and_never_fails() -> None:
     JobStream(link, "ns", "job").line("stdout", 0, "hello")
     link.stop()
     assert (link.connected, link.published, link.dropped, link.pending) == (False, 0, 0, 0)
+
+
+def test_an_overlong_line_is_cut_with_a_notice_and_a_rerun_packet_is_sent_as_bytes(
+    link: NatsLink, nats_server: str
+) -> None:
+    job = JobStream(link, a_namespace(), "job-long")
+    job.line("stdout", 0, "x" * (MAX_LINE_BYTES + 10))
+    job.line("rerun", 0, b"\x00\x01packet")
+    wait_for(lambda: link.pending == 0, what="the lines acknowledged")
+
+    (_, text), = replay(nats_server, job.subject("stdout"), 1)
+    (_, packet), = replay(nats_server, job.subject("rerun"), 1)
+
+    assert text == "x" * MAX_LINE_BYTES + " ... [armnet: line cut, 10 bytes dropped]"
+    assert packet == "\x00\x01packet"
