@@ -467,3 +467,12 @@ class JobStream:
         body = {"phase": phase, "detail": detail, "at": datetime.now(UTC).isoformat()}
         payload = json.dumps(body, default=str, separators=(",", ":")).encode()
         self.link.publish(self._subjects["status"], payload, f"{self.job_uid}:status:{phase}")
+
+
+def __getattr__(name: str) -> Any:
+    """``streams.OperatorInputsBridge`` as the agent contract names it (defined in ``inputs_bridge``)."""
+    if name == "OperatorInputsBridge":
+        from .inputs_bridge import OperatorInputsBridge
+
+        return OperatorInputsBridge
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
