@@ -35,10 +35,7 @@ class StreamsCollector(Collector):
                                 "1 while the agent is connected to NATS and its stream is in place",
                                 value=1.0 if link.connected else 0.0)
         yield CounterMetricFamily("armnet_agent_nats_published",
-                                  "Messages JetStream acknowledged (duplicates included)", value=link.published)
-        yield CounterMetricFamily("armnet_agent_nats_duplicates",
-                                  "Messages JetStream acknowledged as duplicates (resends, re-adopted jobs)",
-                                  value=link.duplicates)
+                                  "Messages JetStream acknowledged (resent duplicates it dropped included)", value=link.published)
         yield CounterMetricFamily("armnet_agent_nats_dropped",
                                   "Messages lost: outbox and spool full, too large, refused, or unsent at stop",
                                   value=link.dropped)
