@@ -148,3 +148,27 @@ def test_inputs_reach_the_job_again_after_the_server_restarts(nats_service: Nats
     finally:
         bridge.close()
         link.stop()
+
+
+def test_the_cell_operator_is_told_when_a_reset_waits_and_that_confirmation_counts(
+    job: Job, nats_server: str
+) -> None:
+    async def confirm_on_notice() -> dict[str, Any]:
+        nc = await nats.connect(nats_server)
+        notices = await nc.subscribe(f"{job.fms}.reset.requested")
+        await nc.flush()
+        waiter.start()
+        notice = await notices.next_msg(timeout=20)
+        await nc.publish(f"{job.fms}.reset.confirm", json.dumps({"by": "ana", "request": None}).encode())
+        await nc.flush()
+        await nc.close()
+        return dict(json.loads(notice.data))
+
+    confirmed: list[bool] = []
+    waiter = threading.Thread(target=lambda: confirmed.append(job.inputs.wait_reset_confirmation(20)))
+    wait_for(lambda: job.bridge.link.connected, what="the link to connect")
+    notice = asyncio.run(confirm_on_notice())
+    waiter.join(20)
+
+    assert confirmed == [True]
+    assert notice["job"] == "uid-1" and notice["namespace"] == job.teleop.split(".")[1]

@@ -5,8 +5,10 @@ hostile until checked: bounded size, one JSON object, exact fields and types
 (pydantic, extra fields refused). A bad message is dropped, counted in
 ``rejected`` and logged at most once per interval; a good one is applied to the
 job's :class:`~armnet_agent.connector.inputs.OperatorInputs`, which decides what
-it means (a reset confirmation with no reset waiting is dropped there). This
-module never touches hardware and never publishes.
+it means (a reset confirmation with no reset waiting is dropped there). So that
+the cell's operator knows when a confirmation counts, the bridge announces on
+``fms.<cell>.reset.requested`` each time the job's reset starts to wait. This
+module never touches hardware.
 """
 
 from __future__ import annotations
@@ -15,11 +17,12 @@ import json
 import logging
 import math
 from collections.abc import Callable
+from datetime import UTC, datetime
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from armnet_agent.connector.inputs import OperatorInputs
+from armnet_agent.connector.inputs import LocalOperatorInputs, OperatorInputs
 from armnet_agent.connector.ratelog import RateLimitedLog
 
 from .streams import NatsLink, Subscription, fms_subject, teleop_subject
@@ -90,9 +93,12 @@ class OperatorInputsBridge:
     """Subscribes one job's teleop subjects and its cell's FMS subjects while the job runs."""
 
     def __init__(self, link: NatsLink, inputs: OperatorInputs, *, namespace: str, job_uid: str,
-                 cell: str) -> None:
+                 cell: str, announce_resets: bool = True) -> None:
         self.link = link
         self.inputs = inputs
+        self.namespace, self.job_uid = namespace, job_uid
+        self.reset_requested_subject = fms_subject(cell, "reset.requested")
+        self._announce_resets = announce_resets
         self.accepted = 0
         self.rejected = 0
         self._rejections = RateLimitedLog(log)
@@ -110,8 +116,17 @@ class OperatorInputsBridge:
         return list(self._routes)
 
     def start(self) -> OperatorInputsBridge:
+        """Subscribe; with ``announce_resets``, a ``LocalOperatorInputs`` without a reset prompt gets one."""
         self._subscriptions = [self.link.subscribe(subject, self._on_message) for subject in self._routes]
+        if (self._announce_resets and isinstance(self.inputs, LocalOperatorInputs)
+                and self.inputs.on_reset_requested is None):
+            self.inputs.on_reset_requested = self.announce_reset_waiting
         return self
+
+    def announce_reset_waiting(self, inputs: LocalOperatorInputs | None = None) -> None:
+        """Tell the cell's operator that the job's reset waits for a confirmation (core NATS, best effort)."""
+        notice = {"namespace": self.namespace, "job": self.job_uid, "at": datetime.now(UTC).isoformat()}
+        self.link.notify(self.reset_requested_subject, json.dumps(notice).encode())
 
     def wait_active(self, timeout_s: float) -> bool:
         """True once every subject is subscribed on the server (for callers that must not miss one)."""
@@ -121,6 +136,8 @@ class OperatorInputsBridge:
         for subscription in self._subscriptions:
             subscription.close()
         self._subscriptions = []
+        if isinstance(self.inputs, LocalOperatorInputs) and self.inputs.on_reset_requested == self.announce_reset_waiting:
+            self.inputs.on_reset_requested = None
 
     def _on_message(self, subject: str, data: bytes) -> None:
         route = self._routes.get(subject)

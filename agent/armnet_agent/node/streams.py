@@ -184,6 +184,19 @@ class NatsLink:
         if self._sender_idle:
             self._kick()
 
+    def notify(self, subject: str, payload: bytes) -> None:
+        """A core (not stored) message, best effort: dropped when not connected. For live notices."""
+        if not self.enabled or not self._ready:
+            return
+
+        async def send() -> None:
+            try:
+                await self._nc.publish(subject, payload)
+            except Exception as exc:  # noqa: BLE001 - a notice is best effort
+                log.debug("notice on %s not sent: %s", subject, exc)
+
+        self._call_soon(lambda: asyncio.ensure_future(send()))
+
     def subscribe(self, subject: str, on_message: Callable[[str, bytes], None]) -> Subscription:
         """A core subscription, (re)established on every connection; ``on_message`` runs on the link's thread."""
         subscription = Subscription(self, subject, on_message)
