@@ -285,7 +285,7 @@ class NatsLink:
         while not self._stopping:
             try:
                 self._nc = await nats.connect(
-                    self.settings.url, name="armnet-agent", connect_timeout=2,
+                    self.settings.url or "", name="armnet-agent", connect_timeout=2,
                     allow_reconnect=True, max_reconnect_attempts=-1,
                     reconnect_time_wait=self.settings.reconnect_wait_s,
                     disconnected_cb=self._on_disconnected, reconnected_cb=self._on_reconnected,
