@@ -183,3 +183,27 @@ def test_an_overlong_line_is_cut_with_a_notice_and_a_rerun_packet_is_sent_as_byt
 
     assert text == "x" * MAX_LINE_BYTES + " ... [armnet: line cut, 10 bytes dropped]"
     assert packet == "\x00\x01packet"
+
+
+def test_a_restarted_agent_re_publishing_a_job_from_its_first_line_stores_each_line_once(
+    nats_server: str, tmp_path: Path
+) -> None:
+    namespace = a_namespace()
+    first = NatsLink(StreamSettings(url=nats_server)).start()
+    job = JobStream(first, namespace, "job-readopted")
+    for seq in range(50):
+        job.line("stdout", seq, f"line {seq}")
+    wait_for(lambda: first.connected and first.pending == 0, what="the first agent's lines acknowledged")
+    first.stop()
+
+    second = NatsLink(StreamSettings(url=nats_server, spool_dir=tmp_path)).start()  # the agent, restarted
+    try:
+        again = JobStream(second, namespace, "job-readopted")
+        for seq in range(80):  # it re-reads the container log from the start; the job went on
+            again.line("stdout", seq, f"line {seq}")
+        wait_for(lambda: second.connected and second.pending == 0, what="the re-published lines acknowledged")
+    finally:
+        second.stop()
+
+    lines = replay(nats_server, job.subject("stdout"), 80)
+    assert [text for _, text in lines] == [f"line {seq}" for seq in range(80)]
