@@ -220,6 +220,12 @@ class Controller:
                 self.settings.lease_namespace, self.settings.lease_name, duration, now
             )
             self._renewed_at = now if leading else None
+            if leading:
+                try:
+                    self.api.check_resources()  # at the renewal cadence: one cheap GET every few seconds
+                except ResourceMissing:
+                    self._renewed_at = None  # check again on the next try
+                    raise
         if leading != self.leading:
             log.info("%s leadership", "gained" if leading else "lost")
             self.memory = Memory()

@@ -190,6 +190,28 @@ class KubeApi:
         except ApiException as error:
             raise _translate(error, f"event for {subject.name}") from error
 
+    # -------------------------------------------------------------- the CRDs
+    def check_resources(self) -> None:
+        """Raise ResourceMissing unless the API server serves both robotjobs and cells.
+
+        One discovery GET. When the RobotJob CRD is deleted, kopf stops its
+        watch and the cache empties quietly; this makes the operator say so
+        (and hold its writes) until the CRD is back.
+        """
+        try:
+            found = self.custom.get_api_resources(GROUP, VERSION)
+            served = {r.name for r in (found.resources or [])}
+        except ApiException as error:
+            if error.status != 404:
+                raise _translate(error, f"discovery of {GROUP}/{VERSION}") from error
+            served = set()  # no CRD of the group is left
+        missing = [f"{plural}.{GROUP}" for plural in ("robotjobs", "cells") if plural not in served]
+        if missing:
+            raise ResourceMissing(
+                f"the CRD(s) {', '.join(missing)} are not served by the API server (deleted or not yet "
+                "applied: kubectl apply -f crds/); the operator holds its writes until they are back"
+            )
+
     # -------------------------------------------------------------- leader Lease
     def hold_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:
         """Acquire or renew the Lease; True while this replica leads."""
