@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 DEBOUNCE_SECONDS = 0.05
 OVERLAY_SECONDS = 10.0
 MAX_BACKOFF_SECONDS = 30.0
+QUEUE_TASKS_PER_PASS = 4 * WRITERS  # a few rounds of writes: passes stay short during a burst
 
 
 class Cache:
@@ -129,12 +130,14 @@ class Controller:
         self.cache = Cache()
         self.memory = Memory()
         self.limits = Limits(
-            position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=WRITERS
+            position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=WRITERS,
+            max_queue_tasks=QUEUE_TASKS_PER_PASS,
         )
         self.leading = False
         self._renewed_at: datetime | None = None
         self._task: asyncio.Task[None] | None = None
         self._stopping = False
+        self._more = False
         self.on_death = on_death
         self.died: BaseException | None = None
         self.dead = False
@@ -178,7 +181,10 @@ class Controller:
                 pass
             self.cache.changed.clear()
             try:
+                self._more = False
                 await asyncio.to_thread(self.reconcile)
+                if self._more:  # writes left for the next pass: run it at once (Event: loop thread only)
+                    self.cache.changed.set()
             except ResourceMissing as error:
                 self.metrics.errors.inc()
                 backoff = min(MAX_BACKOFF_SECONDS, max(1.0, backoff * 2))
@@ -242,6 +248,7 @@ class Controller:
         finally:
             self.api.writing(False)
         self.cache.remember(outcome.jobs_written, outcome.cells_written, outcome.deleted)
+        self._more = outcome.more
         self.metrics.observe(outcome, jobs, cells, now)
         self.metrics.pass_seconds.observe(time.perf_counter() - started)
         if outcome.bound or outcome.conflicts:

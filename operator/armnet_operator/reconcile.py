@@ -104,6 +104,8 @@ class Outcome:
     cells_written: dict[str, Cell] = field(default_factory=dict)
     deleted: set[str] = field(default_factory=set)
     failed: dict[str, Failure] = field(default_factory=dict)
+    more: bool = False
+    """Queue writes were left for the next pass (``Limits.max_queue_tasks``): run it soon."""
 
     def merge(self, other: Outcome) -> None:
         self.bound.extend(other.bound)
@@ -122,6 +124,8 @@ class Limits:
     position_refresh: timedelta = timedelta(seconds=5)
     max_queue_writes: int = 200
     parallel_binds: int = 1
+    max_queue_tasks: int = 10_000
+    """Jobs whose finalizer or queue status one pass writes; the rest wait for the next pass."""
 
 
 def reconcile_once(
@@ -134,12 +138,17 @@ def reconcile_once(
     limits: Limits = Limits(),
 ) -> Outcome:
     outcome = Outcome()
-    jobs, cells, outcome.failed = screen(jobs, check_cells(cells), now, timing)
+    jobs, cells = list(jobs), check_cells(cells)
+    try:
+        actions = plan_lifecycle(jobs, cells, now, timing)
+    except Exception:  # noqa: BLE001 - find the objects it fails on, skip them, plan the rest
+        jobs, cells, outcome.failed = screen(jobs, cells, now, timing)
+        actions = plan_lifecycle(jobs, cells, now, timing)
     _post_transitions(jobs, memory, api)
     by_key = {j.key: j for j in jobs}
     by_name = {c.name: c for c in cells}
     groups: dict[str, list[Action]] = defaultdict(list)
-    for action in plan_lifecycle(jobs, cells, now, timing):
+    for action in actions:
         groups[_subject(action)].append(action)
     finalizing = {k: g[0] for k, g in groups.items() if len(g) == 1 and isinstance(g[0], AddFinalizer)}
     finalize = {a.job.key for a in finalizing.values() if isinstance(a, AddFinalizer)}
@@ -153,7 +162,14 @@ def reconcile_once(
         by_key.pop(key, None)
     by_key.update(outcome.jobs_written)
     by_name.update(outcome.cells_written)
-    plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
+    try:
+        plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
+    except Exception:  # noqa: BLE001 - as above: the pass goes on without the objects it fails on
+        kept_jobs, kept_cells, failed = screen(by_key.values(), by_name.values(), now, timing)
+        outcome.failed.update(failed)
+        by_key = {j.key: j for j in kept_jobs}
+        by_name = {c.name: c for c in kept_cells}
+        plan = plan_bindings(kept_jobs, kept_cells, now, timing.heartbeat_timeout)
     # Bindings touch disjoint cells and jobs, so they may run side by side: the
     # preconditions, not the ordering, are what keep them safe.
     bound_before = len(outcome.bound)
@@ -168,8 +184,14 @@ def reconcile_once(
     by_key.update(outcome.jobs_written)
     outcome.queue = dict(plan.queued)
     due = dict(_queue_writes_due(plan.queued, by_key, now, memory, limits))
+    # Bounded per pass, bound jobs' finalizers first, then in queue order: a burst of new
+    # jobs then costs several short passes, not one long one, so a job that arrives
+    # meanwhile for a free cell waits for a short pass, not for the burst's writes.
+    order = sorted(k for k in finalize if k not in plan.queued)
+    order += [k for k in plan.queued if k in finalize or k in due]
+    outcome.more = len(order) > limits.max_queue_tasks
     work = [_guarded(f"job:{k}", by_key[k], partial(_queue, by_key[k], k in finalize, due.get(k), now, api))
-            for k in sorted(finalize | due.keys())]
+            for k in order[: limits.max_queue_tasks]]
     for result in _parallel(limits.parallel_binds, work):
         outcome.merge(result)
     for key in outcome.jobs_written:
@@ -186,7 +208,8 @@ def screen(
 ) -> tuple[list[Job], list[Cell], dict[str, Failure]]:
     """Set aside every object the decisions fail on, and everything tied to it.
 
-    Each job and each cell is planned alone first (lifecycle and scheduling on
+    Runs only when planning the whole snapshot raised (so it costs nothing in
+    the normal pass). Each job and each cell is planned alone (lifecycle and scheduling on
     it and its counterpart): one that raises is a failure of that object, not
     of the pass. Objects tied to a failed one by a claim or a ``cellName`` are
     left out of this pass too, so the rest never acts on half a binding (a
