@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 DEBOUNCE_SECONDS = 0.05
 OVERLAY_SECONDS = 10.0
 MAX_BACKOFF_SECONDS = 30.0
-QUEUE_TASKS_PER_PASS = 4 * WRITERS  # a few rounds of writes: passes stay short during a burst
+QUEUE_TASKS_PER_PASS = 2 * WRITERS  # two rounds of writes (4 requests a task at most): passes stay short in a burst
 
 
 class Cache:
@@ -251,6 +251,7 @@ class Controller:
         self._more = outcome.more
         self.metrics.observe(outcome, jobs, cells, now)
         self.metrics.pass_seconds.observe(time.perf_counter() - started)
-        if outcome.bound or outcome.conflicts:
-            log.info("pass: bound %d, %d conflict(s), %d write(s)",
-                     len(outcome.bound), outcome.conflicts, outcome.writes)
+        if outcome.bound or outcome.conflicts or outcome.more:
+            log.info("pass: bound %d, %d conflict(s), %d write(s) in %.2fs%s",
+                     len(outcome.bound), outcome.conflicts, outcome.writes, time.perf_counter() - started,
+                     "; more queue writes next pass" if outcome.more else "")
