@@ -40,6 +40,8 @@ def check_cells(cells: Iterable[Cell]) -> list[Cell]:
 
 def check_cell(cell: Cell) -> str | None:
     """Why this one cell must not be bound, judged on its own spec."""
+    if cell.spec_problem:
+        return cell.spec_problem
     for arm in cell.arms:
         problem = _check_arm(arm)
         if problem:

@@ -174,6 +174,8 @@ class Cell:
     """``status.message`` as last written by the operator (why the cell is Invalid)."""
     invalid: str | None = None
     """Why the cell must never be bound (set by ``cell_checks``, not read from the API)."""
+    spec_problem: str | None = None
+    """A spec field that could not be read (named): the cell is Invalid until it is fixed."""
 
 
 @dataclass(frozen=True)

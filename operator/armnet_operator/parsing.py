@@ -199,7 +199,15 @@ def parse_job(body: Mapping[str, Any]) -> Job:
 def parse_cell(body: Mapping[str, Any]) -> Cell:
     meta = _Meta.model_validate(_metadata(body))
     raw_spec = body.get("spec") or {}
-    spec = _CellSpec.model_validate(_plain({k: v for k, v in raw_spec.items() if k not in ("arms", "robot", "cameras")}))
+    fields = _plain({k: v for k, v in raw_spec.items() if k in ("embodiment", "task", "nodeName", "unschedulable")})
+    problem = None
+    try:
+        spec = _CellSpec.model_validate(fields)
+    except ValidationError as error:
+        # Still in view (so its claim and phase are handled), but never bound until fixed.
+        problem = "; ".join(f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in error.errors())
+        bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
+        spec = _CellSpec.model_validate({"embodiment": "", **{k: v for k, v in fields.items() if k not in bad}})
     raw_status = body.get("status") or {}
     scalars = {k: _plain(v) for k, v in raw_status.items() if k != "conditions"}
     status, _defects = _lenient(_CellStatus, scalars, "status")
@@ -223,6 +231,7 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         created=meta.creation_timestamp,
         arms=_arms(raw_spec),
         message=status.message or None,
+        spec_problem=problem,
     )
 
 

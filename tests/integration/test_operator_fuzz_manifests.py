@@ -22,7 +22,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from kubernetes.client import ApiException
 
-from tests.integration.test_operator_scheduling_live import G, V, Bed, running_operator
+from tests.integration.test_operator_scheduling_live import Bed, G, V, running_operator
 
 pytestmark = pytest.mark.integration
 

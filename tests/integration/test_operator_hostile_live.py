@@ -14,7 +14,8 @@ from typing import Any
 
 import pytest
 import yaml
-from tests.integration.test_operator_scheduling_live import G, V, Bed, running_operator
+
+from tests.integration.test_operator_scheduling_live import Bed, G, V, running_operator
 
 pytestmark = pytest.mark.integration
 
@@ -88,9 +89,9 @@ def test_bad_cells_are_rejected_naming_the_field(bed: Bed, spec: dict[str, Any],
 # ---------------------------------------------------------------- item 8: deep and huge args
 def test_args_a_thousand_levels_deep_fail_the_job_and_the_operator_keeps_binding(bed: Bed, operator: Any) -> None:
     cell = bed.cell("c1")
-    doc = ('{"apiVersion":"%s/%s","kind":"RobotJob","metadata":{"name":"deep","namespace":"%s"},'
-           '"spec":{"image":"localhost/armnet-test:dev","embodiment":"%s","args":%s}}'
-           % (G, V, bed.ns, bed.embodiment, deep_json(1000)))
+    head = json.dumps({"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": "deep", "namespace": bed.ns},
+                       "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}})
+    doc = head[:-2] + ', "args": ' + deep_json(1000) + "}}"
     bed.k8s.kubectl("create", "-f", "-", input=doc)
     bed.job("after-deep")
     bed.wait_job("after-deep", phase="dispatched", cellName=cell)

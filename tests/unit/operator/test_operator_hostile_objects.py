@@ -217,3 +217,10 @@ def test_a_cell_body_with_arms_parses_each_arm() -> None:
     assert [a.name for a in cell.arms] == ["arms.left", "arms.right"]
     assert "port" in (check_cell(cell) or "")
 
+
+
+def test_a_cell_with_an_unreadable_spec_field_stays_in_view_and_is_invalid_naming_it() -> None:
+    cell = parse_cell({"metadata": {"name": "c"},
+                       "spec": {"embodiment": "lerobot/so-101", "nodeName": "h", "unschedulable": "perhaps"}})
+    [checked] = check_cells([cell])
+    assert checked.name == "c" and "spec.unschedulable" in (checked.invalid or "")
