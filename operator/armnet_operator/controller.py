@@ -27,7 +27,8 @@ log = logging.getLogger(__name__)
 DEBOUNCE_SECONDS = 0.05
 OVERLAY_SECONDS = 10.0
 MAX_BACKOFF_SECONDS = 30.0
-QUEUE_TASKS_PER_PASS = 2 * WRITERS  # two rounds of writes (4 requests a task at most): passes stay short in a burst
+QUEUE_SECONDS_PER_PASS = 0.5
+"""Queue writes a pass starts within this budget; the rest go next pass, so a burst never holds a bind long."""
 
 
 class Cache:
@@ -131,7 +132,7 @@ class Controller:
         self.memory = Memory()
         self.limits = Limits(
             position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=WRITERS,
-            max_queue_tasks=QUEUE_TASKS_PER_PASS,
+            queue_seconds=QUEUE_SECONDS_PER_PASS,
         )
         self.leading = False
         self._renewed_at: datetime | None = None

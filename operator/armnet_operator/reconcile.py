@@ -18,6 +18,7 @@ after the claim grace, and until then nothing else is bound to it.
 from __future__ import annotations
 
 import logging
+import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping, MutableMapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -126,6 +127,8 @@ class Limits:
     parallel_binds: int = 1
     max_queue_tasks: int = 10_000
     """Jobs whose finalizer or queue status one pass writes; the rest wait for the next pass."""
+    queue_seconds: float | None = None
+    """Time a pass may spend on finalizers and queue status; what is left waits for the next pass."""
 
 
 def reconcile_once(
@@ -184,16 +187,19 @@ def reconcile_once(
     by_key.update(outcome.jobs_written)
     outcome.queue = dict(plan.queued)
     due = dict(_queue_writes_due(plan.queued, by_key, now, memory, limits))
-    # Bounded per pass, bound jobs' finalizers first, then in queue order: a burst of new
-    # jobs then costs several short passes, not one long one, so a job that arrives
-    # meanwhile for a free cell waits for a short pass, not for the burst's writes.
+    # Bounded per pass (in time, and in count), bound jobs' finalizers first, then in queue
+    # order: a burst of new jobs then costs several short passes, not one long one, so a
+    # job that arrives meanwhile for a free cell waits for a short pass, not for the burst.
     order = sorted(k for k in finalize if k not in plan.queued)
     order += [k for k in plan.queued if k in finalize or k in due]
     outcome.more = len(order) > limits.max_queue_tasks
-    work = [_guarded(f"job:{k}", by_key[k], partial(_queue, by_key[k], k in finalize, due.get(k), now, api))
+    deadline = None if limits.queue_seconds is None else time.monotonic() + limits.queue_seconds
+    work = [_paced(deadline, _guarded(f"job:{k}", by_key[k],
+                                      partial(_queue, by_key[k], k in finalize, due.get(k), now, api)))
             for k in order[: limits.max_queue_tasks]]
     for result in _parallel(limits.parallel_binds, work):
         outcome.merge(result)
+        outcome.more = outcome.more or result.more
     for key in outcome.jobs_written:
         if key in plan.queued:
             memory.queue_written_at[key] = now
@@ -251,6 +257,15 @@ def _trial(decide: Callable[[], object]) -> str | None:
 
 def _describe(error: BaseException) -> str:
     return f"{type(error).__name__}: {error}"[:512]
+
+
+def _paced(deadline: float | None, task: Callable[[], Outcome]) -> Callable[[], Outcome]:
+    """Skip the task once the pass is past its queue-writing budget; the next pass does it."""
+    def run() -> Outcome:
+        if deadline is not None and time.monotonic() > deadline:
+            return Outcome(more=True)
+        return task()
+    return run
 
 
 def _first_subject(actions: list[Action]) -> Job | Cell:

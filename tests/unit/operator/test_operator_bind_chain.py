@@ -236,3 +236,14 @@ def test_a_burst_of_new_jobs_is_queued_over_several_short_passes_with_the_head_o
     while reconcile_once(*world.snapshot(), world.now, TIMING, world, memory, limits).more:
         pass
     assert all(b["status"].get("phase") in ("queued", "dispatched") for b in world.jobs.values())
+
+
+def test_queue_writes_past_the_pass_budget_are_left_for_the_next_pass() -> None:
+    world = RecordingWorld()
+    world.add_cell("c1", "so-101", None)
+    world.heartbeat("c1")
+    for i in range(5):
+        world.submit(f"j{i}", "so-101", None, 0)
+    outcome = reconcile_once(*world.snapshot(), world.now, TIMING, world, Memory(), Limits(queue_seconds=-1))
+    assert outcome.more and [j.name for j, _ in outcome.bound] == ["j0"]
+    assert not any(b["status"].get("phase") == "queued" for b in world.jobs.values())
