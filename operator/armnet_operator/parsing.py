@@ -139,8 +139,69 @@ def _conditions(raw: Any, section: str) -> tuple[list[_Condition], list[dict[str
     return parsed, plain, defects
 
 
+class _JobStatusFull(_JobStatus):
+    conditions: list[_Condition] = Field(default_factory=list)
+
+
+class _JobBody(_Lenient):
+    metadata: _Meta
+    spec: _JobSpec
+    status: _JobStatusFull = Field(default_factory=_JobStatusFull)
+
+
+_JOB_SPEC_FIELDS = ("embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished")
+_JOB_STATUS_FIELDS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "conditions")
+
+
 def parse_job(body: Mapping[str, Any]) -> Job:
     """The job as the operator sees it; never raises on a bad spec or status field.
+
+    The common case is one validation of the whole body; only a body with a
+    bad field takes the slower field-by-field path (``_parse_job_leniently``).
+    """
+    raw_spec = body.get("spec") or {}
+    raw_status = body.get("status") or {}
+    if not isinstance(raw_spec, Mapping) or not isinstance(raw_status, Mapping):
+        return _parse_job_leniently(body)
+    try:
+        raw = _JobBody.model_validate({
+            "metadata": _metadata(body),
+            "spec": {k: _plain(raw_spec[k]) for k in _JOB_SPEC_FIELDS if k in raw_spec},
+            "status": {k: _plain(raw_status[k]) for k in _JOB_STATUS_FIELDS if k in raw_status},
+        })
+    except ValidationError:
+        return _parse_job_leniently(body)
+    problem = args_problem(raw_spec["args"]) if "args" in raw_spec else None
+    meta, spec, status = raw.metadata, raw.spec, raw.status
+    return Job(
+        namespace=meta.namespace,
+        name=meta.name,
+        created=meta.creation_timestamp or datetime.now(UTC),
+        embodiment=spec.embodiment,
+        task=spec.task or None,
+        priority=spec.priority,
+        uid=meta.uid,
+        resource_version=meta.resource_version,
+        cancel=spec.cancel,
+        deleting=meta.deletion_timestamp is not None,
+        finalizers=tuple(meta.finalizers),
+        phase=status.phase,
+        cell_name=status.cell_name or None,
+        job_id=status.job_id,
+        queued_reason=status.queued_reason,
+        queue_position=status.queue_position,
+        bound_at=_true_since(status.conditions, JobConditionType.BOUND),
+        queued_at=_true_since(status.conditions, JobConditionType.QUEUED),
+        cancel_requested_at=_true_since(status.conditions, JobConditionType.CANCEL_REQUESTED),
+        finished_at=status.finished_at,
+        ttl_seconds_after_finished=spec.ttl_seconds_after_finished,
+        conditions=tuple(_plain(raw_status.get("conditions") or [])),
+        spec_problem=problem,
+    )
+
+
+def _parse_job_leniently(body: Mapping[str, Any]) -> Job:
+    """Field by field, for a body with a bad field.
 
     A spec field that cannot be read (or args beyond the limits) makes a job
     that fails with the reason; a status field that cannot be read is treated
@@ -148,8 +209,7 @@ def parse_job(body: Mapping[str, Any]) -> Job:
     """
     meta = _Meta.model_validate(_metadata(body))
     raw_spec = body.get("spec") or {}
-    spec_fields = {k: raw_spec[k] for k in ("embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished")
-                   if isinstance(raw_spec, Mapping) and k in raw_spec}
+    spec_fields = {k: _plain(raw_spec[k]) for k in _JOB_SPEC_FIELDS if isinstance(raw_spec, Mapping) and k in raw_spec}
     problems: list[str] = []
     try:
         spec = _JobSpec.model_validate(spec_fields)
