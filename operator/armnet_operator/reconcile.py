@@ -302,8 +302,9 @@ def _report_failures(outcome: Outcome, subjects: Mapping[str, Job | Cell], memor
                   failure.kind, failure.name, failure.error)
         message = f"the operator could not reconcile this object and skips it: {failure.error}"
         _event(api, failure.subject, "Warning", "ReconcileFailed", message)
-        if isinstance(failure.subject, Job):
-            _mark(api, subjects.get(key, failure.subject), False, message, now, outcome)
+        latest = subjects.get(key, failure.subject)
+        if isinstance(latest, Job):
+            _mark(api, latest, False, message, now, outcome)
     for key in [k for k in memory.failing if k not in outcome.failed and k in subjects]:
         del memory.failing[key]
         subject = subjects.get(key)
