@@ -22,6 +22,7 @@ from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, Opera
 from .interlock import Interlock, TripReason
 from .server import BufferBudget, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession
+from .warm_imports import start_warm_imports
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +81,7 @@ class Connector:
     # -- lifetime ------------------------------------------------------------------
 
     def start(self) -> Connector:
+        start_warm_imports()  # LeRobot's device modules, off the first request's path (warm_imports.py)
         self.socket_dir.mkdir(parents=True, exist_ok=True)
         started: list[UnixServer] = []
         try:

@@ -21,6 +21,7 @@ from .cell import CellState, RolloutEvent
 from .errors import RequestError, bounded, failure_reply, not_allowed, protocol_error
 from .frames import FrameAreas, FramePublisher
 from .hardware import Handle, create_arx5, create_camera, create_feetech
+from .introspection import answer as answer_outside_allowlist
 from .retry import is_read, with_read_retry
 
 log = logging.getLogger(__name__)
@@ -200,7 +201,7 @@ class RobotSession(Session):
         name = _field(request, "name", str)
         why = refusal(handle.class_name, name, kind="get")
         if why is not None:
-            raise not_allowed(why)
+            return answer_outside_allowlist(handle, name, why)
         if name in CLASSES[handle.class_name].methods:
             return {"ok": True, "callable": True}
         if name in handle.overrides:
