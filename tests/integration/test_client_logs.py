@@ -1,0 +1,164 @@
+"""``armnet_client`` follows a job's log subjects in the real JetStream, as the agent publishes them.
+
+The test publishes exactly what the node agent contract (AGENT-CONTRACT.md)
+fixes: subjects ``logs.<namespace>.<jobId>.<kind>`` in the stream
+``ARMNET_LOGS`` on ``logs.>``, message ids ``<jobId>:<kind>:<seq>``, and a
+publisher that retries a line until JetStream acknowledged it (what the agent's
+spool does across an outage), so duplicates are JetStream's to drop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import uuid
+from collections.abc import Iterator
+from typing import Any
+
+import nats
+import pytest
+from armnet_client.errors import NatsUnreachable
+from armnet_client.logstream import CaughtUp, FollowSettings, follow_events
+from armnet_client.logwire import LogLine
+from nats.js.api import StreamConfig
+
+from tests.testbed.natsd import NatsServer
+
+pytestmark = pytest.mark.integration
+
+STREAM = "ARMNET_LOGS"
+
+
+async def _ensure_stream(js: Any) -> None:
+    config = StreamConfig(name=STREAM, subjects=["logs.>"], duplicate_window=600.0)
+    try:
+        await js.add_stream(config)
+    except Exception:  # noqa: BLE001 - already there from another test of the session
+        await js.update_stream(config)
+
+
+class Publisher:
+    """The agent's side of one job: numbered lines per kind, retried until acknowledged."""
+
+    def __init__(self, url: str, namespace: str, job_id: str) -> None:
+        self.url, self.ns, self.job = url, namespace, job_id
+
+    async def _publish_all(self, items: list[tuple[str, int, bytes]]) -> None:
+        nc = await nats.connect(self.url, max_reconnect_attempts=-1, reconnect_time_wait=0.1,
+                                error_cb=_quiet)
+        js = nc.jetstream()
+        await _ensure_stream(js)
+        for kind, seq, payload in items:
+            subject = f"logs.{self.ns}.{self.job}.{kind}"
+            while True:
+                try:
+                    await js.publish(subject, payload, stream=STREAM, timeout=2,
+                                     headers={"Nats-Msg-Id": f"{self.job}:{kind}:{seq}"})
+                    break
+                except Exception:  # noqa: BLE001 - server restarting: retry, JetStream dedups
+                    await asyncio.sleep(0.1)
+        await nc.close()
+
+    def publish(self, items: list[tuple[str, int, bytes]]) -> None:
+        asyncio.run(self._publish_all(items))
+
+    def in_thread(self, items: list[tuple[str, int, bytes]]) -> threading.Thread:
+        thread = threading.Thread(target=self.publish, args=(items,), daemon=True)
+        thread.start()
+        return thread
+
+
+async def _quiet(_exc: Exception) -> None:
+    return None
+
+
+def stdout_lines(first: int, last: int) -> list[tuple[str, int, bytes]]:
+    return [("stdout", i, json.dumps({"text": f"line {i}"}).encode()) for i in range(first, last + 1)]
+
+
+def terminal(phase: str = "succeeded") -> list[tuple[str, int, bytes]]:
+    return [("status", 1, json.dumps({"phase": phase}).encode())]
+
+
+def lines_only(events: Iterator[Any]) -> list[LogLine]:
+    return [e for e in events if isinstance(e, LogLine)]
+
+
+@pytest.fixture
+def job() -> tuple[str, str]:
+    return f"ns-{uuid.uuid4().hex[:6]}", uuid.uuid4().hex
+
+
+def test_replay_returns_every_stored_line_in_order_and_stops_without_follow(
+    nats_server: str, job: tuple[str, str]
+) -> None:
+    ns, job_id = job
+    Publisher(nats_server, ns, job_id).publish(stdout_lines(1, 50))
+
+    got = lines_only(follow_events(FollowSettings(nats_server), ns, job_id, follow=False))
+
+    assert [line.text for line in got] == [f"line {i}" for i in range(1, 51)]
+    assert [line.seq for line in got] == list(range(1, 51))
+    assert all(line.kind == "stdout" and line.time is not None for line in got)
+
+
+def test_following_replays_then_delivers_live_lines_until_the_terminal_status(
+    nats_server: str, job: tuple[str, str]
+) -> None:
+    ns, job_id = job
+    publisher = Publisher(nats_server, ns, job_id)
+    publisher.publish(stdout_lines(1, 10))
+    events = follow_events(FollowSettings(nats_server), ns, job_id)
+    got: list[str] = []
+    for event in events:
+        if isinstance(event, CaughtUp):
+            publisher.in_thread(stdout_lines(11, 20) + terminal())
+            continue
+        got.append(event.text)
+
+    assert got == [f"line {i}" for i in range(1, 21)] + ["status: succeeded"]
+
+
+def test_lines_of_another_job_are_not_delivered(nats_server: str, job: tuple[str, str]) -> None:
+    ns, job_id = job
+    other = uuid.uuid4().hex
+    Publisher(nats_server, ns, other).publish(stdout_lines(1, 5))
+    Publisher(nats_server, ns, job_id).publish(stdout_lines(100, 101))
+
+    got = lines_only(follow_events(FollowSettings(nats_server), ns, job_id, follow=False))
+
+    assert [line.text for line in got] == ["line 100", "line 101"]
+
+
+def test_every_line_arrives_once_and_in_order_across_a_nats_restart_mid_stream(
+    nats_service: NatsServer, job: tuple[str, str]
+) -> None:
+    ns, job_id = job
+    total = 4000
+    publisher = Publisher(nats_service.url, ns, job_id)
+    publisher.publish(stdout_lines(1, 1000))
+    settings = FollowSettings(nats_service.url, batch=200)
+    thread: threading.Thread | None = None
+    got: list[int] = []
+    for event in follow_events(settings, ns, job_id):
+        if isinstance(event, CaughtUp) and thread is None:
+            thread = publisher.in_thread(stdout_lines(1001, total) + terminal())
+            continue
+        if isinstance(event, LogLine) and event.kind == "stdout":
+            got.append(int(event.text.split()[1]))
+            if len(got) == 1500:
+                nats_service.restart()
+    assert thread is not None
+    thread.join(timeout=60)
+
+    assert got == list(range(1, total + 1))
+
+
+def test_an_unreachable_server_is_a_typed_error_that_names_the_url(job: tuple[str, str]) -> None:
+    with NatsServer() as server:
+        url = server.url
+    ns, job_id = job
+
+    with pytest.raises(NatsUnreachable, match="cannot reach NATS at"):
+        list(follow_events(FollowSettings(url, connect_timeout_s=0.5), ns, job_id))
