@@ -17,9 +17,10 @@ from datetime import datetime
 from typing import Any, Optional, TextIO
 
 from armnet_core.models import Job, JobResult, JobSpec
+from pydantic import ValidationError
 
 from . import kube
-from .errors import ClientError, NatsUnreachable, WaitTimeout
+from .errors import ClientError, InvalidJob, NatsUnreachable, WaitTimeout
 from .logstream import DEFAULT_STREAM, CaughtUp, Event, FollowSettings, follow_events
 from .logwire import LogLine
 from .mapping import (
@@ -27,12 +28,13 @@ from .mapping import (
     JobView,
     cancel_patch,
     cell_view_of,
+    generated_name_prefix,
     job_from_robotjob,
     result_from_robotjob,
     robotjob_body,
     view_of,
 )
-from .resources import CELLS, GROUP, JOBS, VERSION, Cell, RobotJob
+from .resources import API_VERSION, CELLS, GROUP, JOBS, VERSION, Cell, RobotJob, RobotJobSpec
 from .statusfeed import status_events
 
 log = logging.getLogger("armnet_client")
@@ -94,6 +96,10 @@ class Client:
         except (HTTPError, OSError) as exc:
             raise kube.unreachable(exc, self._connect().api_client.configuration.host) from exc
 
+    def read(self, name: str) -> RobotJob:
+        """The RobotJob as the apiserver has it (validated), for callers that need every field."""
+        return self._read(name)
+
     def _read(self, name: str) -> RobotJob:
         ns = self.namespace
         body = self._call("get", "robotjobs", lambda: self._api().get_namespaced_custom_object(
@@ -119,12 +125,36 @@ class Client:
         """The job with its queue position, progress and rollout (what ``armnet get`` shows)."""
         return view_of(self._read(name))
 
-    def list_jobs(self) -> list[JobView]:
+    def list_jobs(self) -> list[RobotJob]:
+        """The namespace's RobotJobs, oldest first (as ``kubectl get`` lists by name, we list by age)."""
         ns = self.namespace
         found = self._call("list", "robotjobs", lambda: self._api().list_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS), namespace=ns)
-        jobs = [view_of(RobotJob.model_validate(item)) for item in found.get("items", [])]
-        return sorted(jobs, key=lambda j: (j.created_at.isoformat() if j.created_at else "", j.name))
+        jobs = [RobotJob.model_validate(item) for item in found.get("items", [])]
+        return sorted(jobs, key=lambda j: (j.metadata.creation_timestamp.isoformat()
+                                           if j.metadata.creation_timestamp else "", j.metadata.name))
+
+    def submit_manifest(self, manifest: dict[str, Any], *, namespace: Optional[str] = None) -> Job:
+        """Create a RobotJob manifest as written (``armnet submit -f``), in ``namespace`` if given.
+
+        The body is validated against the client's model of the CRD first, so a
+        typo fails here with the field's name rather than in the apiserver.
+        """
+        if manifest.get("kind") != "RobotJob":
+            raise InvalidJob(f"expected kind RobotJob, got {manifest.get('kind')!r}")
+        metadata = dict(manifest.get("metadata") or {})
+        ns = namespace or metadata.get("namespace") or self.namespace
+        metadata["namespace"] = ns
+        body = {**manifest, "apiVersion": API_VERSION, "metadata": metadata}
+        try:
+            RobotJobSpec.model_validate(body.get("spec") or {})
+        except ValidationError as exc:
+            raise InvalidJob(f"the RobotJob's spec is not valid: {exc}") from exc
+        if not metadata.get("name") and not metadata.get("generateName"):
+            metadata["generateName"] = generated_name_prefix(str((body.get("spec") or {}).get("image", "")))
+        created = self._call("create", "robotjobs", lambda: self._api().create_namespaced_custom_object(
+            GROUP, VERSION, ns, JOBS, body), namespace=ns)
+        return job_from_robotjob(RobotJob.model_validate(created))
 
     def cells(self) -> list[CellView]:
         found = self._call("list", "cells", lambda: self._api().list_cluster_custom_object(

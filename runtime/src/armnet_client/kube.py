@@ -88,7 +88,7 @@ def connect(target: ClusterTarget, env: Optional[Mapping[str, str]] = None) -> C
             )
         configuration = kclient.Configuration()
         try:
-            kconfig.load_incluster_config(client_configuration=configuration)
+            kconfig.load_incluster_config(client_configuration=configuration)  # type: ignore[no-untyped-call]
         except ConfigException as exc:
             raise NoClusterConfigured(f"in-cluster configuration failed: {exc}") from exc
         namespace_file = SERVICE_ACCOUNT_DIR / "namespace"
@@ -97,7 +97,7 @@ def connect(target: ClusterTarget, env: Optional[Mapping[str, str]] = None) -> C
             kclient.ApiClient(configuration), choose_namespace(target.namespace, None, pod_ns), None
         )
     try:
-        contexts, active = kconfig.list_kube_config_contexts(config_file=path)
+        contexts, active = kconfig.list_kube_config_contexts(config_file=path)  # type: ignore[no-untyped-call]
         chosen = active
         if target.context:
             chosen = next((c for c in contexts if c["name"] == target.context), None)
@@ -106,7 +106,7 @@ def connect(target: ClusterTarget, env: Optional[Mapping[str, str]] = None) -> C
                 raise NoClusterConfigured(
                     f"context {target.context!r} not found in {path} (contexts: {names})"
                 )
-        api_client = kconfig.new_client_from_config(
+        api_client = kconfig.new_client_from_config(  # type: ignore[no-untyped-call]
             config_file=path, context=chosen["name"] if chosen else None, persist_config=False
         )
     except ConfigException as exc:

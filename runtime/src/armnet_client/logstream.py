@@ -79,7 +79,7 @@ class _Session:
             # nats-py applies the reconnect budget to the first connect too: fail
             # fast on a wrong URL, then keep reconnecting for as long as we follow.
             self.nc.options["max_reconnect_attempts"] = -1
-        except (NoServersError, OSError, asyncio.TimeoutError) as exc:
+        except (TimeoutError, NoServersError, OSError) as exc:
             raise NatsUnreachable(
                 f"cannot reach NATS at {self.settings.url}: {exc}; check --nats-url / ARMNET_NATS_URL"
             ) from exc
@@ -90,7 +90,7 @@ class _Session:
         await self.drop_consumer()
         if after == 0 and since is not None:
             config = ConsumerConfig(deliver_policy=DeliverPolicy.BY_START_TIME,
-                                    opt_start_time=since.isoformat(), ack_policy=AckPolicy.NONE,
+                                    opt_start_time=since, ack_policy=AckPolicy.NONE,
                                     inactive_threshold=30.0)
         else:
             config = ConsumerConfig(deliver_policy=DeliverPolicy.BY_START_SEQUENCE,
@@ -114,7 +114,7 @@ class _Session:
 
         try:
             return list(await self.sub.fetch(self.settings.batch, timeout=self.settings.fetch_timeout_s))
-        except (NatsTimeout, asyncio.TimeoutError):
+        except (TimeoutError, NatsTimeout):
             return []
 
     async def pending(self) -> int:
