@@ -20,22 +20,16 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any, Optional, Union
+from typing import Any, Optional
 
 from .errors import NatsUnreachable
-from .logwire import LogLine, decode, job_subjects
+from .logwire import CaughtUp, Event, LogLine, decode, job_subjects
+
+__all__ = ["DEFAULT_STREAM", "CaughtUp", "Event", "FollowSettings", "follow_events"]
 
 log = logging.getLogger(__name__)
 
 DEFAULT_STREAM = "ARMNET_LOGS"
-
-
-@dataclass(frozen=True)
-class CaughtUp:
-    """Marker event: everything stored when following began has been delivered (for ``--tail``)."""
-
-
-Event = Union[LogLine, CaughtUp]
 
 
 @dataclass(frozen=True)

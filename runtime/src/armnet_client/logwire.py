@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any, Literal, Optional
+from typing import Any, Literal, Optional, Union
 
 from armnet_runtime.markers import split_timestamp
 
@@ -117,3 +117,11 @@ def decode(
         kind=kind, text=text, time=moment or prefixed or stored_at, stream_seq=stream_seq,
         seq=seq_of(msg_id), data=data,
     )
+
+
+@dataclass(frozen=True)
+class CaughtUp:
+    """Marker event: everything stored when following began has been delivered (for ``--tail``)."""
+
+
+Event = Union[LogLine, CaughtUp]

@@ -12,8 +12,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Optional
 
-from .logstream import CaughtUp, Event
-from .logwire import LogLine
+from .logwire import CaughtUp, Event, LogLine
 from .mapping import result_from_robotjob, status_of
 from .resources import RobotJob
 

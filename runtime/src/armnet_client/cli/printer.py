@@ -13,8 +13,7 @@ from collections.abc import Iterable, Iterator
 from datetime import datetime, timedelta
 from typing import Optional, TextIO
 
-from ..logstream import CaughtUp, Event
-from ..logwire import LogLine
+from ..logwire import CaughtUp, Event, LogLine
 from ..render import log_text, progress_text, rollout_of
 
 _CLEAR = "\r\x1b[2K"
