@@ -66,7 +66,7 @@ def test_status_feed_reports_phase_progress_and_rollout_changes() -> None:
     after = RobotJob.model_validate(a_robotjob(phase="running", progress="grasping",
                                                rollout={"index": 3, "total": 10}))
 
-    assert [(l.kind, l.text) for l in changes(before, after)] == [
+    assert [(x.kind, x.text) for x in changes(before, after)] == [
         ("status", "status: running"), ("progress", "grasping"), ("progress", "rollout 3/10")]
 
 
@@ -77,6 +77,6 @@ def test_status_feed_gives_the_tails_then_the_terminal_status_when_the_job_ends(
 
     lines = changes(before, after)
 
-    assert [(l.kind, l.text) for l in lines] == [
+    assert [(x.kind, x.text) for x in lines] == [
         ("stdout", "a"), ("stdout", "b"), ("stderr", "w"), ("status", "status: succeeded")]
-    assert all(l.source == "status" for l in lines)
+    assert all(x.source == "status" for x in lines)

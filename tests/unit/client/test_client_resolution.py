@@ -14,7 +14,13 @@ from armnet_client.errors import (
     JobNotFound,
     NoClusterConfigured,
 )
-from armnet_client.kube import ClusterTarget, choose_kubeconfig, choose_namespace, connect, translate
+from armnet_client.kube import (
+    ClusterTarget,
+    choose_kubeconfig,
+    choose_namespace,
+    connect,
+    translate,
+)
 
 pytestmark = pytest.mark.unit
 
