@@ -14,51 +14,14 @@ from typing import Any
 
 import pytest
 import yaml
-from armnet_cli.main import main as armnet
 from armnet_client import Client, Forbidden, InvalidJob, JobNotFound, NoClusterConfigured
 from armnet_core.models import JobSpec, JobStatus
 from kubernetes import client as kclient
 
+from tests.integration.client_bed import G, Tenant, V
+
 pytestmark = pytest.mark.integration
 
-G, V = "armnet.io", "v1alpha1"
-
-
-def grant_tenant(k8s: Any, namespace: str, user: str) -> None:
-    """What a cluster admin gives a tenant: RobotJobs in its namespace, read-only Cells."""
-    k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump_all([
-        {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "Role",
-         "metadata": {"name": "armnet-tenant", "namespace": namespace},
-         "rules": [{"apiGroups": [G], "resources": ["robotjobs"],
-                    "verbs": ["get", "list", "watch", "create", "patch", "delete"]}]},
-        {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "RoleBinding",
-         "metadata": {"name": f"armnet-tenant-{user}", "namespace": namespace},
-         "roleRef": {"apiGroup": "rbac.authorization.k8s.io", "kind": "Role", "name": "armnet-tenant"},
-         "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
-        {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRole",
-         "metadata": {"name": "armnet-cell-reader"},
-         "rules": [{"apiGroups": [G], "resources": ["cells"], "verbs": ["get", "list", "watch"]}]},
-        {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRoleBinding",
-         "metadata": {"name": f"armnet-cell-reader-{user}"},
-         "roleRef": {"apiGroup": "rbac.authorization.k8s.io", "kind": "ClusterRole",
-                     "name": "armnet-cell-reader"},
-         "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
-    ]))
-
-
-class Tenant:
-    def __init__(self, k8s: Any, namespace: str) -> None:
-        self.name = f"tenant-{uuid.uuid4().hex[:6]}"
-        self.namespace = namespace
-        self.user = k8s.user(self.name)
-        grant_tenant(k8s, namespace, self.name)
-        self.kubeconfig = str(self.user.kubeconfig)
-
-    def client(self, namespace: str | None = None) -> Client:
-        return Client(kubeconfig=self.kubeconfig, namespace=namespace or self.namespace, env={})
-
-    def cli(self, *args: str) -> int:
-        return armnet([*args, "--kubeconfig", self.kubeconfig, "-n", self.namespace])
 
 
 @pytest.fixture

@@ -9,76 +9,20 @@ spool does across an outage), so duplicates are JetStream's to drop.
 
 from __future__ import annotations
 
-import asyncio
-import json
 import threading
 import uuid
 from collections.abc import Iterator
 from typing import Any
 
-import nats
 import pytest
 from armnet_client.errors import NatsUnreachable
 from armnet_client.logstream import CaughtUp, FollowSettings, follow_events
 from armnet_client.logwire import LogLine
-from nats.js.api import StreamConfig
 
+from tests.integration.client_bed import Publisher, stdout_lines, terminal
 from tests.testbed.natsd import NatsServer
 
 pytestmark = pytest.mark.integration
-
-STREAM = "ARMNET_LOGS"
-
-
-async def _ensure_stream(js: Any) -> None:
-    config = StreamConfig(name=STREAM, subjects=["logs.>"], duplicate_window=600.0)
-    try:
-        await js.add_stream(config)
-    except Exception:  # noqa: BLE001 - already there from another test of the session
-        await js.update_stream(config)
-
-
-class Publisher:
-    """The agent's side of one job: numbered lines per kind, retried until acknowledged."""
-
-    def __init__(self, url: str, namespace: str, job_id: str) -> None:
-        self.url, self.ns, self.job = url, namespace, job_id
-
-    async def _publish_all(self, items: list[tuple[str, int, bytes]]) -> None:
-        nc = await nats.connect(self.url, max_reconnect_attempts=-1, reconnect_time_wait=0.1,
-                                error_cb=_quiet)
-        js = nc.jetstream()
-        await _ensure_stream(js)
-        for kind, seq, payload in items:
-            subject = f"logs.{self.ns}.{self.job}.{kind}"
-            while True:
-                try:
-                    await js.publish(subject, payload, stream=STREAM, timeout=2,
-                                     headers={"Nats-Msg-Id": f"{self.job}:{kind}:{seq}"})
-                    break
-                except Exception:  # noqa: BLE001 - server restarting: retry, JetStream dedups
-                    await asyncio.sleep(0.1)
-        await nc.close()
-
-    def publish(self, items: list[tuple[str, int, bytes]]) -> None:
-        asyncio.run(self._publish_all(items))
-
-    def in_thread(self, items: list[tuple[str, int, bytes]]) -> threading.Thread:
-        thread = threading.Thread(target=self.publish, args=(items,), daemon=True)
-        thread.start()
-        return thread
-
-
-async def _quiet(_exc: Exception) -> None:
-    return None
-
-
-def stdout_lines(first: int, last: int) -> list[tuple[str, int, bytes]]:
-    return [("stdout", i, json.dumps({"text": f"line {i}"}).encode()) for i in range(first, last + 1)]
-
-
-def terminal(phase: str = "succeeded") -> list[tuple[str, int, bytes]]:
-    return [("status", 1, json.dumps({"phase": phase}).encode())]
 
 
 def lines_only(events: Iterator[Any]) -> list[LogLine]:
