@@ -1,0 +1,67 @@
+"""The client against the real operator: queue reason and position, cell phases, cancel of a queued job.
+
+The operator runs in-process as in its own live tests; the Cell's heartbeat is
+written the way the agent writes it (no agent exists yet). The job states shown
+here are the operator's own decisions, never written by the test.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+from armnet_core.models import JobSpec, JobStatus
+
+from tests.integration.client_bed import Tenant
+from tests.integration.test_operator_scheduling_live import Bed, running_operator
+
+pytestmark = pytest.mark.integration
+
+
+def eventually(what: str, check: Callable[[], Any], timeout: float = 30) -> Any:
+    deadline = time.monotonic() + timeout
+    last = None
+    while time.monotonic() < deadline:
+        last = check()
+        if last:
+            return last
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what}; last: {last!r}")
+
+
+def test_get_cells_and_cancel_show_the_operators_decisions(
+    k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bed = Bed(k8s, namespace)
+    try:
+        tenant = Tenant(k8s, namespace)
+        client = tenant.client()
+        spec = JobSpec(image="localhost/pick:dev", embodiment=bed.embodiment)
+        with running_operator(k8s, namespace, monkeypatch):
+            cell = bed.cell("only")
+            client.submit(spec, name="first")
+            eventually("first bound", lambda: client.get("first").status is JobStatus.DISPATCHED)
+            client.submit(spec, name="second")
+            client.submit(spec, name="third")
+            queued = eventually("third queued behind second", lambda: (
+                v := client.describe("third")).queue_position == 2 and v)
+            client.cancel("third")
+            result = client.wait("third", timeout=30)
+        # KopfRunner swaps sys.stdout while it runs: the CLI is asked once it stopped.
+        capsys.readouterr()
+        assert tenant.cli("get") == 0
+        rows = {line.split()[0]: line.split() for line in capsys.readouterr().out.splitlines()[1:]}
+        assert tenant.cli("cells") == 0
+        cells = {line.split()[0]: line.split() for line in capsys.readouterr().out.splitlines()[1:]}
+        assert tenant.cli("result", "third") == 1
+    finally:
+        bed.close()
+
+    assert (queued.status, queued.queued_reason) == (JobStatus.QUEUED, "AllCellsBusy")
+    assert result.status is JobStatus.CANCELLED
+    assert rows["first"][1:3] == ["dispatched", cell]
+    assert rows["second"][1:2] + rows["second"][4:6] == ["queued", "AllCellsBusy", "#1"]
+    assert rows["third"][1] == "cancelled"
+    assert cells[cell][1] == "Busy" and cells[cell][4] == f"{namespace}/first"
