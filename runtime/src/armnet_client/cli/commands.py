@@ -9,5 +9,6 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
     ("result", "armnet_client.cli.result", "print a job's JobResult; exit 0 succeeded, 1 other end, 2 running"),
     ("cancel", "armnet_client.cli.cancel", "cancel a RobotJob (queued: at once; running: within grace)"),
     ("logs", "armnet_client.cli.logs", "print a job's output from its first line; -f to follow"),
+    ("teleop", "armnet_client.cli.teleop", "drive a running job's arm from a leader arm (or --leader sim)"),
 )
 """(name, module, one-line help) of each client subcommand."""
