@@ -109,6 +109,8 @@ def decode(
         elif kind == "status":
             phase = data.get("phase", "")
             text = f"status: {phase}" if phase else text
+    if kind == "rerun" and data is None:
+        data = bytes(payload)  # a packet may be published raw: keep the bytes undamaged
     text = text.rstrip("\r\n")
     prefixed, rest = split_timestamp(text)
     if prefixed is not None:
