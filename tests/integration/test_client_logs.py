@@ -106,3 +106,12 @@ def test_an_unreachable_server_is_a_typed_error_that_names_the_url(job: tuple[st
 
     with pytest.raises(NatsUnreachable, match="cannot reach NATS at"):
         list(follow_events(FollowSettings(url, connect_timeout_s=0.5), ns, job_id))
+
+
+def test_a_server_without_the_log_stream_is_a_typed_error_naming_the_stream(
+    nats_server: str, job: tuple[str, str]
+) -> None:
+    ns, job_id = job
+
+    with pytest.raises(NatsUnreachable, match="has no stream ARMNET_NOPE"):
+        list(follow_events(FollowSettings(nats_server, stream="ARMNET_NOPE"), ns, job_id))

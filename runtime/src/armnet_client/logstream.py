@@ -94,6 +94,18 @@ class _Session:
         self.sub = await js.pull_subscribe(self.subject, stream=self.settings.stream, config=config)
         self.seen_reconnects = self.reconnects
 
+    async def first_subscribe(self, since: Optional[datetime]) -> None:
+        """The first consumer; a server without the log stream is as good as no server for logs."""
+        from nats.js.errors import NotFoundError
+
+        try:
+            await self.subscribe(0, since)
+        except NotFoundError as exc:
+            raise NatsUnreachable(
+                f"NATS at {self.settings.url} has no stream {self.settings.stream}: no node agent "
+                "has published job logs there (wrong server, or the agents use another --stream)"
+            ) from exc
+
     async def drop_consumer(self) -> None:
         sub, self.sub = self.sub, None
         if sub is None:
@@ -144,7 +156,7 @@ def follow_events(
     outage_since: Optional[float] = None
     try:
         loop.run_until_complete(session.connect())
-        loop.run_until_complete(session.subscribe(last, since))
+        loop.run_until_complete(session.first_subscribe(since))
         while True:
             try:
                 if session.sub is None or session.reconnects != session.seen_reconnects:
