@@ -21,6 +21,7 @@ from pydantic import ValidationError
 
 from . import kube
 from .errors import ClientError, InvalidJob, NatsUnreachable, WaitTimeout
+from .heartbeat import DEFAULT_INTERVAL_S, HeartbeatSender
 from .logstream import DEFAULT_STREAM, CaughtUp, Event, FollowSettings, follow_events
 from .logwire import LogLine
 from .mapping import (
@@ -56,7 +57,7 @@ class Client:
         self, *, namespace: Optional[str] = None, context: Optional[str] = None,
         kubeconfig: Optional[str] = None, nats_url: Optional[str] = None,
         stream: str = DEFAULT_STREAM, poll_interval_s: float = 1.0,
-        env: Optional[Mapping[str, str]] = None,
+        heartbeat_interval_s: float = DEFAULT_INTERVAL_S, env: Optional[Mapping[str, str]] = None,
     ) -> None:
         environ = os.environ if env is None else env
         self._target = kube.ClusterTarget(kubeconfig, context, namespace)
@@ -65,6 +66,7 @@ class Client:
         self.nats_url = nats_url_from(nats_url, environ)
         self.stream = stream
         self.poll_interval_s = poll_interval_s
+        self.heartbeat_interval_s = heartbeat_interval_s
 
     # ---- cluster access
     @property
@@ -238,6 +240,9 @@ class Client:
         ns = job.metadata.namespace or self.namespace
         job_id = job.status.job_id or job.metadata.uid or ""
         if self.nats_url:
+            # Following a non-detached job keeps it alive: the agent cancels it when beats stop.
+            beats = (HeartbeatSender(self.nats_url, ns, job_id, self.heartbeat_interval_s).start()
+                     if follow and not job.spec.detach else None)
             try:
                 yield from follow_events(
                     FollowSettings(self.nats_url, stream=self.stream), ns, job_id, follow=follow,
@@ -247,6 +252,9 @@ class Client:
             except NatsUnreachable as exc:
                 log.warning("%s; following the job's status instead (progress, then the last "
                             "16 KiB of output when it ends)", exc)
+            finally:
+                if beats is not None:
+                    beats.stop()
         else:
             log.warning("no NATS URL configured (--nats-url or ARMNET_NATS_URL): following the job's "
                         "status instead (progress, then the last 16 KiB of output when it ends)")
