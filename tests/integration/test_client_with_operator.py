@@ -2,7 +2,9 @@
 
 The operator runs in-process as in its own live tests; the Cell's heartbeat is
 written the way the agent writes it (no agent exists yet). The job states shown
-here are the operator's own decisions, never written by the test.
+here are the operator's own decisions, never written by the test; the log lines
+of the cancelled job are published as the agent would, to check that ``wait``
+returns the whole output from the stream rather than the status tails.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from typing import Any
 import pytest
 from armnet_core.models import JobSpec, JobStatus
 
-from tests.integration.client_bed import Tenant
+from tests.integration.client_bed import Publisher, Tenant, stdout_lines
 from tests.integration.test_operator_scheduling_live import Bed, running_operator
 
 pytestmark = pytest.mark.integration
@@ -32,7 +34,8 @@ def eventually(what: str, check: Callable[[], Any], timeout: float = 30) -> Any:
 
 
 def test_get_cells_and_cancel_show_the_operators_decisions(
-    k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    k8s: Any, namespace: str, nats_server: str, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     bed = Bed(k8s, namespace)
     try:
@@ -48,6 +51,12 @@ def test_get_cells_and_cancel_show_the_operators_decisions(
             queued = eventually("third queued behind second", lambda: (
                 v := client.describe("third")).queue_position == 2 and v)
             client.cancel("third")
+            # What an agent would have streamed for this job: wait() returns it whole.
+            uid = client.read("third").metadata.uid
+            assert uid
+            Publisher(nats_server, namespace, uid).publish(
+                stdout_lines(1, 3) + [("stderr", 1, b"warn")])
+            client.nats_url = nats_server
             result = client.wait("third", timeout=30)
         # KopfRunner swaps sys.stdout while it runs: the CLI is asked once it stopped.
         capsys.readouterr()
@@ -61,6 +70,7 @@ def test_get_cells_and_cancel_show_the_operators_decisions(
 
     assert (queued.status, queued.queued_reason) == (JobStatus.QUEUED, "AllCellsBusy")
     assert result.status is JobStatus.CANCELLED
+    assert (result.stdout, result.stderr) == ("line 1\nline 2\nline 3\n", "warn\n")
     assert rows["first"][1:3] == ["dispatched", cell]
     assert rows["second"][1:2] + rows["second"][4:6] == ["queued", "AllCellsBusy", "#1"]
     assert rows["third"][1] == "cancelled"

@@ -174,18 +174,28 @@ class Client:
     def wait(self, name: str, timeout: Optional[float] = None) -> JobResult:
         """Poll the job's status until it is terminal and return its ``JobResult``.
 
-        ``stdout``/``stderr`` are the status tails (the last 16 KiB each); the
-        whole output is in :meth:`logs`. Raises :class:`WaitTimeout` after
+        ``stdout``/``stderr`` are the whole output from the log stream when it
+        can be read, else the status tails (the last 16 KiB each); an INFO line on
+        the ``armnet_client`` logger says which. Raises :class:`WaitTimeout` after
         ``timeout`` seconds (the job keeps running).
         """
+        job, result = self.wait_terminal(name, timeout)
+        output = self._stream_output(job) if self.nats_url else None
+        if output is None:
+            log.info("robotjob %s: stdout/stderr are the status tails (last 16 KiB); "
+                     "`armnet logs %s` has the whole output", name, name)
+            return result
+        log.info("robotjob %s: stdout/stderr are the whole output from the log stream", name)
+        return result.model_copy(update={"stdout": output[0], "stderr": output[1]})
+
+    def wait_terminal(self, name: str, timeout: Optional[float]) -> tuple[RobotJob, JobResult]:
+        """Like :meth:`wait` but never reads the stream: the RobotJob and its result with the tails."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             job = self._read(name)
             result = result_from_robotjob(job)
             if result is not None:
-                log.info("robotjob %s: stdout/stderr are the status tails (last 16 KiB); "
-                         "`armnet logs %s` has the whole output", name, name)
-                return result
+                return job, result
             if deadline is not None and time.monotonic() >= deadline:
                 raise WaitTimeout(
                     f"robotjob {name!r} is still {job.status.phase or 'submitted'} after {timeout}s; "
@@ -193,12 +203,30 @@ class Client:
                 )
             time.sleep(self.poll_interval_s)
 
+    def _stream_output(self, job: RobotJob) -> Optional[tuple[str, str]]:
+        """The job's whole stdout and stderr from the stream; ``None`` when unreadable or empty."""
+        assert self.nats_url is not None
+        ns = job.metadata.namespace or self.namespace
+        job_id = job.status.job_id or job.metadata.uid or ""
+        streams: dict[str, list[str]] = {"stdout": [], "stderr": []}
+        try:
+            for event in follow_events(FollowSettings(self.nats_url, stream=self.stream), ns, job_id,
+                                       follow=False):
+                if isinstance(event, LogLine) and event.kind in streams:
+                    streams[event.kind].append(event.text + "\n")
+        except NatsUnreachable as exc:
+            log.warning("%s; stdout/stderr are the status tails", exc)
+            return None
+        if not streams["stdout"] and not streams["stderr"]:
+            return None
+        return "".join(streams["stdout"]), "".join(streams["stderr"])
+
     def execute(self, spec: JobSpec, *, follow: bool = True, out: Optional[TextIO] = None,
                 err: Optional[TextIO] = None) -> JobResult:
         """Submit ``spec``, print its output while it runs (``follow``), return its ``JobResult``.
 
         With ``follow`` and a reachable log stream, ``stdout``/``stderr`` of the
-        result are the whole output from the stream; otherwise the status tails.
+        result are the whole output read while following; otherwise as :meth:`wait`.
         """
         job = self.submit(spec)
         if not follow:
@@ -209,17 +237,18 @@ class Client:
         for line in self.logs(job.id, follow=True):
             from_stream = from_stream and line.source == "stream"
             if line.kind == "stdout":
-                stdout.append(line.text)
+                stdout.append(line.text + "\n")
                 print(line.text, file=out or sys.stdout)
             elif line.kind == "stderr":
-                stderr.append(line.text)
+                stderr.append(line.text + "\n")
                 print(line.text, file=err or sys.stderr)
             elif line.kind == "progress":
                 print(f"[progress] {line.text}", file=err or sys.stderr)
-        result = self.wait(job.id)
+        _, result = self.wait_terminal(job.id, None)
         if from_stream and (stdout or stderr):
             log.info("robotjob %s: stdout/stderr are the whole output from the log stream", job.id)
-            return result.model_copy(update={"stdout": "\n".join(stdout), "stderr": "\n".join(stderr)})
+            return result.model_copy(update={"stdout": "".join(stdout), "stderr": "".join(stderr)})
+        log.info("robotjob %s: stdout/stderr are the status tails (last 16 KiB)", job.id)
         return result
 
     # ---- output

@@ -97,6 +97,6 @@ def run(args: argparse.Namespace) -> int:
         finally:
             printer.close()
         # The stream's last line can precede the agent's status write: wait for the status.
-        return result_exit_code(client.wait(job.id).status)
+        return result_exit_code(client.wait_terminal(job.id, None)[1].status)
 
     return guarded(body)
