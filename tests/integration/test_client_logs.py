@@ -10,6 +10,7 @@ spool does across an outage), so duplicates are JetStream's to drop.
 from __future__ import annotations
 
 import threading
+import time
 import uuid
 from collections.abc import Iterator
 from typing import Any
@@ -115,3 +116,24 @@ def test_a_server_without_the_log_stream_is_a_typed_error_naming_the_stream(
 
     with pytest.raises(NatsUnreachable, match="has no stream ARMNET_NOPE"):
         list(follow_events(FollowSettings(nats_server, stream="ARMNET_NOPE"), ns, job_id))
+
+
+def test_a_finished_job_without_a_terminal_status_message_ends_after_a_quiet_spell(
+    nats_server: str, job: tuple[str, str]
+) -> None:
+    ns, job_id = job
+    publisher = Publisher(nats_server, ns, job_id)
+    publisher.publish(stdout_lines(1, 5))
+    settings = FollowSettings(nats_server, settle_s=2.0)
+    late: threading.Thread | None = None
+    got: list[str] = []
+    for event in follow_events(settings, ns, job_id, finished=lambda: True):
+        if isinstance(event, CaughtUp):
+            late = threading.Thread(target=lambda: (time.sleep(0.5), publisher.publish(stdout_lines(6, 8))))
+            late.start()
+            continue
+        got.append(event.text)
+    assert late is not None
+    late.join()
+
+    assert got == [f"line {i}" for i in range(1, 9)]

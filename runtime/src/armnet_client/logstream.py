@@ -41,6 +41,9 @@ class FollowSettings:
     connect_timeout_s: float = 3.0
     outage_limit_s: float = 120.0
     """How long the server may stay unreachable mid-follow before :class:`NatsUnreachable`."""
+    settle_s: float = 3.0
+    """How long a finished job's stream must stay quiet before a follow without its terminal
+    status message ends."""
 
 
 class _Session:
@@ -154,6 +157,7 @@ def follow_events(
     last = 0
     caught_up = False
     outage_since: Optional[float] = None
+    done_since: Optional[float] = None
     try:
         loop.run_until_complete(session.connect())
         loop.run_until_complete(session.first_subscribe(since))
@@ -179,6 +183,8 @@ def follow_events(
                 session.sub = None
                 loop.run_until_complete(asyncio.sleep(0.25))
                 continue
+            if msgs:
+                done_since = None
             for msg in msgs:
                 line = _line_of(msg)
                 if line is None or line.stream_seq <= last:
@@ -191,8 +197,16 @@ def follow_events(
                 if not caught_up:
                     caught_up = True
                     yield CaughtUp()
-                if not follow or (finished is not None and finished()):
+                if not follow:
                     return
+                if finished is not None and finished():
+                    # The phase can be written before the agent's last lines reach the
+                    # stream (a spool draining after an outage): end only after a quiet spell.
+                    done_since = done_since if done_since is not None else clock()
+                    if clock() - done_since >= settings.settle_s:
+                        return
+                else:
+                    done_since = None
     finally:
         loop.run_until_complete(session.close())
         loop.close()
