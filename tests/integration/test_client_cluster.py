@@ -14,7 +14,14 @@ from typing import Any
 
 import pytest
 import yaml
-from armnet_client import Client, Forbidden, InvalidJob, JobNotFound, NoClusterConfigured
+from armnet_client import (
+    Client,
+    ClusterUnreachable,
+    Forbidden,
+    InvalidJob,
+    JobNotFound,
+    NoClusterConfigured,
+)
 from armnet_core.models import JobSpec, JobStatus
 from kubernetes import client as kclient
 
@@ -164,3 +171,15 @@ def test_submit_from_a_manifest_keeps_fields_the_sdk_spec_lacks(
         G, V, tenant.namespace, "robotjobs", "from-file")
     assert (stored["spec"]["priority"], stored["spec"]["detach"]) == (5, True)
     assert capsys.readouterr().out.strip() == "from-file"
+
+
+def test_an_apiserver_that_does_not_answer_is_cluster_unreachable_naming_the_server(tmp_path: Path) -> None:
+    kubeconfig = tmp_path / "kubeconfig"
+    kubeconfig.write_text(yaml.safe_dump({
+        "apiVersion": "v1", "kind": "Config", "current-context": "gone",
+        "clusters": [{"name": "c", "cluster": {"server": "https://127.0.0.1:1"}}],
+        "users": [{"name": "u", "user": {"token": "t"}}],
+        "contexts": [{"name": "gone", "context": {"cluster": "c", "user": "u"}}]}))
+
+    with pytest.raises(ClusterUnreachable, match="cannot reach the cluster at https://127.0.0.1:1"):
+        Client(kubeconfig=str(kubeconfig), env={}).get("x")
