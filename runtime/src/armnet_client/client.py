@@ -268,15 +268,18 @@ class Client:
         job = self._read(name)
         ns = job.metadata.namespace or self.namespace
         job_id = job.status.job_id or job.metadata.uid or ""
+        streamed = False
         if self.nats_url:
             # Following a non-detached job keeps it alive: the agent cancels it when beats stop.
             beats = (HeartbeatSender(self.nats_url, ns, job_id, self.heartbeat_interval_s).start()
                      if follow and not job.spec.detach else None)
             try:
-                yield from follow_events(
+                for event in follow_events(
                     FollowSettings(self.nats_url, stream=self.stream), ns, job_id, follow=follow,
                     finished=self._finished_probe(name), since=since,
-                )
+                ):
+                    streamed = streamed or isinstance(event, LogLine)
+                    yield event
                 return
             except NatsUnreachable as exc:
                 log.warning("%s; following the job's status instead (progress, then the last "
@@ -287,8 +290,9 @@ class Client:
         else:
             log.warning("no NATS URL configured (--nats-url or ARMNET_NATS_URL): following the job's "
                         "status instead (progress, then the last 16 KiB of output when it ends)")
+        # Lines already delivered from the stream are not repeated from the tails.
         yield from status_events(lambda: self._read(name), follow=follow,
-                                 interval_s=self.poll_interval_s)
+                                 interval_s=self.poll_interval_s, tails=not streamed)
 
     def _finished_probe(self, name: str) -> Callable[[], bool]:
         """A check of the job's phase, at most once per poll interval (the follower asks often)."""

@@ -17,8 +17,11 @@ from .mapping import result_from_robotjob, status_of
 from .resources import RobotJob
 
 
-def changes(before: Optional[RobotJob], after: RobotJob) -> list[LogLine]:
-    """The lines that tell what changed between two reads of a job (all of it when ``before`` is None)."""
+def changes(before: Optional[RobotJob], after: RobotJob, *, tails: bool = True) -> list[LogLine]:
+    """The lines that tell what changed between two reads of a job (all of it when ``before`` is None).
+
+    ``tails=False`` leaves the output tails out (the caller already showed the output).
+    """
     old = before.status if before else None
     new = after.status
     moment = new.finished_at or new.started_at or after.metadata.creation_timestamp
@@ -36,7 +39,7 @@ def changes(before: Optional[RobotJob], after: RobotJob) -> list[LogLine]:
         line("progress", f"rollout {new.rollout.index}/{new.rollout.total}",
              {"rollout": {"index": new.rollout.index, "total": new.rollout.total}})
     result = result_from_robotjob(after)
-    if result is not None and (before is None or result_from_robotjob(before) is None):
+    if tails and result is not None and (before is None or result_from_robotjob(before) is None):
         for kind, text in (("stdout", result.stdout), ("stderr", result.stderr)):
             for text_line in text.splitlines():
                 line(kind, text_line)
@@ -46,12 +49,14 @@ def changes(before: Optional[RobotJob], after: RobotJob) -> list[LogLine]:
     return lines
 
 
-def status_events(read: Callable[[], RobotJob], *, follow: bool, interval_s: float) -> Iterator[Event]:
+def status_events(
+    read: Callable[[], RobotJob], *, follow: bool, interval_s: float, tails: bool = True
+) -> Iterator[Event]:
     """Poll ``read`` and yield :func:`changes` until the job is terminal (or once without ``follow``)."""
     before: Optional[RobotJob] = None
     while True:
         job = read()
-        yield from changes(before, job)
+        yield from changes(before, job, tails=tails)
         if before is None:
             yield CaughtUp()
         before = job

@@ -80,3 +80,10 @@ def test_status_feed_gives_the_tails_then_the_terminal_status_when_the_job_ends(
     assert [(x.kind, x.text) for x in lines] == [
         ("stdout", "a"), ("stdout", "b"), ("stderr", "w"), ("status", "status: succeeded")]
     assert all(x.source == "status" for x in lines)
+
+
+def test_status_feed_leaves_the_tails_out_when_the_output_was_already_shown() -> None:
+    before = RobotJob.model_validate(a_robotjob(phase="running"))
+    after = RobotJob.model_validate(a_robotjob(phase="failed", result={"stdoutTail": "a\n"}))
+
+    assert [(x.kind, x.text) for x in changes(before, after, tails=False)] == [("status", "status: failed")]
