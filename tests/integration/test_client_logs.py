@@ -13,6 +13,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
+from datetime import datetime, timezone
 from typing import Any
 
 import pytest
@@ -137,3 +138,17 @@ def test_a_finished_job_without_a_terminal_status_message_ends_after_a_quiet_spe
     late.join()
 
     assert got == [f"line {i}" for i in range(1, 9)]
+
+
+def test_since_starts_at_the_first_line_stored_after_that_time(nats_server: str, job: tuple[str, str]) -> None:
+    ns, job_id = job
+    publisher = Publisher(nats_server, ns, job_id)
+    publisher.publish(stdout_lines(1, 3))
+    time.sleep(1.0)
+    cut = datetime.now(timezone.utc)  # noqa: UP017
+    time.sleep(0.2)
+    publisher.publish(stdout_lines(4, 5))
+
+    got = lines_only(follow_events(FollowSettings(nats_server), ns, job_id, follow=False, since=cut))
+
+    assert [line.text for line in got] == ["line 4", "line 5"]
