@@ -9,12 +9,13 @@ returns the whole output from the stream rather than the status tails.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 import pytest
-from armnet_core.models import JobSpec, JobStatus
+from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
 
 from tests.integration.client_bed import Publisher, Tenant, stdout_lines
 from tests.integration.test_operator_scheduling_live import Bed, running_operator
@@ -75,3 +76,28 @@ def test_get_cells_and_cancel_show_the_operators_decisions(
     assert rows["second"][1:2] + rows["second"][4:6] == ["queued", "AllCellsBusy", "#1"]
     assert rows["third"][1] == "cancelled"
     assert cells[cell][1] == "Busy" and cells[cell][4] == f"{namespace}/first"
+
+
+def test_execute_follows_until_the_operator_cancels_and_raise_for_status_raises(
+    k8s: Any, namespace: str, nats_server: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    tenant = Tenant(k8s, namespace)
+    client = tenant.client()
+    client.nats_url = nats_server
+    canceller = tenant.client()
+    spec = JobSpec(image="localhost/pick:dev", embodiment=f"test/none-{namespace}")
+
+    def cancel_when_queued() -> None:
+        job = eventually("a queued job", lambda: next(
+            (j for j in canceller.list_jobs() if j.status.queued_reason), None))
+        canceller.cancel(job.metadata.name)
+
+    with running_operator(k8s, namespace, monkeypatch):
+        worker = threading.Thread(target=cancel_when_queued, daemon=True)
+        worker.start()
+        result = client.execute(spec, follow=True)
+        worker.join(10)
+
+    assert result.status is JobStatus.CANCELLED
+    with pytest.raises(RemoteExecutionError, match="status=cancelled"):
+        result.raise_for_status()
