@@ -1,4 +1,8 @@
-"""Shared hands of the client's integration tests: a granted tenant, and the agent's log publishing."""
+"""Shared hands of the client's integration tests: a granted tenant, and the agent's log publishing.
+
+Payloads follow docs/streams.md (the agent's streams): output lines as printed,
+status as JSON ``{"phase", "detail", "at"}``, message ids ``<jobId>:<kind>:<seq>``.
+"""
 
 from __future__ import annotations
 
@@ -99,10 +103,10 @@ async def _quiet(_exc: Exception) -> None:
 
 
 def stdout_lines(first: int, last: int) -> list[tuple[str, int, bytes]]:
-    return [("stdout", i, json.dumps({"text": f"line {i}"}).encode()) for i in range(first, last + 1)]
+    return [("stdout", i, f"line {i}".encode()) for i in range(first, last + 1)]
 
 
 def terminal(phase: str = "succeeded") -> list[tuple[str, int, bytes]]:
-    return [("status", 1, json.dumps({"phase": phase}).encode())]
+    return [("status", 1, json.dumps({"phase": phase, "detail": {}, "at": "2026-11-24T10:00:00Z"}).encode())]
 
 

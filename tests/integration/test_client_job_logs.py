@@ -7,7 +7,6 @@ client says so once and follows the job's status instead.
 
 from __future__ import annotations
 
-import base64
 import importlib.util
 import json
 import logging
@@ -39,7 +38,7 @@ def test_logs_follow_a_jobs_stream_by_its_uid_until_the_terminal_status(
     uid = client.read("streamed").metadata.uid
     assert uid
     Publisher(nats_server, tenant.namespace, uid).publish(
-        stdout_lines(1, 3) + [("progress", 1, json.dumps({"text": "halfway"}).encode())] + terminal())
+        stdout_lines(1, 3) + [("progress", 1, b"halfway")] + terminal())
 
     lines = [(x.kind, x.text, x.source) for x in client.logs("streamed", follow=True)]
 
@@ -93,7 +92,7 @@ def test_armnet_view_dump_decodes_the_jobs_rerun_packets_from_the_stream(
                for i in range(3)]
     Publisher(nats_server, tenant.namespace, uid).publish(
         [("stdout", 1, b"not a packet")]
-        + [("rerun", i + 1, base64.b64encode(encode_packet(p))) for i, p in enumerate(packets)])
+        + [("rerun", i + 1, encode_packet(p)) for i, p in enumerate(packets)])
 
     assert tenant.cli("view", "viewed", "--dump", "--nats-url", nats_server) == 0
 

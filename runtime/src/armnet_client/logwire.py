@@ -6,11 +6,12 @@ status) into the JetStream stream ``ARMNET_LOGS``, with the message id
 ``<jobId>:<kind>:<seq>`` (``seq``: the line's number in that container stream)
 so that re-published lines are dropped by JetStream's duplicate window.
 
-Payloads are read leniently, because the agent owns them: a JSON object with
-``text`` (or ``line``) and optionally ``ts``/``time`` is used as such; anything
-else is the line itself as UTF-8. A line's time is, in order, the payload's
-``ts``, the ``armnet-runtime`` timestamp prefix on the line, then the time
-JetStream stored the message.
+Payloads (docs/streams.md): stdout, stderr and progress carry the line itself
+(UTF-8, usually with the ``armnet-runtime`` timestamp prefix); rerun carries one
+raw packet; status is JSON ``{"phase", "detail", "at"}``. Output lines are never
+parsed as JSON: a customer printing JSON must see it as printed. A line's time
+is the status's ``at``, else the timestamp prefix, else the time JetStream
+stored the message.
 """
 
 from __future__ import annotations
@@ -96,21 +97,17 @@ def decode(
     text = payload.decode("utf-8", errors="replace")
     data: Any = None
     moment: Optional[datetime] = None
-    if text.startswith("{"):
+    if kind == "status":
         try:
             data = json.loads(text)
         except ValueError:
             data = None
-    if isinstance(data, dict):
-        body = data.get("text", data.get("line"))
-        moment = _parse_time(data.get("ts", data.get("time")))
-        if isinstance(body, str):
-            text = body
-        elif kind == "status":
-            phase = data.get("phase", "")
-            text = f"status: {phase}" if phase else text
-    if kind == "rerun" and data is None:
-        data = bytes(payload)  # a packet may be published raw: keep the bytes undamaged
+        if isinstance(data, dict):
+            moment = _parse_time(data.get("at"))
+            phase = data.get("phase")
+            text = f"status: {phase}" if isinstance(phase, str) and phase else text
+    elif kind == "rerun":
+        data = bytes(payload)  # a raw packet: keep the bytes undamaged
     text = text.rstrip("\r\n")
     prefixed, rest = split_timestamp(text)
     if prefixed is not None:

@@ -153,11 +153,12 @@ def progress_text(line: LogLine, rollout: Optional[tuple[int, int]]) -> str:
 
 
 def rollout_of(line: LogLine) -> Optional[tuple[int, int]]:
-    """A rollout step carried by a progress/status message: ``{"rollout": {"index", "total"}}``."""
+    """A rollout step a status message carries: ``{"detail": {"rollout": {"index", "total"}}}``."""
     data = line.data
     if not isinstance(data, dict):
         return None
-    found = data.get("rollout")
+    detail = data.get("detail")
+    found = data.get("rollout") or (detail.get("rollout") if isinstance(detail, dict) else None)
     if isinstance(found, dict) and isinstance(found.get("index"), int):
         total = found.get("total")
         return (int(found["index"]), int(total) if isinstance(total, int) else 0)

@@ -31,11 +31,18 @@ def test_the_line_number_comes_from_the_message_id(msg_id: str | None, seq: int 
     assert seq_of(msg_id) == seq
 
 
-def test_a_json_payload_gives_text_and_time() -> None:
-    line = decode("logs.a.u.stdout", b'{"text": "hi", "ts": "2026-11-24T10:00:01Z"}',
-                  msg_id="u:stdout:1", stream_seq=5, stored_at=STORED)
+def test_an_output_line_is_the_payload_as_printed_even_when_it_looks_like_json() -> None:
+    line = decode("logs.a.u.stdout", b'{"text": "hi"}', msg_id="u:stdout:1", stream_seq=5, stored_at=STORED)
 
-    assert (line.kind, line.text, line.seq, line.stream_seq) == ("stdout", "hi", 1, 5)
+    assert (line.kind, line.text, line.seq, line.stream_seq, line.time) == (
+        "stdout", '{"text": "hi"}', 1, 5, STORED)
+
+
+def test_a_status_message_takes_its_time_from_at() -> None:
+    line = decode("logs.a.u.status", b'{"phase": "running", "detail": {}, "at": "2026-11-24T10:00:01Z"}',
+                  msg_id="u:status:running", stream_seq=2, stored_at=STORED)
+
+    assert (line.text, line.seq) == ("status: running", None)
     assert line.time == datetime(2026, 11, 24, 10, 0, 1, tzinfo=timezone.utc)  # noqa: UP017
 
 
@@ -48,9 +55,9 @@ def test_a_plain_payload_with_the_runtime_timestamp_prefix_uses_that_time() -> N
 
 
 def test_a_line_without_any_time_gets_the_time_jetstream_stored_it() -> None:
-    line = decode("logs.a.u.stdout", b"{not json", msg_id=None, stream_seq=1, stored_at=STORED)
+    line = decode("logs.a.u.stdout", b"plain", msg_id=None, stream_seq=1, stored_at=STORED)
 
-    assert (line.text, line.time) == ("{not json", STORED)
+    assert (line.text, line.time) == ("plain", STORED)
 
 
 def test_a_terminal_status_message_ends_a_follow() -> None:

@@ -147,10 +147,10 @@ def test_after_rollout_begin_progress_shows_the_rollout_index() -> None:
     out = io.StringIO()
     printer = LogPrinter(out, live=False, timestamps=False)
 
-    printer.show(line("progress", "rollout", {"rollout": {"index": 3, "total": 10}}))
+    printer.show(line("status", "status: running", {"phase": "running", "detail": {"rollout": {"index": 3, "total": 10}}}))
     printer.show(line("progress", "grasping"))
 
-    assert out.getvalue().splitlines() == ["[progress] [rollout 3/10]", "[progress] [rollout 3/10] grasping"]
+    assert out.getvalue().splitlines() == ["[status: running]", "[progress] [rollout 3/10] grasping"]
 
 
 def test_tail_keeps_the_last_n_stored_lines_then_everything_live() -> None:
