@@ -14,15 +14,13 @@ import time
 import uuid
 
 import pytest
+from armnet_agent.node import streams
 from armnet_client.logstream import CaughtUp, FollowSettings, follow_events
 from armnet_client.logwire import LogLine
 from armnet_client.viewer import packet_of
 from armnet_runtime.rerun import Entry, Packet, encode_packet
 
 from tests.testbed.natsd import NatsServer
-
-streams = pytest.importorskip(
-    "armnet_agent.node.streams", reason="the agent's stream library lands with branch h-streams")
 
 pytestmark = pytest.mark.integration
 
