@@ -16,7 +16,12 @@ from pathlib import Path
 
 import pytest
 from armnet_agent.connector.errors import MAX_ERROR_CHARS, failure_reply
-from armnet_agent.connector.server import MAX_BUFFERED_BYTES, MAX_LINE_BYTES, FramingError, LineReader
+from armnet_agent.connector.server import (
+    MAX_BUFFERED_BYTES,
+    MAX_LINE_BYTES,
+    FramingError,
+    LineReader,
+)
 
 pytestmark = pytest.mark.unit
 
