@@ -190,9 +190,15 @@ class CellState:
         return confirmed
 
     def shut_down(self, lock_wait_s: float) -> None:
-        """The job's end: release every device, then torque off every arm (if configured)."""
+        """The job's end: release every device, rest every arm and torque it off (each if configured)."""
         for handle in self.live_handles():
             self.release(handle, lock_wait_s=lock_wait_s, torque_off=False)
+        if self.config.rest_on_shutdown:
+            for arm_name in self.config.arms:
+                try:
+                    self._rest_arm(arm_name, lock_wait_s=lock_wait_s)
+                except RequestError as exc:  # the device is still busy: torque off below goes beside it
+                    log.warning("arm %s: no rest at shutdown: %s", arm_name, exc.message)
         if self.config.disable_torque_on_shutdown:
             for arm_name in self.config.arms:
                 self.torque_off_arm(arm_name, lock_wait_s=lock_wait_s)
@@ -209,20 +215,23 @@ class CellState:
         if missed:
             raise RequestError("RestNotReached", "; ".join(r.message() for r in missed))
 
-    def _rest_arm(self, name: str) -> RestReport:
+    def _rest_arm(self, name: str, *, lock_wait_s: float | None = None) -> RestReport:
         arm = self.config.arms[name]
         ranges = self.ranges.get(name) or {}
         if not ranges:
             report = RestReport(name, False, failure="it has no calibration file, so the connector does not know "
                                 "its rest pose")
         else:
+            lock = self.locks.get(arm.port)
+            if not lock.acquire(lock.wait_s if lock_wait_s is None else lock_wait_s):
+                raise RequestError("DeviceBusy", f"arm {name!r} is still busy with another call; no rest was made")
             try:
-                with self.locks.get(arm.port), cell_bus(arm, ranges) as bus:
+                with cell_bus(arm, ranges) as bus:
                     report = move_to_rest(bus, name, rest_pose(arm, ranges), self.config.rest_speed_ticks_per_second)
-            except RequestError:
-                raise
             except Exception as exc:  # noqa: BLE001 — reported, with the bus's own words
                 report = RestReport(name, False, failure=f"{type(exc).__name__}: {bounded(str(exc), 300)}")
+            finally:
+                lock.release()
         self.rest_reports[name] = report
         if report.reached:
             log.info("%s", report.message())
