@@ -102,6 +102,8 @@ class CellState:
         self.rest_reports: dict[str, RestReport] = {}
         #: Per arm: whether the latest torque off was read back as off.
         self.torque_confirmed: dict[str, bool] = {}
+        #: Set when the job ends: connections closing then leave rest and torque off to ``shut_down``.
+        self.stopping = threading.Event()
         self._live_lock = threading.Lock()
         self._reset_lock = threading.Lock()
 
@@ -146,7 +148,7 @@ class CellState:
         finally:
             lock.release()
         if handle.class_name == "FeetechMotorsBus" and handle.arm is not None and not self._arm_in_use(handle.arm):
-            if torque_off and self.config.disable_torque_on_shutdown:
+            if torque_off and self.config.disable_torque_on_shutdown and not self.stopping.is_set():
                 self.torque_off_arm(handle.arm, lock_wait_s=lock_wait_s)
 
     def _arm_in_use(self, arm: str) -> bool:

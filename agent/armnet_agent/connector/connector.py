@@ -104,6 +104,7 @@ class Connector:
         if not self._started:
             return
         self._started = False
+        self.cell.stopping.set()
         self.cell.deadline.stop()
         self.cell.interlock.trip(TripReason.SHUTDOWN, "the connector is shutting down")
         for server in self._servers:

@@ -280,13 +280,16 @@ def test_sigterm_ends_the_connector_within_the_grace_window_under_load(
     sim_cell, cell_config, socket_dir: Path, tmp_path: Path, motors, calibration
 ) -> None:
     """Busy connections keep every thread but the main one running; SIGTERM still
-    ends the process, torque off, within the grace window."""
+    ends the process within the grace window, the arm at rest and its torque off."""
 
     from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 
-    grace_s = 4.0
+    grace_s = 6.0
+    rest = {"elbow_flex": 1800, "wrist_roll": 2600}
+    cell = cell_config(sim_cell, gracePeriodSeconds=grace_s, restOnShutdown=True)
+    cell = cell.model_copy(update={"arms": {"arm": cell.arms["arm"].model_copy(update={"rest_pose": rest})}})
     config = tmp_path / "cell.json"
-    config.write_text(cell_config(sim_cell, gracePeriodSeconds=grace_s).model_dump_json(by_alias=True))
+    config.write_text(cell.model_dump_json(by_alias=True))
     process = _connector_process(config, socket_dir)
     stop_load = threading.Event()
     endpoint = f"unix://{socket_dir}/robot.sock"
@@ -318,6 +321,8 @@ def test_sigterm_ends_the_connector_within_the_grace_window_under_load(
             thread.start()
         time.sleep(1.0)
         assert all(sim_cell.arm.torque_enabled().values())
+        before = sim_cell.arm.positions()
+        assert any(abs(before[m] - goal) > 100 for m, goal in rest.items()), "the arm starts at rest"
         sent = time.monotonic()
         process.send_signal(signal.SIGTERM)
         process.communicate(timeout=grace_s + 5)
@@ -332,3 +337,5 @@ def test_sigterm_ends_the_connector_within_the_grace_window_under_load(
     assert process.returncode == 0
     assert took < grace_s, f"SIGTERM took {took:.1f} s, over the {grace_s:g} s grace window"
     assert not any(sim_cell.arm.torque_enabled().values())
+    positions = sim_cell.arm.positions()
+    assert all(abs(positions[m] - goal) <= 25 for m, goal in rest.items()), positions
