@@ -186,7 +186,9 @@ class CellState:
             if locked:
                 lock.release()
         self.torque_confirmed[arm_name] = confirmed
-        if not confirmed:
+        if confirmed:
+            log.info("arm %s: torque off, read back from its servos", arm_name)
+        else:
             self.counters.torque_off_unconfirmed += 1
             log.error("arm %s: torque off was not confirmed by its servos", arm_name)
         return confirmed

@@ -109,6 +109,7 @@ class Connector:
         self.cell.interlock.trip(TripReason.SHUTDOWN, "the connector is shutting down")
         for server in self._servers:
             server.shut()
+        log.info("connector stopping: connections cut")
         threads_deadline = time.monotonic() + STOP_THREADS_WAIT_S
         for server in self._servers:
             server.join(threads_deadline)
