@@ -69,6 +69,9 @@ def cap_call(class_name: str, parameters: tuple[str, ...], args: list[Any], kwar
     caps = CAPS.get(class_name)
     if not caps or not parameters:
         return Capped(args, kwargs)
+    positional = parameters[: len(args)]
+    if not any(name in kwargs or name in positional for name in caps):
+        return Capped(args, kwargs)  # the usual control-loop call: nothing to look at, nothing copied
     args, kwargs = list(args), dict(kwargs)
     lowered: list[str] = []
     for name, (cap, floor) in caps.items():
