@@ -269,3 +269,20 @@ def _encoded(**kwargs):
     from armnet_runtime.wire import encode
 
     return encode(kwargs)
+
+
+# -- what the host reads ------------------------------------------------------------------------
+
+
+def test_the_record_tells_the_host_why_the_interlock_holds(make_connector, cell_config) -> None:
+    connector = make_connector(cell_config(None))
+    fresh = connector.record()
+    assert not fresh.interlock_tripped and fresh.trip_reason is None and fresh.rests == ()
+    connector.pass_deadline()
+    record = connector.record()
+    assert record.interlock_tripped and record.trip_reason == "deadline" and record.deadline_passed
+    assert "timeout" in (record.trip_message or "")
+    as_dict = record.as_dict()
+    assert as_dict["tripReason"] == "deadline" and as_dict["counters"]["safety_violations"] == 0
+    with pytest.raises(TypeError):
+        record.counters["requests"] = 1  # type: ignore[index]  # a snapshot, not the live counters
