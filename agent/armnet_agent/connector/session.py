@@ -17,6 +17,7 @@ from armnet_runtime.wire import decode, encode
 
 from . import __version__
 from .allowlist import CLASSES, refusal
+from .buscaps import cap_call, capped_parameters
 from .cell import CellState, RolloutEvent
 from .errors import RequestError, bounded, failure_reply, not_allowed, protocol_error
 from .frames import FrameAreas, FramePublisher
@@ -130,6 +131,8 @@ class _CallPlan:
     reads: bool
     camera: bool
     frame_read: bool
+    #: The method's parameter names when some are capped (``buscaps``), else ``()``.
+    capped: tuple[str, ...] = ()
 
 
 class RobotSession(Session):
@@ -250,7 +253,10 @@ class RobotSession(Session):
         if why is not None:
             raise not_allowed(why)
         camera = handle.class_name == "OpenCVCamera"
-        plan = _CallPlan(handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS)
+        plan = _CallPlan(
+            handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS,
+            capped_parameters(handle.class_name, getattr(handle.obj, method, None)),
+        )
         if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
             self._plans[(request["object_id"], method)] = plan
         return plan
@@ -259,6 +265,11 @@ class RobotSession(Session):
         plan = self._call_plan(request)
         handle, method, camera = plan.handle, request["method"], plan.camera
         args, kwargs = _arguments(request)
+        if plan.capped:
+            capped = cap_call(handle.class_name, plan.capped, args, kwargs)
+            if capped.lowered:
+                self.cell.counters.calls_capped += 1
+            args, kwargs = capped.args, capped.kwargs
         shared_frame = plan.frame_read and _wants_shared_frame(request)
         if camera and method == "disconnect":
             self._frames_connected(handle, False)  # first: the SDK stops serving frames locally at once
