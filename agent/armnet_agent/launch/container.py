@@ -2,9 +2,10 @@
 
 The container gets the same env as a local subprocess, the run directory
 (sockets, calibration, cache, volume) bind-mounted at the same path so every
-endpoint and path in the env stays valid, the script's directory mounted
-read-only, host networking, and explicit ulimits (rootless Podman refuses the
-engine defaults on some hosts). It implements the supervisor's ``LaunchedJob``.
+endpoint and path in the env stays valid, host networking, and explicit
+ulimits (rootless Podman refuses the engine defaults on some hosts). A local
+run mounts its script's directory read-only; the agent runs the image's own
+command. It implements the supervisor's ``LaunchedJob``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from .log_recovery import DeliveredLines, missed_output
+from .plan import ContainerSpec, Mount
 
 log = logging.getLogger(__name__)
 
@@ -84,32 +86,64 @@ class ContainerJob:
         run_dir: Path,
         extra_mounts: Mapping[str, str] | None = None,
     ) -> ContainerJob:
-        """Create and start the job container.
+        """Create and start a local run's job container (the script mounted from the host).
 
         ``extra_mounts`` (host path -> container path, read-only) is for
         development images that take their Python environment from the host.
         """
+        script = script.resolve()
+        mounts = [Mount(str(run_dir), str(run_dir)), Mount(str(script.parent), JOB_DIR_IN_CONTAINER, read_only=True)]
+        mounts += [Mount(host, inside, read_only=True) for host, inside in (extra_mounts or {}).items()]
+        spec = ContainerSpec(
+            image=image,
+            command=tuple(container_command(script)),
+            env=dict(env),
+            mounts=tuple(mounts),
+            labels={"armnet.io/job-id": env.get("ARMNET_JOB_ID", "")},
+        )
+        return cls.launch(client, spec)
+
+    @classmethod
+    def launch(cls, client: Any, spec: ContainerSpec) -> ContainerJob:
+        """Create and start the container ``spec`` describes (the one path local runs and the agent share)."""
         from docker.types import Ulimit
 
-        script = script.resolve()
-        volumes = {
-            str(run_dir): {"bind": str(run_dir), "mode": "rw"},
-            str(script.parent): {"bind": JOB_DIR_IN_CONTAINER, "mode": "ro"},
-        }
-        for host, inside in (extra_mounts or {}).items():
-            volumes[host] = {"bind": inside, "mode": "ro"}
+        volumes = {m.host: {"bind": m.inside, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts}
         container = client.containers.create(
-            image,
-            command=container_command(script),
-            environment=dict(env),
+            spec.image,
+            command=list(spec.command) if spec.command is not None else None,
+            environment=dict(spec.env),
             volumes=volumes,
             network_mode="host",
             ulimits=[Ulimit(name=name, soft=soft, hard=hard) for name, soft, hard in ULIMITS],
-            labels={"armnet.io/job-id": env.get("ARMNET_JOB_ID", "")},
+            labels=dict(spec.labels),
+            name=spec.name,
             detach=True,
         )
-        container.start()
+        try:
+            container.start()
+        except Exception:
+            _remove_quietly(container)
+            raise
         return cls(client, container)
+
+    @classmethod
+    def adopt(cls, client: Any, container: Any) -> ContainerJob:
+        """Follow a container started earlier (by a previous agent process): its logs from the start."""
+        return cls(client, container)
+
+    @property
+    def container_id(self) -> str:
+        return str(self._container.id)
+
+    @property
+    def oom_killed(self) -> bool:
+        """The engine killed the container for its memory limit (an infrastructure failure)."""
+        try:
+            self._container.reload()
+            return bool(self._container.attrs.get("State", {}).get("OOMKilled"))
+        except Exception:  # noqa: BLE001 - the container is gone: we cannot tell
+            return False
 
     def _wait(self) -> None:
         try:
@@ -181,9 +215,13 @@ class ContainerJob:
             pass  # already gone
 
     def remove(self) -> None:
-        from docker.errors import APIError
+        _remove_quietly(self._container)
 
-        try:
-            self._container.remove(force=True)
-        except APIError:
-            pass
+
+def _remove_quietly(container: Any) -> None:
+    from docker.errors import APIError
+
+    try:
+        container.remove(force=True)
+    except APIError:
+        pass  # already gone
