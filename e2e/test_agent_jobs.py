@@ -20,6 +20,9 @@ from e2e.agent_bed import EXAMPLES, AgentBed
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
 
+#: The timeout of the timeout scenarios: the SDK's start-up (imports) takes seconds on a busy machine.
+JOB_TIMEOUT = 40
+
 RAISES = """
     from armnet_runtime import Context, main
 
@@ -45,6 +48,7 @@ HONOURS_SHUTDOWN = """
 
     @main
     def run(ctx: Context):
+        print("started", flush=True)
         rounds = 0
         while not ctx.cell.is_shutting_down():
             rounds += 1
@@ -127,8 +131,8 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "missing-secret": bed.submit("no-secret", bed.image("echo", ECHO), secrets={"API_TOKEN": "absent"}),
         "secret": bed.submit("with-secret", bed.image("echo", ECHO), args={"size": "x" * 100_000},
                              secrets={"API_TOKEN": "api-token"}),
-        "timeout-ignored": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=8),
-        "timeout-honoured": bed.submit("honours", bed.image("honours", HONOURS_SHUTDOWN), timeout=8),
+        "timeout-ignored": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
+        "timeout-honoured": bed.submit("honours", bed.image("honours", HONOURS_SHUTDOWN), timeout=JOB_TIMEOUT),
         "safety": bed.submit("unsafe", bed.image("unsafe", UNSAFE, (EXAMPLES / "_so101_moves.py",)), timeout=180),
         "bimanual": bed.submit("bimanual", bed.image("bimanual", EXAMPLES / "bimanual.py",
                                                      (EXAMPLES / "_so101_moves.py",)),
@@ -183,14 +187,14 @@ def test_a_job_ignoring_shutdown_is_killed_at_the_end_of_grace_and_ends_timeout(
     st = status(bed.wait_phase(batch["timeout-ignored"], timeout=300))
     assert st["phase"] == "timeout"
     assert "killed at the end of the 3 s grace window" in st["result"]["error"]
-    # Clock from the container start: timeout 8 + grace 3 + kill within 1 s (+1 s timestamp rounding).
-    assert seconds_between(st["startedAt"], st["finishedAt"]) <= 8 + 3 + 1 + 1
+    # The clock runs from the container start: killed within grace (3 s) + 1 s after the deadline.
+    assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 1
 
 
 def test_a_job_honouring_shutdown_ends_timeout_with_its_return_value(bed: AgentBed, batch: dict[str, str]) -> None:
     st = status(bed.wait_phase(batch["timeout-honoured"], timeout=300))
-    assert st["phase"] == "timeout"
-    assert st["result"]["returnValue"] == {"stopped_cleanly": True}
+    assert st["phase"] == "timeout", json.dumps(st)[:3000]
+    assert st["result"].get("returnValue") == {"stopped_cleanly": True}, json.dumps(st)[:3000]
     assert "stopped within the 3 s grace window" in st["result"]["error"]
 
 

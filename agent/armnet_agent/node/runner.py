@@ -230,7 +230,7 @@ class JobRunner:
                 self.stop()
             if current.phase == "running" and current.started_at is not None:
                 return current.started_at
-            now = datetime.now(UTC).replace(microsecond=0)
+            now = datetime.now(UTC)
             try:
                 self.deps.kube.patch_job_status(
                     current.namespace, current.name, report.running_patch(current.resource_version, now)

@@ -206,9 +206,10 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
         next_check = kill_at if deadline_passed else deadline
         exit_code = job.wait(min(POLL_INTERVAL_S, max(next_check - now, 0.0)))
 
+    # The job ended now; draining its output afterwards is not part of its run time.
+    finished_at = datetime.now(UTC)
     for reader in readers:
         reader.join(DRAIN_TIMEOUT_S)
-    finished_at = datetime.now(UTC)
     with lock:
         facts = RunFacts(
             exit_code=exit_code,
