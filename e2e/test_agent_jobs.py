@@ -195,7 +195,6 @@ def test_a_job_honouring_shutdown_ends_timeout_with_its_return_value(bed: AgentB
     st = status(bed.wait_phase(batch["timeout-honoured"], timeout=300))
     assert st["phase"] == "timeout", json.dumps(st)[:3000]
     assert st["result"].get("returnValue") == {"stopped_cleanly": True}, json.dumps(st)[:3000]
-    assert "stopped within the 3 s grace window" in st["result"]["error"]
 
 
 def test_a_safety_violation_fails_the_job_with_the_connectors_record_and_the_interlock_clears(

@@ -149,7 +149,8 @@ class NodeAgent:
             return  # namespace-limited agents rely on the pass for jobs
         while not stop.is_set():
             try:
-                for _event in watch.Watch().stream(list_call, *args, timeout_seconds=30):
+                stream = watch.Watch().stream(list_call, *args, timeout_seconds=30)  # type: ignore[no-untyped-call]
+                for _event in stream:
                     self._wake.set()
                     if stop.is_set():
                         return

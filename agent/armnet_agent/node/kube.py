@@ -14,7 +14,7 @@ import logging
 from typing import Any, cast
 
 from kubernetes import client, config
-from kubernetes.client.rest import ApiException
+from kubernetes.client.exceptions import ApiException
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ class AgentKube:
 
     def list_cells(self) -> list[dict[str, Any]]:
         try:
-            listed = self.custom.list_cluster_custom_object(GROUP, VERSION, "cells")
+            listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "cells"))
         except ApiException as exc:
             raise _error(exc, "list cells") from exc
         return list(listed.get("items", []))
@@ -77,10 +77,12 @@ class AgentKube:
     def list_jobs(self) -> list[dict[str, Any]]:
         try:
             if not self.namespaces:
-                return list(self.custom.list_cluster_custom_object(GROUP, VERSION, "robotjobs").get("items", []))
+                listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "robotjobs"))
+                return list(listed.get("items", []))
             items: list[dict[str, Any]] = []
             for namespace in self.namespaces:
-                listed = self.custom.list_namespaced_custom_object(GROUP, VERSION, namespace, "robotjobs")
+                listed = cast(dict[str, Any], self.custom.list_namespaced_custom_object(
+                    GROUP, VERSION, namespace, "robotjobs"))
                 items.extend(listed.get("items", []))
             return items
         except ApiException as exc:

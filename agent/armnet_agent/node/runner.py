@@ -171,7 +171,8 @@ class JobRunner:
                     container_job.remove()
                     return
                 output.status("running", {"startedAt": report.timestamp(started_at)})
-                elapsed = (datetime.now(UTC) - started_at).total_seconds() if adopted else 0.0
+                # The job's clock runs from startedAt (also across an agent restart).
+                elapsed = (datetime.now(UTC) - started_at).total_seconds()
                 limits = SupervisorLimits(
                     timeout_seconds=plan.timeout_seconds, grace_seconds=plan.grace_seconds,
                     already_elapsed_s=max(elapsed, 0.0),

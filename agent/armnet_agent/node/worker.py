@@ -221,9 +221,9 @@ class CellWorker:
             arm.clear_faults()
         for item in wanted:
             arm_name, _, motor = item.rpartition("/")
-            arm = self.sim.arms.get(arm_name) if arm_name else next(iter(self.sim.arms.values()))
-            if arm is not None and motor in arm.motors:
-                arm.unplug(motor)
+            target = self.sim.arms.get(arm_name) if arm_name else next(iter(self.sim.arms.values()))
+            if target is not None and motor in target.motors:
+                target.unplug(motor)
         self._unplugged = wanted
 
 
