@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_agent.launch.plan import (
+    LABEL_CELL,
     LABEL_JOB_UID,
     LABEL_MANAGED_BY,
     LABEL_NAMESPACE,
@@ -118,22 +119,29 @@ class NodeAgent:
                 log.warning("%s", exc)
         return jobs
 
-    def _containers(self) -> dict[str, Any]:
-        listed = self.engine.containers.list(all=True, filters={"label": f"{LABEL_MANAGED_BY}={MANAGED_BY_AGENT}"})
-        return {c.labels.get(LABEL_JOB_UID, ""): c for c in listed}
+    def _containers(self) -> dict[str, dict[str, Any]]:
+        """Job uid -> the engine's row of its container (one list call, no per-container inspect)."""
+        rows = self.engine.api.containers(all=True, filters={"label": f"{LABEL_MANAGED_BY}={MANAGED_BY_AGENT}"})
+        return {(row.get("Labels") or {}).get(LABEL_JOB_UID, ""): row for row in rows}
 
-    def _remove_orphans(self, jobs: list[Job], containers: dict[str, Any]) -> None:
-        """A container whose RobotJob no longer exists (deleted while the agent was down)."""
+    def _remove_orphans(self, jobs: list[Job], containers: dict[str, dict[str, Any]]) -> None:
+        """A container of one of this node's cells whose RobotJob no longer exists.
+
+        Only this node's cells: another agent may share the engine (its jobs are
+        not in this agent's lists), and its containers are none of our business.
+        """
         known = {job.uid for job in jobs}
         running = {w.runner.uid for w in self.workers.values() if w.runner is not None}
-        for uid, container in containers.items():
-            namespace = container.labels.get(LABEL_NAMESPACE, "")
+        for uid, row in containers.items():
+            labels = row.get("Labels") or {}
+            namespace = labels.get(LABEL_NAMESPACE, "")
+            mine = labels.get(LABEL_CELL) in self.workers
             watched = not self.settings.namespaces or namespace in self.settings.namespaces
-            if uid in known or uid in running or not watched:
+            if uid in known or uid in running or not watched or not mine:
                 continue
-            log.warning("removing container %s: its RobotJob (uid %s) no longer exists", container.name, uid)
+            log.warning("removing container %s: its RobotJob (uid %s) no longer exists", row.get("Id", "")[:12], uid)
             try:
-                container.remove(force=True)
+                self.engine.api.remove_container(row["Id"], force=True)
             except Exception:  # noqa: BLE001 - gone already
                 log.debug("orphan removal failed", exc_info=True)
 

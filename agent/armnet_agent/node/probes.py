@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 from armnet_agent.connector.config import read_calibration_file
 from armnet_agent.node.health import ArmProbe
@@ -63,10 +64,22 @@ def ping_servos(port: str, ids: dict[str, int]) -> dict[str, tuple[int, int | No
         packets = PacketHandler(0)
         answers: dict[str, tuple[int, int | None]] = {}
         for motor, sid in sorted(ids.items(), key=lambda item: item[1]):
-            model, result, _error = packets.ping(handler, sid)
-            if result != COMM_SUCCESS:  # one retry: a loaded machine can miss a reply
-                model, result, _error = packets.ping(handler, sid)
-            answers[motor] = (sid, int(model) if result == COMM_SUCCESS else None)
+            model = _ping(packets, handler, sid, COMM_SUCCESS)
+            if model is None:  # one retry: a loaded machine can miss a reply
+                model = _ping(packets, handler, sid, COMM_SUCCESS)
+            answers[motor] = (sid, model)
         return answers
     finally:
         handler.closePort()
+
+
+def _ping(packets: Any, handler: Any, sid: int, success: int) -> int | None:
+    """The model number, or None when the servo is silent or its reply is cut short.
+
+    ``scservo_sdk`` raises IndexError on a truncated reply instead of reporting it.
+    """
+    try:
+        model, result, _error = packets.ping(handler, sid)
+    except (IndexError, OSError):
+        return None
+    return int(model) if result == success else None

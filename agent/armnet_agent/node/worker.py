@@ -102,7 +102,7 @@ class CellWorker:
         self.cell = cell
         self._apply_sim_faults()
 
-    def observe(self, jobs: list[Job], containers: dict[str, Any]) -> None:
+    def observe(self, jobs: list[Job], containers: dict[str, dict[str, Any]]) -> None:
         """Launch, adopt, stop or fail the jobs bound to this cell (idempotent)."""
         with self._lock:
             runner = self.runner
@@ -116,22 +116,37 @@ class CellWorker:
                     runner.stop()
                 return
             for job in sorted(mine.values(), key=lambda j: j.key):
-                container = containers.get(job.uid)
+                row = containers.get(job.uid)
                 if job.phase in TERMINAL_PHASES or job.uid in self._finished_uids:
-                    if container is not None and job.phase in TERMINAL_PHASES:
-                        _remove(container)  # reported already; the agent died before removing it
+                    if row is not None and job.phase in TERMINAL_PHASES:
+                        self._remove(row)  # reported already; the agent died before removing it
                     continue
                 if job.phase not in ACTIVE_PHASES or self.cell.current_job != job.key:
                     continue
-                if container is not None:
-                    self._begin(job, container)
-                    return
+                if row is not None:
+                    container = self._container(row)
+                    if container is not None:
+                        self._begin(job, container)
+                        return
+                    continue  # removed since the list: the next pass sees it gone
                 if job.phase == "running":
                     self._vanished(job)
                     continue
                 if should_launch(job, self.cell):
                     self._begin(job, None)
                     return
+
+    def _container(self, row: dict[str, Any]) -> Any:
+        try:
+            return self.deps.engine.containers.get(row["Id"])
+        except Exception:  # noqa: BLE001 - gone between the list and now
+            return None
+
+    def _remove(self, row: dict[str, Any]) -> None:
+        try:
+            self.deps.engine.api.remove_container(row["Id"], force=True)
+        except Exception:  # noqa: BLE001 - already gone
+            log.debug("removing a reported container failed", exc_info=True)
 
     def _begin(self, job: Job, container: Any) -> None:
         verb = "adopting" if container is not None else "launching"
@@ -187,7 +202,11 @@ class CellWorker:
         return probe
 
     def _heartbeat(self) -> None:
-        conditions = health.cell_health(self.probe())
+        try:
+            conditions = health.cell_health(self.probe())
+        except Exception:  # noqa: BLE001 - a probe bug must not stop the heartbeat; the others stay as they were
+            log.warning("cell %s: health probe failed", self.cell.name, exc_info=True)
+            conditions = health.cell_health(health.CellProbe(arms={}))[:1]
         for _ in range(3):
             now = datetime.now(UTC)
             try:
@@ -227,8 +246,3 @@ class CellWorker:
         self._unplugged = wanted
 
 
-def _remove(container: Any) -> None:
-    try:
-        container.remove(force=True)
-    except Exception:  # noqa: BLE001 - already gone
-        log.debug("removing a reported container failed", exc_info=True)
