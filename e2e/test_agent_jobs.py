@@ -263,17 +263,22 @@ def test_an_agent_killed_mid_job_readopts_it_and_reports_every_line_once(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
     image = bed.image("counts", COUNTS_SLOWLY)
-    bed.submit("survives", image, args={"lines": 40, "pause": 0.25}, timeout=200)
+    bed.submit("survives", image, args={"lines": 60, "pause": 0.25}, timeout=200)
     bed.wait_phase("survives", ("running",), timeout=300)
-    bed.wait(lambda: "line 5" in (status(bed.job("survives")).get("progress") or ""), 60, "some output")
+
+    def some_output() -> bool:
+        progress = status(bed.job("survives")).get("progress") or ""
+        return progress.startswith("line ") and int(progress.split()[1]) >= 5
+
+    bed.wait(some_output, 60, "some output")
     bed.kill_agent()
     bed.start_agent()
     st = status(bed.wait_phase("survives", timeout=300))
     assert st["phase"] == "succeeded", json.dumps(st)[:3000]
-    assert st["result"]["returnValue"] == {"lines": 40}
+    assert st["result"]["returnValue"] == {"lines": 60}
     lines = [line.split(" ", 1)[-1] for line in st["result"]["stdoutTail"].splitlines() if "line " in line
              and "[armnet:" not in line]
-    assert lines == [f"line {i:03d}" for i in range(40)]
+    assert lines == [f"line {i:03d}" for i in range(60)]
 
 
 def test_an_unplugged_servo_makes_the_cell_not_ready_with_a_reason_and_no_job_is_bound(
@@ -297,3 +302,13 @@ def test_an_unplugged_servo_makes_the_cell_not_ready_with_a_reason_and_no_job_is
     assert status(queued).get("queuedReason") == "AllCellsUnavailable"
     assert not (bed.cell(cell).get("status") or {}).get("currentJob")
     bed.k8s.kubectl("delete", "cell", cell, "--wait=false")
+
+
+def test_the_agent_exports_job_and_heartbeat_metrics(bed: AgentBed, batch: dict[str, str]) -> None:
+    import urllib.request
+
+    bed.wait_phase(batch["success"], timeout=300)
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    assert 'armnet_agent_jobs_finished_total{outcome="succeeded"}' in text
+    assert "armnet_agent_heartbeat_age_seconds{cell=" in text
+    assert "armnet_agent_launch_latency_seconds_count" in text

@@ -86,6 +86,8 @@ class JobRunner:
         self._progress_dirty = threading.Event()
         self._finished = threading.Event()
         self._flush_stop = threading.Event()
+        #: The terminal status is written: nothing left to stop.
+        self.reported = False
         self._seen_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
 
@@ -187,6 +189,7 @@ class JobRunner:
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
                 written = self._write_terminal(result, record)
+                self.reported = True
                 if written:
                     output.status(result.status.value, {"exitCode": result.exit_code})
                     self._count(result, record, started_at)

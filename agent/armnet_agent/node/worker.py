@@ -112,7 +112,7 @@ class CellWorker:
             mine = {job.uid: job for job in jobs if job.cell_name == self.cell.name}
             if runner is not None:
                 job = mine.get(runner.uid)
-                if job is None or job.stopping or job.phase in TERMINAL_PHASES:
+                if not runner.reported and (job is None or job.stopping or job.phase in TERMINAL_PHASES):
                     runner.stop()
                 return
             for job in sorted(mine.values(), key=lambda j: j.key):

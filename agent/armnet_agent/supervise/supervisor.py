@@ -183,11 +183,13 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
     kill_at = deadline + limits.grace_seconds
     deadline_passed = killed = cancelled = False
     exit_code: int | None = None
+    killed_at: datetime | None = None
     while exit_code is None:
         now = time.monotonic()
         if hooks.cancel.is_set():
             cancelled = True
             job.kill()
+            killed_at = datetime.now(UTC)
             exit_code = job.wait(DRAIN_TIMEOUT_S)
             break
         if not deadline_passed and not cancelled and hooks.cancel_gracefully.is_set():
@@ -201,13 +203,15 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
         if deadline_passed and (now >= kill_at or hooks.kill_now.is_set()):
             killed = True
             job.kill()
+            killed_at = datetime.now(UTC)
             exit_code = job.wait(DRAIN_TIMEOUT_S)
             break
         next_check = kill_at if deadline_passed else deadline
         exit_code = job.wait(min(POLL_INTERVAL_S, max(next_check - now, 0.0)))
 
-    # The job ended now; draining its output afterwards is not part of its run time.
-    finished_at = datetime.now(UTC)
+    # The job ended when it was killed (the engine may take a while to report the exit)
+    # or now; draining its output afterwards is not part of its run time.
+    finished_at = killed_at or datetime.now(UTC)
     for reader in readers:
         reader.join(DRAIN_TIMEOUT_S)
     with lock:
