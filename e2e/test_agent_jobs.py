@@ -312,3 +312,20 @@ def test_the_agent_exports_job_and_heartbeat_metrics(bed: AgentBed, batch: dict[
     assert 'armnet_agent_jobs_finished_total{outcome="succeeded"}' in text
     assert "armnet_agent_heartbeat_age_seconds{cell=" in text
     assert "armnet_agent_launch_latency_seconds_count" in text
+
+
+def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a_clear_error(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("vanishes", image, args={"lines": 400, "pause": 0.25}, timeout=200)
+    job = bed.wait_phase("vanishes", ("running",), timeout=300)
+    bed.kill_agent()
+    for container in bed.podman.client.containers.list(
+        all=True, filters={"label": f"armnet.io/job-uid={job['metadata']['uid']}"}
+    ):
+        container.remove(force=True)
+    bed.start_agent()
+    st = status(bed.wait_phase("vanishes", timeout=120))
+    assert st["phase"] == "failed"
+    assert "vanished" in st["result"]["error"]
