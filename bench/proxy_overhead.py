@@ -69,8 +69,8 @@ def serve_cell(preset: str) -> None:
     """
     from armnet_agent.connector import Connector
     from armnet_agent.connector.hardware import simulated_camera_factory
-    from armnet_agent.local_run.cell_spec import plan_layout, resolve_spec
-    from armnet_agent.local_run.session import build_connector_config
+    from armnet_agent.launch.cell_spec import plan_layout, resolve_spec
+    from armnet_agent.launch.sim_cell import build_connector_config
     from armnet_agent.sim import SimulatedCellProcess
     from armnet_agent.sim.calibration import builtin_calibration, write_calibration
     from armnet_agent.sim.presets import PRESETS

@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from armnet_agent.launch.sim_cell import LocalCell
 from armnet_agent.local_run.cli import add_arguments, parse_request, run_local_job
 from armnet_agent.local_run.render import TerminalRenderer
-from armnet_agent.local_run.session import LocalCell
 from armnet_core import JobResult, JobStatus
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]

@@ -16,9 +16,9 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from armnet_agent.local_run.cell_spec import build_job_env, resolve_spec
-from armnet_agent.local_run.container import ContainerJob
-from armnet_agent.local_run.session import LocalCell
+from armnet_agent.launch.cell_spec import build_job_env, resolve_spec
+from armnet_agent.launch.container import ContainerJob
+from armnet_agent.launch.sim_cell import LocalCell
 from armnet_agent.supervise import JobHooks, SupervisorLimits, supervise
 from armnet_core import JobResult, JobStatus
 

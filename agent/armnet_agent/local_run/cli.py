@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from armnet_core import JobResult, JobStatus
 
-from armnet_agent.local_run.cell_spec import (
+from armnet_agent.launch.cell_spec import (
     DEFAULT_TASK,
     EMBODIMENT_PRESET,
     LocalCellError,
@@ -37,7 +37,7 @@ from armnet_agent.local_run.render import TerminalRenderer
 from armnet_agent.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
 
 if TYPE_CHECKING:
-    from armnet_agent.local_run.session import LocalCell
+    from armnet_agent.launch.sim_cell import LocalCell
 
 DEFAULT_TIMEOUT_SECONDS = 120
 #: Host variables a local subprocess keeps (a container gets none of them).
@@ -174,13 +174,13 @@ def run_local_job(
     ``inspect`` sees the still-running cell and the result just before teardown
     (tests read the simulator's final joint positions there).
     """
-    from armnet_agent.local_run.session import LocalCell
+    from armnet_agent.launch.sim_cell import LocalCell
 
     spec = request.spec
     limits = SupervisorLimits(timeout_seconds=request.timeout_seconds, grace_seconds=spec.grace_seconds)
     engine = None
     if request.image is not None:
-        from armnet_agent.local_run.container import EngineUnavailable, connect_engine
+        from armnet_agent.launch.container import EngineUnavailable, connect_engine
 
         try:
             engine = connect_engine()
@@ -252,7 +252,7 @@ def _run_in_container(
     limits: SupervisorLimits,
     hooks: JobHooks,
 ) -> JobResult:
-    from armnet_agent.local_run.container import ContainerJob
+    from armnet_agent.launch.container import ContainerJob
 
     job = ContainerJob.start(engine, request.image or "", request.script, env, run_dir)
     try:

@@ -2,7 +2,7 @@
 
 The launched job is anything with two byte streams, ``wait`` and ``kill``: a
 local subprocess (:class:`SubprocessJob`) or a container (see
-``armnet_agent.local_run.container``). The supervisor owns the clock: at the
+``armnet_agent.launch.container``). The supervisor owns the clock: at the
 deadline it calls ``hooks.on_deadline`` (the host asks the connector to trip
 the interlock and open the grace window) and at the end of the grace window it
 kills the job, polling often enough that the kill lands within a second.
@@ -57,6 +57,8 @@ class SupervisorLimits:
     timeout_seconds: float
     grace_seconds: float = 10.0
     tail_chars: int = 16 * 1024
+    #: Seconds of the job's clock already spent (a job adopted after an agent restart).
+    already_elapsed_s: float = 0.0
 
 
 def _noop_event(event: OutputEvent) -> None:
@@ -77,6 +79,9 @@ class JobHooks:
     # grace-expired callback) or to cancel the job outright.
     kill_now: threading.Event = field(default_factory=threading.Event)
     cancel: threading.Event = field(default_factory=threading.Event)
+    # Set by the host to stop the job the way a timeout does (``on_deadline``, then
+    # the kill at the end of the grace window), but ending ``cancelled``.
+    cancel_gracefully: threading.Event = field(default_factory=threading.Event)
 
 
 class SubprocessJob:
@@ -153,7 +158,7 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
     observer = OutputObserver(limits.tail_chars)
     lock = threading.Lock()
     started_at = datetime.now(UTC)
-    start = time.monotonic()
+    start = time.monotonic() - limits.already_elapsed_s
 
     def pump(stream: Stream, chunks: Iterator[bytes]) -> None:
         try:
@@ -178,30 +183,37 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
     kill_at = deadline + limits.grace_seconds
     deadline_passed = killed = cancelled = False
     exit_code: int | None = None
+    killed_at: datetime | None = None
     while exit_code is None:
         now = time.monotonic()
         if hooks.cancel.is_set():
             cancelled = True
             job.kill()
+            killed_at = datetime.now(UTC)
             exit_code = job.wait(DRAIN_TIMEOUT_S)
             break
+        if not deadline_passed and not cancelled and hooks.cancel_gracefully.is_set():
+            cancelled = True
+            deadline_passed = True
+            kill_at = min(kill_at, now + limits.grace_seconds)
+            _open_grace(hooks)
         if not deadline_passed and now >= deadline:
             deadline_passed = True
-            try:
-                hooks.on_deadline()
-            except Exception:  # noqa: BLE001 - the kill at grace end must happen regardless
-                log.exception("opening the grace window failed")
+            _open_grace(hooks)
         if deadline_passed and (now >= kill_at or hooks.kill_now.is_set()):
             killed = True
             job.kill()
+            killed_at = datetime.now(UTC)
             exit_code = job.wait(DRAIN_TIMEOUT_S)
             break
         next_check = kill_at if deadline_passed else deadline
         exit_code = job.wait(min(POLL_INTERVAL_S, max(next_check - now, 0.0)))
 
+    # The job ended when it was killed (the engine may take a while to report the exit)
+    # or now; draining its output afterwards is not part of its run time.
+    finished_at = killed_at or datetime.now(UTC)
     for reader in readers:
         reader.join(DRAIN_TIMEOUT_S)
-    finished_at = datetime.now(UTC)
     with lock:
         facts = RunFacts(
             exit_code=exit_code,
@@ -219,6 +231,13 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
             finished_at=finished_at,
         )
     return assemble_result(facts)
+
+
+def _open_grace(hooks: JobHooks) -> None:
+    try:
+        hooks.on_deadline()
+    except Exception:  # noqa: BLE001 - the kill at grace end must happen regardless
+        log.exception("opening the grace window failed")
 
 
 def infra_failure(message: str, limits: SupervisorLimits) -> JobResult:

@@ -77,3 +77,36 @@ def test_a_nonzero_exit_is_failed_and_keeps_stderr() -> None:
     assert result.status is JobStatus.FAILED
     assert result.exit_code == 7
     assert "bad thing" in result.stderr
+
+
+def test_a_graceful_cancel_opens_the_grace_window_then_kills_and_ends_cancelled() -> None:
+    opened = threading.Event()
+    hooks = JobHooks(on_deadline=opened.set)
+    hooks.cancel_gracefully.set()
+    result = supervise(
+        python_job("import time\nwhile True: time.sleep(0.1)"),
+        SupervisorLimits(timeout_seconds=60, grace_seconds=0.3),
+        hooks,
+    )
+    assert opened.is_set()
+    assert result.status is JobStatus.CANCELLED
+
+
+def test_a_job_that_stops_within_a_graceful_cancel_keeps_its_return_value() -> None:
+    hooks = JobHooks()
+    code = f"import time\ntime.sleep(0.3)\nprint({format_result('done')!r})"
+    hooks.cancel_gracefully.set()
+    result = supervise(python_job(code), SupervisorLimits(timeout_seconds=60, grace_seconds=5), hooks)
+    assert result.status is JobStatus.CANCELLED
+    assert result.return_value == "done"
+
+
+def test_an_adopted_job_keeps_the_clock_it_had_before_the_restart() -> None:
+    opened = threading.Event()
+    result = supervise(
+        python_job("import time\nwhile True: time.sleep(0.1)"),
+        SupervisorLimits(timeout_seconds=30, grace_seconds=0.2, already_elapsed_s=29.8),
+        JobHooks(on_deadline=opened.set),
+    )
+    assert opened.is_set()
+    assert result.status is JobStatus.TIMEOUT

@@ -2,21 +2,24 @@
 
 The container gets the same env as a local subprocess, the run directory
 (sockets, calibration, cache, volume) bind-mounted at the same path so every
-endpoint and path in the env stays valid, the script's directory mounted
-read-only, host networking, and explicit ulimits (rootless Podman refuses the
-engine defaults on some hosts). It implements the supervisor's ``LaunchedJob``.
+endpoint and path in the env stays valid, host networking, and explicit
+ulimits (rootless Podman refuses the engine defaults on some hosts). A local
+run mounts its script's directory read-only; the agent runs the image's own
+command. It implements the supervisor's ``LaunchedJob``.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import signal
 import threading
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 from .log_recovery import DeliveredLines, missed_output
+from .plan import ContainerSpec, Mount
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +75,7 @@ class ContainerJob:
         self._container = container
         self._exit_code: int | None = None
         self._done = threading.Event()
+        self._pidfd = _open_pidfd(container)
         threading.Thread(target=self._wait, name="armnet-container-wait", daemon=True).start()
 
     @classmethod
@@ -84,32 +88,64 @@ class ContainerJob:
         run_dir: Path,
         extra_mounts: Mapping[str, str] | None = None,
     ) -> ContainerJob:
-        """Create and start the job container.
+        """Create and start a local run's job container (the script mounted from the host).
 
         ``extra_mounts`` (host path -> container path, read-only) is for
         development images that take their Python environment from the host.
         """
+        script = script.resolve()
+        mounts = [Mount(str(run_dir), str(run_dir)), Mount(str(script.parent), JOB_DIR_IN_CONTAINER, read_only=True)]
+        mounts += [Mount(host, inside, read_only=True) for host, inside in (extra_mounts or {}).items()]
+        spec = ContainerSpec(
+            image=image,
+            command=tuple(container_command(script)),
+            env=dict(env),
+            mounts=tuple(mounts),
+            labels={"armnet.io/job-id": env.get("ARMNET_JOB_ID", "")},
+        )
+        return cls.launch(client, spec)
+
+    @classmethod
+    def launch(cls, client: Any, spec: ContainerSpec) -> ContainerJob:
+        """Create and start the container ``spec`` describes (the one path local runs and the agent share)."""
         from docker.types import Ulimit
 
-        script = script.resolve()
-        volumes = {
-            str(run_dir): {"bind": str(run_dir), "mode": "rw"},
-            str(script.parent): {"bind": JOB_DIR_IN_CONTAINER, "mode": "ro"},
-        }
-        for host, inside in (extra_mounts or {}).items():
-            volumes[host] = {"bind": inside, "mode": "ro"}
+        volumes = {m.host: {"bind": m.inside, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts}
         container = client.containers.create(
-            image,
-            command=container_command(script),
-            environment=dict(env),
+            spec.image,
+            command=list(spec.command) if spec.command is not None else None,
+            environment=dict(spec.env),
             volumes=volumes,
             network_mode="host",
             ulimits=[Ulimit(name=name, soft=soft, hard=hard) for name, soft, hard in ULIMITS],
-            labels={"armnet.io/job-id": env.get("ARMNET_JOB_ID", "")},
+            labels=dict(spec.labels),
+            name=spec.name,
             detach=True,
         )
-        container.start()
+        try:
+            container.start()
+        except Exception:
+            _remove_quietly(container)
+            raise
         return cls(client, container)
+
+    @classmethod
+    def adopt(cls, client: Any, container: Any) -> ContainerJob:
+        """Follow a container started earlier (by a previous agent process): its logs from the start."""
+        return cls(client, container)
+
+    @property
+    def container_id(self) -> str:
+        return str(self._container.id)
+
+    @property
+    def oom_killed(self) -> bool:
+        """The engine killed the container for its memory limit (an infrastructure failure)."""
+        try:
+            self._container.reload()
+            return bool(self._container.attrs.get("State", {}).get("OOMKilled"))
+        except Exception:  # noqa: BLE001 - the container is gone: we cannot tell
+            return False
 
     def _wait(self) -> None:
         try:
@@ -173,6 +209,26 @@ class ContainerJob:
         return self._exit_code if self._done.wait(max(timeout, 0.0)) else None
 
     def kill(self) -> None:
+        """SIGKILL now: through a pidfd of the container's init when the engine is on this host.
+
+        A loaded engine can take seconds to answer a kill request; the grace window
+        promises the kill within a second. The pidfd cannot hit a recycled pid. The
+        engine is asked too (it also covers an engine on another host), without waiting
+        for it when the signal was already sent.
+        """
+        sent = False
+        if self._pidfd is not None:
+            try:
+                signal.pidfd_send_signal(self._pidfd, signal.SIGKILL)
+                sent = True
+            except OSError:
+                pass  # already exited
+        if sent:
+            threading.Thread(target=self._kill_via_engine, name="armnet-container-kill", daemon=True).start()
+        else:
+            self._kill_via_engine()
+
+    def _kill_via_engine(self) -> None:
         from docker.errors import APIError
 
         try:
@@ -181,9 +237,26 @@ class ContainerJob:
             pass  # already gone
 
     def remove(self) -> None:
-        from docker.errors import APIError
+        if self._pidfd is not None:
+            os.close(self._pidfd)
+            self._pidfd = None
+        _remove_quietly(self._container)
 
-        try:
-            self._container.remove(force=True)
-        except APIError:
-            pass
+
+def _open_pidfd(container: Any) -> int | None:
+    """A pidfd of the container's init process, or None (engine elsewhere, exited, no pidfd support)."""
+    try:
+        container.reload()
+        pid = int(container.attrs.get("State", {}).get("Pid") or 0)
+        return os.pidfd_open(pid) if pid > 0 else None
+    except Exception:  # noqa: BLE001 - the fast kill path is optional; the engine's kill remains
+        return None
+
+
+def _remove_quietly(container: Any) -> None:
+    from docker.errors import APIError
+
+    try:
+        container.remove(force=True)
+    except APIError:
+        pass  # already gone

@@ -1,7 +1,10 @@
-"""The in-process simulated cell of one local run: simulator, cameras, connector.
+"""The in-process simulated cell of one job: simulator, cameras, connector.
 
-This module owns starting and stopping them together on a run directory laid
-out by ``cell_spec.plan_layout``: it writes the calibration files (the same
+Local runs and the node agent's simulated cells both use it. This module owns
+starting and stopping them together on a run directory laid out by
+``cell_spec.plan_layout`` (the agent passes its own layout, with the cell's
+cache and the namespace's volume elsewhere, and a simulator it keeps running
+between jobs): it writes the calibration files (the same
 ones that seed the simulated servos, so LeRobot's ``connect()`` finds them
 calibrated), starts one simulated bus per arm, and serves the real connector on
 ``<run_dir>/sockets``. The job deadline clock stays with the supervisor; the
@@ -18,8 +21,14 @@ from types import TracebackType
 
 from armnet_agent.connector import ArmConfig, CameraConfig, Connector, ConnectorConfig
 from armnet_agent.connector.hardware import simulated_camera_factory
-from armnet_agent.connector.inputs import InputFeeder, LocalOperatorInputs, terminal_prompt
-from armnet_agent.local_run.cell_spec import CellLayout, LocalCellSpec, plan_layout
+from armnet_agent.connector.inputs import (
+    InputFeeder,
+    LocalOperatorInputs,
+    OperatorInputs,
+    terminal_prompt,
+)
+from armnet_agent.connector.interlock import TripReason
+from armnet_agent.launch.cell_spec import CellLayout, LocalCellSpec, plan_layout
 from armnet_agent.sim.calibration import builtin_calibration, load_calibration, write_calibration
 from armnet_agent.sim.presets import PRESETS, SimulatedCell, build_cell
 
@@ -66,14 +75,27 @@ class LocalCell:
         auto_confirm_reset: bool = False,
         inputs_source: str | None = None,
         on_grace_expired: Callable[[], None] | None = None,
+        layout: CellLayout | None = None,
+        sim: SimulatedCell | None = None,
+        inputs: OperatorInputs | None = None,
+        tripped: str | None = None,
     ) -> None:
+        """``sim``: a running simulator owned by the caller (kept on exit), else one is started.
+
+        ``tripped``: start with the interlock already tripped, with this reason
+        (a connector re-created for a job it did not see start never resumes motion).
+        """
         self.spec = spec
-        self.layout = plan_layout(spec, run_dir)
+        self.layout = layout or plan_layout(spec, run_dir)
         prompt = terminal_prompt if sys.stdin.isatty() and not auto_confirm_reset else None
-        self.inputs = LocalOperatorInputs(auto_confirm_reset=auto_confirm_reset, on_reset_requested=prompt)
+        self.inputs: OperatorInputs = inputs or LocalOperatorInputs(
+            auto_confirm_reset=auto_confirm_reset, on_reset_requested=prompt
+        )
         self._inputs_source = inputs_source
         self._on_grace_expired = on_grace_expired
-        self.sim: SimulatedCell | None = None
+        self._owns_sim = sim is None
+        self.sim: SimulatedCell | None = sim
+        self._tripped = tripped
         self.connector: Connector | None = None
 
     def __enter__(self) -> LocalCell:
@@ -100,7 +122,8 @@ class LocalCell:
             calibration = load_calibration(override) if override else builtin_calibration(shipped[arm.name])
             write_calibration(arm.calibration_file, calibration)
             calibrations[arm.name] = calibration
-        self.sim = build_cell(self.spec.preset, calibrations=calibrations, latency_ms=self.spec.latency_ms).start()
+        if self.sim is None:
+            self.sim = build_cell(self.spec.preset, calibrations=calibrations, latency_ms=self.spec.latency_ms).start()
         config = build_connector_config(self.spec, layout, self.sim.ports())
         self.connector = Connector(
             config,
@@ -109,7 +132,9 @@ class LocalCell:
             camera_factory=simulated_camera_factory(source=self.sim),
             on_grace_expired=self._on_grace_expired,
         ).start()
-        if self._inputs_source is not None:
+        if self._tripped is not None:
+            self.connector.interlock.trip(TripReason.SHUTDOWN, self._tripped)
+        if self._inputs_source is not None and isinstance(self.inputs, LocalOperatorInputs):
             InputFeeder(self.inputs, self._inputs_source).start()
 
     def pass_deadline(self) -> None:
@@ -128,6 +153,6 @@ class LocalCell:
             finally:
                 connector_log.setLevel(level)
             self.connector = None
-        if self.sim is not None:
+        if self.sim is not None and self._owns_sim:
             self.sim.stop()
-            self.sim = None
+        self.sim = None

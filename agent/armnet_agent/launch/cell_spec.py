@@ -1,4 +1,7 @@
-"""What the local simulated cell looks like, and the env a job on it receives.
+"""What a simulated cell looks like, and the env a job on it receives.
+
+Shared by local runs (from flags and a cell file) and the node agent (from a
+Cell's spec, see ``armnet_agent.node.plan``).
 
 Pure: from flags and an optional cell file it derives a frozen
 :class:`LocalCellSpec`, the per-arm layout (robot ids, calibration files,
@@ -86,6 +89,8 @@ class LocalCellSpec:
     language_instruction: str | None = None
     latency_ms: float = 0.0
     calibration_files: Mapping[str, Path] = field(default_factory=dict)
+    #: The Cell's name on a cluster (None: a local run's ``local-<preset>``).
+    cell_name: str | None = None
 
     @property
     def arm_names(self) -> tuple[str, ...]:
@@ -227,7 +232,7 @@ def plan_layout(spec: LocalCellSpec, run_dir: Path) -> CellLayout:
 def build_cell_config(spec: LocalCellSpec, layout: CellLayout) -> dict[str, Any]:
     """The ``ARMNET_CELL_CONFIG`` document a real cell of this shape would inject."""
     document: dict[str, Any] = {
-        "cell_name": f"local-{spec.preset}",
+        "cell_name": spec.cell_name or f"local-{spec.preset}",
         "embodiment": spec.embodiment,
         "task": spec.task,
         "robot_connector_endpoint": layout.robot_endpoint,

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from armnet_agent.local_run.cell_spec import (
+from armnet_agent.launch.cell_spec import (
     LocalCellError,
     LocalCellFile,
     build_job_env,

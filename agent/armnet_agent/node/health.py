@@ -1,0 +1,173 @@
+"""A cell's health conditions from what the probes found. Pure.
+
+The operator binds only to cells with no health condition ``False``; each
+false condition says what is wrong and what the person at the cell should do.
+The probes (``node.probes``) gather the facts; while a job holds the bus they
+do not touch it, and the hardware facts come from the last idle probe and the
+connector (interlock) instead.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+AGENT_CONNECTED = "AgentConnected"
+HARDWARE_READY = "HardwareReady"
+CALIBRATION_PRESENT = "CalibrationPresent"
+CAMERAS_READY = "CamerasReady"
+INTERLOCK_CLEAR = "InterlockClear"
+HEALTH_CONDITIONS = (AGENT_CONNECTED, HARDWARE_READY, CALIBRATION_PRESENT, CAMERAS_READY, INTERLOCK_CLEAR)
+
+
+@dataclass(frozen=True)
+class ArmProbe:
+    """One arm's bus: whether its port exists and what each expected servo answered."""
+
+    port: str
+    port_exists: bool
+    #: motor name -> (servo id, model number it answered with, or None if silent)
+    answers: Mapping[str, tuple[int, int | None]] = field(default_factory=dict)
+    expected_model: int = 777
+    calibration_file: str | None = None
+    calibration_exists: bool = False
+    calibration_missing: tuple[str, ...] = ()
+    calibration_error: str | None = None
+
+
+@dataclass(frozen=True)
+class CellProbe:
+    arms: Mapping[str, ArmProbe]
+    #: camera name -> None if a frame was read, else the error
+    cameras: Mapping[str, str | None] = field(default_factory=dict)
+    #: the connector's interlock trip message while a job runs, None when clear
+    interlock_trip: str | None = None
+    #: a job holds the bus: the hardware facts are the last idle probe's
+    bus_held_by_job: bool = False
+
+
+@dataclass(frozen=True)
+class Condition:
+    type: str
+    status: str
+    reason: str
+    message: str
+
+
+def _ok(kind: str, reason: str, message: str) -> Condition:
+    return Condition(kind, "True", reason, message)
+
+
+def _bad(kind: str, reason: str, message: str) -> Condition:
+    return Condition(kind, "False", reason, message)
+
+
+def cell_health(probe: CellProbe) -> tuple[Condition, ...]:
+    """The five health conditions of a cell whose agent is alive (AgentConnected is True)."""
+    return (
+        _ok(AGENT_CONNECTED, "Heartbeat", "the node agent is running and renewing the heartbeat"),
+        hardware_condition(probe),
+        calibration_condition(probe),
+        cameras_condition(probe),
+        interlock_condition(probe),
+    )
+
+
+def hardware_condition(probe: CellProbe) -> Condition:
+    for name, arm in sorted(probe.arms.items()):
+        if not arm.port_exists:
+            return _bad(
+                HARDWARE_READY, "PortMissing",
+                f"arm {name}: serial port {arm.port} does not exist; plug the arm's USB cable in "
+                "or fix spec.robot.port / spec.arms.<arm>.port",
+            )
+        silent = [f"{motor} (id {sid})" for motor, (sid, model) in sorted(arm.answers.items()) if model is None]
+        if silent:
+            return _bad(
+                HARDWARE_READY, "ServoNotResponding",
+                f"arm {name}: servo(s) {', '.join(silent)} do not answer a ping on {arm.port}; "
+                "check the servo cables and the power supply",
+            )
+        wrong = [
+            f"{motor} (id {sid}) is model {model}"
+            for motor, (sid, model) in sorted(arm.answers.items())
+            if model is not None and model != arm.expected_model
+        ]
+        if wrong:
+            return _bad(
+                HARDWARE_READY, "WrongServoModel",
+                f"arm {name}: expected model {arm.expected_model} on every joint, but {', '.join(wrong)}; "
+                "replace the servo or fix its id",
+            )
+    detail = " (last checked before the running job took the bus)" if probe.bus_held_by_job else ""
+    return _ok(HARDWARE_READY, "AllServosAnswer", f"every configured servo answers with the expected model{detail}")
+
+
+def calibration_condition(probe: CellProbe) -> Condition:
+    for name, arm in sorted(probe.arms.items()):
+        if arm.calibration_file is None:
+            return _bad(
+                CALIBRATION_PRESENT, "NoCalibrationConfigured",
+                f"arm {name}: no calibration file configured; set robotId and calibrationDir on the Cell",
+            )
+        if not arm.calibration_exists:
+            return _bad(
+                CALIBRATION_PRESENT, "CalibrationMissing",
+                f"arm {name}: {arm.calibration_file} does not exist; run lerobot-calibrate for this arm",
+            )
+        if arm.calibration_error is not None:
+            return _bad(
+                CALIBRATION_PRESENT, "CalibrationInvalid",
+                f"arm {name}: {arm.calibration_error}; re-run lerobot-calibrate for this arm",
+            )
+        if arm.calibration_missing:
+            return _bad(
+                CALIBRATION_PRESENT, "CalibrationIncomplete",
+                f"arm {name}: {arm.calibration_file} has no entry for {', '.join(arm.calibration_missing)}; "
+                "re-run lerobot-calibrate for this arm",
+            )
+    return _ok(CALIBRATION_PRESENT, "CalibrationFound", "every arm has a calibration covering all its motors")
+
+
+def cameras_condition(probe: CellProbe) -> Condition:
+    failed = {name: error for name, error in sorted(probe.cameras.items()) if error is not None}
+    if failed:
+        listed = "; ".join(f"{name}: {error}" for name, error in failed.items())
+        return _bad(CAMERAS_READY, "CameraUnreadable", f"no frame from camera(s) {listed}; check the camera cable")
+    return _ok(CAMERAS_READY, "FramesRead", f"{len(probe.cameras)} camera(s) deliver frames")
+
+
+def interlock_condition(probe: CellProbe) -> Condition:
+    if probe.interlock_trip is not None:
+        return _bad(
+            INTERLOCK_CLEAR, "InterlockTripped",
+            f"the running job's interlock is tripped: {probe.interlock_trip}; it clears when the job ends",
+        )
+    return _ok(INTERLOCK_CLEAR, "Clear", "motion is allowed")
+
+
+def merge_conditions(
+    current: Sequence[Mapping[str, Any]], fresh: Sequence[Condition], now: datetime
+) -> list[dict[str, Any]]:
+    """The Cell's new condition list: ``lastTransitionTime`` moves only when a status changes.
+
+    Conditions the agent does not own (none today) are kept as they are.
+    """
+    stamp = now.strftime("%Y-%m-%dT%H:%M:%SZ")
+    by_type = {str(c.get("type")): c for c in current}
+    merged = [dict(c) for c in current if c.get("type") not in {f.type for f in fresh}]
+    for condition in fresh:
+        old = by_type.get(condition.type)
+        changed = old is None or old.get("status") != condition.status
+        merged.append(
+            {
+                "type": condition.type,
+                "status": condition.status,
+                "reason": condition.reason,
+                "message": condition.message,
+                "lastTransitionTime": stamp if changed else old.get("lastTransitionTime", stamp),  # type: ignore[union-attr]
+            }
+        )
+    return merged

@@ -1,0 +1,144 @@
+"""The agent's reads and writes on the API server (the official ``kubernetes`` client).
+
+Reads: Cells (cluster-wide), RobotJobs (all namespaces or the configured
+ones), Secrets in a job's own namespace. Writes: Cell status (heartbeat,
+conditions), RobotJob status (run-time fields). Errors become the small set
+the agent acts on: :class:`Conflict` (re-read and decide again),
+:class:`Gone`, :class:`KubeError`.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+from typing import Any, cast
+
+from kubernetes import client, config
+from kubernetes.client.exceptions import ApiException
+
+log = logging.getLogger(__name__)
+
+GROUP = "armnet.io"
+VERSION = "v1alpha1"
+
+
+class KubeError(RuntimeError):
+    """A request failed; the message names the object and the HTTP status."""
+
+
+class Conflict(KubeError):
+    """The object changed since it was read (409)."""
+
+
+class Gone(KubeError):
+    """The object does not exist (404)."""
+
+
+class SecretMissing(KubeError):
+    """A Secret or a key of it that a job names is not in the job's namespace."""
+
+
+def make_client(kubeconfig: str | None) -> client.ApiClient:
+    """The kubeconfig when given, else in-cluster config, else ``KUBECONFIG``."""
+    if kubeconfig:
+        return cast(client.ApiClient, config.new_client_from_config(config_file=kubeconfig))  # type: ignore[no-untyped-call]
+    try:
+        config.load_incluster_config()  # type: ignore[no-untyped-call]
+    except config.ConfigException:
+        return cast(client.ApiClient, config.new_client_from_config())  # type: ignore[no-untyped-call]
+    return client.ApiClient()
+
+
+def _error(exc: ApiException, what: str) -> KubeError:
+    if exc.status == 409:
+        return Conflict(f"{what}: changed since it was read")
+    if exc.status == 404:
+        return Gone(f"{what}: not found")
+    if exc.status in (401, 403):
+        return KubeError(
+            f"{what}: forbidden ({exc.reason}); grant the agent the RBAC rules in docs/agent.md"
+        )
+    return KubeError(f"{what}: HTTP {exc.status} {exc.reason}: {str(exc.body)[:300]}")
+
+
+class AgentKube:
+    def __init__(self, api_client: client.ApiClient, namespaces: tuple[str, ...] = ()) -> None:
+        self.custom = client.CustomObjectsApi(api_client)
+        self.core = client.CoreV1Api(api_client)
+        self.namespaces = namespaces
+
+    def list_cells(self) -> list[dict[str, Any]]:
+        try:
+            listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "cells"))
+        except ApiException as exc:
+            raise _error(exc, "list cells") from exc
+        return list(listed.get("items", []))
+
+    def list_jobs(self) -> list[dict[str, Any]]:
+        try:
+            if not self.namespaces:
+                listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "robotjobs"))
+                return list(listed.get("items", []))
+            items: list[dict[str, Any]] = []
+            for namespace in self.namespaces:
+                listed = cast(dict[str, Any], self.custom.list_namespaced_custom_object(
+                    GROUP, VERSION, namespace, "robotjobs"))
+                items.extend(listed.get("items", []))
+            return items
+        except ApiException as exc:
+            raise _error(exc, "list robotjobs") from exc
+
+    def read_cell(self, name: str) -> dict[str, Any]:
+        try:
+            return cast(dict[str, Any], self.custom.get_cluster_custom_object(GROUP, VERSION, "cells", name))
+        except ApiException as exc:
+            raise _error(exc, f"cell {name}") from exc
+
+    def read_job(self, namespace: str, name: str) -> dict[str, Any]:
+        try:
+            return cast(dict[str, Any], self.custom.get_namespaced_custom_object(
+                GROUP, VERSION, namespace, "robotjobs", name))
+        except ApiException as exc:
+            raise _error(exc, f"robotjob {namespace}/{name}") from exc
+
+    def patch_job_status(self, namespace: str, name: str, body: dict[str, Any]) -> dict[str, Any]:
+        try:
+            return cast(dict[str, Any], self.custom.patch_namespaced_custom_object_status(
+                GROUP, VERSION, namespace, "robotjobs", name, body))
+        except ApiException as exc:
+            raise _error(exc, f"robotjob {namespace}/{name} status") from exc
+
+    def patch_cell_status(self, name: str, body: dict[str, Any]) -> dict[str, Any]:
+        try:
+            return cast(dict[str, Any], self.custom.patch_cluster_custom_object_status(
+                GROUP, VERSION, "cells", name, body))
+        except ApiException as exc:
+            raise _error(exc, f"cell {name} status") from exc
+
+    def resolve_secrets(self, namespace: str, wanted: dict[str, str]) -> dict[str, str]:
+        """Env var -> value from Secrets in ``namespace`` only.
+
+        The value is the Secret's key named like the env var, or its only key.
+        A missing Secret or key is :class:`SecretMissing` naming it (never a value).
+        """
+        values: dict[str, str] = {}
+        for env_name, secret_name in sorted(wanted.items()):
+            try:
+                secret = self.core.read_namespaced_secret(secret_name, namespace)
+            except ApiException as exc:
+                if exc.status == 404:
+                    raise SecretMissing(
+                        f"Secret {secret_name!r} (for {env_name}) does not exist in namespace {namespace}; "
+                        f"create it there: kubectl -n {namespace} create secret generic {secret_name} "
+                        f"--from-literal={env_name}=..."
+                    ) from exc
+                raise _error(exc, f"secret {namespace}/{secret_name}") from exc
+            data = secret.data or {}
+            key = env_name if env_name in data else (next(iter(data)) if len(data) == 1 else None)
+            if key is None:
+                raise SecretMissing(
+                    f"Secret {secret_name!r} in namespace {namespace} has no key {env_name!r} "
+                    f"(keys: {sorted(data)}); add it or keep one key only"
+                )
+            values[env_name] = base64.b64decode(data[key]).decode("utf-8", errors="replace")
+        return values

@@ -1,0 +1,45 @@
+"""The agent's Prometheus metrics, on a registry per agent (no module-level state)."""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, start_http_server
+
+
+class AgentMetrics:
+    def __init__(self, registry: CollectorRegistry | None = None) -> None:
+        self.registry = registry or CollectorRegistry()
+        r = self.registry
+        self.jobs_started = Counter("armnet_agent_jobs_started_total", "jobs whose container started", registry=r)
+        self.jobs_adopted = Counter(
+            "armnet_agent_jobs_adopted_total", "running jobs re-adopted after an agent restart", registry=r
+        )
+        self.jobs_finished = Counter(
+            "armnet_agent_jobs_finished_total", "jobs that reached a terminal phase", ["outcome"], registry=r
+        )
+        self.job_duration = Histogram(
+            "armnet_agent_job_duration_seconds", "running -> terminal",
+            buckets=(1, 5, 15, 30, 60, 120, 300, 900, 3600, 14400), registry=r,
+        )
+        self.launch_latency = Histogram(
+            "armnet_agent_launch_latency_seconds", "seen dispatched -> running (container started)",
+            buckets=(0.25, 0.5, 1, 2, 5, 10, 30, 60), registry=r,
+        )
+        self.timeouts = Counter("armnet_agent_job_timeouts_total", "jobs that hit their deadline", registry=r)
+        self.interlock_trips = Counter(
+            "armnet_agent_interlock_trips_total", "jobs whose connector tripped the interlock", ["reason"], registry=r
+        )
+        self.heartbeat_age = Gauge(
+            "armnet_agent_heartbeat_age_seconds", "seconds since the cell's last successful heartbeat write",
+            ["cell"], registry=r,
+        )
+        self.lines_published = Counter(
+            "armnet_agent_lines_published_total", "output lines handed to the stream publisher", registry=r
+        )
+        self.lines_dropped = Counter(
+            "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
+        )
+        self.nats_connected = Gauge("armnet_agent_nats_connected", "1 while NATS is connected", registry=r)
+
+    def serve(self, port: int, address: str) -> None:
+        if port:
+            start_http_server(port, addr=address, registry=self.registry)

@@ -1,0 +1,85 @@
+"""Gathers a cell's health facts from the hardware (or its simulator) while no job holds the bus.
+
+Each arm's bus is pinged with the real ``scservo_sdk`` (the simulator answers
+on a pty exactly as servos answer on a USB adapter); the calibration file is
+read and checked against the arm's motors. While a job runs the connector owns
+the bus: the worker does not call :func:`probe_arm` then, and asks the
+connector for its interlock instead (``node.health`` turns the facts into
+conditions).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from armnet_agent.connector.config import read_calibration_file
+from armnet_agent.node.health import ArmProbe
+
+BAUD_RATE = 1_000_000
+STS3215_MODEL = 777
+SO101_MOTOR_NAMES = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
+
+
+def probe_arm(port: str, calibration_file: Path | None, motors: Iterable[str] = SO101_MOTOR_NAMES) -> ArmProbe:
+    motors = tuple(motors)
+    calibration_exists = calibration_file is not None and calibration_file.is_file()
+    ids: dict[str, int] = {}
+    missing: tuple[str, ...] = ()
+    error = None
+    if calibration_file is not None and calibration_exists:
+        try:
+            ranges = read_calibration_file(calibration_file)
+            ids = {motor: r.id for motor, r in ranges.items()}
+            missing = tuple(m for m in motors if m not in ranges)
+        except (OSError, ValueError) as exc:
+            error = str(exc)
+    if not ids:
+        ids = {motor: index + 1 for index, motor in enumerate(motors)}  # the SO-101's factory ids
+    exists = os.path.exists(port)
+    answers = ping_servos(port, ids) if exists else {}
+    return ArmProbe(
+        port=port,
+        port_exists=exists,
+        answers=answers,
+        expected_model=STS3215_MODEL,
+        calibration_file=str(calibration_file) if calibration_file is not None else None,
+        calibration_exists=calibration_exists,
+        calibration_missing=missing,
+        calibration_error=error,
+    )
+
+
+def ping_servos(port: str, ids: dict[str, int]) -> dict[str, tuple[int, int | None]]:
+    """motor -> (id, model number or None when the servo stays silent)."""
+    from scservo_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+    handler = PortHandler(port)
+    if not handler.openPort():
+        return {motor: (sid, None) for motor, sid in ids.items()}
+    try:
+        handler.setBaudRate(BAUD_RATE)
+        packets = PacketHandler(0)
+        answers: dict[str, tuple[int, int | None]] = {}
+        for motor, sid in sorted(ids.items(), key=lambda item: item[1]):
+            model = _ping(packets, handler, sid, COMM_SUCCESS)
+            if model is None:  # one retry: a loaded machine can miss a reply
+                model = _ping(packets, handler, sid, COMM_SUCCESS)
+            answers[motor] = (sid, model)
+        return answers
+    finally:
+        handler.closePort()
+
+
+def _ping(packets: Any, handler: Any, sid: int, success: int) -> int | None:
+    """The model number, or None when the servo is silent or its reply is cut short.
+
+    ``scservo_sdk`` raises IndexError on a truncated reply instead of reporting it.
+    """
+    try:
+        model, result, _error = packets.ping(handler, sid)
+    except (IndexError, OSError):
+        return None
+    return int(model) if result == success else None

@@ -1,0 +1,104 @@
+"""The RobotJob status writes of the agent, from what happened. Pure.
+
+Each function returns a JSON merge-patch body for the status subresource,
+carrying the resourceVersion it was decided on (a 409 means: re-read and decide
+again). Text fields are cut to the CRD's limits, keeping the end (where the
+error is). Secret values never reach these bodies: they are built from the
+job's output and the connector's record only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from armnet_core import JobResult, JobStatus
+
+TAIL_MAX = 16384
+ERROR_MAX = 8192
+TRACEBACK_MAX = 65536
+PROGRESS_MAX = 4096
+
+
+@dataclass(frozen=True)
+class ConnectorRecord:
+    """What the connector saw during the job (its own record, not guessed from the exit code)."""
+
+    trip_reason: str | None = None
+    trip_message: str | None = None
+    safety_violations: int = 0
+    rollout_index: int | None = None
+    rollout_total: int | None = None
+
+
+def timestamp(moment: datetime) -> str:
+    """RFC 3339 in UTC with milliseconds: ``startedAt``/``finishedAt`` measure kill latency."""
+    return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+def _keep_end(text: str | None, limit: int) -> str | None:
+    if text is None or len(text) <= limit:
+        return text
+    marker = "[armnet: cut] "
+    return marker + text[-(limit - len(marker)):]
+
+
+def running_patch(resource_version: str, started_at: datetime) -> dict[str, Any]:
+    return {
+        "metadata": {"resourceVersion": resource_version},
+        "status": {"phase": JobStatus.RUNNING.value, "startedAt": timestamp(started_at)},
+    }
+
+
+def progress_patch(progress: str | None, rollout: Mapping[str, int] | None) -> dict[str, Any]:
+    """No resourceVersion: progress never changes the phase, and the latest value wins."""
+    status: dict[str, Any] = {}
+    if progress is not None:
+        status["progress"] = _keep_end(progress, PROGRESS_MAX)
+    if rollout:
+        status["rollout"] = dict(rollout)
+    return {"status": status}
+
+
+def terminal_patch(
+    resource_version: str, result: JobResult, record: ConnectorRecord | None = None
+) -> dict[str, Any]:
+    """The terminal phase, ``finishedAt`` and ``result`` of a finished job."""
+    record = record or ConnectorRecord()
+    error = result.error
+    if record.trip_reason == "safety" and record.trip_message:
+        safety = f"safety violation (connector record): {record.trip_message}"
+        error = safety if not error else f"{safety}; {error}"
+    body: dict[str, Any] = {
+        "exitCode": result.exit_code,
+        "stdoutTail": _keep_end(result.stdout, TAIL_MAX),
+        "stderrTail": _keep_end(result.stderr, TAIL_MAX),
+    }
+    if result.return_value is not None:
+        body["returnValue"] = result.return_value
+    if error:
+        body["error"] = _keep_end(error, ERROR_MAX)
+    if result.traceback:
+        body["traceback"] = _keep_end(result.traceback, TRACEBACK_MAX)
+    status: dict[str, Any] = {
+        "phase": result.status.value,
+        "finishedAt": timestamp(result.finished_at) if result.finished_at else None,
+        "result": {k: v for k, v in body.items() if v is not None},
+    }
+    if record.rollout_index is not None:
+        status["rollout"] = {"index": record.rollout_index, "total": record.rollout_total or 0}
+    return {"metadata": {"resourceVersion": resource_version}, "status": status}
+
+
+def failed_before_start(resource_version: str, error: str, now: datetime) -> dict[str, Any]:
+    """An infrastructure failure or a bad job (missing Secret): ``failed`` with a short error."""
+    return {
+        "metadata": {"resourceVersion": resource_version},
+        "status": {
+            "phase": JobStatus.FAILED.value,
+            "finishedAt": timestamp(now),
+            "result": {"error": _keep_end(error, ERROR_MAX)},
+        },
+    }

@@ -1,0 +1,348 @@
+"""Runs one job on one cell, from launch (or adoption after a restart) to its terminal status.
+
+The steps, each safe to repeat after a crash at any point:
+
+1. resolve the job's Secrets (in its namespace only) and plan the launch; a
+   missing Secret or an impossible plan ends ``failed`` before anything starts;
+2. start the cell's connector for this job (in this process, on the cell's
+   simulator) on the job's socket directory;
+3. start the container named after the job's UID (the engine refuses a second
+   one: a job never runs twice), or adopt the one a previous agent started;
+4. write ``running`` + ``startedAt``; supervise (``armnet_agent.supervise``):
+   output lines, progress, the deadline and grace window, graceful cancel;
+5. write the terminal status, then remove the container. A container still
+   present is the "not yet reported" fact: a restarted agent re-reads its log
+   from the start and writes the same result.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from armnet_core import JobResult, JobStatus
+
+from armnet_agent.connector.inputs import LocalOperatorInputs
+from armnet_agent.launch.container import ContainerJob
+from armnet_agent.launch.sim_cell import LocalCell
+from armnet_agent.node import report
+from armnet_agent.node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
+from armnet_agent.node.metrics import AgentMetrics
+from armnet_agent.node.model import TERMINAL_PHASES, Cell, Job, parse_job
+from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
+from armnet_agent.node.publish import Link, inputs_bridge, job_output
+from armnet_agent.sim.presets import SimulatedCell
+from armnet_agent.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
+from armnet_agent.supervise.observe import EventKind, OutputEvent
+
+log = logging.getLogger(__name__)
+
+PROGRESS_FLUSH_S = 1.0
+STATUS_RETRIES = 5
+ADOPTED_TRIP = (
+    "the node agent restarted while this job ran; its connector was re-created with the interlock "
+    "tripped and refuses motion for the rest of the job"
+)
+
+
+@dataclass
+class RunnerDeps:
+    kube: AgentKube
+    engine: Any
+    paths: HostPaths
+    metrics: AgentMetrics
+    link: Link
+
+
+class JobRunner:
+    """One job's thread. ``stop()`` asks for the graceful path (cancel, deletion, job gone)."""
+
+    def __init__(
+        self,
+        job: Job,
+        cell: Cell,
+        sim: SimulatedCell | None,
+        deps: RunnerDeps,
+        *,
+        container: Any = None,
+        on_done: Callable[[JobRunner], None] | None = None,
+    ) -> None:
+        self.job = job
+        self.cell = cell
+        self.sim = sim
+        self.deps = deps
+        self.adopted_container = container
+        self.hooks = JobHooks()
+        self.local_cell: LocalCell | None = None
+        self._on_done = on_done
+        self._progress: str | None = None
+        self._rollout: dict[str, int] | None = None
+        self._progress_dirty = threading.Event()
+        self._finished = threading.Event()
+        self._flush_stop = threading.Event()
+        #: The terminal status is written: nothing left to stop.
+        self.reported = False
+        self._seen_at = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
+
+    @property
+    def uid(self) -> str:
+        return self.job.uid
+
+    @property
+    def done(self) -> bool:
+        return self._finished.is_set()
+
+    def start(self) -> JobRunner:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop like a timeout (interlock, grace window, kill), ending ``cancelled``."""
+        if not self.hooks.cancel_gracefully.is_set():
+            log.info("stopping job %s (cancel, deletion or gone)", self.job.key)
+        self.hooks.cancel_gracefully.set()
+
+    def interlock_trip(self) -> str | None:
+        cell = self.local_cell
+        connector = cell.connector if cell is not None else None
+        if connector is None:
+            return None
+        trip = connector.interlock.trip_info
+        return trip.message if trip is not None else None
+
+    # -- the run -------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            self._run_job()
+        except Exception as exc:  # noqa: BLE001 - an agent bug fails the job, never the agent
+            log.exception("job %s: the agent failed running it", self.job.key)
+            self._write_terminal(infra_failure(f"the node agent failed: {type(exc).__name__}: {exc}",
+                                               SupervisorLimits(self.job.timeout_seconds)), None)
+        finally:
+            self._finished.set()
+            if self._on_done is not None:
+                self._on_done(self)
+
+    def _run_job(self) -> None:
+        job, cell = self.job, self.cell
+        adopted = self.adopted_container is not None
+        if not adopted and not self._still_dispatched():
+            return
+        try:
+            secrets = self.deps.kube.resolve_secrets(job.namespace, job.secrets)
+            plan = plan_launch(job, cell, self.deps.paths, secrets)
+        except (SecretMissing, LaunchError) as exc:
+            self._fail_before_start(str(exc))
+            return
+        for directory in (plan.layout.cache_dir, plan.layout.volume_dir):
+            directory.mkdir(parents=True, exist_ok=True)
+        inputs = LocalOperatorInputs()
+        output = job_output(self.deps.link, job.namespace, job.uid)
+        local_cell = LocalCell(
+            plan.cell_spec,
+            plan.layout.socket_dir.parent,
+            layout=plan.layout,
+            sim=self.sim,
+            inputs=inputs,
+            on_grace_expired=self.hooks.kill_now.set,
+            tripped=ADOPTED_TRIP if adopted else None,
+        )
+        bridge = None
+        container_job: ContainerJob | None = None
+        try:
+            with local_cell:
+                self.local_cell = local_cell
+                self.hooks.on_deadline = local_cell.pass_deadline
+                bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid, cell=cell.name)
+                try:
+                    container_job = self._container(plan)
+                except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
+                    self._fail_before_start(_engine_error(exc, job.image))
+                    return
+                started_at = self._mark_running(adopted)
+                if started_at is None:
+                    container_job.kill()
+                    container_job.remove()
+                    return
+                output.status("running", {"startedAt": report.timestamp(started_at)})
+                # The job's clock runs from startedAt (also across an agent restart).
+                elapsed = (datetime.now(UTC) - started_at).total_seconds()
+                limits = SupervisorLimits(
+                    timeout_seconds=plan.timeout_seconds, grace_seconds=plan.grace_seconds,
+                    already_elapsed_s=max(elapsed, 0.0),
+                )
+                self.hooks.on_event = self._event_sink(output)
+                flusher = threading.Thread(target=self._flush_progress, daemon=True)
+                flusher.start()
+                result = supervise(container_job, limits, self.hooks)
+                if container_job.oom_killed:
+                    result = infra_failure("the container was killed for exceeding its memory limit (OOM)", limits)
+                record = self._connector_record()
+                self._flush_stop.set()  # the last progress write lands before the terminal one
+                flusher.join(PROGRESS_FLUSH_S * 2)
+                written = self._write_terminal(result, record)
+                self.reported = True
+                if written:
+                    output.status(result.status.value, {"exitCode": result.exit_code})
+                    self._count(result, record, started_at)
+                container_job.remove()
+        finally:
+            self._flush_stop.set()
+            if bridge is not None:
+                bridge.close()
+            self.local_cell = None
+            shutil.rmtree(plan.layout.socket_dir.parent, ignore_errors=True)
+
+    def _still_dispatched(self) -> bool:
+        """A fresh read right before launch: a stale list must never start a job twice."""
+        try:
+            current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
+        except Gone:
+            return False
+        return current.uid == self.job.uid and current.phase == "dispatched" and not current.stopping
+
+    def _container(self, plan: Any) -> ContainerJob:
+        if self.adopted_container is not None:
+            container = self.adopted_container
+            if container.status == "created":
+                container.start()
+            self.deps.metrics.jobs_adopted.inc()
+            return ContainerJob.adopt(self.deps.engine, container)
+        job = ContainerJob.launch(self.deps.engine, plan.container)
+        self.deps.metrics.jobs_started.inc()
+        self.deps.metrics.launch_latency.observe(time.monotonic() - self._seen_at)
+        return job
+
+    def _mark_running(self, adopted: bool) -> datetime | None:
+        """``running`` + ``startedAt`` (kept if already written); None if the job is no longer ours."""
+        for _ in range(STATUS_RETRIES):
+            try:
+                current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
+            except Gone:
+                return None
+            if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
+                return None
+            if current.stopping:
+                self.stop()
+            if current.phase == "running" and current.started_at is not None:
+                return current.started_at
+            now = datetime.now(UTC)
+            try:
+                self.deps.kube.patch_job_status(
+                    current.namespace, current.name, report.running_patch(current.resource_version, now)
+                )
+                return now
+            except Conflict:
+                continue
+        raise KubeError(f"could not mark {self.job.key} running: it kept changing")
+
+    def _event_sink(self, output: Any) -> Callable[[OutputEvent], None]:
+        sequence = {"stdout": 0, "stderr": 0, "progress": 0, "rerun": 0}
+        metrics = self.deps.metrics
+
+        def sink(event: OutputEvent) -> None:
+            kind = "rerun" if event.kind is EventKind.RERUN else (
+                "progress" if event.kind is EventKind.PROGRESS else event.stream.value)
+            sequence[kind] += 1
+            output.line(kind, sequence[kind], event.text)
+            metrics.lines_published.inc()
+            if event.kind is EventKind.PROGRESS:
+                self._progress = event.text
+                self._progress_dirty.set()
+
+        return sink
+
+    def _flush_progress(self) -> None:
+        """At most one progress/rollout write per second, latest value wins."""
+        while not self._flush_stop.wait(PROGRESS_FLUSH_S):
+            rollout = self._latest_rollout()
+            if rollout is not None and rollout != self._rollout:
+                self._rollout = rollout
+                self._progress_dirty.set()
+            if not self._progress_dirty.is_set():
+                continue
+            self._progress_dirty.clear()
+            try:
+                self.deps.kube.patch_job_status(
+                    self.job.namespace, self.job.name, report.progress_patch(self._progress, self._rollout)
+                )
+            except KubeError as exc:
+                log.warning("job %s: progress not written: %s", self.job.key, exc)
+
+    def _latest_rollout(self) -> dict[str, int] | None:
+        cell = self.local_cell
+        if cell is None or cell.connector is None:
+            return None
+        for event in reversed(list(cell.connector.cell.rollouts)):
+            if event.kind == "begin" and event.index is not None:
+                return {"index": event.index, "total": event.total or 0}
+        return None
+
+    def _connector_record(self) -> report.ConnectorRecord:
+        cell = self.local_cell
+        if cell is None or cell.connector is None:
+            return report.ConnectorRecord()
+        trip = cell.connector.interlock.trip_info
+        rollout = self._latest_rollout()
+        return report.ConnectorRecord(
+            trip_reason=trip.reason.value if trip is not None else None,
+            trip_message=trip.message if trip is not None else None,
+            safety_violations=cell.connector.counters.safety_violations,
+            rollout_index=rollout["index"] if rollout else None,
+            rollout_total=rollout["total"] if rollout else None,
+        )
+
+    # -- status writes ----------------------------------------------------------------
+
+    def _fail_before_start(self, error: str) -> None:
+        log.warning("job %s failed before start: %s", self.job.key, error)
+        now = datetime.now(UTC)
+        self._write(lambda rv: report.failed_before_start(rv, error, now))
+        self.deps.metrics.jobs_finished.labels(outcome="failed").inc()
+
+    def _write_terminal(self, result: JobResult, record: report.ConnectorRecord | None) -> bool:
+        return self._write(lambda rv: report.terminal_patch(rv, result, record))
+
+    def _write(self, body_for: Callable[[str], dict[str, Any]]) -> bool:
+        """A terminal write on the job as it is now; never over another terminal phase."""
+        for _ in range(STATUS_RETRIES):
+            try:
+                current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
+            except Gone:
+                return False
+            if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
+                return False
+            try:
+                self.deps.kube.patch_job_status(current.namespace, current.name, body_for(current.resource_version))
+                return True
+            except Conflict:
+                continue
+            except Gone:
+                return False
+        log.error("job %s: terminal status not written after %d conflicts", self.job.key, STATUS_RETRIES)
+        return False
+
+    def _count(self, result: JobResult, record: report.ConnectorRecord, started_at: datetime) -> None:
+        metrics = self.deps.metrics
+        metrics.jobs_finished.labels(outcome=result.status.value).inc()
+        metrics.job_duration.observe(max((datetime.now(UTC) - started_at).total_seconds(), 0.0))
+        if result.status is JobStatus.TIMEOUT:
+            metrics.timeouts.inc()
+        if record.trip_reason is not None:
+            metrics.interlock_trips.labels(reason=record.trip_reason).inc()
+
+
+def _engine_error(exc: Exception, image: str) -> str:
+    from docker.errors import ImageNotFound, NotFound
+
+    if isinstance(exc, ImageNotFound | NotFound):
+        return f"image {image} not found on this node; push it to a registry the node can pull from"
+    return f"the container engine failed to start the job: {type(exc).__name__}: {str(exc)[:300]}"

@@ -1,0 +1,248 @@
+"""One Cell of this host: its simulator (simulated cells), heartbeat, health, and the job it runs.
+
+The agent's pass hands each worker the latest Cell and the jobs bound to it;
+the worker decides (``observe``) whether to launch, adopt, stop or fail a job
+and keeps at most one runner at a time (the operator's binding says which).
+Its heartbeat thread renews ``status.lastHeartbeatTime`` and the health
+conditions every ``heartbeat_period`` seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from armnet_agent.node import health, report
+from armnet_agent.node.kube import Conflict, Gone, KubeError
+from armnet_agent.node.model import (
+    ACTIVE_PHASES,
+    TERMINAL_PHASES,
+    Cell,
+    Job,
+    parse_cell,
+    should_launch,
+)
+from armnet_agent.node.plan import LaunchError, cell_spec_for
+from armnet_agent.node.probes import probe_arm
+from armnet_agent.node.runner import JobRunner, RunnerDeps
+from armnet_agent.sim.calibration import builtin_calibration, write_calibration
+from armnet_agent.sim.presets import PRESETS, SimulatedCell, build_cell
+
+log = logging.getLogger(__name__)
+
+#: Simulated cells only: ``arm/motor`` (comma-separated) of servos to unplug in the simulator,
+#: so a platform team can watch the cell go unhealthy (fault injection).
+SIM_UNPLUG_ANNOTATION = "armnet.io/sim-unplug"
+VANISHED = "the job's container vanished while the node agent was not watching it (removed, or the host restarted)"
+
+
+@dataclass(frozen=True)
+class WorkerSettings:
+    heartbeat_period: float = 5.0
+
+
+class CellWorker:
+    def __init__(self, cell: Cell, deps: RunnerDeps, settings: WorkerSettings) -> None:
+        self.cell = cell
+        self.deps = deps
+        self.settings = settings
+        self.sim: SimulatedCell | None = None
+        self.runner: JobRunner | None = None
+        self._finished_uids: set[str] = set()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._last_probe: health.CellProbe | None = None
+        self._unplugged: frozenset[str] = frozenset()
+        self._calibration_files: dict[str, Path] = {}
+        self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
+
+    @property
+    def name(self) -> str:
+        return self.cell.name
+
+    def start(self) -> CellWorker:
+        if self.cell.simulated:
+            self._start_sim()
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        runner = self.runner
+        if runner is not None:
+            runner.stop()
+        self._thread.join(5)
+        if self.sim is not None:
+            self.sim.stop()
+
+    def _start_sim(self) -> None:
+        try:
+            spec = cell_spec_for(self.cell)
+        except LaunchError as exc:
+            log.error("%s", exc)
+            return
+        calibrations = {}
+        directory = self.deps.paths.state_dir / "cells" / self.cell.name / "calibration"
+        for preset in PRESETS[spec.preset]:
+            calibration = builtin_calibration(preset.calibration)
+            calibrations[preset.name] = calibration
+            robot_id = spec.robot_id if spec.preset == "so101" else f"{spec.robot_id}_{preset.name}"
+            self._calibration_files[preset.name] = write_calibration(directory / f"{robot_id}.json", calibration)
+        self.sim = build_cell(spec.preset, calibrations=calibrations).start()
+        log.info("cell %s: simulator started (%s)", self.cell.name, self.sim.ports())
+
+    # -- the pass ------------------------------------------------------------------
+
+    def update(self, cell: Cell) -> None:
+        self.cell = cell
+        self._apply_sim_faults()
+
+    def observe(self, jobs: list[Job], containers: dict[str, dict[str, Any]]) -> None:
+        """Launch, adopt, stop or fail the jobs bound to this cell (idempotent)."""
+        with self._lock:
+            runner = self.runner
+            if runner is not None and runner.done:
+                self._finished_uids.add(runner.uid)
+                self.runner = runner = None
+            mine = {job.uid: job for job in jobs if job.cell_name == self.cell.name}
+            if runner is not None:
+                job = mine.get(runner.uid)
+                if not runner.reported and (job is None or job.stopping or job.phase in TERMINAL_PHASES):
+                    runner.stop()
+                return
+            for job in sorted(mine.values(), key=lambda j: j.key):
+                row = containers.get(job.uid)
+                if job.phase in TERMINAL_PHASES or job.uid in self._finished_uids:
+                    if row is not None and job.phase in TERMINAL_PHASES:
+                        self._remove(row)  # reported already; the agent died before removing it
+                    continue
+                if job.phase not in ACTIVE_PHASES or self.cell.current_job != job.key:
+                    continue
+                if row is not None:
+                    container = self._container(row)
+                    if container is not None:
+                        self._begin(job, container)
+                        return
+                    continue  # removed since the list: the next pass sees it gone
+                if job.phase == "running":
+                    self._vanished(job)
+                    continue
+                if should_launch(job, self.cell):
+                    self._begin(job, None)
+                    return
+
+    def _container(self, row: dict[str, Any]) -> Any:
+        try:
+            return self.deps.engine.containers.get(row["Id"])
+        except Exception:  # noqa: BLE001 - gone between the list and now
+            return None
+
+    def _remove(self, row: dict[str, Any]) -> None:
+        try:
+            self.deps.engine.api.remove_container(row["Id"], force=True)
+        except Exception:  # noqa: BLE001 - already gone
+            log.debug("removing a reported container failed", exc_info=True)
+
+    def _begin(self, job: Job, container: Any) -> None:
+        verb = "adopting" if container is not None else "launching"
+        log.info("cell %s: %s job %s", self.cell.name, verb, job.key)
+        self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container).start()
+
+    def _vanished(self, job: Job) -> None:
+        log.warning("job %s: %s", job.key, VANISHED)
+        try:
+            self.deps.kube.patch_job_status(
+                job.namespace, job.name, report.failed_before_start(job.resource_version, VANISHED, datetime.now(UTC))
+            )
+            self.deps.metrics.jobs_finished.labels(outcome="failed").inc()
+        except KubeError as exc:
+            log.info("job %s: vanished-container status not written (%s); next pass decides again", job.key, exc)
+
+    # -- heartbeat and health --------------------------------------------------------
+
+    def _heartbeat_loop(self) -> None:
+        last_ok = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self._heartbeat()
+                last_ok = time.monotonic()
+            except Exception:  # noqa: BLE001 - a failed heartbeat is retried next period
+                log.warning("cell %s: heartbeat failed", self.cell.name, exc_info=True)
+            self.deps.metrics.heartbeat_age.labels(cell=self.cell.name).set(time.monotonic() - last_ok)
+            self._stop.wait(self.settings.heartbeat_period)
+
+    def probe(self) -> health.CellProbe:
+        runner = self.runner
+        busy = runner is not None and not runner.done
+        if busy and self._last_probe is not None:
+            last = self._last_probe
+            return health.CellProbe(
+                arms=last.arms, cameras=last.cameras, interlock_trip=runner.interlock_trip() if runner else None,
+                bus_held_by_job=True,
+            )
+        arms = {}
+        if self.sim is not None:
+            for name, port in self.sim.ports().items():
+                arms[name] = probe_arm(port, self._calibration_files.get(name))
+        else:
+            for name, arm in self.cell.arms.items():
+                calibration = (
+                    Path(arm.calibration_dir) / f"{arm.robot_id}.json" if arm.calibration_dir and arm.robot_id else None
+                )
+                arms[name] = probe_arm(arm.port or f"<no port configured for arm {name}>", calibration)
+        # Simulated cameras draw the simulator; a real camera probe needs the device (not probed yet).
+        cameras: dict[str, str | None] = {camera.name: None for camera in self.cell.cameras}
+        probe = health.CellProbe(arms=arms, cameras=cameras)
+        self._last_probe = probe
+        return probe
+
+    def _heartbeat(self) -> None:
+        try:
+            conditions = health.cell_health(self.probe())
+        except Exception:  # noqa: BLE001 - a probe bug must not stop the heartbeat; the others stay as they were
+            log.warning("cell %s: health probe failed", self.cell.name, exc_info=True)
+            conditions = health.cell_health(health.CellProbe(arms={}))[:1]
+        for _ in range(3):
+            now = datetime.now(UTC)
+            try:
+                raw = self.deps.kube.read_cell(self.cell.name)
+            except Gone:
+                return
+            current = (raw.get("status") or {}).get("conditions") or []
+            body = {
+                "metadata": {"resourceVersion": raw["metadata"]["resourceVersion"]},
+                "status": {
+                    "lastHeartbeatTime": report.timestamp(now),
+                    "conditions": health.merge_conditions(current, conditions, now),
+                },
+            }
+            try:
+                updated = self.deps.kube.patch_cell_status(self.cell.name, body)
+                self.cell = parse_cell(updated)
+                return
+            except Conflict:
+                continue
+
+    def _apply_sim_faults(self) -> None:
+        if self.sim is None:
+            return
+        wanted = frozenset(
+            item.strip() for item in self.cell.annotations.get(SIM_UNPLUG_ANNOTATION, "").split(",") if item.strip()
+        )
+        if wanted == self._unplugged:
+            return
+        for arm in self.sim.arms.values():
+            arm.clear_faults()
+        for item in wanted:
+            arm_name, _, motor = item.rpartition("/")
+            target = self.sim.arms.get(arm_name) if arm_name else next(iter(self.sim.arms.values()))
+            if target is not None and motor in target.motors:
+                target.unplug(motor)
+        self._unplugged = wanted
+
+

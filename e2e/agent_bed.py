@@ -1,0 +1,177 @@
+"""The node agent's e2e test bed: the real apiserver, the real operator and agent processes, Podman.
+
+``AgentBed`` starts ``armnet operator`` and ``armnet agent`` as real processes
+(``python -m armnet_cli.main``) against the session's control plane and Podman
+API, registers simulated Cells for a node name of its own, and builds tiny job
+images from the test bed's base image (the job script copied in, the runtime
+taken from this machine's venv and worktree, mounted read-only by the agent's
+``--dev-mount``: a development stand-in for a runtime image).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLES = REPO / "runtime" / "examples"
+PYTHONPATH = ":".join(str(REPO / p) for p in ("runtime/src", "agent", "operator", "cli")) + f":{REPO}"
+DEV_MOUNTS = sorted({sys.prefix, sys.base_prefix, str(REPO)})
+TERMINAL = ("succeeded", "failed", "timeout", "cancelled")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class AgentBed:
+    def __init__(self, k8s: Any, podman: Any, base_image: str, namespace: str) -> None:
+        self.k8s = k8s
+        self.podman = podman
+        self.base_image = base_image
+        self.namespace = namespace
+        self.node = f"e2e-node-{uuid.uuid4().hex[:6]}"
+        self.state_dir = Path(tempfile.mkdtemp(prefix="ag-", dir="/tmp"))
+        self.log_dir = Path(tempfile.mkdtemp(prefix="armnet-agent-e2e-logs-"))
+        self.operator: subprocess.Popen[bytes] | None = None
+        self.agent: subprocess.Popen[bytes] | None = None
+        self.metrics_port = free_port()
+        self._images: dict[str, str] = {}
+        self._agent_starts = 0
+
+    # -- processes -----------------------------------------------------------------
+
+    def _env(self) -> dict[str, str]:
+        return {**os.environ, "KUBECONFIG": str(self.k8s.kubeconfig), "PYTHONPATH": PYTHONPATH,
+                "DOCKER_HOST": self.podman.base_url}
+
+    def start_operator(self) -> None:
+        argv = [sys.executable, "-m", "armnet_cli.main", "operator", "--kubeconfig", str(self.k8s.kubeconfig),
+                "--namespaces", self.namespace, "--lease-namespace", self.namespace, "--metrics-port", "0",
+                "--reconcile-period", "0.5", "--heartbeat-timeout", "15", "--claim-grace", "5"]
+        log = open(self.log_dir / "operator.log", "ab")  # noqa: SIM115 - kept open for the process
+        self.operator = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self._env())
+
+    def start_agent(self) -> None:
+        self._agent_starts += 1
+        argv = [sys.executable, "-m", "armnet_cli.main", "agent", "--kubeconfig", str(self.k8s.kubeconfig),
+                "--node-name", self.node, "--namespaces", self.namespace, "--state-dir", str(self.state_dir),
+                "--heartbeat-period", "1", "--pass-period", "0.5", "--metrics-port", str(self.metrics_port),
+                "--metrics-address", "127.0.0.1", "--verbose",
+                "--dev-env", f"PATH={sys.prefix}/bin:/usr/local/bin:/usr/bin:/bin",
+                "--dev-env", f"PYTHONPATH={PYTHONPATH}"]
+        for mount in DEV_MOUNTS:
+            argv += ["--dev-mount", mount]
+        log = open(self.log_dir / f"agent-{self._agent_starts}.log", "ab")  # noqa: SIM115
+        self.agent = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self._env())
+
+    def kill_agent(self) -> None:
+        assert self.agent is not None
+        self.agent.send_signal(signal.SIGKILL)
+        self.agent.wait(10)
+
+    def stop(self) -> None:
+        for proc in (self.agent, self.operator):
+            if proc is not None and proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+        for container in self.podman.client.containers.list(
+            all=True, filters={"label": f"armnet.io/namespace={self.namespace}"}
+        ):
+            container.remove(force=True)
+
+    def logs(self) -> str:
+        return "\n".join(f"== {p.name}\n{p.read_text(errors='replace')[-6000:]}" for p in sorted(self.log_dir.iterdir()))
+
+    # -- objects ----------------------------------------------------------------------
+
+    def apply(self, obj: dict[str, Any], namespaced: bool = True) -> None:
+        args = ["apply", "-f", "-"] + (["-n", self.namespace] if namespaced else [])
+        self.k8s.kubectl(*args, input=yaml.safe_dump(obj))
+
+    def add_cell(self, name: str, *, bimanual: bool = False, grace: int = 3, **extra: Any) -> str:
+        name = f"{name}-{self.node}"
+        spec: dict[str, Any] = {"nodeName": self.node, "simulated": True, "gracePeriodSeconds": grace,
+                                "resetTimeoutSeconds": 30, "task": self.node}
+        if bimanual:
+            spec.update(embodiment="lerobot/bimanual_so101", arms={
+                "left": {"robotId": "sim_left", "safetyLimit": 10}, "right": {"robotId": "sim_right", "safetyLimit": 10}})
+        else:
+            spec.update(embodiment="lerobot/so-101", robot={"robotId": f"{name}-arm", "safetyLimit": 10})
+        spec.update(extra)
+        self.apply({"apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": name}, "spec": spec},
+                   namespaced=False)
+        return name
+
+    def cell(self, name: str) -> dict[str, Any]:
+        return json.loads(self.k8s.kubectl("get", "cell", name, "-o", "json").stdout)
+
+    def job(self, name: str) -> dict[str, Any]:
+        return json.loads(self.k8s.kubectl("get", "rj", name, "-n", self.namespace, "-o", "json").stdout)
+
+    def image(self, name: str, script: str | Path, extra_files: tuple[Path, ...] = ()) -> str:
+        """A job image: the base image with the script as /job/main.py (built once per name)."""
+        if name in self._images:
+            return self._images[name]
+        context = Path(tempfile.mkdtemp(prefix="armnet-e2e-image-"))
+        source = Path(script).read_text() if isinstance(script, Path) else textwrap.dedent(script)
+        (context / "main.py").write_text(source)
+        for path in extra_files:
+            (context / path.name).write_text(path.read_text())
+        (context / "Containerfile").write_text(
+            f"FROM {self.base_image}\nCOPY . /job/\nCMD [\"armnet-runtime\", \"/job/main.py\"]\n"
+        )
+        tag = f"localhost/armnet-e2e-{name}:dev"
+        self.podman.client.images.build(path=str(context), dockerfile="Containerfile", tag=tag, rm=True)
+        self._images[name] = tag
+        return tag
+
+    def submit(self, name: str, image: str, *, timeout: int = 120, args: dict[str, Any] | None = None,
+               embodiment: str = "lerobot/so-101", **spec: Any) -> str:
+        body = {"image": image, "embodiment": embodiment, "timeoutSeconds": timeout, "task": self.node,
+                "args": args or {}, **spec}
+        self.apply({"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name},
+                    "spec": body})
+        return name
+
+    def wait(self, predicate: Callable[[], Any], timeout: float, what: str, every: float = 0.3) -> Any:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            value = predicate()
+            if value:
+                return value
+            time.sleep(every)
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}\n{self.logs()}")
+
+    def wait_phase(self, name: str, phases: tuple[str, ...] = TERMINAL, timeout: float = 180) -> dict[str, Any]:
+        def reached() -> dict[str, Any] | None:
+            job = self.job(name)
+            return job if (job.get("status") or {}).get("phase") in phases else None
+        return self.wait(reached, timeout, f"job {name} to reach {phases}")
+
+    def wait_ready(self, cell: str, timeout: float = 60) -> dict[str, Any]:
+        def ready() -> dict[str, Any] | None:
+            obj = self.cell(cell)
+            status = obj.get("status") or {}
+            conditions = {c["type"]: c["status"] for c in status.get("conditions", [])}
+            ok = status.get("phase") == "Ready" and len(conditions) >= 5 and set(conditions.values()) == {"True"}
+            return obj if ok else None
+        return self.wait(ready, timeout, f"cell {cell} Ready with all health conditions True")

@@ -1,0 +1,331 @@
+"""The node agent end to end: ``kubectl apply`` a RobotJob, read its result from the status.
+
+Real kube-apiserver + etcd, the real ``armnet operator`` and ``armnet agent``
+processes, real Podman containers, the cell simulator driven by the real
+LeRobot/Feetech stack through the connector. One bed per module: the jobs of
+independent scenarios are submitted together at the start (they run side by
+side on the bed's cells) and each test then checks its own job's status.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from datetime import datetime
+from typing import Any
+
+import pytest
+
+from e2e.agent_bed import EXAMPLES, AgentBed
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
+
+#: The timeout of the timeout scenarios: the SDK's start-up (imports) takes seconds on a busy machine.
+JOB_TIMEOUT = 40
+
+RAISES = """
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        print("about to fail", flush=True)
+        raise ValueError("the gripper saw no cube")
+"""
+
+IGNORES_SHUTDOWN = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        while True:
+            time.sleep(0.1)
+"""
+
+HONOURS_SHUTDOWN = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        print("started", flush=True)
+        rounds = 0
+        while not ctx.cell.is_shutting_down():
+            rounds += 1
+            time.sleep(0.1)
+        return {"stopped_cleanly": True}
+"""
+
+ECHO = """
+    import os
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        ctx.report_progress("echoing")
+        return {"args": ctx.args, "secret_length": len(ctx.secrets.get("API_TOKEN", "")),
+                "job_id": os.environ["ARMNET_JOB_ID"]}
+"""
+
+UNSAFE = """
+    from _so101_moves import open_bus
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
+        present = float(bus.sync_read("Present_Position")["shoulder_pan"])
+        bus.sync_write("Goal_Position", {"shoulder_pan": present + 60.0})
+        return "unreachable"
+"""
+
+COUNTS_SLOWLY = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        for i in range(ctx.args.get("lines", 30)):
+            print(f"line {i:03d}", flush=True)
+            ctx.report_progress(f"line {i}")
+            time.sleep(ctx.args.get("pause", 0.25))
+        return {"lines": ctx.args.get("lines", 30)}
+"""
+
+
+@pytest.fixture(scope="module")
+def bed(k8s: Any, podman: Any, base_image: str) -> Iterator[AgentBed]:
+    namespace = k8s.create_namespace("agent-e2e")
+    bed = AgentBed(k8s, podman, base_image, namespace)
+    bed.cells = [bed.add_cell("so101-a"), bed.add_cell("so101-b")]  # type: ignore[attr-defined]
+    bed.bimanual = bed.add_cell("bimanual", bimanual=True)  # type: ignore[attr-defined]
+    bed.start_operator()
+    bed.start_agent()
+    try:
+        for cell in [*bed.cells, bed.bimanual]:  # type: ignore[attr-defined]
+            bed.wait_ready(cell, timeout=90)
+        yield bed
+    finally:
+        bed.stop()
+        k8s.delete_namespace(namespace)
+
+
+def status(job: dict[str, Any]) -> dict[str, Any]:
+    return job.get("status") or {}
+
+
+def seconds_between(start: str, end: str) -> float:
+    parse = lambda s: datetime.fromisoformat(s.replace("Z", "+00:00"))  # noqa: E731
+    return (parse(end) - parse(start)).total_seconds()
+
+
+@pytest.fixture(scope="module")
+def batch(bed: AgentBed) -> dict[str, str]:
+    """The independent scenarios' jobs, submitted together so they run side by side."""
+    bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", (EXAMPLES / "_so101_moves.py",))
+    bed.k8s.kubectl("create", "secret", "generic", "api-token", "-n", bed.namespace,
+                    "--from-literal=API_TOKEN=s3cr3t-value-123")
+    jobs = {
+        "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
+        "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=120),
+        "missing-secret": bed.submit("no-secret", bed.image("echo", ECHO), secrets={"API_TOKEN": "absent"}),
+        "secret": bed.submit("with-secret", bed.image("echo", ECHO), args={"size": "x" * 100_000},
+                             secrets={"API_TOKEN": "api-token"}),
+        "timeout-ignored": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
+        "timeout-honoured": bed.submit("honours", bed.image("honours", HONOURS_SHUTDOWN), timeout=JOB_TIMEOUT),
+        "safety": bed.submit("unsafe", bed.image("unsafe", UNSAFE, (EXAMPLES / "_so101_moves.py",)), timeout=180),
+        "bimanual": bed.submit("bimanual", bed.image("bimanual", EXAMPLES / "bimanual.py",
+                                                     (EXAMPLES / "_so101_moves.py",)),
+                               embodiment="lerobot/bimanual_so101", timeout=240),
+    }
+    return jobs
+
+
+def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, batch: dict[str, str]) -> None:
+    job = bed.wait_phase(batch["success"], timeout=300)
+    st = status(job)
+    assert st["phase"] == "succeeded", json.dumps(st, indent=1)
+    finals = st["result"]["returnValue"]["final_positions"]
+    assert set(finals) >= {"shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"}
+    assert st["result"]["exitCode"] == 0
+    assert st["startedAt"] <= st["finishedAt"]
+    assert st["progress"]
+
+
+def test_a_job_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:
+    st = status(bed.wait_phase(batch["failure"], timeout=300))
+    assert st["phase"] == "failed"
+    assert "ValueError: the gripper saw no cube" in st["result"]["traceback"]
+    assert "about to fail" in st["result"]["stdoutTail"]
+
+
+def test_a_missing_secret_fails_the_job_before_it_starts_naming_the_secret(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["missing-secret"], timeout=300))
+    assert st["phase"] == "failed"
+    assert "'absent'" in st["result"]["error"] and bed.namespace in st["result"]["error"]
+    assert "startedAt" not in st
+
+
+def test_secrets_and_a_large_args_object_reach_the_job_and_no_secret_value_reaches_the_status(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    job = bed.wait_phase(batch["secret"], timeout=300)
+    st = status(job)
+    assert st["phase"] == "succeeded", json.dumps(st)[:3000]
+    value = st["result"]["returnValue"]
+    assert value["secret_length"] == len("s3cr3t-value-123")
+    assert len(value["args"]["size"]) == 100_000
+    assert value["job_id"] == job["metadata"]["uid"]
+    assert "s3cr3t-value-123" not in json.dumps(job)
+
+
+def test_a_job_ignoring_shutdown_is_killed_at_the_end_of_grace_and_ends_timeout(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["timeout-ignored"], timeout=300))
+    assert st["phase"] == "timeout"
+    assert "killed at the end of the 3 s grace window" in st["result"]["error"]
+    # The clock runs from the container start: killed within grace (3 s) + 1 s after the deadline.
+    assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 1
+
+
+def test_a_job_honouring_shutdown_ends_timeout_with_its_return_value(bed: AgentBed, batch: dict[str, str]) -> None:
+    st = status(bed.wait_phase(batch["timeout-honoured"], timeout=300))
+    assert st["phase"] == "timeout", json.dumps(st)[:3000]
+    assert st["result"].get("returnValue") == {"stopped_cleanly": True}, json.dumps(st)[:3000]
+
+
+def test_a_safety_violation_fails_the_job_with_the_connectors_record_and_the_interlock_clears(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    job = bed.wait_phase(batch["safety"], timeout=300)
+    st = status(job)
+    assert st["phase"] == "failed"
+    assert "SafetyViolation" in st["result"]["traceback"]
+    assert "safety violation (connector record)" in st["result"]["error"]
+    assert "shoulder_pan" in st["result"]["error"]
+    cell = st["cellName"]
+
+    def interlock_clear() -> bool:
+        conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
+        return conditions.get("InterlockClear", {}).get("status") == "True"
+
+    bed.wait(interlock_clear, 30, f"InterlockClear on {cell} after the job")
+
+
+def test_a_bimanual_job_runs_on_the_bimanual_cell(bed: AgentBed, batch: dict[str, str]) -> None:
+    st = status(bed.wait_phase(batch["bimanual"], timeout=300))
+    assert st["phase"] == "succeeded", json.dumps(st)[:3000]
+    assert st["cellName"] == bed.bimanual  # type: ignore[attr-defined]
+
+
+def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next_job(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("to-cancel", image, args={"lines": 1000, "pause": 0.2}, timeout=300)
+    running = bed.wait_phase("to-cancel", ("running",), timeout=300)
+    cell = status(running)["cellName"]
+    bed.k8s.kubectl("patch", "rj", "to-cancel", "-n", bed.namespace, "--type=merge", "-p", '{"spec":{"cancel":true}}')
+    st = status(bed.wait_phase("to-cancel", timeout=60))
+    assert st["phase"] == "cancelled"
+    bed.submit("after-cancel", image, args={"lines": 2, "pause": 0.0}, timeout=120)
+    after = status(bed.wait_phase("after-cancel", timeout=300))
+    assert after["phase"] == "succeeded"
+    del cell
+
+
+def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, batch: dict[str, str]) -> None:
+    for name in batch.values():
+        bed.wait_phase(name, timeout=400)  # the batch is done: the two so101 cells are free
+    image = bed.image("counts", COUNTS_SLOWLY)
+    names = [bed.submit(f"queued-{i}", image, args={"lines": 4, "pause": 0.2}, timeout=120) for i in range(6)]
+
+    def sample() -> bool:
+        listed = json.loads(bed.k8s.kubectl("get", "rj", "-n", bed.namespace, "-o", "json").stdout)["items"]
+        active: dict[str, list[str]] = {}
+        for job in listed:
+            st = status(job)
+            if st.get("phase") in ("dispatched", "running"):
+                active.setdefault(st.get("cellName", ""), []).append(job["metadata"]["name"])
+        assert all(len(v) == 1 for v in active.values()), f"two jobs on one cell: {active}"
+        return all(status(j).get("phase") == "succeeded" for j in listed if j["metadata"]["name"] in names)
+
+    bed.wait(sample, 400, "six queued jobs to succeed", every=0.2)
+    started = sorted(names, key=lambda n: status(bed.job(n))["startedAt"])
+    # FIFO within one priority: the first two submitted start first (one per cell).
+    assert set(started[:2]) == set(names[:2])
+
+
+def test_an_agent_killed_mid_job_readopts_it_and_reports_every_line_once(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("survives", image, args={"lines": 60, "pause": 0.25}, timeout=200)
+    bed.wait_phase("survives", ("running",), timeout=300)
+
+    def some_output() -> bool:
+        progress = status(bed.job("survives")).get("progress") or ""
+        return progress.startswith("line ") and int(progress.split()[1]) >= 5
+
+    bed.wait(some_output, 60, "some output")
+    bed.kill_agent()
+    bed.start_agent()
+    st = status(bed.wait_phase("survives", timeout=300))
+    assert st["phase"] == "succeeded", json.dumps(st)[:3000]
+    assert st["result"]["returnValue"] == {"lines": 60}
+    lines = [line.split(" ", 1)[-1] for line in st["result"]["stdoutTail"].splitlines() if "line " in line
+             and "[armnet:" not in line]
+    assert lines == [f"line {i:03d}" for i in range(60)]
+
+
+def test_an_unplugged_servo_makes_the_cell_not_ready_with_a_reason_and_no_job_is_bound(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    task = f"sick-{bed.node}"
+    cell = bed.add_cell("sick", task=task)
+    bed.wait_ready(cell, timeout=60)
+    bed.k8s.kubectl("annotate", "cell", cell, "armnet.io/sim-unplug=arm/elbow_flex", "--overwrite")
+
+    def hardware_down() -> dict[str, Any] | None:
+        conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
+        hw = conditions.get("HardwareReady", {})
+        return hw if hw.get("status") == "False" else None
+
+    hw = bed.wait(hardware_down, 30, "HardwareReady False")
+    assert hw["reason"] == "ServoNotResponding" and "elbow_flex" in hw["message"]
+    bed.wait(lambda: (bed.cell(cell).get("status") or {}).get("phase") == "Faulted", 15, "cell Faulted")
+    bed.submit("for-sick-cell", bed.image("counts", COUNTS_SLOWLY), task=task, args={"lines": 1})
+    queued = bed.wait_phase("for-sick-cell", ("queued",), timeout=30)
+    assert status(queued).get("queuedReason") == "AllCellsUnavailable"
+    assert not (bed.cell(cell).get("status") or {}).get("currentJob")
+    bed.k8s.kubectl("delete", "cell", cell, "--wait=false")
+
+
+def test_the_agent_exports_job_and_heartbeat_metrics(bed: AgentBed, batch: dict[str, str]) -> None:
+    import urllib.request
+
+    bed.wait_phase(batch["success"], timeout=300)
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    assert 'armnet_agent_jobs_finished_total{outcome="succeeded"}' in text
+    assert "armnet_agent_heartbeat_age_seconds{cell=" in text
+    assert "armnet_agent_launch_latency_seconds_count" in text
+
+
+def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a_clear_error(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("vanishes", image, args={"lines": 400, "pause": 0.25}, timeout=200)
+    job = bed.wait_phase("vanishes", ("running",), timeout=300)
+    bed.kill_agent()
+    for container in bed.podman.client.containers.list(
+        all=True, filters={"label": f"armnet.io/job-uid={job['metadata']['uid']}"}
+    ):
+        container.remove(force=True)
+    bed.start_agent()
+    st = status(bed.wait_phase("vanishes", timeout=120))
+    assert st["phase"] == "failed"
+    assert "vanished" in st["result"]["error"]

@@ -1,0 +1,73 @@
+"""The agent's RobotJob status writes, from what happened in the run."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+
+import pytest
+from armnet_agent.node.report import (
+    ERROR_MAX,
+    TAIL_MAX,
+    ConnectorRecord,
+    failed_before_start,
+    running_patch,
+    terminal_patch,
+)
+from armnet_core import JobResult, JobStatus
+
+pytestmark = pytest.mark.unit
+
+T0 = datetime(2026, 3, 1, 12, 0, 0, 250000, tzinfo=UTC)
+
+
+def result(**overrides: object) -> JobResult:
+    base: dict[str, object] = {"status": JobStatus.SUCCEEDED, "exit_code": 0, "started_at": T0, "finished_at": T0}
+    base.update(overrides)
+    return JobResult(**base)  # type: ignore[arg-type]
+
+
+def test_every_phase_changing_write_carries_the_resource_version_it_was_decided_on() -> None:
+    assert running_patch("41", T0)["metadata"]["resourceVersion"] == "41"
+    assert terminal_patch("42", result())["metadata"]["resourceVersion"] == "42"
+    assert failed_before_start("43", "boom", T0)["metadata"]["resourceVersion"] == "43"
+
+
+def test_running_sets_started_at_in_milliseconds() -> None:
+    assert running_patch("1", T0)["status"] == {"phase": "running", "startedAt": "2026-03-01T12:00:00.250Z"}
+
+
+def test_a_success_reports_exit_code_and_return_value() -> None:
+    body = terminal_patch("1", result(return_value={"ok": True}, stdout="hi"))["status"]
+    assert body["phase"] == "succeeded"
+    assert body["result"] == {"exitCode": 0, "returnValue": {"ok": True}, "stdoutTail": "hi", "stderrTail": ""}
+
+
+def test_a_safety_violation_is_reported_from_the_connectors_record() -> None:
+    record = ConnectorRecord(trip_reason="safety", trip_message="shoulder_pan: step 60 > limit 10 (present 3)")
+    body = terminal_patch("1", result(status=JobStatus.FAILED, exit_code=1, traceback="SafetyViolation"), record)
+    assert "shoulder_pan: step 60 > limit 10" in body["status"]["result"]["error"]
+
+
+def test_a_deadline_trip_is_not_called_a_safety_violation() -> None:
+    record = ConnectorRecord(trip_reason="deadline", trip_message="the job exceeded its timeout")
+    body = terminal_patch("1", result(status=JobStatus.TIMEOUT, error="job exceeded"), record)
+    assert "safety" not in body["status"]["result"]["error"]
+
+
+def test_tails_and_errors_are_cut_to_the_crd_limits_keeping_the_end() -> None:
+    body = terminal_patch("1", result(stdout="a" * 50_000 + "END", error="e" * 20_000 + "LAST"))["status"]["result"]
+    assert len(body["stdoutTail"]) <= TAIL_MAX and body["stdoutTail"].endswith("END")
+    assert len(body["error"]) <= ERROR_MAX and body["error"].endswith("LAST")
+
+
+def test_the_last_rollout_goes_to_status() -> None:
+    body = terminal_patch("1", result(), ConnectorRecord(rollout_index=3, rollout_total=5))
+    assert body["status"]["rollout"] == {"index": 3, "total": 5}
+
+
+def test_a_failure_before_start_has_an_error_and_no_traceback() -> None:
+    body = failed_before_start("1", "Secret 'hf' does not exist in namespace team-a", T0)
+    assert body["status"]["phase"] == "failed"
+    assert body["status"]["result"] == {"error": "Secret 'hf' does not exist in namespace team-a"}
+    assert "traceback" not in json.dumps(body)
