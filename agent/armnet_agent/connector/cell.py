@@ -89,7 +89,10 @@ class CellState:
         self.deadline = Deadline(
             self.config.timeout_seconds, self.config.grace_period_seconds, self.interlock, self.on_grace_expired
         )
-        self.guard = MotionGuard(self.interlock, self.config.present_position_max_age_ms / 1000, self.counters)
+        self.guard = MotionGuard(
+            self.interlock, self.config.present_position_max_age_ms / 1000, self.counters,
+            policy=self.config.safety_policy,
+        )
         self._live: dict[int, Handle] = {}
         self._live_lock = threading.Lock()
         self._reset_lock = threading.Lock()

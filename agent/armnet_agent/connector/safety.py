@@ -16,8 +16,9 @@ from .config import MotorRange
 
 GOAL_POSITION = "Goal_Position"
 #: Registers that may still be written while the interlock holds, and only with 0
-#: (what ``disable_torque`` writes): letting go of the arm is always allowed.
-RELEASE_REGISTERS = frozenset({"Torque_Enable", "Lock"})
+#: (what ``disable_torque`` writes): letting go of the arm is always allowed. Not
+#: ``Lock``: 0 unlocks the EEPROM (the connector's bus never writes it, see ``policed_bus``).
+RELEASE_REGISTERS = frozenset({"Torque_Enable"})
 #: Registers a job may never write: they re-address servos of a shared cell (as
 #: ``setup_motor``/``set_baudrate`` would), leaving the next job a broken bus.
 PROTECTED_REGISTERS = frozenset({"ID", "Baud_Rate"})
@@ -141,6 +142,57 @@ def check_goal_write(
             if abs(step) > rel:
                 return Violation(motor, "relative", goal, rel, present=present[motor], step=step)
     return None
+
+
+@dataclass(frozen=True)
+class GoalDecision:
+    """What becomes of one goal write: the goals to send, which were clamped, and the steps asked."""
+
+    goals: dict[str, float]
+    clamped: tuple[str, ...] = ()
+    #: Step from the present position per motor, as requested (before any clamp).
+    steps: dict[str, float] | None = None
+    violation: Violation | None = None
+
+
+def decide_goal_write(
+    goals: Mapping[str, float],
+    present: Mapping[str, float],
+    facts: Mapping[str, MotorFacts],
+    limit: float | Mapping[str, float] | None,
+    *,
+    normalize: bool,
+    clamp: bool,
+) -> GoalDecision:
+    """The ``clamp``/``trip`` safety policy over one goal write.
+
+    A goal outside the calibrated range is always a violation. A step beyond the
+    relative limit is a violation under ``trip``; under ``clamp`` the goal is moved
+    to present ± limit, as LeRobot's ``ensure_safe_goal_position`` does.
+    """
+    steps = {m: goals[m] - present[m] for m in goals if m in present}
+    if not clamp:
+        return GoalDecision(dict(goals), (), steps, check_goal_write(goals, present, facts, limit, normalize=normalize))
+    absolute = check_goal_write(goals, {}, facts, None, normalize=normalize)
+    if absolute is not None:
+        return GoalDecision(dict(goals), (), steps, absolute)
+    result = dict(goals)
+    clamped = []
+    for motor, step in steps.items():
+        fact = facts.get(motor)
+        rel = limit_for(limit, motor)
+        if fact is None or rel is None:
+            continue
+        if not normalize:
+            scale_range = fact.cell_range or fact.bus_range
+            if scale_range is not None:
+                rel = rel * ticks_per_unit(fact.norm_mode, scale_range)
+        if abs(step) > rel:
+            # A raw goal stays whole ticks, inside the limit.
+            allowed = rel if normalize else float(math.floor(rel))
+            result[motor] = present[motor] + math.copysign(allowed, step)
+            clamped.append(motor)
+    return GoalDecision(result, tuple(clamped), steps, None)
 
 
 def plan_rest_steps(
