@@ -20,6 +20,7 @@ from .frames import FrameAreas
 from .hardware import CameraFactory
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
+from .report import SafetyReport
 from .server import BufferBudget, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession
 
@@ -149,3 +150,7 @@ class Connector:
     @property
     def counters(self) -> Counters:
         return self.cell.counters
+
+    def safety_report(self) -> SafetyReport:
+        """The job's safety record so far (clamps, refusals, trips, torque off), as plain data."""
+        return self.cell.guard.recorder.snapshot()

@@ -54,6 +54,9 @@ class Servo:
             self._set(_REG["Homing_Offset"], calibration.homing_offset)
             self._set(_REG["Min_Position_Limit"], calibration.range_min)
             self._set(_REG["Max_Position_Limit"], calibration.range_max)
+            # A calibrated servo has been through LeRobot's setup, whose configure()
+            # leaves the return delay at its minimum (0): what a prepared cell holds.
+            self._set(_REG["Return_Delay_Time"], 0)
         # What a power cycle restores: the EEPROM as last saved with Lock = 0.
         self._saved = bytes(self._memory)
         self._pending: tuple[int, bytes] | None = None
