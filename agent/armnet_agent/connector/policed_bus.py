@@ -19,7 +19,7 @@ import functools
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 from .errors import RequestError
 from .identity import CellMotor
@@ -63,7 +63,7 @@ class BusPolicy:
         if why is not None:
             self._refuse(name, why)
 
-    def _refuse(self, motor: str | None, why: str) -> None:
+    def _refuse(self, motor: str | None, why: str) -> NoReturn:
         self.recorder.record_refusal("register", motor, why, tripped=False)
         raise RequestError("NotAllowed", why)
 
