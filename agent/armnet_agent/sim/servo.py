@@ -163,6 +163,17 @@ class Servo:
         self._power_on_ram()
         self._refresh()
 
+    def saved_eeprom(self) -> bytes:
+        """The memory image a power cycle restores (EEPROM as last saved with Lock = 0)."""
+        return bytes(self._saved)
+
+    def restore_saved(self, saved: bytes, now: float) -> None:
+        """Power on with ``saved`` as the servo's saved EEPROM (a state file of an earlier run)."""
+        if len(saved) != ct.MEMORY_SIZE:
+            raise ValueError(f"a saved servo image has {ct.MEMORY_SIZE} bytes, got {len(saved)}")
+        self._saved = bytes(saved)
+        self.power_cycle(now)
+
     def factory_reset(self, now: float) -> None:
         """RESET instruction: factory EEPROM, same id, saved immediately."""
         servo_id = self.servo_id

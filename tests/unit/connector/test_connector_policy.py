@@ -180,6 +180,30 @@ def test_a_refused_calibration_leaves_the_next_job_calibrated(connector, motors,
     second.disconnect()
 
 
+def test_a_refused_calibration_leaves_the_cell_calibrated_after_a_simulator_restart(
+    tmp_path, make_connector, cell_config, motors
+) -> None:
+    """The damage scenario of issue 8 on a named cell whose EEPROM survives restarts."""
+    from armnet_agent.sim import SimulatedCellProcess
+
+    with SimulatedCellProcess("so101", state_dir=tmp_path) as sim:
+        connector = make_connector(cell_config(sim))
+        job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+        job.connect()
+        for attempt in (job.set_half_turn_homings, lambda: job.write("Lock", "gripper", 0),
+                        lambda: job.write("Homing_Offset", "gripper", 300)):
+            with pytest.raises(RemoteCallError):
+                attempt()
+        job.disconnect()
+        connector.stop()
+    with SimulatedCellProcess("so101", state_dir=tmp_path) as sim:
+        connector = make_connector(cell_config(sim))
+        next_job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+        next_job.connect()
+        assert next_job.is_calibrated
+        next_job.disconnect()
+
+
 # -- 8.2 safety semantics ----------------------------------------------------------------
 
 
