@@ -172,6 +172,7 @@ def create_feetech(
     policy = BusPolicy(
         arm_name, {cell[m].id: (m, cell[m]) for m in cell}, interlock, recorder,
         bounds=dict(config.register_bounds), allow_calibration=config.allow_calibration_jobs,
+        calibration={r.id: (r.homing_offset, r.range_min, r.range_max) for r in arm_ranges.values()},
     )
     obj = policed_bus_class()(port=arm.port, motors=motors, calibration=cell_calibration, armnet_policy=policy)
     return Handle(

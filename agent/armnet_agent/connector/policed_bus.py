@@ -8,8 +8,7 @@ address and servo id, covers every path LeRobot has or will add, with the
 cell's motor table (never the job's names).
 
 This module owns the subclass and its small changes to LeRobot's behaviour:
-torque on/off leave ``Lock`` alone unless the cell allows calibration jobs (the
-EEPROM stays locked), and a disconnect with torque off reads the torque back
+torque on/off leave ``Lock`` alone (the EEPROM stays locked), and a disconnect with torque off reads the torque back
 and records whether it is really off. The decisions live in ``registers``.
 """
 
@@ -29,6 +28,8 @@ from .report import SafetyRecorder
 
 log = logging.getLogger(__name__)
 
+#: The calibration registers, in the order of ``BusPolicy.calibration``'s tuples.
+CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
 #: Registers a calibration job (``allowCalibrationJobs``) may also write.
 CALIBRATION_REGISTERS = frozenset({"Homing_Offset", "Min_Position_Limit", "Max_Position_Limit", "Lock"})
 
@@ -43,6 +44,8 @@ class BusPolicy:
     recorder: SafetyRecorder
     bounds: Mapping[str, tuple[int, int]] = field(default_factory=dict)
     allow_calibration: bool = False
+    #: The cell's calibration per servo id: (Homing_Offset, Min_Position_Limit, Max_Position_Limit).
+    calibration: Mapping[int, tuple[int, int, int]] = field(default_factory=dict)
 
     def check(self, register_at: Any, address: int, motor_id: int, value: int, read_current: Any) -> None:
         """Raise ``RequestError("NotAllowed")`` unless writing ``value`` at ``address`` of ``motor_id`` is allowed."""
@@ -101,10 +104,9 @@ def policed_bus_class() -> type:
                 self._armnet_policy.check(self._register_at, addr, motor_id, int(value), lambda: None)
             return super()._sync_write(addr, length, ids_values, *args, **kwargs)
 
-        # Torque on/off without Lock: the cell keeps its servos' EEPROM locked.
+        # Torque on/off without Lock: the cell keeps its servos' EEPROM locked (a calibration
+        # job that wants its writes saved writes Lock=0 itself; the connector relocks at the end).
         def disable_torque(self, motors: Any = None, num_retry: int = 0) -> None:
-            if self._armnet_policy.allow_calibration:
-                return super().disable_torque(motors, num_retry)  # type: ignore[no-any-return]
             for motor in self._get_motors_list(motors):
                 self.write("Torque_Enable", motor, 0, num_retry=num_retry)
 
@@ -113,12 +115,61 @@ def policed_bus_class() -> type:
             self._write(addr, 1, motor, 0, num_retry=num_retry)
 
         def enable_torque(self, motors: Any = None, num_retry: int = 0) -> None:
-            if self._armnet_policy.allow_calibration:
-                return super().enable_torque(motors, num_retry)  # type: ignore[no-any-return]
             for motor in self._get_motors_list(motors):
                 self.write("Torque_Enable", motor, 1, num_retry=num_retry)
 
+        # A calibration job (allowCalibrationJobs) may rewrite the EEPROM: the connector checks
+        # it against the cell's calibration when the bus connects, and restores it when it lets go.
+        def connect(self, handshake: bool = True) -> None:
+            super().connect(handshake)
+            if self._armnet_policy.allow_calibration:
+                self._armnet_check_calibration("start")
+
+        def _armnet_eeprom(self) -> dict[int, tuple[int, int, int]]:
+            held = {}
+            for name, motor in self.motors.items():
+                values = [self.read(reg, name, normalize=False, num_retry=2) for reg in CALIBRATION_ORDER]
+                held[motor.id] = (int(values[0]), int(values[1]), int(values[2]))
+            return held
+
+        def _armnet_check_calibration(self, when: str) -> bool:
+            policy = self._armnet_policy
+            held = self._armnet_eeprom()
+            differ = sorted(i for i, v in held.items() if policy.calibration.get(i) not in (None, v))
+            if differ:
+                policy.recorder.record_calibration(policy.arm, f"{when}: servos {differ} differ from the cell's calibration")
+            return not differ
+
+        def _armnet_restore_calibration(self) -> None:
+            """Write the cell's calibration back (unlocked, so it is saved), then lock and verify.
+
+            The connector's own writes: they bypass the job's policy (the interlock holds
+            at shutdown, and these are exactly the cell's values).
+            """
+            policy = self._armnet_policy
+            for motor in self.motors.values():
+                wanted = policy.calibration.get(motor.id)
+                if wanted is None:
+                    continue
+                table = self.model_ctrl_table[motor.model]
+                lock_addr, lock_length = table["Lock"]
+                super()._write(lock_addr, lock_length, motor.id, 0, num_retry=2)
+                for register, value in zip(CALIBRATION_ORDER, wanted, strict=True):
+                    addr, length = table[register]
+                    encoded = self._encode_sign(register, {motor.id: value})[motor.id]
+                    super()._write(addr, length, motor.id, encoded, num_retry=2)
+                super()._write(lock_addr, lock_length, motor.id, 1, num_retry=2)
+            if self._armnet_check_calibration("end"):
+                policy.recorder.record_calibration(policy.arm, "end: the cell's calibration is in place")
+
         def disconnect(self, disable_torque: bool = True) -> None:
+            if self._armnet_policy.allow_calibration and self.is_connected:
+                try:
+                    self._armnet_restore_calibration()
+                except Exception as exc:  # noqa: BLE001 — reported; the port must still close
+                    self._armnet_policy.recorder.record_calibration(
+                        self._armnet_policy.arm, f"end: restoring the cell's calibration failed: {exc}"
+                    )
             if disable_torque and self.is_connected:
                 self.port_handler.clearPort()
                 self.port_handler.is_using = False

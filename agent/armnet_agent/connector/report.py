@@ -41,6 +41,8 @@ class SafetyReport:
     interlock_trips: int = 0
     #: Per arm: torque read back as off when the connector let go of it (None: never checked).
     torque_off_confirmed: dict[str, bool] = field(default_factory=dict)
+    #: Calibration jobs only: what the connector found and restored, per arm.
+    calibration: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def as_status(self) -> dict[str, Any]:
         """The camelCase mapping the job's status carries."""
@@ -52,6 +54,7 @@ class SafetyReport:
             "refusalsTotal": self.refusals_total,
             "interlockTrips": self.interlock_trips,
             "torqueOffConfirmed": dict(self.torque_off_confirmed),
+            "calibration": {arm: list(notes) for arm, notes in self.calibration.items()},
         }
 
 
@@ -67,6 +70,7 @@ class SafetyRecorder:
         self._refusals_total = 0
         self._trips = 0
         self._torque_off: dict[str, bool] = {}
+        self._calibration: dict[str, list[str]] = {}
 
     def record_steps(self, steps: dict[str, float]) -> None:
         with self._lock:
@@ -92,6 +96,12 @@ class SafetyRecorder:
             # Once unconfirmed, stays unconfirmed: the report must not hide a failure.
             self._torque_off[arm] = self._torque_off.get(arm, True) and confirmed
 
+    def record_calibration(self, arm: str, note: str) -> None:
+        with self._lock:
+            notes = self._calibration.setdefault(arm, [])
+            if len(notes) < MAX_REFUSALS_KEPT:
+                notes.append(note[:MAX_REASON_CHARS])
+
     def snapshot(self) -> SafetyReport:
         with self._lock:
             return SafetyReport(
@@ -102,4 +112,5 @@ class SafetyRecorder:
                 refusals_total=self._refusals_total,
                 interlock_trips=self._trips,
                 torque_off_confirmed=dict(self._torque_off),
+                calibration={arm: tuple(notes) for arm, notes in self._calibration.items()},
             )

@@ -255,3 +255,30 @@ def test_torque_off_is_confirmed_in_the_report_when_the_connector_lets_go(connec
     assert not any(sim_cell.arm.torque_enabled().values())
     assert connector.safety_report().torque_off_confirmed == {"arm": True}
     assert connector.safety_report().as_status()["torqueOffConfirmed"] == {"arm": True}
+
+
+# -- calibration jobs (allowCalibrationJobs) ------------------------------------------------
+
+
+def test_a_calibration_job_may_rewrite_eeprom_and_the_connector_restores_the_cells(
+    sim_cell, make_connector, cell_config, motors
+) -> None:
+    connector = make_connector(cell_config(sim_cell, allowCalibrationJobs=True))
+    seeded = sim_cell.arm.register("gripper", "Homing_Offset")
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+    job.connect()
+    job.write("Lock", "gripper", 0, normalize=False)
+    job.write("Homing_Offset", "gripper", seeded + 100, normalize=False)
+    assert sim_cell.arm.register("gripper", "Homing_Offset") == seeded + 100
+    job.disconnect()
+    assert sim_cell.arm.register("gripper", "Homing_Offset") == seeded
+    assert sim_cell.arm.register("gripper", "Lock") == 1
+    assert connector.safety_report().calibration["arm"][-1] == "end: the cell's calibration is in place"
+
+
+def test_a_calibration_job_still_may_not_re_address_a_servo(sim_cell, make_connector, cell_config, motors) -> None:
+    connector = make_connector(cell_config(sim_cell, allowCalibrationJobs=True))
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+    job.connect()
+    refused(job.write, "ID", "gripper", 9)
+    job.disconnect()
