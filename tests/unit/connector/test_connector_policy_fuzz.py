@@ -3,7 +3,9 @@
 Random and hostile create arguments (aliased names, other units, protocols,
 calibrations), random (register, motor, value) writes, goal steps, method calls,
 attribute writes, closed handles and fresh connections, under both safety
-policies. After every operation the simulator is asked what the servos did:
+policies. After every operation the simulator is asked what the servos did
+(and scservo_sdk's process-global byte order is checked, the connector runs in
+this process):
 no goal ever stepped beyond the cell's limit from where the servo was; EEPROM
 and registers outside the policy never changed; ``Lock`` stayed set; and after
 every connector stop, torque is off on every servo.
@@ -226,6 +228,8 @@ def run(client: Client, op: str, arg: Any, state: dict[str, Any], endpoint: str,
 def test_no_hostile_job_steps_a_servo_past_the_limit_or_changes_what_the_policy_protects(
     ops: list[tuple[str, Any]], policy: str, sim_cell, socket_dir, cell_config, motors, calibration_path
 ) -> None:
+    import scservo_sdk.scservo_def as scs_def
+
     cell = Cell(sim_cell, calibration_path("so101"))
     initial = cell.registers()
     config = cell_config(sim_cell, safetyPolicy=policy, presentPositionMaxAgeMs=0)
@@ -236,6 +240,7 @@ def test_no_hostile_job_steps_a_servo_past_the_limit_or_changes_what_the_policy_
             before, goals = cell.arm.positions(), cell.arm.goal_positions()
             run(state["client"], op, arg, state, connector.robot_endpoint, cell, motors)
             cell.check_step(before, goals)
+            assert scs_def.SCS_END == 0, f"{op} {arg!r} flipped scservo_sdk's process-global byte order"
         state["client"].close()
     finally:
         connector.stop()
