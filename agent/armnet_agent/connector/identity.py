@@ -77,9 +77,13 @@ def motors_refusal(job: Mapping[str, JobMotor], cell: Mapping[str, CellMotor]) -
             return f"motor {name!r} is not a motor of this cell; the cell's motors are {describe_table(cell)}"
         declared = (motor.id, motor.model, motor.norm_mode)
         if declared != (own.id, own.model, own.norm_mode):
+            hint = ""
+            if own.norm_mode == DEGREES and motor.norm_mode == RANGE_M100_100:
+                hint = " (LeRobot's SO101FollowerConfig: pass use_degrees=True)"
             return (
                 f"motor {name!r} is declared as id {motor.id!r}, model {motor.model!r}, norm mode "
                 f"{motor.norm_mode!r}, but the cell has {own.describe()}; declare it exactly as the cell does"
+                f"{hint}"
             )
     return None
 

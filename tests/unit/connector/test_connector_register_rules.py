@@ -66,6 +66,12 @@ def test_a_job_motor_must_match_the_cells_id_model_and_unit() -> None:
     assert motors_refusal({}, cell) is not None
 
 
+def test_lerobots_default_range_units_on_a_degrees_joint_are_refused_with_the_fix() -> None:
+    cell = {"elbow_flex": CellMotor(3, "sts3215", "degrees")}
+    why = motors_refusal({"elbow_flex": JobMotor(3, "sts3215", "range_m100_100")}, cell) or ""
+    assert "use_degrees=True" in why
+
+
 def test_the_protocol_is_the_models() -> None:
     assert protocol_refusal(0, {"sts3215"}) is None
     assert protocol_refusal(1, {"sts3215"}) is not None
