@@ -168,7 +168,8 @@ def create_feetech(
         raise not_allowed(why)
     from lerobot.motors import Motor, MotorNormMode
 
-    motors = {m: Motor(cell[m].id, cell[m].model, MotorNormMode(cell[m].norm_mode)) for m in job}
+    # The cell's ids and models; the job's unit where the cell accepts it (identity.ALSO_ACCEPTED).
+    motors = {m: Motor(cell[m].id, cell[m].model, MotorNormMode(str(job[m].norm_mode))) for m in job}
     policy = BusPolicy(
         arm_name, {cell[m].id: (m, cell[m]) for m in cell}, interlock, recorder,
         bounds=dict(config.register_bounds), allow_calibration=config.allow_calibration_jobs,

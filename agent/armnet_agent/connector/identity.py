@@ -38,16 +38,28 @@ SO101_NORM_MODES: Mapping[str, str] = {
 }
 
 
+#: Units a job may declare besides the cell's own, per cell unit: LeRobot's SO follower
+#: declares its body joints in degrees (``use_degrees=True``) or in -100..100 (its
+#: default). The connector converts the cell's limit to the job's unit through raw
+#: ticks, so either is safe; a unit with no such conversion (0..100 on a body joint)
+#: is refused.
+ALSO_ACCEPTED: Mapping[str, frozenset[str]] = {DEGREES: frozenset({RANGE_M100_100})}
+
+
 @dataclass(frozen=True)
 class CellMotor:
-    """One motor as the cell knows it."""
+    """One motor as the cell knows it; ``norm_mode`` is the unit of the cell's limit."""
 
     id: int
     model: str
     norm_mode: str
 
+    def accepts(self, norm_mode: object) -> bool:
+        return norm_mode == self.norm_mode or norm_mode in ALSO_ACCEPTED.get(self.norm_mode, frozenset())
+
     def describe(self) -> str:
-        return f"id {self.id}, model {self.model!r}, norm mode {self.norm_mode!r}"
+        modes = sorted({self.norm_mode, *ALSO_ACCEPTED.get(self.norm_mode, frozenset())})
+        return f"id {self.id}, model {self.model!r}, norm mode {' or '.join(repr(m) for m in modes)}"
 
 
 @dataclass(frozen=True)
@@ -75,15 +87,10 @@ def motors_refusal(job: Mapping[str, JobMotor], cell: Mapping[str, CellMotor]) -
         own = cell.get(name)
         if own is None:
             return f"motor {name!r} is not a motor of this cell; the cell's motors are {describe_table(cell)}"
-        declared = (motor.id, motor.model, motor.norm_mode)
-        if declared != (own.id, own.model, own.norm_mode):
-            hint = ""
-            if own.norm_mode == DEGREES and motor.norm_mode == RANGE_M100_100:
-                hint = " (LeRobot's SO101FollowerConfig: pass use_degrees=True)"
+        if (motor.id, motor.model) != (own.id, own.model) or not own.accepts(motor.norm_mode):
             return (
                 f"motor {name!r} is declared as id {motor.id!r}, model {motor.model!r}, norm mode "
-                f"{motor.norm_mode!r}, but the cell has {own.describe()}; declare it exactly as the cell does"
-                f"{hint}"
+                f"{motor.norm_mode!r}, but the cell has {own.describe()}; declare it as the cell does"
             )
     return None
 

@@ -151,6 +151,7 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
             getattr(bus_motors[m].norm_mode, "value", str(bus_motors[m].norm_mode)),
             _motor_range(calibration, m),
             handle.cell_ranges.get(m),
+            handle.cell_motors[m].norm_mode if m in handle.cell_motors else None,
         )
         for m in motors
     }

@@ -104,6 +104,20 @@ class MotorFacts:
     norm_mode: str
     bus_range: MotorRange | None  # the calibration the bus normalises with (may be the customer's)
     cell_range: MotorRange | None  # the cell's own calibration: the absolute limits
+    #: The unit the cell's limit is in (the cell's norm mode); None: the bus's own unit.
+    limit_norm_mode: str | None = None
+
+
+def limit_in_write_units(limit: float, fact: MotorFacts, *, normalize: bool) -> float:
+    """The cell's relative limit expressed in the units of a write, through raw ticks."""
+    scale_range = fact.cell_range or fact.bus_range
+    if scale_range is None:
+        return limit
+    ticks = limit * ticks_per_unit(fact.limit_norm_mode or fact.norm_mode, scale_range)
+    if not normalize:
+        return ticks
+    per_unit = ticks_per_unit(fact.norm_mode, scale_range)
+    return ticks / per_unit if per_unit > 0 else limit
 
 
 def check_goal_write(
@@ -134,10 +148,7 @@ def check_goal_write(
                 return Violation(motor, "absolute", float(raw), float(high), bounds=(low, high))
         rel = limit_for(limit, motor)
         if rel is not None and motor in present:
-            if not normalize:
-                scale_range = fact.cell_range or fact.bus_range
-                if scale_range is not None:
-                    rel = rel * ticks_per_unit(fact.norm_mode, scale_range)
+            rel = limit_in_write_units(rel, fact, normalize=normalize)
             step = goal - present[motor]
             if abs(step) > rel:
                 return Violation(motor, "relative", goal, rel, present=present[motor], step=step)
@@ -183,10 +194,7 @@ def decide_goal_write(
         rel = limit_for(limit, motor)
         if fact is None or rel is None:
             continue
-        if not normalize:
-            scale_range = fact.cell_range or fact.bus_range
-            if scale_range is not None:
-                rel = rel * ticks_per_unit(fact.norm_mode, scale_range)
+        rel = limit_in_write_units(rel, fact, normalize=normalize)
         if abs(step) > rel:
             # A raw goal stays whole ticks, inside the limit.
             allowed = rel if normalize else float(math.floor(rel))

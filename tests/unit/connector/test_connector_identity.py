@@ -102,3 +102,20 @@ def test_limits_apply_to_the_servo_the_cell_names_not_the_jobs_name(connector, m
     step = sim_cell.arm.goal_positions()["shoulder_pan"] - present["shoulder_pan"]
     assert 0 < step <= limit_ticks + 1
     bus.disconnect()
+
+
+def test_lerobots_default_body_unit_is_served_with_the_cells_limit_in_ticks(connector, sim_cell) -> None:
+    """SO101FollowerConfig's default (use_degrees=False) declares the body in -100..100."""
+    from lerobot.motors import Motor, MotorNormMode
+
+    bus = RemoteFeetechMotorsBus(
+        port=connector.robot_endpoint, motors={"elbow_flex": Motor(3, "sts3215", MotorNormMode.RANGE_M100_100)}
+    )
+    bus.connect()
+    bus.enable_torque()
+    before = sim_cell.arm.positions()["elbow_flex"]
+    present = bus.sync_read("Present_Position")["elbow_flex"]
+    bus.sync_write("Goal_Position", {"elbow_flex": present + 90.0})  # far, in -100..100 units
+    step = sim_cell.arm.goal_positions()["elbow_flex"] - before
+    assert 0 < step <= 30.0 * 4095 / 360 + 2  # the cell's 30 degrees, whatever the job's unit
+    bus.disconnect()

@@ -66,10 +66,20 @@ def test_a_job_motor_must_match_the_cells_id_model_and_unit() -> None:
     assert motors_refusal({}, cell) is not None
 
 
-def test_lerobots_default_range_units_on_a_degrees_joint_are_refused_with_the_fix() -> None:
+def test_a_degrees_joint_also_takes_lerobots_default_body_unit_but_not_0_to_100() -> None:
     cell = {"elbow_flex": CellMotor(3, "sts3215", "degrees")}
-    why = motors_refusal({"elbow_flex": JobMotor(3, "sts3215", "range_m100_100")}, cell) or ""
-    assert "use_degrees=True" in why
+    assert motors_refusal({"elbow_flex": JobMotor(3, "sts3215", "range_m100_100")}, cell) is None
+    assert "'range_0_100'" in (motors_refusal({"elbow_flex": JobMotor(3, "sts3215", "range_0_100")}, cell) or "")
+
+
+def test_the_cells_limit_is_converted_to_the_jobs_unit_through_ticks() -> None:
+    from armnet_agent.connector.config import MotorRange
+    from armnet_agent.connector.safety import MotorFacts, limit_in_write_units
+
+    span = MotorRange(3, 1000, 3000)  # 2000 ticks: 10 ticks per -100..100 unit
+    fact = MotorFacts("range_m100_100", span, span, limit_norm_mode="degrees")
+    assert limit_in_write_units(30.0, fact, normalize=False) == pytest.approx(30 * 4095 / 360)
+    assert limit_in_write_units(30.0, fact, normalize=True) == pytest.approx(30 * 4095 / 360 / 10)
 
 
 def test_the_protocol_is_the_models() -> None:
