@@ -160,7 +160,8 @@ def create_feetech(
     job = _job_motors(bound.arguments.get("motors"))
     why = motors_refusal(job, cell)
     if why is None:
-        why = protocol_refusal(bound.arguments.get("protocol_version", 0), {cell[m].model for m in job})
+        models = {cell[m].model for m in job} or {motor.model for motor in cell.values()}
+        why = protocol_refusal(bound.arguments.get("protocol_version", 0), models)
     cell_calibration = _cell_calibration(job, arm_ranges)
     if why is None:
         why = _calibration_refusal(bound.arguments.get("calibration"), cell_calibration)
