@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
@@ -28,6 +29,8 @@ from .report import SafetyRecorder
 
 log = logging.getLogger(__name__)
 
+#: How long a late servo reply may take to land (longer than LeRobot's ~50 ms timeout).
+LATE_REPLY_WAIT_S = 0.06
 #: The calibration registers, in the order of ``BusPolicy.calibration``'s tuples.
 CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
 #: Registers a calibration job (``allowCalibrationJobs``) may also write.
@@ -162,6 +165,14 @@ def policed_bus_class() -> type:
             if self._armnet_check_calibration("end"):
                 policy.recorder.record_calibration(policy.arm, "end: the cell's calibration is in place")
 
+        def _armnet_drop_late_replies(self) -> None:
+            """After a lost reply, let it land and drop it, so the next user of the line never reads it."""
+            time.sleep(LATE_REPLY_WAIT_S)
+            try:
+                self.port_handler.ser.reset_input_buffer()
+            except Exception as exc:  # noqa: BLE001 — the port is closed next anyway
+                log.debug("could not drop late replies: %s", exc)
+
         def disconnect(self, disable_torque: bool = True) -> None:
             if self._armnet_policy.allow_calibration and self.is_connected:
                 try:
@@ -180,7 +191,11 @@ def policed_bus_class() -> type:
                     confirmed = all(int(v) == 0 for v in torque.values())
                 except Exception as exc:  # noqa: BLE001 — recorded as unconfirmed; the port must still close
                     log.warning("torque off could not be confirmed on %s: %s", self._armnet_policy.arm, exc)
+                    self._armnet_drop_late_replies()
                 self._armnet_policy.recorder.record_torque_off(self._armnet_policy.arm, confirmed)
             super().disconnect(disable_torque=False)
 
+    # LeRobot's messages name the class ("FeetechMotorsBus motor check failed ..."): a job
+    # sees the same text as on a bare arm.
+    PolicedFeetechBus.__name__ = PolicedFeetechBus.__qualname__ = FeetechMotorsBus.__name__
     return PolicedFeetechBus

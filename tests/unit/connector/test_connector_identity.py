@@ -99,7 +99,8 @@ def test_limits_apply_to_the_servo_the_cell_names_not_the_jobs_name(connector, m
     present = bus.sync_read("Present_Position", normalize=False)
     bus.sync_write("Goal_Position", {"shoulder_pan": present["shoulder_pan"] + 1000}, normalize=False)
     limit_ticks = 30.0 * 4095 / 360  # the cell's 30 degrees, in ticks
-    step = sim_cell.arm.goal_positions()["shoulder_pan"] - present["shoulder_pan"]
+    # A read on the same line: the simulator has applied the (reply-less) sync_write before it answers.
+    step = bus.read("Goal_Position", "shoulder_pan", normalize=False) - present["shoulder_pan"]
     assert 0 < step <= limit_ticks + 1
     bus.disconnect()
 
@@ -116,6 +117,6 @@ def test_lerobots_default_body_unit_is_served_with_the_cells_limit_in_ticks(conn
     before = sim_cell.arm.positions()["elbow_flex"]
     present = bus.sync_read("Present_Position")["elbow_flex"]
     bus.sync_write("Goal_Position", {"elbow_flex": present + 90.0})  # far, in -100..100 units
-    step = sim_cell.arm.goal_positions()["elbow_flex"] - before
+    step = bus.read("Goal_Position", "elbow_flex", normalize=False) - before
     assert 0 < step <= 30.0 * 4095 / 360 + 2  # the cell's 30 degrees, whatever the job's unit
     bus.disconnect()
