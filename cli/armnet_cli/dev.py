@@ -1,4 +1,4 @@
-"""``armnet dev up``: the test bed's control plane, NATS and Podman API for manual use.
+"""``armnet dev up``: the test bed's control plane, node, NATS and Podman API for manual use.
 
 Starts exactly what the pytest fixtures start (the library lives in
 ``tests/testbed`` of a checkout), prints the variables to export, and stops
@@ -19,9 +19,13 @@ from typing import Any
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="dev_action", metavar="ACTION", required=True)
-    up = actions.add_parser("up", help="start kube-apiserver+etcd, NATS and the Podman API; "
-                                       "Ctrl-C stops them")
-    up.add_argument("--no-k8s", action="store_true", help="do not start etcd + kube-apiserver")
+    up = actions.add_parser("up", help="start kube-apiserver+etcd, a node (containerd + "
+                                       "kubelet), NATS and the Podman API; Ctrl-C stops them")
+    up.add_argument("--no-k8s", action="store_true",
+                    help="do not start etcd + kube-apiserver (nor the node)")
+    up.add_argument("--no-node", action="store_true",
+                    help="do not start the node (containerd + kubelet; needs root, changes "
+                         "host sysctls/cgroups until Ctrl-C, holds the host's node lock)")
     up.add_argument("--no-nats", action="store_true", help="do not start nats-server")
     up.add_argument("--no-podman", action="store_true", help="do not start the Podman API service")
     up.add_argument("--repo", type=Path, default=None,
@@ -84,6 +88,13 @@ def _start_all(testbed: Any, args: argparse.Namespace, stack: contextlib.ExitSta
         for name in ("tenant-a", "tenant-b"):
             user = plane.user(name)
             lines.append(f"# tenant {name}: KUBECONFIG={user.kubeconfig}")
+        if not args.no_node:
+            node = stack.enter_context(testbed.Node(plane=plane))
+            lines.append(f"# node {node.name} is Ready: pods need spec.nodeName: {node.name}, "
+                         f"imagePullPolicy: Never, dnsPolicy: Default")
+            lines.append(f"# images on the node: {', '.join(node.images)}; more: "
+                         f"ctr --address {node.socket} -n k8s.io images import <podman save archive>")
+            lines.append(f"# kubelet log: {node.kubelet_log}")
     if not args.no_nats:
         nats = stack.enter_context(testbed.NatsServer())
         lines.append(f"export NATS_URL={nats.url}")

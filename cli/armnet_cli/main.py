@@ -13,6 +13,8 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from armnet_client.cli.commands import COMMANDS as CLIENT_COMMANDS
+
 
 @dataclass(frozen=True)
 class Subcommand:
@@ -27,6 +29,7 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand("connector", "armnet_agent.connector.cli", "run the connector sidecar for one cell"),
     Subcommand("operator", "armnet_operator.cli", "run the kopf operator that binds RobotJobs to Cells"),
     Subcommand("dev", "armnet_cli.dev", "developer helpers: `armnet dev up` starts the local test bed"),
+    *(Subcommand(*command) for command in CLIENT_COMMANDS),
 )
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import threading
 
 from .errors import PermanentError
 from .settings import ENV_PREFIX, OperatorSettings, load_settings
@@ -39,11 +40,15 @@ def run(args: argparse.Namespace) -> int:
 
     from .handlers import build_registry
 
-    registry, _controller = build_registry(settings)
+    # If the reconcile loop ever ends by itself, stop kopf and exit non-zero: a
+    # process that only watches would sit in the Lease while nothing is scheduled.
+    stop = threading.Event()
+    registry, controller = build_registry(settings, on_death=lambda _error: stop.set())
     kopf.run(
         registry=registry,
         standalone=True,  # leader election is ours (a Lease), not kopf peering
         clusterwide=not settings.namespaces,
         namespaces=settings.namespaces,
+        stop_flag=stop,
     )
-    return 0
+    return 1 if controller.dead else 0

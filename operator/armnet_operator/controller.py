@@ -15,9 +15,7 @@ from collections.abc import Callable, Mapping
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from pydantic import ValidationError
-
-from .errors import OperatorError, PermanentError
+from .errors import PermanentError, ResourceMissing
 from .kube import WRITERS, KubeApi
 from .metrics import Metrics
 from .model import Cell, Job
@@ -28,6 +26,9 @@ from .settings import OperatorSettings
 log = logging.getLogger(__name__)
 DEBOUNCE_SECONDS = 0.05
 OVERLAY_SECONDS = 10.0
+MAX_BACKOFF_SECONDS = 30.0
+QUEUE_SECONDS_PER_PASS = 0.5
+"""Queue writes a pass starts within this budget; the rest go next pass, so a burst never holds a bind long."""
 
 
 class Cache:
@@ -121,6 +122,7 @@ class Controller:
         api: KubeApi,
         metrics: Metrics,
         clock: Callable[[], datetime] = lambda: datetime.now(UTC),
+        on_death: Callable[[BaseException | None], None] | None = None,
     ) -> None:
         self.settings = settings
         self.api = api
@@ -129,40 +131,78 @@ class Controller:
         self.cache = Cache()
         self.memory = Memory()
         self.limits = Limits(
-            position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=WRITERS
+            position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=WRITERS,
+            queue_seconds=QUEUE_SECONDS_PER_PASS,
         )
         self.leading = False
         self._renewed_at: datetime | None = None
         self._task: asyncio.Task[None] | None = None
+        self._stopping = False
+        self._more = False
+        self.on_death = on_death
+        self.died: BaseException | None = None
+        self.dead = False
 
     def start(self) -> None:
         self.cache.changed = asyncio.Event()  # bind to the running loop
         self._task = asyncio.get_running_loop().create_task(self._run(), name="armnet-reconcile")
+        self._task.add_done_callback(self._ended)
 
     async def stop(self) -> None:
+        self._stopping = True
         if self._task is not None:
             self._task.cancel()
             await asyncio.gather(self._task, return_exceptions=True)
 
+    def _ended(self, task: asyncio.Task[None]) -> None:
+        """The loop must never end on its own: if it does, the process must go, not idle as leader.
+
+        A replica whose loop died still renews nothing, but it keeps its watches
+        and its process, so nothing restarts it and (until the Lease expires) no
+        other replica takes over. ``on_death`` ends the process non-zero.
+        """
+        if self._stopping:
+            return
+        self.dead = True
+        self.died = None if task.cancelled() else task.exception()
+        log.critical("the reconcile loop ended unexpectedly (%r); exiting so the operator is restarted",
+                     self.died, exc_info=self.died)
+        self.metrics.leader.set(0)
+        if self.on_death is not None:
+            self.on_death(self.died)
+
     async def _run(self) -> None:
         period = self.settings.reconcile_period
+        backoff = 0.0
         while True:
             try:
-                await asyncio.wait_for(self.cache.changed.wait(), timeout=period)
+                await asyncio.wait_for(self.cache.changed.wait(), timeout=max(period, backoff))
                 await asyncio.sleep(DEBOUNCE_SECONDS)  # let a burst of events land in one pass
             except TimeoutError:
                 pass
             self.cache.changed.clear()
             try:
+                self._more = False
                 await asyncio.to_thread(self.reconcile)
+                if self._more:  # writes left for the next pass: run it at once (Event: loop thread only)
+                    self.cache.changed.set()
+            except ResourceMissing as error:
+                self.metrics.errors.inc()
+                backoff = min(MAX_BACKOFF_SECONDS, max(1.0, backoff * 2))
+                log.error("%s; retrying in %.0fs", error, backoff)
+                await asyncio.sleep(backoff)
+                continue
             except PermanentError as error:
                 self.metrics.errors.inc()
                 log.error("reconcile cannot proceed: %s", error)
                 await asyncio.sleep(period)
-            except (OperatorError, OSError, ValidationError) as error:
+            except Exception:  # noqa: BLE001 - the loop outlives every failure; the next pass retries
                 self.metrics.errors.inc()
-                log.warning("reconcile pass failed, retrying: %s", error)
+                log.exception("reconcile pass failed, retrying")
                 await asyncio.sleep(min(1.0, period))
+            if backoff:
+                log.info("the RobotJob and Cell resources are back; reconciling again")
+                backoff = 0.0
 
     def _cells_in_scope(self, cells: list[Cell]) -> list[Cell]:
         """A namespaced operator leaves alone cells held by jobs it cannot see.
@@ -187,6 +227,12 @@ class Controller:
                 self.settings.lease_namespace, self.settings.lease_name, duration, now
             )
             self._renewed_at = now if leading else None
+            if leading:
+                try:
+                    self.api.check_resources()  # at the renewal cadence: one cheap GET every few seconds
+                except ResourceMissing:
+                    self._renewed_at = None  # check again on the next try
+                    raise
         if leading != self.leading:
             log.info("%s leadership", "gained" if leading else "lost")
             self.memory = Memory()
@@ -203,8 +249,10 @@ class Controller:
         finally:
             self.api.writing(False)
         self.cache.remember(outcome.jobs_written, outcome.cells_written, outcome.deleted)
+        self._more = outcome.more
         self.metrics.observe(outcome, jobs, cells, now)
         self.metrics.pass_seconds.observe(time.perf_counter() - started)
-        if outcome.bound or outcome.conflicts:
-            log.info("pass: bound %d, %d conflict(s), %d write(s)",
-                     len(outcome.bound), outcome.conflicts, outcome.writes)
+        if outcome.bound or outcome.conflicts or outcome.more:
+            log.info("pass: bound %d, %d conflict(s), %d write(s) in %.2fs%s",
+                     len(outcome.bound), outcome.conflicts, outcome.writes, time.perf_counter() - started,
+                     "; more queue writes next pass" if outcome.more else "")

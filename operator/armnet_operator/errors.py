@@ -25,3 +25,7 @@ class Conflict(TransientError):
 
 class NotFound(TransientError):
     """The object vanished between the snapshot and the write."""
+
+
+class ResourceMissing(OperatorError):
+    """A CRD the operator needs is not installed (deleted, or not yet applied): back off, retry."""

@@ -9,10 +9,11 @@ process. No ``on.field`` chains, no kopf-managed finalizers or annotations.
 from __future__ import annotations
 
 import logging
+import sys
+from collections.abc import Callable
 from typing import Any
 
 import kopf
-from pydantic import ValidationError
 
 from .controller import Controller
 from .kube import KubeApi, make_client
@@ -22,6 +23,23 @@ from .settings import OperatorSettings
 
 log = logging.getLogger(__name__)
 COMPONENT = "armnet-operator"
+API_SERVER_MAX_JSON_DEPTH = 10_000
+"""The API server decodes JSON up to this nesting (Go's encoding/json); anything it stores may be this deep."""
+
+
+def allow_deep_json() -> None:
+    """Let the watch decode every object the API server can store.
+
+    kopf decodes watch events with ``json.loads``, whose C scanner counts
+    against the interpreter's recursion limit (1,000 by default): a RobotJob
+    with args nested ~1,000 levels deep broke the watch stream, and kopf
+    re-listed into the same error while the object existed. The operator's own
+    code never recurses over ``spec.args`` (``args.measure`` is iterative), so
+    only the decoder needs the headroom; the job itself fails on the depth limit.
+    """
+    wanted = API_SERVER_MAX_JSON_DEPTH + 2_000
+    if sys.getrecursionlimit() < wanted:
+        sys.setrecursionlimit(wanted)
 
 
 def connection_info(api_client: Any) -> kopf.ConnectionInfo:
@@ -39,9 +57,14 @@ def connection_info(api_client: Any) -> kopf.ConnectionInfo:
     )
 
 
-def build_registry(settings: OperatorSettings) -> tuple[kopf.OperatorRegistry, Controller]:
+def build_registry(
+    settings: OperatorSettings, on_death: Callable[[BaseException | None], None] | None = None
+) -> tuple[kopf.OperatorRegistry, Controller]:
+    """The kopf registry and its controller; ``on_death`` runs if the reconcile loop ever ends by itself."""
+    allow_deep_json()
     api_client = make_client(settings.kubeconfig)
-    controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), Metrics())
+    controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), Metrics(),
+                            on_death=on_death)
     registry = kopf.OperatorRegistry()
 
     @kopf.on.login(registry=registry)
@@ -64,16 +87,25 @@ def build_registry(settings: OperatorSettings) -> tuple[kopf.OperatorRegistry, C
 
     @kopf.on.event(GROUP, VERSION, "robotjobs", registry=registry)
     async def job_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:
-        try:
-            controller.cache.on_job(event.get("type"), body)
-        except ValidationError as error:
-            raise kopf.PermanentError(f"RobotJob not understood; fix its spec: {error}") from error
+        _store(controller, "RobotJob", body, lambda: controller.cache.on_job(event.get("type"), body))
 
     @kopf.on.event(GROUP, VERSION, "cells", registry=registry)
     async def cell_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:
-        try:
-            controller.cache.on_cell(event.get("type"), body)
-        except ValidationError as error:
-            raise kopf.PermanentError(f"Cell not understood; fix its spec: {error}") from error
+        _store(controller, "Cell", body, lambda: controller.cache.on_cell(event.get("type"), body))
 
     return registry, controller
+
+
+def _store(controller: Controller, kind: str, body: Any, store: Callable[[], None]) -> None:
+    """Put one watch event into the cache; an object that cannot be read is logged and counted, never fatal.
+
+    ``parse_job`` reads bad spec and status fields as failures of the job
+    itself, so this is the last net (e.g. metadata without a name).
+    """
+    try:
+        store()
+    except Exception as error:  # noqa: BLE001 - one object must never stop the watch
+        meta = body.get("metadata") or {}
+        name = "/".join(str(part) for part in (meta.get("namespace"), meta.get("name")) if part)
+        controller.metrics.object_errors.labels(kind).inc()
+        log.error("%s %s could not be read; it is left out of scheduling: %s", kind, name, error)

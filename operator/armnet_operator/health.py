@@ -11,7 +11,7 @@ from datetime import datetime, timedelta
 
 from .model import Cell, CellPhase
 
-UNAVAILABLE = frozenset({CellPhase.OFFLINE, CellPhase.FAULTED, CellPhase.CORDONED})
+UNAVAILABLE = frozenset({CellPhase.OFFLINE, CellPhase.FAULTED, CellPhase.CORDONED, CellPhase.INVALID})
 
 
 def heartbeat_fresh(cell: Cell, now: datetime, timeout: timedelta) -> bool:
@@ -26,7 +26,9 @@ def heartbeat_lost_for(cell: Cell, now: datetime, timeout: timedelta) -> timedel
 
 
 def derive_cell_phase(cell: Cell, occupied: bool, now: datetime, timeout: timedelta) -> CellPhase:
-    """Offline beats Faulted beats Cordoned beats Busy: the most actionable fact wins."""
+    """Invalid beats Offline beats Faulted beats Cordoned beats Busy: the most actionable fact wins."""
+    if cell.invalid:
+        return CellPhase.INVALID
     if not heartbeat_fresh(cell, now, timeout):
         return CellPhase.OFFLINE
     if cell.failing_conditions:

@@ -7,6 +7,7 @@ leader Lease. Maps HTTP errors onto the operator's error tree.
 
 from __future__ import annotations
 
+import json
 import logging
 import queue
 import threading
@@ -17,9 +18,9 @@ from kubernetes import client, config
 from kubernetes.client import rest
 from kubernetes.client.exceptions import ApiException
 
-from .errors import Conflict, NotFound, PermanentError, TransientError
+from .errors import Conflict, NotFound, PermanentError, ResourceMissing, TransientError
 from .leader import LeaseMove, LeaseView, decide_lease
-from .model import GROUP, VERSION, Job
+from .model import GROUP, VERSION, Cell, Job
 from .patches import Patch, Target
 
 log = logging.getLogger(__name__)
@@ -54,6 +55,11 @@ def _translate(error: ApiException, what: str) -> Exception:
     if error.status == 409:
         return Conflict(f"{what}: changed since it was read")
     if error.status == 404:
+        if _resource_missing(error):
+            return ResourceMissing(
+                f"{what}: the API server does not serve this resource: is the CRD (crds/robotjob.yaml, "
+                "crds/cell.yaml) installed? The operator waits for it"
+            )
         return NotFound(f"{what}: not found")
     if error.status in (401, 403):
         return PermanentError(
@@ -65,6 +71,15 @@ def _translate(error: ApiException, what: str) -> Exception:
     return TransientError(f"{what}: HTTP {error.status} {error.reason}")
 
 
+def _resource_missing(error: ApiException) -> bool:
+    """A 404 for the whole resource type (CRD gone), not for one object (whose 404 names it)."""
+    try:
+        details = (json.loads(error.body or "{}") or {}).get("details") or {}
+    except (ValueError, AttributeError):
+        return False
+    return not details.get("name")
+
+
 class KubeApi:
     def __init__(self, api_client: client.ApiClient, component: str, identity: str) -> None:
         self.custom = client.CustomObjectsApi(api_client)
@@ -72,7 +87,7 @@ class KubeApi:
         self.leases = client.CoordinationV1Api(api_client)
         self.component = component
         self.identity = identity
-        self._events: queue.SimpleQueue[tuple[Job, str, str, str, datetime]] = queue.SimpleQueue()
+        self._events: queue.SimpleQueue[tuple[Job | Cell, str, str, str, datetime]] = queue.SimpleQueue()
         self._quiet = threading.Event()
         self._quiet.set()
         threading.Thread(target=self._post_events, name="armnet-events", daemon=True).start()
@@ -139,9 +154,9 @@ class KubeApi:
         except ApiException as error:
             raise _translate(error, f"delete robotjob {namespace}/{name}") from error
 
-    def post_event(self, job: Job, type_: str, reason: str, message: str) -> None:
+    def post_event(self, subject: Job | Cell, type_: str, reason: str, message: str) -> None:
         """Queue the Event: a slow Events write must never delay a binding."""
-        self._events.put((job, type_, reason, message, datetime.now(UTC)))
+        self._events.put((subject, type_, reason, message, datetime.now(UTC)))
 
     def _post_events(self) -> None:
         while True:
@@ -151,15 +166,18 @@ class KubeApi:
             try:
                 self._post_event(job, type_, reason, message, when)
             except Exception as error:  # noqa: BLE001 - events are best effort; keep the poster alive
-                log.debug("event %s for %s not posted: %s", reason, job.key, error)
+                log.debug("event %s for %s not posted: %s", reason, job, error)
 
-    def _post_event(self, job: Job, type_: str, reason: str, message: str, now: datetime) -> None:
+    def _post_event(self, subject: Job | Cell, type_: str, reason: str, message: str, now: datetime) -> None:
+        # Events of a cluster-scoped Cell live in "default", as kubectl describe expects.
+        namespace = subject.namespace if isinstance(subject, Job) else "default"
+        involved = {"apiVersion": f"{GROUP}/{VERSION}", "kind": "RobotJob" if isinstance(subject, Job) else "Cell",
+                    "name": subject.name, "uid": subject.uid}
+        if isinstance(subject, Job):
+            involved["namespace"] = namespace
         body = {
-            "metadata": {"generateName": f"{job.name}.", "namespace": job.namespace},
-            "involvedObject": {
-                "apiVersion": f"{GROUP}/{VERSION}", "kind": "RobotJob", "name": job.name,
-                "namespace": job.namespace, "uid": job.uid,
-            },
+            "metadata": {"generateName": f"{subject.name}.", "namespace": namespace},
+            "involvedObject": involved,
             "type": type_, "reason": reason, "message": message[:1024],
             "source": {"component": self.component},
             "reportingComponent": self.component, "reportingInstance": self.identity,
@@ -168,9 +186,31 @@ class KubeApi:
         }
         try:
             # A plain dict: building the client's model objects costs more CPU than the request.
-            self.core.create_namespaced_event(job.namespace, cast(Any, body))
+            self.core.create_namespaced_event(namespace, cast(Any, body))
         except ApiException as error:
-            raise _translate(error, f"event for {job.key}") from error
+            raise _translate(error, f"event for {subject.name}") from error
+
+    # -------------------------------------------------------------- the CRDs
+    def check_resources(self) -> None:
+        """Raise ResourceMissing unless the API server serves both robotjobs and cells.
+
+        One discovery GET. When the RobotJob CRD is deleted, kopf stops its
+        watch and the cache empties quietly; this makes the operator say so
+        (and hold its writes) until the CRD is back.
+        """
+        try:
+            found = self.custom.get_api_resources(GROUP, VERSION)
+            served = {r.name for r in (found.resources or [])}
+        except ApiException as error:
+            if error.status != 404:
+                raise _translate(error, f"discovery of {GROUP}/{VERSION}") from error
+            served = set()  # no CRD of the group is left
+        missing = [f"{plural}.{GROUP}" for plural in ("robotjobs", "cells") if plural not in served]
+        if missing:
+            raise ResourceMissing(
+                f"the CRD(s) {', '.join(missing)} are not served by the API server (deleted or not yet "
+                "applied: kubectl apply -f crds/); the operator holds its writes until they are back"
+            )
 
     # -------------------------------------------------------------- leader Lease
     def hold_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:

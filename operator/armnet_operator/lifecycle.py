@@ -16,6 +16,9 @@ from .health import derive_cell_phase, heartbeat_fresh, heartbeat_lost_for
 from .model import Cell, CellPhase, Job, JobPhase, Timing
 from .scheduling import occupied_cells
 
+MAX_TTL_SECONDS = 366 * 24 * 3600
+"""The CRD's maximum for ``ttlSecondsAfterFinished``; older or hand-made objects are clamped to it."""
+
 
 @dataclass(frozen=True)
 class ReleaseCell:
@@ -51,6 +54,13 @@ class FinishJob:
 
 
 @dataclass(frozen=True)
+class RepairStatus:
+    """Clear status fields that could not be read (named in ``job.status_defects``)."""
+
+    job: Job
+
+
+@dataclass(frozen=True)
 class RequestCancel:
     job: Job
 
@@ -76,6 +86,7 @@ Action = (
     | RequeueJob
     | FinishJob
     | RequestCancel
+    | RepairStatus
     | AddFinalizer
     | RemoveFinalizer
     | DeleteJob
@@ -111,7 +122,7 @@ def _plan_cells(
             actions.append(ReleaseCell(cell, free_phase, release, recheck=not finished))
             continue
         phase = derive_cell_phase(cell, cell.name in occupied, now, timing.heartbeat_timeout)
-        if phase != cell.phase:
+        if phase != cell.phase or cell.invalid != cell.message:
             actions.append(SetCellPhase(cell, phase))
     return actions
 
@@ -140,6 +151,8 @@ def _plan_job(
     job: Job, cells: dict[str, Cell], claimed: bool, now: datetime, timing: Timing
 ) -> list[Action]:
     actions: list[Action] = []
+    if job.status_defects:
+        actions.append(RepairStatus(job))
     # Not on terminal jobs: they hold no cell the finalizer would protect (a cell
     # still naming one is released by ``_plan_cells`` either way), and adding it
     # would only make their deletion wait for one more write.
@@ -156,6 +169,8 @@ def _plan_job(
         actions.extend(_plan_cancel(job, cell, now, timing))
     elif job.active:
         actions.extend(_plan_active(job, cell, now, timing))
+    elif job.spec_problem is not None:
+        actions.append(FinishJob(job, JobPhase.FAILED, "InvalidSpec", job.spec_problem))
     return actions
 
 
@@ -180,13 +195,21 @@ def _plan_active(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> 
         if job.phase is JobPhase.DISPATCHED:
             return [RequeueJob(job, f"cell {name} was deleted before the job started")]
         return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost (deleted)")]
+    bound_for = now - job.bound_at if job.bound_at else timedelta.max
     if job.phase is JobPhase.DISPATCHED:
-        bound_for = now - job.bound_at if job.bound_at else timedelta.max
         if cell.current_job != job.key and bound_for >= timing.claim_grace:
             return [RequeueJob(job, f"cell {name} does not hold this job's claim")]
         if not heartbeat_fresh(cell, now, timing.heartbeat_timeout):
             return [RequeueJob(job, f"cell {name} went offline before the job started")]
         return []
+    if cell.current_job != job.key and bound_for >= timing.claim_grace:
+        # The cell's claim is the one truth: a job that says it runs on a cell
+        # that does not hold it (a hand-written status, a second "running" job)
+        # cannot be trusted with the arm; the agent never started it there.
+        holder = cell.current_job or "no job"
+        return [FinishJob(job, JobPhase.FAILED, "ClaimNotHeld",
+                          f"cell {name} does not hold this job's claim (it holds {holder}); "
+                          "a job runs only on the cell that claims it")]
     if heartbeat_lost_for(cell, now, timing.heartbeat_timeout) >= timing.lost_grace:
         return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost")]
     return []
@@ -196,7 +219,8 @@ def _ttl_expired(job: Job, now: datetime, timing: Timing) -> bool:
     if job.finished_at is None:
         return False
     if job.ttl_seconds_after_finished is not None:
-        ttl = timedelta(seconds=job.ttl_seconds_after_finished)
+        # Clamped: timedelta overflows near 10**14 s, and no TTL needs more than a year.
+        ttl = timedelta(seconds=min(max(job.ttl_seconds_after_finished, 0), MAX_TTL_SECONDS))
     elif timing.default_ttl is not None:
         ttl = timing.default_ttl
     else:

@@ -41,6 +41,11 @@ class Metrics:
             registry=r,
         )
         self.errors = Counter("armnet_reconcile_errors_total", "Failed writes and reconcile passes", registry=r)
+        self.object_errors = Counter(
+            "armnet_reconcile_object_errors_total",
+            "Objects a pass could not handle and skipped (each pass counts each such object)", ["kind"], registry=r,
+        )
+        self.failing = Gauge("armnet_objects_failing", "Objects the last pass skipped", ["kind"], registry=r)
         self.leader = Gauge("armnet_operator_leader", "1 while this replica holds the Lease", registry=r)
         self.pass_seconds = Histogram("armnet_reconcile_seconds", "Duration of one reconcile pass", registry=r)
         self._server: Any = None
@@ -65,6 +70,10 @@ class Metrics:
         self.conflicts.inc(outcome.conflicts)
         self.requeues.inc(outcome.requeued)
         self.errors.inc(outcome.errors)
+        failing = Tally(failure.kind for failure in outcome.failed.values())
+        for kind in ("RobotJob", "Cell"):
+            self.object_errors.labels(kind).inc(failing.get(kind, 0))
+            self.failing.labels(kind).set(failing.get(kind, 0))
         phases = Tally(str(j.phase or JobPhase.SUBMITTED) for j in jobs)
         for phase in JobPhase:
             self.jobs.labels(phase.value).set(phases.get(phase.value, 0))

@@ -46,6 +46,7 @@ class CellPhase(StrEnum):
     OFFLINE = "Offline"
     FAULTED = "Faulted"
     CORDONED = "Cordoned"
+    INVALID = "Invalid"
 
 
 class JobConditionType(StrEnum):
@@ -54,6 +55,7 @@ class JobConditionType(StrEnum):
     QUEUED = "Queued"
     BOUND = "Bound"
     CANCEL_REQUESTED = "CancelRequested"
+    RECONCILED = "Reconciled"
 
 
 class QueuedReason(StrEnum):
@@ -107,6 +109,10 @@ class Job:
     finished_at: datetime | None = None
     ttl_seconds_after_finished: int | None = None
     conditions: tuple[Mapping[str, Any], ...] = ()
+    spec_problem: str | None = None
+    """Why this job can never start (args too deep or too large, an unreadable spec): it fails."""
+    status_defects: tuple[str, ...] = ()
+    """Status fields that could not be read (e.g. ``status.finishedAt``): read as absent, then repaired."""
 
     @property
     def has_finalizer(self) -> bool:
@@ -131,7 +137,19 @@ class Job:
             self.phase in (None, JobPhase.SUBMITTED, JobPhase.QUEUED)
             and not self.cancel
             and not self.deleting
+            and self.spec_problem is None
         )
+
+
+@dataclass(frozen=True)
+class Arm:
+    """One arm of a Cell (``spec.robot`` or an entry of ``spec.arms``), as far as checks need it."""
+
+    name: str
+    port: str | None = None
+    robot_id: str | None = None
+    calibration_dir: str | None = None
+    safety_limit: float | None = None
 
 
 @dataclass(frozen=True)
@@ -149,6 +167,15 @@ class Cell:
     claimed_at: datetime | None = None
     last_heartbeat: datetime | None = None
     failing_conditions: tuple[str, ...] = ()
+    uid: str = ""
+    created: datetime | None = None
+    arms: tuple[Arm, ...] = ()
+    message: str | None = None
+    """``status.message`` as last written by the operator (why the cell is Invalid)."""
+    invalid: str | None = None
+    """Why the cell must never be bound (set by ``cell_checks``, not read from the API)."""
+    spec_problem: str | None = None
+    """A spec field that could not be read (named): the cell is Invalid until it is fixed."""
 
 
 @dataclass(frozen=True)

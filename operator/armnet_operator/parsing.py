@@ -9,11 +9,22 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from datetime import UTC, datetime
-from typing import Any
+from typing import Annotated, Any, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
-from .model import Cell, CellConditionType, CellPhase, Job, JobConditionType, JobPhase
+from .args import args_problem
+from .model import Arm, Cell, CellConditionType, CellPhase, Job, JobConditionType, JobPhase
+
+
+def _aware(value: datetime) -> datetime:
+    """A timestamp without a zone is read as UTC: naive and aware datetimes cannot be compared."""
+    return value if value.tzinfo is not None else value.replace(tzinfo=UTC)
+
+
+Timestamp = Annotated[datetime, AfterValidator(_aware)]
+_Model = TypeVar("_Model", bound=BaseModel)
+MAX_REPAIR_ROUNDS = 32
 
 _HEALTH_TYPES = frozenset(CellConditionType)
 
@@ -25,7 +36,7 @@ class _Lenient(BaseModel):
 class _Condition(_Lenient):
     type: str
     status: str = "Unknown"
-    last_transition_time: datetime | None = Field(default=None, alias="lastTransitionTime")
+    last_transition_time: Timestamp | None = Field(default=None, alias="lastTransitionTime")
 
 
 class _Meta(_Lenient):
@@ -33,8 +44,8 @@ class _Meta(_Lenient):
     namespace: str = ""
     uid: str = ""
     resource_version: str = Field(default="", alias="resourceVersion")
-    creation_timestamp: datetime | None = Field(default=None, alias="creationTimestamp")
-    deletion_timestamp: datetime | None = Field(default=None, alias="deletionTimestamp")
+    creation_timestamp: Timestamp | None = Field(default=None, alias="creationTimestamp")
+    deletion_timestamp: Timestamp | None = Field(default=None, alias="deletionTimestamp")
     finalizers: list[str] = Field(default_factory=list)
 
 
@@ -52,14 +63,7 @@ class _JobStatus(_Lenient):
     job_id: str | None = Field(default=None, alias="jobId")
     queued_reason: str | None = Field(default=None, alias="queuedReason")
     queue_position: int | None = Field(default=None, alias="queuePosition")
-    finished_at: datetime | None = Field(default=None, alias="finishedAt")
-    conditions: list[_Condition] = Field(default_factory=list)
-
-
-class _JobBody(_Lenient):
-    metadata: _Meta
-    spec: _JobSpec
-    status: _JobStatus = Field(default_factory=_JobStatus)
+    finished_at: Timestamp | None = Field(default=None, alias="finishedAt")
 
 
 class _CellSpec(_Lenient):
@@ -69,18 +73,19 @@ class _CellSpec(_Lenient):
     unschedulable: bool = False
 
 
+class _Arm(_Lenient):
+    port: str | None = None
+    robot_id: str | None = Field(default=None, alias="robotId")
+    calibration_dir: str | None = Field(default=None, alias="calibrationDir")
+    safety_limit: float | None = Field(default=None, alias="safetyLimit")
+
+
 class _CellStatus(_Lenient):
     phase: CellPhase | None = None
     current_job: str | None = Field(default=None, alias="currentJob")
-    claimed_at: datetime | None = Field(default=None, alias="claimedAt")
-    last_heartbeat_time: datetime | None = Field(default=None, alias="lastHeartbeatTime")
-    conditions: list[_Condition] = Field(default_factory=list)
-
-
-class _CellBody(_Lenient):
-    metadata: _Meta
-    spec: _CellSpec
-    status: _CellStatus = Field(default_factory=_CellStatus)
+    claimed_at: Timestamp | None = Field(default=None, alias="claimedAt")
+    last_heartbeat_time: Timestamp | None = Field(default=None, alias="lastHeartbeatTime")
+    message: str | None = None
 
 
 def _true_since(conditions: list[_Condition], type_: str) -> datetime | None:
@@ -90,8 +95,83 @@ def _true_since(conditions: list[_Condition], type_: str) -> datetime | None:
     return None
 
 
+def _lenient(model: type[_Model], raw: Mapping[str, Any], section: str) -> tuple[_Model, list[str]]:
+    """Validate ``raw``; fields that fail are dropped (read as absent) and named in the list.
+
+    A status is written by the agent, by other tools and by hand: one bad
+    timestamp must not hide the whole object from the operator (its finalizer
+    could then never be removed). The caller repairs the named fields.
+    """
+    data = dict(raw)
+    defects: list[str] = []
+    for _ in range(MAX_REPAIR_ROUNDS):
+        try:
+            return model.model_validate(data), defects
+        except ValidationError as error:
+            bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
+            keys = {k for k in data if k in bad or _alias_of(model, k) in bad}
+            if not keys:
+                raise
+            for key in sorted(keys):
+                defects.append(f"{section}.{key}")
+                del data[key]
+    return model.model_validate({}), defects + [section]
+
+
+def _alias_of(model: type[BaseModel], key: str) -> str | None:
+    return next((name for name, f in model.model_fields.items() if f.alias == key), None)
+
+
+def _conditions(raw: Any, section: str) -> tuple[list[_Condition], list[dict[str, Any]], list[str]]:
+    """Each condition on its own: a bad one is dropped and named, the rest kept."""
+    if not isinstance(raw, list | tuple):
+        return [], [], [] if raw is None else [section]
+    parsed: list[_Condition] = []
+    plain: list[dict[str, Any]] = []
+    defects: list[str] = []
+    for index, item in enumerate(raw):
+        try:
+            parsed.append(_Condition.model_validate(_plain(item)))
+        except ValidationError:
+            defects.append(f"{section}[{index}]")
+            continue
+        plain.append(_plain(item))
+    return parsed, plain, defects
+
+
+class _JobStatusFull(_JobStatus):
+    conditions: list[_Condition] = Field(default_factory=list)
+
+
+class _JobBody(_Lenient):
+    metadata: _Meta
+    spec: _JobSpec
+    status: _JobStatusFull = Field(default_factory=_JobStatusFull)
+
+
+_JOB_SPEC_FIELDS = ("embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished")
+_JOB_STATUS_FIELDS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "conditions")
+
+
 def parse_job(body: Mapping[str, Any]) -> Job:
-    raw = _JobBody.model_validate(_sections(body))
+    """The job as the operator sees it; never raises on a bad spec or status field.
+
+    The common case is one validation of the whole body; only a body with a
+    bad field takes the slower field-by-field path (``_parse_job_leniently``).
+    """
+    raw_spec = body.get("spec") or {}
+    raw_status = body.get("status") or {}
+    if not isinstance(raw_spec, Mapping) or not isinstance(raw_status, Mapping):
+        return _parse_job_leniently(body)
+    try:
+        raw = _JobBody.model_validate({
+            "metadata": _metadata(body),
+            "spec": {k: _plain(raw_spec[k]) for k in _JOB_SPEC_FIELDS if k in raw_spec},
+            "status": {k: _plain(raw_status[k]) for k in _JOB_STATUS_FIELDS if k in raw_status},
+        })
+    except ValidationError:
+        return _parse_job_leniently(body)
+    problem = args_problem(raw_spec["args"]) if "args" in raw_spec else None
     meta, spec, status = raw.metadata, raw.spec, raw.status
     return Job(
         namespace=meta.namespace,
@@ -115,15 +195,85 @@ def parse_job(body: Mapping[str, Any]) -> Job:
         cancel_requested_at=_true_since(status.conditions, JobConditionType.CANCEL_REQUESTED),
         finished_at=status.finished_at,
         ttl_seconds_after_finished=spec.ttl_seconds_after_finished,
-        conditions=tuple(_plain((body.get("status") or {}).get("conditions") or [])),
+        conditions=tuple(_plain(raw_status.get("conditions") or [])),
+        spec_problem=problem,
+    )
+
+
+def _parse_job_leniently(body: Mapping[str, Any]) -> Job:
+    """Field by field, for a body with a bad field.
+
+    A spec field that cannot be read (or args beyond the limits) makes a job
+    that fails with the reason; a status field that cannot be read is treated
+    as absent and named in ``status_defects`` so it gets repaired.
+    """
+    meta = _Meta.model_validate(_metadata(body))
+    raw_spec = body.get("spec") or {}
+    spec_fields = {k: _plain(raw_spec[k]) for k in _JOB_SPEC_FIELDS if isinstance(raw_spec, Mapping) and k in raw_spec}
+    problems: list[str] = []
+    try:
+        spec = _JobSpec.model_validate(spec_fields)
+    except ValidationError as error:
+        problems.append("; ".join(f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in error.errors()))
+        bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
+        good = {k: v for k, v in spec_fields.items() if k not in bad}
+        spec = _JobSpec.model_validate({"embodiment": "", **good})
+    if isinstance(raw_spec, Mapping) and "args" in raw_spec:
+        too_big = args_problem(raw_spec["args"])
+        if too_big:
+            problems.append(too_big)
+    raw_status = body.get("status") or {}
+    raw_status = raw_status if isinstance(raw_status, Mapping) else {}
+    scalars = {k: _plain(v) for k, v in raw_status.items()
+               if k in ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt")}
+    status, defects = _lenient(_JobStatus, scalars, "status")
+    conditions, plain_conditions, bad_conditions = _conditions(raw_status.get("conditions"), "status.conditions")
+    return Job(
+        namespace=meta.namespace,
+        name=meta.name,
+        created=meta.creation_timestamp or datetime.now(UTC),
+        embodiment=spec.embodiment,
+        task=spec.task or None,
+        priority=spec.priority,
+        uid=meta.uid,
+        resource_version=meta.resource_version,
+        cancel=spec.cancel,
+        deleting=meta.deletion_timestamp is not None,
+        finalizers=tuple(meta.finalizers),
+        phase=status.phase,
+        cell_name=status.cell_name or None,
+        job_id=status.job_id,
+        queued_reason=status.queued_reason,
+        queue_position=status.queue_position,
+        bound_at=_true_since(conditions, JobConditionType.BOUND),
+        queued_at=_true_since(conditions, JobConditionType.QUEUED),
+        cancel_requested_at=_true_since(conditions, JobConditionType.CANCEL_REQUESTED),
+        finished_at=status.finished_at,
+        ttl_seconds_after_finished=spec.ttl_seconds_after_finished,
+        conditions=tuple(plain_conditions),
+        spec_problem="; ".join(problems) or None,
+        status_defects=tuple(defects + bad_conditions),
     )
 
 
 def parse_cell(body: Mapping[str, Any]) -> Cell:
-    raw = _CellBody.model_validate(_sections(body))
-    meta, spec, status = raw.metadata, raw.spec, raw.status
+    meta = _Meta.model_validate(_metadata(body))
+    raw_spec = body.get("spec") or {}
+    fields = _plain({k: v for k, v in raw_spec.items() if k in ("embodiment", "task", "nodeName", "unschedulable")})
+    problem = None
+    try:
+        spec = _CellSpec.model_validate(fields)
+    except ValidationError as error:
+        # Still in view (so its claim and phase are handled), but never bound until fixed.
+        problem = "; ".join(f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in error.errors())
+        bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
+        spec = _CellSpec.model_validate({"embodiment": "", **{k: v for k, v in fields.items() if k not in bad}})
+    raw_status = body.get("status") or {}
+    scalars = {k: _plain(v) for k, v in raw_status.items() if k != "conditions"}
+    status, _defects = _lenient(_CellStatus, scalars, "status")
+    conditions, _, _ = _conditions(raw_status.get("conditions"), "status.conditions")
     failing = tuple(
-        sorted(c.type for c in status.conditions if c.type in _HEALTH_TYPES and c.status == "False")
+        sorted(c.type for c in conditions if c.type in _HEALTH_TYPES and c.status == "False")
     )
     return Cell(
         name=meta.name,
@@ -137,21 +287,39 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         claimed_at=status.claimed_at,
         last_heartbeat=status.last_heartbeat_time,
         failing_conditions=failing,
+        uid=meta.uid,
+        created=meta.creation_timestamp,
+        arms=_arms(raw_spec),
+        message=status.message or None,
+        spec_problem=problem,
     )
 
 
-def _sections(body: Mapping[str, Any]) -> dict[str, Any]:
-    """The parts the models read; ``managedFields`` (large, unused) is skipped, not copied."""
+def _arms(spec: Mapping[str, Any]) -> tuple[Arm, ...]:
+    """``spec.robot`` (named ``robot``) or each ``spec.arms`` entry; unreadable values are left out."""
+    raw: dict[str, Any] = {}
+    if isinstance(spec.get("robot"), Mapping):
+        raw["robot"] = spec["robot"]
+    if isinstance(spec.get("arms"), Mapping):
+        raw.update({f"arms.{name}": arm for name, arm in spec["arms"].items() if isinstance(arm, Mapping)})
+    arms = []
+    for name, body in sorted(raw.items()):
+        arm, _ = _lenient(_Arm, _plain(body), f"spec.{name}")
+        arms.append(Arm(name, arm.port, arm.robot_id, arm.calibration_dir, arm.safety_limit))
+    return tuple(arms)
+
+
+def _metadata(body: Mapping[str, Any]) -> dict[str, Any]:
+    """The metadata the models read; ``managedFields`` (large, unused) is skipped, not copied."""
     meta = body.get("metadata") or {}
-    return {
-        "metadata": {key: _plain(item) for key, item in meta.items() if key != "managedFields"},
-        "spec": _plain(body.get("spec") or {}),
-        "status": _plain(body.get("status") or {}),
-    }
+    return {key: _plain(item) for key, item in meta.items() if key != "managedFields"}
 
 
 def _plain(value: Any) -> Any:
-    """kopf hands out read-only mapping views; pydantic wants plain dicts and lists."""
+    """kopf hands out read-only mapping views; pydantic wants plain dicts and lists.
+
+    Only small, schema-bounded parts go through here (never ``spec.args``).
+    """
     if isinstance(value, Mapping):
         return {key: _plain(item) for key, item in value.items()}
     if isinstance(value, list | tuple):

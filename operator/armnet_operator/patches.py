@@ -66,11 +66,32 @@ def claim_cell(cell: Cell, job: Job, now: datetime) -> Patch:
 
 
 def release_cell(cell: Cell, phase: CellPhase) -> Patch:
-    return _cell_status(cell, {"currentJob": None, "claimedAt": None, "phase": phase.value})
+    return _cell_status(cell, {"currentJob": None, "claimedAt": None, "phase": phase.value, "message": cell.invalid})
 
 
 def set_cell_phase(cell: Cell, phase: CellPhase) -> Patch:
-    return _cell_status(cell, {"phase": phase.value})
+    """The phase, with ``message`` saying why an Invalid cell is never bound (cleared otherwise)."""
+    return _cell_status(cell, {"phase": phase.value, "message": cell.invalid})
+
+
+def repair_status(job: Job) -> Patch:
+    """Clear the status fields that could not be read; unreadable conditions are dropped."""
+    status: dict[str, Any] = {}
+    for defect in job.status_defects:
+        field = defect.removeprefix("status.")
+        if field.startswith("conditions"):
+            status["conditions"] = _conditions(job)
+        elif field and "." not in field:
+            status[field] = None
+    return _job_status(job, status)
+
+
+def mark_reconciled(job: Job, ok: bool, message: str, now: datetime) -> Patch:
+    """The ``Reconciled`` condition: False while a pass cannot handle this job (with why)."""
+    conditions = _conditions(job)
+    reason = "Reconciled" if ok else "ReconcileFailed"
+    set_condition(conditions, JobConditionType.RECONCILED, ok, reason, message, now)
+    return _job_status(job, {"conditions": conditions})
 
 
 def bind_job(job: Job, cell: Cell, now: datetime) -> Patch:

@@ -18,6 +18,7 @@ after the claim grace, and until then nothing else is bound to it.
 from __future__ import annotations
 
 import logging
+import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping, MutableMapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -27,7 +28,8 @@ from functools import partial
 from typing import Any, Protocol
 
 from . import patches
-from .errors import Conflict, NotFound, TransientError
+from .cell_checks import check_cell, check_cells
+from .errors import Conflict, NotFound, ResourceMissing, TransientError
 from .health import derive_cell_phase
 from .lifecycle import (
     Action,
@@ -36,6 +38,7 @@ from .lifecycle import (
     FinishJob,
     ReleaseCell,
     RemoveFinalizer,
+    RepairStatus,
     RequestCancel,
     RequeueJob,
     SetCellPhase,
@@ -61,7 +64,7 @@ class Api(Protocol):
     def read_job(self, namespace: str, name: str) -> dict[str, Any]:
         """The RobotJob as the server has it now; raise NotFound if gone."""
 
-    def post_event(self, job: Job, type_: str, reason: str, message: str) -> None: ...
+    def post_event(self, subject: Job | Cell, type_: str, reason: str, message: str) -> None: ...
 
 
 @dataclass
@@ -70,6 +73,24 @@ class Memory:
 
     queue_written_at: MutableMapping[str, datetime] = field(default_factory=dict)
     seen_phases: MutableMapping[str, JobPhase | None] = field(default_factory=dict)
+    failing: MutableMapping[str, str] = field(default_factory=dict)
+    """Objects a pass could not handle, by subject key, with the error last reported for each."""
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One object a pass could not handle: it was skipped, the rest were scheduled."""
+
+    subject: Job | Cell
+    error: str
+
+    @property
+    def kind(self) -> str:
+        return "RobotJob" if isinstance(self.subject, Job) else "Cell"
+
+    @property
+    def name(self) -> str:
+        return self.subject.key if isinstance(self.subject, Job) else self.subject.name
 
 
 @dataclass
@@ -83,9 +104,13 @@ class Outcome:
     jobs_written: dict[str, Job] = field(default_factory=dict)
     cells_written: dict[str, Cell] = field(default_factory=dict)
     deleted: set[str] = field(default_factory=set)
+    failed: dict[str, Failure] = field(default_factory=dict)
+    more: bool = False
+    """Queue writes were left for the next pass (``Limits.max_queue_tasks``): run it soon."""
 
     def merge(self, other: Outcome) -> None:
         self.bound.extend(other.bound)
+        self.failed.update(other.failed)
         self.jobs_written.update(other.jobs_written)
         self.cells_written.update(other.cells_written)
         self.deleted.update(other.deleted)
@@ -100,6 +125,10 @@ class Limits:
     position_refresh: timedelta = timedelta(seconds=5)
     max_queue_writes: int = 200
     parallel_binds: int = 1
+    max_queue_tasks: int = 10_000
+    """Jobs whose finalizer or queue status one pass writes; the rest wait for the next pass."""
+    queue_seconds: float | None = None
+    """Time a pass may spend on finalizers and queue status; what is left waits for the next pass."""
 
 
 def reconcile_once(
@@ -111,17 +140,23 @@ def reconcile_once(
     memory: Memory,
     limits: Limits = Limits(),
 ) -> Outcome:
-    jobs, cells = list(jobs), list(cells)
     outcome = Outcome()
+    jobs, cells = list(jobs), check_cells(cells)
+    try:
+        actions = plan_lifecycle(jobs, cells, now, timing)
+    except Exception:  # noqa: BLE001 - find the objects it fails on, skip them, plan the rest
+        jobs, cells, outcome.failed = screen(jobs, cells, now, timing)
+        actions = plan_lifecycle(jobs, cells, now, timing)
     _post_transitions(jobs, memory, api)
     by_key = {j.key: j for j in jobs}
     by_name = {c.name: c for c in cells}
     groups: dict[str, list[Action]] = defaultdict(list)
-    for action in plan_lifecycle(jobs, cells, now, timing):
+    for action in actions:
         groups[_subject(action)].append(action)
     finalizing = {k: g[0] for k, g in groups.items() if len(g) == 1 and isinstance(g[0], AddFinalizer)}
     finalize = {a.job.key for a in finalizing.values() if isinstance(a, AddFinalizer)}
-    work = [partial(_apply_group, g, now, timing, api) for k, g in groups.items() if k not in finalizing]
+    work = [_guarded(k, _first_subject(g), partial(_apply_group, g, now, timing, api))
+            for k, g in groups.items() if k not in finalizing]
     for result in _parallel(limits.parallel_binds, work):
         outcome.merge(result)
     # Re-read what we wrote from the responses, so the scheduler works on current
@@ -130,11 +165,20 @@ def reconcile_once(
         by_key.pop(key, None)
     by_key.update(outcome.jobs_written)
     by_name.update(outcome.cells_written)
-    plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
+    try:
+        plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
+    except Exception:  # noqa: BLE001 - as above: the pass goes on without the objects it fails on
+        kept_jobs, kept_cells, failed = screen(by_key.values(), by_name.values(), now, timing)
+        outcome.failed.update(failed)
+        by_key = {j.key: j for j in kept_jobs}
+        by_name = {c.name: c for c in kept_cells}
+        plan = plan_bindings(kept_jobs, kept_cells, now, timing.heartbeat_timeout)
     # Bindings touch disjoint cells and jobs, so they may run side by side: the
     # preconditions, not the ordering, are what keep them safe.
     bound_before = len(outcome.bound)
-    for result in _parallel(limits.parallel_binds, [partial(_bind, b, now, timing.heartbeat_timeout, api) for b in plan.bindings]):
+    binds = [_guarded(f"job:{b.job.key}", b.job, partial(_bind, b, now, timing.heartbeat_timeout, api))
+             for b in plan.bindings]
+    for result in _parallel(limits.parallel_binds, binds):
         outcome.merge(result)
     # Finalizers after the binds: off the submit->bound path. A job whose bind failed
     # gets its finalizer next pass (it changed under us; this write would conflict).
@@ -143,13 +187,137 @@ def reconcile_once(
     by_key.update(outcome.jobs_written)
     outcome.queue = dict(plan.queued)
     due = dict(_queue_writes_due(plan.queued, by_key, now, memory, limits))
-    work = [partial(_queue, by_key[k], k in finalize, due.get(k), now, api) for k in sorted(finalize | due.keys())]
+    # Bounded per pass (in time, and in count), bound jobs' finalizers first, then in queue
+    # order: a burst of new jobs then costs several short passes, not one long one, so a
+    # job that arrives meanwhile for a free cell waits for a short pass, not for the burst.
+    order = sorted(k for k in finalize if k not in plan.queued)
+    order += [k for k in plan.queued if k in finalize or k in due]
+    outcome.more = len(order) > limits.max_queue_tasks
+    deadline = None if limits.queue_seconds is None else time.monotonic() + limits.queue_seconds
+    work = [_paced(deadline, _guarded(f"job:{k}", by_key[k],
+                                      partial(_queue, by_key[k], k in finalize, due.get(k), now, api)))
+            for k in order[: limits.max_queue_tasks]]
     for result in _parallel(limits.parallel_binds, work):
         outcome.merge(result)
+        outcome.more = outcome.more or result.more
     for key in outcome.jobs_written:
         if key in plan.queued:
             memory.queue_written_at[key] = now
+    by_key.update(outcome.jobs_written)
+    _report_failures(outcome, {**{f"job:{k}": j for k, j in by_key.items()},
+                               **{f"cell:{n}": c for n, c in by_name.items()}}, memory, api, now)
     return outcome
+
+
+def screen(
+    jobs: Iterable[Job], cells: Iterable[Cell], now: datetime, timing: Timing
+) -> tuple[list[Job], list[Cell], dict[str, Failure]]:
+    """Set aside every object the decisions fail on, and everything tied to it.
+
+    Runs only when planning the whole snapshot raised (so it costs nothing in
+    the normal pass). Each job and each cell is planned alone (lifecycle and scheduling on
+    it and its counterpart): one that raises is a failure of that object, not
+    of the pass. Objects tied to a failed one by a claim or a ``cellName`` are
+    left out of this pass too, so the rest never acts on half a binding (a
+    cell whose claiming job is skipped must not look abandoned).
+    """
+    jobs, cells = list(jobs), list(cells)
+    cell_by_name = {c.name: c for c in cells}
+    failed: dict[str, Failure] = {}
+    for cell in cells:
+        error = _trial(partial(plan_lifecycle, [], [cell], now, timing)) or _trial(
+            partial(plan_bindings, [], [cell], now, timing.heartbeat_timeout))
+        if error is not None:
+            failed[f"cell:{cell.name}"] = Failure(cell, error)
+    for job in jobs:
+        mine = [c for c in (cell_by_name.get(job.cell_name or ""),) if c is not None]
+        error = _trial(partial(plan_lifecycle, [job], mine, now, timing)) or _trial(
+            partial(plan_bindings, [job], mine, now, timing.heartbeat_timeout))
+        if error is not None:
+            failed[f"job:{job.key}"] = Failure(job, error)
+    skipped = set(failed)
+    while True:
+        tied = {f"cell:{c.name}" for c in cells if f"job:{c.current_job}" in skipped}
+        tied |= {f"job:{j.key}" for j in jobs if j.cell_name and f"cell:{j.cell_name}" in skipped}
+        tied |= {f"job:{c.current_job}" for c in cells if f"cell:{c.name}" in skipped and c.current_job}
+        if tied <= skipped:
+            break
+        skipped |= tied
+    return ([j for j in jobs if f"job:{j.key}" not in skipped],
+            [c for c in cells if f"cell:{c.name}" not in skipped], failed)
+
+
+def _trial(decide: Callable[[], object]) -> str | None:
+    try:
+        decide()
+    except Exception as error:  # noqa: BLE001 - any failure on one object is reported and skipped
+        return _describe(error)
+    return None
+
+
+def _describe(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"[:512]
+
+
+def _paced(deadline: float | None, task: Callable[[], Outcome]) -> Callable[[], Outcome]:
+    """Skip the task once the pass is past its queue-writing budget; the next pass does it."""
+    def run() -> Outcome:
+        if deadline is not None and time.monotonic() > deadline:
+            return Outcome(more=True)
+        return task()
+    return run
+
+
+def _first_subject(actions: list[Action]) -> Job | Cell:
+    action = actions[0]
+    return action.cell if isinstance(action, ReleaseCell | SetCellPhase) else action.job
+
+
+def _guarded(key: str, subject: Job | Cell, task: Callable[[], Outcome]) -> Callable[[], Outcome]:
+    """The writes for one object; an unexpected error fails that object only, not the pass."""
+    def run() -> Outcome:
+        try:
+            return task()
+        except ResourceMissing:
+            raise
+        except Exception as error:  # noqa: BLE001 - one bad object must never stop scheduling
+            outcome = Outcome()
+            outcome.failed[key] = Failure(subject, _describe(error))
+            return outcome
+    return run
+
+
+def _report_failures(outcome: Outcome, subjects: Mapping[str, Job | Cell], memory: Memory, api: Api,
+                     now: datetime) -> None:
+    """Log, Event and condition for each new failure; a ``Reconciled`` condition again once it recovers.
+
+    Reported once per distinct error, not every pass: a stuck object must not
+    flood the log or the API server.
+    """
+    for key, failure in outcome.failed.items():
+        if memory.failing.get(key) == failure.error:
+            continue
+        memory.failing[key] = failure.error
+        log.error("reconcile of %s %s failed; skipped it, scheduling the rest: %s",
+                  failure.kind, failure.name, failure.error)
+        message = f"the operator could not reconcile this object and skips it: {failure.error}"
+        _event(api, failure.subject, "Warning", "ReconcileFailed", message)
+        latest = subjects.get(key, failure.subject)
+        if isinstance(latest, Job):
+            _mark(api, latest, False, message, now, outcome)
+    for key in [k for k in memory.failing if k not in outcome.failed and k in subjects]:
+        del memory.failing[key]
+        subject = subjects.get(key)
+        if isinstance(subject, Job):
+            log.info("%s reconciles again", subject.key)
+            _mark(api, subject, True, "the operator reconciles this job again", now, outcome)
+
+
+def _mark(api: Api, job: Job, ok: bool, message: str, now: datetime, outcome: Outcome) -> None:
+    try:
+        _write(api, patches.mark_reconciled(job, ok, message, now), outcome)
+    except Exception as error:  # noqa: BLE001 - the Event and the log already carry the failure
+        log.debug("Reconciled condition not written on %s: %s", job.key, error)
 
 
 def _parallel(width: int, tasks: Sequence[Callable[[], Outcome]]) -> list[Outcome]:
@@ -242,6 +410,14 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
             if written is not None:
                 _event(api, job, "Normal", "CancelRequested", "asked the agent to stop the job")
             return written
+        case RepairStatus(job=job):
+            written = _write(api, patches.repair_status(job), outcome)
+            if written is not None:
+                fields = ", ".join(job.status_defects)
+                log.warning("repaired unreadable status field(s) of %s: %s", job.key, fields)
+                _event(api, job, "Warning", "StatusRepaired",
+                       f"cleared unreadable status field(s) {fields}; the operator re-derives them")
+            return written
         case AddFinalizer(job=job):
             return _add_finalizer(job, api, outcome)
         case RemoveFinalizer(job=job):
@@ -298,6 +474,7 @@ def _claim(
     except TransientError as error:
         _count(error, outcome)
         return None
+    fresh = replace(fresh, invalid=check_cell(fresh))
     same_pool = (fresh.embodiment, fresh.task) == (cell.embodiment, cell.task)
     free = derive_cell_phase(fresh, False, now, heartbeat_timeout) is CellPhase.READY
     if fresh.current_job is not None or not same_pool or not free:
@@ -447,11 +624,11 @@ def _count(error: TransientError, outcome: Outcome) -> None:
         log.warning("write failed, retrying next pass: %s", error)
 
 
-def _event(api: Api, job: Job, type_: str, reason: str, message: str) -> None:
+def _event(api: Api, subject: Job | Cell, type_: str, reason: str, message: str) -> None:
     try:
-        api.post_event(job, type_, reason, message)
+        api.post_event(subject, type_, reason, message)
     except Exception as error:  # noqa: BLE001 - events are best effort by design
-        log.debug("event not posted for %s: %s", job.key, error)
+        log.debug("event not posted for %s: %s", subject, error)
 
 
-__all__ = ["Api", "Limits", "Memory", "Outcome", "reconcile_once"]
+__all__ = ["Api", "Failure", "Limits", "Memory", "Outcome", "reconcile_once", "screen"]

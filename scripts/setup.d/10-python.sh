@@ -1,11 +1,16 @@
 #!/usr/bin/env bash
-# Python environment: a cached venv outside the repo with CPU torch, LeRobot 0.4.4
-# (motors + cameras only) and this repository installed editable.
-# Order matters: CPU torch FIRST, or pip pulls several GB of CUDA wheels for lerobot.
+# Python environment: a cached venv outside the repo with torch, LeRobot 0.4.4 (motors,
+# cameras and the robot classes: SO101Follower, BiSOFollower) and this repository editable.
+# Order matters: torch FIRST, LeRobot with --no-deps (it pins torch<2.11), and every other
+# install constrained to the same torch, so pip never replaces it. No GPU is needed.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 venv="${ARMNET_VENV:-$HOME/.cache/armnet/venv}"
-stamp="$venv/.armnet-deps-v1"
+stamp="$venv/.armnet-deps-v2"  # bump when the dependency set below changes
+torch_pin="torch==2.13.0"
+# What lerobot.processor (imported by every robot class) needs, at the versions built for
+# $torch_pin: torchvision 0.28 is the release paired with torch 2.13.
+robot_deps=(torchvision==0.28.0 av==18.1.0 einops==0.8.2 pillow==13.0.0)
 
 if [ ! -x "$venv/bin/python" ]; then
   echo "[setup/python] creating venv $venv"
@@ -15,17 +20,20 @@ fi
 pip=("$venv/bin/python" -m pip --disable-pip-version-check -q)
 
 if [ ! -f "$stamp" ]; then
-  echo "[setup/python] installing CPU torch, LeRobot 0.4.4 and their motor/camera deps (cold: a few minutes)"
+  echo "[setup/python] installing torch, LeRobot 0.4.4 and their motor/camera/robot deps (cold: a few minutes)"
   "${pip[@]}" install --upgrade pip setuptools wheel
-  "${pip[@]}" install torch==2.13.0
+  "${pip[@]}" install "$torch_pin"
   "${pip[@]}" install --no-deps lerobot==0.4.4
-  "${pip[@]}" install -c <(echo torch==2.13.0) feetech-servo-sdk pyserial deepdiff "draccus==0.10.0" tqdm \
-      "opencv-python-headless<4.13" packaging termcolor huggingface-hub numpy accelerate datasets
+  "${pip[@]}" install -c <(echo "$torch_pin") feetech-servo-sdk pyserial deepdiff "draccus==0.10.0" tqdm \
+      "opencv-python-headless<4.13" packaging termcolor huggingface-hub numpy accelerate datasets \
+      "${robot_deps[@]}"
   touch "$stamp"
 fi
 
 echo "[setup/python] installing armnet (editable) and dev tools"
-"${pip[@]}" install -c <(echo torch==2.13.0) -e "$here/runtime[fast]" -e "$here[dev]"
+"${pip[@]}" install -c <(echo "$torch_pin") -e "$here/runtime[fast]" -e "$here[dev]"
 "$venv/bin/python" -c "import lerobot.motors.feetech, lerobot.cameras.opencv, scservo_sdk, armnet_runtime" \
   || { echo "[setup/python] LeRobot motors/cameras do not import; see shared reference lerobot-feetech.md §0" >&2; exit 1; }
+"$venv/bin/python" -c "from lerobot.robots.so_follower import SO101Follower; from lerobot.robots.bi_so_follower import BiSOFollower" \
+  || { echo "[setup/python] LeRobot's robot classes do not import (torchvision/av/einops/pillow?); see docs/lerobot-compatibility.md" >&2; exit 1; }
 echo "[setup/python] ready: $venv"

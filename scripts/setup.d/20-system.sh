@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # System packages for the test bed: the container engine (Podman + runc, no crun:
 # crun refuses this machine's hybrid cgroups), debootstrap for the base image,
-# NATS with JetStream, openssl. `apt-get update` runs once and only when something
+# NATS with JetStream, openssl; for the test-bed node (../shared/reference/k8s-node.md):
+# containerd, the CNI plugins (in /usr/lib/cni), and gcc + buildah to build the
+# pause image (step 45). `apt-get update` runs once and only when something
 # is missing, so a warm run never touches the network.
 #
 # Also writes /etc/containers/containers.conf (runc + ulimits below the VM's hard
@@ -9,7 +11,8 @@
 set -euo pipefail
 log() { echo "[setup/system] $*"; }
 
-packages=(podman runc debootstrap nats-server openssl ca-certificates)
+packages=(podman runc debootstrap nats-server openssl ca-certificates
+          containerd containernetworking-plugins buildah gcc libc6-dev)
 
 missing=()
 for p in "${packages[@]}"; do
@@ -65,3 +68,4 @@ fi
 podman --version
 runc --version | head -1
 nats-server --version
+containerd --version

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Kubernetes test-bed binaries: kube-apiserver, kubectl (one wrapper module, see
-# ../shared/reference/k8s-testbed.md §2) and etcd (a SEPARATE wrapper module, so
-# minimal version selection cannot move the Kubernetes dependency set), built with
-# the `go` tool from the module proxy into ~/.cache/armnet/k8s/v<version>/bin.
+# Kubernetes test-bed binaries: kube-apiserver, kubectl, kubelet (one wrapper module,
+# see ../shared/reference/k8s-testbed.md §2 and k8s-node.md) and etcd (a SEPARATE
+# wrapper module, so minimal version selection cannot move the Kubernetes
+# dependency set), built with the `go` tool from the module proxy into ~/.cache/armnet/k8s/v<version>/bin.
 #
 # Why a wrapper: k8s.io/kubernetes replaces its staging modules with local paths,
 # so `go install k8s.io/kubernetes/cmd/...@v1.x` cannot work. We require the tag
@@ -45,6 +45,11 @@ build_with_progress() { # build_with_progress <name> <go build args...>
 }
 
 mkdir -p "$bin"
+minor=$(echo "$K8S_VERSION" | cut -d. -f2)
+ldf="-s -w"
+for p in k8s.io/component-base/version k8s.io/client-go/pkg/version; do
+  ldf="$ldf -X $p.gitVersion=v$K8S_VERSION -X $p.gitMajor=1 -X $p.gitMinor=$minor -X $p.gitTreeState=clean"
+done
 
 # ---------------------------------------------------------------- kube-apiserver + kubectl
 if have kube-apiserver "v$K8S_VERSION" && have kubectl "v$K8S_VERSION"; then
@@ -75,16 +80,13 @@ package tools
 import (
 	_ "k8s.io/kubernetes/cmd/kube-apiserver"
 	_ "k8s.io/kubernetes/cmd/kubectl"
+	_ "k8s.io/kubernetes/cmd/kubelet"
 )
 EOF
     nice -n 10 go get "k8s.io/kubernetes@v$K8S_VERSION" \
-      "k8s.io/kubernetes/cmd/kube-apiserver@v$K8S_VERSION" "k8s.io/kubernetes/cmd/kubectl@v$K8S_VERSION"
+      "k8s.io/kubernetes/cmd/kube-apiserver@v$K8S_VERSION" "k8s.io/kubernetes/cmd/kubectl@v$K8S_VERSION" \
+      "k8s.io/kubernetes/cmd/kubelet@v$K8S_VERSION"
   fi
-  minor=$(echo "$K8S_VERSION" | cut -d. -f2)
-  ldf="-s -w"
-  for p in k8s.io/component-base/version k8s.io/client-go/pkg/version; do
-    ldf="$ldf -X $p.gitVersion=v$K8S_VERSION -X $p.gitMajor=1 -X $p.gitMinor=$minor -X $p.gitTreeState=clean"
-  done
   export CGO_ENABLED=0
   build_with_progress kube-apiserver -trimpath -ldflags "$ldf" -o "$bin/kube-apiserver.tmp" k8s.io/kubernetes/cmd/kube-apiserver
   mv "$bin/kube-apiserver.tmp" "$bin/kube-apiserver"
@@ -92,6 +94,26 @@ EOF
   mv "$bin/kubectl.tmp" "$bin/kubectl"
   have kube-apiserver "v$K8S_VERSION" && have kubectl "v$K8S_VERSION" \
     || { log "kube-apiserver/kubectl do not report v$K8S_VERSION"; exit 1; }
+fi
+
+# ---------------------------------------------------------------- kubelet (test-bed node)
+# Same wrapper module and flags as the apiserver. Its packages need their own
+# `go get` first (otherwise: missing go.sum entry for github.com/google/cadvisor/...);
+# a module prepared before kubelet was added gets the import and the requirements
+# here, which only adds to go.mod. Built without cgo like the apiserver (k8s-node.md).
+if have kubelet "v$K8S_VERSION"; then
+  log "kubelet v$K8S_VERSION cached in $bin"
+else
+  cd "$root/src/kubernetes"
+  if ! grep -q '"k8s.io/kubernetes/cmd/kubelet"' tools.go; then
+    log "adding kubelet to the wrapper module"
+    sed -i 's|^\t_ "k8s.io/kubernetes/cmd/kubectl"$|&\n\t_ "k8s.io/kubernetes/cmd/kubelet"|' tools.go
+    grep -q '"k8s.io/kubernetes/cmd/kubelet"' tools.go || { log "could not add kubelet to $PWD/tools.go"; exit 1; }
+    nice -n 10 go get "k8s.io/kubernetes/cmd/kubelet@v$K8S_VERSION"
+  fi
+  CGO_ENABLED=0 build_with_progress kubelet -trimpath -ldflags "$ldf" -o "$bin/kubelet.tmp" k8s.io/kubernetes/cmd/kubelet
+  mv "$bin/kubelet.tmp" "$bin/kubelet"
+  have kubelet "v$K8S_VERSION" || { log "kubelet does not report v$K8S_VERSION"; exit 1; }
 fi
 
 # ---------------------------------------------------------------- etcd
@@ -126,4 +148,4 @@ EOF
 fi
 
 echo "$K8S_VERSION" > "${ARMNET_K8S_DIR:-$HOME/.cache/armnet/k8s}/current"
-log "ready: $("$bin/kube-apiserver" --version), $("$bin/kubectl" version --client 2>/dev/null | head -1), etcd $("$bin/etcd" --version | head -1 | awk '{print $3}')"
+log "ready: $("$bin/kube-apiserver" --version), $("$bin/kubectl" version --client 2>/dev/null | head -1), kubelet $("$bin/kubelet" --version | awk '{print $2}'), etcd $("$bin/etcd" --version | head -1 | awk '{print $3}')"

@@ -28,12 +28,12 @@ async def _fetch(sub: object, count: int) -> list[str]:
 
 def test_a_durable_consumer_resumes_after_the_client_reconnects(nats_server: str) -> None:
     stream = f"LOGS_{uuid.uuid4().hex[:8]}"
-    subject = f"logs.{stream}.job.stdout"
+    subject = f"replay.{stream}.job.stdout"
 
     async def scenario() -> tuple[list[str], list[str], list[str]]:
         nc = await nats.connect(nats_server)
         js = nc.jetstream()
-        await js.add_stream(name=stream, subjects=[f"logs.{stream}.>"])
+        await js.add_stream(name=stream, subjects=[f"replay.{stream}.>"])
         await _publish(js, subject, 5)
         first = await _fetch(await js.pull_subscribe(subject, durable="reader", stream=stream), 2)
         await nc.close()

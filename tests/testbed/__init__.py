@@ -1,4 +1,4 @@
-"""The test bed: real etcd + kube-apiserver, NATS (JetStream) and Podman's Docker API.
+"""The test bed: real etcd + kube-apiserver, a real node, NATS (JetStream) and Podman's API.
 
 Everything here starts real processes on free loopback ports, in temporary
 directories, and stops and removes them again. Used by the pytest plugin
@@ -10,6 +10,7 @@ from tests.testbed.errors import TestbedSetupError
 from tests.testbed.images import BASE_IMAGE, build_image, build_wheels, require_base_image
 from tests.testbed.kube import ControlPlane, KubeUser
 from tests.testbed.natsd import NatsServer
+from tests.testbed.node import Node
 from tests.testbed.podman import PodmanService
 
 __all__ = [
@@ -17,6 +18,7 @@ __all__ = [
     "ControlPlane",
     "KubeUser",
     "NatsServer",
+    "Node",
     "PodmanService",
     "TestbedSetupError",
     "build_image",

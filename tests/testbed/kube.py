@@ -2,9 +2,15 @@
 
 Owns: the binaries' location (built by scripts/setup.d/30-k8s.sh), the PKI, the
 static token file, kubeconfigs per identity, readiness, and applying ``crds/``.
-It never runs a controller-manager, scheduler or kubelet, so namespaces never
-finish deleting, pods stay Pending and there is no ``default`` ServiceAccount
-(see ../shared/reference/k8s-testbed.md §4.6). Fresh etcd per start.
+It never runs a controller-manager or scheduler, so namespaces never finish
+deleting, pods without a node stay Pending and there is no ``default``
+ServiceAccount (see ../shared/reference/k8s-testbed.md §4.6). Fresh etcd per start.
+
+The plane is always node-capable (``tests/testbed/node.py`` adds a real kubelet on
+demand): the Node authorizer and the NodeRestriction admission plugin only judge
+requests from ``system:nodes`` users, and the kubelet client certificate is only
+used when the apiserver calls a kubelet (logs, exec), so none of it changes what
+other tests see, and node tests share this plane instead of starting a second one.
 """
 
 from __future__ import annotations
@@ -34,6 +40,9 @@ FIXTURES = Path(__file__).resolve().parent / "fixtures"
 K8S_CACHE = Path(os.environ.get("ARMNET_K8S_DIR", Path.home() / ".cache/armnet/k8s"))
 
 ADMIN_USER = "armnet-admin"
+# The apiserver's identity towards kubelets (logs, exec, port-forward); a node
+# binds it to system:kubelet-api-admin.
+KUBELET_CLIENT_USER = "armnet-apiserver-kubelet-client"
 TENANT_GROUP = "armnet:tenants"
 # Identities with static tokens (the token file is read once at apiserver start).
 # Any other identity gets a client certificate from `user()`.
@@ -117,6 +126,7 @@ class ControlPlane:
             lines.append(f'{token},{name},uid-{name},"{",".join(groups)}"')
         token_file.write_text("\n".join(lines) + "\n")
 
+        kubelet_client_cert, kubelet_client_key = self.pki.client_cert(KUBELET_CLIENT_USER, ())
         client_port, peer_port, api_port = free_port(), free_port(), free_port()
         progress(f"starting etcd on 127.0.0.1:{client_port}")
         etcd_proc = ManagedProcess("etcd", [
@@ -146,9 +156,17 @@ class ControlPlane:
             f"--service-account-key-file={p.sa_pub}",
             f"--service-account-signing-key-file={p.sa_key}",
             "--service-cluster-ip-range=10.0.0.0/24",
-            "--authorization-mode=RBAC", "--allow-privileged=true",
+            "--authorization-mode=Node,RBAC", "--allow-privileged=true",
             # No controller-manager creates `default` ServiceAccounts here.
             "--disable-admission-plugins=ServiceAccount",
+            "--enable-admission-plugins=NodeRestriction",
+            # For a test-bed node (node.py): the apiserver calls kubelets by their
+            # InternalIP (the node name does not resolve) with a client cert, and
+            # checks the kubelet's serving cert against the test-bed CA.
+            f"--kubelet-client-certificate={kubelet_client_cert}",
+            f"--kubelet-client-key={kubelet_client_key}",
+            f"--kubelet-certificate-authority={p.ca_cert}",
+            "--kubelet-preferred-address-types=InternalIP",
             "--profiling=false",
         ], w / "kube-apiserver.log")
         self._procs.append(api_proc)

@@ -55,6 +55,25 @@ class Pki:
                  "-out", str(crt), cwd=self.dir)
         return crt, key
 
+    def serving_cert(self, name: str, ips: tuple[str, ...],
+                     dns: tuple[str, ...] = ()) -> tuple[Path, Path]:
+        """A TLS serving certificate for ``name`` valid for ``ips`` and ``dns`` names.
+
+        Used for a test-bed kubelet: the apiserver checks it against this CA.
+        """
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+        key, csr, crt = (self.dir / f"serving-{safe}.{ext}" for ext in ("key", "csr", "crt"))
+        _ec_key(key, self.dir)
+        _openssl("req", "-new", "-key", str(key), "-subj", f"/CN={name}", "-out", str(csr),
+                 cwd=self.dir)
+        ext = self.dir / f"serving-{safe}.ext"
+        sans = ",".join([f"IP:{ip}" for ip in ips] + [f"DNS:{d}" for d in dns])
+        ext.write_text(f"subjectAltName={sans}\nextendedKeyUsage=serverAuth\n")
+        _openssl("x509", "-req", "-in", str(csr), "-CA", str(self.ca_cert), "-CAkey",
+                 str(self.ca_key), "-CAcreateserial", "-days", _DAYS, "-extfile", str(ext),
+                 "-out", str(crt), cwd=self.dir)
+        return crt, key
+
 
 def create_pki(directory: Path) -> Pki:
     """CA, a serving cert for 127.0.0.1/localhost/kubernetes.default.svc, and the SA key pair."""

@@ -9,6 +9,8 @@ Fixtures (all start lazily, only when a test asks for them, and stop at session 
   so it never shadows the ``nats`` package in a test.
 - ``podman`` -> :class:`Podman`: the Docker client on Podman's API socket.
 - ``base_image`` -> ``str``: the base image reference (``localhost/armnet-base:bookworm``).
+- ``k8s_node`` -> :class:`Node`: containerd + a kubelet registered with ``k8s`` as a
+  ``Ready`` Node (pause and base images imported; ``.import_image()`` for more).
 
 A missing binary, tool or image FAILS the test (``TestbedSetupError``) with a hint to
 run ``scripts/setup.sh``; nothing is skipped.
@@ -28,6 +30,7 @@ from tests.testbed.errors import TestbedSetupError
 from tests.testbed.images import BASE_IMAGE, build_image, require_base_image
 from tests.testbed.kube import ControlPlane, KubeUser
 from tests.testbed.natsd import NatsServer
+from tests.testbed.node import Node
 from tests.testbed.podman import PodmanService, ulimits
 
 K8s = ControlPlane  # the `k8s` fixture's type: .kubeconfig .url .admin_token .user() .kubectl()
@@ -71,6 +74,16 @@ def k8s(request: pytest.FixtureRequest) -> Iterator[ControlPlane]:
         plane.stop()
 
 
+@pytest.fixture(scope="session")
+def k8s_node(k8s: ControlPlane, request: pytest.FixtureRequest) -> Iterator[Node]:
+    node = Node(plane=k8s)
+    _start("Kubernetes node (containerd + kubelet)", node.start, request)
+    try:
+        yield node
+    finally:
+        node.stop()
+
+
 @pytest.fixture
 def namespace(k8s: ControlPlane, request: pytest.FixtureRequest) -> Iterator[str]:
     name = k8s.create_namespace(request.node.name.removeprefix("test_"))
@@ -112,4 +125,4 @@ def base_image(podman: Podman, request: pytest.FixtureRequest) -> str:
     return BASE_IMAGE
 
 
-__all__ = ["K8s", "KubeUser", "Podman"]
+__all__ = ["K8s", "KubeUser", "Node", "Podman"]

@@ -14,11 +14,10 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 from .config import ConnectorConfig, MotorRange, read_calibration_file
 from .deadline import Deadline
-from .errors import RequestError
+from .errors import RequestError, bounded
 from .hardware import (
     CameraFactory,
     DeviceLocks,
@@ -29,7 +28,7 @@ from .hardware import (
 from .inputs import CompletionMonitor, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
 from .motion import MotionGuard
-from .rest import move_to_rest, private_bus, rest_pose
+from .rest import RestReport, cell_bus, move_to_rest, rest_pose, torque_off
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +51,14 @@ class Counters:
     accept_errors: int = 0
     #: Connections closed for a request line over the line cap or the connector's buffer cap.
     oversized_requests: int = 0
+    #: Calls whose retry count or timeout was lowered to the connector's cap (``buscaps``).
+    calls_capped: int = 0
+    #: Returns to rest that ended outside their tolerance, or could not be made.
+    rests_missed: int = 0
+    #: Torque offs the connector could not confirm by reading the servos back.
+    torque_off_unconfirmed: int = 0
+    #: Stops that found a device still busy past the wait and turned torque off beside the call.
+    stop_lock_timeouts: int = 0
 
 
 @dataclass(frozen=True)
@@ -94,6 +101,12 @@ class CellState:
             policy=self.config.safety_policy,
         )
         self._live: dict[int, Handle] = {}
+        #: The latest return to rest of each arm, as read back from its servos.
+        self.rest_reports: dict[str, RestReport] = {}
+        #: Per arm: whether the latest torque off was read back as off.
+        self.torque_confirmed: dict[str, bool] = {}
+        #: Set when the job ends: connections closing then leave rest and torque off to ``shut_down``.
+        self.stopping = threading.Event()
         self._live_lock = threading.Lock()
         self._reset_lock = threading.Lock()
 
@@ -112,48 +125,127 @@ class CellState:
         with self._live_lock:
             return list(self._live.values())
 
-    def release(self, handle: Handle) -> None:
-        """Disconnect ``handle``'s device if it is connected; never raises (logs instead)."""
+    def release(self, handle: Handle, *, lock_wait_s: float | None = None, torque_off: bool = True) -> None:
+        """Disconnect ``handle``'s device if it is connected; never raises (logs instead).
+
+        A bus is disconnected without torque off: several handles of the job may
+        drive one arm, and closing one must not drop the arm under the others.
+        When the job's last live bus on the arm goes, torque goes off through the
+        cell's own bus (``torque_off_arm``). ``lock_wait_s`` bounds the wait for
+        the device (the connector's stop); past it the device is left to its call.
+        """
         self.unregister(handle)
+        lock = handle.lock
+        if not lock.acquire(lock.wait_s if lock_wait_s is None else lock_wait_s):
+            log.warning("%s is still busy with a call; left to it (its connection is closed)", handle.class_name)
+            return
         try:
-            with handle.lock:
-                if not handle.obj.is_connected:
-                    return
+            if handle.obj.is_connected:
                 if handle.class_name == "FeetechMotorsBus":
-                    handle.obj.disconnect(disable_torque=self.config.disable_torque_on_shutdown)
+                    handle.obj.disconnect(disable_torque=False)
                 else:
                     handle.obj.disconnect()
         except Exception as exc:  # noqa: BLE001 — a dead device must not stop the others from being released
-            log.warning("could not disconnect %s cleanly: %s: %s", handle.class_name, type(exc).__name__, exc)
+            log.warning("could not disconnect %s cleanly: %s: %s", handle.class_name, type(exc).__name__,
+                        bounded(str(exc)))
+        finally:
+            lock.release()
+        if handle.class_name == "FeetechMotorsBus" and handle.arm is not None and not self._arm_in_use(handle.arm):
+            if torque_off and self.config.disable_torque_on_shutdown and not self.stopping.is_set():
+                self.torque_off_arm(handle.arm, lock_wait_s=lock_wait_s)
+
+    def _arm_in_use(self, arm: str) -> bool:
+        """Whether another connected bus of the job is on ``arm`` (then its torque stays)."""
+        return any(
+            h.arm == arm and h.class_name == "FeetechMotorsBus" and h.obj.is_connected for h in self.live_handles()
+        )
+
+    def torque_off_arm(self, arm_name: str, *, lock_wait_s: float | None = None) -> bool:
+        """Torque off every servo of ``arm_name`` through the cell's own bus; True once read back off.
+
+        Under the device lock when it comes within ``lock_wait_s``; otherwise
+        beside the call that holds it (a lone sync write): torque off is the one
+        thing that must reach the arm whatever a job's call is doing.
+        """
+        arm = self.config.arms[arm_name]
+        ranges = self.ranges.get(arm_name) or {}
+        if not ranges:
+            log.warning("arm %s has no calibration file: the connector cannot address its servos", arm_name)
+            self.counters.torque_off_unconfirmed += 1
+            self.torque_confirmed[arm_name] = False
+            return False
+        lock = self.locks.get(arm.port)
+        locked = lock.acquire(lock.wait_s if lock_wait_s is None else lock_wait_s)
+        if not locked:
+            self.counters.stop_lock_timeouts += 1
+            log.warning("arm %s: its device is still busy; turning torque off beside the call", arm_name)
+        try:
+            with cell_bus(arm, ranges, handshake=False) as bus:
+                confirmed = torque_off(bus)
+        except Exception as exc:  # noqa: BLE001 — logged and counted: the record says torque off was not confirmed
+            log.error("arm %s: torque off failed: %s: %s", arm_name, type(exc).__name__, bounded(str(exc)))
+            confirmed = False
+        finally:
+            if locked:
+                lock.release()
+        self.torque_confirmed[arm_name] = confirmed
+        if confirmed:
+            log.info("arm %s: torque off, read back from its servos", arm_name)
+        else:
+            self.counters.torque_off_unconfirmed += 1
+            log.error("arm %s: torque off was not confirmed by its servos", arm_name)
+        return confirmed
+
+    def shut_down(self, lock_wait_s: float) -> None:
+        """The job's end: release every device, rest every arm and torque it off (each if configured)."""
+        for handle in self.live_handles():
+            self.release(handle, lock_wait_s=lock_wait_s, torque_off=False)
+        if self.config.rest_on_shutdown:
+            for arm_name in self.config.arms:
+                try:
+                    self._rest_arm(arm_name, lock_wait_s=lock_wait_s)
+                except RequestError as exc:  # the device is still busy: torque off below goes beside it
+                    log.warning("arm %s: no rest at shutdown: %s", arm_name, exc.message)
+        if self.config.disable_torque_on_shutdown:
+            for arm_name in self.config.arms:
+                self.torque_off_arm(arm_name, lock_wait_s=lock_wait_s)
 
     # -- cell-wide actions -------------------------------------------------------------
 
     def return_to_rest(self) -> None:
+        """Walk every arm to its rest pose through the cell's own bus; refuse if one did not get there."""
         refusal = self.interlock.refusal()
         if refusal is not None:
             raise RequestError(*refusal)
-        for name, arm in self.config.arms.items():
-            ranges = self.ranges.get(name) or {}
-            if not ranges:
-                raise RequestError(
-                    "RuntimeError", f"arm {name!r} has no calibration file: the connector does not know its rest pose"
-                )
-            target = rest_pose(arm, ranges)
-            lock = self.locks.get(arm.port)
-            with lock:
-                bus = self._connected_bus(name)
-                if bus is not None:
-                    move_to_rest(bus, target, self.config.rest_speed_ticks_per_second)
-                    continue
-                with private_bus(arm, ranges) as own:
-                    move_to_rest(own, target, self.config.rest_speed_ticks_per_second)
-            log.info("arm %s is at its rest pose", name)
+        reports = [self._rest_arm(name) for name in self.config.arms]
+        missed = [r for r in reports if not r.reached]
+        if missed:
+            raise RequestError("RestNotReached", "; ".join(r.message() for r in missed))
 
-    def _connected_bus(self, arm: str) -> Any:
-        for handle in self.live_handles():
-            if handle.arm == arm and handle.class_name == "FeetechMotorsBus" and handle.obj.is_connected:
-                return handle.obj
-        return None
+    def _rest_arm(self, name: str, *, lock_wait_s: float | None = None) -> RestReport:
+        arm = self.config.arms[name]
+        ranges = self.ranges.get(name) or {}
+        if not ranges:
+            report = RestReport(name, False, failure="it has no calibration file, so the connector does not know "
+                                "its rest pose")
+        else:
+            lock = self.locks.get(arm.port)
+            if not lock.acquire(lock.wait_s if lock_wait_s is None else lock_wait_s):
+                raise RequestError("DeviceBusy", f"arm {name!r} is still busy with another call; no rest was made")
+            try:
+                with cell_bus(arm, ranges) as bus:
+                    report = move_to_rest(bus, name, rest_pose(arm, ranges), self.config.rest_speed_ticks_per_second)
+            except Exception as exc:  # noqa: BLE001 — reported, with the bus's own words
+                report = RestReport(name, False, failure=f"{type(exc).__name__}: {bounded(str(exc), 300)}")
+            finally:
+                lock.release()
+        self.rest_reports[name] = report
+        if report.reached:
+            log.info("%s", report.message())
+        else:
+            self.counters.rests_missed += 1
+            log.warning("%s", report.message())
+        return report
 
     def reset(self) -> None:
         """Rest pose, then wait for an operator's confirmation; on timeout trip the interlock."""

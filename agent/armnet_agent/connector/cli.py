@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from types import FrameType
 
 from .config import load_config
@@ -54,6 +55,9 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    # Started first: at stop time the host may be out of threads, and the watchdog
+    # must not depend on starting one then.
+    stopping = _exit_if_stop_hangs(stop_budget_s(config.grace_period_seconds))
     with Connector(config, args.socket_dir, inputs=inputs, on_grace_expired=stop.set):
         print(f"armnet connector: serving {args.socket_dir}/robot.sock and operator.sock", file=sys.stderr, flush=True)
         # Python runs a signal handler in the main thread only, and the kernel may
@@ -61,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         # long as the main thread sleeps. Waking up often lets the handler run.
         while not stop.wait(SIGNAL_POLL_S):
             pass
-        _exit_if_stop_hangs(stop_budget_s(config.grace_period_seconds))
+        stopping.set()
     return 0
 
 
@@ -74,17 +78,20 @@ def stop_budget_s(grace_period_seconds: float) -> float:
     return max(5.0, grace_period_seconds - 1.0)
 
 
-def _exit_if_stop_hangs(budget_s: float) -> None:
-    """A last resort: if the clean stop below has not ended within ``budget_s``, exit
-    non-zero rather than hold the cell past the host's kill (which would skip our cleanup)."""
+def _exit_if_stop_hangs(budget_s: float) -> threading.Event:
+    """A last resort, armed by setting the returned event: if the clean stop has not ended
+    within ``budget_s`` after that, exit non-zero rather than hold the cell past the
+    host's kill (which would skip our cleanup)."""
+    stopping = threading.Event()
 
-    def give_up() -> None:
+    def watch() -> None:
+        stopping.wait()
+        time.sleep(budget_s)
         print(
             f"armnet connector: a clean stop did not finish within {budget_s:g} s; exiting now",
             file=sys.stderr, flush=True,
         )
         os._exit(70)
 
-    timer = threading.Timer(budget_s, give_up)
-    timer.daemon = True
-    timer.start()
+    threading.Thread(target=watch, name="armnet-stop-watchdog", daemon=True).start()
+    return stopping

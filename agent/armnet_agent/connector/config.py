@@ -123,6 +123,9 @@ class ConnectorConfig(_Model):
     grace_period_seconds: float = Field(default=10.0, ge=0)
     reset_timeout_seconds: float = Field(default=300.0, gt=0)
     disable_torque_on_shutdown: bool = True
+    rest_on_shutdown: bool = Field(
+        default=False, description="at the job's end (stop, SIGTERM), return every arm to rest before torque off"
+    )
     rest_speed_ticks_per_second: float = Field(
         default=600.0, gt=0, description="speed limit of return_to_rest, in raw servo ticks per second"
     )

@@ -8,11 +8,12 @@ wraps it in a process.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
-from types import TracebackType
+from types import MappingProxyType, TracebackType
 
 from .cell import CellState, Counters
 from .config import ConnectorConfig
@@ -20,17 +21,21 @@ from .frames import FrameAreas
 from .hardware import CameraFactory
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
+from .record import ConnectorRecord
 from .report import SafetyReport
 from .server import BufferBudget, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession
+from .warm_imports import start_warm_imports
 
 log = logging.getLogger(__name__)
 
 ROBOT_SOCKET = "robot.sock"
 OPERATOR_SOCKET = "operator.sock"
-STOP_THREADS_WAIT_S = 2.0
+STOP_THREADS_WAIT_S = 1.0
 """How long ``stop`` waits for connection threads before releasing the devices: a call
 in flight may finish; a hung one does not hold back torque off."""
+STOP_LOCK_WAIT_S = 1.0
+"""How long ``stop`` waits for each device a call still holds; then torque goes off beside it."""
 
 
 class Connector:
@@ -81,6 +86,7 @@ class Connector:
     # -- lifetime ------------------------------------------------------------------
 
     def start(self) -> Connector:
+        start_warm_imports()  # LeRobot's device modules, off the first request's path (warm_imports.py)
         self.socket_dir.mkdir(parents=True, exist_ok=True)
         started: list[UnixServer] = []
         try:
@@ -101,15 +107,16 @@ class Connector:
         if not self._started:
             return
         self._started = False
+        self.cell.stopping.set()
         self.cell.deadline.stop()
         self.cell.interlock.trip(TripReason.SHUTDOWN, "the connector is shutting down")
         for server in self._servers:
             server.shut()
+        log.info("connector stopping: connections cut")
         threads_deadline = time.monotonic() + STOP_THREADS_WAIT_S
         for server in self._servers:
             server.join(threads_deadline)
-        for handle in self.cell.live_handles():
-            self.cell.release(handle)
+        self.cell.shut_down(STOP_LOCK_WAIT_S)
         log.info("connector stopped")
 
     def __enter__(self) -> Connector:
@@ -154,3 +161,18 @@ class Connector:
     def safety_report(self) -> SafetyReport:
         """The job's safety record so far (clamps, refusals, trips, torque off), as plain data."""
         return self.cell.guard.recorder.snapshot()
+
+    def record(self) -> ConnectorRecord:
+        """The job's account so far (interlock, safety, rest, torque off, counters) as frozen data."""
+        cell = self.cell
+        trip = cell.interlock.trip_info
+        return ConnectorRecord(
+            interlock_tripped=trip is not None,
+            trip_reason=str(trip.reason) if trip is not None else None,
+            trip_message=trip.message if trip is not None else None,
+            deadline_passed=cell.deadline.deadline_passed,
+            safety_violations=cell.counters.safety_violations,
+            rests=tuple(cell.rest_reports.values()),
+            torque_off_confirmed=MappingProxyType(dict(cell.torque_confirmed)),
+            counters=MappingProxyType(dataclasses.asdict(cell.counters)),
+        )

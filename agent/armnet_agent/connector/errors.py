@@ -45,5 +45,8 @@ def failure_reply(exc: BaseException) -> dict[str, Any]:
     """The reply for an exception raised by a real LeRobot call: its type name and message."""
     if isinstance(exc, RequestError):
         return exc.reply()
-    message = bounded(str(exc)) or type(exc).__name__
+    text = str(exc)
+    if isinstance(exc, KeyError) and len(exc.args) == 1 and isinstance(exc.args[0], str):
+        text = exc.args[0]  # str(KeyError) quotes its message; the SDK's KeyError adds its own
+    message = bounded(text) or type(exc).__name__
     return {"ok": False, "error": message, "error_type": bounded(type(exc).__name__, 128)}

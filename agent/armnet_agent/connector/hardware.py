@@ -40,7 +40,7 @@ class Handle:
 
     class_name: str
     obj: Any
-    lock: threading.RLock
+    lock: DeviceLock
     #: Attribute values shown to the customer instead of the real ones (``port``, ``config``).
     overrides: dict[str, Any] = field(default_factory=dict)
     arm: str | None = None
@@ -56,16 +56,58 @@ class Handle:
     facts_cache: tuple[tuple[Any, ...], dict[str, Any]] | None = None
 
 
+#: How long a request waits for a device another request is using before it is refused.
+#: A capped bus call (``buscaps``) ends well within it; only a wedged device exceeds it.
+DEVICE_LOCK_WAIT_S = 5.0
+
+
+class DeviceLock:
+    """A re-entrant lock on one device whose ``with`` gives up after a deadline.
+
+    Why not a bare ``RLock``: a call that never ends (a job's hostile retry count,
+    a wedged driver) would make every later request, and the connector's own
+    stop, wait on it forever. ``with lock:`` waits at most ``wait_s`` and then
+    raises ``RequestError("DeviceBusy")``, which the job sees as a clear error.
+    """
+
+    def __init__(self, name: str, wait_s: float = DEVICE_LOCK_WAIT_S) -> None:
+        self.name = name
+        self.wait_s = wait_s
+        self._lock = threading.RLock()
+
+    def acquire(self, timeout: float) -> bool:
+        return self._lock.acquire(timeout=max(0.0, timeout))
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def __enter__(self) -> DeviceLock:
+        if not self._lock.acquire(timeout=self.wait_s):
+            raise RequestError(
+                "DeviceBusy",
+                f"device {self.name} stayed busy with another call for {self.wait_s:g} s; this call was "
+                "not sent. Use one connection per device, or retry once the other call has ended",
+            )
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._lock.release()
+
+
 class DeviceLocks:
-    """One re-entrant lock per device: LeRobot's PortHandler is not thread-safe (reference §10)."""
+    """One lock per device: LeRobot's PortHandler is not thread-safe (reference §10)."""
 
-    def __init__(self) -> None:
-        self._locks: dict[str, threading.RLock] = {}
+    def __init__(self, wait_s: float = DEVICE_LOCK_WAIT_S) -> None:
+        self._locks: dict[str, DeviceLock] = {}
         self._guard = threading.Lock()
+        self._wait_s = wait_s
 
-    def get(self, key: str) -> threading.RLock:
+    def get(self, key: str) -> DeviceLock:
         with self._guard:
-            return self._locks.setdefault(key, threading.RLock())
+            lock = self._locks.get(key)
+            if lock is None:
+                lock = self._locks[key] = DeviceLock(key, self._wait_s)
+            return lock
 
 
 def _bind(cls: type, args: list[Any], kwargs: dict[str, Any]) -> inspect.BoundArguments:

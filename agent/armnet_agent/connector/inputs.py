@@ -2,7 +2,8 @@
 
 This module owns the small interface between the humans at a cell and the
 connector's ``operator.sock``, with an in-memory implementation that local mode
-feeds from a JSON-lines file or stdin (NATS/FMS feed the same interface later).
+feeds from a JSON-lines file or stdin; the node agent's NATS bridge
+(``armnet_agent.node.inputs_bridge``) feeds the same interface.
 It never touches hardware.
 """
 
@@ -27,13 +28,14 @@ class OperatorInputs(Protocol):
     def push_teleop_event(self, event: str) -> None: ...
     def report_outcome(self, success: bool) -> None: ...
     def request_stop(self) -> None: ...
-    def confirm_reset(self) -> None: ...
+    def confirm_reset(self) -> bool: ...
 
     def latest_teleop_action(self) -> dict[str, Any] | None: ...
     def next_teleop_event(self) -> str | None: ...
     def take_outcome(self) -> bool | None: ...
     def stop_requested(self) -> bool: ...
     def wait_reset_confirmation(self, timeout_s: float) -> bool: ...
+    def wait_reset_pending(self, timeout_s: float | None) -> bool: ...
 
 
 class CompletionMonitor(Protocol):
@@ -59,7 +61,13 @@ class LocalOperatorInputs:
     ``auto_confirm_reset`` confirms every reset at once (scripted runs);
     ``on_reset_requested`` is called when a reset starts to wait (a terminal
     prompt, a notification), and may call ``confirm_reset`` from any thread.
-    Confirmations given before a reset starts are kept and consumed in order.
+
+    A confirmation reaches only the reset waiting when it arrives: one given
+    while no reset waits (a double click, a late message, one meant for the
+    previous episode) is dropped, logged and counted in
+    ``ignored_confirmations``, so it can never confirm a later reset whose
+    workspace nobody has reset. A reset waits once the arm is at its rest pose,
+    which is when a person may safely reach into the workspace.
     """
 
     def __init__(
@@ -75,7 +83,9 @@ class LocalOperatorInputs:
         self._events: deque[str] = deque()
         self._outcome: bool | None = None
         self._stop = False
-        self._confirmations = 0
+        self._waiting = 0  # resets waiting for a confirmation (the connector runs one at a time)
+        self._confirmations = 0  # confirmations given to those resets, not yet taken
+        self.ignored_confirmations = 0
 
     def set_teleop_action(self, action: dict[str, Any] | None) -> None:
         with self._cond:
@@ -93,10 +103,19 @@ class LocalOperatorInputs:
         with self._cond:
             self._stop = True
 
-    def confirm_reset(self) -> None:
+    def confirm_reset(self) -> bool:
+        """Confirm the waiting reset; False (dropped and logged) when no reset waits for one."""
         with self._cond:
-            self._confirmations += 1
-            self._cond.notify_all()
+            if self._confirmations >= self._waiting:
+                self.ignored_confirmations += 1
+                dropped = True
+            else:
+                self._confirmations += 1
+                self._cond.notify_all()
+                dropped = False
+        if dropped:
+            log.warning("ignored a reset confirmation: no reset is waiting for one")
+        return not dropped
 
     def latest_teleop_action(self) -> dict[str, Any] | None:
         with self._cond:
@@ -118,13 +137,26 @@ class LocalOperatorInputs:
     def wait_reset_confirmation(self, timeout_s: float) -> bool:
         if self.auto_confirm_reset:
             return True
-        if self.on_reset_requested is not None:
-            self.on_reset_requested(self)
         with self._cond:
-            if not self._cond.wait_for(lambda: self._confirmations > 0, timeout=timeout_s):
-                return False
-            self._confirmations -= 1
-            return True
+            self._waiting += 1
+            self._cond.notify_all()
+        try:
+            if self.on_reset_requested is not None:
+                self.on_reset_requested(self)
+            with self._cond:
+                if not self._cond.wait_for(lambda: self._confirmations > 0, timeout=timeout_s):
+                    return False
+                self._confirmations -= 1
+                return True
+        finally:
+            with self._cond:
+                self._waiting -= 1
+                self._confirmations = min(self._confirmations, self._waiting)
+
+    def wait_reset_pending(self, timeout_s: float | None) -> bool:
+        """Wait until a reset waits for a confirmation it has not yet got (None: no time limit)."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._waiting > self._confirmations, timeout=timeout_s)
 
 
 def apply_input_line(inputs: OperatorInputs, line: str) -> None:
@@ -155,14 +187,26 @@ def apply_input_line(inputs: OperatorInputs, line: str) -> None:
 
 
 def feed_lines(inputs: OperatorInputs, lines: Iterable[str]) -> None:
-    """Apply every line (blank lines skipped; bad lines logged and skipped)."""
+    """Apply every line in order (blank lines skipped; bad lines logged and skipped).
+
+    A script's ``confirm_reset`` line is the confirmation of the next reset: the
+    feed waits at it until a reset waits, so the lines after it apply after that
+    reset, as written.
+    """
     for line in lines:
         if not line.strip():
             continue
         try:
+            if _is_reset_confirmation(line):
+                inputs.wait_reset_pending(None)
             apply_input_line(inputs, line)
         except ValueError as exc:  # json.JSONDecodeError is a ValueError
             log.warning("ignored operator input: %s", exc)
+
+
+def _is_reset_confirmation(line: str) -> bool:
+    record = json.loads(line)
+    return isinstance(record, dict) and record == {"confirm_reset": True}
 
 
 @dataclass

@@ -1,9 +1,12 @@
-"""``return_to_rest``: a slow, speed-limited move of every arm to its rest pose.
+"""The connector's own moves on an arm: return to rest, and torque off.
 
-This module owns the motion plan's execution on a bus (raw ticks, so the
-customer's normalisation never matters). The rest pose is the arm's
-``rest_pose`` or the middle of each calibrated range; the plan comes from the
-pure ``safety.plan_rest_steps``.
+This module owns the cell's bus: a ``FeetechMotorsBus`` the connector builds
+from the cell's description alone (the arm's device, the motor names and ids of
+the cell's calibration file, the arm's motor model), never from a job's bus
+object, names or calibration. A job that named its motors differently, or gave
+them other ids, cannot make the rest pose or torque off land on other servos.
+It also owns the execution of the rest plan (raw ticks; the plan comes from
+the pure ``safety.plan_rest_steps``) and its outcome, read back from the servos.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ import logging
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Any
 
 from .config import ArmConfig, MotorRange
@@ -20,22 +24,54 @@ from .safety import plan_rest_steps
 log = logging.getLogger(__name__)
 
 TICK_S = 0.02
+#: How far (raw ticks) a servo may end from its rest goal and the rest still count as reached.
 SETTLE_TOLERANCE_TICKS = 25
+SETTLE_WAIT_S = 3.0
 #: A busy host or a noisy cable drops the odd packet; the connector's own moves retry.
 RETRIES = 3
 CONNECT_ATTEMPTS = 3
+TORQUE_ENABLE = "Torque_Enable"
+
+
+@dataclass(frozen=True)
+class RestReport:
+    """Where one arm ended after a return to rest, read back from its servos (raw ticks)."""
+
+    arm: str
+    reached: bool
+    #: Servo goal minus where it ended, per cell motor name.
+    errors: dict[str, int] = field(default_factory=dict)
+    tolerance: int = SETTLE_TOLERANCE_TICKS
+    #: Why the move could not be made at all (no calibration, the bus failed), else "".
+    failure: str = ""
+
+    def message(self) -> str:
+        if self.failure:
+            return f"arm {self.arm!r} did not return to rest: {self.failure}"
+        if self.reached:
+            return f"arm {self.arm!r} is at its rest pose"
+        worst = max(self.errors, key=lambda m: abs(self.errors[m]))
+        return (
+            f"arm {self.arm!r} ended {abs(self.errors[worst])} ticks from its rest pose on {worst!r} "
+            f"(tolerance {self.tolerance}); an operator should check the cell before the next job"
+        )
 
 
 def rest_pose(arm: ArmConfig, ranges: dict[str, MotorRange]) -> dict[str, int]:
     """Raw goal per motor: the configured pose, else the middle of each calibrated range."""
     pose = {motor: r.middle for motor, r in ranges.items()}
-    pose.update(arm.rest_pose or {})
+    pose.update({m: v for m, v in (arm.rest_pose or {}).items() if m in ranges})
     return pose
 
 
 @contextmanager
-def private_bus(arm: ArmConfig, ranges: dict[str, MotorRange]) -> Iterator[Any]:
-    """A bus of the connector's own on the arm's device, for when no job bus is connected."""
+def cell_bus(arm: ArmConfig, ranges: dict[str, MotorRange], *, handshake: bool = True) -> Iterator[Any]:
+    """A bus of the connector's own on the arm's device, built from the cell's description only.
+
+    The caller holds the arm's device lock, so a job's bus on the same device
+    sends nothing meanwhile. ``handshake=False`` skips the ping of every servo
+    (torque off must work even when a servo no longer answers).
+    """
     from lerobot.motors import Motor, MotorNormMode
     from lerobot.motors.feetech import FeetechMotorsBus
 
@@ -43,26 +79,45 @@ def private_bus(arm: ArmConfig, ranges: dict[str, MotorRange]) -> Iterator[Any]:
     bus = FeetechMotorsBus(port=arm.port, motors=motors)
     for attempt in range(1, CONNECT_ATTEMPTS + 1):
         try:
-            bus.connect()
+            bus.connect(handshake=handshake)
             break
         except (ConnectionError, RuntimeError) as exc:
             if bus.is_connected:
-                bus.disconnect(disable_torque=False)
+                bus.port_handler.closePort()
             if attempt == CONNECT_ATTEMPTS:
                 raise
-            log.warning("return_to_rest: connecting to %s failed (%s); retrying", arm.port, exc)
+            log.warning("connecting the cell's bus on %s failed (%s); retrying", arm.port, exc)
     try:
         yield bus
     finally:
-        # Torque stays on: the arm holds its rest pose instead of dropping.
-        bus.disconnect(disable_torque=False)
+        # Torque stays as the caller left it: after a rest the arm holds its pose instead of dropping.
+        bus.port_handler.closePort()
 
 
-def move_to_rest(bus: Any, target: dict[str, int], speed_ticks_per_s: float) -> None:
-    """Walk ``bus`` to ``target`` (raw ticks) at ``speed_ticks_per_s`` and wait until it settles."""
+def torque_off(bus: Any) -> bool:
+    """Turn torque off on every servo of the cell's ``bus``; True once read back as off.
+
+    One sync write (no status packet to wait for, so a servo that stopped
+    answering cannot hold it up), then a read back, repeated a few times.
+    """
+    motors = list(bus.motors)
+    for _ in range(RETRIES):
+        bus.sync_write(TORQUE_ENABLE, {m: 0 for m in motors}, normalize=False)
+        try:
+            state = bus.sync_read(TORQUE_ENABLE, motors, normalize=False, num_retry=1)
+        except (ConnectionError, RuntimeError) as exc:
+            log.warning("torque off: could not read the torque state back (%s)", exc)
+            continue
+        if not any(int(v) for v in state.values()):
+            return True
+    return False
+
+
+def move_to_rest(bus: Any, arm_name: str, target: dict[str, int], speed_ticks_per_s: float) -> RestReport:
+    """Walk the cell's ``bus`` to ``target`` (raw ticks) at ``speed_ticks_per_s``, then read back where it ended."""
     motors = [m for m in target if m in bus.motors]
     if not motors:
-        return
+        return RestReport(arm_name, True)
     present = {m: int(v) for m, v in bus.sync_read("Present_Position", motors, normalize=False, num_retry=RETRIES).items()}
     # Hold where we are before torque comes on, so a stale goal cannot make the arm jump.
     bus.sync_write("Goal_Position", present, normalize=False, num_retry=RETRIES)
@@ -71,10 +126,13 @@ def move_to_rest(bus: Any, target: dict[str, int], speed_ticks_per_s: float) -> 
     for step in plan_rest_steps(present, goal, speed_ticks_per_s * TICK_S):
         bus.sync_write("Goal_Position", step, normalize=False, num_retry=RETRIES)
         time.sleep(TICK_S)
-    settle_deadline = time.monotonic() + 3.0
-    while time.monotonic() < settle_deadline:
+    settle_deadline = time.monotonic() + SETTLE_WAIT_S
+    errors: dict[str, int] = {}
+    while True:
         now = bus.sync_read("Present_Position", motors, normalize=False, num_retry=RETRIES)
-        if all(abs(int(now[m]) - goal[m]) <= SETTLE_TOLERANCE_TICKS for m in motors):
-            return
+        errors = {m: goal[m] - int(now[m]) for m in motors}
+        if all(abs(e) <= SETTLE_TOLERANCE_TICKS for e in errors.values()):
+            return RestReport(arm_name, True, errors)
+        if time.monotonic() >= settle_deadline:
+            return RestReport(arm_name, False, errors)
         time.sleep(TICK_S)
-    log.warning("return_to_rest: the arm did not settle within 3 s of the last step")

@@ -17,10 +17,12 @@ from armnet_runtime.wire import decode, encode
 
 from . import __version__
 from .allowlist import CLASSES, refusal
+from .buscaps import cap_call, capped_parameters
 from .cell import CellState, RolloutEvent
 from .errors import RequestError, bounded, failure_reply, not_allowed, protocol_error
 from .frames import FrameAreas, FramePublisher
 from .hardware import Handle, create_arx5, create_camera, create_feetech
+from .introspection import answer as answer_outside_allowlist
 from .retry import is_read, with_read_retry
 
 log = logging.getLogger(__name__)
@@ -129,6 +131,8 @@ class _CallPlan:
     reads: bool
     camera: bool
     frame_read: bool
+    #: The method's parameter names when some are capped (``buscaps``), else ``()``.
+    capped: tuple[str, ...] = ()
 
 
 class RobotSession(Session):
@@ -202,7 +206,7 @@ class RobotSession(Session):
         name = _field(request, "name", str)
         why = refusal(handle.class_name, name, kind="get")
         if why is not None:
-            raise not_allowed(why)
+            return answer_outside_allowlist(handle, name, why)
         if name in CLASSES[handle.class_name].methods:
             return {"ok": True, "callable": True}
         if name in handle.overrides:
@@ -251,7 +255,10 @@ class RobotSession(Session):
         if why is not None:
             raise not_allowed(why)
         camera = handle.class_name == "OpenCVCamera"
-        plan = _CallPlan(handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS)
+        plan = _CallPlan(
+            handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS,
+            capped_parameters(handle.class_name, getattr(handle.obj, method, None)),
+        )
         if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
             self._plans[(request["object_id"], method)] = plan
         return plan
@@ -260,6 +267,11 @@ class RobotSession(Session):
         plan = self._call_plan(request)
         handle, method, camera = plan.handle, request["method"], plan.camera
         args, kwargs = _arguments(request)
+        if plan.capped:
+            capped = cap_call(handle.class_name, plan.capped, args, kwargs)
+            if capped.lowered:
+                self.cell.counters.calls_capped += 1
+            args, kwargs = capped.args, capped.kwargs
         shared_frame = plan.frame_read and _wants_shared_frame(request)
         if camera and method == "disconnect":
             self._frames_connected(handle, False)  # first: the SDK stops serving frames locally at once

@@ -210,6 +210,10 @@ class SimulatedArm(StartStop):
         """Raise (or clear) the overload bit in this servo's status packets."""
         self.set_error_bits(motor, ErrorBit.OVERLOAD if enabled else 0)
 
+    def block(self, motor: str, blocked: bool = True) -> None:
+        """Put an obstacle in this joint's way: it pushes (load rises) but does not move."""
+        self._update_faults(motor, blocked=blocked)
+
     def clear_faults(self, motor: str | None = None) -> None:
         for name in [motor] if motor else list(self.motors):
             self.bus.set_faults(self.motors[name].id, ServoFaults())

@@ -19,6 +19,9 @@ class ServoBus:
 
     def __init__(self, servos: Iterable[Servo]) -> None:
         self._servos = list(servos)
+        #: The host's line speed (bit/s) when known: a servo set to another rate
+        #: (its Baud_Rate register) sees only noise, so it neither obeys nor answers.
+        self.line_baud: int | None = None
 
     def __iter__(self) -> Iterator[Servo]:
         return iter(self._servos)
@@ -30,12 +33,15 @@ class ServoBus:
                 return servo
         return None
 
+    def _hears(self, servo: Servo) -> bool:
+        return not servo.faults.unplugged and (self.line_baud is None or servo.baudrate() == self.line_baud)
+
     def _reachable(self, servo_id: int) -> list[Servo]:
         if servo_id == BROADCAST_ID:
-            found = [s for s in self._servos if not s.faults.unplugged]
+            found = [s for s in self._servos if self._hears(s)]
             return sorted(found, key=lambda s: s.servo_id)
         servo = self.servo(servo_id)
-        return [] if servo is None or servo.faults.unplugged else [servo]
+        return [servo] if servo is not None and self._hears(servo) else []
 
     def handle(self, instruction: Instruction, now: float) -> bytes:
         """Apply one instruction; return the concatenated status packets (maybe none)."""

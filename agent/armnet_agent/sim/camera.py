@@ -4,7 +4,10 @@ On a simulated cell the connector builds this where it would build
 ``OpenCVCamera(config)``: same constructor (a camera config), same methods
 (``connect``, ``read``, ``async_read``, ``read_latest``, ``disconnect``,
 ``is_connected``) and the same errors, and frames of the requested size, colour
-order and rate. The picture is rendered from a joint-state source attached with
+order and rate. ``connect()`` takes the config's ``warmup_s`` as a real
+``OpenCVCamera.connect()`` does (it reads frames until the warm-up has passed,
+about 1 s by default), so local timing is honest; a cell config that sets
+``warmup_s: 0`` skips it. The picture is rendered from a joint-state source attached with
 ``source=`` or ``attach()``: an object with ``joint_angles()`` (a
 ``SimulatedArm`` or ``SimulatedCell``) or any callable returning joint angles.
 """
@@ -51,7 +54,15 @@ class SimulatedCamera(Camera):  # type: ignore[misc]  # lerobot ships no type st
         self.width = config.width or DEFAULT_WIDTH
         self.height = config.height or DEFAULT_HEIGHT
         self.color_mode = ColorMode(getattr(config, "color_mode", ColorMode.RGB))
-        self.rotation = Cv2Rotation(getattr(config, "rotation", Cv2Rotation.NO_ROTATION))
+        self._rotation = Cv2Rotation(getattr(config, "rotation", Cv2Rotation.NO_ROTATION))
+        # What OpenCVCamera exposes: the cv2 rotate code (None: no rotation), the
+        # capture backend, and the size frames are captured at (before rotation).
+        self.rotation: int | None = _ROTATIONS.get(self._rotation)
+        self.backend = getattr(config, "backend", 0)
+        quarter = self._rotation in (Cv2Rotation.ROTATE_90, Cv2Rotation.ROTATE_270)
+        self.capture_width, self.capture_height = (
+            (self.height, self.width) if quarter else (self.width, self.height)
+        )
         self.warmup_s = getattr(config, "warmup_s", 1)
         self._source = source
         self._thread: threading.Thread | None = None
@@ -84,11 +95,22 @@ class SimulatedCamera(Camera):  # type: ignore[misc]  # lerobot ships no type st
         self._stop.clear()
         self._thread = threading.Thread(target=self._produce, name=f"{self}-frames", daemon=True)
         self._thread.start()
-        if warmup and self.warmup_s > 0:
+        if warmup:
+            # A real camera streams for warmup_s while exposure settles; so does this one.
+            settled = time.monotonic() + float(self.warmup_s)
             self.async_read(timeout_ms=max(1000, self.warmup_s * 1000))
+            remaining = settled - time.monotonic()
+            if remaining > 0:
+                self._stop.wait(remaining)
 
-    def read(self) -> Image:
-        """Block until the next frame, as ``OpenCVCamera.read`` does."""
+    def read(self, color_mode: ColorMode | None = None) -> Image:
+        """Block until the next frame, as ``OpenCVCamera.read`` does.
+
+        ``color_mode`` is accepted and ignored with LeRobot 0.4.4's deprecation
+        warning: frames come in the configured colour order.
+        """
+        if color_mode is not None:
+            log.warning("%s read() color_mode parameter is deprecated and will be removed in future versions.", self)
         self._require_running()
         self.new_frame_event.clear()
         return self.async_read(timeout_ms=10000)
@@ -179,11 +201,9 @@ class SimulatedCamera(Camera):  # type: ignore[misc]  # lerobot ships no type st
         return {a: {j: round(float(v), 1) for j, v in joints.items()} for a, joints in arms.items()}
 
     def _render(self, state: Mapping[str, Mapping[str, float]]) -> Image:
-        quarter = self.rotation in (Cv2Rotation.ROTATE_90, Cv2Rotation.ROTATE_270)
-        w, h = (self.height, self.width) if quarter else (self.width, self.height)
-        image = render_arms(state, w, h)
-        if self.rotation in _ROTATIONS:
-            image = np.asarray(cv2.rotate(image, _ROTATIONS[self.rotation]), dtype=np.uint8)
+        image = render_arms(state, self.capture_width, self.capture_height)
+        if self.rotation is not None:
+            image = np.asarray(cv2.rotate(image, self.rotation), dtype=np.uint8)
         if self.color_mode is ColorMode.BGR:
             image = image[:, :, ::-1]
         return np.ascontiguousarray(image)

@@ -45,6 +45,9 @@ class Drive:
     target: float  # ticks, physical frame, already clamped to the limits
     speed_limit: float  # ticks/s; 0 means "use the servo's maximum"
     acceleration: int  # register value; 0 means "no ramp"
+    #: Torque_Limit, 0.1 % of the stall torque: the effort (load) never exceeds it, a
+    #: weaker drive reaches a proportionally lower top speed, and 0 drives nothing.
+    effort_limit: int = 1000
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,8 @@ def step(state: JointState, drive: Drive, dt: float, params: PhysicsParams) -> J
     temperature = _relax_temperature(state, drive, dt, params)
     if not drive.torque_on:
         return replace(state, velocity=0.0, temperature=temperature)
+    if drive.effort_limit <= 0:
+        return replace(state, velocity=0.0, temperature=temperature)
     if state.velocity == 0.0 and state.position == drive.target:
         return replace(state, temperature=temperature)
     substeps = min(MAX_SUBSTEPS, max(1, math.ceil(dt / MAX_SUBSTEP_S)))
@@ -80,7 +85,7 @@ def _substep(
     position: float, velocity: float, drive: Drive, h: float, params: PhysicsParams
 ) -> tuple[float, float]:
     error = drive.target - position
-    cruise = params.max_speed
+    cruise = params.max_speed * min(1.0, drive.effort_limit / 1000.0)
     if 0 < drive.speed_limit < cruise:
         cruise = float(drive.speed_limit)
     accel = drive.acceleration * params.acceleration_unit
@@ -107,12 +112,12 @@ def _relax_temperature(state: JointState, drive: Drive, dt: float, params: Physi
 
 
 def _load(state: JointState, drive: Drive) -> int:
-    """Holding effort plus a term growing with tracking error and speed, capped at 100 %."""
+    """Holding effort plus a term growing with tracking error and speed, capped at Torque_Limit."""
     if not drive.torque_on:
         return 0
     error = drive.target - state.position
     effort = 40.0 + 2.0 * abs(error) + 0.05 * abs(state.velocity)
-    magnitude = int(min(1000.0, effort))
+    magnitude = int(min(1000.0, float(max(0, drive.effort_limit)), effort))
     return magnitude if error >= 0 else -magnitude
 
 

@@ -34,6 +34,7 @@ REMOTE_METHODS = frozenset(
         "joint_angles",
         "normalized_positions",
         "is_moving",
+        "block",
         "move_by_hand",
         "unplug",
         "plug",

@@ -19,9 +19,12 @@ from running the real SDK against a pty (reference §9, §10):
 from __future__ import annotations
 
 import errno
+import fcntl
 import logging
 import os
 import select
+import struct
+import termios
 import threading
 import time
 import tty
@@ -34,6 +37,10 @@ log = logging.getLogger(__name__)
 WRITE_DEADLINE_S = 0.05
 #: Nice value requested for the serving thread (lower = scheduled sooner).
 BOOSTED_NICE = -10
+#: Linux ``TCGETS2``: reads ``struct termios2``, whose ``c_ospeed`` (bytes 40..44) is the
+#: line speed in bit/s, also for the non-standard rates pyserial sets with ``BOTHER``.
+_TCGETS2 = 0x802C542A
+_TERMIOS2_SIZE = 44
 
 
 class PtyServer:
@@ -79,11 +86,29 @@ class PtyServer:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    def line_speed(self) -> int | None:
+        """The baud rate the client last set on the port (bit/s); None when unknown.
+
+        A pty carries bytes at any speed, but the client's setting is visible on
+        the shared line discipline, so the simulator can model a servo that
+        listens at another rate.
+        """
+        fd = self._slave
+        if fd is None:
+            return None
+        try:
+            raw = fcntl.ioctl(fd, _TCGETS2, bytes(_TERMIOS2_SIZE))
+        except OSError:
+            return None
+        speed: int = struct.unpack_from("I", raw, 40)[0]
+        return speed or None
+
     def start(self) -> None:
         if self._thread is not None:
             raise RuntimeError(f"{self._name} is already started")
         master, slave = os.openpty()
         tty.setraw(slave)
+        _set_line_speed(slave, termios.B1000000)  # the servos' factory rate, for clients that never set one
         os.set_blocking(master, False)
         self._master, self._slave = master, slave
         self._device = os.ttyname(slave)
@@ -158,6 +183,12 @@ class PtyServer:
                     )
                     return
                 select.select([], [master], [], remaining)
+
+
+def _set_line_speed(fd: int, speed: int) -> None:
+    attrs = termios.tcgetattr(fd)
+    attrs[4] = attrs[5] = speed
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
 
 
 def _boost_this_thread() -> None:

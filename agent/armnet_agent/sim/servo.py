@@ -15,6 +15,13 @@ from .physics import Drive, JointState, PhysicsParams, Telemetry, step, telemetr
 
 _REG = ct.BY_NAME
 
+#: Baud_Rate register value -> line speed (bit/s), the STS/SMS table LeRobot uses.
+BAUD_RATES = {0: 1_000_000, 1: 500_000, 2: 250_000, 3: 128_000, 4: 115_200, 5: 57_600, 6: 38_400, 7: 19_200}
+#: ERR-byte / Status bit the firmware sets when overload protection has cut the torque.
+OVERLOAD_BIT = 0x20
+#: Unloading_Condition bit: overload protection drops the torque.
+UNLOAD_ON_OVERLOAD = 0x20
+
 
 @dataclass(frozen=True)
 class ServoFaults:
@@ -25,6 +32,7 @@ class ServoFaults:
     error_bits: int = 0  # ORed into the ERR byte of every reply (e.g. ErrorBit.OVERLOAD)
     corrupt_next: int = 0  # the next N replies carry a wrong checksum (transient noise)
     drop_next: int = 0  # the next N replies are lost (requests are still obeyed)
+    blocked: bool = False  # an obstacle holds the joint where it is (the drive pushes, nothing moves)
 
 
 @dataclass(frozen=True)
@@ -61,6 +69,10 @@ class Servo:
         self._saved = bytes(self._memory)
         self._pending: tuple[int, bytes] | None = None
         self._time = now
+        # Overload protection: since when the load has stayed above Overload_Torque,
+        # and whether the protection has tripped (torque dropped, bit 5 reported).
+        self._overload_since: float | None = None
+        self.overloaded = False
         low, high = self.limits()
         rest = (low + high) / 2 if high > low else 2048
         self.joint = JointState(
@@ -95,6 +107,10 @@ class Servo:
     def torque_on(self) -> bool:
         return self.get("Torque_Enable") == 1
 
+    def baudrate(self) -> int:
+        """The line speed this servo listens and answers at (its Baud_Rate register)."""
+        return BAUD_RATES.get(self.get("Baud_Rate"), 0)
+
     def present_position(self, now: float) -> int:
         self.advance(now)
         return self.get("Present_Position")
@@ -122,8 +138,11 @@ class Servo:
                 saved[addr] = value
                 self._saved = bytes(saved)
         if self.torque_on() and not torque_before:
-            # Enabling torque holds the joint where it is, as the firmware does.
+            # Enabling torque holds the joint where it is, as the firmware does, and
+            # clears a tripped overload protection (the host acknowledged it).
             self._set(_REG["Goal_Position"], self.get("Present_Position"))
+            self.overloaded = False
+            self._overload_since = None
         self._refresh()
 
     def reg_write(self, address: int, data: bytes) -> None:
@@ -148,7 +167,7 @@ class Servo:
         return False, faults.corrupt_checksum
 
     def status_error(self) -> int:
-        return self.faults.error_bits & 0x7F
+        return (self.faults.error_bits | (OVERLOAD_BIT if self.overloaded else 0)) & 0x7F
 
     def replies_to_writes(self) -> bool:
         return self.get("Response_Status_Level") != 0
@@ -160,6 +179,8 @@ class Servo:
         self.advance(now)
         self._memory = bytearray(self._saved)
         self._pending = None
+        self.overloaded = False
+        self._overload_since = None
         self._power_on_ram()
         self._refresh()
 
@@ -200,8 +221,36 @@ class Servo:
         dt = now - self._time
         if dt > 0:
             self._time = now
-            self.joint = step(self.joint, self._drive(), dt, self.params)
+            drive = self._drive()
+            stepped = step(self.joint, drive, dt, self.params)
+            if self.faults.blocked:  # the drive pushes (load, heat), the joint does not move
+                stepped = replace(stepped, position=self.joint.position, velocity=0.0)
+            self.joint = stepped
+            self._protect(now)
             self._refresh()
+
+    def _protect(self, now: float) -> None:
+        """Overload protection: a load above Overload_Torque for Protection_Time drops the torque.
+
+        As the STS3215 firmware does when Unloading_Condition has its overload bit:
+        torque off, bit 5 (overload) in every status ERR byte and in Status until
+        torque is enabled again. Load is in 0.1 % (capped by Torque_Limit),
+        Overload_Torque in %, Protection_Time in 10 ms.
+        """
+        if not self.torque_on() or self.overloaded:
+            self._overload_since = None
+            return
+        load = abs(telemetry(self.joint, self._drive(), self.params).load)
+        if load <= self.get("Overload_Torque") * 10:
+            self._overload_since = None
+            return
+        if self._overload_since is None:
+            self._overload_since = now
+        if now - self._overload_since >= self.get("Protection_Time") * 0.01:
+            self.overloaded = True
+            self._overload_since = None
+            if self.get("Unloading_Condition") & UNLOAD_ON_OVERLOAD:
+                self._set(_REG["Torque_Enable"], 0)
 
     def _drive(self) -> Drive:
         goal = self.get("Goal_Position")
@@ -215,6 +264,7 @@ class Servo:
             target=float(goal + self.homing_offset()) if torque else self.joint.position,
             speed_limit=abs(self.get("Goal_Velocity")),
             acceleration=self.get("Acceleration"),
+            effort_limit=self.get("Torque_Limit"),
         )
 
     def _refresh(self) -> None:

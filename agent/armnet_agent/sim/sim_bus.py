@@ -99,6 +99,7 @@ class SimulatedBus(StartStop):
 
     def _on_bytes(self, data: bytes, now: float) -> bytes:
         with self._lock:
+            self._model.line_baud = self._server.line_speed()
             frames = self._parser.feed(data, now)
             return b"".join(self._model.handle(frame, now) for frame in frames)
 

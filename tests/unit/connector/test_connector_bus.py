@@ -124,7 +124,12 @@ def test_reset_returns_to_rest_then_waits_for_the_operator(connector, client_for
     middle = connector.cell.ranges["arm"]["elbow_flex"].middle
     sim_cell.arm.move_by_hand("elbow_flex", middle + 600)
     started = time.monotonic()
-    threading.Timer(0.3, connector.cell.inputs.confirm_reset).start()
+    def confirm_once_the_reset_waits() -> None:
+        if connector.cell.inputs.wait_reset_pending(30):
+            time.sleep(0.3)
+            connector.cell.inputs.confirm_reset()
+
+    threading.Thread(target=confirm_once_the_reset_waits, daemon=True).start()
     reply = client_for(connector.operator_endpoint).request({"op": "reset", "request": {"kind": "manual"}})
     assert reply == {"ok": True}
     assert time.monotonic() - started >= 0.3

@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import threading
 from typing import Any
 
 import pytest
 from armnet_agent.connector.errors import RequestError
-from armnet_agent.connector.hardware import Handle
+from armnet_agent.connector.hardware import DeviceLock, Handle
 from armnet_agent.connector.motion import _bound_arguments, _motor_facts
 from lerobot.motors.feetech import FeetechMotorsBus
 
@@ -59,7 +58,7 @@ def test_calls_are_bound_like_signature_bind(
 
 def test_cached_motor_facts_follow_a_recalibration(motors: dict[str, Any], calibration: dict[str, Any]) -> None:
     bus = FeetechMotorsBus(port="/dev/null-armnet-test", motors=motors, calibration=calibration)
-    handle = Handle("FeetechMotorsBus", bus, threading.RLock())
+    handle = Handle("FeetechMotorsBus", bus, DeviceLock("test"))
     first = _motor_facts(handle, ["elbow_flex", "gripper"])
     assert _motor_facts(handle, ["elbow_flex", "gripper"]) is first
     low = bus.calibration["gripper"].range_min

@@ -95,14 +95,12 @@ def test_input_lines_feed_every_kind_of_input() -> None:
         inputs,
         [
             '{"teleop_action": {"gripper.pos": 5}}\n', '{"teleop_event": "rerecord_episode"}\n',
-            '{"outcome": true}\n', '{"stop": true}\n', '{"confirm_reset": true}\n', "\n", "garbage\n",
+            '{"outcome": true}\n', '{"stop": true}\n', "\n", "garbage\n",
         ],
     )
     assert inputs.latest_teleop_action() == {"gripper.pos": 5}
     assert inputs.next_teleop_event() == "rerecord_episode"
     assert inputs.take_outcome() is True and inputs.stop_requested()
-    assert inputs.wait_reset_confirmation(0.01) is True
-    assert inputs.wait_reset_confirmation(0.01) is False
 
 
 def test_an_unknown_input_line_says_what_is_accepted() -> None:

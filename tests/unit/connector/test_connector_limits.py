@@ -10,12 +10,18 @@ import socket
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
 import pytest
 from armnet_agent.connector.errors import MAX_ERROR_CHARS, failure_reply
-from armnet_agent.connector.server import MAX_BUFFERED_BYTES, MAX_LINE_BYTES, FramingError, LineReader
+from armnet_agent.connector.server import (
+    MAX_BUFFERED_BYTES,
+    MAX_LINE_BYTES,
+    FramingError,
+    LineReader,
+)
 
 pytestmark = pytest.mark.unit
 
@@ -110,13 +116,19 @@ def test_a_line_spread_over_many_chunks_is_framed_once_and_intact() -> None:
     with left, right:
         reader = LineReader(right, limit=4 * 65536)
         payload = b"a" * (3 * 65536)
-        for start in range(0, len(payload), 4096):
-            left.sendall(payload[start : start + 4096])
-        left.sendall(b"\nsecond\nthird")
-        left.shutdown(socket.SHUT_WR)
+
+        def send() -> None:  # a writer of its own: the line is larger than the socket's buffer
+            for start in range(0, len(payload), 4096):
+                left.sendall(payload[start : start + 4096])
+            left.sendall(b"\nsecond\nthird")
+            left.shutdown(socket.SHUT_WR)
+
+        writer = threading.Thread(target=send)
+        writer.start()
         assert reader.next() == payload + b"\n"
         assert reader.next() == b"second\n"
         assert reader.next() == b"third"  # the peer closed mid-line
+        writer.join(timeout=10)
 
 
 def test_a_line_over_the_cap_is_a_framing_error() -> None:
@@ -213,32 +225,30 @@ def test_at_the_descriptor_limit_the_accept_loop_backs_off_logs_little_and_recov
 def test_a_connection_no_thread_can_be_started_for_is_refused_and_the_next_one_served(
     cell_config, socket_dir: Path, tmp_path: Path
 ) -> None:
-    """Thread creation fails for real: after start, the child asks for 1 GiB thread stacks
-    under an address-space limit; a line on stdin lifts the stack size again."""
+    """Starting the connection's thread fails as at the host's thread limit (the child's
+    ``Thread.start`` raises what CPython raises then, for connection threads only, until a
+    line on stdin lifts it): resource limits could not be made to bite reliably in a
+    process whose threads were started before the limit."""
     config = tmp_path / "cell.json"
     config.write_text(cell_config(None).model_dump_json(by_alias=True))
     preamble = """
-        import resource, threading
-        from armnet_agent.connector import connector as _module
+        import sys, threading
 
-        _start = _module.Connector.start
+        _real_start = threading.Thread.start
+        starved = threading.Event()
+        starved.set()
 
-        def _start_then_starve(self):
-            started = _start(self)
-            with open("/proc/self/status") as status:
-                vm_kb = next(int(line.split()[1]) for line in status if line.startswith("VmSize:"))
+        def _start(self):
+            if starved.is_set() and self.name.startswith("armnet-conn-"):
+                raise RuntimeError("can't start new thread")
+            return _real_start(self)
 
-            def lift():
-                sys.stdin.readline()
-                threading.stack_size(0)
+        def lift():
+            sys.stdin.readline()
+            starved.clear()
 
-            threading.Thread(target=lift, daemon=True).start()  # started before the stacks grow
-            resource.setrlimit(resource.RLIMIT_AS, ((vm_kb << 10) + (512 << 20), resource.RLIM_INFINITY))
-            threading.stack_size(1 << 30)
-            return started
-
-        import sys
-        _module.Connector.start = _start_then_starve
+        threading.Thread(target=lift, daemon=True).start()
+        threading.Thread.start = _start
     """
     process = _connector_process(config, socket_dir, preamble, stdin=subprocess.PIPE)
     try:
@@ -246,7 +256,7 @@ def test_a_connection_no_thread_can_be_started_for_is_refused_and_the_next_one_s
         path = socket_dir / "robot.sock"
         with connect(path) as sock:
             refusal = read_reply(sock)
-        assert refusal["error_type"] == "TooManyConnections" and "cannot start a thread" in refusal["error"]
+        assert refusal["error_type"] == "TooManyConnections" and "cannot start a thread" in refusal["error"], refusal
         assert process.stdin is not None
         process.stdin.write("lift\n")
         process.stdin.flush()
@@ -270,14 +280,16 @@ def test_sigterm_ends_the_connector_within_the_grace_window_under_load(
     sim_cell, cell_config, socket_dir: Path, tmp_path: Path, motors, calibration
 ) -> None:
     """Busy connections keep every thread but the main one running; SIGTERM still
-    ends the process, torque off, within the grace window."""
-    import threading
+    ends the process within the grace window, the arm at rest and its torque off."""
 
     from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 
-    grace_s = 4.0
+    grace_s = 6.0
+    rest = {"elbow_flex": 1800, "wrist_roll": 2600}
+    cell = cell_config(sim_cell, gracePeriodSeconds=grace_s, restOnShutdown=True)
+    cell = cell.model_copy(update={"arms": {"arm": cell.arms["arm"].model_copy(update={"rest_pose": rest})}})
     config = tmp_path / "cell.json"
-    config.write_text(cell_config(sim_cell, gracePeriodSeconds=grace_s).model_dump_json(by_alias=True))
+    config.write_text(cell.model_dump_json(by_alias=True))
     process = _connector_process(config, socket_dir)
     stop_load = threading.Event()
     endpoint = f"unix://{socket_dir}/robot.sock"
@@ -309,9 +321,11 @@ def test_sigterm_ends_the_connector_within_the_grace_window_under_load(
             thread.start()
         time.sleep(1.0)
         assert all(sim_cell.arm.torque_enabled().values())
+        before = sim_cell.arm.positions()
+        assert any(abs(before[m] - goal) > 100 for m, goal in rest.items()), "the arm starts at rest"
         sent = time.monotonic()
         process.send_signal(signal.SIGTERM)
-        process.communicate(timeout=grace_s + 5)
+        _, log_text = process.communicate(timeout=grace_s + 5)
         took = time.monotonic() - sent
     finally:
         stop_load.set()
@@ -321,5 +335,7 @@ def test_sigterm_ends_the_connector_within_the_grace_window_under_load(
         for thread in threads:
             thread.join(timeout=10)
     assert process.returncode == 0
-    assert took < grace_s, f"SIGTERM took {took:.1f} s, over the {grace_s:g} s grace window"
+    assert took < grace_s, f"SIGTERM took {took:.1f} s, over the {grace_s:g} s grace window:\n{log_text[-3000:]}"
     assert not any(sim_cell.arm.torque_enabled().values())
+    positions = sim_cell.arm.positions()
+    assert all(abs(positions[m] - goal) <= 25 for m, goal in rest.items()), positions

@@ -14,13 +14,13 @@ from typing import Any
 
 from armnet_operator.conditions import format_time
 from armnet_operator.errors import Conflict, NotFound
-from armnet_operator.model import Job
+from armnet_operator.model import Cell, Job
 from armnet_operator.parsing import parse_cell, parse_job
 from armnet_operator.patches import Patch, Target
 
 
-class Crash(Exception):
-    """The operator process dies mid-pass."""
+class Crash(BaseException):
+    """The operator process dies mid-pass (a BaseException: no per-object guard may swallow it)."""
 
 
 def merge(target: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]:
@@ -158,8 +158,8 @@ class World:
         else:
             del self.jobs[key]
 
-    def post_event(self, job: Job, type_: str, reason: str, message: str) -> None:
-        self.events.append((job.key, reason))
+    def post_event(self, subject: Job | Cell, type_: str, reason: str, message: str) -> None:
+        self.events.append((subject.key if isinstance(subject, Job) else subject.name, reason))
 
     # ---- snapshots
     def snapshot(self) -> tuple[list[Job], list[Any]]:

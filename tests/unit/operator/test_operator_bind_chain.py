@@ -219,3 +219,31 @@ def test_a_claim_that_lost_to_another_claim_is_not_retried() -> None:
     reconcile_once(jobs, cells, world.now, TIMING, world, Memory(), Limits())
     assert world.cells["c0"]["status"]["currentJob"] == "t/other"
     assert world.jobs["t/j"]["status"].get("phase") != "dispatched"
+
+
+def test_a_burst_of_new_jobs_is_queued_over_several_short_passes_with_the_head_of_the_queue_first() -> None:
+    world = RecordingWorld()
+    world.add_cell("c1", "so-101", None)
+    world.heartbeat("c1")
+    for i in range(10):
+        world.submit(f"j{i}", "so-101", None, 0)
+    limits = Limits(max_queue_tasks=4)
+    first = reconcile_once(*world.snapshot(), world.now, TIMING, world, Memory(), limits)
+    assert first.more and [j.name for j, _ in first.bound] == ["j0"]
+    queued = sorted(k for k, b in world.jobs.items() if b["status"].get("phase") == "queued")
+    assert queued == ["t/j1", "t/j2", "t/j3"]  # j0's finalizer took the fourth slot
+    memory = Memory()
+    while reconcile_once(*world.snapshot(), world.now, TIMING, world, memory, limits).more:
+        pass
+    assert all(b["status"].get("phase") in ("queued", "dispatched") for b in world.jobs.values())
+
+
+def test_queue_writes_past_the_pass_budget_are_left_for_the_next_pass() -> None:
+    world = RecordingWorld()
+    world.add_cell("c1", "so-101", None)
+    world.heartbeat("c1")
+    for i in range(5):
+        world.submit(f"j{i}", "so-101", None, 0)
+    outcome = reconcile_once(*world.snapshot(), world.now, TIMING, world, Memory(), Limits(queue_seconds=-1))
+    assert outcome.more and [j.name for j, _ in outcome.bound] == ["j0"]
+    assert not any(b["status"].get("phase") == "queued" for b in world.jobs.values())

@@ -62,7 +62,7 @@ def test_binding_sets_phase_cell_job_id_and_the_bound_condition() -> None:
 
 def test_releasing_deletes_the_claim_fields() -> None:
     status = release_cell(a_cell().claimed_by("t/j").ready(), CellPhase.READY).body["status"]
-    assert status == {"currentJob": None, "claimedAt": None, "phase": "Ready"}
+    assert status == {"currentJob": None, "claimedAt": None, "phase": "Ready", "message": None}
 
 
 def test_finalizer_patches_keep_other_finalizers() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -17,7 +18,8 @@ pytestmark = pytest.mark.unit
 
 
 def a_config(**overrides: object) -> OpenCVCameraConfig:
-    fields: dict[str, object] = {"index_or_path": 0, "fps": 30, "width": 320, "height": 240}
+    # warmup_s=0: these tests are not about connect()'s timing (see the warm-up test).
+    fields: dict[str, object] = {"index_or_path": 0, "fps": 30, "width": 320, "height": 240, "warmup_s": 0}
     fields.update(overrides)
     return OpenCVCameraConfig(**fields)  # type: ignore[arg-type]
 
@@ -78,7 +80,7 @@ def test_a_quarter_turn_rotation_keeps_the_configured_shape(so101_arm: RemoteArm
 
 
 def test_unset_size_and_fps_take_webcam_defaults() -> None:
-    cam = SimulatedCamera(OpenCVCameraConfig(index_or_path=0))
+    cam = SimulatedCamera(OpenCVCameraConfig(index_or_path=0, warmup_s=0))
     assert (cam.width, cam.height, cam.fps) == (640, 480, 30)
     with cam:
         assert cam.read().shape == (480, 640, 3)
@@ -117,3 +119,28 @@ def test_frames_returned_to_callers_are_private_copies(camera: SimulatedCamera) 
     frame = camera.read_latest()
     frame[:] = 255
     assert not np.array_equal(camera.read_latest(), frame)
+
+
+def test_connect_takes_the_configured_warm_up_as_a_real_camera_does() -> None:
+    cam = SimulatedCamera(a_config(warmup_s=1))
+    started = time.monotonic()
+    cam.connect()
+    try:
+        assert time.monotonic() - started >= 1.0  # OpenCVCamera streams for warmup_s before returning
+    finally:
+        cam.disconnect()
+
+
+def test_read_accepts_the_deprecated_color_mode_and_keeps_the_configured_order(camera: SimulatedCamera) -> None:
+    frame = camera.read(ColorMode.BGR)  # LeRobot 0.4.4 warns and ignores it
+    assert frame.shape == (240, 320, 3)
+
+
+def test_rotation_backend_and_capture_size_read_as_on_opencv_camera() -> None:
+    import cv2
+
+    cam = SimulatedCamera(a_config(rotation=Cv2Rotation.ROTATE_90))
+    assert cam.rotation == cv2.ROTATE_90_CLOCKWISE
+    assert (cam.capture_width, cam.capture_height) == (240, 320)
+    assert cam.backend == a_config().backend
+    assert SimulatedCamera(a_config()).rotation is None

@@ -15,17 +15,21 @@ from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 from armnet_runtime.lerobot.remote_object import (
     IS_CONNECTED_TTL_S,
+    DeviceRefused,
+    ReadOnlyView,
     RemoteContextManager,
     RemoteObjectProxy,
 )
 
 __all__ = [
     "IS_CONNECTED_TTL_S",
+    "DeviceRefused",
     "RemoteARX5Arm",
     "RemoteAttributeError",
     "RemoteContextManager",
     "RemoteFeetechMotorsBus",
     "RemoteObjectProxy",
     "RemoteOpenCVCamera",
+    "ReadOnlyView",
     "install_lerobot_remote_mode",
 ]

@@ -12,6 +12,7 @@ enums) stay real: they cross the socket as tagged JSON.
 
 from __future__ import annotations
 
+import abc
 import importlib
 import importlib.util
 import logging
@@ -51,6 +52,23 @@ def _find_originals() -> None:
             found = getattr(module, name, None)
             if isinstance(found, type) and not issubclass(found, RemoteObjectProxy):
                 _originals[id(found)] = (found, proxy)
+                register_virtual_bases(found, proxy)
+
+
+def register_virtual_bases(original: type, proxy: type[RemoteObjectProxy]) -> list[str]:
+    """Make ``isinstance(proxy_obj, Base)`` hold for every abstract base of ``original``.
+
+    LeRobot's bases are ABCs (``Camera``; ``MotorsBusBase`` and ``SerialMotorsBus`` in
+    0.4.x, ``MotorsBus`` before), so the proxy is registered as their virtual
+    subclass: code that checks ``isinstance(bus, SerialMotorsBus)`` accepts it,
+    while the proxy inherits none of their hardware code. Returns the bases' names.
+    """
+    registered: list[str] = []
+    for base in original.__mro__[1:]:
+        if isinstance(base, abc.ABCMeta) and base is not object and not issubclass(proxy, base):
+            base.register(proxy)
+            registered.append(base.__qualname__)
+    return registered
 
 
 def _candidate_modules() -> list[tuple[str, ModuleType]]:

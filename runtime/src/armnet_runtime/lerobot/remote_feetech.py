@@ -53,3 +53,20 @@ class RemoteFeetechMotorsBus(RemoteObjectProxy):
         if isinstance(port, str) and looks_like_connector_endpoint(port):
             return port, args, kwargs
         return cell_socket_endpoint(cls.__name__, port), args, kwargs
+
+    @classmethod
+    def scan_port(cls, port: str, *args: Any, **kwargs: Any) -> dict[int, list[int]]:
+        """The servos of the cell's arm on ``port``, as ``{baudrate: [ids]}`` (``scan_port``'s shape).
+
+        LeRobot probes every baud rate by rewriting the port's line speed; on a
+        cell the line speed belongs to the cell, so this asks the arm's bus once,
+        at the rate the cell runs it, with a broadcast ping.
+        """
+        bus = cls(port, {}, *args, **kwargs)
+        bus.connect(handshake=False)  # as LeRobot's scan_port: no motors to check yet
+        try:
+            found = bus.broadcast_ping()
+            baudrate = int(bus.default_baudrate)
+        finally:
+            bus.disconnect(disable_torque=False)
+        return {baudrate: sorted(found)} if found else {}

@@ -7,9 +7,11 @@ proxy keeps three caches that save round trips without changing semantics:
 
 - method names: whether a name is a method never changes for an object, so the
   ``getattr`` round trip before each call is paid once per name;
-- missing names: a name the remote object lacks stays absent, so
-  ``getattr(obj, name, default)`` answers locally (LeRobot probes optional
-  attributes such as ``use_depth`` every frame);
+- missing names: a name the remote object lacks, or one the connector will not
+  hand out (outside its allow-list), stays absent, so ``hasattr`` and
+  ``getattr(obj, name, default)`` behave as for a missing attribute and answer
+  locally from then on (LeRobot probes optional attributes such as ``use_depth``
+  every frame); a *call* the connector refuses is still a clear error;
 - ``is_connected``: served locally for :data:`IS_CONNECTED_TTL_S` after the proxy
   learned it (a read, ``connect()`` or ``disconnect()``), so staleness is bounded.
 
@@ -26,7 +28,12 @@ import time
 from collections.abc import Callable
 from typing import Any, ClassVar, TypeVar
 
-from armnet_runtime.errors import ConnectorUnavailable, ProtocolError, RemoteAttributeError
+from armnet_runtime.errors import (
+    ConnectorUnavailable,
+    ProtocolError,
+    RemoteAttributeError,
+    RemoteCallError,
+)
 from armnet_runtime.transport import DEFAULT_CALL_TIMEOUT_S, PersistentConnection, check_response
 from armnet_runtime.wire import decode, encode
 
@@ -40,6 +47,48 @@ IS_CONNECTED_TTL_S = 0.5
 
 class _UnsentRequest(Exception):
     """Internal: writing a request failed, so the connector never saw it."""
+
+
+class DeviceRefused(RemoteCallError, ConnectionError):
+    """The connector refused the port or device a constructor named (not this cell's).
+
+    A ``ConnectionError``, as LeRobot raises when a port or camera cannot be opened,
+    so code written against a bare arm (``except ConnectionError``) keeps working.
+    """
+
+
+NOT_ALLOWED = "NotAllowed"
+"""The wire error type of a request outside the connector's allow-list."""
+
+
+class ReadOnlyView:
+    """Plain values the connector reports about a hardware helper (``bus.port_handler``).
+
+    LeRobot code reads a few facts from the bus's port and packet handlers; the
+    handlers themselves drive the serial line and never leave the connector. This
+    view holds a snapshot of their safe values, taken when the attribute was read.
+    """
+
+    __slots__ = ("_name", "_values")
+
+    def __init__(self, name: str, values: dict[str, Any]) -> None:
+        object.__setattr__(self, "_name", name)
+        object.__setattr__(self, "_values", dict(values))
+
+    def __getattr__(self, name: str) -> Any:
+        values: dict[str, Any] = object.__getattribute__(self, "_values")
+        if name in values:
+            return values[name]
+        raise RemoteAttributeError(
+            f"{object.__getattribute__(self, '_name')}.{name} is not available through the cell connector; "
+            f"it reports {sorted(values)}"
+        )
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{self._name} is a read-only view of the connector's {self._name}")
+
+    def __repr__(self) -> str:
+        return f"<read-only {self._name} {self._values!r}>"
 
 
 def encode_args(args: tuple[Any, ...]) -> list[Any]:
@@ -107,7 +156,7 @@ class RemoteObjectProxy:
     _create_args: list[Any]
     _create_kwargs: Any
     _methods: dict[str, Callable[..., Any]]
-    _missing: set[str]
+    _missing: dict[str, str]
     _connected: bool | None
     _connected_at: float
     _connect_call: tuple[tuple[Any, ...], dict[str, Any]] | None
@@ -123,7 +172,7 @@ class RemoteObjectProxy:
         init(self, "_create_args", encode_args(args))
         init(self, "_create_kwargs", encode(kwargs))
         init(self, "_methods", {})
-        init(self, "_missing", set())
+        init(self, "_missing", {})
         init(self, "_connected", None)
         init(self, "_connected_at", 0.0)
         init(self, "_connect_call", None)
@@ -161,9 +210,14 @@ class RemoteObjectProxy:
         return check_response(reply, error_message=f"remote {self._remote_class} {payload['op']} failed")
 
     def _create(self) -> None:
-        reply = self._send(
-            {"op": "create", "class": self._remote_class, "args": self._create_args, "kwargs": self._create_kwargs}
-        )
+        try:
+            reply = self._send(
+                {"op": "create", "class": self._remote_class, "args": self._create_args, "kwargs": self._create_kwargs}
+            )
+        except RemoteCallError as exc:
+            if exc.error_type != NOT_ALLOWED:
+                raise
+            raise DeviceRefused(str(exc), exc.error_type) from None
         object_id = reply.get("object_id")
         if not isinstance(object_id, str):
             raise ProtocolError(f"connector reply to create has no string object_id: {reply!r}"[:200])
@@ -223,18 +277,27 @@ class RemoteObjectProxy:
         method = self._methods.get(name)
         if method is not None:
             return method
-        if name in self._missing:
-            raise RemoteAttributeError(f"remote {self._remote_class} has no attribute {name!r}")
+        why = self._missing.get(name)
+        if why is not None:
+            raise RemoteAttributeError(why)
         try:
             reply = self._request({"op": "getattr", "name": name})
-        except AttributeError:
-            self._missing.add(name)
+        except AttributeError as exc:
+            self._missing[name] = str(exc) or f"remote {self._remote_class} has no attribute {name!r}"
             raise
+        except RemoteCallError as exc:
+            if exc.error_type != NOT_ALLOWED:
+                raise
+            # Out of reach is absent, as far as Python's attribute protocol goes.
+            self._missing[name] = str(exc)
+            raise RemoteAttributeError(str(exc)) from None
         if reply.get("callable"):
             method = self._method_proxy(name)
             self._methods[name] = method
             return method
         value = decode(reply.get("value"))
+        if reply.get("view") and isinstance(value, dict):
+            return ReadOnlyView(name, value)
         if name == "is_connected":
             self._set_connected(bool(value))
         return value
@@ -244,7 +307,7 @@ class RemoteObjectProxy:
             object.__setattr__(self, name, value)
             return
         self._request({"op": "setattr", "name": name, "value": encode(value)})
-        self._missing.discard(name)
+        self._missing.pop(name, None)
         self._methods.pop(name, None)
 
     def _method_proxy(self, name: str) -> Callable[..., Any]:

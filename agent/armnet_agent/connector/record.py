@@ -1,0 +1,50 @@
+"""What a host reads from the connector about a job: plain, frozen data.
+
+The node agent turns it into the job's status, the cell's conditions and
+metrics; ``armnet run`` prints it. This module owns its shape only; the facts
+come from the cell (``CellState``) when the host asks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from .rest import RestReport
+
+
+@dataclass(frozen=True)
+class ConnectorRecord:
+    """The connector's account of one job on one cell, at the time it was taken."""
+
+    #: The interlock latched during the job, and why ("safety", "deadline", "reset_timeout", "shutdown").
+    interlock_tripped: bool
+    trip_reason: str | None
+    trip_message: str | None
+    #: The job ran past its timeout: its final status is ``timeout``.
+    deadline_passed: bool
+    safety_violations: int
+    #: The latest return to rest of each arm (read back from its servos); ``reached`` False: check the cell.
+    rests: tuple[RestReport, ...]
+    #: Per arm: the latest torque off, read back from its servos (absent: none yet).
+    torque_off_confirmed: Mapping[str, bool]
+    #: Every counter of ``cell.Counters``, by name.
+    counters: Mapping[str, int]
+
+    @property
+    def rest_missed(self) -> bool:
+        return any(not r.reached for r in self.rests)
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready: what the agent puts in a status or a log line."""
+        return {
+            "interlockTripped": self.interlock_tripped,
+            "tripReason": self.trip_reason,
+            "tripMessage": self.trip_message,
+            "deadlinePassed": self.deadline_passed,
+            "safetyViolations": self.safety_violations,
+            "rests": [dataclasses.asdict(r) for r in self.rests],
+            "torqueOffConfirmed": dict(self.torque_off_confirmed),
+            "counters": dict(self.counters),
+        }

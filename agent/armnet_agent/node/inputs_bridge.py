@@ -1,0 +1,179 @@
+"""Operator inputs from NATS to one running job's connector: teleop, outcome, stop, reset confirmation.
+
+Anyone who can publish on a subject can send these, so every message is
+hostile until checked: bounded size, one JSON object, exact fields and types
+(pydantic, extra fields refused). A bad message is dropped, counted in
+``rejected`` and logged at most once per interval; a good one is applied to the
+job's :class:`~armnet_agent.connector.inputs.OperatorInputs`, which decides what
+it means (a reset confirmation with no reset waiting is dropped there). So that
+the cell's operator knows when a confirmation counts, the bridge announces on
+``fms.<cell>.reset.requested`` each time the job's reset starts to wait. This
+module never touches hardware.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from armnet_agent.connector.inputs import LocalOperatorInputs, OperatorInputs
+from armnet_agent.connector.ratelog import RateLimitedLog
+
+from .streams import NatsLink, Subscription, fms_subject, teleop_subject
+
+log = logging.getLogger(__name__)
+
+MAX_INPUT_BYTES = 16 * 1024
+MAX_ACTION_MOTORS = 64
+Name = Annotated[str, Field(max_length=128)]
+
+
+class _Input(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class TeleopAction(_Input):
+    """``{"action": {motor: value, ...}}``; null clears the action. Values are finite numbers."""
+
+    action: dict[Name, float] | None = Field(max_length=MAX_ACTION_MOTORS)
+
+    @field_validator("action")
+    @classmethod
+    def _finite(cls, action: dict[str, float] | None) -> dict[str, float] | None:
+        if action is not None and not all(math.isfinite(v) for v in action.values()):
+            raise ValueError("teleop action values must be finite numbers")
+        return action
+
+
+class TeleopEvent(_Input):
+    event: Literal["next_episode", "rerecord_episode", "stop_recording"]
+
+
+class ResetConfirm(_Input):
+    """``request`` is reserved for naming the reset confirmed; today a confirmation is for the waiting one."""
+
+    by: Name
+    request: int | Name | None = None
+
+
+class Outcome(_Input):
+    success: bool
+    by: Name
+
+
+class Stop(_Input):
+    by: Name
+    reason: str = Field(default="", max_length=1024)
+
+
+def parse_input(model: type[_Input], data: bytes) -> _Input:
+    """The checked message, or ``ValueError`` saying what is wrong (never echoing much of it)."""
+    if len(data) > MAX_INPUT_BYTES:
+        raise ValueError(f"{len(data)} bytes, over the {MAX_INPUT_BYTES}-byte limit")
+    try:
+        record = json.loads(data)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"not JSON ({exc.__class__.__name__})") from None
+    if not isinstance(record, dict):
+        raise ValueError("not a JSON object")
+    try:
+        return model.model_validate(record)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or '-'}: {e['msg']}" for e in exc.errors()[:3])
+        raise ValueError(problems[:300]) from None
+
+
+class OperatorInputsBridge:
+    """Subscribes one job's teleop subjects and its cell's FMS subjects while the job runs."""
+
+    def __init__(self, link: NatsLink, inputs: OperatorInputs, *, namespace: str, job_uid: str,
+                 cell: str, announce_resets: bool = True) -> None:
+        self.link = link
+        self.inputs = inputs
+        self.namespace, self.job_uid = namespace, job_uid
+        self.reset_requested_subject = fms_subject(cell, "reset.requested")
+        self._announce_resets = announce_resets
+        self.accepted = 0
+        self.rejected = 0
+        self._rejections = RateLimitedLog(log)
+        self._routes: dict[str, tuple[type[_Input], Callable[[_Input], object]]] = {
+            teleop_subject(namespace, job_uid, "action"): (TeleopAction, self._teleop_action),
+            teleop_subject(namespace, job_uid, "event"): (TeleopEvent, self._teleop_event),
+            fms_subject(cell, "reset.confirm"): (ResetConfirm, self._reset_confirm),
+            fms_subject(cell, "outcome"): (Outcome, self._outcome),
+            fms_subject(cell, "stop"): (Stop, self._stop),
+        }
+        self._subscriptions: list[Subscription] = []
+
+    @property
+    def subjects(self) -> list[str]:
+        return list(self._routes)
+
+    def start(self) -> OperatorInputsBridge:
+        """Subscribe; with ``announce_resets``, a ``LocalOperatorInputs`` without a reset prompt gets one."""
+        self._subscriptions = [self.link.subscribe(subject, self._on_message) for subject in self._routes]
+        if (self._announce_resets and isinstance(self.inputs, LocalOperatorInputs)
+                and self.inputs.on_reset_requested is None):
+            self.inputs.on_reset_requested = self.announce_reset_waiting
+        return self
+
+    def announce_reset_waiting(self, inputs: LocalOperatorInputs | None = None) -> None:
+        """Tell the cell's operator that the job's reset waits for a confirmation (core NATS, best effort)."""
+        notice = {"namespace": self.namespace, "job": self.job_uid, "at": datetime.now(UTC).isoformat()}
+        self.link.notify(self.reset_requested_subject, json.dumps(notice).encode())
+
+    def wait_active(self, timeout_s: float) -> bool:
+        """True once every subject is subscribed on the server (for callers that must not miss one)."""
+        return all(s.wait_active(timeout_s) for s in self._subscriptions)
+
+    def close(self) -> None:
+        for subscription in self._subscriptions:
+            subscription.close()
+        self._subscriptions = []
+        if isinstance(self.inputs, LocalOperatorInputs) and self.inputs.on_reset_requested == self.announce_reset_waiting:
+            self.inputs.on_reset_requested = None
+
+    def _on_message(self, subject: str, data: bytes) -> None:
+        route = self._routes.get(subject)
+        if route is None:
+            return
+        model, apply = route
+        try:
+            message = parse_input(model, data)
+        except ValueError as exc:
+            self.rejected += 1
+            self._rejections.warning("dropped an operator input on %s: %s", subject, exc)
+            return
+        self.accepted += 1
+        apply(message)
+
+    def _teleop_action(self, message: _Input) -> None:
+        assert isinstance(message, TeleopAction)
+        self.inputs.set_teleop_action(dict(message.action) if message.action is not None else None)
+
+    def _teleop_event(self, message: _Input) -> None:
+        assert isinstance(message, TeleopEvent)
+        self.inputs.push_teleop_event(message.event)
+
+    def _reset_confirm(self, message: _Input) -> None:
+        assert isinstance(message, ResetConfirm)
+        if self.inputs.confirm_reset():
+            log.info("reset confirmed by %s", message.by)
+        else:
+            log.warning("reset confirmation by %s dropped: no reset was waiting for one", message.by)
+
+    def _outcome(self, message: _Input) -> None:
+        assert isinstance(message, Outcome)
+        log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
+        self.inputs.report_outcome(message.success)
+
+    def _stop(self, message: _Input) -> None:
+        assert isinstance(message, Stop)
+        log.info("stop requested by %s: %s", message.by, message.reason[:200])
+        self.inputs.request_stop()

@@ -1,0 +1,52 @@
+{{/* nats-server configuration of the bundled NATS (see nats.yaml for the layout). */}}
+{{- define "armnet.natsConfig" -}}
+{{- $d := .Values.nats.deploy -}}
+port: 4222
+http_port: 8222
+server_name: armnet-nats
+jetstream {
+  store_dir: /data/jetstream
+  # nats-server units: K, M, G, T (powers of 1024), like the PVC's Ki, Mi, Gi, Ti
+  max_file_store: {{ $d.storageSize | trimSuffix "i" }}
+}
+{{- if $d.auth.enabled }}
+accounts {
+  ARMNET {
+    jetstream: enabled
+    users: [
+      {
+        user: agent
+        password: $NATS_AGENT_PASSWORD
+        permissions: {
+          publish: ["logs.>", "$JS.API.>", "_INBOX.>"]
+          subscribe: ["teleop.>", "fms.>", "_INBOX.>"]
+        }
+      }
+      {
+        user: fms
+        password: $NATS_FMS_PASSWORD
+        permissions: {
+          publish: ["fms.>", "$JS.API.CONSUMER.CREATE.ARMNET_LOGS.>", "$JS.API.CONSUMER.INFO.ARMNET_LOGS.>", "$JS.API.CONSUMER.DELETE.ARMNET_LOGS.>", "$JS.API.STREAM.INFO.ARMNET_LOGS", "$JS.ACK.ARMNET_LOGS.>"]
+          subscribe: ["logs.>", "_INBOX.>"]
+        }
+      }
+      {{- range $d.auth.tenants }}
+      {
+        user: {{ printf "tenant-%s" . | quote }}
+        password: {{ printf "$NATS_TENANT_%s_PASSWORD" (. | upper | replace "-" "_") }}
+        permissions: {
+          # Only its own namespace: live output, teleop input, and stream consumers
+          # whose filter subject is inside logs.{{ . }}.> (the server checks the filter
+          # in the subject of the CONSUMER.CREATE request).
+          publish: [{{ printf "teleop.%s.>" . | quote }}, {{ printf "$JS.API.CONSUMER.CREATE.ARMNET_LOGS.*.logs.%s.>" . | quote }}, "$JS.API.STREAM.INFO.ARMNET_LOGS"]
+          # Replies only on its own inbox prefix: the client sets inbox_prefix "_INBOX.{{ . }}"
+          # (a shared _INBOX.> would let one tenant read another's replies).
+          subscribe: [{{ printf "logs.%s.>" . | quote }}, {{ printf "_INBOX.%s.>" . | quote }}]
+        }
+      }
+      {{- end }}
+    ]
+  }
+}
+{{- end }}
+{{- end -}}

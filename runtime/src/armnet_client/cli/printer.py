@@ -1,0 +1,98 @@
+"""Printing a job's log lines: timestamped output lines, progress as one live line on a terminal.
+
+On a terminal the progress line is redrawn in place (``\\r`` + clear) under
+the output and shows ``[rollout 3/10]`` after a ``rollout_begin``; into a pipe
+or file every progress message is an ordinary line, so logs stay greppable.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import deque
+from collections.abc import Iterable, Iterator
+from datetime import datetime, timedelta
+from typing import Optional, TextIO
+
+from ..logwire import CaughtUp, Event, LogLine
+from ..render import log_text, progress_text, rollout_of
+
+_CLEAR = "\r\x1b[2K"
+_DURATION = re.compile(r"^(\d+)([smhd])$")
+
+
+def parse_since(text: str, now: datetime) -> datetime:
+    """``--since``: a duration (``30s``, ``5m``, ``2h``, ``1d``) or an RFC 3339 time."""
+    match = _DURATION.match(text.strip())
+    if match:
+        unit = {"s": 1, "m": 60, "h": 3600, "d": 86400}[match.group(2)]
+        return now - timedelta(seconds=int(match.group(1)) * unit)
+    try:
+        moment = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        raise ValueError(f"--since {text!r}: use a duration like 10m or 2h, or a time like "
+                         "2026-11-24T10:00:00Z") from None
+    if moment.tzinfo is None:
+        raise ValueError(f"--since {text!r}: give the time zone, e.g. a trailing Z for UTC")
+    return moment
+
+
+def tail(events: Iterable[Event], count: Optional[int]) -> Iterator[LogLine]:
+    """The last ``count`` output lines stored so far, then everything live (``None``: everything)."""
+    if count is None:
+        yield from (e for e in events if isinstance(e, LogLine))
+        return
+    held: deque[LogLine] = deque(maxlen=max(count, 0) or None)
+    backlog = True
+    for event in events:
+        if isinstance(event, CaughtUp):
+            if backlog:
+                yield from (held if count > 0 else [])
+            backlog = False
+        elif backlog:
+            if event.kind in ("stdout", "stderr"):
+                held.append(event)
+        else:
+            yield event
+    if backlog:
+        yield from (held if count > 0 else [])
+
+
+class LogPrinter:
+    def __init__(self, out: TextIO, *, live: bool, timestamps: bool = True) -> None:
+        self.out = out
+        self.live = live
+        self.timestamps = timestamps
+        self.rollout: Optional[tuple[int, int]] = None
+        self._progress: Optional[str] = None
+
+    def show(self, line: LogLine) -> None:
+        step = rollout_of(line)
+        if step is not None:
+            self.rollout = step
+        if line.kind == "rerun":
+            return
+        if line.kind == "progress":
+            text = progress_text(line, self.rollout) if step is None else (
+                f"[rollout {step[0]}/{step[1]}]")
+            if self.live:
+                self._progress = text
+                self.out.write(f"{_CLEAR}{text}")
+                self.out.flush()
+            else:
+                self._println(log_text(LogLine("progress", f"[progress] {text}", line.time),
+                                       timestamps=self.timestamps))
+            return
+        self._println(log_text(line, timestamps=self.timestamps))
+
+    def _println(self, text: str) -> None:
+        if self.live and self._progress is not None:
+            self.out.write(f"{_CLEAR}{text}\n{self._progress}")
+        else:
+            self.out.write(text + "\n")
+        self.out.flush()
+
+    def close(self) -> None:
+        if self.live and self._progress is not None:
+            self.out.write("\n")
+            self.out.flush()
+            self._progress = None

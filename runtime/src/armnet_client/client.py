@@ -1,0 +1,342 @@
+"""The armnet client: RobotJobs through the Kubernetes API, their output through JetStream.
+
+Every call maps a library failure to the typed errors of ``errors`` at this
+edge. The module-level functions (``submit``, ``get``, ``wait``, ``cancel``,
+``execute``, ``logs``) build a :class:`Client` from the environment each time;
+there is no hidden process-wide client.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping
+from datetime import datetime
+from typing import Any, Optional, TextIO
+
+from armnet_core.models import Job, JobResult, JobSpec
+from pydantic import ValidationError
+
+from . import kube
+from .errors import ClientError, InvalidJob, NatsUnreachable, WaitTimeout
+from .heartbeat import DEFAULT_INTERVAL_S, HeartbeatSender
+from .logstream import DEFAULT_STREAM, CaughtUp, Event, FollowSettings, follow_events
+from .logwire import LogLine
+from .mapping import (
+    CellView,
+    JobView,
+    cancel_patch,
+    cell_view_of,
+    generated_name_prefix,
+    job_from_robotjob,
+    result_from_robotjob,
+    robotjob_body,
+    view_of,
+)
+from .resources import API_VERSION, CELLS, GROUP, JOBS, VERSION, Cell, RobotJob, RobotJobSpec
+from .statusfeed import status_events
+
+log = logging.getLogger("armnet_client")
+
+NATS_URL_ENV = ("ARMNET_NATS_URL", "NATS_URL")
+
+
+def nats_url_from(flag: Optional[str], env: Mapping[str, str]) -> Optional[str]:
+    """``--nats-url``, else ``$ARMNET_NATS_URL``, else ``$NATS_URL`` (what ``armnet dev up`` prints)."""
+    if flag:
+        return flag
+    return next((env[name] for name in NATS_URL_ENV if env.get(name)), None)
+
+
+class Client:
+    """One cluster (kubeconfig, context, namespace as kubectl resolves them) and one NATS server."""
+
+    def __init__(
+        self, *, namespace: Optional[str] = None, context: Optional[str] = None,
+        kubeconfig: Optional[str] = None, nats_url: Optional[str] = None,
+        stream: str = DEFAULT_STREAM, poll_interval_s: float = 1.0,
+        heartbeat_interval_s: float = DEFAULT_INTERVAL_S, env: Optional[Mapping[str, str]] = None,
+    ) -> None:
+        environ = os.environ if env is None else env
+        self._target = kube.ClusterTarget(kubeconfig, context, namespace)
+        self._env = environ
+        self._connection: Optional[kube.Connection] = None
+        self.nats_url = nats_url_from(nats_url, environ)
+        self.stream = stream
+        self.poll_interval_s = poll_interval_s
+        self.heartbeat_interval_s = heartbeat_interval_s
+
+    # ---- cluster access
+    @property
+    def namespace(self) -> str:
+        return self._connect().namespace
+
+    def _connect(self) -> kube.Connection:
+        if self._connection is None:
+            self._connection = kube.connect(self._target, self._env)
+        return self._connection
+
+    def _api(self) -> Any:
+        from kubernetes import client as kclient
+
+        return kclient.CustomObjectsApi(self._connect().api_client)
+
+    def _call(
+        self, verb: str, resource: str, fn: Callable[[], Any], *, namespace: Optional[str],
+        name: Optional[str] = None,
+    ) -> Any:
+        from kubernetes.client.exceptions import ApiException
+        from urllib3.exceptions import HTTPError
+
+        try:
+            return fn()
+        except ApiException as exc:
+            raise kube.translate(exc.status or 0, exc.body, verb=verb, resource=resource,
+                                 namespace=namespace, name=name) from exc
+        except (HTTPError, OSError) as exc:
+            raise kube.unreachable(exc, self._connect().api_client.configuration.host) from exc
+
+    def read(self, name: str) -> RobotJob:
+        """The RobotJob as the apiserver has it (validated), for callers that need every field."""
+        return self._read(name)
+
+    def _read(self, name: str) -> RobotJob:
+        ns = self.namespace
+        body = self._call("get", "robotjobs", lambda: self._api().get_namespaced_custom_object(
+            GROUP, VERSION, ns, JOBS, name), namespace=ns, name=name)
+        return RobotJob.model_validate(body)
+
+    # ---- jobs
+    def submit(self, spec: JobSpec, *, namespace: Optional[str] = None,
+               name: Optional[str] = None) -> Job:
+        """Create the RobotJob for ``spec``; the returned ``Job.id`` is its (maybe generated) name."""
+        ns = namespace or self.namespace
+        body = robotjob_body(spec, namespace=ns, name=name)
+        created = self._call("create", "robotjobs", lambda: self._api().create_namespaced_custom_object(
+            GROUP, VERSION, ns, JOBS, body), namespace=ns)
+        job = job_from_robotjob(RobotJob.model_validate(created))
+        log.info("submitted robotjob %s/%s", ns, job.id)
+        return job
+
+    def get(self, name: str) -> Job:
+        return job_from_robotjob(self._read(name))
+
+    def describe(self, name: str) -> JobView:
+        """The job with its queue position, progress and rollout (what ``armnet get`` shows)."""
+        return view_of(self._read(name))
+
+    def list_jobs(self) -> list[RobotJob]:
+        """The namespace's RobotJobs, oldest first (as ``kubectl get`` lists by name, we list by age)."""
+        ns = self.namespace
+        found = self._call("list", "robotjobs", lambda: self._api().list_namespaced_custom_object(
+            GROUP, VERSION, ns, JOBS), namespace=ns)
+        jobs = [RobotJob.model_validate(item) for item in found.get("items", [])]
+        return sorted(jobs, key=lambda j: (j.metadata.creation_timestamp.isoformat()
+                                           if j.metadata.creation_timestamp else "", j.metadata.name))
+
+    def submit_manifest(self, manifest: dict[str, Any], *, namespace: Optional[str] = None) -> Job:
+        """Create a RobotJob manifest as written (``armnet submit -f``), in ``namespace`` if given.
+
+        The body is validated against the client's model of the CRD first, so a
+        typo fails here with the field's name rather than in the apiserver.
+        """
+        if manifest.get("kind") != "RobotJob":
+            raise InvalidJob(f"expected kind RobotJob, got {manifest.get('kind')!r}")
+        metadata = dict(manifest.get("metadata") or {})
+        ns = namespace or metadata.get("namespace") or self.namespace
+        metadata["namespace"] = ns
+        body = {**manifest, "apiVersion": API_VERSION, "metadata": metadata}
+        try:
+            RobotJobSpec.model_validate(body.get("spec") or {})
+        except ValidationError as exc:
+            raise InvalidJob(f"the RobotJob's spec is not valid: {exc}") from exc
+        if not metadata.get("name") and not metadata.get("generateName"):
+            metadata["generateName"] = generated_name_prefix(str((body.get("spec") or {}).get("image", "")))
+        created = self._call("create", "robotjobs", lambda: self._api().create_namespaced_custom_object(
+            GROUP, VERSION, ns, JOBS, body), namespace=ns)
+        return job_from_robotjob(RobotJob.model_validate(created))
+
+    def cells(self) -> list[CellView]:
+        found = self._call("list", "cells", lambda: self._api().list_cluster_custom_object(
+            GROUP, VERSION, CELLS), namespace=None)
+        return sorted((cell_view_of(Cell.model_validate(i)) for i in found.get("items", [])),
+                      key=lambda c: c.name)
+
+    def cancel(self, name: str) -> Job:
+        """Ask for the job to stop (``spec.cancel: true``): at once if queued, within the cell's grace if running."""
+        ns = self.namespace
+        patched = self._call("cancel", "robotjobs", lambda: self._api().patch_namespaced_custom_object(
+            GROUP, VERSION, ns, JOBS, name, cancel_patch()), namespace=ns, name=name)
+        return job_from_robotjob(RobotJob.model_validate(patched))
+
+    def wait(self, name: str, timeout: Optional[float] = None) -> JobResult:
+        """Poll the job's status until it is terminal and return its ``JobResult``.
+
+        ``stdout``/``stderr`` are the whole output from the log stream when it
+        can be read, else the status tails (the last 16 KiB each); an INFO line on
+        the ``armnet_client`` logger says which. Raises :class:`WaitTimeout` after
+        ``timeout`` seconds (the job keeps running).
+        """
+        job, result = self.wait_terminal(name, timeout)
+        output = self._stream_output(job) if self.nats_url else None
+        if output is None:
+            log.info("robotjob %s: stdout/stderr are the status tails (last 16 KiB); "
+                     "`armnet logs %s` has the whole output", name, name)
+            return result
+        log.info("robotjob %s: stdout/stderr are the whole output from the log stream", name)
+        return result.model_copy(update={"stdout": output[0], "stderr": output[1]})
+
+    def wait_terminal(self, name: str, timeout: Optional[float]) -> tuple[RobotJob, JobResult]:
+        """Like :meth:`wait` but never reads the stream: the RobotJob and its result with the tails."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            job = self._read(name)
+            result = result_from_robotjob(job)
+            if result is not None:
+                return job, result
+            if deadline is not None and time.monotonic() >= deadline:
+                raise WaitTimeout(
+                    f"robotjob {name!r} is still {job.status.phase or 'submitted'} after {timeout}s; "
+                    f"it keeps running: `armnet get {name}` or `armnet cancel {name}`"
+                )
+            time.sleep(self.poll_interval_s)
+
+    def _stream_output(self, job: RobotJob) -> Optional[tuple[str, str]]:
+        """The job's whole stdout and stderr from the stream; ``None`` when unreadable or empty."""
+        assert self.nats_url is not None
+        ns = job.metadata.namespace or self.namespace
+        job_id = job.status.job_id or job.metadata.uid or ""
+        streams: dict[str, list[str]] = {"stdout": [], "stderr": []}
+        try:
+            for event in follow_events(FollowSettings(self.nats_url, stream=self.stream), ns, job_id,
+                                       follow=False):
+                if isinstance(event, LogLine) and event.kind in streams:
+                    streams[event.kind].append(event.text + "\n")
+        except NatsUnreachable as exc:
+            log.warning("%s; stdout/stderr are the status tails", exc)
+            return None
+        if not streams["stdout"] and not streams["stderr"]:
+            return None
+        return "".join(streams["stdout"]), "".join(streams["stderr"])
+
+    def execute(self, spec: JobSpec, *, follow: bool = True, out: Optional[TextIO] = None,
+                err: Optional[TextIO] = None) -> JobResult:
+        """Submit ``spec``, print its output while it runs (``follow``), return its ``JobResult``.
+
+        With ``follow`` and a reachable log stream, ``stdout``/``stderr`` of the
+        result are the whole output read while following; otherwise as :meth:`wait`.
+        """
+        job = self.submit(spec)
+        if not follow:
+            return self.wait(job.id)
+        stdout: list[str] = []
+        stderr: list[str] = []
+        from_stream = True
+        for line in self.logs(job.id, follow=True):
+            from_stream = from_stream and line.source == "stream"
+            if line.kind == "stdout":
+                stdout.append(line.text + "\n")
+                print(line.text, file=out or sys.stdout)
+            elif line.kind == "stderr":
+                stderr.append(line.text + "\n")
+                print(line.text, file=err or sys.stderr)
+            elif line.kind == "progress":
+                print(f"[progress] {line.text}", file=err or sys.stderr)
+        _, result = self.wait_terminal(job.id, None)
+        if from_stream and (stdout or stderr):
+            log.info("robotjob %s: stdout/stderr are the whole output from the log stream", job.id)
+            return result.model_copy(update={"stdout": "".join(stdout), "stderr": "".join(stderr)})
+        log.info("robotjob %s: stdout/stderr are the status tails (last 16 KiB)", job.id)
+        return result
+
+    # ---- output
+    def logs(self, name: str, follow: bool = True, *, since: Optional[datetime] = None) -> Iterator[LogLine]:
+        """The job's output lines, from its first line; with ``follow``, live until it ends.
+
+        Reads JetStream when a NATS URL is configured and reachable; otherwise
+        says so once (a warning) and follows the job's status instead (progress,
+        rollout, then the output tails when it ends).
+        """
+        for event in self.log_events(name, follow, since=since):
+            if isinstance(event, LogLine):
+                yield event
+
+    def log_events(self, name: str, follow: bool = True, *,
+                   since: Optional[datetime] = None) -> Iterator[Event]:
+        job = self._read(name)
+        ns = job.metadata.namespace or self.namespace
+        job_id = job.status.job_id or job.metadata.uid or ""
+        streamed = False
+        if self.nats_url:
+            # Following a non-detached job keeps it alive: the agent cancels it when beats stop.
+            beats = (HeartbeatSender(self.nats_url, ns, job_id, self.heartbeat_interval_s).start()
+                     if follow and not job.spec.detach else None)
+            try:
+                for event in follow_events(
+                    FollowSettings(self.nats_url, stream=self.stream), ns, job_id, follow=follow,
+                    finished=self._finished_probe(name), since=since,
+                ):
+                    streamed = streamed or isinstance(event, LogLine)
+                    yield event
+                return
+            except NatsUnreachable as exc:
+                log.warning("%s; following the job's status instead (progress, then the last "
+                            "16 KiB of output when it ends)", exc)
+            finally:
+                if beats is not None:
+                    beats.stop()
+        else:
+            log.warning("no NATS URL configured (--nats-url or ARMNET_NATS_URL): following the job's "
+                        "status instead (progress, then the last 16 KiB of output when it ends)")
+        # Lines already delivered from the stream are not repeated from the tails.
+        yield from status_events(lambda: self._read(name), follow=follow,
+                                 interval_s=self.poll_interval_s, tails=not streamed)
+
+    def _finished_probe(self, name: str) -> Callable[[], bool]:
+        """A check of the job's phase, at most once per poll interval (the follower asks often)."""
+        last = [0.0, False]
+
+        def finished() -> bool:
+            now = time.monotonic()
+            if now - float(last[0]) >= self.poll_interval_s:
+                last[0] = now
+                try:
+                    last[1] = result_from_robotjob(self._read(name)) is not None
+                except ClientError as exc:
+                    log.debug("status probe failed: %s", exc)
+            return bool(last[1])
+
+        return finished
+
+
+def _client(**kwargs: Any) -> Client:
+    return Client(**kwargs)
+
+
+def submit(spec: JobSpec, *, namespace: Optional[str] = None, name: Optional[str] = None) -> Job:
+    return _client().submit(spec, namespace=namespace, name=name)
+
+
+def get(name: str) -> Job:
+    return _client().get(name)
+
+
+def wait(name: str, timeout: Optional[float] = None) -> JobResult:
+    return _client().wait(name, timeout=timeout)
+
+
+def cancel(name: str) -> Job:
+    return _client().cancel(name)
+
+
+def execute(spec: JobSpec, *, follow: bool = True) -> JobResult:
+    return _client().execute(spec, follow=follow)
+
+
+def logs(name: str, follow: bool = True) -> Iterator[LogLine]:
+    return _client().logs(name, follow=follow)
+
+
+__all__ = ["CaughtUp", "Client", "cancel", "execute", "get", "logs", "submit", "wait"]

@@ -1,0 +1,224 @@
+"""Following one job's log subjects in JetStream: replay from the first line, then live.
+
+Why not nats-py's ordered consumer: it resets itself after missed heartbeats
+and has had bugs doing so (issue 12 asks to test the reconnect path for real).
+Instead this module keeps the last stream sequence it delivered and, after
+anything goes wrong (a reconnect, a consumer the restarted server forgot, a
+timeout), makes a fresh ephemeral pull consumer starting at the next sequence.
+Messages at or below the last delivered sequence are dropped, so a line is
+delivered exactly once and in stream order, across any number of restarts.
+
+The iterator is synchronous (the CLI and ``Client.logs`` are): it runs its own
+asyncio loop, one ``fetch`` at a time, in the caller's thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any, Optional
+
+from .errors import NatsUnreachable
+from .logwire import CaughtUp, Event, LogLine, decode, job_subjects
+
+__all__ = ["DEFAULT_STREAM", "CaughtUp", "Event", "FollowSettings", "follow_events"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_STREAM = "ARMNET_LOGS"
+
+
+@dataclass(frozen=True)
+class FollowSettings:
+    url: str
+    stream: str = DEFAULT_STREAM
+    batch: int = 512
+    fetch_timeout_s: float = 1.0
+    connect_timeout_s: float = 3.0
+    outage_limit_s: float = 120.0
+    """How long the server may stay unreachable mid-follow before :class:`NatsUnreachable`."""
+    settle_s: float = 3.0
+    """How long a finished job's stream must stay quiet before a follow without its terminal
+    status message ends."""
+
+
+class _Session:
+    """One connection and the current ephemeral consumer; rebuilt consumers start after ``last``."""
+
+    def __init__(self, settings: FollowSettings, subject: str) -> None:
+        self.settings = settings
+        self.subject = subject
+        self.nc: Any = None
+        self.sub: Any = None
+        self.reconnects = 0
+        self.seen_reconnects = 0
+
+    async def connect(self) -> None:
+        import nats
+        from nats.errors import NoServersError
+
+        async def on_reconnect() -> None:
+            self.reconnects += 1
+
+        async def quiet(_exc: Exception) -> None:
+            return None
+
+        try:
+            self.nc = await nats.connect(
+                self.settings.url, connect_timeout=self.settings.connect_timeout_s,
+                max_reconnect_attempts=1, reconnect_time_wait=0.25,
+                reconnected_cb=on_reconnect, error_cb=quiet,
+            )
+            # nats-py applies the reconnect budget to the first connect too: fail
+            # fast on a wrong URL, then keep reconnecting for as long as we follow.
+            self.nc.options["max_reconnect_attempts"] = -1
+        except (TimeoutError, NoServersError, OSError) as exc:
+            raise NatsUnreachable(
+                f"cannot reach NATS at {self.settings.url}: {exc}; check --nats-url / ARMNET_NATS_URL"
+            ) from exc
+
+    async def subscribe(self, after: int, since: Optional[datetime]) -> None:
+        from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
+
+        await self.drop_consumer()
+        if after == 0 and since is not None:
+            config = ConsumerConfig(deliver_policy=DeliverPolicy.BY_START_TIME,
+                                    opt_start_time=since, ack_policy=AckPolicy.NONE,
+                                    inactive_threshold=30.0)
+        else:
+            config = ConsumerConfig(deliver_policy=DeliverPolicy.BY_START_SEQUENCE,
+                                    opt_start_seq=after + 1, ack_policy=AckPolicy.NONE,
+                                    inactive_threshold=30.0)
+        js = self.nc.jetstream()
+        self.sub = await js.pull_subscribe(self.subject, stream=self.settings.stream, config=config)
+        self.seen_reconnects = self.reconnects
+
+    async def first_subscribe(self, since: Optional[datetime]) -> None:
+        """The first consumer; a server without the log stream is as good as no server for logs."""
+        from nats.js.errors import NotFoundError
+
+        try:
+            await self.subscribe(0, since)
+        except NotFoundError as exc:
+            raise NatsUnreachable(
+                f"NATS at {self.settings.url} has no stream {self.settings.stream}: no node agent "
+                "has published job logs there (wrong server, or the agents use another --stream)"
+            ) from exc
+
+    async def drop_consumer(self) -> None:
+        sub, self.sub = self.sub, None
+        if sub is None:
+            return
+        try:
+            await sub.unsubscribe()
+        except Exception:  # noqa: BLE001 - the server may have forgotten it; inactivity reaps it anyway
+            log.debug("dropping the old consumer failed", exc_info=True)
+
+    async def fetch(self) -> list[Any]:
+        from nats.errors import TimeoutError as NatsTimeout
+
+        try:
+            return list(await self.sub.fetch(self.settings.batch, timeout=self.settings.fetch_timeout_s))
+        except (TimeoutError, NatsTimeout):
+            return []
+
+    async def pending(self) -> int:
+        info = await self.sub.consumer_info()
+        return int(info.num_pending)
+
+    async def close(self) -> None:
+        await self.drop_consumer()
+        if self.nc is not None:
+            try:
+                await self.nc.close()
+            except Exception:  # noqa: BLE001 - closing a broken connection must not mask the real error
+                log.debug("closing the NATS connection failed", exc_info=True)
+
+
+def follow_events(
+    settings: FollowSettings, namespace: str, job_id: str, *, follow: bool = True,
+    finished: Optional[Callable[[], bool]] = None, since: Optional[datetime] = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> Iterator[Event]:
+    """Yield the job's lines (and one :class:`CaughtUp`), in stream order, each exactly once.
+
+    ``follow=False`` stops when everything stored has been delivered. With
+    ``follow=True`` it stops after the agent's terminal ``status`` message, or
+    when ``finished()`` (the job's phase, polled by the caller) says the job is
+    over and nothing is pending. Raises :class:`NatsUnreachable` if the server
+    cannot be reached at the start or stays away longer than ``outage_limit_s``.
+    """
+    loop = asyncio.new_event_loop()
+    session = _Session(settings, job_subjects(namespace, job_id))
+    last = 0
+    caught_up = False
+    outage_since: Optional[float] = None
+    done_since: Optional[float] = None
+    try:
+        loop.run_until_complete(session.connect())
+        loop.run_until_complete(session.first_subscribe(since))
+        while True:
+            try:
+                if session.sub is None or session.reconnects != session.seen_reconnects:
+                    loop.run_until_complete(session.subscribe(last, since))
+                msgs = loop.run_until_complete(session.fetch())
+                idle_and_done = False
+                if not msgs:
+                    pending = loop.run_until_complete(session.pending())
+                    idle_and_done = pending == 0
+                outage_since = None
+            except Exception as exc:  # noqa: BLE001 - any NATS failure: rebuild from the last sequence
+                now = clock()
+                outage_since = outage_since if outage_since is not None else now
+                if now - outage_since > settings.outage_limit_s:
+                    raise NatsUnreachable(
+                        f"NATS at {settings.url} unreachable for {settings.outage_limit_s:.0f}s "
+                        f"while following logs (last line delivered: stream sequence {last}): {exc}"
+                    ) from exc
+                log.info("log stream interrupted (%s); resuming after stream sequence %d", exc, last)
+                session.sub = None
+                loop.run_until_complete(asyncio.sleep(0.25))
+                continue
+            if msgs:
+                done_since = None
+            for msg in msgs:
+                line = _line_of(msg)
+                if line is None or line.stream_seq <= last:
+                    continue
+                last = line.stream_seq
+                yield line
+                if line.terminal_phase and follow:
+                    return
+            if idle_and_done:
+                if not caught_up:
+                    caught_up = True
+                    yield CaughtUp()
+                if not follow:
+                    return
+                if finished is not None and finished():
+                    # The phase can be written before the agent's last lines reach the
+                    # stream (a spool draining after an outage): end only after a quiet spell.
+                    done_since = done_since if done_since is not None else clock()
+                    if clock() - done_since >= settings.settle_s:
+                        return
+                else:
+                    done_since = None
+    finally:
+        loop.run_until_complete(session.close())
+        loop.close()
+
+
+def _line_of(msg: Any) -> Optional[LogLine]:
+    try:
+        meta = msg.metadata
+    except Exception:  # noqa: BLE001 - a non-JetStream message on our inbox: not a log line
+        return None
+    headers = msg.headers or {}
+    return decode(
+        msg.subject, msg.data, msg_id=headers.get("Nats-Msg-Id"),
+        stream_seq=int(meta.sequence.stream), stored_at=meta.timestamp,
+    )

@@ -1,0 +1,208 @@
+"""Pure mapping between the SDK's job types and the RobotJob custom resource.
+
+``JobSpec`` fields map one to one onto ``RobotJob.spec`` (camelCase there);
+the status phase maps onto ``JobStatus`` and ``status.result`` onto
+``JobResult``. ``username`` is never sent: the platform knows the caller from
+its Kubernetes identity, so a client-supplied name could only lie. No I/O here.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any, Optional
+
+from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
+
+from .resources import API_VERSION, Cell, RobotJob
+
+_NAME_CHARS = re.compile(r"[^a-z0-9-]+")
+_GENERATED_PREFIX_MAX = 40
+
+
+def robotjob_body(spec: JobSpec, *, namespace: str, name: Optional[str] = None) -> dict[str, Any]:
+    """The RobotJob to create for ``spec``: ``metadata.name`` when given, else a generated name.
+
+    Defaults are written out (``timeoutSeconds``, ``detach``...) so what the
+    user sees in ``kubectl get -o yaml`` is what they asked for, not a default
+    the CRD might change later.
+    """
+    body: dict[str, Any] = {
+        "image": spec.image,
+        "embodiment": spec.embodiment,
+        "args": dict(spec.args),
+        "timeoutSeconds": spec.timeout_seconds,
+        "secrets": dict(spec.secrets),
+        "detach": spec.detach,
+    }
+    if spec.task is not None:
+        body["task"] = spec.task
+    metadata: dict[str, Any] = {"namespace": namespace}
+    if name:
+        metadata["name"] = name
+    else:
+        metadata["generateName"] = generated_name_prefix(spec.image)
+    return {"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": metadata, "spec": body}
+
+
+def generated_name_prefix(image: str) -> str:
+    """``ghcr.io/acme/pick-cube:1.2`` -> ``pick-cube-``: the apiserver appends a random suffix."""
+    repository = image.split("@", 1)[0].rsplit("/", 1)[-1].split(":", 1)[0]
+    slug = _NAME_CHARS.sub("-", repository.lower()).strip("-")[:_GENERATED_PREFIX_MAX].strip("-")
+    return f"{slug or 'job'}-"
+
+
+def spec_from_robotjob(job: RobotJob) -> JobSpec:
+    """The ``JobSpec`` a RobotJob was created from (``priority``, ``cancel`` have no SDK field)."""
+    s = job.spec
+    return JobSpec(
+        image=s.image,
+        args=dict(s.args),
+        embodiment=s.embodiment,
+        task=s.task,
+        timeout_seconds=s.timeout_seconds,
+        secrets=dict(s.secrets),
+        detach=s.detach,
+    )
+
+
+def status_of(phase: Optional[str]) -> JobStatus:
+    """The ``JobStatus`` of a phase; a job no one has looked at yet (no phase) is ``SUBMITTED``."""
+    if not phase:
+        return JobStatus.SUBMITTED
+    return JobStatus(phase)
+
+
+def result_from_robotjob(job: RobotJob) -> Optional[JobResult]:
+    """The ``JobResult`` of a finished RobotJob; ``None`` while it has not finished.
+
+    ``stdout``/``stderr`` are the status tails (the last 16 KiB the agent kept);
+    the whole output is in the job's log stream (``Client.logs``).
+    """
+    status = status_of(job.status.phase)
+    if status not in TerminalStatus:
+        return None
+    found = job.status.result
+    return JobResult(
+        status=status,
+        exit_code=found.exit_code if found else None,
+        stdout=found.stdout_tail if found else "",
+        stderr=found.stderr_tail if found else "",
+        error=found.error if found else None,
+        traceback=found.traceback if found else None,
+        return_value=found.return_value if found else None,
+        started_at=job.status.started_at,
+        finished_at=job.status.finished_at,
+    )
+
+
+def job_from_robotjob(job: RobotJob) -> Job:
+    """The SDK's ``Job`` view: ``id`` is the RobotJob's name (what ``get``/``cancel`` take)."""
+    created = job.metadata.creation_timestamp
+    moments = [m for m in (created, job.status.started_at, job.status.finished_at) if m]
+    moments += [c.last_transition_time for c in job.status.conditions if c.last_transition_time]
+    fields: dict[str, Any] = {
+        "id": job.metadata.name,
+        "spec": spec_from_robotjob(job),
+        "status": status_of(job.status.phase),
+        "cell_id": job.status.cell_name,
+        "result": result_from_robotjob(job),
+    }
+    if created is not None:
+        fields["created_at"] = created
+    if moments:
+        fields["updated_at"] = max(moments)
+    return Job(**fields)
+
+
+@dataclass(frozen=True)
+class JobView:
+    """What the CLI shows of a RobotJob: the SDK fields plus queue and stream details."""
+
+    name: str
+    namespace: str
+    job_id: Optional[str]
+    status: JobStatus
+    embodiment: str
+    task: Optional[str]
+    priority: int
+    cell: Optional[str]
+    queued_reason: Optional[str]
+    queue_position: Optional[int]
+    progress: Optional[str]
+    rollout: Optional[tuple[int, int]]
+    cancel_requested: bool
+    created_at: Optional[datetime]
+    started_at: Optional[datetime]
+    finished_at: Optional[datetime]
+    image: str
+
+
+def view_of(job: RobotJob) -> JobView:
+    rollout = job.status.rollout
+    return JobView(
+        name=job.metadata.name,
+        namespace=job.metadata.namespace or "",
+        job_id=job.status.job_id,
+        status=status_of(job.status.phase),
+        embodiment=job.spec.embodiment,
+        task=job.spec.task,
+        priority=job.spec.priority,
+        cell=job.status.cell_name,
+        queued_reason=job.status.queued_reason,
+        queue_position=job.status.queue_position,
+        progress=job.status.progress,
+        rollout=(rollout.index, rollout.total) if rollout else None,
+        cancel_requested=job.spec.cancel,
+        created_at=job.metadata.creation_timestamp,
+        started_at=job.status.started_at,
+        finished_at=job.status.finished_at,
+        image=job.spec.image,
+    )
+
+
+def cancel_patch() -> dict[str, Any]:
+    """The merge patch that cancels a job (one-way: the CRD refuses ``cancel: false`` afterwards)."""
+    return {"spec": {"cancel": True}}
+
+
+@dataclass(frozen=True)
+class FalseCondition:
+    type: str
+    reason: Optional[str]
+    message: Optional[str]
+
+
+@dataclass(frozen=True)
+class CellView:
+    """What ``armnet cells`` shows: phase, holder, the health conditions that fail, heartbeat."""
+
+    name: str
+    embodiment: str
+    task: Optional[str]
+    node: str
+    phase: str
+    current_job: Optional[str]
+    last_heartbeat: Optional[datetime]
+    false_conditions: tuple[FalseCondition, ...]
+    unschedulable: bool
+
+
+def cell_view_of(cell: Cell) -> CellView:
+    """A cell without a phase has never been seen by the operator: shown as ``Unknown``."""
+    return CellView(
+        name=cell.metadata.name,
+        embodiment=cell.spec.embodiment,
+        task=cell.spec.task,
+        node=cell.spec.node_name,
+        phase=cell.status.phase or "Unknown",
+        current_job=cell.status.current_job,
+        last_heartbeat=cell.status.last_heartbeat_time,
+        false_conditions=tuple(
+            FalseCondition(c.type, c.reason, c.message)
+            for c in cell.status.conditions
+            if c.status == "False"
+        ),
+        unschedulable=cell.spec.unschedulable,
+    )

@@ -1,0 +1,169 @@
+"""What the CLI prints: kubectl-like tables, ``-o json|yaml`` documents, exit codes. Pure.
+
+The JSON shapes are an interface (users script them): a job is the SDK's
+``Job`` dump plus ``namespace``, ``jobId``, ``queue`` and ``progress``; a
+result is the SDK's ``JobResult`` dump; a cell has fixed keys. Tests pin them.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from datetime import datetime, timezone
+from typing import Any, Optional
+
+from armnet_core.models import Job, JobResult, JobStatus, TerminalStatus
+
+from .logwire import LogLine
+from .mapping import CellView, JobView
+
+EXIT_SUCCEEDED = 0
+EXIT_OTHER_TERMINAL = 1
+EXIT_NOT_FINISHED = 2
+
+
+def result_exit_code(status: JobStatus) -> int:
+    """``armnet result``'s exit code: 0 succeeded, 1 failed/timeout/cancelled, 2 not finished."""
+    if status is JobStatus.SUCCEEDED:
+        return EXIT_SUCCEEDED
+    if status in TerminalStatus:
+        return EXIT_OTHER_TERMINAL
+    return EXIT_NOT_FINISHED
+
+
+def age(moment: Optional[datetime], now: datetime) -> str:
+    """kubectl's compact age: ``45s``, ``12m``, ``3h``, ``2d``; ``<unknown>`` without a time."""
+    if moment is None:
+        return "<unknown>"
+    seconds = max(0, int((now - moment).total_seconds()))
+    if seconds < 120:
+        return f"{seconds}s"
+    if seconds < 7200:
+        return f"{seconds // 60}m"
+    if seconds < 2 * 86400:
+        return f"{seconds // 3600}h"
+    return f"{seconds // 86400}d"
+
+
+def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """Columns padded to the widest cell with three spaces between, like kubectl."""
+    widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(headers)]
+    lines = ["   ".join(cell.ljust(widths[i]) for i, cell in enumerate(row)).rstrip()
+             for row in [list(headers), *rows]]
+    return "\n".join(lines)
+
+
+def _queue_note(job: JobView) -> str:
+    if job.status not in (JobStatus.QUEUED, JobStatus.SUBMITTED) or not job.queued_reason:
+        return ""
+    position = f" #{job.queue_position}" if job.queue_position else ""
+    return f"{job.queued_reason}{position}"
+
+
+def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) -> str:
+    headers = ["NAME", "STATUS", "CELL", "EMBODIMENT", "QUEUE", "AGE"]
+    if wide:
+        headers += ["TASK", "PRIORITY", "IMAGE", "PROGRESS"]
+    rows = []
+    for job in jobs:
+        status = job.status.value + (" (cancelling)" if job.cancel_requested
+                                     and job.status not in TerminalStatus else "")
+        row = [job.name, status, job.cell or "<none>", job.embodiment, _queue_note(job) or "-",
+               age(job.created_at, now)]
+        if wide:
+            rollout = f" [rollout {job.rollout[0]}/{job.rollout[1]}]" if job.rollout else ""
+            row += [job.task or "<any>", str(job.priority), job.image,
+                    ((job.progress or "") + rollout).strip() or "-"]
+        rows.append(row)
+    return table(headers, rows)
+
+
+def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False) -> str:
+    headers = ["NAME", "PHASE", "EMBODIMENT", "TASK", "JOB", "FAILING", "HEARTBEAT"]
+    if wide:
+        headers += ["NODE"]
+    rows = []
+    for cell in cells:
+        failing = ",".join(f"{c.type}({c.reason})" if c.reason else c.type
+                           for c in cell.false_conditions) or "-"
+        row = [cell.name, cell.phase, cell.embodiment, cell.task or "<any>",
+               cell.current_job or "-", failing,
+               age(cell.last_heartbeat, now) + (" ago" if cell.last_heartbeat else "")]
+        if wide:
+            row.append(cell.node)
+        rows.append(row)
+    return table(headers, rows)
+
+
+def job_document(job: Job, view: JobView) -> dict[str, Any]:
+    """The ``-o json`` shape of one job."""
+    document = job.model_dump(mode="json", exclude={"dispatched"})
+    document.update({
+        "namespace": view.namespace,
+        "jobId": view.job_id,
+        "queue": {"reason": view.queued_reason, "position": view.queue_position},
+        "progress": view.progress,
+        "rollout": {"index": view.rollout[0], "total": view.rollout[1]} if view.rollout else None,
+        "cancelRequested": view.cancel_requested,
+    })
+    return document
+
+
+def cell_document(cell: CellView) -> dict[str, Any]:
+    return {
+        "name": cell.name, "phase": cell.phase, "embodiment": cell.embodiment, "task": cell.task,
+        "node": cell.node, "currentJob": cell.current_job, "unschedulable": cell.unschedulable,
+        "lastHeartbeatTime": cell.last_heartbeat.isoformat() if cell.last_heartbeat else None,
+        "failingConditions": [{"type": c.type, "reason": c.reason, "message": c.message}
+                              for c in cell.false_conditions],
+    }
+
+
+def result_document(result: Optional[JobResult], status: JobStatus) -> dict[str, Any]:
+    """``armnet result --json``: the ``JobResult`` dump, or ``{"status": <phase>}`` while unfinished."""
+    if result is None:
+        return {"status": status.value, "finished": False}
+    return {**result.model_dump(mode="json"), "finished": True}
+
+
+def dumps(document: Any, output: str) -> str:
+    if output == "yaml":
+        import yaml
+
+        return str(yaml.safe_dump(document, sort_keys=False)).rstrip("\n")
+    return json.dumps(document, indent=2)
+
+
+def log_text(line: LogLine, *, timestamps: bool = True) -> str:
+    """One printed log line: ``<UTC time> <text>``; stderr lines are marked, status lines bracketed."""
+    stamp = ""
+    if timestamps and line.time is not None:
+        stamp = line.time.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z "  # noqa: UP017
+    if line.kind == "stderr":
+        return f"{stamp}[stderr] {line.text}"
+    if line.kind == "status":
+        return f"{stamp}[{line.text}]"
+    return f"{stamp}{line.text}"
+
+
+def progress_text(line: LogLine, rollout: Optional[tuple[int, int]]) -> str:
+    """The live progress line: ``[rollout 3/10] <message>``."""
+    prefix = f"[rollout {rollout[0]}/{rollout[1]}] " if rollout else ""
+    return f"{prefix}{line.text}"
+
+
+def rollout_of(line: LogLine) -> Optional[tuple[int, int]]:
+    """A rollout step a status message carries: ``{"detail": {"rollout": {"index", "total"}}}``."""
+    data = line.data
+    if not isinstance(data, dict):
+        return None
+    detail = data.get("detail")
+    found = data.get("rollout") or (detail.get("rollout") if isinstance(detail, dict) else None)
+    if isinstance(found, dict) and isinstance(found.get("index"), int):
+        total = found.get("total")
+        return (int(found["index"]), int(total) if isinstance(total, int) else 0)
+    return None
+
+
+def utcnow() -> datetime:
+    return datetime.now(timezone.utc)  # noqa: UP017

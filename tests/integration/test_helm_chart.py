@@ -1,0 +1,494 @@
+"""The armnet Helm chart renders what the platform team needs, and the API server accepts it.
+
+Real `helm` (built by scripts/setup.d/35-helm.sh) and, for the dry-run, the test bed's
+real kube-apiserver. RBAC behaviour with real identities: test_helm_rbac.py.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import subprocess
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from tests.testbed.kube import ControlPlane
+
+pytestmark = pytest.mark.integration
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+CHART = REPO_ROOT / "helm" / "armnet"
+ALL_OPTIONS = CHART / "ci" / "all-options-values.yaml"
+HELM_CACHE = Path.home() / ".cache" / "armnet" / "helm"
+
+
+# ---------------------------------------------------------------------------- helpers
+def helm_binary() -> Path:
+    """The helm built by setup (ARMNET_HELM overrides); a missing one fails, saying what to run."""
+    override = os.environ.get("ARMNET_HELM")
+    if override:
+        return Path(override)
+    current = HELM_CACHE / "current"
+    path = HELM_CACHE / f"v{current.read_text().strip()}" / "bin" / "helm" if current.is_file() else None
+    if path is None or not path.is_file():
+        pytest.fail(f"helm is not built ({current} missing): run scripts/setup.sh "
+                    "(step scripts/setup.d/35-helm.sh)", pytrace=False)
+    return path
+
+
+def helm(*args: str, input: str | None = None, check: bool = True) -> subprocess.CompletedProcess[str]:
+    result = subprocess.run([str(helm_binary()), *args], input=input, capture_output=True, text=True,
+                            timeout=120, check=False)
+    if check and result.returncode != 0:
+        raise AssertionError(f"helm {' '.join(args)} failed ({result.returncode}):\n{result.stderr}")
+    return result
+
+
+def render(release: str = "armnet", namespace: str = "armnet-system", *,
+           values_files: Iterable[Path] = (), values: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """`helm template` into a list of objects; ``values`` (given last) win over the files.
+
+    Renders are cached per arguments (a helm run costs ~0.5 s here); callers must not
+    mutate what they get.
+    """
+    extra = yaml.safe_dump(values) if values is not None else None
+    return _render(release, namespace, tuple(str(p) for p in values_files), extra)
+
+
+@functools.lru_cache(maxsize=64)
+def _render(release: str, namespace: str, values_files: tuple[str, ...], extra: str | None) -> list[dict[str, Any]]:
+    args = ["template", release, str(CHART), "--namespace", namespace]
+    for path in values_files:
+        args += ["--values", path]
+    if extra is not None:
+        args += ["--values", "-"]
+    out = helm(*args, input=extra).stdout
+    return [doc for doc in yaml.safe_load_all(out) if doc]
+
+
+def find(objects: list[dict[str, Any]], kind: str, name_suffix: str = "") -> dict[str, Any]:
+    matches = [o for o in objects if o["kind"] == kind and o["metadata"]["name"].endswith(name_suffix)]
+    assert len(matches) == 1, f"expected one {kind} named *{name_suffix}, got {[m['metadata']['name'] for m in matches]}"
+    return matches[0]
+
+
+def env_of(container: dict[str, Any]) -> dict[str, Any]:
+    return {e["name"]: e.get("value", e.get("valueFrom")) for e in container.get("env", [])}
+
+
+def repo_crds() -> dict[str, dict[str, Any]]:
+    return {doc["metadata"]["name"]: doc for path in sorted((REPO_ROOT / "crds").glob("*.yaml"))
+            for doc in yaml.safe_load_all(path.read_text()) if doc}
+
+
+# ---------------------------------------------------------------------------- CRDs
+def test_chart_crd_files_are_byte_identical_to_the_repository_crds() -> None:
+    source = {p.name: p.read_bytes() for p in (REPO_ROOT / "crds").glob("*.yaml")}
+    chart = {p.name: p.read_bytes() for p in (CHART / "files" / "crds").glob("*.yaml")}
+
+    stale = sorted(n for n in source.keys() | chart.keys() if source.get(n) != chart.get(n))
+    assert not stale, (f"helm/armnet/files/crds differs from crds/ in {stale}: crds/ is the single "
+                       "source; run `cp crds/*.yaml helm/armnet/files/crds/`")
+
+
+def test_rendered_crds_are_the_repository_crds_kept_on_uninstall() -> None:
+    rendered = {o["metadata"]["name"]: o for o in render() if o["kind"] == "CustomResourceDefinition"}
+
+    assert rendered.keys() == repo_crds().keys()
+    for name, crd in repo_crds().items():
+        assert rendered[name]["spec"] == crd["spec"], f"{name}: rendering changed the schema"
+        assert rendered[name]["metadata"]["annotations"]["helm.sh/resource-policy"] == "keep"
+
+
+def test_crds_are_templates_so_upgrades_apply_them() -> None:
+    # Helm installs a chart's crds/ folder only on first install and never upgrades it.
+    assert not (CHART / "crds").exists()
+    assert any(o["kind"] == "CustomResourceDefinition" for o in render())
+
+
+def test_crds_can_be_left_to_another_release() -> None:
+    assert not [o for o in render(values={"crds": {"install": False}}) if o["kind"] == "CustomResourceDefinition"]
+
+
+# ---------------------------------------------------------------------------- lint and schema
+def test_helm_lint_passes_strict_with_default_values() -> None:
+    result = helm("lint", "--strict", str(CHART))
+
+    assert "0 chart(s) failed" in result.stdout
+
+
+def test_helm_lint_passes_strict_with_every_option_on() -> None:
+    result = helm("lint", "--strict", str(CHART), "--values", str(ALL_OPTIONS))
+
+    assert "0 chart(s) failed" in result.stdout
+
+
+def test_every_option_on_renders_every_kind_the_chart_knows() -> None:
+    kinds = {o["kind"] for o in render(values_files=[ALL_OPTIONS])}
+
+    assert kinds == {"CustomResourceDefinition", "ServiceAccount", "ClusterRole", "ClusterRoleBinding",
+                     "Role", "RoleBinding", "Deployment", "PodDisruptionBudget", "DaemonSet", "Service",
+                     "ConfigMap", "StatefulSet", "ServiceMonitor", "PrometheusRule",
+                     "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
+
+
+@pytest.mark.parametrize(("values", "path"), [
+    ({"operator": {"replicas": "two"}}, "operator.replicas"),
+    ({"operator": {"metricsPort": "http"}}, "operator.metricsPort"),
+    ({"operator": {"settings": {"heartbeatTimeout": "30s"}}}, "operator.settings.heartbeatTimeout"),
+    ({"agent": {"enabled": "yes"}}, "agent.enabled"),
+    ({"agent": {"robotHostLabel": "armnet.io/robot-host"}}, "agent.robotHostLabel"),
+    ({"agent": {"args": "agent --node-name x"}}, "agent.args"),
+    ({"jobNamespaces": ["team-a"]}, "jobNamespaces.0"),
+    ({"jobNamespaces": [{"name": "Team_A"}]}, "jobNamespaces.0.name"),
+    ({"nats": {"deploy": {"enabled": 1}}}, "nats.deploy.enabled"),
+    ({"nats": {"url": "http://nats:4222"}}, "nats.url"),
+    ({"metrics": {"serviceMonitor": {"interval": 30}}}, "metrics.serviceMonitor.interval"),
+    ({"rbac": {"tenants": {"cellReaderGroups": "armnet:tenants"}}}, "rbac.tenants.cellReaderGroups"),
+    ({"operatr": {"replicas": 2}}, "operatr"),
+])
+def test_schema_rejects_wrong_types_and_unknown_keys(values: dict[str, Any], path: str) -> None:
+    result = helm("template", "armnet", str(CHART), "--values", "-", input=yaml.safe_dump(values),
+                  check=False)
+
+    assert result.returncode != 0
+    assert "values don't meet the specifications of the schema" in result.stderr, result.stderr
+    assert "/" + path.replace(".", "/") in result.stderr or f"'{path.split('.')[-1]}'" in result.stderr, \
+        result.stderr
+
+
+def test_schema_requires_a_password_secret_when_nats_auth_is_on() -> None:
+    values = {"nats": {"deploy": {"enabled": True, "auth": {"enabled": True}}}}
+    result = helm("template", "armnet", str(CHART), "--values", "-", input=yaml.safe_dump(values),
+                  check=False)
+
+    assert result.returncode != 0 and "existingSecret" in result.stderr, result.stderr
+
+
+# ---------------------------------------------------------------------------- names
+@pytest.mark.parametrize(("release", "prefix"), [("robots", "robots-armnet"), ("armnet-prod", "armnet-prod")])
+def test_a_release_name_other_than_armnet_prefixes_every_object(release: str, prefix: str) -> None:
+    objects = [o for o in render(release, "ops", values_files=[ALL_OPTIONS])
+               if o["kind"] != "CustomResourceDefinition"]
+
+    assert all(o["metadata"]["name"].startswith(prefix) for o in objects), \
+        [o["metadata"]["name"] for o in objects if not o["metadata"]["name"].startswith(prefix)]
+    binding = find(objects, "ClusterRoleBinding", "-operator")
+    assert binding["subjects"] == [{"kind": "ServiceAccount", "name": f"{prefix}-operator", "namespace": "ops"}]
+    lease_env = env_of(find(objects, "Deployment")["spec"]["template"]["spec"]["containers"][0])
+    assert lease_env["ARMNET_OPERATOR_LEASE_NAMESPACE"] == "ops"
+
+
+def test_namespaced_objects_name_their_namespace() -> None:
+    objects = render("robots", "ops", values_files=[ALL_OPTIONS])
+    cluster_kinds = {"CustomResourceDefinition", "ClusterRole", "ClusterRoleBinding",
+                     "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
+
+    for o in objects:
+        if o["kind"] in cluster_kinds:
+            assert "namespace" not in o["metadata"], o["metadata"]["name"]
+        else:
+            assert o["metadata"].get("namespace"), f"{o['kind']} {o['metadata']['name']} has no namespace"
+
+
+# ---------------------------------------------------------------------------- operator
+def test_operator_runs_two_replicas_with_the_lease_in_the_release_namespace() -> None:
+    objects = render("robots", "ops")
+    deployment = find(objects, "Deployment", "-operator")
+    env = env_of(deployment["spec"]["template"]["spec"]["containers"][0])
+
+    assert deployment["spec"]["replicas"] == 2
+    assert env["ARMNET_OPERATOR_LEASE_NAME"] == "robots-armnet-operator"
+    assert env["ARMNET_OPERATOR_LEASE_NAMESPACE"] == "ops"
+    assert env["ARMNET_OPERATOR_LEASE_DURATION"] == "15"
+    lease_role = find(objects, "Role", "-operator-lease")
+    assert {"resourceNames": ["robots-armnet-operator"], "verbs": ["get", "update", "patch"],
+            "apiGroups": ["coordination.k8s.io"], "resources": ["leases"]} in lease_role["rules"]
+
+
+def test_operator_settings_reach_its_environment() -> None:
+    values = {"operator": {"settings": {"heartbeatTimeout": 45, "defaultTtl": "none"}},
+              "jobNamespaces": [{"name": "team-a"}, {"name": "team-b"}]}
+    env = env_of(find(render(values=values), "Deployment")["spec"]["template"]["spec"]["containers"][0])
+
+    assert env["ARMNET_OPERATOR_HEARTBEAT_TIMEOUT"] == "45"
+    assert env["ARMNET_OPERATOR_DEFAULT_TTL"] == "none"
+    assert env["ARMNET_OPERATOR_NAMESPACES"] == "team-a,team-b"
+
+
+def test_operator_probes_its_metrics_port_and_has_a_disruption_budget() -> None:
+    objects = render()
+    container = find(objects, "Deployment")["spec"]["template"]["spec"]["containers"][0]
+    pdb = find(objects, "PodDisruptionBudget")
+
+    assert container["ports"] == [{"name": "metrics", "containerPort": 8080, "protocol": "TCP"}]
+    assert container["livenessProbe"]["httpGet"] == {"path": "/metrics", "port": "metrics"}
+    assert container["readinessProbe"]["httpGet"] == {"path": "/metrics", "port": "metrics"}
+    assert container["resources"]["requests"] and container["resources"]["limits"]
+    assert pdb["spec"]["minAvailable"] == 1
+    assert pdb["spec"]["selector"]["matchLabels"] == \
+        find(objects, "Deployment")["spec"]["selector"]["matchLabels"]
+
+
+def test_operator_runs_non_root_read_only_with_only_a_projected_token() -> None:
+    pod = find(render(), "Deployment")["spec"]["template"]["spec"]
+    container = pod["containers"][0]
+
+    assert pod["securityContext"]["runAsNonRoot"] is True
+    assert container["securityContext"]["readOnlyRootFilesystem"] is True
+    assert container["securityContext"]["allowPrivilegeEscalation"] is False
+    assert container["securityContext"]["capabilities"] == {"drop": ["ALL"]}
+    assert pod["automountServiceAccountToken"] is False
+    token = next(v for v in pod["volumes"] if v["name"] == "kube-api-access")
+    assert token["projected"]["sources"][0]["serviceAccountToken"]["expirationSeconds"] <= 3607
+
+
+# ---------------------------------------------------------------------------- agent
+def test_agent_runs_only_on_nodes_with_the_configured_robot_host_label() -> None:
+    values = {"agent": {"robotHostLabel": {"key": "example.com/robot", "value": "so101"}}}
+    pod = find(render(values=values), "DaemonSet")["spec"]["template"]["spec"]
+
+    assert pod["nodeSelector"] == {"example.com/robot": "so101"}
+
+
+def test_agent_gets_its_node_name_from_the_downward_api() -> None:
+    container = find(render(), "DaemonSet")["spec"]["template"]["spec"]["containers"][0]
+
+    assert container["args"] == ["agent", "--node-name", "$(NODE_NAME)"]
+    assert env_of(container)["NODE_NAME"] == {"fieldRef": {"fieldPath": "spec.nodeName"}}
+
+
+def test_agent_mounts_calibration_cache_and_the_device_plugin_dir() -> None:
+    pod = find(render(), "DaemonSet")["spec"]["template"]["spec"]
+    host_paths = {v["name"]: v["hostPath"]["path"] for v in pod["volumes"] if "hostPath" in v}
+    mounts = {m["name"]: m for m in pod["containers"][0]["volumeMounts"]}
+
+    assert host_paths == {"calibration": "/var/lib/armnet/calibration", "cache": "/var/lib/armnet/cache",
+                          "device-plugins": "/var/lib/kubelet/device-plugins"}
+    assert mounts["device-plugins"]["mountPath"] == "/var/lib/kubelet/device-plugins"
+    assert mounts["calibration"]["readOnly"] is True
+    assert not pod["containers"][0]["securityContext"].get("privileged")
+
+
+def test_agent_nats_url_comes_from_a_value_or_a_secret() -> None:
+    from_value = env_of(find(render(values={"nats": {"url": "nats://nats.example:4222"}}),
+                             "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
+    from_secret = env_of(find(render(values={"nats": {"existingSecret": {"name": "nats-creds"}}}),
+                              "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
+
+    assert from_value["ARMNET_AGENT_NATS_URL"] == "nats://nats.example:4222"
+    assert from_secret["ARMNET_AGENT_NATS_URL"] == {"secretKeyRef": {"name": "nats-creds", "key": "url"}}
+
+
+def test_agent_uses_the_bundled_nats_with_its_own_password() -> None:
+    objects = render("robots", "ops", values_files=[ALL_OPTIONS])
+    env = env_of(find(objects, "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
+
+    assert env["ARMNET_AGENT_NATS_URL"] == "nats://agent:$(NATS_AGENT_PASSWORD)@robots-armnet-nats.ops.svc:4222"
+    assert env["NATS_AGENT_PASSWORD"] == {"secretKeyRef": {"name": "armnet-nats-users", "key": "agent"}}
+    assert env["ARMNET_AGENT_CONNECTOR_IMAGE"] == "registry.example.com/armnet/connector:0.1.0"
+
+
+# ---------------------------------------------------------------------------- RBAC shape
+def rules_of(objects: list[dict[str, Any]], kind: str, suffix: str) -> list[dict[str, Any]]:
+    return find(objects, kind, suffix)["rules"]
+
+
+def test_operator_role_names_no_secrets_and_no_pods() -> None:
+    rules = rules_of(render(), "ClusterRole", "-operator")
+    resources = {r for rule in rules for r in rule["resources"]}
+
+    assert not resources & {"secrets", "pods", "*"}
+    assert not any("*" in rule["verbs"] for rule in rules)
+
+
+def test_agent_reads_only_the_listed_secrets_of_each_job_namespace() -> None:
+    values = {"jobNamespaces": [{"name": "team-a", "secrets": ["hf-token"]}, {"name": "team-b"}]}
+    objects = render(values=values)
+    roles = {o["metadata"]["namespace"]: o for o in objects
+             if o["kind"] == "Role" and o["metadata"]["name"].endswith("-agent")}
+    cluster_resources = {r for rule in rules_of(objects, "ClusterRole", "-agent") for r in rule["resources"]}
+
+    assert "secrets" not in cluster_resources and "pods" not in cluster_resources
+    secret_rules = [r for r in roles["team-a"]["rules"] if "secrets" in r["resources"]]
+    assert secret_rules == [{"apiGroups": [""], "resources": ["secrets"], "resourceNames": ["hf-token"],
+                             "verbs": ["get"]}]
+    assert not [r for r in roles["team-b"]["rules"] if "secrets" in r["resources"]]
+
+
+def test_tenant_roles_aggregate_into_edit_admin_and_view() -> None:
+    objects = render("robots", "ops")
+    edit = find(objects, "ClusterRole", "-tenant-edit")
+    view = find(objects, "ClusterRole", "-tenant-view")
+
+    assert edit["metadata"]["labels"]["rbac.authorization.k8s.io/aggregate-to-edit"] == "true"
+    assert edit["metadata"]["labels"]["rbac.authorization.k8s.io/aggregate-to-admin"] == "true"
+    assert view["metadata"]["labels"]["rbac.authorization.k8s.io/aggregate-to-view"] == "true"
+    assert edit["rules"] == [{"apiGroups": ["armnet.io"], "resources": ["robotjobs"],
+                              "verbs": ["create", "get", "list", "watch", "patch", "delete"]}]
+
+
+# ---------------------------------------------------------------------------- monitoring
+OPERATOR_METRICS = REPO_ROOT / "operator" / "armnet_operator" / "metrics.py"
+# The agent's metrics (issue 9; docs/agent.md): the alerts use these names.
+AGENT_METRICS = {"armnet_agent_interlock_trips_total", "armnet_agent_heartbeat_age_seconds",
+                 "armnet_agent_nats_connected"}
+
+
+def test_prometheus_rule_has_the_alerts_the_platform_team_watches() -> None:
+    rule = find(render(values_files=[ALL_OPTIONS]), "PrometheusRule")
+    alerts = {r["alert"]: r["expr"] for g in rule["spec"]["groups"] for r in g["rules"]}
+
+    assert set(alerts) >= {"ArmnetCellOffline", "ArmnetInterlockTripped", "ArmnetJobStuckDispatched",
+                           "ArmnetQueueWaitHigh", "ArmnetCellHeartbeatStale", "ArmnetAgentNatsDisconnected"}
+
+
+def test_prometheus_rule_uses_only_metrics_that_exist() -> None:
+    rule = find(render(values_files=[ALL_OPTIONS]), "PrometheusRule")
+    used = {m for g in rule["spec"]["groups"] for r in g["rules"]
+            for m in re.findall(r"armnet_[a-z_]+", r["expr"])}
+    operator_metrics = set(re.findall(r'"(armnet_[a-z_]+)"', OPERATOR_METRICS.read_text()))
+    known = operator_metrics | {f"{m}_bucket" for m in operator_metrics} | AGENT_METRICS
+
+    assert used <= known, f"alerts use unknown metrics: {used - known}"
+
+
+def test_service_monitors_scrape_the_metrics_services() -> None:
+    objects = render(values_files=[ALL_OPTIONS])
+    for component in ("operator", "agent"):
+        monitor = find(objects, "ServiceMonitor", f"-{component}")
+        service = find(objects, "Service", f"-{component}-metrics")
+        assert monitor["spec"]["selector"]["matchLabels"].items() <= service["metadata"]["labels"].items()
+        assert monitor["spec"]["endpoints"][0]["port"] == service["spec"]["ports"][0]["name"] == "metrics"
+
+
+def test_no_monitoring_objects_unless_asked_for() -> None:
+    kinds = {o["kind"] for o in render()}
+
+    assert not kinds & {"ServiceMonitor", "PrometheusRule"}
+
+
+# ---------------------------------------------------------------------------- the API server accepts it
+# The Prometheus Operator's CRDs are not on the test bed. These two carry the fields
+# of monitoring.coreos.com/v1 the chart uses, with the upstream types and required
+# fields, so the API server checks our objects' structure (unknown fields are pruned
+# and reported by kubectl's server-side field validation).
+MONITORING_CRDS = """
+apiVersion: apiextensions.k8s.io/v1
+kind: CustomResourceDefinition
+metadata: {name: servicemonitors.monitoring.coreos.com}
+spec:
+  group: monitoring.coreos.com
+  scope: Namespaced
+  names: {kind: ServiceMonitor, listKind: ServiceMonitorList, plural: servicemonitors, singular: servicemonitor}
+  versions:
+    - name: v1
+      served: true
+      storage: true
+      schema:
+        openAPIV3Schema:
+          type: object
+          required: [spec]
+          properties:
+            spec:
+              type: object
+              required: [selector]
+              properties:
+                selector:
+                  type: object
+                  properties:
+                    matchLabels: {type: object, additionalProperties: {type: string}}
+                namespaceSelector:
+                  type: object
+                  properties:
+                    any: {type: boolean}
+                    matchNames: {type: array, items: {type: string}}
+                endpoints:
+                  type: array
+                  items:
+                    type: object
+                    properties:
+                      port: {type: string}
+                      path: {type: string}
+                      interval: {type: string, pattern: '^(0|(([0-9]+)y)?(([0-9]+)w)?(([0-9]+)d)?(([0-9]+)h)?(([0-9]+)m)?(([0-9]+)s)?(([0-9]+)ms)?)$'}
+---
+apiVersion: apiextensions.k8s.io/v1
+kind: CustomResourceDefinition
+metadata: {name: prometheusrules.monitoring.coreos.com}
+spec:
+  group: monitoring.coreos.com
+  scope: Namespaced
+  names: {kind: PrometheusRule, listKind: PrometheusRuleList, plural: prometheusrules, singular: prometheusrule}
+  versions:
+    - name: v1
+      served: true
+      storage: true
+      schema:
+        openAPIV3Schema:
+          type: object
+          required: [spec]
+          properties:
+            spec:
+              type: object
+              properties:
+                groups:
+                  type: array
+                  items:
+                    type: object
+                    required: [name]
+                    properties:
+                      name: {type: string, minLength: 1}
+                      rules:
+                        type: array
+                        items:
+                          type: object
+                          required: [expr]
+                          properties:
+                            alert: {type: string}
+                            record: {type: string}
+                            expr: {x-kubernetes-int-or-string: true}
+                            for: {type: string, pattern: '^(0|(([0-9]+)y)?(([0-9]+)w)?(([0-9]+)d)?(([0-9]+)h)?(([0-9]+)m)?(([0-9]+)s)?(([0-9]+)ms)?)$'}
+                            labels: {type: object, additionalProperties: {type: string}}
+                            annotations: {type: object, additionalProperties: {type: string}}
+"""
+
+
+@pytest.fixture(scope="module")
+def monitoring_crds(k8s: ControlPlane) -> None:
+    k8s.kubectl("apply", "--server-side", "-f", "-", input=MONITORING_CRDS)
+    k8s.kubectl("wait", "--for=condition=Established", "--timeout=60s",
+                "crd/servicemonitors.monitoring.coreos.com", "crd/prometheusrules.monitoring.coreos.com")
+
+
+def test_every_rendered_manifest_passes_a_server_side_dry_run(
+        k8s: ControlPlane, namespace: str, monitoring_crds: None) -> None:
+    team_a, team_b = k8s.create_namespace("helm-team-a"), k8s.create_namespace("helm-team-b")
+    try:
+        values = {"jobNamespaces": [{"name": team_a, "secrets": ["hf-token"]}, {"name": team_b}],
+                  "nats": {"deploy": {"auth": {"tenants": [team_a, team_b]}}}}
+        objects = render("dry-run", namespace, values_files=[ALL_OPTIONS], values=values)
+        manifest = yaml.safe_dump_all(objects)
+
+        result = k8s.kubectl("apply", "--dry-run=server", "--validate=strict", "-f", "-",
+                             input=manifest, check=False)
+
+        assert result.returncode == 0, result.stderr
+        applied = [line for line in result.stdout.splitlines() if "(server dry run)" in line]
+        assert len(applied) == len(objects), result.stdout
+    finally:
+        k8s.delete_namespace(team_a)
+        k8s.delete_namespace(team_b)
+
+
+def test_default_values_pass_a_server_side_dry_run(k8s: ControlPlane, namespace: str) -> None:
+    manifest = yaml.safe_dump_all(render("defaults", namespace))
+
+    result = k8s.kubectl("apply", "--dry-run=server", "--validate=strict", "-f", "-", input=manifest,
+                         check=False)
+
+    assert result.returncode == 0, result.stderr

@@ -1,0 +1,285 @@
+"""The chart's RBAC, applied to the real API server and exercised with real identities.
+
+The operator and agent act with real service-account tokens (TokenRequest) of the
+accounts the chart creates; the tenant is a real user (client certificate) bound the
+way a platform team binds `edit` in its namespace. The test bed has no
+controller-manager, so ClusterRole aggregation into edit/view does not happen here:
+the tenant is bound to the chart's tenant ClusterRole directly (its aggregation labels
+are checked in test_helm_chart.py).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from tests.integration.test_helm_chart import render
+from tests.testbed.kube import ControlPlane, KubeUser
+
+pytestmark = pytest.mark.integration
+
+RBAC_KINDS = {"ServiceAccount", "ClusterRole", "ClusterRoleBinding", "Role", "RoleBinding",
+              "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
+CLUSTER_KINDS = {"ClusterRole", "ClusterRoleBinding", "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
+JOB_SECRET = "job-token"
+OTHER_SECRET = "other-token"
+
+
+@dataclass(frozen=True)
+class Release:
+    plane: ControlPlane
+    fullname: str
+    namespace: str  # where the chart is installed
+    team_a: str  # a job namespace whose jobs may use JOB_SECRET
+    team_b: str  # another job namespace
+    operator: Path  # kubeconfig with the operator account's token
+    agent: Path
+    tenant_a: KubeUser  # edit in team_a, cell reader cluster-wide
+
+    def as_(self, who: Path | KubeUser, *args: str, input: str | None = None) -> subprocess.CompletedProcess[str]:
+        """kubectl as ``who``; never raises, the caller asserts on the outcome."""
+        kubeconfig = who.kubeconfig if isinstance(who, KubeUser) else who
+        return subprocess.run([self.plane.kubectl_path, f"--kubeconfig={kubeconfig}", *args], input=input,
+                              capture_output=True, text=True, timeout=60, check=False)
+
+    def can(self, who: Path | KubeUser, verb: str, resource: str, namespace: str | None = None, *,
+            subresource: str | None = None) -> bool:
+        """`kubectl auth can-i` as ``who``; ``resource`` may be ``kind/name`` (a subresource
+        needs ``subresource=``: ``robotjobs/status`` would mean the RobotJob named status)."""
+        scope = ["-n", namespace] if namespace else ["--all-namespaces"]
+        sub = [f"--subresource={subresource}"] if subresource else []
+        result = self.as_(who, "auth", "can-i", verb, resource, *scope, *sub)
+        return result.stdout.strip() == "yes"
+
+
+def forbidden(result: subprocess.CompletedProcess[str]) -> bool:
+    return result.returncode != 0 and "Forbidden" in result.stderr
+
+
+def token_kubeconfig(plane: ControlPlane, account: str, namespace: str, path: Path, *,
+                     bound_pod: str | None = None) -> Path:
+    """A kubeconfig carrying a real, short-lived token of ``account`` (TokenRequest); bound to
+    ``bound_pod`` it carries that pod's node, like the token the kubelet gives a pod."""
+    bound = ["--bound-object-kind=Pod", f"--bound-object-name={bound_pod}"] if bound_pod else []
+    token = plane.kubectl("create", "token", account, "-n", namespace, "--duration=1h", *bound).stdout.strip()
+    config = yaml.safe_load(plane.kubeconfig.read_text())
+    config["users"] = [{"name": account, "user": {"token": token}}]
+    for context in config["contexts"]:
+        context["context"]["user"] = account
+    path.write_text(yaml.safe_dump(config))
+    path.chmod(0o600)
+    return path
+
+
+def robotjob(name: str, **spec: Any) -> str:
+    return json.dumps({"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name},
+                       "spec": {"image": "localhost/job:dev", "embodiment": "lerobot/so-101", **spec}})
+
+
+def secret(name: str) -> str:
+    return json.dumps({"apiVersion": "v1", "kind": "Secret", "metadata": {"name": name},
+                       "stringData": {"value": f"{name}-value"}})
+
+
+@pytest.fixture(scope="module")
+def release(k8s: ControlPlane, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Release]:
+    suffix = uuid.uuid4().hex[:6]
+    namespace, team_a, team_b = (k8s.create_namespace(p) for p in ("helm-rbac", "team-a", "team-b"))
+    tenants = f"armnet:helm-tenants-{suffix}"
+    objects = [o for o in render(f"rbac-{suffix}", namespace, values={
+        "crds": {"install": False},
+        "jobNamespaces": [{"name": team_a, "secrets": [JOB_SECRET]}, {"name": team_b}],
+        "rbac": {"tenants": {"cellReaderGroups": [tenants]}},
+        "agent": {"nodeBoundPods": True},
+    }) if o["kind"] in RBAC_KINDS]
+    manifest = yaml.safe_dump_all(objects)
+    fullname = f"rbac-{suffix}-armnet"
+    cluster_objects = [f"{o['kind'].lower()}/{o['metadata']['name']}" for o in objects
+                       if o["kind"] in CLUSTER_KINDS]
+    k8s.kubectl("apply", "-f", "-", input=manifest)
+    try:
+        for ns, name in ((team_a, JOB_SECRET), (team_a, OTHER_SECRET), (team_b, JOB_SECRET)):
+            k8s.kubectl("apply", "-n", ns, "-f", "-", input=secret(name))
+        tenant_a = k8s.user(f"tenant-a-{suffix}", groups=(tenants,))
+        # What the platform team does with `edit` (aggregation needs the controller-manager).
+        k8s.kubectl("create", "rolebinding", "tenant-edit", "-n", team_a,
+                    f"--clusterrole={fullname}-tenant-edit", f"--user={tenant_a.name}")
+        tokens = tmp_path_factory.mktemp("helm-rbac")
+        yield Release(
+            plane=k8s, fullname=fullname, namespace=namespace, team_a=team_a, team_b=team_b,
+            operator=token_kubeconfig(k8s, f"{fullname}-operator", namespace, tokens / "operator"),
+            agent=token_kubeconfig(k8s, f"{fullname}-agent", namespace, tokens / "agent"),
+            tenant_a=tenant_a,
+        )
+    finally:
+        k8s.kubectl("delete", "--ignore-not-found", "--wait=false", *cluster_objects, check=False)
+        for ns in (namespace, team_a, team_b):
+            k8s.delete_namespace(ns)
+
+
+# ---------------------------------------------------------------------------- operator
+def test_operator_account_cannot_read_secrets(release: Release) -> None:
+    assert forbidden(release.as_(release.operator, "get", "secret", JOB_SECRET, "-n", release.team_a))
+    assert forbidden(release.as_(release.operator, "get", "secrets", "-n", release.namespace))
+    assert not release.can(release.operator, "list", "secrets")
+
+
+def test_operator_account_cannot_read_pods(release: Release) -> None:
+    assert forbidden(release.as_(release.operator, "get", "pods", "-n", release.team_a))
+    assert not release.can(release.operator, "get", "pods")
+
+
+def test_operator_account_writes_jobs_cells_their_status_and_only_its_lease(release: Release) -> None:
+    assert release.as_(release.operator, "get", "robotjobs", "-A").returncode == 0
+    assert release.can(release.operator, "patch", "robotjobs", subresource="status")
+    assert release.can(release.operator, "patch", "cells", subresource="status")
+    assert release.can(release.operator, "delete", "robotjobs")
+    assert release.can(release.operator, "create", "events")
+    assert release.can(release.operator, "create", "leases", release.namespace)
+    assert release.can(release.operator, "patch", f"leases/{release.fullname}-operator", release.namespace)
+    assert not release.can(release.operator, "patch", "leases/kube-scheduler", release.namespace)
+    assert not release.can(release.operator, "create", "leases", release.team_a)
+
+
+def test_operator_account_cannot_change_cell_specs(release: Release) -> None:
+    assert not release.can(release.operator, "patch", "cells")
+    assert not release.can(release.operator, "create", "cells")
+
+
+# ---------------------------------------------------------------------------- agent
+def test_agent_account_reads_a_secret_a_job_references(release: Release) -> None:
+    result = release.as_(release.agent, "get", "secret", JOB_SECRET, "-n", release.team_a, "-o", "json")
+
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["metadata"]["name"] == JOB_SECRET
+
+
+def test_agent_account_cannot_read_another_secret(release: Release) -> None:
+    assert forbidden(release.as_(release.agent, "get", "secret", OTHER_SECRET, "-n", release.team_a))
+
+
+def test_agent_account_cannot_list_secrets_of_a_job_namespace(release: Release) -> None:
+    # A list would return every Secret of the namespace, whatever resourceNames say.
+    assert forbidden(release.as_(release.agent, "get", "secrets", "-n", release.team_a))
+
+
+def test_agent_account_cannot_read_a_listed_name_in_another_namespace(release: Release) -> None:
+    assert forbidden(release.as_(release.agent, "get", "secret", JOB_SECRET, "-n", release.team_b))
+
+
+def test_agent_account_manages_pods_only_in_job_namespaces(release: Release) -> None:
+    for ns in (release.team_a, release.team_b):
+        assert release.can(release.agent, "create", "pods", ns)
+        assert release.can(release.agent, "delete", "pods", ns)
+        assert release.can(release.agent, "get", "pods", ns, subresource="log")
+    assert not release.can(release.agent, "create", "pods", release.namespace)
+    assert not release.can(release.agent, "create", "pods", "kube-system")
+
+
+def test_agent_account_writes_status_but_not_specs(release: Release) -> None:
+    assert release.can(release.agent, "patch", "cells", subresource="status")
+    assert release.can(release.agent, "patch", "robotjobs", subresource="status")
+    assert release.as_(release.agent, "get", "cells").returncode == 0
+    assert not release.can(release.agent, "patch", "robotjobs")
+    assert not release.can(release.agent, "patch", "cells")
+
+
+def pod(name: str, node: str, **spec: Any) -> str:
+    return json.dumps({"apiVersion": "v1", "kind": "Pod", "metadata": {"name": name}, "spec": {
+        "nodeName": node, "containers": [{"name": "main", "image": "localhost/job:dev"}], **spec}})
+
+
+def test_agent_creates_pods_only_on_the_node_it_runs_on(release: Release, tmp_path: Path) -> None:
+    node = f"robot-host-{uuid.uuid4().hex[:6]}"
+    plane = release.plane
+    plane.kubectl("create", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "Node",
+                                                         "metadata": {"name": node}}))
+    try:
+        # The agent's own pod as its DaemonSet would place it; its token names the node.
+        plane.kubectl("create", "-n", release.namespace, "-f", "-", input=pod(
+            "agent", node, serviceAccountName=f"{release.fullname}-agent"))
+        agent = token_kubeconfig(plane, f"{release.fullname}-agent", release.namespace,
+                                 tmp_path / "agent-on-node", bound_pod="agent")
+        # The API server loads a new policy from its informer (about a second): wait for it
+        # with dry runs (admission runs, nothing is stored), then try for real.
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and release.as_(
+                agent, "create", "--dry-run=server", "-n", release.team_a, "-f", "-",
+                input=pod("probe", "another-host")).returncode == 0:
+            time.sleep(0.3)
+        elsewhere = release.as_(agent, "create", "-n", release.team_a, "-f", "-",
+                                input=pod("job-elsewhere", "another-host"))
+        here = release.as_(agent, "create", "-n", release.team_a, "-f", "-", input=pod("job-here", node))
+
+        assert elsewhere.returncode != 0
+        assert "only on the node it runs on" in elsewhere.stderr, elsewhere.stderr
+        assert here.returncode == 0, here.stderr
+    finally:
+        plane.kubectl("delete", "node", node, "--wait=false", check=False)
+
+
+@pytest.mark.parametrize("account", ["operator", "agent"])
+def test_neither_account_can_widen_its_own_rights(release: Release, account: str) -> None:
+    who = getattr(release, account)
+    for resource in ("roles", "rolebindings", "clusterroles", "clusterrolebindings"):
+        assert not release.can(who, "create", f"{resource}.rbac.authorization.k8s.io", release.team_a)
+        assert not release.can(who, "patch", f"{resource}.rbac.authorization.k8s.io", release.team_a)
+
+
+# ---------------------------------------------------------------------------- tenants
+def test_tenant_creates_and_cancels_a_robotjob_in_its_namespace(release: Release) -> None:
+    created = release.as_(release.tenant_a, "create", "-n", release.team_a, "-f", "-", input=robotjob("mine"))
+    cancelled = release.as_(release.tenant_a, "patch", "robotjob", "mine", "-n", release.team_a,
+                            "--type=merge", "-p", '{"spec":{"cancel":true}}')
+
+    assert created.returncode == 0, created.stderr
+    assert cancelled.returncode == 0, cancelled.stderr
+
+
+def test_tenant_cannot_create_a_robotjob_in_another_namespace(release: Release) -> None:
+    result = release.as_(release.tenant_a, "create", "-n", release.team_b, "-f", "-", input=robotjob("theirs"))
+
+    assert forbidden(result), result.stderr
+
+
+def test_tenant_cannot_read_another_namespaces_jobs_or_results(release: Release) -> None:
+    release.plane.kubectl("apply", "-n", release.team_b, "-f", "-", input=robotjob("b-job"))
+
+    assert forbidden(release.as_(release.tenant_a, "get", "robotjob", "b-job", "-n", release.team_b))
+    assert forbidden(release.as_(release.tenant_a, "get", "robotjobs", "-n", release.team_b))
+    assert forbidden(release.as_(release.tenant_a, "get", "robotjobs", "-A"))
+    assert forbidden(release.as_(release.tenant_a, "get", "robotjob", "b-job", "-n", release.team_b,
+                                 "--subresource=status"))
+
+
+def test_tenant_cannot_patch_a_robotjobs_status(release: Release) -> None:
+    release.plane.kubectl("apply", "-n", release.team_a, "-f", "-", input=robotjob("forged"))
+
+    result = release.as_(release.tenant_a, "patch", "robotjob", "forged", "-n", release.team_a,
+                         "--subresource=status", "--type=merge",
+                         "-p", '{"status":{"phase":"succeeded","result":{"success":true}}}')
+
+    assert forbidden(result), result.stderr
+    stored = json.loads(release.plane.kubectl("get", "robotjob", "forged", "-n", release.team_a,
+                                              "-o", "json").stdout)
+    assert stored.get("status", {}).get("phase") != "succeeded"
+
+
+def test_tenant_reads_cells_but_cannot_edit_them(release: Release) -> None:
+    assert release.as_(release.tenant_a, "get", "cells").returncode == 0
+    for verb in ("create", "patch", "update", "delete"):
+        assert not release.can(release.tenant_a, verb, "cells")
+    assert not release.can(release.tenant_a, "patch", "cells", subresource="status")
+
+
+def test_tenant_cannot_read_secrets_through_the_chart_roles(release: Release) -> None:
+    assert forbidden(release.as_(release.tenant_a, "get", "secret", JOB_SECRET, "-n", release.team_a))

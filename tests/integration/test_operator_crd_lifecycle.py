@@ -1,0 +1,100 @@
+"""The RobotJob CRD deleted and re-applied under a running `armnet operator` (issue 17, item 11).
+
+Runs on a control plane of its own: deleting the CRD deletes every RobotJob,
+which must never touch the session's shared control plane and its tests.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from tests.testbed.kube import ControlPlane
+
+pytestmark = pytest.mark.integration
+
+CRD = Path(__file__).resolve().parents[2] / "crds" / "robotjob.yaml"
+
+
+@pytest.fixture
+def own_plane() -> Iterator[ControlPlane]:
+    plane = ControlPlane().start()
+    try:
+        yield plane
+    finally:
+        plane.stop()
+
+
+def wait(what: str, check: Any, proc: subprocess.Popen[str], log: Path, timeout: float = 60) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, f"the operator exited ({proc.returncode}):\n{log.read_text()[-4000:]}"
+        if result := check():
+            return result
+        time.sleep(0.3)
+    raise AssertionError(f"timed out waiting for {what}:\n{log.read_text()[-4000:]}")
+
+
+def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane: ControlPlane, tmp_path: Path) -> None:
+    k8s = own_plane
+    ns = k8s.create_namespace("crd")
+    log = tmp_path / "operator.log"
+    argv = [sys.executable, "-m", "armnet_cli.main", "operator", "--kubeconfig", str(k8s.kubeconfig),
+            "--namespaces", ns, "--lease-namespace", ns, "--metrics-port", "0", "--reconcile-period", "0.5",
+            "--lease-duration", "3", "--heartbeat-timeout", "30", "--cancel-force-after", "1"]
+    with log.open("w") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, text=True,
+                                env={**os.environ, "KUBECONFIG": str(k8s.kubeconfig)})
+    try:
+        def apply(doc: dict[str, Any]) -> None:
+            k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump(doc))
+
+        def beat() -> None:
+            now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+            k8s.kubectl("patch", "cell", "c1", "--subresource=status", "--type=merge",
+                        "-p", json.dumps({"status": {"lastHeartbeatTime": now}}))
+
+        def job(name: str) -> None:
+            apply({"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name, "namespace": ns},
+                   "spec": {"image": "localhost/armnet-test:dev", "embodiment": "test/crd"}})
+
+        def phase(name: str) -> str:
+            return k8s.kubectl("get", "rj", name, "-n", ns, "-o", "jsonpath={.status.phase}", check=False).stdout
+
+        apply({"apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": "c1"},
+               "spec": {"embodiment": "test/crd", "nodeName": "h"}})
+        beat()
+        job("before")
+        wait("the first job bound", lambda: phase("before") == "dispatched", proc, log)
+        k8s.kubectl("patch", "rj", "before", "-n", ns, "--subresource=status", "--type=merge",
+                    "-p", '{"status":{"phase":"succeeded","finishedAt":"2026-01-01T00:00:00Z"}}')
+        wait("the cell released", lambda: not k8s.kubectl(
+            "get", "cell", "c1", "-o", "jsonpath={.status.currentJob}").stdout, proc, log)
+
+        k8s.kubectl("delete", "crd", "robotjobs.armnet.io", "--timeout=60s")
+        wait("the operator saying the CRD is missing", lambda: "robotjobs.armnet.io are not served" in log.read_text(),
+             proc, log)
+        k8s.kubectl("apply", "--server-side", "-f", str(CRD))
+        k8s.kubectl("wait", "--for=condition=Established", "--timeout=60s", "crd/robotjobs.armnet.io")
+        beat()
+        wait("the CRD served again", lambda: k8s.kubectl("get", "rj", "-n", ns, check=False).returncode == 0, proc, log)
+        job("after")
+        wait("a new job bound after the CRD came back", lambda: phase("after") == "dispatched", proc, log)
+        assert "reconciling again" in log.read_text()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

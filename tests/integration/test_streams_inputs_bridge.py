@@ -1,0 +1,174 @@
+"""Operator inputs published on NATS reach one job's ``LocalOperatorInputs``; hostile ones do not."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import nats
+import pytest
+from armnet_agent.connector.inputs import LocalOperatorInputs
+from armnet_agent.node.inputs_bridge import MAX_INPUT_BYTES, OperatorInputsBridge
+from armnet_agent.node.streams import NatsLink, StreamSettings
+
+from tests.testbed.natsd import NatsServer
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 20, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.02)
+
+
+def send(url: str, *messages: tuple[str, Any]) -> None:
+    """Publish each (subject, JSON value or raw bytes) as a cell operator's client would."""
+
+    async def publish() -> None:
+        nc = await nats.connect(url)
+        for subject, body in messages:
+            await nc.publish(subject, body if isinstance(body, bytes) else json.dumps(body).encode())
+        await nc.flush()
+        await nc.close()
+
+    asyncio.run(publish())
+
+
+class Job:
+    def __init__(self, url: str, bridge: OperatorInputsBridge, inputs: LocalOperatorInputs,
+                 namespace: str, uid: str, cell: str) -> None:
+        self.url, self.bridge, self.inputs = url, bridge, inputs
+        self.teleop = f"teleop.{namespace}.{uid}"
+        self.fms = f"fms.{cell}"
+
+    def send(self, *messages: tuple[str, Any]) -> None:
+        """Send, then wait until the bridge has handled every one of them."""
+        handled = self.bridge.accepted + self.bridge.rejected
+        send(self.url, *messages)
+        wait_for(lambda: self.bridge.accepted + self.bridge.rejected >= handled + len(messages),
+                 what="the bridge to handle the messages")
+
+
+@pytest.fixture
+def link(nats_server: str) -> Iterator[NatsLink]:
+    link = NatsLink(StreamSettings(url=nats_server)).start()
+    yield link
+    link.stop()
+
+
+@pytest.fixture
+def job(link: NatsLink, nats_server: str) -> Iterator[Job]:
+    namespace, uid, cell = f"t{uuid.uuid4().hex[:8]}", "uid-1", f"cell-{uuid.uuid4().hex[:6]}"
+    inputs = LocalOperatorInputs()
+    bridge = OperatorInputsBridge(link, inputs, namespace=namespace, job_uid=uid, cell=cell).start()
+    assert bridge.wait_active(20)
+    yield Job(nats_server, bridge, inputs, namespace, uid, cell)
+    bridge.close()
+
+
+def test_teleop_actions_and_events_reach_the_job(job: Job) -> None:
+    job.send((f"{job.teleop}.action", {"action": {"shoulder_pan.pos": 12.5, "gripper.pos": 3}}),
+             (f"{job.teleop}.event", {"event": "next_episode"}))
+    assert job.inputs.latest_teleop_action() == {"shoulder_pan.pos": 12.5, "gripper.pos": 3.0}
+    assert job.inputs.next_teleop_event() == "next_episode"
+
+
+def test_an_fms_outcome_and_stop_reach_the_job(job: Job) -> None:
+    job.send((f"{job.fms}.outcome", {"success": False, "by": "ana"}),
+             (f"{job.fms}.stop", {"by": "ana", "reason": "cell door open"}))
+    assert job.inputs.take_outcome() is False
+    assert job.inputs.stop_requested()
+
+
+def test_a_confirmation_while_the_reset_waits_confirms_it(job: Job) -> None:
+    confirmed: list[bool] = []
+    waiter = threading.Thread(target=lambda: confirmed.append(job.inputs.wait_reset_confirmation(20)))
+    waiter.start()
+    assert job.inputs.wait_reset_pending(10)
+    job.send((f"{job.fms}.reset.confirm", {"by": "ana", "request": None}))
+    waiter.join(20)
+    assert confirmed == [True]
+
+
+def test_a_confirmation_sent_while_no_reset_waits_does_not_confirm_a_later_reset(job: Job) -> None:
+    job.send((f"{job.fms}.reset.confirm", {"by": "ana", "request": None}))
+    assert job.bridge.accepted == 1 and job.inputs.ignored_confirmations == 1
+    assert job.inputs.wait_reset_confirmation(0.3) is False
+
+
+@pytest.mark.parametrize("body", [
+    b"not json", b"\xff\xfe", b"[1, 2]", b'"a string"', b"{}",
+    {"action": {"gripper.pos": "open"}}, {"action": {"gripper.pos": True}}, {"action": [1, 2]},
+    {"action": {"gripper.pos": 1}, "extra": 1}, {"action": {f"m{i}": 0 for i in range(200)}},
+    {"action": {"x" * 500: 1}}, b'{"action": {"gripper.pos": 1e999}}',
+    b'{"action": {"gripper.pos": 1}, "pad": "' + b"x" * MAX_INPUT_BYTES + b'"}',
+], ids=lambda body: repr(body)[:40])
+def test_a_hostile_teleop_action_is_dropped_and_counted(job: Job, body: Any) -> None:
+    job.send((f"{job.teleop}.action", body))
+    assert (job.bridge.rejected, job.bridge.accepted) == (1, 0)
+    assert job.inputs.latest_teleop_action() is None
+
+
+@pytest.mark.parametrize(("kind", "body"), [
+    ("event", {"event": "launch_missiles"}), ("event", {"event": 1}),
+    ("outcome", {"success": "yes", "by": "ana"}), ("outcome", {"success": True}),
+    ("stop", {"by": 7}), ("stop", {"by": "ana", "reason": "x" * 5000}),
+    ("reset.confirm", {"by": {"name": "ana"}}), ("reset.confirm", []),
+])
+def test_hostile_fms_and_event_inputs_are_dropped_and_counted(job: Job, kind: str, body: Any) -> None:
+    subject = f"{job.teleop}.event" if kind == "event" else f"{job.fms}.{kind}"
+    job.send((subject, body))
+    assert (job.bridge.rejected, job.bridge.accepted) == (1, 0)
+    assert job.inputs.next_teleop_event() is None and job.inputs.take_outcome() is None
+    assert not job.inputs.stop_requested() and job.inputs.ignored_confirmations == 0
+
+
+def test_inputs_reach_the_job_again_after_the_server_restarts(nats_service: NatsServer) -> None:
+    link = NatsLink(StreamSettings(url=nats_service.url, reconnect_wait_s=0.2)).start()
+    inputs = LocalOperatorInputs()
+    bridge = OperatorInputsBridge(link, inputs, namespace="ns", job_uid="uid-r", cell="cell-r").start()
+    try:
+        assert bridge.wait_active(20)
+        nats_service.restart()
+        wait_for(lambda: link.connected, what="the link to reconnect")
+
+        def delivered() -> bool:  # the SUB may reach the new server just after the reconnect
+            send(nats_service.url, ("teleop.ns.uid-r.event", {"event": "stop_recording"}))
+            return inputs.next_teleop_event() == "stop_recording"
+
+        wait_for(delivered, what="a teleop event after the restart")
+    finally:
+        bridge.close()
+        link.stop()
+
+
+def test_the_cell_operator_is_told_when_a_reset_waits_and_that_confirmation_counts(
+    job: Job, nats_server: str
+) -> None:
+    async def confirm_on_notice() -> dict[str, Any]:
+        nc = await nats.connect(nats_server)
+        notices = await nc.subscribe(f"{job.fms}.reset.requested")
+        await nc.flush()
+        waiter.start()
+        notice = await notices.next_msg(timeout=20)
+        await nc.publish(f"{job.fms}.reset.confirm", json.dumps({"by": "ana", "request": None}).encode())
+        await nc.flush()
+        await nc.close()
+        return dict(json.loads(notice.data))
+
+    confirmed: list[bool] = []
+    waiter = threading.Thread(target=lambda: confirmed.append(job.inputs.wait_reset_confirmation(20)))
+    wait_for(lambda: job.bridge.link.connected, what="the link to connect")
+    notice = asyncio.run(confirm_on_notice())
+    waiter.join(20)
+
+    assert confirmed == [True]
+    assert notice["job"] == "uid-1" and notice["namespace"] == job.teleop.split(".")[1]

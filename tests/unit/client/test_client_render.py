@@ -1,0 +1,170 @@
+"""What the CLI prints and returns: tables, -o json shapes, result exit codes, log lines."""
+
+from __future__ import annotations
+
+import io
+import json
+from datetime import datetime, timedelta, timezone
+
+import pytest
+from armnet_client.cli.printer import LogPrinter, parse_since, tail
+from armnet_client.logwire import CaughtUp, LogLine
+from armnet_client.mapping import cell_view_of, job_from_robotjob, result_from_robotjob, view_of
+from armnet_client.render import (
+    age,
+    cell_document,
+    cells_table,
+    job_document,
+    jobs_table,
+    result_document,
+    result_exit_code,
+)
+from armnet_client.resources import Cell, RobotJob
+from armnet_core.models import JobStatus
+
+from .builders import a_cell, a_robotjob
+
+pytestmark = pytest.mark.unit
+
+NOW = datetime(2026, 11, 24, 10, 5, 0, tzinfo=timezone.utc)  # noqa: UP017
+
+
+def job(**status: object) -> RobotJob:
+    return RobotJob.model_validate(a_robotjob(**status))
+
+
+@pytest.mark.parametrize(("status", "code"), [
+    (JobStatus.SUCCEEDED, 0), (JobStatus.FAILED, 1), (JobStatus.TIMEOUT, 1), (JobStatus.CANCELLED, 1),
+    (JobStatus.SUBMITTED, 2), (JobStatus.QUEUED, 2), (JobStatus.DISPATCHED, 2), (JobStatus.RUNNING, 2),
+])
+def test_result_exit_codes_are_0_succeeded_1_other_terminal_2_unfinished(status: JobStatus, code: int) -> None:
+    assert result_exit_code(status) == code
+
+
+@pytest.mark.parametrize(("delta", "text"), [
+    (timedelta(seconds=5), "5s"), (timedelta(minutes=5), "5m"), (timedelta(hours=3), "3h"),
+    (timedelta(days=3), "3d"), (timedelta(seconds=-5), "0s"),
+])
+def test_ages_are_compact_like_kubectl(delta: timedelta, text: str) -> None:
+    assert age(NOW - delta, NOW) == text
+
+
+def test_a_queued_job_shows_its_reason_and_position() -> None:
+    rows = jobs_table([view_of(job(phase="queued", queuedReason="AllCellsBusy", queuePosition=2))],
+                      NOW).splitlines()
+
+    assert rows[0].split() == ["NAME", "STATUS", "CELL", "EMBODIMENT", "QUEUE", "AGE"]
+    assert rows[1].split() == ["pick-1", "queued", "<none>", "lerobot/so-101", "AllCellsBusy", "#2", "5m"]
+
+
+def test_a_running_job_shows_its_cell_and_no_queue() -> None:
+    row = jobs_table([view_of(job(phase="running", cellName="cell-a"))], NOW).splitlines()[1]
+
+    assert row.split() == ["pick-1", "running", "cell-a", "lerobot/so-101", "-", "5m"]
+
+
+def test_wide_adds_task_priority_image_and_progress_with_rollout() -> None:
+    rows = jobs_table([view_of(job(phase="running", progress="grasp", rollout={"index": 3, "total": 10}))],
+                      NOW, wide=True).splitlines()
+
+    assert rows[0].split()[-4:] == ["TASK", "PRIORITY", "IMAGE", "PROGRESS"]
+    assert rows[1].endswith("grasp [rollout 3/10]")
+
+
+def test_columns_are_aligned() -> None:
+    rows = jobs_table([view_of(job()), view_of(RobotJob.model_validate(a_robotjob(name="a-much-longer-name")))],
+                      NOW).splitlines()
+
+    assert len({row.index("submitted") for row in rows[1:]}) == 1
+
+
+def test_the_job_json_shape_is_the_sdk_job_plus_queue_and_progress() -> None:
+    body = job(phase="queued", jobId="0f3c-uid", queuedReason="AllCellsBusy", queuePosition=1)
+
+    document = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))
+
+    assert set(document) == {"id", "spec", "status", "created_at", "updated_at", "cell_id", "result",
+                             "namespace", "jobId", "queue", "progress", "rollout", "cancelRequested"}
+    assert document["status"] == "queued"
+    assert document["queue"] == {"reason": "AllCellsBusy", "position": 1}
+    assert document["spec"]["embodiment"] == "lerobot/so-101"
+
+
+def test_the_result_json_is_the_job_result_plus_finished() -> None:
+    body = job(phase="failed", result={"exitCode": 2, "error": "image pull failed"})
+
+    document = result_document(result_from_robotjob(body), JobStatus.FAILED)
+
+    assert document["finished"] is True
+    assert (document["status"], document["exit_code"], document["error"]) == ("failed", 2, "image pull failed")
+    assert {"stdout", "stderr", "traceback", "return_value", "started_at", "finished_at"} <= set(document)
+
+
+def test_an_unfinished_result_json_says_so() -> None:
+    assert result_document(None, JobStatus.RUNNING) == {"status": "running", "finished": False}
+
+
+def test_the_cells_table_shows_failing_conditions_and_heartbeat_age() -> None:
+    cell = cell_view_of(Cell.model_validate(a_cell(
+        phase="Faulted", currentJob="team-a/pick-1", lastHeartbeatTime="2026-11-24T10:04:30Z",
+        conditions=[{"type": "HardwareReady", "status": "False", "reason": "PortMissing"}])))
+
+    rows = cells_table([cell], NOW).splitlines()
+
+    assert rows[1].split() == ["cell-1", "Faulted", "lerobot/so-101", "<any>", "team-a/pick-1",
+                               "HardwareReady(PortMissing)", "30s", "ago"]
+    assert cell_document(cell)["failingConditions"] == [
+        {"type": "HardwareReady", "reason": "PortMissing", "message": None}]
+
+
+def line(kind: str, text: str, data: object = None) -> LogLine:
+    return LogLine(kind=kind, text=text, time=NOW, data=data)
+
+
+def test_output_lines_are_timestamped_in_utc_and_stderr_is_marked() -> None:
+    out = io.StringIO()
+    printer = LogPrinter(out, live=False)
+
+    printer.show(line("stdout", "hello"))
+    printer.show(line("stderr", "oops"))
+
+    assert out.getvalue() == "2026-11-24T10:05:00.000Z hello\n2026-11-24T10:05:00.000Z [stderr] oops\n"
+
+
+def test_on_a_terminal_progress_is_one_live_line_redrawn_under_the_output() -> None:
+    out = io.StringIO()
+    printer = LogPrinter(out, live=True, timestamps=False)
+
+    printer.show(line("progress", "step 1"))
+    printer.show(line("stdout", "x"))
+    printer.show(line("progress", "step 2"))
+    printer.close()
+
+    assert out.getvalue() == "\r\x1b[2Kstep 1\r\x1b[2Kx\nstep 1\r\x1b[2Kstep 2\n"
+
+
+def test_after_rollout_begin_progress_shows_the_rollout_index() -> None:
+    out = io.StringIO()
+    printer = LogPrinter(out, live=False, timestamps=False)
+
+    printer.show(line("status", "status: running", {"phase": "running", "detail": {"rollout": {"index": 3, "total": 10}}}))
+    printer.show(line("progress", "grasping"))
+
+    assert out.getvalue().splitlines() == ["[status: running]", "[progress] [rollout 3/10] grasping"]
+
+
+def test_tail_keeps_the_last_n_stored_lines_then_everything_live() -> None:
+    events = [line("stdout", str(i)) for i in range(5)] + [CaughtUp(), line("stdout", "live")]
+
+    assert [x.text for x in tail(events, 2)] == ["3", "4", "live"]
+    assert [x.text for x in tail(events, None)] == ["0", "1", "2", "3", "4", "live"]
+    assert [x.text for x in tail(events, 0)] == ["live"]
+
+
+def test_since_takes_durations_and_times_with_a_zone() -> None:
+    assert parse_since("10m", NOW) == NOW - timedelta(minutes=10)
+    assert parse_since("2026-11-24T09:00:00Z", NOW) == datetime(2026, 11, 24, 9, tzinfo=timezone.utc)  # noqa: UP017
+    with pytest.raises(ValueError, match="time zone"):
+        parse_since("2026-11-24T09:00:00", NOW)
+    with pytest.raises(ValueError, match="duration like 10m"):
+        parse_since("yesterday", NOW)
