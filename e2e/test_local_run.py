@@ -160,7 +160,7 @@ def test_the_bimanual_example_moves_both_arms_and_the_simulator_agrees() -> None
     assert "[progress] right: done" in run.out.getvalue()
 
 
-def test_an_oversized_step_trips_the_safety_limit_and_the_interlock_then_holds(tmp_path: Path) -> None:
+def test_an_oversized_step_trips_the_safety_limit_and_the_interlock_then_holds_under_trip(tmp_path: Path) -> None:
     job = write_job(tmp_path, "oversized.py", BUS_PREAMBLE + """
     from armnet_runtime.errors import InterlockTripped, SafetyViolation
 
@@ -186,13 +186,66 @@ def test_an_oversized_step_trips_the_safety_limit_and_the_interlock_then_holds(t
         bus.disconnect(disable_torque=False)
         return seen
     """)
-    run = InProcessRun(str(job), "--timeout", "300")
+    cell_file = tmp_path / "cell.yaml"
+    cell_file.write_text("safety_policy: trip\n")
+    run = InProcessRun(str(job), "--timeout", "300", "--cell-config", str(cell_file))
     value = assert_succeeded(run())
     assert value["oversized"] == "SafetyViolation"
     assert "shoulder_pan" in value["message"]
     assert value["small_after"] == "InterlockTripped"
     assert abs(value["read_after"] - value["start"]) <= ARRIVED  # reads still work; nothing moved
     assert abs(run.joints["arm"]["shoulder_pan"] - value["start"]) <= ARRIVED
+
+
+def test_an_oversized_step_is_clamped_by_default_and_the_job_keeps_moving(tmp_path: Path) -> None:
+    job = write_job(tmp_path, "clamped.py", BUS_PREAMBLE + """
+    @main
+    def run(ctx: Context):
+        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
+        start = bus.sync_read("Present_Position")["shoulder_pan"]
+        bus.sync_write("Goal_Position", {"shoulder_pan": start + 5 * ctx.cell.safety_limit})  # clamped
+        time.sleep(1.0)
+        after = bus.sync_read("Present_Position")["shoulder_pan"]
+        bus.sync_write("Goal_Position", {"shoulder_pan": after - 1.0})  # motion still allowed
+        bus.disconnect(disable_torque=False)
+        return {"start": start, "after": after, "limit": ctx.cell.safety_limit}
+    """)
+    run = InProcessRun(str(job), "--timeout", "300")
+    value = assert_succeeded(run())
+    moved = value["after"] - value["start"]
+    assert 0 < moved <= value["limit"] + ARRIVED  # one limit's worth, not five
+
+
+def test_hostile_register_writes_and_calibration_are_refused_under_armnet_run(tmp_path: Path) -> None:
+    job = write_job(tmp_path, "hostile.py", BUS_PREAMBLE + """
+    from armnet_runtime.errors import RemoteCallError
+
+    WRITES = [("Operating_Mode", 1), ("Min_Position_Limit", 0), ("Max_Position_Limit", 4095),
+              ("Homing_Offset", 500), ("Torque_Limit", 0), ("Goal_Velocity", 3000), ("Lock", 0)]
+
+    @main
+    def run(ctx: Context):
+        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
+        refused = {}
+        for register, value in WRITES:
+            try:
+                bus.write(register, "wrist_flex", value, normalize=False)
+                refused[register] = "accepted"
+            except RemoteCallError as exc:
+                refused[register] = exc.error_type
+        for method in ("set_half_turn_homings", "record_ranges_of_motion"):
+            try:
+                getattr(bus, method)()
+                refused[method] = "accepted"
+            except RemoteCallError as exc:
+                refused[method] = exc.error_type
+        calibrated = bus.is_calibrated
+        bus.disconnect()
+        return {"refused": refused, "calibrated": calibrated}
+    """)
+    value = assert_succeeded(InProcessRun(str(job), "--timeout", "300")())
+    assert set(value["refused"].values()) == {"NotAllowed"}, value["refused"]
+    assert value["calibrated"] is True
 
 
 def test_a_job_ignoring_the_timeout_is_killed_within_1s_of_the_grace_window_end(tmp_path: Path) -> None:

@@ -43,7 +43,9 @@ FEETECH = ClassRules(
             "ids", "models",
         }
     ),
-    writable=frozenset({"calibration"}),
+    # Nothing is assignable: ``calibration`` is the cell's (read-only), and every other
+    # attribute changes how the real bus talks to the hardware.
+    writable=frozenset(),
     motion=frozenset(
         {
             "write", "sync_write", "enable_torque", "torque_disabled", "configure_motors",
@@ -65,6 +67,15 @@ ARX5 = ClassRules(
     readable=frozenset({"is_connected"}),
     motion=frozenset({"send_action", "reset_to_home"}),
 )
+
+#: Methods that rewrite the servos' calibration (EEPROM homing offsets and limits), or
+#: (record_ranges_of_motion) run LeRobot's interactive calibration on the connector's terminal.
+#: Refused unless the cell allows calibration jobs.
+CALIBRATION_METHODS: dict[str, frozenset[str]] = {
+    "FeetechMotorsBus": frozenset(
+        {"write_calibration", "reset_calibration", "set_half_turn_homings", "record_ranges_of_motion"}
+    ),
+}
 
 CLASSES: dict[str, ClassRules] = {
     "FeetechMotorsBus": FEETECH,

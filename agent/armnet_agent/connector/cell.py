@@ -96,7 +96,10 @@ class CellState:
         self.deadline = Deadline(
             self.config.timeout_seconds, self.config.grace_period_seconds, self.interlock, self.on_grace_expired
         )
-        self.guard = MotionGuard(self.interlock, self.config.present_position_max_age_ms / 1000, self.counters)
+        self.guard = MotionGuard(
+            self.interlock, self.config.present_position_max_age_ms / 1000, self.counters,
+            policy=self.config.safety_policy,
+        )
         self._live: dict[int, Handle] = {}
         #: The latest return to rest of each arm, as read back from its servos.
         self.rest_reports: dict[str, RestReport] = {}

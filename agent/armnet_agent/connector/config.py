@@ -8,12 +8,16 @@ opens a device.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic.alias_generators import to_camel
+
+from .identity import NORM_MODES
+from .registers import valid_bounds
 
 #: LeRobot's motor model for every SO-101 joint.
 DEFAULT_MOTOR_MODEL = "sts3215"
@@ -41,14 +45,53 @@ class ArmConfig(_Model):
         default=None, description="raw servo ticks per motor; default: the middle of each calibrated range"
     )
     motor_model: str = DEFAULT_MOTOR_MODEL
+    norm_modes: dict[str, str] | None = Field(
+        default=None,
+        description="LeRobot MotorNormMode value per motor (degrees, range_0_100, range_m100_100); "
+        "default: the SO-101's (body in degrees, gripper range_0_100). A job must declare the same.",
+    )
 
-    @field_validator("safety_limit")
+    @field_validator("safety_limit", mode="before")
     @classmethod
-    def _positive_limit(cls, value: float | dict[str, float] | None) -> float | dict[str, float] | None:
-        limits = value.values() if isinstance(value, dict) else [] if value is None else [value]
-        if any(limit <= 0 for limit in limits):
-            raise ValueError("safety_limit must be positive (or null for no relative limit)")
+    def _valid_limit(cls, value: Any) -> Any:
+        return check_limit(value, "safetyLimit")
+
+    @field_validator("norm_modes")
+    @classmethod
+    def _known_norm_modes(cls, value: dict[str, str] | None) -> dict[str, str] | None:
+        for motor, mode in (value or {}).items():
+            if mode not in NORM_MODES:
+                raise ValueError(f"normModes[{motor!r}] is {mode!r}; use one of {sorted(NORM_MODES)}")
         return value
+
+
+def check_limit(value: Any, what: str) -> Any:
+    """A relative limit as LeRobot's ``max_relative_target`` takes it, or a readable error.
+
+    Why strict: NaN compares false with everything (so every step would pass), a
+    negative or zero limit refuses every move, and a string or bool is a typo
+    that must not silently become a number.
+    """
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        if not value:
+            raise ValueError(f"{what} is an empty mapping; give a number per motor, one number, or null")
+        for motor, limit in value.items():
+            if not isinstance(motor, str):
+                raise ValueError(f"{what} keys must be motor names, got {motor!r}")
+            check_limit(limit, f"{what}[{motor!r}]")
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(
+            f"{what} must be a number of units per write (or a mapping motor -> number), "
+            f"got {type(value).__name__} {str(value)[:40]!r}"
+        )
+    if not math.isfinite(value):
+        raise ValueError(f"{what} is {value}; it must be a finite number (NaN would let every step pass)")
+    if value <= 0:
+        raise ValueError(f"{what} is {value}; it must be positive (or null for no relative limit)")
+    return value
 
 
 class CameraConfig(_Model):
@@ -86,6 +129,20 @@ class ConnectorConfig(_Model):
     rest_speed_ticks_per_second: float = Field(
         default=600.0, gt=0, description="speed limit of return_to_rest, in raw servo ticks per second"
     )
+    safety_policy: Literal["clamp", "trip"] = Field(
+        default="clamp",
+        description="goals beyond the relative limit: clamped to present ± limit as LeRobot's "
+        "max_relative_target does (clamp), or refused with the interlock tripped (trip)",
+    )
+    allow_calibration_jobs: bool = Field(
+        default=False,
+        description="let jobs run LeRobot's calibration (EEPROM writes of homing and limits); off: "
+        "the calibration belongs to the cell and is read-only",
+    )
+    register_bounds: dict[str, tuple[int, int]] = Field(
+        default_factory=dict,
+        description="inclusive [low, high] raw bounds per bounded register (registers.DEFAULT_BOUNDS)",
+    )
     present_position_max_age_ms: float = Field(
         default=25.0,
         ge=0,
@@ -99,6 +156,9 @@ class ConnectorConfig(_Model):
             raise ValueError("a cell needs at least one arm under 'arms'")
         if self.default_arm is not None and self.default_arm not in self.arms:
             raise ValueError(f"default_arm {self.default_arm!r} is not one of the arms {sorted(self.arms)}")
+        problems = valid_bounds(self.register_bounds)
+        if problems:
+            raise ValueError("registerBounds: " + "; ".join(problems))
         return self
 
     def arm_for(self, selector: str | None) -> tuple[str, ArmConfig]:
@@ -137,6 +197,7 @@ class MotorRange:
     range_min: int
     range_max: int
     drive_mode: int = 0
+    homing_offset: int = 0
 
     @property
     def middle(self) -> int:
@@ -156,6 +217,7 @@ def read_calibration_file(path: Path) -> dict[str, MotorRange]:
                 range_min=int(entry["range_min"]),
                 range_max=int(entry["range_max"]),
                 drive_mode=int(entry.get("drive_mode", 0)),
+                homing_offset=int(entry.get("homing_offset", 0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"calibration file {path}: motor {motor!r} is malformed ({exc})") from exc

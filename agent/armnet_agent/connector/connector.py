@@ -22,6 +22,7 @@ from .hardware import CameraFactory
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
 from .record import ConnectorRecord
+from .report import SafetyReport
 from .server import BufferBudget, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession
 from .warm_imports import start_warm_imports
@@ -156,6 +157,16 @@ class Connector:
     @property
     def counters(self) -> Counters:
         return self.cell.counters
+
+    def safety_report(self) -> SafetyReport:
+        """The job's safety record so far (clamps, refusals, trips, torque off), as plain data.
+
+        Torque off per arm: the cell's own bus at release (shutdown) has the last word;
+        before that, the job's bus (its disconnect reads the torque back).
+        """
+        report = self.cell.guard.recorder.snapshot()
+        confirmed = {**report.torque_off_confirmed, **self.cell.torque_confirmed}
+        return dataclasses.replace(report, torque_off_confirmed=confirmed)
 
     def record(self) -> ConnectorRecord:
         """The job's account so far (interlock, safety, rest, torque off, counters) as frozen data."""

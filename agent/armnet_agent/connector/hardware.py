@@ -22,6 +22,10 @@ from armnet_runtime.endpoints import parse_endpoint
 
 from .config import ArmConfig, CameraConfig, ConnectorConfig, MotorRange
 from .errors import RequestError, not_allowed
+from .identity import CellMotor, JobMotor, cell_motor_table, motors_refusal, protocol_refusal
+from .interlock import Interlock
+from .policed_bus import BusPolicy, policed_bus_class
+from .report import SafetyRecorder
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +46,10 @@ class Handle:
     arm: str | None = None
     arm_config: ArmConfig | None = None
     cell_ranges: dict[str, MotorRange] = field(default_factory=dict)
+    #: The cell's motors of this bus (a job's ``motors`` are checked to be exactly these).
+    cell_motors: dict[str, CellMotor] = field(default_factory=dict)
+    #: The cell lets this job run LeRobot's calibration methods (``allowCalibrationJobs``).
+    allow_calibration: bool = False
     #: Latest Present_Position sync_read, per ``normalize`` flag: (monotonic time, values).
     present: dict[bool, tuple[float, dict[str, float]]] = field(default_factory=dict)
     #: The safety facts of the motors last written, with the values they were built from.
@@ -124,10 +132,58 @@ def arm_selector(port: Any, config: ConnectorConfig) -> str | None:
         ) from None
 
 
+def cell_motors_of(arm: ArmConfig, ranges: dict[str, MotorRange]) -> dict[str, CellMotor]:
+    """The arm's motor table: ids from the cell's calibration, units from the cell (or the SO-101's)."""
+    return cell_motor_table({m: r.id for m, r in ranges.items()}, arm.motor_model, arm.norm_modes)
+
+
+def _job_motors(motors: Any) -> dict[str, JobMotor]:
+    from lerobot.motors import Motor
+
+    if not isinstance(motors, dict) or not all(isinstance(k, str) and isinstance(v, Motor) for k, v in motors.items()):
+        raise not_allowed(
+            f"motors must be a dict of motor name -> lerobot.motors.Motor, got {type(motors).__name__}"
+        )
+    return {
+        name: JobMotor(m.id, m.model, getattr(m.norm_mode, "value", m.norm_mode)) for name, m in motors.items()
+    }
+
+
+def _cell_calibration(motors: dict[str, Any], ranges: dict[str, MotorRange]) -> dict[str, Any]:
+    from lerobot.motors import MotorCalibration
+
+    return {
+        name: MotorCalibration(r.id, r.drive_mode, r.homing_offset, r.range_min, r.range_max)
+        for name, r in ranges.items() if name in motors
+    }
+
+
+def _calibration_refusal(given: Any, cell: dict[str, Any]) -> str | None:
+    """Why a job's ``calibration`` argument is refused: it must be absent or the cell's own."""
+    if given is None:
+        return None
+    if not isinstance(given, dict):
+        return f"calibration must be a dict of motor name -> MotorCalibration or None, got {type(given).__name__}"
+    for name, entry in given.items():
+        if name not in cell or entry != cell[name]:
+            return (
+                f"calibration for motor {str(name)[:64]!r} is not this cell's ({cell.get(name)!r}); the cell's "
+                "calibration applies to every job: pass None or the file at ctx.cell.calibration_dir"
+            )
+    return None
+
+
 def create_feetech(
     args: list[Any], kwargs: dict[str, Any], config: ConnectorConfig, locks: DeviceLocks,
-    ranges: dict[str, dict[str, MotorRange]],
+    ranges: dict[str, dict[str, MotorRange]], *, interlock: Interlock, recorder: SafetyRecorder,
 ) -> Handle:
+    """The job's bus, built from the cell's description: the job only chooses a subset of its motors.
+
+    Checked before anything is built (so a refused request changes nothing, not even
+    scservo_sdk's process-global byte order): the port maps to an arm of the cell;
+    every motor is the cell's, with its id, model and unit; the calibration is absent
+    or the cell's; the protocol is the motors' own. The bus gets the cell's calibration.
+    """
     from lerobot.motors.feetech import FeetechMotorsBus
 
     bound = _bind(FeetechMotorsBus, args, kwargs)
@@ -136,11 +192,37 @@ def create_feetech(
         arm_name, arm = config.arm_for(arm_selector(port, config))
     except KeyError as exc:
         raise RequestError("KeyError", str(exc.args[0])) from None
-    bound.arguments["port"] = arm.port
-    obj = FeetechMotorsBus(*bound.args, **bound.kwargs)
+    arm_ranges = ranges.get(arm_name, {})
+    if not arm_ranges:
+        raise not_allowed(
+            f"arm {arm_name!r} has no calibration file on this cell: the connector does not know its motors, "
+            "so it serves no bus on it (the cell's owner must provide the calibration)"
+        )
+    cell = cell_motors_of(arm, arm_ranges)
+    job = _job_motors(bound.arguments.get("motors"))
+    why = motors_refusal(job, cell)
+    if why is None:
+        models = {cell[m].model for m in job} or {motor.model for motor in cell.values()}
+        why = protocol_refusal(bound.arguments.get("protocol_version", 0), models)
+    cell_calibration = _cell_calibration(job, arm_ranges)
+    if why is None:
+        why = _calibration_refusal(bound.arguments.get("calibration"), cell_calibration)
+    if why is not None:
+        raise not_allowed(why)
+    from lerobot.motors import Motor, MotorNormMode
+
+    # The cell's ids and models; the job's unit where the cell accepts it (identity.ALSO_ACCEPTED).
+    motors = {m: Motor(cell[m].id, cell[m].model, MotorNormMode(str(job[m].norm_mode))) for m in job}
+    policy = BusPolicy(
+        arm_name, {cell[m].id: (m, cell[m]) for m in cell}, interlock, recorder,
+        bounds=dict(config.register_bounds), allow_calibration=config.allow_calibration_jobs,
+        calibration={r.id: (r.homing_offset, r.range_min, r.range_max) for r in arm_ranges.values()},
+    )
+    obj = policed_bus_class()(port=arm.port, motors=motors, calibration=cell_calibration, armnet_policy=policy)
     return Handle(
         "FeetechMotorsBus", obj, locks.get(arm.port), overrides={"port": port},
-        arm=arm_name, arm_config=arm, cell_ranges=ranges.get(arm_name, {}),
+        arm=arm_name, arm_config=arm, cell_ranges=arm_ranges, cell_motors={m: cell[m] for m in job},
+        allow_calibration=config.allow_calibration_jobs,
     )
 
 

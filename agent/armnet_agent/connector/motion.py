@@ -13,18 +13,26 @@ import math
 import time
 from typing import Any
 
-from .allowlist import CLASSES
+from .allowlist import CALIBRATION_METHODS, CLASSES
 from .config import MotorRange
 from .errors import RequestError
 from .hardware import Handle
 from .interlock import Interlock, TripReason
+from .report import SafetyRecorder
 from .retry import with_read_retry
 from .safety import (
     GOAL_POSITION,
     PROTECTED_REGISTERS,
     MotorFacts,
-    check_goal_write,
+    decide_goal_write,
     is_release_write,
+)
+
+CALIBRATION_REFUSAL = (
+    "{method} is not allowed: the cell's calibration belongs to the cell, and a job never rewrites it "
+    "(homing offsets and position limits live in the servos' EEPROM, and every later job depends on "
+    "them). Use the cell's calibration, provided read-only at ctx.cell.calibration_dir; a cell whose "
+    "owner allows calibration jobs (allowCalibrationJobs) runs them."
 )
 
 _signatures: dict[tuple[type, str], inspect.Signature] = {}
@@ -94,6 +102,10 @@ def _number(motor: str, value: Any) -> float:
 def write_arguments(handle: Handle, method: str, args: list[Any], kwargs: dict[str, Any]) -> tuple[str, dict[str, float], bool]:
     """(register, {motor: value}, normalize) of a ``write``/``sync_write`` call, bound like the real one."""
     arguments = _bound_arguments(handle.obj, method, args, kwargs)
+    return _write_values(handle, method, arguments)
+
+
+def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tuple[str, dict[str, float], bool]:
     data_name = arguments.get("data_name")
     normalize = bool(arguments.get("normalize", True))
     if method == "write":
@@ -139,6 +151,7 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
             getattr(bus_motors[m].norm_mode, "value", str(bus_motors[m].norm_mode)),
             _motor_range(calibration, m),
             handle.cell_ranges.get(m),
+            handle.cell_motors[m].norm_mode if m in handle.cell_motors else None,
         )
         for m in motors
     }
@@ -146,17 +159,36 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     return facts
 
 
+def _replace_argument(obj: Any, method: str, args: list[Any], kwargs: dict[str, Any], name: str, value: Any) -> None:
+    """Put ``value`` where the call passed parameter ``name`` (the clamp rewrites the call in place)."""
+    if name in kwargs:
+        kwargs[name] = value
+        return
+    positional = [p.name for p in list(_signature(obj, method).parameters.values())[1:]]
+    args[positional.index(name)] = value
+
+
 class MotionGuard:
     """Decides, per call, whether a motion request reaches the bus (see ``safety``)."""
 
-    def __init__(self, interlock: Interlock, present_max_age_s: float, counters: Any) -> None:
+    def __init__(self, interlock: Interlock, present_max_age_s: float, counters: Any, *, policy: str = "clamp") -> None:
         self.interlock = interlock
         self.present_max_age_s = present_max_age_s
         self.counters = counters
+        self.policy = policy
+        self.recorder = SafetyRecorder(policy)
 
     def check(self, handle: Handle, method: str, args: list[Any], kwargs: dict[str, Any]) -> None:
-        """Raise ``RequestError`` if the call must not reach the device; caller holds the device lock."""
+        """Raise ``RequestError`` if the call must not reach the device; caller holds the device lock.
+
+        Under ``safetyPolicy: clamp`` a goal write beyond the relative limit is not
+        refused: its goals are clamped, and ``args``/``kwargs`` are rewritten in place.
+        """
         rules = CLASSES[handle.class_name]
+        if method in CALIBRATION_METHODS.get(handle.class_name, ()) and not handle.allow_calibration:
+            message = CALIBRATION_REFUSAL.format(method=method)
+            self.recorder.record_refusal("calibration", None, message, tripped=False)
+            raise RequestError("NotAllowed", message)
         if method not in rules.motion:
             return
         refusal = self.interlock.refusal()
@@ -164,7 +196,13 @@ class MotionGuard:
             if refusal is not None:
                 raise RequestError(*refusal)
             return
-        data_name, values, normalize = write_arguments(handle, method, args, kwargs)
+        arguments = _bound_arguments(handle.obj, method, args, kwargs)
+        try:
+            data_name, values, normalize = _write_values(handle, method, arguments)
+        except RequestError as exc:
+            if arguments.get("data_name") == GOAL_POSITION:
+                self._refuse_goal(exc, "non_finite" if exc.error_type == "ValueError" else "wrong_type")
+            raise
         if data_name in PROTECTED_REGISTERS:
             raise RequestError(
                 "NotAllowed", f"writing {data_name!r} would re-address the cell's servos; it is not allowed"
@@ -172,26 +210,55 @@ class MotionGuard:
         if refusal is not None and not is_release_write(data_name, values):
             raise RequestError(*refusal)
         if data_name == GOAL_POSITION:
-            self._check_goals(handle, values, normalize)
+            clamped = self._check_goals(handle, values, normalize)
+            if clamped:
+                self._rewrite(handle, method, args, kwargs, arguments, clamped)
 
-    def _check_goals(self, handle: Handle, goals: dict[str, float], normalize: bool) -> None:
+    def _refuse_goal(self, exc: RequestError, kind: str) -> None:
+        """A goal that is not a finite number: refused, and the interlock trips (as any refused goal)."""
+        self.counters.safety_violations += 1
+        tripped = self.interlock.trip(TripReason.SAFETY, exc.message)
+        self.recorder.record_refusal(kind, None, exc.message, tripped=tripped)
+
+    def _check_goals(self, handle: Handle, goals: dict[str, float], normalize: bool) -> dict[str, float]:
+        """The goals the policy clamped (motor -> new goal); raises on a violation."""
         motors = handle.obj.motors
         known = {m: v for m, v in goals.items() if m in motors}
         if not known:
-            return
+            return {}
         limit = handle.arm_config.safety_limit if handle.arm_config is not None else None
         present = self._present(handle, list(known), normalize) if limit is not None else {}
         facts = _motor_facts(handle, known)
-        violation = check_goal_write(known, present, facts, limit, normalize=normalize)
+        decision = decide_goal_write(known, present, facts, limit, normalize=normalize, clamp=self.policy == "clamp")
+        if decision.steps:
+            self.recorder.record_steps(decision.steps)
+        violation = decision.violation
         if violation is None:
-            return
+            for motor in decision.clamped:
+                self.recorder.record_clamp(motor)
+            return {m: decision.goals[m] for m in decision.clamped}
         self.counters.safety_violations += 1
         message = violation.message()
-        self.interlock.trip(TripReason.SAFETY, message)
+        tripped = self.interlock.trip(TripReason.SAFETY, message)
+        kind = "out_of_range" if violation.kind == "absolute" else "relative"
+        self.recorder.record_refusal(kind, violation.motor, message, tripped=tripped)
         raise RequestError(
             "SafetyViolation", message, motor=violation.motor, step=violation.step,
             limit=violation.limit, requested=violation.requested,
         )
+
+    @staticmethod
+    def _rewrite(
+        handle: Handle, method: str, args: list[Any], kwargs: dict[str, Any], arguments: dict[str, Any],
+        clamped: dict[str, float],
+    ) -> None:
+        if method == "write":
+            _replace_argument(handle.obj, method, args, kwargs, "value", next(iter(clamped.values())))
+            return
+        raw = arguments.get("values")
+        values = dict(raw) if isinstance(raw, dict) else dict.fromkeys(handle.obj.motors, raw)
+        values.update(clamped)
+        _replace_argument(handle.obj, method, args, kwargs, "values", values)
 
     def _present(self, handle: Handle, motors: list[str], normalize: bool) -> dict[str, float]:
         cached = handle.present.get(normalize)

@@ -16,8 +16,9 @@ from .config import MotorRange
 
 GOAL_POSITION = "Goal_Position"
 #: Registers that may still be written while the interlock holds, and only with 0
-#: (what ``disable_torque`` writes): letting go of the arm is always allowed.
-RELEASE_REGISTERS = frozenset({"Torque_Enable", "Lock"})
+#: (what ``disable_torque`` writes): letting go of the arm is always allowed. Not
+#: ``Lock``: 0 unlocks the EEPROM (the connector's bus never writes it, see ``policed_bus``).
+RELEASE_REGISTERS = frozenset({"Torque_Enable"})
 #: Registers a job may never write: they re-address servos of a shared cell (as
 #: ``setup_motor``/``set_baudrate`` would), leaving the next job a broken bus.
 PROTECTED_REGISTERS = frozenset({"ID", "Baud_Rate"})
@@ -103,6 +104,20 @@ class MotorFacts:
     norm_mode: str
     bus_range: MotorRange | None  # the calibration the bus normalises with (may be the customer's)
     cell_range: MotorRange | None  # the cell's own calibration: the absolute limits
+    #: The unit the cell's limit is in (the cell's norm mode); None: the bus's own unit.
+    limit_norm_mode: str | None = None
+
+
+def limit_in_write_units(limit: float, fact: MotorFacts, *, normalize: bool) -> float:
+    """The cell's relative limit expressed in the units of a write, through raw ticks."""
+    scale_range = fact.cell_range or fact.bus_range
+    if scale_range is None:
+        return limit
+    ticks = limit * ticks_per_unit(fact.limit_norm_mode or fact.norm_mode, scale_range)
+    if not normalize:
+        return ticks
+    per_unit = ticks_per_unit(fact.norm_mode, scale_range)
+    return ticks / per_unit if per_unit > 0 else limit
 
 
 def check_goal_write(
@@ -133,14 +148,59 @@ def check_goal_write(
                 return Violation(motor, "absolute", float(raw), float(high), bounds=(low, high))
         rel = limit_for(limit, motor)
         if rel is not None and motor in present:
-            if not normalize:
-                scale_range = fact.cell_range or fact.bus_range
-                if scale_range is not None:
-                    rel = rel * ticks_per_unit(fact.norm_mode, scale_range)
+            rel = limit_in_write_units(rel, fact, normalize=normalize)
             step = goal - present[motor]
             if abs(step) > rel:
                 return Violation(motor, "relative", goal, rel, present=present[motor], step=step)
     return None
+
+
+@dataclass(frozen=True)
+class GoalDecision:
+    """What becomes of one goal write: the goals to send, which were clamped, and the steps asked."""
+
+    goals: dict[str, float]
+    clamped: tuple[str, ...] = ()
+    #: Step from the present position per motor, as requested (before any clamp).
+    steps: dict[str, float] | None = None
+    violation: Violation | None = None
+
+
+def decide_goal_write(
+    goals: Mapping[str, float],
+    present: Mapping[str, float],
+    facts: Mapping[str, MotorFacts],
+    limit: float | Mapping[str, float] | None,
+    *,
+    normalize: bool,
+    clamp: bool,
+) -> GoalDecision:
+    """The ``clamp``/``trip`` safety policy over one goal write.
+
+    A goal outside the calibrated range is always a violation. A step beyond the
+    relative limit is a violation under ``trip``; under ``clamp`` the goal is moved
+    to present ± limit, as LeRobot's ``ensure_safe_goal_position`` does.
+    """
+    steps = {m: goals[m] - present[m] for m in goals if m in present}
+    if not clamp:
+        return GoalDecision(dict(goals), (), steps, check_goal_write(goals, present, facts, limit, normalize=normalize))
+    absolute = check_goal_write(goals, {}, facts, None, normalize=normalize)
+    if absolute is not None:
+        return GoalDecision(dict(goals), (), steps, absolute)
+    result = dict(goals)
+    clamped = []
+    for motor, step in steps.items():
+        fact = facts.get(motor)
+        rel = limit_for(limit, motor)
+        if fact is None or rel is None:
+            continue
+        rel = limit_in_write_units(rel, fact, normalize=normalize)
+        if abs(step) > rel:
+            # A raw goal stays whole ticks, inside the limit.
+            allowed = rel if normalize else float(math.floor(rel))
+            result[motor] = present[motor] + math.copysign(allowed, step)
+            clamped.append(motor)
+    return GoalDecision(result, tuple(clamped), steps, None)
 
 
 def plan_rest_steps(

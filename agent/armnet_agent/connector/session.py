@@ -187,7 +187,9 @@ class RobotSession(Session):
         args, kwargs = _arguments(request)
         cell = self.cell
         if class_name == "FeetechMotorsBus":
-            handle = create_feetech(args, kwargs, cell.config, cell.locks, cell.ranges)
+            handle = create_feetech(
+                args, kwargs, cell.config, cell.locks, cell.ranges, interlock=cell.interlock, recorder=cell.guard.recorder
+            )
         elif class_name == "OpenCVCamera":
             assert cell.camera_factory is not None
             handle = create_camera(args, kwargs, cell.config, cell.locks, cell.camera_factory)

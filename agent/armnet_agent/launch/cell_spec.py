@@ -57,7 +57,9 @@ class LocalCellFile(BaseModel):
     preset: Literal["so101", "bimanual_so101"] | None = None
     task: str | None = None
     robot_id: str | None = None
-    safety_limit: float | None = Field(default=None, gt=0)
+    safety_limit: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    safety_policy: Literal["clamp", "trip"] = "clamp"
+    allow_calibration_jobs: bool = False
     cameras: dict[str, CameraFile] | None = None
     grace_period_seconds: float | None = Field(default=None, ge=0)
     reset_timeout_seconds: float | None = Field(default=None, gt=0)
@@ -83,6 +85,8 @@ class LocalCellSpec:
     task: str
     robot_id: str = DEFAULT_ROBOT_ID
     safety_limit: float = DEFAULT_SAFETY_LIMIT
+    safety_policy: str = "clamp"
+    allow_calibration_jobs: bool = False
     cameras: tuple[CameraSpec, ...] = (CameraSpec("front"),)
     grace_seconds: float = DEFAULT_GRACE_SECONDS
     reset_timeout_seconds: float = DEFAULT_RESET_TIMEOUT_SECONDS
@@ -191,6 +195,8 @@ def resolve_spec(
         task=task or file.task or DEFAULT_TASK,
         robot_id=file.robot_id or DEFAULT_ROBOT_ID,
         safety_limit=file.safety_limit or DEFAULT_SAFETY_LIMIT,
+        safety_policy=file.safety_policy,
+        allow_calibration_jobs=file.allow_calibration_jobs,
         cameras=cameras,
         grace_seconds=(
             grace_seconds

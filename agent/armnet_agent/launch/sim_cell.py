@@ -61,6 +61,8 @@ def build_connector_config(spec: LocalCellSpec, layout: CellLayout, ports: dict[
         timeout_seconds=None,
         grace_period_seconds=spec.grace_seconds,
         reset_timeout_seconds=spec.reset_timeout_seconds,
+        safety_policy="trip" if spec.safety_policy == "trip" else "clamp",
+        allow_calibration_jobs=spec.allow_calibration_jobs,
     )
 
 

@@ -7,6 +7,7 @@ injects faults by motor name.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -60,6 +61,7 @@ class SimulatedArm(StartStop):
         link_path: str | Path | None = None,
         physics: PhysicsParams | None = None,
         clock: Callable[[], float] = time.monotonic,
+        state_file: str | Path | None = None,
     ) -> None:
         unknown = set(calibration or {}) - {m.name for m in motors}
         if unknown:
@@ -89,12 +91,41 @@ class SimulatedArm(StartStop):
 
     # -- lifecycle ----------------------------------------------------------------------
 
+        self.state_file = Path(state_file) if state_file is not None else None
+        if self.state_file is not None and self.state_file.exists():
+            self._load_state(self.state_file)
+
     def start(self) -> SimulatedArm:
         self.bus.start()
         return self
 
     def stop(self) -> None:
         self.bus.stop()
+        if self.state_file is not None:
+            self._save_state(self.state_file)
+
+    # -- the EEPROM state file: what a power cycle keeps, across simulator restarts -----
+
+    def _save_state(self, path: Path) -> None:
+        images = self.bus.inspect(lambda bus, _now: {str(s.servo_id): s.saved_eeprom().hex() for s in bus})
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(json.dumps({"servos": images}))
+        tmp.replace(path)
+
+    def _load_state(self, path: Path) -> None:
+        try:
+            images = json.loads(path.read_text())["servos"]
+            saved = {int(k): bytes.fromhex(v) for k, v in images.items()}
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"simulator state file {path} is unreadable ({exc}); delete it to start fresh") from exc
+
+        def restore(bus: ServoBus, now: float) -> None:
+            for servo in bus:
+                if servo.servo_id in saved:
+                    servo.restore_saved(saved[servo.servo_id], now)
+
+        self.bus.inspect(restore)
 
     @property
     def port(self) -> str:

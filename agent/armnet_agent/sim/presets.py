@@ -79,6 +79,7 @@ def build_cell(
     calibrations: Mapping[str, Calibration] | None = None,
     latency_ms: float = 0.0,
     link_dir: str | Path | None = None,
+    state_dir: str | Path | None = None,
 ) -> SimulatedCell:
     """A not-yet-started cell for ``preset``; ``calibrations`` maps arm name -> calibration.
 
@@ -106,5 +107,7 @@ def build_cell(
             name=spec.name,
             latency_ms=latency_ms,
             link_path=Path(link_dir) / f"{preset}-{spec.name}" if link_dir is not None else None,
+            # A named cell keeps its servos' saved EEPROM across simulator restarts.
+            state_file=Path(state_dir) / f"{preset}-{spec.name}.eeprom.json" if state_dir is not None else None,
         )
     return SimulatedCell(arms, preset)

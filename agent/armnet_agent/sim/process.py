@@ -97,6 +97,7 @@ class SimulatedCellProcess(StartStop):
         latency_ms: float = 0.0,
         link_dir: str | Path | None = None,
         start_method: str | None = None,
+        state_dir: str | Path | None = None,
     ) -> None:
         from .presets import PRESETS
 
@@ -109,6 +110,7 @@ class SimulatedCellProcess(StartStop):
             "calibrations": {k: dict(v) for k, v in (calibrations or {}).items()},
             "latency_ms": latency_ms,
             "link_dir": str(link_dir) if link_dir is not None else None,
+            "state_dir": str(state_dir) if state_dir is not None else None,
         }
         self._start_method = start_method
         self._conn: multiprocessing.connection.Connection | None = None

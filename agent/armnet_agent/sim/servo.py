@@ -62,6 +62,9 @@ class Servo:
             self._set(_REG["Homing_Offset"], calibration.homing_offset)
             self._set(_REG["Min_Position_Limit"], calibration.range_min)
             self._set(_REG["Max_Position_Limit"], calibration.range_max)
+            # A calibrated servo has been through LeRobot's setup, whose configure()
+            # leaves the return delay at its minimum (0): what a prepared cell holds.
+            self._set(_REG["Return_Delay_Time"], 0)
         # What a power cycle restores: the EEPROM as last saved with Lock = 0.
         self._saved = bytes(self._memory)
         self._pending: tuple[int, bytes] | None = None
@@ -180,6 +183,17 @@ class Servo:
         self._overload_since = None
         self._power_on_ram()
         self._refresh()
+
+    def saved_eeprom(self) -> bytes:
+        """The memory image a power cycle restores (EEPROM as last saved with Lock = 0)."""
+        return bytes(self._saved)
+
+    def restore_saved(self, saved: bytes, now: float) -> None:
+        """Power on with ``saved`` as the servo's saved EEPROM (a state file of an earlier run)."""
+        if len(saved) != ct.MEMORY_SIZE:
+            raise ValueError(f"a saved servo image has {ct.MEMORY_SIZE} bytes, got {len(saved)}")
+        self._saved = bytes(saved)
+        self.power_cycle(now)
 
     def factory_reset(self, now: float) -> None:
         """RESET instruction: factory EEPROM, same id, saved immediately."""

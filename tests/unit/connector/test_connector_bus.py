@@ -25,7 +25,8 @@ def wait_until(predicate, timeout: float = 5.0) -> bool:
 
 @pytest.fixture
 def connector(sim_cell, make_connector, cell_config):
-    return make_connector(cell_config(sim_cell))
+    # The trip policy: an oversized step is refused (the default, clamp, is in test_connector_policy).
+    return make_connector(cell_config(sim_cell, safetyPolicy="trip"))
 
 
 @pytest.fixture

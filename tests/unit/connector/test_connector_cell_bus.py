@@ -45,7 +45,11 @@ def connector(sim_cell, make_connector, cell_config):
 
 
 def raw_motors(names_to_ids: dict[str, int]) -> dict[str, Motor]:
-    return {name: Motor(i, "sts3215", MotorNormMode.RANGE_M100_100) for name, i in names_to_ids.items()}
+    # The units the cell declares (identity.py): the gripper is 0..100, the body -100..100 (or degrees).
+    return {
+        name: Motor(i, "sts3215", MotorNormMode.RANGE_0_100 if name == "gripper" else MotorNormMode.RANGE_M100_100)
+        for name, i in names_to_ids.items()
+    }
 
 
 def open_bus(client, endpoint: str, motors: dict[str, Motor]) -> str:

@@ -60,7 +60,7 @@ def test_a_read_that_keeps_failing_raises_after_the_retries(remote, sim_cell, co
 
 def test_a_write_that_lost_its_reply_is_not_repeated(remote, sim_cell, connector) -> None:
     remote.connect()
-    remote.write("Response_Status_Level", "wrist_roll", 1)  # the servo acknowledges writes
+    assert remote.read("Response_Status_Level", "wrist_roll") == 1  # the servo acknowledges writes
     sim_cell.arm.drop_replies("wrist_roll", 1)
     with pytest.raises(ConnectionError, match="status packet"):
         remote.write("Torque_Enable", "wrist_roll", 1)

@@ -86,9 +86,9 @@ def test_drive_mode_inverts_range_modes() -> None:
     assert to_raw(-100.0, RANGE_M100_100, inverted) == 3000
 
 
-def test_only_torque_off_and_unlock_are_release_writes() -> None:
+def test_only_torque_off_is_a_release_write() -> None:
     assert is_release_write("Torque_Enable", {"a": 0, "b": 0})
-    assert is_release_write("Lock", {"a": 0})
+    assert not is_release_write("Lock", {"a": 0})  # unlocking the EEPROM is not letting go
     assert not is_release_write("Torque_Enable", {"a": 1})
     assert not is_release_write("Goal_Position", {"a": 0})
 

@@ -95,3 +95,21 @@ def test_a_yaml_cell_file_can_pick_the_bimanual_preset_and_cameras(tmp_path: Pat
     spec = spec_for(cell_file=load_cell_file(path))
     assert spec.is_bimanual
     assert [(c.name, c.width, c.fps) for c in spec.cameras] == [("wrist", 320, 15)]
+
+
+def test_the_cells_safety_policy_and_calibration_setting_reach_the_connector() -> None:
+    from armnet_agent.local_run.session import build_connector_config
+
+    spec = spec_for()
+    layout = plan_layout(spec, RUN_DIR)
+    ports = {arm.name: "/dev/null" for arm in layout.arms}
+    default = build_connector_config(spec, layout, ports)
+    assert (default.safety_policy, default.allow_calibration_jobs) == ("clamp", False)
+    file = LocalCellFile(safety_policy="trip", allow_calibration_jobs=True)
+    chosen = build_connector_config(spec_for(cell_file=file), layout, ports)
+    assert (chosen.safety_policy, chosen.allow_calibration_jobs) == ("trip", True)
+
+
+def test_a_nan_safety_limit_in_the_cell_file_is_refused() -> None:
+    with pytest.raises(ValueError, match="safety_limit"):
+        LocalCellFile(safety_limit=float("nan"))

@@ -1,0 +1,201 @@
+"""The bus a job gets: LeRobot's real ``FeetechMotorsBus`` whose every register write passes the policy.
+
+Why at ``_write``/``_sync_write``: every public write path of the bus —
+``write``, ``sync_write``, ``write_calibration``, ``enable/disable_torque``,
+``configure_motors``, ``disconnect`` — ends in these two methods, and a job
+cannot reach them (private names are refused). Deciding there, by register
+address and servo id, covers every path LeRobot has or will add, with the
+cell's motor table (never the job's names).
+
+This module owns the subclass and its small changes to LeRobot's behaviour:
+torque on/off leave ``Lock`` alone (the EEPROM stays locked), and a disconnect with torque off reads the torque back
+and records whether it is really off. The decisions live in ``registers``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, NoReturn
+
+from .errors import RequestError
+from .identity import CellMotor
+from .interlock import Interlock
+from .registers import needs_current_value, write_refusal
+from .report import SafetyRecorder
+
+log = logging.getLogger(__name__)
+
+#: How long a late servo reply may take to land (longer than LeRobot's ~50 ms timeout).
+LATE_REPLY_WAIT_S = 0.06
+#: The calibration registers, in the order of ``BusPolicy.calibration``'s tuples.
+CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
+#: Registers a calibration job (``allowCalibrationJobs``) may also write.
+CALIBRATION_REGISTERS = frozenset({"Homing_Offset", "Min_Position_Limit", "Max_Position_Limit", "Lock"})
+
+
+@dataclass(frozen=True)
+class BusPolicy:
+    """What the policed bus needs to decide a write: the cell's facts and the job's interlock."""
+
+    arm: str
+    motors_by_id: Mapping[int, tuple[str, CellMotor]]
+    interlock: Interlock
+    recorder: SafetyRecorder
+    bounds: Mapping[str, tuple[int, int]] = field(default_factory=dict)
+    allow_calibration: bool = False
+    #: The cell's calibration per servo id: (Homing_Offset, Min_Position_Limit, Max_Position_Limit).
+    calibration: Mapping[int, tuple[int, int, int]] = field(default_factory=dict)
+
+    def check(self, register_at: Any, address: int, motor_id: int, value: int, read_current: Any) -> None:
+        """Raise ``RequestError("NotAllowed")`` unless writing ``value`` at ``address`` of ``motor_id`` is allowed."""
+        entry = self.motors_by_id.get(motor_id)
+        if entry is None:
+            self._refuse(None, f"servo id {motor_id} is not a motor of this cell; nothing was written")
+        name, motor = entry
+        register = register_at(motor.model, address)
+        if register is None:
+            self._refuse(name, f"address {address} of motor {name!r} is not a register of a {motor.model}")
+        held = self.interlock.tripped
+        if self.allow_calibration and register in CALIBRATION_REGISTERS and not held:
+            return
+        current = read_current() if needs_current_value(motor.model, register) and not held else None
+        why = write_refusal(
+            motor.model, register, name, value, interlock_held=held, bounds=self.bounds, current=current
+        )
+        if why is not None:
+            self._refuse(name, why)
+
+    def _refuse(self, motor: str | None, why: str) -> NoReturn:
+        self.recorder.record_refusal("register", motor, why, tripped=False)
+        raise RequestError("NotAllowed", why)
+
+
+@functools.cache
+def policed_bus_class() -> type:
+    """The subclass, built on first use (LeRobot is imported lazily: the connector starts without it)."""
+    from lerobot.motors.feetech import FeetechMotorsBus
+
+    class PolicedFeetechBus(FeetechMotorsBus):  # type: ignore[misc]  # LeRobot is untyped
+        """A ``FeetechMotorsBus`` that refuses register writes outside the cell's policy."""
+
+        def __init__(self, *args: Any, armnet_policy: BusPolicy, **kwargs: Any) -> None:
+            self._armnet_policy = armnet_policy
+            super().__init__(*args, **kwargs)
+            self._armnet_registers = {
+                model: {addr: name for name, (addr, _length) in reversed(list(table.items()))}
+                for model, table in self.model_ctrl_table.items()
+            }
+
+        def _register_at(self, model: str, address: int) -> str | None:
+            return self._armnet_registers.get(model, {}).get(address)
+
+        def _write(self, addr: int, length: int, motor_id: int, value: int, **kwargs: Any) -> Any:
+            def current() -> int:
+                held, _comm, _error = self._read(addr, length, motor_id, num_retry=2, raise_on_error=True,
+                                                 err_msg="reading the value a write would replace failed.")
+                return int(held)
+
+            self._armnet_policy.check(self._register_at, addr, motor_id, int(value), current)
+            return super()._write(addr, length, motor_id, value, **kwargs)
+
+        def _sync_write(self, addr: int, length: int, ids_values: dict[int, int], *args: Any, **kwargs: Any) -> Any:
+            for motor_id, value in ids_values.items():
+                self._armnet_policy.check(self._register_at, addr, motor_id, int(value), lambda: None)
+            return super()._sync_write(addr, length, ids_values, *args, **kwargs)
+
+        # Torque on/off without Lock: the cell keeps its servos' EEPROM locked (a calibration
+        # job that wants its writes saved writes Lock=0 itself; the connector relocks at the end).
+        def disable_torque(self, motors: Any = None, num_retry: int = 0) -> None:
+            for motor in self._get_motors_list(motors):
+                self.write("Torque_Enable", motor, 0, num_retry=num_retry)
+
+        def _disable_torque(self, motor: int, model: str, num_retry: int = 0) -> None:
+            addr, _length = self.model_ctrl_table[model]["Torque_Enable"]
+            self._write(addr, 1, motor, 0, num_retry=num_retry)
+
+        def enable_torque(self, motors: Any = None, num_retry: int = 0) -> None:
+            for motor in self._get_motors_list(motors):
+                self.write("Torque_Enable", motor, 1, num_retry=num_retry)
+
+        # A calibration job (allowCalibrationJobs) may rewrite the EEPROM: the connector checks
+        # it against the cell's calibration when the bus connects, and restores it when it lets go.
+        def connect(self, handshake: bool = True) -> None:
+            super().connect(handshake)
+            if self._armnet_policy.allow_calibration:
+                self._armnet_check_calibration("start")
+
+        def _armnet_eeprom(self) -> dict[int, tuple[int, int, int]]:
+            held = {}
+            for name, motor in self.motors.items():
+                values = [self.read(reg, name, normalize=False, num_retry=2) for reg in CALIBRATION_ORDER]
+                held[motor.id] = (int(values[0]), int(values[1]), int(values[2]))
+            return held
+
+        def _armnet_check_calibration(self, when: str) -> bool:
+            policy = self._armnet_policy
+            held = self._armnet_eeprom()
+            differ = sorted(i for i, v in held.items() if policy.calibration.get(i) not in (None, v))
+            if differ:
+                policy.recorder.record_calibration(policy.arm, f"{when}: servos {differ} differ from the cell's calibration")
+            return not differ
+
+        def _armnet_restore_calibration(self) -> None:
+            """Write the cell's calibration back (unlocked, so it is saved), then lock and verify.
+
+            The connector's own writes: they bypass the job's policy (the interlock holds
+            at shutdown, and these are exactly the cell's values).
+            """
+            policy = self._armnet_policy
+            for motor in self.motors.values():
+                wanted = policy.calibration.get(motor.id)
+                if wanted is None:
+                    continue
+                table = self.model_ctrl_table[motor.model]
+                lock_addr, lock_length = table["Lock"]
+                super()._write(lock_addr, lock_length, motor.id, 0, num_retry=2)
+                for register, value in zip(CALIBRATION_ORDER, wanted, strict=True):
+                    addr, length = table[register]
+                    encoded = self._encode_sign(register, {motor.id: value})[motor.id]
+                    super()._write(addr, length, motor.id, encoded, num_retry=2)
+                super()._write(lock_addr, lock_length, motor.id, 1, num_retry=2)
+            if self._armnet_check_calibration("end"):
+                policy.recorder.record_calibration(policy.arm, "end: the cell's calibration is in place")
+
+        def _armnet_drop_late_replies(self) -> None:
+            """After a lost reply, let it land and drop it, so the next user of the line never reads it."""
+            time.sleep(LATE_REPLY_WAIT_S)
+            try:
+                self.port_handler.ser.reset_input_buffer()
+            except Exception as exc:  # noqa: BLE001 — the port is closed next anyway
+                log.debug("could not drop late replies: %s", exc)
+
+        def disconnect(self, disable_torque: bool = True) -> None:
+            if self._armnet_policy.allow_calibration and self.is_connected:
+                try:
+                    self._armnet_restore_calibration()
+                except Exception as exc:  # noqa: BLE001 — reported; the port must still close
+                    self._armnet_policy.recorder.record_calibration(
+                        self._armnet_policy.arm, f"end: restoring the cell's calibration failed: {exc}"
+                    )
+            if disable_torque and self.is_connected:
+                self.port_handler.clearPort()
+                self.port_handler.is_using = False
+                confirmed = False
+                try:
+                    self.disable_torque(num_retry=5)
+                    torque = self.sync_read("Torque_Enable", normalize=False, num_retry=3)
+                    confirmed = all(int(v) == 0 for v in torque.values())
+                except Exception as exc:  # noqa: BLE001 — recorded as unconfirmed; the port must still close
+                    log.warning("torque off could not be confirmed on %s: %s", self._armnet_policy.arm, exc)
+                    self._armnet_drop_late_replies()
+                self._armnet_policy.recorder.record_torque_off(self._armnet_policy.arm, confirmed)
+            super().disconnect(disable_torque=False)
+
+    # LeRobot's messages name the class ("FeetechMotorsBus motor check failed ..."): a job
+    # sees the same text as on a bare arm.
+    PolicedFeetechBus.__name__ = PolicedFeetechBus.__qualname__ = FeetechMotorsBus.__name__
+    return PolicedFeetechBus

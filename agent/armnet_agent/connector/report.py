@@ -1,0 +1,116 @@
+"""The job's safety report: what the connector clamped, refused and tripped on, as plain data.
+
+Why: under ``safetyPolicy: clamp`` the connector quietly changes a job's goals;
+the job's author and the cell's operator must still see how often, by how much,
+and what was refused. The node agent puts ``SafetyReport.as_status()`` into the
+job's status at the end (docs/connector.md, "Safety report").
+
+This module owns the report (a frozen dataclass) and the thread-safe recorder
+that builds it. It never decides anything: the guard and the register policy
+call ``record_*``.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+#: Refusals kept with their reason; later ones are only counted.
+MAX_REFUSALS_KEPT = 50
+MAX_REASON_CHARS = 300
+
+
+@dataclass(frozen=True)
+class Refusal:
+    kind: str  # "non_finite" | "wrong_type" | "out_of_range" | "relative" | "register" | "calibration"
+    motor: str | None
+    reason: str
+
+
+@dataclass(frozen=True)
+class SafetyReport:
+    """A snapshot of one job's safety record (all plain data)."""
+
+    policy: str
+    clamps: dict[str, int] = field(default_factory=dict)
+    #: The largest step any goal asked for, per motor, in the units of the write.
+    largest_requested_step: dict[str, float] = field(default_factory=dict)
+    refusals: tuple[Refusal, ...] = ()
+    refusals_total: int = 0
+    interlock_trips: int = 0
+    #: Per arm: torque read back as off when the connector let go of it (None: never checked).
+    torque_off_confirmed: dict[str, bool] = field(default_factory=dict)
+    #: Calibration jobs only: what the connector found and restored, per arm.
+    calibration: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def as_status(self) -> dict[str, Any]:
+        """The camelCase mapping the job's status carries."""
+        return {
+            "policy": self.policy,
+            "clampsPerMotor": dict(self.clamps),
+            "largestRequestedStep": dict(self.largest_requested_step),
+            "refusals": [{"kind": r.kind, "motor": r.motor, "reason": r.reason} for r in self.refusals],
+            "refusalsTotal": self.refusals_total,
+            "interlockTrips": self.interlock_trips,
+            "torqueOffConfirmed": dict(self.torque_off_confirmed),
+            "calibration": {arm: list(notes) for arm, notes in self.calibration.items()},
+        }
+
+
+class SafetyRecorder:
+    """Collects one job's safety events; ``snapshot()`` gives the report."""
+
+    def __init__(self, policy: str) -> None:
+        self._policy = policy
+        self._lock = threading.Lock()
+        self._clamps: dict[str, int] = {}
+        self._largest: dict[str, float] = {}
+        self._refusals: list[Refusal] = []
+        self._refusals_total = 0
+        self._trips = 0
+        self._torque_off: dict[str, bool] = {}
+        self._calibration: dict[str, list[str]] = {}
+
+    def record_steps(self, steps: dict[str, float]) -> None:
+        with self._lock:
+            for motor, step in steps.items():
+                size = abs(step)
+                if size > self._largest.get(motor, 0.0):
+                    self._largest[motor] = size
+
+    def record_clamp(self, motor: str) -> None:
+        with self._lock:
+            self._clamps[motor] = self._clamps.get(motor, 0) + 1
+
+    def record_refusal(self, kind: str, motor: str | None, reason: str, *, tripped: bool) -> None:
+        with self._lock:
+            self._refusals_total += 1
+            if len(self._refusals) < MAX_REFUSALS_KEPT:
+                self._refusals.append(Refusal(kind, motor, reason[:MAX_REASON_CHARS]))
+            if tripped:
+                self._trips += 1
+
+    def record_torque_off(self, arm: str, confirmed: bool) -> None:
+        with self._lock:
+            # Once unconfirmed, stays unconfirmed: the report must not hide a failure.
+            self._torque_off[arm] = self._torque_off.get(arm, True) and confirmed
+
+    def record_calibration(self, arm: str, note: str) -> None:
+        with self._lock:
+            notes = self._calibration.setdefault(arm, [])
+            if len(notes) < MAX_REFUSALS_KEPT:
+                notes.append(note[:MAX_REASON_CHARS])
+
+    def snapshot(self) -> SafetyReport:
+        with self._lock:
+            return SafetyReport(
+                policy=self._policy,
+                clamps=dict(self._clamps),
+                largest_requested_step=dict(self._largest),
+                refusals=tuple(self._refusals),
+                refusals_total=self._refusals_total,
+                interlock_trips=self._trips,
+                torque_off_confirmed=dict(self._torque_off),
+                calibration={arm: tuple(notes) for arm, notes in self._calibration.items()},
+            )

@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# The connector policy fuzzer (tests/unit/connector/test_connector_policy_fuzz.py), run long:
+# hostile jobs against the simulated SO-101, checked on the servos' side.
+#   bench/connector_policy_fuzz.sh            # 500 examples
+#   ARMNET_FUZZ_EXAMPLES=5000 bench/connector_policy_fuzz.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export ARMNET_FUZZ_EXAMPLES="${ARMNET_FUZZ_EXAMPLES:-500}"
+exec python -m pytest tests/unit/connector/test_connector_policy_fuzz.py -q -p no:randomly "$@"
