@@ -87,6 +87,8 @@ class LocalCellSpec:
     safety_limit: float = DEFAULT_SAFETY_LIMIT
     safety_policy: str = "clamp"
     allow_calibration_jobs: bool = False
+    #: Raw [low, high] bounds per servo register, over the connector's defaults (docs/connector.md).
+    register_bounds: Mapping[str, tuple[int, int]] = field(default_factory=dict)
     cameras: tuple[CameraSpec, ...] = (CameraSpec("front"),)
     grace_seconds: float = DEFAULT_GRACE_SECONDS
     reset_timeout_seconds: float = DEFAULT_RESET_TIMEOUT_SECONDS

@@ -63,6 +63,7 @@ def build_connector_config(spec: LocalCellSpec, layout: CellLayout, ports: dict[
         reset_timeout_seconds=spec.reset_timeout_seconds,
         safety_policy="trip" if spec.safety_policy == "trip" else "clamp",
         allow_calibration_jobs=spec.allow_calibration_jobs,
+        register_bounds=dict(spec.register_bounds),
     )
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -46,6 +46,9 @@ class _CellSpec(_Loose):
     language_instruction: str | None = Field(default=None, alias="languageInstruction")
     grace_period_seconds: int = Field(default=10, alias="gracePeriodSeconds")
     reset_timeout_seconds: int = Field(default=300, alias="resetTimeoutSeconds")
+    safety_policy: Literal["clamp", "trip"] = Field(default="clamp", alias="safetyPolicy")
+    allow_calibration_jobs: bool = Field(default=False, alias="allowCalibrationJobs")
+    register_bounds: dict[str, tuple[int, int]] = Field(default_factory=dict, alias="registerBounds")
 
 
 class _JobSpec(_Loose):
@@ -87,6 +90,10 @@ class Cell:
     language_instruction: str | None
     grace_seconds: float
     reset_timeout_seconds: float
+    #: The cell's safety settings, passed to its connector as they are (docs/connector.md).
+    safety_policy: str = "clamp"
+    allow_calibration_jobs: bool = False
+    register_bounds: dict[str, tuple[int, int]] = field(default_factory=dict)
     current_job: str | None = None
     annotations: dict[str, str] = field(default_factory=dict)
     resource_version: str = ""
@@ -142,6 +149,9 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
         language_instruction=spec.language_instruction,
         grace_seconds=float(spec.grace_period_seconds),
         reset_timeout_seconds=float(spec.reset_timeout_seconds),
+        safety_policy=spec.safety_policy,
+        allow_calibration_jobs=spec.allow_calibration_jobs,
+        register_bounds=dict(spec.register_bounds),
         current_job=status.get("currentJob"),
         annotations=dict(meta.get("annotations") or {}),
         resource_version=str(meta.get("resourceVersion", "")),

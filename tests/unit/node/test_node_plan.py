@@ -8,6 +8,7 @@ from typing import Any
 
 import pytest
 from armnet_agent.launch.plan import LABEL_CELL, LABEL_JOB_UID
+from armnet_agent.launch.sim_cell import build_connector_config
 from armnet_agent.node.model import parse_cell, parse_job, should_launch
 from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
 from armnet_runtime import env as env_keys
@@ -70,6 +71,22 @@ def test_the_cell_spec_sets_grace_and_reset_timeout_of_the_connector() -> None:
     plan = plan_launch(parse_job(job_obj()), parse_cell(cell_obj()), PATHS, {})
     assert plan.grace_seconds == 4
     assert plan.cell_spec.reset_timeout_seconds == 90
+
+
+def test_the_cells_safety_settings_reach_its_connector_unchanged() -> None:
+    cell = parse_cell(cell_obj(safetyPolicy="trip", allowCalibrationJobs=True, registerBounds={"Acceleration": [0, 100]}))
+    plan = plan_launch(parse_job(job_obj()), cell, PATHS, {})
+    config = build_connector_config(plan.cell_spec, plan.layout, {"arm": "/dev/pts/9"})
+    assert config.safety_policy == "trip"
+    assert config.allow_calibration_jobs is True
+    assert config.register_bounds == {"Acceleration": (0, 100)}
+
+
+def test_a_cell_that_says_nothing_gets_the_safe_defaults() -> None:
+    plan = plan_launch(parse_job(job_obj()), parse_cell(cell_obj()), PATHS, {})
+    config = build_connector_config(plan.cell_spec, plan.layout, {"arm": "/dev/pts/9"})
+    assert config.safety_policy == "clamp"
+    assert config.allow_calibration_jobs is False
 
 
 def test_secrets_become_env_vars_listed_in_armnet_secrets_and_never_labels() -> None:
