@@ -98,7 +98,7 @@ def test_a_yaml_cell_file_can_pick_the_bimanual_preset_and_cameras(tmp_path: Pat
 
 
 def test_the_cells_safety_policy_and_calibration_setting_reach_the_connector() -> None:
-    from armnet_agent.local_run.session import build_connector_config
+    from armnet_agent.launch.sim_cell import build_connector_config
 
     spec = spec_for()
     layout = plan_layout(spec, RUN_DIR)
