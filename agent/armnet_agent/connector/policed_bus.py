@@ -21,6 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
+from .calibration_check import calibration_mismatches
 from .errors import RequestError
 from .identity import CellMotor
 from .interlock import Interlock
@@ -121,27 +122,30 @@ def policed_bus_class() -> type:
             for motor in self._get_motors_list(motors):
                 self.write("Torque_Enable", motor, 1, num_retry=num_retry)
 
-        # A calibration job (allowCalibrationJobs) may rewrite the EEPROM: the connector checks
-        # it against the cell's calibration when the bus connects, and restores it when it lets go.
+        # Every cell: the connector checks the servos' EEPROM against the cell's calibration
+        # when the bus connects (a servo changed outside armnet is reported, never "fixed").
+        # A calibration job (allowCalibrationJobs) may rewrite it: restored when the bus lets go.
         def connect(self, handshake: bool = True) -> None:
             super().connect(handshake)
-            if self._armnet_policy.allow_calibration:
+            if self._armnet_policy.calibration:
                 self._armnet_check_calibration("start")
 
-        def _armnet_eeprom(self) -> dict[int, tuple[int, int, int]]:
-            held = {}
+        def _armnet_eeprom(self) -> dict[int, tuple[int, int, int] | None]:
+            held: dict[int, tuple[int, int, int] | None] = {}
             for name, motor in self.motors.items():
-                values = [self.read(reg, name, normalize=False, num_retry=2) for reg in CALIBRATION_ORDER]
+                try:
+                    values = [self.read(reg, name, normalize=False, num_retry=2) for reg in CALIBRATION_ORDER]
+                except (ConnectionError, RuntimeError):  # a silent servo is a mismatch, reported
+                    held[motor.id] = None
+                    continue
                 held[motor.id] = (int(values[0]), int(values[1]), int(values[2]))
             return held
 
         def _armnet_check_calibration(self, when: str) -> bool:
             policy = self._armnet_policy
-            held = self._armnet_eeprom()
-            differ = sorted(i for i, v in held.items() if policy.calibration.get(i) not in (None, v))
-            if differ:
-                policy.recorder.record_calibration(policy.arm, f"{when}: servos {differ} differ from the cell's calibration")
-            return not differ
+            found = calibration_mismatches(policy.calibration, self._armnet_eeprom())
+            policy.recorder.record_calibration_check(policy.arm, [f"{when}: {m.describe()}" for m in found])
+            return not found
 
         def _armnet_restore_calibration(self) -> None:
             """Write the cell's calibration back (unlocked, so it is saved), then lock and verify.

@@ -226,6 +226,16 @@ def test_a_single_raw_write_beyond_the_limit_is_clamped_too(bus, sim_cell, conne
     assert connector.safety_report().clamps == {"wrist_flex": 1}
 
 
+def test_the_records_counters_carry_the_safety_reports_totals_for_the_agents_metrics(bus, sim_cell, connector) -> None:
+    bus.enable_torque()
+    before = sim_cell.arm.positions()["wrist_flex"]
+    bus.write("Goal_Position", "wrist_flex", before - 1000, normalize=False)  # clamped
+    with pytest.raises(ValueError):
+        bus.sync_write("Goal_Position", {"elbow_flex": float("nan")})  # refused, trips
+    counters = connector.record().counters
+    assert (counters["safety_clamps"], counters["safety_refusals"], counters["safety_trips"]) == (1, 1, 1)
+
+
 @pytest.mark.parametrize(("goal", "kind"), [(float("nan"), "non_finite"), (float("inf"), "non_finite"), ("far", "wrong_type")])
 def test_a_goal_that_is_not_a_finite_number_is_refused_as_value_error_and_trips_the_interlock(
     bus, connector, goal, kind
