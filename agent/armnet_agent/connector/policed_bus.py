@@ -17,7 +17,7 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
@@ -34,6 +34,17 @@ log = logging.getLogger(__name__)
 LATE_REPLY_WAIT_S = 0.06
 #: The calibration registers, in the order of ``BusPolicy.calibration``'s tuples.
 CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
+#: How long ``record_ranges_of_motion`` waits at most for the operator to end it.
+RANGE_RECORDING_MAX_S = 300.0
+#: How often it reads the positions while the operator moves the joints.
+RANGE_RECORDING_POLL_S = 0.05
+
+
+def _never_ends(_timeout_s: float) -> bool:
+    time.sleep(_timeout_s)
+    return False
+
+
 #: Registers a calibration job (``allowCalibrationJobs``) may also write.
 CALIBRATION_REGISTERS = frozenset({"Homing_Offset", "Min_Position_Limit", "Max_Position_Limit", "Lock"})
 
@@ -50,6 +61,10 @@ class BusPolicy:
     allow_calibration: bool = False
     #: The cell's calibration per servo id: (Homing_Offset, Min_Position_Limit, Max_Position_Limit).
     calibration: Mapping[int, tuple[int, int, int]] = field(default_factory=dict)
+    #: ``record_ranges_of_motion``'s end signal from the operator inputs (a reset
+    #: confirmation or a stop): waits up to the given seconds, True when the operator ends it.
+    end_recording: Callable[[float], bool] = _never_ends
+    recording_max_s: float = RANGE_RECORDING_MAX_S
 
     def check(self, register_at: Any, address: int, motor_id: int, value: int, read_current: Any) -> None:
         """Raise ``RequestError("NotAllowed")`` unless writing ``value`` at ``address`` of ``motor_id`` is allowed."""
@@ -129,6 +144,35 @@ def policed_bus_class() -> type:
             super().connect(handshake)
             if self._armnet_policy.calibration:
                 self._armnet_check_calibration("start")
+
+        def record_ranges_of_motion(
+            self, motors: Any = None, display_values: bool = True
+        ) -> tuple[dict[str, Any], dict[str, Any]]:
+            """LeRobot's range recording without the connector's terminal: no table printed, no Enter read.
+
+            Why: LeRobot prints a live table and reads Enter from stdin; in the connector
+            those are the sidecar's, not the operator's. Here the operator's inputs end it
+            (a reset confirmation, or a stop), or ``recording_max_s`` passes; the ranges
+            go back to the job as the call's value. ``display_values`` is accepted and
+            ignored (the job prints what it gets). Same refusal as LeRobot when a joint
+            did not move.
+            """
+            del display_values
+            policy = self._armnet_policy
+            names = self._get_motors_list(motors)
+            mins = dict(self.sync_read("Present_Position", names, normalize=False))
+            maxes = dict(mins)
+            deadline = time.monotonic() + policy.recording_max_s
+            ended = False
+            while not ended:
+                ended = policy.end_recording(RANGE_RECORDING_POLL_S) or time.monotonic() >= deadline
+                positions = self.sync_read("Present_Position", names, normalize=False)
+                mins = {m: min(positions[m], v) for m, v in mins.items()}
+                maxes = {m: max(positions[m], v) for m, v in maxes.items()}
+            unmoved = [m for m in names if mins[m] == maxes[m]]
+            if unmoved:
+                raise ValueError(f"Some motors have the same min and max values: {unmoved}; move every joint through its range")
+            return mins, maxes
 
         def _armnet_eeprom(self) -> dict[int, tuple[int, int, int] | None]:
             held: dict[int, tuple[int, int, int] | None] = {}

@@ -294,3 +294,32 @@ def test_a_calibration_job_still_may_not_re_address_a_servo(sim_cell, make_conne
     job.connect()
     refused(job.write, "ID", "gripper", 9)
     job.disconnect()
+
+
+def test_a_calibration_jobs_range_recording_ends_on_the_operators_confirmation_not_the_connectors_stdin(
+    sim_cell, make_connector, cell_config, motors, capsys
+) -> None:
+    """pytest's stdin cannot be read: LeRobot's own loop (Enter on stdin) would fail here."""
+    from armnet_agent.connector import LocalOperatorInputs
+
+    start = sim_cell.arm.positions()
+    polls: list[int] = []
+
+    def operator(inputs: LocalOperatorInputs) -> None:  # called at each poll of the recording
+        polls.append(1)
+        if len(polls) == 2:
+            for motor, position in start.items():
+                sim_cell.arm.move_by_hand(motor, position + 150)
+        if len(polls) == 4:
+            inputs.confirm_reset()
+
+    connector = make_connector(
+        cell_config(sim_cell, allowCalibrationJobs=True), inputs=LocalOperatorInputs(on_reset_requested=operator)
+    )
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+    job.connect()
+    job.disable_torque()
+    mins, maxes = job.record_ranges_of_motion()
+    job.disconnect()
+    assert {m: (mins[m], maxes[m]) for m in start} == {m: (p, p + 150) for m, p in start.items()}
+    assert "NAME" not in capsys.readouterr().out  # no live table on the connector's terminal
