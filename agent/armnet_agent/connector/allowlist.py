@@ -69,7 +69,8 @@ ARX5 = ClassRules(
 )
 
 #: Methods that rewrite the servos' calibration (EEPROM homing offsets and limits), or
-#: (record_ranges_of_motion) run LeRobot's interactive calibration on the connector's terminal.
+#: (record_ranges_of_motion) record the ranges a calibration job writes next (served without
+#: the connector's terminal: policed_bus ends it on the operator's inputs).
 #: Refused unless the cell allows calibration jobs.
 CALIBRATION_METHODS: dict[str, frozenset[str]] = {
     "FeetechMotorsBus": frozenset(

@@ -263,6 +263,16 @@ class CellState:
                 f"{message}; the cell's interlock is tripped. Finish up (save your data) and return.",
             )
 
+    def inputs_end_recording(self, timeout_s: float) -> bool:
+        """A calibration job's ``record_ranges_of_motion`` ends on the operator's reset confirmation or stop.
+
+        Waits up to ``timeout_s`` (the recording's poll period): LeRobot's Enter key,
+        from the operator's inputs instead of the connector's stdin.
+        """
+        if self.inputs.stop_requested():
+            return True
+        return self.inputs.wait_reset_confirmation(timeout_s)
+
     def record_rollout(self, event: RolloutEvent) -> None:
         self.rollouts.append(event)
         log.info("rollout %s index=%s total=%s", event.kind, event.index, event.total)

@@ -169,9 +169,15 @@ class Connector:
         return dataclasses.replace(report, torque_off_confirmed=confirmed)
 
     def record(self) -> ConnectorRecord:
-        """The job's account so far (interlock, safety, rest, torque off, counters) as frozen data."""
+        """The job's account so far (interlock, safety, rest, torque off, counters, calibration) as frozen data."""
         cell = self.cell
         trip = cell.interlock.trip_info
+        report = cell.guard.recorder.snapshot()
+        totals = {
+            "safety_clamps": report.clamps_total,
+            "safety_refusals": report.refusals_total,
+            "safety_trips": report.interlock_trips,
+        }
         return ConnectorRecord(
             interlock_tripped=trip is not None,
             trip_reason=str(trip.reason) if trip is not None else None,
@@ -180,5 +186,6 @@ class Connector:
             safety_violations=cell.counters.safety_violations,
             rests=tuple(cell.rest_reports.values()),
             torque_off_confirmed=MappingProxyType(dict(cell.torque_confirmed)),
-            counters=MappingProxyType(dataclasses.asdict(cell.counters)),
+            counters=MappingProxyType({**dataclasses.asdict(cell.counters), **totals}),
+            calibration_mismatches=MappingProxyType(dict(report.calibration_mismatches)),
         )

@@ -176,6 +176,7 @@ def _calibration_refusal(given: Any, cell: dict[str, Any]) -> str | None:
 def create_feetech(
     args: list[Any], kwargs: dict[str, Any], config: ConnectorConfig, locks: DeviceLocks,
     ranges: dict[str, dict[str, MotorRange]], *, interlock: Interlock, recorder: SafetyRecorder,
+    end_recording: Callable[[float], bool] | None = None,
 ) -> Handle:
     """The job's bus, built from the cell's description: the job only chooses a subset of its motors.
 
@@ -218,6 +219,8 @@ def create_feetech(
         bounds=dict(config.register_bounds), allow_calibration=config.allow_calibration_jobs,
         calibration={r.id: (r.homing_offset, r.range_min, r.range_max) for r in arm_ranges.values()},
     )
+    if end_recording is not None:
+        policy = dataclasses.replace(policy, end_recording=end_recording)
     obj = policed_bus_class()(port=arm.port, motors=motors, calibration=cell_calibration, armnet_policy=policy)
     return Handle(
         "FeetechMotorsBus", obj, locks.get(arm.port), overrides={"port": port},

@@ -87,15 +87,27 @@ def _bound_arguments(obj: Any, method: str, args: list[Any], kwargs: dict[str, A
         raise RequestError("TypeError", f"{method}(...): {exc}") from None
 
 
+class BadMotorValue(RequestError):
+    """A motor value that is not a finite number: a ``ValueError`` on the wire, as LeRobot raises.
+
+    ``kind`` ("wrong_type" or "non_finite") is what the safety report records;
+    the job only sees the LeRobot exception type.
+    """
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__("ValueError", message)
+        self.kind = kind
+
+
 def _number(motor: str, value: Any) -> float:
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise RequestError(
-            "TypeError", f"the value for motor {motor!r} must be a number, got {type(value).__name__}"
+        raise BadMotorValue(
+            "wrong_type", f"the value for motor {motor!r} must be a number, got {type(value).__name__}"
         ) from None
     if not math.isfinite(number):
-        raise RequestError("ValueError", f"the value for motor {motor!r} is not a finite number: {value!r}")
+        raise BadMotorValue("non_finite", f"the value for motor {motor!r} is not a finite number: {value!r}")
     return number
 
 
@@ -199,9 +211,9 @@ class MotionGuard:
         arguments = _bound_arguments(handle.obj, method, args, kwargs)
         try:
             data_name, values, normalize = _write_values(handle, method, arguments)
-        except RequestError as exc:
+        except BadMotorValue as exc:
             if arguments.get("data_name") == GOAL_POSITION:
-                self._refuse_goal(exc, "non_finite" if exc.error_type == "ValueError" else "wrong_type")
+                self._refuse_goal(exc, exc.kind)
             raise
         if data_name in PROTECTED_REGISTERS:
             raise RequestError(

@@ -17,10 +17,11 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
+from .calibration_check import calibration_mismatches
 from .errors import RequestError
 from .identity import CellMotor
 from .interlock import Interlock
@@ -33,6 +34,17 @@ log = logging.getLogger(__name__)
 LATE_REPLY_WAIT_S = 0.06
 #: The calibration registers, in the order of ``BusPolicy.calibration``'s tuples.
 CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
+#: How long ``record_ranges_of_motion`` waits at most for the operator to end it.
+RANGE_RECORDING_MAX_S = 300.0
+#: How often it reads the positions while the operator moves the joints.
+RANGE_RECORDING_POLL_S = 0.05
+
+
+def _never_ends(_timeout_s: float) -> bool:
+    time.sleep(_timeout_s)
+    return False
+
+
 #: Registers a calibration job (``allowCalibrationJobs``) may also write.
 CALIBRATION_REGISTERS = frozenset({"Homing_Offset", "Min_Position_Limit", "Max_Position_Limit", "Lock"})
 
@@ -49,6 +61,10 @@ class BusPolicy:
     allow_calibration: bool = False
     #: The cell's calibration per servo id: (Homing_Offset, Min_Position_Limit, Max_Position_Limit).
     calibration: Mapping[int, tuple[int, int, int]] = field(default_factory=dict)
+    #: ``record_ranges_of_motion``'s end signal from the operator inputs (a reset
+    #: confirmation or a stop): waits up to the given seconds, True when the operator ends it.
+    end_recording: Callable[[float], bool] = _never_ends
+    recording_max_s: float = RANGE_RECORDING_MAX_S
 
     def check(self, register_at: Any, address: int, motor_id: int, value: int, read_current: Any) -> None:
         """Raise ``RequestError("NotAllowed")`` unless writing ``value`` at ``address`` of ``motor_id`` is allowed."""
@@ -121,27 +137,59 @@ def policed_bus_class() -> type:
             for motor in self._get_motors_list(motors):
                 self.write("Torque_Enable", motor, 1, num_retry=num_retry)
 
-        # A calibration job (allowCalibrationJobs) may rewrite the EEPROM: the connector checks
-        # it against the cell's calibration when the bus connects, and restores it when it lets go.
+        # Every cell: the connector checks the servos' EEPROM against the cell's calibration
+        # when the bus connects (a servo changed outside armnet is reported, never "fixed").
+        # A calibration job (allowCalibrationJobs) may rewrite it: restored when the bus lets go.
         def connect(self, handshake: bool = True) -> None:
             super().connect(handshake)
-            if self._armnet_policy.allow_calibration:
+            if self._armnet_policy.calibration:
                 self._armnet_check_calibration("start")
 
-        def _armnet_eeprom(self) -> dict[int, tuple[int, int, int]]:
-            held = {}
+        def record_ranges_of_motion(
+            self, motors: Any = None, display_values: bool = True
+        ) -> tuple[dict[str, Any], dict[str, Any]]:
+            """LeRobot's range recording without the connector's terminal: no table printed, no Enter read.
+
+            Why: LeRobot prints a live table and reads Enter from stdin; in the connector
+            those are the sidecar's, not the operator's. Here the operator's inputs end it
+            (a reset confirmation, or a stop), or ``recording_max_s`` passes; the ranges
+            go back to the job as the call's value. ``display_values`` is accepted and
+            ignored (the job prints what it gets). Same refusal as LeRobot when a joint
+            did not move.
+            """
+            del display_values
+            policy = self._armnet_policy
+            names = self._get_motors_list(motors)
+            mins = dict(self.sync_read("Present_Position", names, normalize=False))
+            maxes = dict(mins)
+            deadline = time.monotonic() + policy.recording_max_s
+            ended = False
+            while not ended:
+                ended = policy.end_recording(RANGE_RECORDING_POLL_S) or time.monotonic() >= deadline
+                positions = self.sync_read("Present_Position", names, normalize=False)
+                mins = {m: min(positions[m], v) for m, v in mins.items()}
+                maxes = {m: max(positions[m], v) for m, v in maxes.items()}
+            unmoved = [m for m in names if mins[m] == maxes[m]]
+            if unmoved:
+                raise ValueError(f"Some motors have the same min and max values: {unmoved}; move every joint through its range")
+            return mins, maxes
+
+        def _armnet_eeprom(self) -> dict[int, tuple[int, int, int] | None]:
+            held: dict[int, tuple[int, int, int] | None] = {}
             for name, motor in self.motors.items():
-                values = [self.read(reg, name, normalize=False, num_retry=2) for reg in CALIBRATION_ORDER]
+                try:
+                    values = [self.read(reg, name, normalize=False, num_retry=2) for reg in CALIBRATION_ORDER]
+                except (ConnectionError, RuntimeError):  # a silent servo is a mismatch, reported
+                    held[motor.id] = None
+                    continue
                 held[motor.id] = (int(values[0]), int(values[1]), int(values[2]))
             return held
 
         def _armnet_check_calibration(self, when: str) -> bool:
             policy = self._armnet_policy
-            held = self._armnet_eeprom()
-            differ = sorted(i for i, v in held.items() if policy.calibration.get(i) not in (None, v))
-            if differ:
-                policy.recorder.record_calibration(policy.arm, f"{when}: servos {differ} differ from the cell's calibration")
-            return not differ
+            found = calibration_mismatches(policy.calibration, self._armnet_eeprom())
+            policy.recorder.record_calibration_check(policy.arm, [f"{when}: {m.describe()}" for m in found])
+            return not found
 
         def _armnet_restore_calibration(self) -> None:
             """Write the cell's calibration back (unlocked, so it is saved), then lock and verify.

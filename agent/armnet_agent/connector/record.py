@@ -29,8 +29,16 @@ class ConnectorRecord:
     rests: tuple[RestReport, ...]
     #: Per arm: the latest torque off, read back from its servos (absent: none yet).
     torque_off_confirmed: Mapping[str, bool]
-    #: Every counter of ``cell.Counters``, by name.
+    #: Every counter of ``cell.Counters``, by name, and the safety report's totals
+    #: (``safety_clamps``, ``safety_refusals``, ``safety_trips``) for the agent's metrics.
     counters: Mapping[str, int]
+    #: Per arm: how the servos' EEPROM differs from the cell's calibration file at the latest
+    #: check (empty: as the file says). Non-empty: CalibrationPresent/HardwareReady false.
+    calibration_mismatches: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
+
+    @property
+    def calibration_ok(self) -> bool:
+        return not any(self.calibration_mismatches.values())
 
     @property
     def rest_missed(self) -> bool:
@@ -47,4 +55,5 @@ class ConnectorRecord:
             "rests": [dataclasses.asdict(r) for r in self.rests],
             "torqueOffConfirmed": dict(self.torque_off_confirmed),
             "counters": dict(self.counters),
+            "calibrationMismatches": {arm: list(notes) for arm, notes in self.calibration_mismatches.items()},
         }

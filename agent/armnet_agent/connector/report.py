@@ -43,6 +43,14 @@ class SafetyReport:
     torque_off_confirmed: dict[str, bool] = field(default_factory=dict)
     #: Calibration jobs only: what the connector found and restored, per arm.
     calibration: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    #: Per arm: the servo registers whose EEPROM differs from the cell's calibration file at
+    #: the latest check (when the bus connected, or after a calibration job's restore). Non-empty: the cell's calibration
+    #: is not what the file says; the agent sets CalibrationPresent false with these reasons.
+    calibration_mismatches: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+    @property
+    def clamps_total(self) -> int:
+        return sum(self.clamps.values())
 
     def as_status(self) -> dict[str, Any]:
         """The camelCase mapping the job's status carries."""
@@ -55,6 +63,7 @@ class SafetyReport:
             "interlockTrips": self.interlock_trips,
             "torqueOffConfirmed": dict(self.torque_off_confirmed),
             "calibration": {arm: list(notes) for arm, notes in self.calibration.items()},
+            "calibrationMismatches": {arm: list(notes) for arm, notes in self.calibration_mismatches.items()},
         }
 
 
@@ -71,6 +80,7 @@ class SafetyRecorder:
         self._trips = 0
         self._torque_off: dict[str, bool] = {}
         self._calibration: dict[str, list[str]] = {}
+        self._mismatches: dict[str, list[str]] = {}
 
     def record_steps(self, steps: dict[str, float]) -> None:
         with self._lock:
@@ -102,6 +112,19 @@ class SafetyRecorder:
             if len(notes) < MAX_REFUSALS_KEPT:
                 notes.append(note[:MAX_REASON_CHARS])
 
+    def record_calibration_check(self, arm: str, mismatches: list[str]) -> None:
+        """The latest EEPROM check of ``arm``: it replaces the previous one (a restore that worked clears it).
+
+        Each mismatch is also a calibration note, so the report keeps the history.
+        """
+        for note in mismatches:
+            self.record_calibration(arm, note)
+        with self._lock:
+            if mismatches:
+                self._mismatches[arm] = [n[:MAX_REASON_CHARS] for n in mismatches[:MAX_REFUSALS_KEPT]]
+            else:
+                self._mismatches.pop(arm, None)
+
     def snapshot(self) -> SafetyReport:
         with self._lock:
             return SafetyReport(
@@ -113,4 +136,5 @@ class SafetyRecorder:
                 interlock_trips=self._trips,
                 torque_off_confirmed=dict(self._torque_off),
                 calibration={arm: tuple(notes) for arm, notes in self._calibration.items()},
+                calibration_mismatches={arm: tuple(notes) for arm, notes in self._mismatches.items()},
             )

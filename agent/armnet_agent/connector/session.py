@@ -188,7 +188,8 @@ class RobotSession(Session):
         cell = self.cell
         if class_name == "FeetechMotorsBus":
             handle = create_feetech(
-                args, kwargs, cell.config, cell.locks, cell.ranges, interlock=cell.interlock, recorder=cell.guard.recorder
+                args, kwargs, cell.config, cell.locks, cell.ranges, interlock=cell.interlock, recorder=cell.guard.recorder,
+                end_recording=cell.inputs_end_recording,
             )
         elif class_name == "OpenCVCamera":
             assert cell.camera_factory is not None

@@ -226,10 +226,22 @@ def test_a_single_raw_write_beyond_the_limit_is_clamped_too(bus, sim_cell, conne
     assert connector.safety_report().clamps == {"wrist_flex": 1}
 
 
-@pytest.mark.parametrize(("goal", "kind"), [(float("nan"), "non_finite"), (float("inf"), "non_finite"), ("far", "wrong_type")])
-def test_a_goal_that_is_not_a_finite_number_is_refused_and_trips_the_interlock(bus, connector, goal, kind) -> None:
+def test_the_records_counters_carry_the_safety_reports_totals_for_the_agents_metrics(bus, sim_cell, connector) -> None:
     bus.enable_torque()
-    with pytest.raises((ValueError, TypeError)):
+    before = sim_cell.arm.positions()["wrist_flex"]
+    bus.write("Goal_Position", "wrist_flex", before - 1000, normalize=False)  # clamped
+    with pytest.raises(ValueError):
+        bus.sync_write("Goal_Position", {"elbow_flex": float("nan")})  # refused, trips
+    counters = connector.record().counters
+    assert (counters["safety_clamps"], counters["safety_refusals"], counters["safety_trips"]) == (1, 1, 1)
+
+
+@pytest.mark.parametrize(("goal", "kind"), [(float("nan"), "non_finite"), (float("inf"), "non_finite"), ("far", "wrong_type")])
+def test_a_goal_that_is_not_a_finite_number_is_refused_as_value_error_and_trips_the_interlock(
+    bus, connector, goal, kind
+) -> None:
+    bus.enable_torque()
+    with pytest.raises(ValueError):  # as LeRobot: a bad value is a ValueError, whatever its type
         bus.sync_write("Goal_Position", {"elbow_flex": goal})
     assert connector.interlock.tripped
     report = connector.safety_report()
@@ -282,3 +294,32 @@ def test_a_calibration_job_still_may_not_re_address_a_servo(sim_cell, make_conne
     job.connect()
     refused(job.write, "ID", "gripper", 9)
     job.disconnect()
+
+
+def test_a_calibration_jobs_range_recording_ends_on_the_operators_confirmation_not_the_connectors_stdin(
+    sim_cell, make_connector, cell_config, motors, capsys
+) -> None:
+    """pytest's stdin cannot be read: LeRobot's own loop (Enter on stdin) would fail here."""
+    from armnet_agent.connector import LocalOperatorInputs
+
+    start = sim_cell.arm.positions()
+    polls: list[int] = []
+
+    def operator(inputs: LocalOperatorInputs) -> None:  # called at each poll of the recording
+        polls.append(1)
+        if len(polls) == 2:
+            for motor, position in start.items():
+                sim_cell.arm.move_by_hand(motor, position + 150)
+        if len(polls) == 4:
+            inputs.confirm_reset()
+
+    connector = make_connector(
+        cell_config(sim_cell, allowCalibrationJobs=True), inputs=LocalOperatorInputs(on_reset_requested=operator)
+    )
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+    job.connect()
+    job.disable_torque()
+    mins, maxes = job.record_ranges_of_motion()
+    job.disconnect()
+    assert {m: (mins[m], maxes[m]) for m in start} == {m: (p, p + 150) for m, p in start.items()}
+    assert "NAME" not in capsys.readouterr().out  # no live table on the connector's terminal

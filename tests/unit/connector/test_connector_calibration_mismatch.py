@@ -1,0 +1,58 @@
+"""A servo's EEPROM calibration changed outside armnet is reported when a job's bus connects, never "fixed".
+
+On the simulated SO-101: the servo is changed with a bare LeRobot bus on the
+simulator's port (as someone with a USB cable would), then a job connects
+through the connector; the connector's record names the servo and register.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from armnet_agent.connector.calibration_check import read_calibration
+from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+
+pytestmark = pytest.mark.unit
+
+
+def change_homing_outside_armnet(port: str, motors: dict[str, Any], motor: str, value: int) -> None:
+    from lerobot.motors.feetech import FeetechMotorsBus
+
+    bare = FeetechMotorsBus(port=port, motors=motors)
+    bare.connect(handshake=False)
+    bare.write("Lock", motor, 0, normalize=False)
+    bare.write("Homing_Offset", motor, value, normalize=False)
+    bare.write("Lock", motor, 1, normalize=False)
+    bare.disconnect(disable_torque=False)
+
+
+def test_a_cell_as_its_file_says_reports_no_calibration_mismatch(sim_cell, make_connector, cell_config, motors) -> None:
+    connector = make_connector(cell_config(sim_cell))
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+    job.connect()
+    job.disconnect()
+    record = connector.record()
+    assert record.calibration_ok and record.as_dict()["calibrationMismatches"] == {}
+
+
+def test_a_homing_offset_changed_outside_armnet_is_reported_at_connect_and_left_alone(
+    sim_cell, make_connector, cell_config, motors
+) -> None:
+    cell_homing = sim_cell.arm.register("wrist_roll", "Homing_Offset")
+    change_homing_outside_armnet(sim_cell.arm.port, motors, "wrist_roll", cell_homing + 37)
+    connector = make_connector(cell_config(sim_cell))
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
+    job.connect()
+    job.disconnect()
+    record = connector.record()
+    assert not record.calibration_ok
+    (note,) = record.calibration_mismatches["arm"]
+    assert "servo 5" in note and f"Homing_Offset is {cell_homing + 37}" in note
+    assert sim_cell.arm.register("wrist_roll", "Homing_Offset") == cell_homing + 37  # reported, not "fixed"
+
+
+def test_read_calibration_reads_every_servo_of_the_cell_on_the_port(sim_cell, motors) -> None:
+    held = read_calibration(sim_cell.arm.port, motors)
+    assert sorted(held) == [1, 2, 3, 4, 5, 6]
+    assert held[5] is not None and held[5][0] == sim_cell.arm.register("wrist_roll", "Homing_Offset")
