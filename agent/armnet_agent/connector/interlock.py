@@ -19,6 +19,9 @@ class TripReason(StrEnum):
     DEADLINE = "deadline"
     RESET_TIMEOUT = "reset_timeout"
     SHUTDOWN = "shutdown"
+    # A connector re-created for a job adopted after an agent restart: the previous
+    # connector's view of the arm (positions, pending reset) is lost, so motion stays refused.
+    AGENT_RESTARTED = "agent_restarted"
 
 
 @dataclass(frozen=True)

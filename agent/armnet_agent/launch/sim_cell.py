@@ -136,7 +136,7 @@ class LocalCell:
             on_grace_expired=self._on_grace_expired,
         ).start()
         if self._tripped is not None:
-            self.connector.interlock.trip(TripReason.SHUTDOWN, self._tripped)
+            self.connector.interlock.trip(TripReason.AGENT_RESTARTED, self._tripped)
         if self._inputs_source is not None and isinstance(self.inputs, LocalOperatorInputs):
             InputFeeder(self.inputs, self._inputs_source).start()
 
