@@ -75,7 +75,9 @@ UNSAFE = """
     def run(ctx: Context):
         bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
         present = float(bus.sync_read("Present_Position")["shoulder_pan"])
-        bus.sync_write("Goal_Position", {"shoulder_pan": present + 60.0})
+        # Far outside the calibrated range: refused under either safety policy (a step that is
+        # only beyond the relative limit would be clamped, as LeRobot does, under the default).
+        bus.sync_write("Goal_Position", {"shoulder_pan": present + 1000.0})
         return "unreachable"
 """
 
@@ -129,7 +131,7 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
         "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=120),
         "missing-secret": bed.submit("no-secret", bed.image("echo", ECHO), secrets={"API_TOKEN": "absent"}),
-        "secret": bed.submit("with-secret", bed.image("echo", ECHO), args={"size": "x" * 100_000},
+        "secret": bed.submit("with-secret", bed.image("echo", ECHO), args={"size": "x" * 60_000},
                              secrets={"API_TOKEN": "api-token"}),
         "timeout-ignored": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
         "timeout-honoured": bed.submit("honours", bed.image("honours", HONOURS_SHUTDOWN), timeout=JOB_TIMEOUT),
@@ -176,7 +178,7 @@ def test_secrets_and_a_large_args_object_reach_the_job_and_no_secret_value_reach
     assert st["phase"] == "succeeded", json.dumps(st)[:3000]
     value = st["result"]["returnValue"]
     assert value["secret_length"] == len("s3cr3t-value-123")
-    assert len(value["args"]["size"]) == 100_000
+    assert len(value["args"]["size"]) == 60_000
     assert value["job_id"] == job["metadata"]["uid"]
     assert "s3cr3t-value-123" not in json.dumps(job)
 
