@@ -208,6 +208,9 @@ def test_a_safety_violation_fails_the_job_with_the_connectors_record_and_the_int
     assert "SafetyViolation" in st["result"]["traceback"]
     assert "safety violation (connector record)" in st["result"]["error"]
     assert "shoulder_pan" in st["result"]["error"]
+    safety = st["result"]["safety"]  # the connector's own report, not guessed from the exit code
+    assert safety["policy"] == "clamp" and safety["interlockTrips"] >= 1
+    assert any(r["motor"] == "shoulder_pan" for r in safety["refusals"]), safety
     cell = st["cellName"]
 
     def interlock_clear() -> bool:

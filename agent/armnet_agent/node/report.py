@@ -9,8 +9,9 @@ job's output and the connector's record only.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
@@ -31,6 +32,24 @@ class ConnectorRecord:
     safety_violations: int = 0
     rollout_index: int | None = None
     rollout_total: int | None = None
+    #: The connector's safety report (``connector.report.SafetyReport.as_status()``): clamps,
+    #: largest requested step, refusals, trips, torque off confirmed, calibration checks.
+    safety: Mapping[str, Any] = field(default_factory=dict)
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by its name as a string.
+
+    The report carries numbers a hostile job chose (a step of ``inf``); JSON has no
+    infinity, and a status body the API server cannot parse would lose the result.
+    """
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, Mapping):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
 
 
 def timestamp(moment: datetime) -> str:
@@ -82,6 +101,8 @@ def terminal_patch(
         body["error"] = _keep_end(error, ERROR_MAX)
     if result.traceback:
         body["traceback"] = _keep_end(result.traceback, TRACEBACK_MAX)
+    if record.safety:
+        body["safety"] = json_safe(record.safety)
     status: dict[str, Any] = {
         "phase": result.status.value,
         "finishedAt": timestamp(result.finished_at) if result.finished_at else None,

@@ -298,6 +298,7 @@ class JobRunner:
             safety_violations=cell.connector.counters.safety_violations,
             rollout_index=rollout["index"] if rollout else None,
             rollout_total=rollout["total"] if rollout else None,
+            safety=cell.connector.safety_report().as_status(),
         )
 
     # -- status writes ----------------------------------------------------------------

@@ -71,3 +71,21 @@ def test_a_failure_before_start_has_an_error_and_no_traceback() -> None:
     assert body["status"]["phase"] == "failed"
     assert body["status"]["result"] == {"error": "Secret 'hf' does not exist in namespace team-a"}
     assert "traceback" not in json.dumps(body)
+
+
+def test_the_connectors_safety_report_lands_in_the_result() -> None:
+    safety = {"policy": "clamp", "clampsPerMotor": {"shoulder_pan": 3}, "refusalsTotal": 0, "interlockTrips": 0}
+    body = terminal_patch("7", result(), ConnectorRecord(safety=safety))
+    assert body["status"]["result"]["safety"] == safety
+
+
+def test_a_job_without_a_connector_record_carries_no_safety_field() -> None:
+    assert "safety" not in terminal_patch("7", result())["status"]["result"]
+
+
+def test_non_finite_numbers_a_job_chose_still_give_a_status_the_api_server_parses() -> None:
+    safety = {"largestRequestedStep": {"shoulder_pan": float("inf"), "gripper": float("nan"), "elbow_flex": 2.5}}
+    body = terminal_patch("7", result(), ConnectorRecord(safety=safety))
+    text = json.dumps(body, allow_nan=False)  # raises on inf/nan, as the API server would refuse them
+    steps = json.loads(text)["status"]["result"]["safety"]["largestRequestedStep"]
+    assert steps == {"shoulder_pan": "inf", "gripper": "nan", "elbow_flex": 2.5}
