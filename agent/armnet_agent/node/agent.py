@@ -73,7 +73,6 @@ class NodeAgent:
                 self.pass_once()
             except Exception:  # noqa: BLE001 - a failed pass is retried; the agent never dies of one
                 log.warning("agent pass failed", exc_info=True)
-            self.metrics.nats_connected.set(1 if self.link.connected else 0)
             self._wake.wait(self.settings.pass_period)
             self._wake.clear()
         for worker in self.workers.values():

@@ -21,7 +21,7 @@ from armnet_agent.launch.container import EngineUnavailable, connect_engine
 from armnet_agent.node.agent import AgentSettings, NodeAgent
 from armnet_agent.node.kube import AgentKube, make_client
 from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.publish import open_link
+from armnet_agent.node.publish import open_link, register_metrics
 
 ENV = "ARMNET_AGENT_"
 
@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     metrics = AgentMetrics()
     metrics.serve(args.metrics_port, args.metrics_address)
     link = open_link(args.nats_url, state_dir / "spool")
+    register_metrics(link, metrics.registry)
     kube = AgentKube(make_client(args.kubeconfig), settings.namespaces)
     stop = threading.Event()
 

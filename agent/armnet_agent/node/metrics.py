@@ -38,7 +38,6 @@ class AgentMetrics:
         self.lines_dropped = Counter(
             "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
         )
-        self.nats_connected = Gauge("armnet_agent_nats_connected", "1 while NATS is connected", registry=r)
 
     def serve(self, port: int, address: str) -> None:
         if port:

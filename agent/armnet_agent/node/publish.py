@@ -1,20 +1,22 @@
 """Where a job's output lines and status transitions go besides the RobotJob: NATS, or nowhere.
 
 The NATS library (``node.streams``: ``NatsLink``, ``JobStream``,
-``OperatorInputsBridge``; see /work/AGENT-CONTRACT.md) is built separately.
-This module is the agent's only door to it: with no NATS URL, or without that
-library, every call is a no-op and jobs run exactly the same (their status is
-written to the RobotJob either way).
+``OperatorInputsBridge``; docs/streams.md) does the work. This module is the
+agent's only door to it: with no NATS URL every call is a no-op and jobs run
+exactly the same (their status is written to the RobotJob either way).
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 from pathlib import Path
 from typing import Any, Protocol
 
+from prometheus_client import CollectorRegistry
+
 from armnet_agent.connector.inputs import OperatorInputs
+from armnet_agent.node import streams
+from armnet_agent.node.stream_metrics import StreamsCollector
 
 log = logging.getLogger(__name__)
 
@@ -58,35 +60,28 @@ class NoBridge:
         return None
 
 
-def _streams() -> Any | None:
-    try:
-        return importlib.import_module("armnet_agent.node.streams")
-    except ImportError:
-        return None
-
-
 def open_link(url: str | None, spool_dir: Path | None) -> Link:
-    streams = _streams()
     if url is None:
-        return NoLink()
-    if streams is None:
-        log.warning("--nats-url is set but this build has no NATS library (armnet_agent.node.streams); not publishing")
         return NoLink()
     link: Link = streams.NatsLink(streams.StreamSettings(url=url, spool_dir=spool_dir)).start()
     return link
 
 
+def register_metrics(link: Link, registry: CollectorRegistry) -> None:
+    """The stream's own metrics (connected, published, dropped, spooled, pending, inputs)."""
+    if isinstance(link, streams.NatsLink):
+        registry.register(StreamsCollector(link))
+
+
 def job_output(link: Link, namespace: str, job_uid: str) -> JobOutput:
-    streams = _streams()
-    if isinstance(link, NoLink) or streams is None:
+    if isinstance(link, NoLink):
         return NoOutput()
     output: JobOutput = streams.JobStream(link, namespace, job_uid)
     return output
 
 
 def inputs_bridge(link: Link, inputs: OperatorInputs, *, namespace: str, job_uid: str, cell: str) -> Closable:
-    streams = _streams()
-    if isinstance(link, NoLink) or streams is None:
+    if isinstance(link, NoLink):
         return NoBridge()
     bridge: Closable = streams.OperatorInputsBridge(
         link, inputs, namespace=namespace, job_uid=job_uid, cell=cell
