@@ -1,6 +1,6 @@
 """``armnet_client`` follows a job's log subjects in the real JetStream, as the agent publishes them.
 
-The test publishes exactly what the node agent contract (AGENT-CONTRACT.md)
+The test publishes exactly what the node agent contract (docs/streams.md)
 fixes: subjects ``logs.<namespace>.<jobId>.<kind>`` in the stream
 ``ARMNET_LOGS`` on ``logs.>``, message ids ``<jobId>:<kind>:<seq>``, and a
 publisher that retries a line until JetStream acknowledged it (what the agent's

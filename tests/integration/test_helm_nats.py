@@ -2,7 +2,7 @@
 
 The chart's rendered nats.conf runs in a real nats-server; the test changes only where
 it listens (127.0.0.1, a free port, no monitoring port) and its store directory.
-Clients are the real nats-py. Subjects: /work/AGENT-CONTRACT.md and docs/streams.md.
+Clients are the real nats-py. Subjects: docs/streams.md.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ client's part is small: while it follows, publish ``{"at": <UTC time>,
 "client": <host:pid>}`` every ``interval_s`` on
 ``clients.<namespace>.<jobId>.heartbeat`` (plain NATS: a heartbeat is only
 worth anything now). The agent cancels the job when none arrived for its
-window. The subject is this client's proposal; AGENT-CONTRACT.md does not fix
+window. The subject is this client's proposal; docs/streams.md does not fix
 one yet.
 """
 

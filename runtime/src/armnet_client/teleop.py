@@ -6,7 +6,7 @@ cell keeps only the latest, so the client publishes plain NATS (no JetStream:
 an old action replayed later would be wrong, not late). Keys publish
 ``{"event": ...}`` on ``teleop.<namespace>.<jobId>.event`` with LeRobot's
 recording shortcuts: Right arrow ``next_episode``, Left arrow
-``rerecord_episode``, Esc ``stop_recording`` (AGENT-CONTRACT.md).
+``rerecord_episode``, Esc ``stop_recording`` (docs/streams.md).
 """
 
 from __future__ import annotations
