@@ -2,7 +2,7 @@
 
 Issue 17's figures, measured against the test bed's real kube-apiserver with
 ``armnet operator`` in its own process, for one or more source trees in the
-same run (``--tree /work/main --tree .``: the code before and after a change,
+same run (``--tree ../armnet-before --tree .``: the code before and after a change,
 alternated ``--rounds`` times on one control plane).
 
 Per run: one cell of embodiment A (it takes one job; the rest must queue), one
@@ -14,7 +14,7 @@ once a quarter of them are in, one job for B. It reports
 - the B job's submit->bound during the burst (target: < 1 s),
 - the operator's peak resident memory (VmHWM; target: < 128 MiB).
 
-Usage: ``~/.cache/armnet/venv/bin/python bench/burst.py --tree /work/main --tree . [--jobs 500] [--rounds 2]``.
+Usage: ``~/.cache/armnet/venv/bin/python bench/burst.py --tree ../armnet-before --tree . [--jobs 500] [--rounds 2]``.
 The 2-core VM is shared: figures vary with its load; compare trees within one run.
 """
 
