@@ -40,8 +40,9 @@ def free_port() -> int:
 
 
 class AgentBed:
-    def __init__(self, k8s: Any, podman: Any, base_image: str, namespace: str) -> None:
+    def __init__(self, k8s: Any, podman: Any, base_image: str, namespace: str, nats_url: str | None = None) -> None:
         self.k8s = k8s
+        self.nats_url = nats_url
         self.podman = podman
         self.base_image = base_image
         self.namespace = namespace
@@ -77,6 +78,8 @@ class AgentBed:
                 "--dev-env", f"PYTHONPATH={PYTHONPATH}"]
         for mount in DEV_MOUNTS:
             argv += ["--dev-mount", mount]
+        if self.nats_url:
+            argv += ["--nats-url", self.nats_url]
         log = open(self.log_dir / f"agent-{self._agent_starts}.log", "ab")  # noqa: SIM115
         self.agent = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self._env())
 

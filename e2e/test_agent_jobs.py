@@ -96,9 +96,9 @@ COUNTS_SLOWLY = """
 
 
 @pytest.fixture(scope="module")
-def bed(k8s: Any, podman: Any, base_image: str) -> Iterator[AgentBed]:
+def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("agent-e2e")
-    bed = AgentBed(k8s, podman, base_image, namespace)
+    bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
     bed.cells = [bed.add_cell("so101-a"), bed.add_cell("so101-b")]  # type: ignore[attr-defined]
     bed.bimanual = bed.add_cell("bimanual", bimanual=True)  # type: ignore[attr-defined]
     bed.start_operator()
@@ -152,6 +152,21 @@ def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, 
     assert st["result"]["exitCode"] == 0
     assert st["startedAt"] <= st["finishedAt"]
     assert st["progress"]
+    # Every output line also went to the job's log subject on NATS, once and in order.
+    uid = st["jobId"]
+    from armnet_runtime.markers import parse_marker_line
+
+    def is_progress(line: str) -> bool:
+        marker = parse_marker_line(line)
+        return marker is not None and marker.kind == "progress"
+
+    printed = st["result"]["stdoutTail"].splitlines()
+    plain = [line for line in printed if not is_progress(line)]  # progress goes to its own subject
+    assert stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.stdout", len(plain)) == plain
+    progress = stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.progress", len(printed) - len(plain))
+    assert len(progress) == len(printed) - len(plain) > 0
+    phases = [json.loads(text)["phase"] for text in stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.status", 2)]
+    assert phases[0] == "running" and phases[-1] == "succeeded", phases
 
 
 def test_a_job_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:
@@ -334,3 +349,31 @@ def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a
     st = status(bed.wait_phase("vanishes", timeout=120))
     assert st["phase"] == "failed"
     assert "vanished" in st["result"]["error"]
+
+
+def stream_lines(url: str | None, subject: str, expected: int) -> list[str]:
+    """Every message stored on ``subject`` of the job log stream, from the first (JetStream replay)."""
+    import asyncio
+
+    import nats
+    import nats.errors
+    from nats.js.api import ConsumerConfig, DeliverPolicy
+
+    assert url is not None
+
+    async def read() -> list[str]:
+        nc = await nats.connect(url)
+        try:
+            sub = await nc.jetstream().subscribe(
+                subject, ordered_consumer=True, config=ConsumerConfig(deliver_policy=DeliverPolicy.ALL))
+            got: list[str] = []
+            while True:
+                try:
+                    msg = await sub.next_msg(timeout=10 if len(got) < expected else 1)
+                except nats.errors.TimeoutError:
+                    return got
+                got.append(msg.data.decode())
+        finally:
+            await nc.close()
+
+    return asyncio.run(read())
