@@ -35,6 +35,11 @@ class ArmProbe:
     calibration_exists: bool = False
     calibration_missing: tuple[str, ...] = ()
     calibration_error: str | None = None
+    #: Servo registers whose EEPROM value differs from the cell's calibration file, as
+    #: "<motor> <register> holds <read>, the cell's file says <expected>" (empty: all match
+    #: or not read). A job cannot cause this (the register policy refuses calibration
+    #: writes); someone changed the servo outside armnet, or it was replaced.
+    calibration_mismatches: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -127,6 +132,14 @@ def calibration_condition(probe: CellProbe) -> Condition:
                 CALIBRATION_PRESENT, "CalibrationIncomplete",
                 f"arm {name}: {arm.calibration_file} has no entry for {', '.join(arm.calibration_missing)}; "
                 "re-run lerobot-calibrate for this arm",
+            )
+        if arm.calibration_mismatches:
+            shown = "; ".join(arm.calibration_mismatches[:4])
+            more = f" (and {len(arm.calibration_mismatches) - 4} more)" if len(arm.calibration_mismatches) > 4 else ""
+            return _bad(
+                CALIBRATION_PRESENT, "CalibrationMismatch",
+                f"arm {name}: the servos' EEPROM differs from {arm.calibration_file}: {shown}{more}; "
+                "re-run lerobot-calibrate for this arm (and replace the file), or restore the servos' calibration",
             )
     return _ok(CALIBRATION_PRESENT, "CalibrationFound", "every arm has a calibration covering all its motors")
 

@@ -10,13 +10,17 @@ conditions).
 
 from __future__ import annotations
 
+import logging
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from armnet_agent.connector.config import read_calibration_file
+from armnet_agent.connector.calibration_check import calibration_mismatches, read_calibration
+from armnet_agent.connector.config import MotorRange, read_calibration_file
 from armnet_agent.node.health import ArmProbe
+
+log = logging.getLogger(__name__)
 
 BAUD_RATE = 1_000_000
 STS3215_MODEL = 777
@@ -27,6 +31,7 @@ def probe_arm(port: str, calibration_file: Path | None, motors: Iterable[str] = 
     motors = tuple(motors)
     calibration_exists = calibration_file is not None and calibration_file.is_file()
     ids: dict[str, int] = {}
+    ranges: dict[str, MotorRange] = {}
     missing: tuple[str, ...] = ()
     error = None
     if calibration_file is not None and calibration_exists:
@@ -40,6 +45,8 @@ def probe_arm(port: str, calibration_file: Path | None, motors: Iterable[str] = 
         ids = {motor: index + 1 for index, motor in enumerate(motors)}  # the SO-101's factory ids
     exists = os.path.exists(port)
     answers = ping_servos(port, ids) if exists else {}
+    everyone_answered = bool(answers) and all(model == STS3215_MODEL for _id, model in answers.values())
+    mismatches = eeprom_mismatches(port, ranges) if everyone_answered and ranges and not missing else ()
     return ArmProbe(
         port=port,
         port_exists=exists,
@@ -49,6 +56,31 @@ def probe_arm(port: str, calibration_file: Path | None, motors: Iterable[str] = 
         calibration_exists=calibration_exists,
         calibration_missing=missing,
         calibration_error=error,
+        calibration_mismatches=mismatches,
+    )
+
+
+def eeprom_mismatches(port: str, ranges: Mapping[str, MotorRange]) -> tuple[str, ...]:
+    """The calibration registers whose EEPROM value is not the cell's file's, as readable lines.
+
+    Read through the connector's own check (the real LeRobot bus, reads only). A read
+    that fails says nothing here: HardwareReady already reports servos that do not answer.
+    """
+    from lerobot.motors import Motor, MotorNormMode
+
+    motors = {name: Motor(r.id, "sts3215", MotorNormMode.RANGE_M100_100) for name, r in ranges.items()}
+    expected = {r.id: (r.homing_offset, r.range_min, r.range_max) for r in ranges.values()}
+    names = {r.id: name for name, r in ranges.items()}
+    try:
+        held = read_calibration(port, motors)
+    except Exception as exc:  # noqa: BLE001 - a probe never fails the heartbeat; pings report the bus
+        log.debug("calibration read on %s failed: %s", port, exc)
+        return ()
+    return tuple(
+        f"{names.get(m.motor_id, m.motor_id)} {m.register} holds {'nothing' if m.read is None else m.read}, "
+        f"the cell's file says {m.expected}"
+        for m in calibration_mismatches(expected, held)
+        if m.read is not None
     )
 
 

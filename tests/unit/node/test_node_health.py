@@ -86,3 +86,11 @@ def test_a_transition_time_moves_only_when_the_status_changes() -> None:
     changed = {c["type"]: c["lastTransitionTime"] for c in merge_conditions(again, broken, later)}
     assert changed["HardwareReady"] == "2026-01-02T00:00:00Z"
     assert changed["AgentConnected"] == "2026-01-01T00:00:00Z"
+
+
+def test_servos_whose_eeprom_differs_from_the_calibration_file_make_calibration_false_naming_them() -> None:
+    mismatch = "wrist_roll Homing_Offset holds 37, the cell's file says 0"
+    status, reason, message = conditions(CellProbe(arms={"arm": arm(calibration_mismatches=(mismatch,))}))[
+        "CalibrationPresent"]
+    assert (status, reason) == ("False", "CalibrationMismatch")
+    assert mismatch in message and "lerobot-calibrate" in message

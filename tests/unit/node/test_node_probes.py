@@ -1,0 +1,42 @@
+"""The agent's health probe on the simulated SO-101: servos pinged, calibration registers read, pure facts out."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from armnet_agent.node.probes import probe_arm
+from armnet_agent.sim import SimulatedCellProcess
+from armnet_agent.sim.calibration import builtin_calibration, write_calibration
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.fixture
+def sim_cell():
+    cell = SimulatedCellProcess("so101").start()
+    yield cell
+    cell.stop()
+
+
+def calibration_of(sim_cell: SimulatedCellProcess, tmp_path: Path) -> Path:
+    path = tmp_path / "arm.json"
+    write_calibration(path, builtin_calibration("so101"))
+    return path
+
+
+def test_a_simulated_arm_as_its_calibration_file_says_has_no_mismatch(sim_cell, tmp_path) -> None:
+    probe = probe_arm(sim_cell.arm.port, calibration_of(sim_cell, tmp_path))
+    assert all(model == 777 for _, model in probe.answers.values())
+    assert probe.calibration_mismatches == ()
+
+
+def test_a_servo_whose_homing_offset_was_changed_outside_armnet_is_named(sim_cell, tmp_path) -> None:
+    path = calibration_of(sim_cell, tmp_path)
+    data = json.loads(path.read_text())
+    data["wrist_roll"]["homing_offset"] += 37  # the file now disagrees with the servo's EEPROM
+    path.write_text(json.dumps(data))
+    probe = probe_arm(sim_cell.arm.port, path)
+    assert len(probe.calibration_mismatches) == 1
+    assert probe.calibration_mismatches[0].startswith("wrist_roll Homing_Offset holds ")
