@@ -173,31 +173,8 @@ def parse_job(body: Mapping[str, Any]) -> Job:
         return _parse_job_leniently(body)
     problem = args_problem(raw_spec["args"]) if "args" in raw_spec else None
     meta, spec, status = raw.metadata, raw.spec, raw.status
-    return Job(
-        namespace=meta.namespace,
-        name=meta.name,
-        created=meta.creation_timestamp or datetime.now(UTC),
-        embodiment=spec.embodiment,
-        task=spec.task or None,
-        priority=spec.priority,
-        uid=meta.uid,
-        resource_version=meta.resource_version,
-        cancel=spec.cancel,
-        deleting=meta.deletion_timestamp is not None,
-        finalizers=tuple(meta.finalizers),
-        phase=status.phase,
-        cell_name=status.cell_name or None,
-        job_id=status.job_id,
-        queued_reason=status.queued_reason,
-        queue_position=status.queue_position,
-        bound_at=_true_since(status.conditions, JobConditionType.BOUND),
-        queued_at=_true_since(status.conditions, JobConditionType.QUEUED),
-        cancel_requested_at=_true_since(status.conditions, JobConditionType.CANCEL_REQUESTED),
-        finished_at=status.finished_at,
-        ttl_seconds_after_finished=spec.ttl_seconds_after_finished,
-        conditions=tuple(_plain(raw_status.get("conditions") or [])),
-        spec_problem=problem,
-    )
+    return _job(meta, spec, status, status.conditions, tuple(_plain(raw_status.get("conditions") or [])),
+                spec_problem=problem)
 
 
 def _parse_job_leniently(body: Mapping[str, Any]) -> Job:
@@ -228,6 +205,15 @@ def _parse_job_leniently(body: Mapping[str, Any]) -> Job:
                if k in ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt")}
     status, defects = _lenient(_JobStatus, scalars, "status")
     conditions, plain_conditions, bad_conditions = _conditions(raw_status.get("conditions"), "status.conditions")
+    return _job(meta, spec, status, conditions, tuple(plain_conditions),
+                spec_problem="; ".join(problems) or None, status_defects=tuple(defects + bad_conditions))
+
+
+def _job(
+    meta: Any, spec: Any, status: Any, conditions: Any, plain_conditions: tuple[Any, ...], *,
+    spec_problem: str | None, status_defects: tuple[str, ...] = (),
+) -> Job:
+    """The frozen ``Job`` from parsed metadata, spec and status (both parsing paths end here)."""
     return Job(
         namespace=meta.namespace,
         name=meta.name,
@@ -250,9 +236,9 @@ def _parse_job_leniently(body: Mapping[str, Any]) -> Job:
         cancel_requested_at=_true_since(conditions, JobConditionType.CANCEL_REQUESTED),
         finished_at=status.finished_at,
         ttl_seconds_after_finished=spec.ttl_seconds_after_finished,
-        conditions=tuple(plain_conditions),
-        spec_problem="; ".join(problems) or None,
-        status_defects=tuple(defects + bad_conditions),
+        conditions=plain_conditions,
+        spec_problem=spec_problem,
+        status_defects=status_defects,
     )
 
 
