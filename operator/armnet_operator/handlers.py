@@ -20,6 +20,7 @@ from .kube import KubeApi, make_client
 from .metrics import Metrics
 from .model import GROUP, VERSION
 from .settings import OperatorSettings
+from .webhook import make_webhook
 
 log = logging.getLogger(__name__)
 COMPONENT = "armnet-operator"
@@ -63,7 +64,9 @@ def build_registry(
     """The kopf registry and its controller; ``on_death`` runs if the reconcile loop ever ends by itself."""
     allow_deep_json()
     api_client = make_client(settings.kubeconfig)
-    controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), Metrics(),
+    metrics = Metrics()
+    webhook = make_webhook(metrics, settings)  # loads the certificate now: a bad path fails at start
+    controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), metrics,
                             on_death=on_death)
     registry = kopf.OperatorRegistry()
 
@@ -78,10 +81,14 @@ def build_registry(
         settings.watching.reconnect_backoff = 0.5
         settings.batching.batch_window = 0.01
         controller.metrics.serve(controller.settings.metrics_port, controller.settings.metrics_address)
+        if webhook is not None:
+            await webhook.start()
         controller.start()
 
     @kopf.on.cleanup(registry=registry)
     async def stop(**_: Any) -> None:
+        if webhook is not None:
+            await webhook.stop()
         await controller.stop()
         controller.metrics.close()
 
