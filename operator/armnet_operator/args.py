@@ -2,10 +2,12 @@
 
 The API server accepts any JSON up to its own limits (10,000 levels, ~3 MiB),
 and a CRD schema cannot bound the depth or serialized size of a
-``x-kubernetes-preserve-unknown-fields`` object. So the operator measures args
-here and fails a job beyond the limits with the reason, instead of binding a
-job that can never start. The walk is iterative: a 10,000-level object costs
-no recursion (and stops early once a limit is passed).
+``x-kubernetes-preserve-unknown-fields`` object. So this one rule is asked in
+two places: the admission webhook (``admission``) refuses such a job at the
+API server, and the operator fails one admitted anyway (no webhook answered)
+with the reason, instead of binding a job that can never start. The walk is
+iterative: a 10,000-level object costs no recursion (and stops early once a
+limit is passed).
 """
 
 from __future__ import annotations
