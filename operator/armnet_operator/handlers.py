@@ -63,9 +63,9 @@ def build_registry(
 ) -> tuple[kopf.OperatorRegistry, Controller]:
     """The kopf registry and its controller; ``on_death`` runs if the reconcile loop ever ends by itself."""
     allow_deep_json()
-    api_client = make_client(settings.kubeconfig)
     metrics = Metrics()
     webhook = make_webhook(metrics, settings)  # loads the certificate now: a bad path fails at start
+    api_client = make_client(settings.kubeconfig)
     controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), metrics,
                             on_death=on_death)
     registry = kopf.OperatorRegistry()

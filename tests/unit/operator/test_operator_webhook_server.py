@@ -6,6 +6,7 @@ API server calling it is tests/integration/test_operator_webhook_live.py.
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
 import shutil
@@ -17,6 +18,7 @@ from typing import Any
 import aiohttp
 import pytest
 from armnet_operator.admission import WEBHOOK_PATH
+from armnet_operator.cli import add_arguments, run
 from armnet_operator.errors import PermanentError
 from armnet_operator.metrics import Metrics
 from armnet_operator.webhook import MAX_REVIEW_BYTES, AdmissionWebhook
@@ -171,3 +173,23 @@ def test_a_rotated_certificate_is_served_without_a_restart(
 def test_a_missing_certificate_fails_at_start_saying_what_to_mount(tmp_path: Path) -> None:
     with pytest.raises(PermanentError, match="serving certificate .*tls.crt.*webhook-port 0"):
         AdmissionWebhook(Metrics(), str(tmp_path / "tls.crt"), str(tmp_path / "tls.key"), "127.0.0.1", 0)
+
+
+def operator_args(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+def test_the_operator_exits_2_naming_the_files_when_the_certificate_cannot_load(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    args = operator_args("--webhook-port", "9443", "--webhook-cert-file", str(tmp_path / "tls.crt"),
+                         "--webhook-key-file", str(tmp_path / "tls.key"))
+    assert run(args) == 2
+    assert str(tmp_path / "tls.crt") in caplog.text
+
+
+def test_a_webhook_port_without_a_certificate_is_refused_at_start(caplog: pytest.LogCaptureFixture) -> None:
+    assert run(operator_args("--webhook-port", "9443")) == 2
+    assert "needs webhook_cert_file and webhook_key_file" in caplog.text
