@@ -22,6 +22,7 @@ from armnet_operator.metrics import Metrics
 from armnet_operator.webhook import AdmissionWebhook
 
 from tests.integration.test_helm_chart import CHART, env_of, find, helm, render
+from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 
@@ -172,3 +173,17 @@ def test_turned_off_there_is_no_webhook_port_certificate_or_registration() -> No
     assert not [o for o in objects if o["metadata"]["name"].endswith("-operator-webhook")]
     assert [p["name"] for p in container["ports"]] == ["metrics"]
     assert not any(name.startswith("ARMNET_OPERATOR_WEBHOOK") for name in env_of(container))
+
+
+def test_an_upgrade_keeps_the_chart_made_certificate(k8s: ControlPlane, namespace: str) -> None:
+    """`lookup` finds the Secret of the installed release, so the API server's caBundle stays valid."""
+    first = render("keep", namespace)
+    secret = find(first, "Secret", "-webhook-tls")
+    k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump(secret))
+
+    out = helm("template", "keep", str(CHART), "--namespace", namespace, "--dry-run=server",
+               f"--kubeconfig={k8s.kubeconfig}").stdout
+    again = [doc for doc in yaml.safe_load_all(out) if doc]
+
+    assert find(again, "Secret", "-webhook-tls")["data"] == secret["data"]
+    assert webhook_of(again)["clientConfig"]["caBundle"] == secret["data"]["ca.crt"]
