@@ -16,6 +16,7 @@ from typing import Any
 import kopf
 
 from .controller import Controller
+from .errors import PermanentError
 from .kube import KubeApi, make_client
 from .metrics import Metrics
 from .model import GROUP, VERSION
@@ -82,7 +83,16 @@ def build_registry(
         settings.batching.batch_window = 0.01
         controller.metrics.serve(controller.settings.metrics_port, controller.settings.metrics_address)
         if webhook is not None:
-            await webhook.start()
+            try:
+                await webhook.start()
+            except PermanentError as error:
+                # Exit non-zero rather than run without the webhook the chart registered.
+                # (A failed kopf startup activity leaves the process hanging, so stop it ourselves.)
+                log.critical("%s; exiting", error)
+                controller.dead, controller.died = True, error
+                if on_death is not None:
+                    on_death(error)
+                return
         controller.start()
 
     @kopf.on.cleanup(registry=registry)

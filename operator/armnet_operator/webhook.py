@@ -85,7 +85,12 @@ class AdmissionWebhook:
         app.add_routes([web.post(WEBHOOK_PATH, self._review)])
         self._runner = web.AppRunner(app, handle_signals=False, access_log=None)
         await self._runner.setup()
-        sock = socket.create_server((self.address, self.port), reuse_port=False)
+        try:
+            sock = socket.create_server((self.address, self.port))
+        except OSError as error:
+            await self._runner.cleanup()
+            raise PermanentError(f"the admission webhook cannot listen on {self.address}:{self.port}: {error}; "
+                                 "choose another --webhook-port") from error
         site = web.SockSite(self._runner, sock, ssl_context=self.context)
         await site.start()
         self.port = int(sock.getsockname()[1])

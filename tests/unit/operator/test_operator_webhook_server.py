@@ -193,3 +193,16 @@ def test_the_operator_exits_2_naming_the_files_when_the_certificate_cannot_load(
 def test_a_webhook_port_without_a_certificate_is_refused_at_start(caplog: pytest.LogCaptureFixture) -> None:
     assert run(operator_args("--webhook-port", "9443")) == 2
     assert "needs webhook_cert_file and webhook_key_file" in caplog.text
+
+
+def test_a_port_in_use_fails_start_saying_which(cert_files: tuple[Path, Path]) -> None:
+    async def scenario() -> None:
+        first = AdmissionWebhook(Metrics(), str(cert_files[0]), str(cert_files[1]), "127.0.0.1", 0)
+        await first.start()
+        try:
+            second = AdmissionWebhook(Metrics(), str(cert_files[0]), str(cert_files[1]), "127.0.0.1", first.port)
+            with pytest.raises(PermanentError, match=f"cannot listen on 127.0.0.1:{first.port}"):
+                await second.start()
+        finally:
+            await first.stop()
+    asyncio.run(scenario())
