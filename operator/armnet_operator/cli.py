@@ -43,7 +43,11 @@ def run(args: argparse.Namespace) -> int:
     # If the reconcile loop ever ends by itself, stop kopf and exit non-zero: a
     # process that only watches would sit in the Lease while nothing is scheduled.
     stop = threading.Event()
-    registry, controller = build_registry(settings, on_death=lambda _error: stop.set())
+    try:
+        registry, controller = build_registry(settings, on_death=lambda _error: stop.set())
+    except PermanentError as error:  # e.g. the webhook's certificate cannot be loaded
+        logging.getLogger("armnet.operator").error("%s", error)
+        return 2
     kopf.run(
         registry=registry,
         standalone=True,  # leader election is ours (a Lease), not kopf peering

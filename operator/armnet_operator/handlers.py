@@ -16,10 +16,12 @@ from typing import Any
 import kopf
 
 from .controller import Controller
+from .errors import PermanentError
 from .kube import KubeApi, make_client
 from .metrics import Metrics
 from .model import GROUP, VERSION
 from .settings import OperatorSettings
+from .webhook import make_webhook
 
 log = logging.getLogger(__name__)
 COMPONENT = "armnet-operator"
@@ -62,8 +64,10 @@ def build_registry(
 ) -> tuple[kopf.OperatorRegistry, Controller]:
     """The kopf registry and its controller; ``on_death`` runs if the reconcile loop ever ends by itself."""
     allow_deep_json()
+    metrics = Metrics()
+    webhook = make_webhook(metrics, settings)  # loads the certificate now: a bad path fails at start
     api_client = make_client(settings.kubeconfig)
-    controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), Metrics(),
+    controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), metrics,
                             on_death=on_death)
     registry = kopf.OperatorRegistry()
 
@@ -78,10 +82,23 @@ def build_registry(
         settings.watching.reconnect_backoff = 0.5
         settings.batching.batch_window = 0.01
         controller.metrics.serve(controller.settings.metrics_port, controller.settings.metrics_address)
+        if webhook is not None:
+            try:
+                await webhook.start()
+            except PermanentError as error:
+                # Exit non-zero rather than run without the webhook the chart registered.
+                # (A failed kopf startup activity leaves the process hanging, so stop it ourselves.)
+                log.critical("%s; exiting", error)
+                controller.dead, controller.died = True, error
+                if on_death is not None:
+                    on_death(error)
+                return
         controller.start()
 
     @kopf.on.cleanup(registry=registry)
     async def stop(**_: Any) -> None:
+        if webhook is not None:
+            await webhook.stop()
         await controller.stop()
         controller.metrics.close()
 

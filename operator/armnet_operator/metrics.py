@@ -9,6 +9,7 @@ from typing import Any
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, start_http_server
 
+from .args import ArgsLimit
 from .model import Cell, CellPhase, Job, JobPhase
 from .reconcile import Outcome
 
@@ -48,6 +49,20 @@ class Metrics:
         self.failing = Gauge("armnet_objects_failing", "Objects the last pass skipped", ["kind"], registry=r)
         self.leader = Gauge("armnet_operator_leader", "1 while this replica holds the Lease", registry=r)
         self.pass_seconds = Histogram("armnet_reconcile_seconds", "Duration of one reconcile pass", registry=r)
+        self.admission_requests = Counter(
+            "armnet_admission_requests_total",
+            "RobotJob admission reviews the webhook answered, by outcome (allowed, denied, malformed)",
+            ["outcome"], registry=r,
+        )
+        self.admission_rejections = Counter(
+            "armnet_admission_rejections_total",
+            "RobotJobs the webhook refused, by the spec.args limit they broke (depth, size, type)",
+            ["limit"], registry=r,
+        )
+        for outcome in ("allowed", "denied", "malformed"):
+            self.admission_requests.labels(outcome)
+        for limit in ArgsLimit:
+            self.admission_rejections.labels(limit.value)
         self._server: Any = None
         self._queue_labels: set[tuple[str, str]] = set()
 

@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from datetime import timedelta
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import PermanentError
 from .model import Timing
@@ -33,6 +33,10 @@ class OperatorSettings(BaseModel):
     namespaces: tuple[str, ...] = Field((), description="namespaces to watch for RobotJobs (empty: all)")
     metrics_port: int = Field(8080, ge=0, le=65535, description="port of /metrics (0: off)")
     metrics_address: str = "0.0.0.0"
+    webhook_port: int = Field(0, ge=0, le=65535, description="HTTPS port of the RobotJob admission webhook (0: off)")
+    webhook_address: str = Field("0.0.0.0", description="address the admission webhook listens on")
+    webhook_cert_file: str | None = Field(None, description="PEM serving certificate of the admission webhook")
+    webhook_key_file: str | None = Field(None, description="PEM private key of that certificate")
     lease_name: str = "armnet-operator"
     lease_namespace: str = Field("armnet-system", description="namespace of the leader-election Lease")
     lease_duration: float = Field(15.0, gt=0, description="seconds a leader holds the Lease without renewing")
@@ -50,6 +54,13 @@ class OperatorSettings(BaseModel):
     @classmethod
     def _none(cls, value: Any) -> Any:
         return None if isinstance(value, str) and value.lower() in ("", "none", "off") else value
+
+    @model_validator(mode="after")
+    def _webhook_needs_a_certificate(self) -> OperatorSettings:
+        if self.webhook_port and not (self.webhook_cert_file and self.webhook_key_file):
+            raise ValueError("the admission webhook (webhook_port) needs webhook_cert_file and webhook_key_file: "
+                             "the API server only calls webhooks over TLS")
+        return self
 
     @property
     def timing(self) -> Timing:
@@ -78,6 +89,7 @@ def load_settings(
     except ValidationError as error:
         problems = "; ".join(
             f"{ENV_PREFIX}{'.'.join(map(str, e['loc'])).upper()} (--{'-'.join(map(str, e['loc'])).replace('_', '-')}): {e['msg']}"
+            if e["loc"] else str(e["msg"])
             for e in error.errors()
         )
         raise PermanentError(f"invalid operator settings: {problems}") from error

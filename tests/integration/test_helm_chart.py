@@ -134,7 +134,8 @@ def test_every_option_on_renders_every_kind_the_chart_knows() -> None:
     assert kinds == {"CustomResourceDefinition", "ServiceAccount", "ClusterRole", "ClusterRoleBinding",
                      "Role", "RoleBinding", "Deployment", "PodDisruptionBudget", "DaemonSet", "Service",
                      "ConfigMap", "StatefulSet", "ServiceMonitor", "PrometheusRule",
-                     "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
+                     "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding",
+                     "Secret", "ValidatingWebhookConfiguration"}
 
 
 @pytest.mark.parametrize(("values", "path"), [
@@ -187,7 +188,7 @@ def test_a_release_name_other_than_armnet_prefixes_every_object(release: str, pr
 def test_namespaced_objects_name_their_namespace() -> None:
     objects = render("robots", "ops", values_files=[ALL_OPTIONS])
     cluster_kinds = {"CustomResourceDefinition", "ClusterRole", "ClusterRoleBinding",
-                     "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
+                     "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding", "ValidatingWebhookConfiguration"}
 
     for o in objects:
         if o["kind"] in cluster_kinds:
@@ -226,7 +227,7 @@ def test_operator_probes_its_metrics_port_and_has_a_disruption_budget() -> None:
     container = find(objects, "Deployment")["spec"]["template"]["spec"]["containers"][0]
     pdb = find(objects, "PodDisruptionBudget")
 
-    assert container["ports"] == [{"name": "metrics", "containerPort": 8080, "protocol": "TCP"}]
+    assert container["ports"][0] == {"name": "metrics", "containerPort": 8080, "protocol": "TCP"}
     assert container["livenessProbe"]["httpGet"] == {"path": "/metrics", "port": "metrics"}
     assert container["readinessProbe"]["httpGet"] == {"path": "/metrics", "port": "metrics"}
     assert container["resources"]["requests"] and container["resources"]["limits"]

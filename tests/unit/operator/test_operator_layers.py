@@ -10,9 +10,9 @@ import pytest
 pytestmark = pytest.mark.unit
 
 PACKAGE = Path(__file__).resolve().parents[3] / "operator" / "armnet_operator"
-PURE = ["model", "args", "cell_checks", "health", "scheduling", "lifecycle", "conditions", "patches", "parsing",
+PURE = ["model", "args", "admission", "cell_checks", "health", "scheduling", "lifecycle", "conditions", "patches", "parsing",
         "reconcile", "leader", "settings", "errors"]
-FORBIDDEN_IN_PURE = ("kopf", "kubernetes", "armnet_agent", "prometheus_client")
+FORBIDDEN_IN_PURE = ("kopf", "kubernetes", "armnet_agent", "prometheus_client", "aiohttp")
 
 
 def imported_roots(path: Path) -> set[str]:
