@@ -108,8 +108,10 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
         _active_job(row, "stop")
         assert row.job is not None
         reason = stop_reason(operator)
+        # Only spec.cancel: the agent then trips the interlock, opens the grace window and ends
+        # the job cancelled. The SDK's cooperative should_stop (fms.<cell>.stop) is not sent: a job
+        # honouring it could return before the cancel lands and end "succeeded".
         return Plan(
-            messages=((_subject(row.name, "stop"), _json({"by": operator, "reason": reason})),),
             job_patch={"metadata": {"annotations": {STOPPED_BY_ANNOTATION: operator}},
                        "spec": {"cancel": True}},
             event=_job_event(row, "StoppedByCellOperator", reason, "Warning"),
