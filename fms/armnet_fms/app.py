@@ -117,9 +117,9 @@ def build_app(state: FleetState, bus: Bus, settings: auth.AuthSettings, *, site:
         operator = auth.operator_for_token(settings, str(form.get("token", "")))
         if operator is None:
             metrics.logins.labels("refused").inc()
-            response = _page("login.html", message="That token is not a cell operator's token.")
-            response.status_code = 401
-            return response
+            refused = _page("login.html", message="That token is not a cell operator's token.")
+            refused.status_code = 401
+            return refused
         metrics.logins.labels("ok").inc()
         response = RedirectResponse("/", status_code=303)
         response.set_cookie(SESSION_COOKIE, auth.make_session(settings, operator, clock()),

@@ -28,7 +28,8 @@ class KubeGateway:
         self.identity = identity or socket.gethostname()
 
     def list_cells(self) -> list[dict[str, Any]]:
-        return list(self.custom.list_cluster_custom_object(GROUP, VERSION, "cells").get("items", []))
+        listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "cells"))
+        return list(listed.get("items", []))
 
     def get_cell(self, name: str) -> dict[str, Any] | None:
         return self._get(lambda: self.custom.get_cluster_custom_object(GROUP, VERSION, "cells", name))
