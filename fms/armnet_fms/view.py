@@ -105,8 +105,10 @@ def pending_from_notice(cell: str, notice: Mapping[str, Any], reset_timeout_s: f
     if not all(isinstance(v, str) and v and len(v) <= 253 for v in (namespace, job, at)):
         return None
     assert isinstance(namespace, str) and isinstance(job, str) and isinstance(at, str)
-    return PendingReset(cell=cell, namespace=namespace, job_uid=job,
-                        request_id=reset_request_id(job, at), received_at=now,
+    request = notice.get("request")  # the agent names the wait; older agents did not
+    if not (isinstance(request, str) and 0 < len(request) <= 128):
+        request = reset_request_id(job, at)
+    return PendingReset(cell=cell, namespace=namespace, job_uid=job, request_id=request, received_at=now,
                         deadline=now + reset_timeout_s)
 
 

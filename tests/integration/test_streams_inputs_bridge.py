@@ -172,3 +172,21 @@ def test_the_cell_operator_is_told_when_a_reset_waits_and_that_confirmation_coun
 
     assert confirmed == [True]
     assert notice["job"] == "uid-1" and notice["namespace"] == job.teleop.split(".")[1]
+
+
+def test_a_confirmation_naming_an_earlier_reset_request_never_confirms_the_waiting_one(job: Job) -> None:
+    first: list[bool] = []
+    waiter = threading.Thread(target=lambda: first.append(job.inputs.wait_reset_confirmation(0.3)))
+    waiter.start()
+    waiter.join(10)
+    stale = job.bridge._reset_request
+    assert first == [False] and stale is not None
+    second: list[bool] = []
+    waiter = threading.Thread(target=lambda: second.append(job.inputs.wait_reset_confirmation(20)))
+    waiter.start()
+    wait_for(lambda: job.bridge._reset_request != stale, what="the second reset's announcement")
+    job.send((f"{job.fms}.reset.confirm", {"by": "ana", "request": stale}))
+    assert job.inputs.wait_reset_pending(0.5), "the stale confirmation must leave the second reset waiting"
+    job.send((f"{job.fms}.reset.confirm", {"by": "ana", "request": job.bridge._reset_request}))
+    waiter.join(20)
+    assert second == [True]

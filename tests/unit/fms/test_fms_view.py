@@ -77,3 +77,8 @@ def test_a_malformed_notice_makes_no_pending_reset(notice: dict) -> None:
 def test_the_page_never_gets_job_args_image_or_secrets() -> None:
     text = json.dumps(row_json(only_row([a_cell()], [a_job()]), NOW))
     assert "do-not-show" not in text and "secret-image" not in text
+
+
+def test_the_request_id_the_agent_names_in_its_notice_is_the_one_used() -> None:
+    notice = {**a_notice(), "request": "job-uid-1@agent-named"}
+    assert pending_from_notice("so101-a", notice, 30, NOW).request_id == "job-uid-1@agent-named"
