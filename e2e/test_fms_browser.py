@@ -10,6 +10,7 @@ Screenshots of the fleet and cell views go to ``test-artifacts/``.
 from __future__ import annotations
 
 import json
+import urllib.request
 from collections.abc import Iterator
 from typing import Any
 
@@ -106,6 +107,14 @@ def cell_of(bed: AgentBed, job: str) -> str:
     return str(st)
 
 
+def deadline_trips(bed: AgentBed) -> float:
+    """The agent's ``armnet_agent_interlock_trips_total{reason="deadline"}``, from its metrics endpoint."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10) as reply:
+        text = reply.read().decode()
+    return sum(float(line.rsplit(" ", 1)[1]) for line in text.splitlines()
+               if line.startswith('armnet_agent_interlock_trips_total{reason="deadline"}'))
+
+
 def wait_text(driver: Any, element_id: str, text: str, timeout: float = 60) -> None:
     WebDriverWait(driver, timeout).until(visible.text_to_be_present_in_element((By.ID, element_id), text))
 
@@ -124,7 +133,10 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
     wait_text(browser, f"cell-{cell}", "reset waiting", timeout=180)
     screenshot(browser, "fms-fleet")
     browser.get(f"{fms.url}/cells/{cell}")
-    click_when_visible(browser, "confirm-reset", timeout=60)
+    WebDriverWait(browser, 60).until(visible.visibility_of_element_located((By.ID, "confirm-reset")))
+    wait_text(browser, "reset-left", "s left")
+    screenshot(browser, "fms-cell-reset")
+    browser.find_element(By.ID, "confirm-reset").click()
     wait_text(browser, "action-result", "reset confirmed")
     wait_text(browser, "outcome-rollout", "1/2")
     screenshot(browser, "fms-cell")
@@ -157,7 +169,10 @@ def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
     wait_text(browser, "action-result", f"stopped by cell operator {OPERATOR}")
     st = bed.wait_phase(jobs["stop"], timeout=120)["status"]
     assert st["phase"] == "cancelled", json.dumps(st)[:3000]
-    assert st["result"]["safety"]["interlockTrips"] >= 1
+    assert st["result"]["error"] == f"stopped by cell operator {OPERATOR}"
+    # Graceful: the job saw is_shutting_down() (the grace window the interlock trip opens) and returned.
+    assert st["result"].get("returnValue") == {"stopped_cleanly": True}, json.dumps(st)[:3000]
+    assert deadline_trips(bed) >= 1  # a cancel trips the interlock the way a deadline does
     bed.wait_ready(cell, timeout=60)
     assert console_errors(browser) == []
 
@@ -171,3 +186,21 @@ def test_an_unauthenticated_browser_gets_the_login_page_and_no_data(
     browser.get(f"{fms.url}/api/fleet")
     assert "log in as a cell operator" in browser.page_source
     assert bed.reset_cell not in browser.page_source  # type: ignore[attr-defined]
+
+
+def test_a_logged_in_browsers_post_without_the_csrf_token_is_refused(
+    bed: AgentBed, fms: FmsServer, browser: Any
+) -> None:
+    cell = bed.stop_cell  # type: ignore[attr-defined]
+    log_in(browser, fms.url)
+    WebDriverWait(browser, 30).until(lambda d: d.current_url.rstrip("/") == fms.url)
+    post = """
+        const [cell, token, done] = arguments;
+        const headers = {"Content-Type": "application/json"};
+        if (token) headers["X-CSRF-Token"] = token;
+        fetch(`/api/cells/${cell}/cordon`, {method: "POST", credentials: "same-origin", headers, body: "{}"})
+          .then((r) => done(r.status), () => done(-1));
+    """
+    assert browser.execute_async_script(post, cell, "") == 403
+    assert browser.execute_async_script(post, cell, "forged-token") == 403
+    assert bed.cell(cell)["spec"].get("unschedulable", False) is False
