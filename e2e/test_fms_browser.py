@@ -173,7 +173,13 @@ def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
     # Graceful: the job saw is_shutting_down() (the grace window the interlock trip opens) and returned.
     assert st["result"].get("returnValue") == {"stopped_cleanly": True}, json.dumps(st)[:3000]
     assert deadline_trips(bed) >= 1  # a cancel trips the interlock the way a deadline does
-    bed.wait_ready(cell, timeout=60)
+
+    def ready_again() -> bool:
+        status = bed.cell(cell).get("status") or {}
+        conditions = {c["type"]: c["status"] for c in status.get("conditions", [])}
+        return status.get("phase") == "Ready" and conditions.get("InterlockClear") == "True"
+
+    bed.wait(ready_again, 120, f"{cell} Ready with its interlock clear after the job")
     assert console_errors(browser) == []
 
 

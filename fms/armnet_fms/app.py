@@ -37,7 +37,7 @@ from starlette.staticfiles import StaticFiles
 
 from . import auth
 from .actions import ActionKind, Plan, Refused, plan_action
-from .bus import Bus, BusUnavailable
+from .bus import BusUnavailable, OperatorBus
 from .state import FleetState
 from .view import build_row, row_json
 
@@ -63,7 +63,7 @@ class Caller:
 class Metrics:
     """The FMS's metrics, in a registry of its own (no module-level state)."""
 
-    def __init__(self, state: FleetState, bus: Bus) -> None:
+    def __init__(self, state: FleetState, bus: OperatorBus) -> None:
         self.registry = CollectorRegistry()
         self.actions = Counter("armnet_fms_actions", "Cell operator actions by action and result",
                                ["action", "result"], registry=self.registry)
@@ -85,7 +85,7 @@ def _page(name: str, **values: str) -> HTMLResponse:
     return HTMLResponse(text, headers=SECURITY_HEADERS)
 
 
-def build_app(state: FleetState, bus: Bus, settings: auth.AuthSettings, *, site: str = "",
+def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, *, site: str = "",
               secure_cookies: bool = True, live_interval_s: float = 0.5,
               clock: Callable[[], float] = time.time) -> Starlette:
     """The Starlette app; its lifespan starts the NATS subscription and the poller."""

@@ -10,11 +10,21 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 log = logging.getLogger(__name__)
 
 RESET_REQUESTED = "fms.*.reset.requested"
+
+
+class OperatorBus(Protocol):
+    """Carries operator inputs to jobs and reset notices back: NATS (``Bus``) or a local run (``local``)."""
+
+    @property
+    def connected(self) -> bool: ...
+    async def start(self, on_reset_requested: Callable[[str, dict[str, Any]], None]) -> None: ...
+    async def publish(self, subject: str, data: bytes) -> None: ...
+    async def close(self) -> None: ...
 
 
 class BusUnavailable(RuntimeError):

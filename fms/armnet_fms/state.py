@@ -12,17 +12,29 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
-from .kube import KubeGateway
+from .actions import AuditEvent
 from .view import CellRow, PendingReset, build_fleet, pending_from_notice
 
 log = logging.getLogger(__name__)
 
 
+class FleetSource(Protocol):
+    """Where cells and jobs come from and where actions go: the API server (``kube``) or a local run (``local``)."""
+
+    def list_cells(self) -> list[dict[str, Any]]: ...
+    def current_jobs(self, cells: list[dict[str, Any]]) -> list[dict[str, Any]]: ...
+    def get_cell(self, name: str) -> dict[str, Any] | None: ...
+    def get_job(self, key: str) -> dict[str, Any] | None: ...
+    def patch_cell(self, name: str, patch: dict[str, Any]) -> None: ...
+    def patch_job(self, namespace: str, name: str, patch: dict[str, Any]) -> None: ...
+    def post_event(self, event: AuditEvent) -> None: ...
+
+
 @dataclass
 class FleetState:
-    kube: KubeGateway
+    kube: FleetSource
     poll_s: float = 1.0
     clock: Callable[[], float] = time.time
     cells: list[dict[str, Any]] = field(default_factory=list)
