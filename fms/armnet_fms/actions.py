@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
@@ -50,11 +50,10 @@ class Plan:
 
     messages: tuple[tuple[str, bytes], ...] = ()
     cell_spec_patch: dict[str, Any] | None = None
-    job_patch: dict[str, Any] | None = None
+    job_patch: tuple[str, str, dict[str, Any]] | None = None  # namespace, name, patch
     event: AuditEvent | None = None
     done: str = ""
-    clear_reset: bool = False
-    extra: dict[str, Any] = field(default_factory=dict)
+    confirmed_request: str = ""  # the reset request this plan confirms: no longer pending once sent
 
 
 def stop_reason(operator: str) -> str:
@@ -102,7 +101,6 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
             messages=((_subject(row.name, "outcome"), _json({"success": success, "by": operator})),),
             event=_job_event(row, "RolloutMarked", f"{where} marked {verdict} by cell operator {operator}"),
             done=f"{where} marked {verdict}",
-            extra={"rollout": row.job.rollout_index, "success": success},
         )
     if kind is ActionKind.STOP:
         _active_job(row, "stop")
@@ -112,8 +110,8 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
         # the job cancelled. The SDK's cooperative should_stop (fms.<cell>.stop) is not sent: a job
         # honouring it could return before the cancel lands and end "succeeded".
         return Plan(
-            job_patch={"metadata": {"annotations": {STOPPED_BY_ANNOTATION: operator}},
-                       "spec": {"cancel": True}},
+            job_patch=(row.job.namespace, row.job.name,
+                       {"metadata": {"annotations": {STOPPED_BY_ANNOTATION: operator}}, "spec": {"cancel": True}}),
             event=_job_event(row, "StoppedByCellOperator", reason, "Warning"),
             done=f"job {row.job.key} stopping: {reason}",
         )
@@ -140,5 +138,5 @@ def _confirm_reset(row: CellRow, operator: str, now: float, request: str) -> Pla
         messages=((_subject(row.name, "reset.confirm"), _json({"by": operator, "request": pending.request_id})),),
         event=_job_event(row, "ResetConfirmed", f"reset confirmed by cell operator {operator}"),
         done="reset confirmed",
-        clear_reset=True,
+        confirmed_request=pending.request_id,
     )

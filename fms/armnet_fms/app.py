@@ -227,12 +227,12 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
     async def _apply(plan: Plan, cell: str) -> None:
         for subject, data in plan.messages:
             await bus.publish(subject, data)
-        if plan.clear_reset:
-            state.clear_reset(cell, json.loads(plan.messages[0][1])["request"])
+        if plan.confirmed_request:
+            state.clear_reset(cell, plan.confirmed_request)
         if plan.cell_spec_patch is not None:
             await asyncio.to_thread(state.kube.patch_cell, cell, plan.cell_spec_patch)
-        if plan.job_patch is not None and plan.event is not None:
-            await asyncio.to_thread(state.kube.patch_job, plan.event.namespace, plan.event.name, plan.job_patch)
+        if plan.job_patch is not None:
+            await asyncio.to_thread(state.kube.patch_job, *plan.job_patch)
         if plan.event is not None:
             try:
                 await asyncio.to_thread(state.kube.post_event, plan.event)

@@ -28,7 +28,7 @@ def test_confirm_reset_sends_the_pending_request_id_on_the_cells_subject() -> No
     (subject, data), = plan.messages
     assert subject == "fms.so101-a.reset.confirm"
     assert json.loads(data) == {"by": "maria", "request": target.reset.request_id}
-    assert plan.clear_reset
+    assert plan.confirmed_request == target.reset.request_id
 
 
 def test_a_confirmation_for_an_earlier_reset_is_refused() -> None:
@@ -57,7 +57,8 @@ def test_an_outcome_without_a_rollout_is_refused() -> None:
 
 def test_stop_cancels_the_job_naming_the_operator() -> None:
     plan = plan_action(ActionKind.STOP, row(a_job()), "maria", NOW)
-    assert plan.job_patch == {"metadata": {"annotations": {STOPPED_BY_ANNOTATION: "maria"}}, "spec": {"cancel": True}}
+    assert plan.job_patch == ("team-a", "eval-1",
+                              {"metadata": {"annotations": {STOPPED_BY_ANNOTATION: "maria"}}, "spec": {"cancel": True}})
     assert plan.event.message == "stopped by cell operator maria" and plan.event.type == "Warning"
 
 
