@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import yaml
@@ -28,23 +27,38 @@ def grant_fms(k8s: Any, user: str) -> None:
     ]))
 
 
+def _api(k8s: Any) -> Any:
+    from kubernetes import client
+
+    return client.CustomObjectsApi(k8s.api_client()), client.CoreV1Api(k8s.api_client())
+
+
 def apply(k8s: Any, obj: dict[str, Any]) -> dict[str, Any]:
-    out = k8s.kubectl("apply", "-f", "-", "-o", "json", input=yaml.safe_dump(obj)).stdout
-    return dict(json.loads(out))
+    """Create the Cell or RobotJob (through the API, not kubectl: a process per call is slow on a busy machine)."""
+    custom, _ = _api(k8s)
+    if obj["kind"] == "Cell":
+        return dict(custom.create_cluster_custom_object(G, V, "cells", obj))
+    return dict(custom.create_namespaced_custom_object(G, V, obj["metadata"]["namespace"], "robotjobs", obj))
 
 
 def patch_status(k8s: Any, kind: str, name: str, status: dict[str, Any], namespace: str | None = None) -> None:
-    args = ["patch", kind, name, "--subresource=status", "--type=merge", "-p", json.dumps({"status": status})]
-    k8s.kubectl(*args, *(["-n", namespace] if namespace else []))
+    custom, _ = _api(k8s)
+    if kind == "cell":
+        custom.patch_cluster_custom_object_status(G, V, "cells", name, {"status": status})
+    else:
+        custom.patch_namespaced_custom_object_status(G, V, namespace, "robotjobs", name, {"status": status})
 
 
 def get(k8s: Any, kind: str, name: str, namespace: str | None = None) -> dict[str, Any]:
-    args = ["get", kind, name, "-o", "json", *(["-n", namespace] if namespace else [])]
-    return dict(json.loads(k8s.kubectl(*args).stdout))
+    custom, _ = _api(k8s)
+    if kind == "cell":
+        return dict(custom.get_cluster_custom_object(G, V, "cells", name))
+    return dict(custom.get_namespaced_custom_object(G, V, namespace, "robotjobs", name))
 
 
 def events_about(k8s: Any, namespace: str, name: str) -> list[dict[str, Any]]:
-    items = json.loads(k8s.kubectl("get", "events", "-n", namespace, "-o", "json").stdout)["items"]
+    _, core = _api(k8s)
+    items = core.api_client.sanitize_for_serialization(core.list_namespaced_event(namespace).items)
     return [e for e in items if e["involvedObject"]["name"] == name]
 
 
