@@ -86,7 +86,12 @@ def _active_job(row: CellRow, what: str) -> None:
 
 def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, request: str = "",
                 cell_uid: str = "") -> Plan:
-    """The plan for ``kind`` on the cell ``row`` by ``operator``, or :class:`Refused`."""
+    """The plan for ``kind`` on the cell ``row`` by ``operator``, or :class:`Refused`.
+
+    ``request`` is what the button was drawn for: the reset request id (Confirm
+    reset) or the rollout index (Success/Fail), so a stale button never acts on
+    a later reset or rollout.
+    """
     if kind is ActionKind.CONFIRM_RESET:
         return _confirm_reset(row, operator, now, request)
     if kind in (ActionKind.SUCCESS, ActionKind.FAIL):
@@ -94,6 +99,9 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
         assert row.job is not None
         if row.job.rollout_index is None:
             raise Refused(f"job {row.job.key} has no rollout to mark")
+        if request and request != str(row.job.rollout_index):
+            raise Refused(f"this verdict was for rollout {request[:12]}; the job is on rollout "
+                          f"{row.job.rollout_index} now: look again before marking it")
         success = kind is ActionKind.SUCCESS
         where = f"rollout {row.job.rollout_index}/{row.job.rollout_total}"
         verdict = "success" if success else "failure"

@@ -86,6 +86,7 @@
     tickReset();
     document.getElementById("outcome-box").hidden = !(active && job.rolloutIndex !== null);
     if (active && job.rolloutIndex !== null) {
+      document.getElementById("outcome-box").dataset.rollout = String(job.rolloutIndex);
       document.getElementById("outcome-rollout").textContent =
         `${job.rolloutIndex}${job.rolloutTotal ? "/" + job.rolloutTotal : ""}`;
     }
@@ -123,8 +124,9 @@
       document.getElementById("reset-box").hidden = true;  // one click, one confirmation
       act("confirm-reset", {request});
     });
-    document.getElementById("mark-success").addEventListener("click", () => act("success"));
-    document.getElementById("mark-fail").addEventListener("click", () => act("fail"));
+    const rollout = () => document.getElementById("outcome-box").dataset.rollout || "";
+    document.getElementById("mark-success").addEventListener("click", () => act("success", {request: rollout()}));
+    document.getElementById("mark-fail").addEventListener("click", () => act("fail", {request: rollout()}));
     const stop = document.getElementById("stop");
     let armed = 0;
     stop.addEventListener("click", () => {

@@ -77,3 +77,13 @@ def test_cordon_sets_unschedulable_and_audits_the_cell() -> None:
 def test_uncordon_clears_unschedulable() -> None:
     plan = plan_action(ActionKind.UNCORDON, row(unschedulable=True), "maria", NOW)
     assert plan.cell_spec_patch == {"spec": {"unschedulable": False}}
+
+
+def test_a_verdict_drawn_for_an_earlier_rollout_is_refused() -> None:
+    with pytest.raises(Refused, match="for rollout 2; the job is on rollout 3"):
+        plan_action(ActionKind.SUCCESS, row(a_job(rollout={"index": 3, "total": 10})), "maria", NOW, request="2")
+
+
+def test_a_verdict_for_the_current_rollout_is_sent() -> None:
+    plan = plan_action(ActionKind.SUCCESS, row(a_job(rollout={"index": 3, "total": 10})), "maria", NOW, request="3")
+    assert [subject for subject, _ in plan.messages] == ["fms.so101-a.outcome"]
