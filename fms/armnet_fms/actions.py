@@ -106,7 +106,8 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
         where = f"rollout {row.job.rollout_index}/{row.job.rollout_total}"
         verdict = "success" if success else "failure"
         return Plan(
-            messages=((_subject(row.name, "outcome"), _json({"success": success, "by": operator})),),
+            messages=((_subject(row.name, "outcome"),
+                       _json({"success": success, "by": operator, "rollout": row.job.rollout_index})),),
             event=_job_event(row, "RolloutMarked", f"{where} marked {verdict} by cell operator {operator}"),
             done=f"{where} marked {verdict}",
         )

@@ -190,3 +190,24 @@ def test_a_confirmation_naming_an_earlier_reset_request_never_confirms_the_waiti
     job.send((f"{job.fms}.reset.confirm", {"by": "ana", "request": job.bridge._reset_request}))
     waiter.join(20)
     assert second == [True]
+
+
+def test_an_outcome_for_a_rollout_that_is_not_active_never_ends_the_active_one(link: NatsLink, nats_server: str) -> None:
+    active: list[int | None] = [2]
+    inputs = LocalOperatorInputs()
+    cell = f"cell-{uuid.uuid4().hex[:6]}"
+    bridge = OperatorInputsBridge(link, inputs, namespace="t-outcome", job_uid="uid-2", cell=cell,
+                                  active_rollout=lambda: active[0]).start()
+    assert bridge.wait_active(20)
+    try:
+        job = Job(nats_server, bridge, inputs, "t-outcome", "uid-2", cell)
+        job.send((f"fms.{cell}.outcome", {"success": False, "by": "ana", "rollout": 1}))
+        assert inputs.take_outcome() is None
+        active[0] = None  # between rollouts
+        job.send((f"fms.{cell}.outcome", {"success": False, "by": "ana", "rollout": 2}))
+        assert inputs.take_outcome() is None
+        active[0] = 3
+        job.send((f"fms.{cell}.outcome", {"success": True, "by": "ana", "rollout": 3}))
+        assert inputs.take_outcome() is True
+    finally:
+        bridge.close()

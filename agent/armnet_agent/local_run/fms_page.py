@@ -52,7 +52,15 @@ class LocalPage:
         if kind == "reset.confirm":
             self.inputs.confirm_reset()
         elif kind == "outcome":
+            rollout = message.get("rollout")
+            if rollout is not None and rollout != self._active_rollout():
+                return  # that rollout ended: the verdict must not end the next one
             self.inputs.report_outcome(bool(message.get("success")))
+
+    def _active_rollout(self) -> int | None:
+        connector = self.cell.connector if self.cell is not None else None
+        events = list(connector.cell.rollouts) if connector is not None else []
+        return events[-1].index if events and events[-1].kind == "begin" else None
 
     def _rollout(self) -> dict[str, int] | None:
         connector = self.cell.connector if self.cell is not None else None

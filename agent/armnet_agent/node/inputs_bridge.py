@@ -64,8 +64,11 @@ class ResetConfirm(_Input):
 
 
 class Outcome(_Input):
+    """``rollout`` names the rollout judged (the FMS sends the index it showed); null: whichever is active."""
+
     success: bool
     by: Name
+    rollout: int | None = None
 
 
 class Stop(_Input):
@@ -99,8 +102,11 @@ class OperatorInputsBridge:
     """Subscribes one job's teleop subjects and its cell's FMS subjects while the job runs."""
 
     def __init__(self, link: NatsLink, inputs: OperatorInputs, *, namespace: str, job_uid: str,
-                 cell: str, announce_resets: bool = True) -> None:
+                 cell: str, announce_resets: bool = True,
+                 active_rollout: Callable[[], int | None] | None = None) -> None:
+        """``active_rollout``: the index of the rollout the job is in now (None between rollouts)."""
         self.link = link
+        self._active_rollout = active_rollout
         self.inputs = inputs
         self.namespace, self.job_uid = namespace, job_uid
         self.reset_requested_subject = fms_subject(cell, "reset.requested")
@@ -185,6 +191,13 @@ class OperatorInputsBridge:
 
     def _outcome(self, message: _Input) -> None:
         assert isinstance(message, Outcome)
+        if message.rollout is not None and self._active_rollout is not None:
+            active = self._active_rollout()
+            if active != message.rollout:
+                # A late click: that rollout ended; it must not end the next one.
+                log.warning("episode outcome by %s dropped: it is for rollout %s, the active rollout is %s",
+                            message.by, message.rollout, active)
+                return
         log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
         self.inputs.report_outcome(message.success)
 

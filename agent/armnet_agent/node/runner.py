@@ -161,7 +161,8 @@ class JobRunner:
             with local_cell:
                 self.local_cell = local_cell
                 self.hooks.on_deadline = local_cell.pass_deadline
-                bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid, cell=cell.name)
+                bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
+                                       cell=cell.name, active_rollout=self._active_rollout)
                 try:
                     container_job = self._container(plan)
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
@@ -285,6 +286,14 @@ class JobRunner:
             if event.kind == "begin" and event.index is not None:
                 return {"index": event.index, "total": event.total or 0}
         return None
+
+    def _active_rollout(self) -> int | None:
+        """The index of the rollout the job is in now: its last rollout event is a begin."""
+        cell = self.local_cell
+        if cell is None or cell.connector is None:
+            return None
+        events = list(cell.connector.cell.rollouts)
+        return events[-1].index if events and events[-1].kind == "begin" else None
 
     def _connector_record(self) -> report.ConnectorRecord:
         cell = self.local_cell

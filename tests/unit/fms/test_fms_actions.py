@@ -45,7 +45,7 @@ def test_a_confirmation_after_the_reset_timed_out_is_refused() -> None:
 def test_fail_sends_an_unsuccessful_outcome_and_audits_the_rollout() -> None:
     plan = plan_action(ActionKind.FAIL, row(a_job(rollout={"index": 3, "total": 10})), "maria", NOW)
     (subject, data), = plan.messages
-    assert subject == "fms.so101-a.outcome" and json.loads(data) == {"success": False, "by": "maria"}
+    assert subject == "fms.so101-a.outcome" and json.loads(data) == {"success": False, "by": "maria", "rollout": 3}
     assert plan.event.kind == "RobotJob" and plan.event.name == "eval-1"
     assert plan.event.message == "rollout 3/10 marked failure by cell operator maria"
 
