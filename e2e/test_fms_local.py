@@ -61,7 +61,7 @@ def test_a_customer_confirms_a_reset_and_marks_rollouts_on_the_local_page(tmp_pa
     try:
         log_in(driver, f"http://127.0.0.1:{port}", token)
         driver.get(f"http://127.0.0.1:{port}/cells/local")
-        click(driver, "confirm-reset", timeout=180)  # the job imports its SDK first
+        click(driver, "confirm-reset", timeout=300)  # SDK imports and the rest pose: minutes on a loaded machine
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "1/2"))
         click(driver, "mark-fail")
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "2/2"))
