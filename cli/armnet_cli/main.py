@@ -29,6 +29,7 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand("connector", "armnet_agent.connector.cli", "run the connector sidecar for one cell"),
     Subcommand("agent", "armnet_agent.node.cli", "run the node agent: heartbeat this host's Cells, run their jobs"),
     Subcommand("operator", "armnet_operator.cli", "run the kopf operator that binds RobotJobs to Cells"),
+    Subcommand("fms", "armnet_fms.cli", "serve the cell operator's web page: cells, resets, outcomes, stop"),
     Subcommand("dev", "armnet_cli.dev", "developer helpers: `armnet dev up` starts the local test bed"),
     *(Subcommand(*command) for command in CLIENT_COMMANDS),
 )

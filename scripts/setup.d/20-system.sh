@@ -3,7 +3,8 @@
 # crun refuses this machine's hybrid cgroups), debootstrap for the base image,
 # NATS with JetStream, openssl; for the test-bed node (../shared/reference/k8s-node.md):
 # containerd, the CNI plugins (in /usr/lib/cni), and gcc + buildah to build the
-# pause image (step 45). `apt-get update` runs once and only when something
+# pause image (step 45); Chromium and its WebDriver for the FMS page's browser tests
+# (tests/browser/, driven with selenium). `apt-get update` runs once and only when something
 # is missing, so a warm run never touches the network.
 #
 # Also writes /etc/containers/containers.conf (runc + ulimits below the VM's hard
@@ -12,7 +13,7 @@ set -euo pipefail
 log() { echo "[setup/system] $*"; }
 
 packages=(podman runc debootstrap nats-server openssl ca-certificates
-          containerd containernetworking-plugins buildah gcc libc6-dev)
+          containerd containernetworking-plugins buildah gcc libc6-dev chromium chromium-driver)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -172,3 +172,42 @@ def test_the_cell_operator_is_told_when_a_reset_waits_and_that_confirmation_coun
 
     assert confirmed == [True]
     assert notice["job"] == "uid-1" and notice["namespace"] == job.teleop.split(".")[1]
+
+
+def test_a_confirmation_naming_an_earlier_reset_request_never_confirms_the_waiting_one(job: Job) -> None:
+    first: list[bool] = []
+    waiter = threading.Thread(target=lambda: first.append(job.inputs.wait_reset_confirmation(0.3)))
+    waiter.start()
+    waiter.join(10)
+    stale = job.bridge._reset_request
+    assert first == [False] and stale is not None
+    second: list[bool] = []
+    waiter = threading.Thread(target=lambda: second.append(job.inputs.wait_reset_confirmation(20)))
+    waiter.start()
+    wait_for(lambda: job.bridge._reset_request != stale, what="the second reset's announcement")
+    job.send((f"{job.fms}.reset.confirm", {"by": "ana", "request": stale}))
+    assert job.inputs.wait_reset_pending(0.5), "the stale confirmation must leave the second reset waiting"
+    job.send((f"{job.fms}.reset.confirm", {"by": "ana", "request": job.bridge._reset_request}))
+    waiter.join(20)
+    assert second == [True]
+
+
+def test_an_outcome_for_a_rollout_that_is_not_active_never_ends_the_active_one(link: NatsLink, nats_server: str) -> None:
+    active: list[int | None] = [2]
+    inputs = LocalOperatorInputs()
+    cell = f"cell-{uuid.uuid4().hex[:6]}"
+    bridge = OperatorInputsBridge(link, inputs, namespace="t-outcome", job_uid="uid-2", cell=cell,
+                                  active_rollout=lambda: active[0]).start()
+    assert bridge.wait_active(20)
+    try:
+        job = Job(nats_server, bridge, inputs, "t-outcome", "uid-2", cell)
+        job.send((f"fms.{cell}.outcome", {"success": False, "by": "ana", "rollout": 1}))
+        assert inputs.take_outcome() is None
+        active[0] = None  # between rollouts
+        job.send((f"fms.{cell}.outcome", {"success": False, "by": "ana", "rollout": 2}))
+        assert inputs.take_outcome() is None
+        active[0] = 3
+        job.send((f"fms.{cell}.outcome", {"success": True, "by": "ana", "rollout": 3}))
+        assert inputs.take_outcome() is True
+    finally:
+        bridge.close()

@@ -70,6 +70,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--auto-confirm-reset", action="store_true", help="confirm every ctx.cell.reset() at once (scripted runs)"
     )
     parser.add_argument(
+        "--fms",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="serve the cell operator's page for this cell on http://127.0.0.1:PORT "
+        "(confirm resets, mark rollouts, stop; docs/fms.md)",
+    )
+    parser.add_argument(
         "--inputs",
         default=None,
         help="operator inputs as JSON lines from this file, or - for stdin "
@@ -116,6 +124,7 @@ class LocalRunRequest:
         image: str | None,
         auto_confirm_reset: bool,
         inputs: str | None,
+        fms_port: int | None = None,
     ) -> None:
         self.script = script
         self.spec = spec
@@ -124,6 +133,7 @@ class LocalRunRequest:
         self.image = image
         self.auto_confirm_reset = auto_confirm_reset
         self.inputs = inputs
+        self.fms_port = fms_port
 
 
 def parse_request(args: argparse.Namespace) -> LocalRunRequest:
@@ -161,6 +171,7 @@ def parse_request(args: argparse.Namespace) -> LocalRunRequest:
         image=args.image,
         auto_confirm_reset=args.auto_confirm_reset,
         inputs=args.inputs,
+        fms_port=getattr(args, "fms", None),
     )
 
 
@@ -191,14 +202,20 @@ def run_local_job(
     run_dir = Path(tempfile.mkdtemp(prefix="armnet-run-"))
     hooks = JobHooks(on_event=renderer)
     job_id = f"local-{uuid.uuid4().hex[:12]}"
+    page = None
     try:
+        if request.fms_port is not None:
+            page = _start_page(request.fms_port, job_id, spec.reset_timeout_seconds, hooks, renderer)
         with LocalCell(
             spec,
             run_dir,
             auto_confirm_reset=request.auto_confirm_reset,
             inputs_source=request.inputs,
             on_grace_expired=hooks.kill_now.set,
+            inputs=page.inputs if page is not None else None,
         ) as cell:
+            if page is not None:
+                page.cell = cell
             hooks.on_deadline = cell.pass_deadline
             env = build_job_env(
                 spec, cell.layout, job_id=job_id, timeout_seconds=request.timeout_seconds, args=request.job_args
@@ -212,6 +229,8 @@ def run_local_job(
                 result = _run_in_container(engine, request, env, run_dir, limits, hooks)
             else:
                 result = _run_subprocess(request, env, limits, hooks)
+            if page is not None:
+                page.finished(result.status.value)
             if inspect is not None:
                 inspect(cell, result)
             return result
@@ -219,7 +238,27 @@ def run_local_job(
         renderer.note(f"the local cell failed: {exc}")
         return infra_failure(f"the local cell failed: {type(exc).__name__}: {exc}", limits)
     finally:
+        if page is not None:
+            page.stop()
         shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def _start_page(port: int, job_id: str, reset_timeout_s: float, hooks: JobHooks,
+                renderer: TerminalRenderer) -> Any:
+    """The cell operator's page for this run (``--fms``); its inputs replace the terminal prompt."""
+    from armnet_agent.local_run.fms_page import LocalPage
+
+    page = LocalPage(port, job_id, reset_timeout_s, hooks).start()
+    show = hooks.on_event
+
+    def on_event(event: Any) -> None:
+        page.observe(event)
+        if show is not None:
+            show(event)
+
+    hooks.on_event = on_event
+    renderer.note(f"the cell operator's page: {page.server.url}/login (token {page.server.token})")
+    return page
 
 
 def runtime_command(script: Path) -> list[str]:

@@ -7,7 +7,8 @@ hostile until checked: bounded size, one JSON object, exact fields and types
 job's :class:`~armnet_agent.connector.inputs.OperatorInputs`, which decides what
 it means (a reset confirmation with no reset waiting is dropped there). So that
 the cell's operator knows when a confirmation counts, the bridge announces on
-``fms.<cell>.reset.requested`` each time the job's reset starts to wait. This
+``fms.<cell>.reset.requested`` each time the job's reset starts to wait, with a
+request id; a confirmation naming another request is dropped here. This
 module never touches hardware.
 """
 
@@ -56,20 +57,28 @@ class TeleopEvent(_Input):
 
 
 class ResetConfirm(_Input):
-    """``request`` is reserved for naming the reset confirmed; today a confirmation is for the waiting one."""
+    """``request`` names the reset confirmed (the notice's ``request``); null: whichever reset waits."""
 
     by: Name
     request: int | Name | None = None
 
 
 class Outcome(_Input):
+    """``rollout`` names the rollout judged (the FMS sends the index it showed); null: whichever is active."""
+
     success: bool
     by: Name
+    rollout: int | None = None
 
 
 class Stop(_Input):
     by: Name
     reason: str = Field(default="", max_length=1024)
+
+
+def reset_request_id(job_uid: str, announced_at: str) -> str:
+    """The name of one reset wait: the job and when it was announced (at most 128 characters)."""
+    return f"{job_uid}@{announced_at}"[:128]
 
 
 def parse_input(model: type[_Input], data: bytes) -> _Input:
@@ -93,8 +102,11 @@ class OperatorInputsBridge:
     """Subscribes one job's teleop subjects and its cell's FMS subjects while the job runs."""
 
     def __init__(self, link: NatsLink, inputs: OperatorInputs, *, namespace: str, job_uid: str,
-                 cell: str, announce_resets: bool = True) -> None:
+                 cell: str, announce_resets: bool = True,
+                 active_rollout: Callable[[], int | None] | None = None) -> None:
+        """``active_rollout``: the index of the rollout the job is in now (None between rollouts)."""
         self.link = link
+        self._active_rollout = active_rollout
         self.inputs = inputs
         self.namespace, self.job_uid = namespace, job_uid
         self.reset_requested_subject = fms_subject(cell, "reset.requested")
@@ -110,6 +122,8 @@ class OperatorInputsBridge:
             fms_subject(cell, "stop"): (Stop, self._stop),
         }
         self._subscriptions: list[Subscription] = []
+        #: The request id of the last reset wait announced; a confirmation naming another one is dropped.
+        self._reset_request: str | None = None
 
     @property
     def subjects(self) -> list[str]:
@@ -125,7 +139,9 @@ class OperatorInputsBridge:
 
     def announce_reset_waiting(self, inputs: LocalOperatorInputs | None = None) -> None:
         """Tell the cell's operator that the job's reset waits for a confirmation (core NATS, best effort)."""
-        notice = {"namespace": self.namespace, "job": self.job_uid, "at": datetime.now(UTC).isoformat()}
+        at = datetime.now(UTC).isoformat()
+        self._reset_request = reset_request_id(self.job_uid, at)
+        notice = {"namespace": self.namespace, "job": self.job_uid, "at": at, "request": self._reset_request}
         self.link.notify(self.reset_requested_subject, json.dumps(notice).encode())
 
     def wait_active(self, timeout_s: float) -> bool:
@@ -163,6 +179,11 @@ class OperatorInputsBridge:
 
     def _reset_confirm(self, message: _Input) -> None:
         assert isinstance(message, ResetConfirm)
+        if isinstance(message.request, str) and message.request != self._reset_request:
+            # Meant for an earlier wait (it timed out, and this one began before the click arrived).
+            log.warning("reset confirmation by %s dropped: it names request %s, not the reset waiting now",
+                        message.by, message.request[:128])
+            return
         if self.inputs.confirm_reset():
             log.info("reset confirmed by %s", message.by)
         else:
@@ -170,6 +191,13 @@ class OperatorInputsBridge:
 
     def _outcome(self, message: _Input) -> None:
         assert isinstance(message, Outcome)
+        if message.rollout is not None and self._active_rollout is not None:
+            active = self._active_rollout()
+            if active != message.rollout:
+                # A late click: that rollout ended; it must not end the next one.
+                log.warning("episode outcome by %s dropped: it is for rollout %s, the active rollout is %s",
+                            message.by, message.rollout, active)
+                return
         log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
         self.inputs.report_outcome(message.success)
 

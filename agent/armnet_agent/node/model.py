@@ -15,6 +15,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 ACTIVE_PHASES = ("dispatched", "running")
 TERMINAL_PHASES = ("succeeded", "failed", "timeout", "cancelled")
+#: Set by the FMS's Stop together with ``spec.cancel`` (docs/fms.md).
+STOPPED_BY_ANNOTATION = "armnet.io/stopped-by"
 
 
 class _Loose(BaseModel):
@@ -115,6 +117,8 @@ class Job:
     cell_name: str | None
     started_at: datetime | None
     resource_version: str = ""
+    #: The cell operator who stopped the job from the FMS (``armnet.io/stopped-by``), if any.
+    stopped_by: str | None = None
 
     @property
     def key(self) -> str:
@@ -186,7 +190,20 @@ def parse_job(obj: dict[str, Any]) -> Job:
         cell_name=status.get("cellName"),
         started_at=datetime.fromisoformat(started.replace("Z", "+00:00")) if started else None,
         resource_version=str(meta.get("resourceVersion", "")),
+        stopped_by=_operator_name((meta.get("annotations") or {}).get(STOPPED_BY_ANNOTATION)),
     )
+
+
+def _operator_name(value: Any) -> str | None:
+    """The annotation's operator name if it is a plain short name (it lands in the job's result)."""
+    if isinstance(value, str) and 0 < len(value) <= 64 and all(c.isalnum() or c in ".-_@" for c in value):
+        return value
+    return None
+
+
+def cancel_reason(job: Job) -> str | None:
+    """Why a cancelled job ended, when more is known than "cancelled": the FMS's Stop names the operator."""
+    return f"stopped by cell operator {job.stopped_by}" if job.cancel and job.stopped_by else None
 
 
 def should_launch(job: Job, cell: Cell) -> bool:

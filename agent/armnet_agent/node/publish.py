@@ -9,6 +9,7 @@ exactly the same (their status is written to the RobotJob either way).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -80,10 +81,11 @@ def job_output(link: Link, namespace: str, job_uid: str) -> JobOutput:
     return output
 
 
-def inputs_bridge(link: Link, inputs: OperatorInputs, *, namespace: str, job_uid: str, cell: str) -> Closable:
+def inputs_bridge(link: Link, inputs: OperatorInputs, *, namespace: str, job_uid: str, cell: str,
+                  active_rollout: Callable[[], int | None] | None = None) -> Closable:
     if isinstance(link, NoLink):
         return NoBridge()
     bridge: Closable = streams.OperatorInputsBridge(
-        link, inputs, namespace=namespace, job_uid=job_uid, cell=cell
+        link, inputs, namespace=namespace, job_uid=job_uid, cell=cell, active_rollout=active_rollout
     ).start()
     return bridge

@@ -34,7 +34,7 @@ from armnet_agent.launch.sim_cell import LocalCell
 from armnet_agent.node import report
 from armnet_agent.node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
 from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.model import TERMINAL_PHASES, Cell, Job, parse_job
+from armnet_agent.node.model import TERMINAL_PHASES, Cell, Job, cancel_reason, parse_job
 from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
 from armnet_agent.node.publish import Link, inputs_bridge, job_output
 from armnet_agent.sim.presets import SimulatedCell
@@ -161,7 +161,8 @@ class JobRunner:
             with local_cell:
                 self.local_cell = local_cell
                 self.hooks.on_deadline = local_cell.pass_deadline
-                bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid, cell=cell.name)
+                bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
+                                       cell=cell.name, active_rollout=self._active_rollout)
                 try:
                     container_job = self._container(plan)
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
@@ -286,6 +287,14 @@ class JobRunner:
                 return {"index": event.index, "total": event.total or 0}
         return None
 
+    def _active_rollout(self) -> int | None:
+        """The index of the rollout the job is in now: its last rollout event is a begin."""
+        cell = self.local_cell
+        if cell is None or cell.connector is None:
+            return None
+        events = list(cell.connector.cell.rollouts)
+        return events[-1].index if events and events[-1].kind == "begin" else None
+
     def _connector_record(self) -> report.ConnectorRecord:
         cell = self.local_cell
         if cell is None or cell.connector is None:
@@ -306,13 +315,18 @@ class JobRunner:
     def _fail_before_start(self, error: str) -> None:
         log.warning("job %s failed before start: %s", self.job.key, error)
         now = datetime.now(UTC)
-        self._write(lambda rv: report.failed_before_start(rv, error, now))
+        self._write(lambda current: report.failed_before_start(current.resource_version, error, now))
         self.deps.metrics.jobs_finished.labels(outcome="failed").inc()
 
     def _write_terminal(self, result: JobResult, record: report.ConnectorRecord | None) -> bool:
-        return self._write(lambda rv: report.terminal_patch(rv, result, record))
+        def body(current: Job) -> dict[str, Any]:
+            reason = cancel_reason(current) if result.status is JobStatus.CANCELLED else None
+            final = result.model_copy(update={"error": reason}) if reason else result
+            return report.terminal_patch(current.resource_version, final, record)
 
-    def _write(self, body_for: Callable[[str], dict[str, Any]]) -> bool:
+        return self._write(body)
+
+    def _write(self, body_for: Callable[[Job], dict[str, Any]]) -> bool:
         """A terminal write on the job as it is now; never over another terminal phase."""
         for _ in range(STATUS_RETRIES):
             try:
@@ -322,7 +336,7 @@ class JobRunner:
             if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
                 return False
             try:
-                self.deps.kube.patch_job_status(current.namespace, current.name, body_for(current.resource_version))
+                self.deps.kube.patch_job_status(current.namespace, current.name, body_for(current))
                 return True
             except Conflict:
                 continue

@@ -1,0 +1,212 @@
+"""The cell operator's page in a real browser, over the real operator, agent, jobs and NATS.
+
+Headless Chromium (Debian's, through chromedriver and selenium) drives
+``armnet fms`` (a real process) while the real ``armnet operator`` and ``armnet
+agent`` run real job containers on simulated cells (``AgentBed``). One bed for
+the module: both jobs are submitted at the start and run side by side.
+Screenshots of the fleet and cell views go to ``test-artifacts/``.
+"""
+
+from __future__ import annotations
+
+import json
+import urllib.request
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support import expected_conditions as visible
+from selenium.webdriver.support.ui import WebDriverWait
+
+from e2e.agent_bed import AgentBed
+from tests.support.fms_server import (
+    OPERATOR,
+    FmsServer,
+    chromium,
+    console_errors,
+    log_in,
+    screenshot,
+)
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
+
+RESETS_THEN_ROLLOUTS = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        ctx.cell.reset()  # waits for the cell operator's Confirm reset
+        outcomes = []
+        for index in (1, 2):
+            ctx.cell.rollout_begin(index=index, total=2)
+            while not (status := ctx.cell.is_complete()).complete:
+                time.sleep(0.1)
+            outcomes.append(status.success)
+            ctx.cell.rollout_end()
+        return {"outcomes": outcomes}
+"""
+
+WORKS_UNTIL_STOPPED = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        ctx.cell.rollout_begin(index=1, total=1, outcome_controls=False)
+        while not ctx.cell.is_shutting_down():
+            ctx.report_progress("sorting cubes")
+            time.sleep(0.2)
+        return {"stopped_cleanly": True}
+"""
+
+
+@pytest.fixture(scope="module")
+def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
+    namespace = k8s.create_namespace("fms-e2e")
+    bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
+    bed.reset_cell = bed.add_cell("fms-a")  # type: ignore[attr-defined]
+    bed.stop_cell = bed.add_cell("fms-b")  # type: ignore[attr-defined]
+    bed.start_operator()
+    bed.start_agent()
+    try:
+        for cell in (bed.reset_cell, bed.stop_cell):  # type: ignore[attr-defined]
+            bed.wait_ready(cell, timeout=240)  # a loaded 2-core machine takes minutes
+        yield bed
+    finally:
+        bed.stop()
+        k8s.delete_namespace(namespace)
+
+
+@pytest.fixture(scope="module")
+def fms(bed: AgentBed, k8s: Any, nats_server: str) -> Iterator[FmsServer]:
+    server = FmsServer(k8s.kubeconfig, nats_server)
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def jobs(bed: AgentBed) -> dict[str, str]:
+    """Both jobs, submitted together; each waits for the operator on its own cell."""
+    return {
+        "reset": bed.submit("resets-then-rollouts", bed.image("fms-resets", RESETS_THEN_ROLLOUTS), timeout=300),
+        "stop": bed.submit("works-until-stopped", bed.image("fms-stop", WORKS_UNTIL_STOPPED), timeout=300),
+    }
+
+
+@pytest.fixture
+def browser() -> Iterator[Any]:
+    driver = chromium()
+    yield driver
+    driver.quit()
+
+
+def cell_of(bed: AgentBed, job: str) -> str:
+    st = bed.wait(lambda: (bed.job(job).get("status") or {}).get("cellName"), 180, f"{job} bound to a cell")
+    return str(st)
+
+
+def deadline_trips(bed: AgentBed) -> float:
+    """The agent's ``armnet_agent_interlock_trips_total{reason="deadline"}``, from its metrics endpoint."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10) as reply:
+        text = reply.read().decode()
+    return sum(float(line.rsplit(" ", 1)[1]) for line in text.splitlines()
+               if line.startswith('armnet_agent_interlock_trips_total{reason="deadline"}'))
+
+
+def wait_text(driver: Any, element_id: str, text: str, timeout: float = 60) -> None:
+    WebDriverWait(driver, timeout).until(visible.text_to_be_present_in_element((By.ID, element_id), text))
+
+
+def click_when_visible(driver: Any, element_id: str, timeout: float = 60) -> None:
+    WebDriverWait(driver, timeout).until(visible.visibility_of_element_located((By.ID, element_id))).click()
+
+
+def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
+    bed: AgentBed, fms: FmsServer, jobs: dict[str, str], browser: Any
+) -> None:
+    cell = cell_of(bed, jobs["reset"])
+    log_in(browser, fms.url)
+    # Live: the page was loaded before the job ran; it shows the job without a reload.
+    wait_text(browser, f"cell-{cell}", jobs["reset"], timeout=180)
+    wait_text(browser, f"cell-{cell}", "reset waiting", timeout=180)
+    screenshot(browser, "fms-fleet")
+    browser.get(f"{fms.url}/cells/{cell}")
+    WebDriverWait(browser, 60).until(visible.visibility_of_element_located((By.ID, "confirm-reset")))
+    wait_text(browser, "reset-left", "s left")
+    screenshot(browser, "fms-cell-reset")
+    browser.find_element(By.ID, "confirm-reset").click()
+    wait_text(browser, "action-result", "reset confirmed")
+    wait_text(browser, "outcome-rollout", "1/2")
+    screenshot(browser, "fms-cell")
+    click_when_visible(browser, "mark-fail")
+    wait_text(browser, "action-result", "rollout 1/2 marked failure")
+    wait_text(browser, "outcome-rollout", "2/2")
+    click_when_visible(browser, "mark-success")
+    job = bed.wait_phase(jobs["reset"], timeout=120)
+    st = job["status"]
+    assert st["phase"] == "succeeded", json.dumps(st)[:3000]
+    assert st["result"]["returnValue"] == {"outcomes": [False, True]}
+    assert console_errors(browser) == []
+    events = json.loads(bed.k8s.kubectl("get", "events", "-n", bed.namespace, "-o", "json").stdout)["items"]
+    audit = [e["message"] for e in events if e["involvedObject"]["name"] == jobs["reset"]
+             and e.get("reportingComponent") == "armnet-fms"]
+    assert f"reset confirmed by cell operator {OPERATOR}" in audit
+    assert f"rollout 1/2 marked failure by cell operator {OPERATOR}" in audit
+
+
+def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
+    bed: AgentBed, fms: FmsServer, jobs: dict[str, str], browser: Any
+) -> None:
+    cell = cell_of(bed, jobs["stop"])
+    bed.wait_phase(jobs["stop"], phases=("running",), timeout=180)
+    log_in(browser, fms.url)
+    browser.get(f"{fms.url}/cells/{cell}")
+    click_when_visible(browser, "stop")
+    wait_text(browser, "stop", "Tap again")
+    browser.find_element(By.ID, "stop").click()
+    wait_text(browser, "action-result", f"stopped by cell operator {OPERATOR}")
+    st = bed.wait_phase(jobs["stop"], timeout=120)["status"]
+    assert st["phase"] == "cancelled", json.dumps(st)[:3000]
+    assert st["result"]["error"] == f"stopped by cell operator {OPERATOR}"
+    # Graceful: the job saw is_shutting_down() (the grace window the interlock trip opens) and returned.
+    assert st["result"].get("returnValue") == {"stopped_cleanly": True}, json.dumps(st)[:3000]
+    assert deadline_trips(bed) >= 1  # a cancel trips the interlock the way a deadline does
+
+    def ready_again() -> bool:
+        status = bed.cell(cell).get("status") or {}
+        conditions = {c["type"]: c["status"] for c in status.get("conditions", [])}
+        return status.get("phase") == "Ready" and conditions.get("InterlockClear") == "True"
+
+    bed.wait(ready_again, 120, f"{cell} Ready with its interlock clear after the job")
+    assert console_errors(browser) == []
+
+
+def test_an_unauthenticated_browser_gets_the_login_page_and_no_data(
+    bed: AgentBed, fms: FmsServer, browser: Any
+) -> None:
+    browser.get(f"{fms.url}/")
+    assert browser.current_url.endswith("/login")
+    assert bed.reset_cell not in browser.page_source  # type: ignore[attr-defined]
+    browser.get(f"{fms.url}/api/fleet")
+    assert "log in as a cell operator" in browser.page_source
+    assert bed.reset_cell not in browser.page_source  # type: ignore[attr-defined]
+
+
+def test_a_logged_in_browsers_post_without_the_csrf_token_is_refused(
+    bed: AgentBed, fms: FmsServer, browser: Any
+) -> None:
+    cell = bed.stop_cell  # type: ignore[attr-defined]
+    log_in(browser, fms.url)
+    WebDriverWait(browser, 30).until(lambda d: d.current_url.rstrip("/") == fms.url)
+    post = """
+        const [cell, token, done] = arguments;
+        const headers = {"Content-Type": "application/json"};
+        if (token) headers["X-CSRF-Token"] = token;
+        fetch(`/api/cells/${cell}/cordon`, {method: "POST", credentials: "same-origin", headers, body: "{}"})
+          .then((r) => done(r.status), () => done(-1));
+    """
+    assert browser.execute_async_script(post, cell, "") == 403
+    assert browser.execute_async_script(post, cell, "forged-token") == 403
+    assert bed.cell(cell)["spec"].get("unschedulable", False) is False

@@ -1,0 +1,91 @@
+"""``armnet run --fms``: the cell operator's page for a local simulated cell, clicked through in a browser.
+
+The job runs on the local simulated cell exactly as ``armnet run`` runs it
+(``run_local_job``, in a thread); headless Chromium logs in with the run's
+token, confirms the job's reset and marks its two rollouts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import textwrap
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+from armnet_agent.local_run.cli import add_arguments, parse_request, run_local_job
+from armnet_agent.local_run.render import TerminalRenderer
+from armnet_core import JobResult, JobStatus
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support import expected_conditions as visible
+from selenium.webdriver.support.ui import WebDriverWait
+
+from tests.support.fms_server import chromium, console_errors, free_port, log_in
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
+
+JOB = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        ctx.cell.reset()
+        outcomes = []
+        for index in (1, 2):
+            ctx.cell.rollout_begin(index=index, total=2)
+            while not (status := ctx.cell.is_complete()).complete:
+                time.sleep(0.1)
+            outcomes.append(status.success)
+            ctx.cell.rollout_end()
+        return {"outcomes": outcomes}
+"""
+
+
+def test_a_customer_confirms_a_reset_and_marks_rollouts_on_the_local_page(tmp_path: Path) -> None:
+    script = tmp_path / "job.py"
+    script.write_text(textwrap.dedent(JOB))
+    port = free_port()
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    request = parse_request(parser.parse_args([str(script), "--fms", str(port), "--timeout", "300"]))
+    err = io.StringIO()
+    results: list[JobResult] = []
+    runner = threading.Thread(target=lambda: results.append(run_local_job(request, TerminalRenderer(io.StringIO(), err))),
+                              daemon=True)
+    runner.start()
+    token = wait_for_token(err)
+    driver = chromium()
+    try:
+        log_in(driver, f"http://127.0.0.1:{port}", token)
+        driver.get(f"http://127.0.0.1:{port}/cells/local")
+        click(driver, "confirm-reset", timeout=300)  # SDK imports and the rest pose: minutes on a loaded machine
+        WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "1/2"))
+        click(driver, "mark-fail")
+        WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "2/2"))
+        click(driver, "mark-success")
+        runner.join(120)
+        assert console_errors(driver) == []
+    finally:
+        driver.quit()
+    (result,) = results
+    assert result.status is JobStatus.SUCCEEDED, f"{result}\n{err.getvalue()}"
+    assert result.return_value == {"outcomes": [False, True]}
+
+
+def wait_for_token(err: io.StringIO, timeout: float = 60) -> str:
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for line in err.getvalue().splitlines():
+            if "the cell operator's page:" in line:
+                return line.rsplit("token ", 1)[1].rstrip(")")
+        time.sleep(0.1)
+    raise AssertionError(f"armnet run --fms printed no page address:\n{err.getvalue()}")
+
+
+def click(driver: Any, element_id: str, timeout: float = 60) -> None:
+    WebDriverWait(driver, timeout).until(visible.visibility_of_element_located((By.ID, element_id))).click()

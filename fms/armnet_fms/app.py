@@ -1,0 +1,288 @@
+"""The FMS web service (Starlette): pages, the live feed (server-sent events), the actions.
+
+Every route but ``/login``, ``/healthz``, ``/metrics`` and the static files
+needs an authenticated cell operator (``auth``); a POST made with a session
+cookie or a proxy header must carry that credential's CSRF token. Decisions
+live in ``view`` and ``actions``; this module reads requests, applies plans and
+counts them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import html
+import json
+import logging
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, generate_latest
+from prometheus_client.exposition import CONTENT_TYPE_LATEST
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import (
+    HTMLResponse,
+    JSONResponse,
+    PlainTextResponse,
+    RedirectResponse,
+    Response,
+    StreamingResponse,
+)
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from . import auth
+from .actions import ActionKind, Plan, Refused, plan_action
+from .bus import BusUnavailable, OperatorBus
+from .state import FleetState
+from .view import build_row, row_json
+
+log = logging.getLogger(__name__)
+
+STATIC = Path(__file__).parent / "static"
+SESSION_COOKIE = "armnet_fms_session"
+SECURITY_HEADERS = {
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Cache-Control": "no-store",
+}
+
+
+@dataclass(frozen=True)
+class Caller:
+    operator: str
+    credential: str  # what the CSRF token is bound to; "" for a bearer token (no ambient credential)
+
+
+class Metrics:
+    """The FMS's metrics, in a registry of its own (no module-level state)."""
+
+    def __init__(self, state: FleetState, bus: OperatorBus) -> None:
+        self.registry = CollectorRegistry()
+        self.actions = Counter("armnet_fms_actions", "Cell operator actions by action and result",
+                               ["action", "result"], registry=self.registry)
+        self.logins = Counter("armnet_fms_logins", "Login attempts by result", ["result"], registry=self.registry)
+        self.live_clients = Gauge("armnet_fms_live_clients", "Pages following the live feed",
+                                  registry=self.registry)
+        Gauge("armnet_fms_pending_resets", "Resets waiting for a cell operator's confirmation",
+              registry=self.registry).set_function(lambda: len(state.pending))
+        Gauge("armnet_fms_kube_ok", "1 when the last read of the Kubernetes API worked",
+              registry=self.registry).set_function(lambda: 1.0 if state.kube_ok else 0.0)
+        Gauge("armnet_fms_nats_connected", "1 when NATS is connected", registry=self.registry
+              ).set_function(lambda: 1.0 if bus.connected else 0.0)
+
+
+def _page(name: str, **values: str) -> HTMLResponse:
+    text = (STATIC / name).read_text(encoding="utf-8")
+    for key, value in values.items():
+        text = text.replace("{{" + key + "}}", html.escape(value, quote=True))
+    return HTMLResponse(text, headers=SECURITY_HEADERS)
+
+
+def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, *, site: str = "",
+              secure_cookies: bool = True, live_interval_s: float = 0.5,
+              clock: Callable[[], float] = time.time) -> Starlette:
+    """The Starlette app; its lifespan starts the NATS subscription and the poller."""
+    metrics = Metrics(state, bus)
+
+    def caller(request: Request) -> Caller | None:
+        if settings.trusted_header:
+            user = request.headers.get(settings.trusted_header, "")
+            if user and auth.valid_operator(user):
+                return Caller(user, "header:" + user)
+        token = auth.bearer(request.headers.get("authorization", ""))
+        if token:
+            operator = auth.operator_for_token(settings, token)
+            return Caller(operator, "") if operator else None
+        cookie = request.cookies.get(SESSION_COOKIE, "")
+        operator = auth.session_operator(settings, cookie, clock()) if cookie else None
+        return Caller(operator, cookie) if operator else None
+
+    def unauthorized(request: Request) -> Response:
+        if request.url.path.startswith(("/api/", "/live")):
+            return JSONResponse({"error": "log in as a cell operator"}, status_code=401, headers=SECURITY_HEADERS)
+        return RedirectResponse("/login", status_code=303)
+
+    async def login_page(request: Request) -> Response:
+        return _page("login.html", message="")
+
+    async def login(request: Request) -> Response:
+        form = await request.form()
+        operator = auth.operator_for_token(settings, str(form.get("token", "")))
+        if operator is None:
+            metrics.logins.labels("refused").inc()
+            refused = _page("login.html", message="That token is not a cell operator's token.")
+            refused.status_code = 401
+            return refused
+        metrics.logins.labels("ok").inc()
+        response = RedirectResponse("/", status_code=303)
+        response.set_cookie(SESSION_COOKIE, auth.make_session(settings, operator, clock()),
+                            max_age=settings.session_ttl_s, httponly=True, samesite="strict",
+                            secure=secure_cookies, path="/")
+        return response
+
+    async def logout(request: Request) -> Response:
+        response = RedirectResponse("/login", status_code=303)
+        response.delete_cookie(SESSION_COOKIE, path="/")
+        return response
+
+    async def fleet_page(request: Request) -> Response:
+        who = caller(request)
+        if who is None:
+            return unauthorized(request)
+        return _page("fleet.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential))
+
+    async def cell_page(request: Request) -> Response:
+        who = caller(request)
+        if who is None:
+            return unauthorized(request)
+        return _page("cell.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential),
+                     cell=request.path_params["name"])
+
+    def snapshot(request: Request) -> dict[str, Any]:
+        now = clock()
+        rows = state.rows(site=request.query_params.get("site", site), query=request.query_params.get("q", ""))
+        only = request.query_params.get("cell")
+        if only:
+            rows = [r for r in rows if r.name == only]
+        return {"cells": [row_json(r, now) for r in rows], "kubeOk": state.kube_ok, "natsOk": bus.connected}
+
+    async def fleet_json(request: Request) -> Response:
+        if caller(request) is None:
+            return unauthorized(request)
+        return JSONResponse(snapshot(request), headers=SECURITY_HEADERS)
+
+    async def live(request: Request) -> Response:
+        if caller(request) is None:
+            return unauthorized(request)
+
+        async def events() -> AsyncIterator[bytes]:
+            metrics.live_clients.inc()
+            last, quiet = "", 0.0
+            try:
+                while not await request.is_disconnected():
+                    data = json.dumps(snapshot(request), separators=(",", ":"))
+                    if data != last:
+                        last, quiet = data, 0.0
+                        yield f"data: {data}\n\n".encode()
+                    elif quiet > 15:
+                        quiet = 0.0
+                        yield b": keep-alive\n\n"
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(state.changed.wait(), live_interval_s)
+                    state.changed.clear()
+                    quiet += live_interval_s
+            finally:
+                metrics.live_clients.dec()
+
+        return StreamingResponse(events(), media_type="text/event-stream",
+                                 headers={**SECURITY_HEADERS, "X-Accel-Buffering": "no"})
+
+    async def act(request: Request) -> Response:
+        who = caller(request)
+        if who is None:
+            return unauthorized(request)
+        try:
+            kind = ActionKind(request.path_params["action"])
+        except ValueError:
+            return JSONResponse({"error": "unknown action"}, status_code=404, headers=SECURITY_HEADERS)
+        if who.credential and not auth.csrf_ok(settings, who.credential, request.headers.get("x-csrf-token", "")):
+            metrics.actions.labels(kind.value, "csrf_refused").inc()
+            return JSONResponse({"error": "missing or wrong CSRF token; reload the page"}, status_code=403,
+                                headers=SECURITY_HEADERS)
+        body = await _json_body(request)
+        name = request.path_params["name"]
+        try:
+            plan, target = await _decide(kind, name, who.operator, str(body.get("request", ""))[:128])
+            await _apply(plan, target)
+        except Refused as refusal:
+            metrics.actions.labels(kind.value, "refused").inc()
+            return JSONResponse({"error": str(refusal)}, status_code=409, headers=SECURITY_HEADERS)
+        except BusUnavailable as error:
+            metrics.actions.labels(kind.value, "error").inc()
+            return JSONResponse({"error": str(error)}, status_code=503, headers=SECURITY_HEADERS)
+        metrics.actions.labels(kind.value, "ok").inc()
+        log.info("cell %s: %s by cell operator %s", name, plan.done, who.operator)
+        await state.refresh()
+        return JSONResponse({"ok": True, "message": plan.done}, headers=SECURITY_HEADERS)
+
+    async def _decide(kind: ActionKind, name: str, operator: str, request_id: str) -> tuple[Plan, str]:
+        # Re-read the cell and its job: the button the operator pressed may be older than the fleet.
+        cell = await asyncio.to_thread(state.kube.get_cell, name)
+        if cell is None:
+            raise Refused(f"there is no cell {name[:60]!r}")
+        key = (cell.get("status") or {}).get("currentJob")
+        job = await asyncio.to_thread(state.kube.get_job, key) if isinstance(key, str) else None
+        row = build_row(cell, {key: job} if job is not None and isinstance(key, str) else {},
+                        state.pending.get(name), clock())
+        uid = str((cell.get("metadata") or {}).get("uid", ""))
+        return plan_action(kind, row, operator, clock(), request=request_id, cell_uid=uid), name
+
+    async def _apply(plan: Plan, cell: str) -> None:
+        for subject, data in plan.messages:
+            await bus.publish(subject, data)
+        if plan.confirmed_request:
+            state.clear_reset(cell, plan.confirmed_request)
+        if plan.cell_spec_patch is not None:
+            await asyncio.to_thread(state.kube.patch_cell, cell, plan.cell_spec_patch)
+        if plan.job_patch is not None:
+            await asyncio.to_thread(state.kube.patch_job, *plan.job_patch)
+        if plan.event is not None:
+            try:
+                await asyncio.to_thread(state.kube.post_event, plan.event)
+            except Exception as error:  # noqa: BLE001 - the action happened; a lost audit Event is logged
+                log.error("audit event %s for %s not posted: %s", plan.event.reason, plan.event.name, error)
+
+    async def metrics_route(request: Request) -> Response:
+        return Response(generate_latest(metrics.registry), media_type=CONTENT_TYPE_LATEST)
+
+    async def healthz(request: Request) -> Response:
+        return PlainTextResponse("ok" if state.kube_ok else "kubernetes API unreachable",
+                                 status_code=200 if state.kube_ok else 503)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        await bus.start(state.on_reset_requested)
+        await state.refresh()
+        poller = asyncio.create_task(state.poll_forever())
+        try:
+            yield
+        finally:
+            poller.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await poller
+            await bus.close()
+
+    routes = [
+        Route("/login", login_page, methods=["GET"]),
+        Route("/login", login, methods=["POST"]),
+        Route("/logout", logout, methods=["POST"]),
+        Route("/", fleet_page),
+        Route("/cells/{name}", cell_page),
+        Route("/api/fleet", fleet_json),
+        Route("/live", live),
+        Route("/api/cells/{name}/{action}", act, methods=["POST"]),
+        Route("/metrics", metrics_route),
+        Route("/healthz", healthz),
+        Mount("/static", StaticFiles(directory=STATIC), name="static"),
+    ]
+    app = Starlette(routes=routes, lifespan=lifespan)
+    app.state.metrics = metrics
+    return app
+
+
+async def _json_body(request: Request) -> dict[str, Any]:
+    raw = await request.body()
+    if not raw or len(raw) > 4096:
+        return {}
+    try:
+        body = json.loads(raw)
+    except ValueError:
+        return {}
+    return body if isinstance(body, dict) else {}

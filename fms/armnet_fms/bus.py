@@ -1,0 +1,71 @@
+"""The FMS's NATS side: hears ``fms.*.reset.requested`` notices and publishes operator inputs.
+
+Core NATS (the agent's bridge subscribes the same subjects with core NATS);
+nats-py reconnects on its own. A publish while NATS is down raises, so the
+operator's click fails visibly instead of being lost quietly.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable
+from typing import Any, Protocol
+
+log = logging.getLogger(__name__)
+
+RESET_REQUESTED = "fms.*.reset.requested"
+
+
+class OperatorBus(Protocol):
+    """Carries operator inputs to jobs and reset notices back: NATS (``Bus``) or a local run (``local``)."""
+
+    @property
+    def connected(self) -> bool: ...
+    async def start(self, on_reset_requested: Callable[[str, dict[str, Any]], None]) -> None: ...
+    async def publish(self, subject: str, data: bytes) -> None: ...
+    async def close(self) -> None: ...
+
+
+class BusUnavailable(RuntimeError):
+    """NATS cannot take the message now; the operator should try again."""
+
+
+class Bus:
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self._nc: Any = None
+
+    async def start(self, on_reset_requested: Callable[[str, dict[str, Any]], None]) -> None:
+        import nats
+
+        async def on_notice(msg: Any) -> None:
+            parts = msg.subject.split(".")
+            if len(parts) != 4 or len(msg.data) > 4096:
+                return
+            try:
+                notice = json.loads(msg.data)
+            except ValueError:
+                return
+            if isinstance(notice, dict):
+                on_reset_requested(parts[1], notice)
+
+        self._nc = await nats.connect(self.url, max_reconnect_attempts=-1, reconnect_time_wait=1,
+                                      name="armnet-fms")
+        await self._nc.subscribe(RESET_REQUESTED, cb=on_notice)
+        await self._nc.flush()
+
+    @property
+    def connected(self) -> bool:
+        return bool(self._nc is not None and self._nc.is_connected)
+
+    async def publish(self, subject: str, data: bytes) -> None:
+        if not self.connected:
+            raise BusUnavailable(f"NATS at {self.url} is not connected; nothing was sent, try again")
+        await self._nc.publish(subject, data)
+        await self._nc.flush(timeout=5)
+
+    async def close(self) -> None:
+        if self._nc is not None:
+            await self._nc.drain()
+            self._nc = None

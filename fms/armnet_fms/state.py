@@ -1,0 +1,86 @@
+"""The FMS's latest view of the fleet: cells and their jobs (polled) and pending resets (heard on NATS).
+
+One writer per field: the poller replaces ``cells``/``jobs``; the NATS callback
+and the confirm action change ``pending``. Both run on the web server's event
+loop, so no lock is needed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from .actions import AuditEvent
+from .view import CellRow, PendingReset, build_fleet, pending_from_notice
+
+log = logging.getLogger(__name__)
+
+
+class FleetSource(Protocol):
+    """Where cells and jobs come from and where actions go: the API server (``kube``) or a local run (``local``)."""
+
+    def list_cells(self) -> list[dict[str, Any]]: ...
+    def current_jobs(self, cells: list[dict[str, Any]]) -> list[dict[str, Any]]: ...
+    def get_cell(self, name: str) -> dict[str, Any] | None: ...
+    def get_job(self, key: str) -> dict[str, Any] | None: ...
+    def patch_cell(self, name: str, patch: dict[str, Any]) -> None: ...
+    def patch_job(self, namespace: str, name: str, patch: dict[str, Any]) -> None: ...
+    def post_event(self, event: AuditEvent) -> None: ...
+
+
+@dataclass
+class FleetState:
+    kube: FleetSource
+    poll_s: float = 1.0
+    clock: Callable[[], float] = time.time
+    cells: list[dict[str, Any]] = field(default_factory=list)
+    jobs: list[dict[str, Any]] = field(default_factory=list)
+    pending: dict[str, PendingReset] = field(default_factory=dict)
+    kube_ok: bool = False
+    kube_errors: int = 0
+    changed: asyncio.Event = field(default_factory=asyncio.Event)
+
+    async def refresh(self) -> None:
+        try:
+            cells = await asyncio.to_thread(self.kube.list_cells)
+            jobs = await asyncio.to_thread(self.kube.current_jobs, cells)
+        except Exception as error:  # noqa: BLE001 - keep serving the last view; the page shows it is stale
+            self.kube_ok = False
+            self.kube_errors += 1
+            log.warning("cannot read cells from the Kubernetes API: %s", str(error)[:200])
+            return
+        self.cells, self.jobs, self.kube_ok = cells, jobs, True
+        self._forget_expired()
+        self.changed.set()
+
+    async def poll_forever(self) -> None:
+        while True:
+            await self.refresh()
+            await asyncio.sleep(self.poll_s)
+
+    def on_reset_requested(self, cell: str, notice: dict[str, Any]) -> None:
+        spec = next(((c.get("spec") or {}) for c in self.cells
+                     if (c.get("metadata") or {}).get("name") == cell), None)
+        if spec is None:
+            return  # not a cell we know; a forged notice must not create a button
+        pending = pending_from_notice(cell, notice, float(spec.get("resetTimeoutSeconds") or 300), self.clock())
+        if pending is not None:
+            self.pending[cell] = pending
+            self.changed.set()
+
+    def clear_reset(self, cell: str, request_id: str) -> None:
+        if cell in self.pending and self.pending[cell].request_id == request_id:
+            del self.pending[cell]
+            self.changed.set()
+
+    def rows(self, *, site: str = "", query: str = "") -> list[CellRow]:
+        return build_fleet(self.cells, self.jobs, self.pending, self.clock(), site=site, query=query)
+
+    def _forget_expired(self) -> None:
+        now = self.clock()
+        for cell in [c for c, p in self.pending.items() if p.expired(now)]:
+            del self.pending[cell]

@@ -1,0 +1,195 @@
+"""The fleet as the cell operator sees it: rows built from Cells, RobotJobs and pending resets.
+
+Pure: plain dicts in (the API objects as listed), frozen dataclasses and JSON
+out, the clock passed in. Never shows what an operator does not need: no job
+args, no secrets, no logs, no result tails.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+SITE_LABEL = "armnet.io/site"
+INTERLOCK_CONDITION = "InterlockClear"
+ACTIVE_JOB_PHASES = ("dispatched", "running")
+
+
+@dataclass(frozen=True)
+class FalseCondition:
+    type: str
+    reason: str
+    message: str
+
+
+@dataclass(frozen=True)
+class JobSummary:
+    namespace: str
+    name: str
+    uid: str
+    phase: str
+    progress: str
+    rollout_index: int | None
+    rollout_total: int | None
+
+    @property
+    def key(self) -> str:
+        return f"{self.namespace}/{self.name}"
+
+    @property
+    def active_phase(self) -> bool:
+        return self.phase in ACTIVE_JOB_PHASES
+
+
+@dataclass(frozen=True)
+class PendingReset:
+    """A reset the cell's job waits on, as announced on ``fms.<cell>.reset.requested``.
+
+    ``request_id`` names this wait: a confirmation carries it, so a click meant
+    for one reset can never confirm another.
+    """
+
+    cell: str
+    namespace: str
+    job_uid: str
+    request_id: str
+    received_at: float
+    deadline: float
+
+    def seconds_left(self, now: float) -> float:
+        return max(0.0, self.deadline - now)
+
+    def expired(self, now: float) -> bool:
+        return now >= self.deadline
+
+
+@dataclass(frozen=True)
+class CellRow:
+    name: str
+    site: str
+    phase: str
+    unschedulable: bool
+    false_conditions: tuple[FalseCondition, ...]
+    interlock: str  # "clear" | "tripped" | "unknown"
+    heartbeat_age_s: float | None
+    reset_timeout_s: int
+    job: JobSummary | None
+    reset: PendingReset | None
+
+
+def parse_time(value: Any) -> float | None:
+    """Epoch seconds of an RFC 3339 timestamp, or None for anything else."""
+    if not isinstance(value, str) or not value:
+        return None
+    try:
+        return datetime.fromisoformat(value.replace("Z", "+00:00")).timestamp()
+    except ValueError:
+        return None
+
+
+def reset_request_id(job_uid: str, announced_at: str) -> str:
+    """The id of one reset wait: the job and when the agent announced it (≤ 128 characters)."""
+    return f"{job_uid}@{announced_at}"[:128]
+
+
+def pending_from_notice(cell: str, notice: Mapping[str, Any], reset_timeout_s: float,
+                        now: float) -> PendingReset | None:
+    """The pending reset a ``reset.requested`` notice announces, or None if it is malformed.
+
+    The deadline is counted from when the FMS heard it (the agent's clock may
+    differ), so the time shown is never longer than the job really waits.
+    """
+    namespace, job, at = notice.get("namespace"), notice.get("job"), notice.get("at")
+    if not all(isinstance(v, str) and v and len(v) <= 253 for v in (namespace, job, at)):
+        return None
+    assert isinstance(namespace, str) and isinstance(job, str) and isinstance(at, str)
+    request = notice.get("request")  # the agent names the wait; older agents did not
+    if not (isinstance(request, str) and 0 < len(request) <= 128):
+        request = reset_request_id(job, at)
+    return PendingReset(cell=cell, namespace=namespace, job_uid=job, request_id=request, received_at=now,
+                        deadline=now + reset_timeout_s)
+
+
+def summarize_job(job: Mapping[str, Any]) -> JobSummary:
+    meta, status = job.get("metadata") or {}, job.get("status") or {}
+    rollout = status.get("rollout") or {}
+    return JobSummary(
+        namespace=str(meta.get("namespace", "")), name=str(meta.get("name", "")),
+        uid=str(status.get("jobId") or meta.get("uid", "")), phase=str(status.get("phase", "")),
+        progress=str(status.get("progress") or "")[:300],
+        rollout_index=rollout.get("index") if isinstance(rollout.get("index"), int) else None,
+        rollout_total=rollout.get("total") if isinstance(rollout.get("total"), int) else None,
+    )
+
+
+def _interlock(conditions: Iterable[Mapping[str, Any]]) -> str:
+    for condition in conditions:
+        if condition.get("type") == INTERLOCK_CONDITION:
+            return {"True": "clear", "False": "tripped"}.get(str(condition.get("status")), "unknown")
+    return "unknown"
+
+
+def build_row(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, Any]],
+              pending: PendingReset | None, now: float) -> CellRow:
+    meta, spec, status = cell.get("metadata") or {}, cell.get("spec") or {}, cell.get("status") or {}
+    conditions = [c for c in status.get("conditions") or [] if isinstance(c, Mapping)]
+    heartbeat = parse_time(status.get("lastHeartbeatTime"))
+    current = status.get("currentJob")
+    job_body = jobs_by_key.get(current) if isinstance(current, str) else None
+    job = summarize_job(job_body) if job_body is not None else None
+    if job is None or job.phase not in ACTIVE_JOB_PHASES:
+        pending = None  # a reset can only wait inside a job that runs here
+    elif pending is not None and (pending.job_uid != job.uid or pending.expired(now)):
+        pending = None
+    return CellRow(
+        name=str(meta.get("name", "")),
+        site=str((meta.get("labels") or {}).get(SITE_LABEL, "")),
+        phase=str(status.get("phase") or "Unknown"),
+        unschedulable=bool(spec.get("unschedulable", False)),
+        false_conditions=tuple(
+            FalseCondition(str(c.get("type")), str(c.get("reason", "")), str(c.get("message", ""))[:300])
+            for c in conditions if c.get("status") == "False"
+        ),
+        interlock=_interlock(conditions),
+        heartbeat_age_s=max(0.0, now - heartbeat) if heartbeat is not None else None,
+        reset_timeout_s=int(spec.get("resetTimeoutSeconds") or 300),
+        job=job,
+        reset=pending,
+    )
+
+
+def build_fleet(cells: Iterable[Mapping[str, Any]], jobs: Iterable[Mapping[str, Any]],
+                pending: Mapping[str, PendingReset], now: float, *, site: str = "",
+                query: str = "") -> list[CellRow]:
+    """The rows of the cells matching ``site`` (label) and ``query`` (substring of the name), by name."""
+    by_key = {f"{(j.get('metadata') or {}).get('namespace')}/{(j.get('metadata') or {}).get('name')}": j
+              for j in jobs}
+    rows = []
+    for cell in cells:
+        row = build_row(cell, by_key, pending.get(str((cell.get("metadata") or {}).get("name"))), now)
+        if (site and row.site != site) or (query and query.lower() not in row.name.lower()):
+            continue
+        rows.append(row)
+    return sorted(rows, key=lambda r: r.name)
+
+
+def row_json(row: CellRow, now: float) -> dict[str, Any]:
+    """What the page renders for one cell (and all it may show)."""
+    job = row.job
+    return {
+        "name": row.name, "site": row.site, "phase": row.phase, "unschedulable": row.unschedulable,
+        "falseConditions": [{"type": c.type, "reason": c.reason, "message": c.message}
+                            for c in row.false_conditions],
+        "interlock": row.interlock,
+        "heartbeatAgeS": None if row.heartbeat_age_s is None else round(row.heartbeat_age_s, 1),
+        "job": None if job is None else {
+            "namespace": job.namespace, "name": job.name, "tenant": job.namespace, "phase": job.phase,
+            "progress": job.progress, "rolloutIndex": job.rollout_index, "rolloutTotal": job.rollout_total,
+            "active": job.phase in ACTIVE_JOB_PHASES,
+        },
+        "reset": None if row.reset is None else {
+            "request": row.reset.request_id, "secondsLeft": round(row.reset.seconds_left(now), 1),
+        },
+    }

@@ -1,0 +1,194 @@
+"""``armnet fms`` against the real apiserver and NATS, with the agent's real operator-inputs bridge.
+
+The FMS process runs as a least-privileged user (``FMS_RULES``, what the chart's
+ClusterRole should grant). The job side is the agent's own
+``OperatorInputsBridge`` feeding a ``LocalOperatorInputs``: exactly what a
+running job's connector waits on.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
+from typing import Any
+
+import httpx
+import pytest
+from armnet_agent.connector.inputs import LocalOperatorInputs
+from armnet_agent.node.inputs_bridge import OperatorInputsBridge
+from armnet_agent.node.streams import NatsLink, StreamSettings
+
+from tests.support.fms_objects import (
+    a_cell,
+    a_job,
+    apply,
+    cell_busy,
+    events_about,
+    get,
+    grant_fms,
+    running_on,
+)
+from tests.support.fms_server import OPERATOR, TOKEN, FmsServer
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+
+
+def wait_for(condition: Callable[[], Any], timeout: float = 20, what: str = "condition") -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+class Bed:
+    """One cell running one job (statuses as the operator and agent write them), the FMS, the job's bridge."""
+
+    def __init__(self, k8s: Any, namespace: str, nats_url: str, fms: FmsServer) -> None:
+        self.k8s, self.namespace, self.fms = k8s, namespace, fms
+        self.cell = f"fms-{uuid.uuid4().hex[:6]}"
+        apply(k8s, a_cell(self.cell, reset_timeout=3))
+        job = apply(k8s, a_job("eval-1", namespace))
+        self.job_id = running_on(k8s, self.cell, job, rollout={"index": 2, "total": 5})
+        cell_busy(k8s, self.cell, f"{namespace}/eval-1", heartbeat=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"))
+        self.inputs = LocalOperatorInputs()
+        self.link = NatsLink(StreamSettings(url=nats_url)).start()
+        self.bridge = OperatorInputsBridge(self.link, self.inputs, namespace=namespace, job_uid=self.job_id,
+                                           cell=self.cell).start()
+        assert self.bridge.wait_active(20)
+        self.http = httpx.Client(base_url=fms.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=10)
+
+    def row(self) -> dict[str, Any] | None:
+        cells = self.http.get("/api/fleet").json()["cells"]
+        return next((c for c in cells if c["name"] == self.cell), None)
+
+    def act(self, action: str, **body: Any) -> httpx.Response:
+        return self.http.post(f"/api/cells/{self.cell}/{action}", json=body)
+
+    def close(self) -> None:
+        self.http.close()
+        self.bridge.close()
+        self.link.stop()
+
+
+@pytest.fixture(scope="module")
+def fms(k8s: Any, nats_server: str) -> Iterator[FmsServer]:
+    user = k8s.user("armnet-fms", groups=())
+    grant_fms(k8s, "armnet-fms")
+    server = FmsServer(user.kubeconfig, nats_server)
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def bed(k8s: Any, namespace: str, nats_server: str, fms: FmsServer) -> Iterator[Bed]:
+    bed = Bed(k8s, namespace, nats_server, fms)
+    wait_for(bed.row, what="the FMS to list the cell")
+    yield bed
+    bed.close()
+
+
+def reset_wait(inputs: LocalOperatorInputs, timeout_s: float) -> tuple[threading.Thread, list[bool]]:
+    """A job's ``ctx.cell.reset()`` waiting, as the connector waits (in a thread)."""
+    result: list[bool] = []
+    thread = threading.Thread(target=lambda: result.append(inputs.wait_reset_confirmation(timeout_s)), daemon=True)
+    thread.start()
+    return thread, result
+
+
+def test_the_fleet_shows_the_job_rollout_and_false_conditions(bed: Bed) -> None:
+    row = bed.row()
+    assert row is not None
+    assert row["job"]["name"] == "eval-1" and row["job"]["tenant"] == bed.namespace
+    assert (row["job"]["rolloutIndex"], row["job"]["rolloutTotal"]) == (2, 5)
+    assert [c["type"] for c in row["falseConditions"]] == ["CamerasReady"]
+    assert row["interlock"] == "clear" and row["site"] == "lab-1"
+
+
+def test_a_confirmation_reaches_the_waiting_reset(bed: Bed) -> None:
+    thread, result = reset_wait(bed.inputs, 20)
+    row = wait_for(lambda: (r := bed.row()) and r["reset"] and r, what="the pending reset on the page")
+    assert bed.act("confirm-reset", request=row["reset"]["request"]).status_code == 200
+    thread.join(10)
+    assert result == [True]
+
+
+def test_a_stale_confirmation_never_confirms_the_next_reset(bed: Bed) -> None:
+    thread, result = reset_wait(bed.inputs, 3)  # the cell's resetTimeoutSeconds
+    first = wait_for(lambda: (r := bed.row()) and r["reset"] and r, what="the first reset")["reset"]["request"]
+    thread.join(10)
+    assert result == [False]  # nobody confirmed in time
+    thread, result = reset_wait(bed.inputs, 20)
+    second = wait_for(lambda: (r := bed.row()) and r["reset"] and r["reset"]["request"] != first and r,
+                      what="the second reset")["reset"]["request"]
+    late = bed.act("confirm-reset", request=first)
+    assert late.status_code == 409 and "earlier reset" in late.json()["error"]
+    assert bed.inputs.wait_reset_pending(0.5), "the stale click must leave the second reset waiting"
+    assert bed.act("confirm-reset", request=second).status_code == 200
+    thread.join(10)
+    assert result == [True]
+
+
+def test_fail_reaches_the_job_as_an_unsuccessful_outcome_and_is_audited(bed: Bed) -> None:
+    assert bed.act("fail").status_code == 200
+    wait_for(lambda: bed.bridge.accepted >= 1, what="the bridge to take the outcome")
+    assert bed.inputs.take_outcome() is False
+    events = wait_for(lambda: events_about(bed.k8s, bed.namespace, "eval-1"), what="the audit event")
+    assert events[0]["reason"] == "RolloutMarked"
+    assert events[0]["message"] == f"rollout 2/5 marked failure by cell operator {OPERATOR}"
+
+
+def test_stop_cancels_the_job_and_names_the_operator(bed: Bed) -> None:
+    assert bed.act("stop").status_code == 200
+    job = get(bed.k8s, "robotjob", "eval-1", bed.namespace)
+    assert job["spec"]["cancel"] is True
+    assert job["metadata"]["annotations"]["armnet.io/stopped-by"] == OPERATOR
+    events = wait_for(lambda: events_about(bed.k8s, bed.namespace, "eval-1"), what="the audit event")
+    assert (events[0]["type"], events[0]["message"]) == ("Warning", f"stopped by cell operator {OPERATOR}")
+
+
+def test_cordon_and_uncordon_set_unschedulable_with_events_on_the_cell(bed: Bed) -> None:
+    assert bed.act("cordon").status_code == 200
+    assert get(bed.k8s, "cell", bed.cell)["spec"]["unschedulable"] is True
+    assert bed.act("uncordon").status_code == 200
+    assert get(bed.k8s, "cell", bed.cell)["spec"]["unschedulable"] is False
+    events = wait_for(lambda: len(e := events_about(bed.k8s, "default", bed.cell)) >= 2 and e, what="events")
+    assert sorted(e["reason"] for e in events) == ["Cordoned", "Uncordoned"]
+    assert all(e["message"].endswith(f"by cell operator {OPERATOR}") for e in events)
+
+
+def test_without_a_token_there_is_only_the_login_page(bed: Bed) -> None:
+    with httpx.Client(base_url=bed.fms.url, timeout=10) as anonymous:
+        assert anonymous.get("/").headers["location"] == "/login"
+        assert anonymous.get("/api/fleet").status_code == 401
+        assert anonymous.get("/live").status_code == 401
+        assert anonymous.post(f"/api/cells/{bed.cell}/cordon").status_code == 401
+        assert bed.cell not in anonymous.get("/login").text
+
+
+def test_a_tenants_kubernetes_token_is_not_an_operator_token(bed: Bed, k8s: Any) -> None:
+    tenant = k8s.user("tenant-a")
+    with httpx.Client(base_url=bed.fms.url, timeout=10,
+                      headers={"Authorization": f"Bearer {tenant.token}"}) as client:
+        assert client.get("/api/fleet").status_code == 401
+
+
+def test_a_session_post_without_the_csrf_token_is_refused_and_changes_nothing(bed: Bed) -> None:
+    with httpx.Client(base_url=bed.fms.url, timeout=10) as browser:
+        assert browser.post("/login", data={"token": TOKEN}).status_code == 303
+        refused = browser.post(f"/api/cells/{bed.cell}/cordon", json={})
+        assert refused.status_code == 403
+    assert get(bed.k8s, "cell", bed.cell)["spec"].get("unschedulable") is False
+
+
+def test_metrics_count_actions_by_result(bed: Bed) -> None:
+    bed.act("cordon")
+    bed.act("confirm-reset", request="nothing-waits")
+    text = httpx.get(f"{bed.fms.url}/metrics").text
+    assert 'armnet_fms_actions_total{action="cordon",result="ok"}' in text
+    assert 'armnet_fms_actions_total{action="confirm-reset",result="refused"}' in text

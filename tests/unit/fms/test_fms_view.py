@@ -1,0 +1,84 @@
+"""The fleet rows the cell operator sees, built from Cells, their jobs and pending resets."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from armnet_fms.view import build_fleet, pending_from_notice, row_json
+
+from tests.unit.fms.fms_builders import NOW, a_cell, a_job, a_notice
+
+pytestmark = pytest.mark.unit
+
+
+def only_row(cells, jobs=(), pending=None, **kw):
+    rows = build_fleet(cells, jobs, pending or {}, NOW, **kw)
+    assert len(rows) == 1
+    return rows[0]
+
+
+def test_a_row_names_the_current_job_its_tenant_and_the_rollout_progress() -> None:
+    row = row_json(only_row([a_cell()], [a_job(rollout={"index": 2, "total": 5}, progress="picking")]), NOW)
+    assert row["job"] == {"namespace": "team-a", "name": "eval-1", "tenant": "team-a", "phase": "running",
+                          "progress": "picking", "rolloutIndex": 2, "rolloutTotal": 5, "active": True}
+
+
+def test_only_false_conditions_are_listed_with_their_reason() -> None:
+    cell = a_cell(extra_conditions=({"type": "CamerasReady", "status": "False", "reason": "NoFrames",
+                                     "message": "camera front gave no frame"},))
+    row = only_row([cell])
+    assert [(c.type, c.reason) for c in row.false_conditions] == [("CamerasReady", "NoFrames")]
+
+
+def test_the_interlock_state_comes_from_the_interlock_clear_condition() -> None:
+    assert only_row([a_cell(interlock="False")]).interlock == "tripped"
+    assert only_row([a_cell(interlock="True")]).interlock == "clear"
+
+
+def test_heartbeat_age_is_counted_from_the_frozen_clock() -> None:
+    assert only_row([a_cell()]).heartbeat_age_s == 0.0
+    assert only_row([a_cell(heartbeat=None)]).heartbeat_age_s is None
+
+
+def test_fleet_filters_by_site_label_and_name_substring() -> None:
+    cells = [a_cell("so101-a", site="lab-1"), a_cell("so101-b", site="lab-2"), a_cell("aloha-c", site="lab-1")]
+    assert [r.name for r in build_fleet(cells, [], {}, NOW, site="lab-1")] == ["aloha-c", "so101-a"]
+    assert [r.name for r in build_fleet(cells, [], {}, NOW, query="SO101")] == ["so101-a", "so101-b"]
+
+
+def test_a_pending_reset_shows_with_its_request_and_the_time_left() -> None:
+    pending = pending_from_notice("so101-a", a_notice(), 30, NOW - 10)
+    row = row_json(only_row([a_cell()], [a_job()], {"so101-a": pending}), NOW)
+    assert row["reset"] == {"request": "job-uid-1@2027-01-15T07:59:59+00:00", "secondsLeft": 20.0}
+
+
+def test_a_reset_past_its_timeout_is_not_shown() -> None:
+    pending = pending_from_notice("so101-a", a_notice(), 30, NOW - 31)
+    assert only_row([a_cell()], [a_job()], {"so101-a": pending}).reset is None
+
+
+def test_a_reset_announced_for_another_job_is_not_shown() -> None:
+    pending = pending_from_notice("so101-a", a_notice(job_id="previous-job"), 30, NOW)
+    assert only_row([a_cell()], [a_job()], {"so101-a": pending}).reset is None
+
+
+def test_a_reset_of_a_job_that_ended_is_not_shown() -> None:
+    pending = pending_from_notice("so101-a", a_notice(), 30, NOW)
+    assert only_row([a_cell()], [a_job(phase="succeeded")], {"so101-a": pending}).reset is None
+
+
+@pytest.mark.parametrize("notice", [{}, {"namespace": "a", "job": 3, "at": "x"}, {"namespace": "a", "job": "j"},
+                                    {"namespace": "a", "job": "j" * 300, "at": "x"}])
+def test_a_malformed_notice_makes_no_pending_reset(notice: dict) -> None:
+    assert pending_from_notice("so101-a", notice, 30, NOW) is None
+
+
+def test_the_page_never_gets_job_args_image_or_secrets() -> None:
+    text = json.dumps(row_json(only_row([a_cell()], [a_job()]), NOW))
+    assert "do-not-show" not in text and "secret-image" not in text
+
+
+def test_the_request_id_the_agent_names_in_its_notice_is_the_one_used() -> None:
+    notice = {**a_notice(), "request": "job-uid-1@agent-named"}
+    assert pending_from_notice("so101-a", notice, 30, NOW).request_id == "job-uid-1@agent-named"
