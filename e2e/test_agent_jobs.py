@@ -400,6 +400,7 @@ def test_a_nats_outage_mid_job_loses_no_line_and_the_result_still_lands_in_statu
     bed.wait(lambda: line_number(status(bed.job(job)).get("progress")) >= 5, 180, "the first lines")
     nats_service._proc.stop()  # nats-server goes away mid-job (the store stays on disk)
     try:
+        assert line_number(status(bed.job(job)).get("progress")) < 29, "the job ended before the outage"
         # The job prints on, finishes and is reported while NATS is down.
         st = status(bed.wait_phase(job, timeout=120))
     finally:
