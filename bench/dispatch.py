@@ -18,8 +18,9 @@ the agent's own path follows it (``ContainerJob``'s log follow, then the
 supervisor's line splitting and classification), and in the ``nats`` mode every
 line goes through ``JobStream.line`` -> ``NatsLink`` -> JetStream, while a
 subscriber in another process (a JetStream ordered consumer from the first
-message, as a client following a job would use) counts the distinct lines it
-receives. The ``follow`` mode is the same run without NATS: the baseline.
+message, as a client following a job would use) audits what it receives (one
+message per id): every printed line whole, once, in order, or lost, cut into
+fragments, repeated or late. The ``follow`` mode is the same run without NATS: the baseline.
 Printed per mode: lines/s (first -> last line seen by the reader),
 lines lost, the ratio to the baseline, next to the target (>= 20,000 lines/s,
 zero loss).
@@ -62,6 +63,42 @@ PRINTER = (
     "    w(f'bench line {{i:07d}} {pad}\\n')\n"
     "sys.stdout.flush()\n"
 )
+
+
+
+class LineAudit:
+    """What a reader got of the printer's lines: each whole line once, in order, or not.
+
+    A line is whole when it is exactly what the printer wrote; anything else is a
+    fragment (an engine that cuts a line). ``late`` counts whole lines that came after
+    a later one (delivered out of order, e.g. recovered from the finished log).
+    """
+
+    def __init__(self) -> None:
+        self.indices: set[int] = set()
+        self.fragments = self.duplicates = self.late = 0
+        self._highest = -1
+
+    def feed(self, text: str) -> bool:
+        """True for a whole line."""
+        head, _, pad = text.partition(" " + LINE_PAD[:1])
+        number = head.removeprefix("bench line ")
+        if not (head.startswith("bench line ") and len(number) == 7 and number.isdigit()
+                and text == f"{head} {LINE_PAD}"):
+            self.fragments += 1
+            return False
+        index = int(number)
+        if index in self.indices:
+            self.duplicates += 1
+        self.indices.add(index)
+        if index < self._highest:
+            self.late += 1
+        self._highest = max(self._highest, index)
+        return True
+
+    def report(self, expected: int) -> dict[str, float]:
+        return {"lost": expected - len(self.indices), "fragments": self.fragments,
+                "duplicates": self.duplicates, "late": self.late}
 
 
 # ---------------------------------------------------------------- part 1 (dispatch)
@@ -236,12 +273,13 @@ def dispatch(args: argparse.Namespace) -> None:
 
 
 def subscriber(url: str, subject: str, expected: int, idle_s: float) -> None:
-    """Child mode: count the distinct lines on ``subject`` from the first; print one JSON line."""
+    """Child mode: audit the lines on ``subject`` from the first (one per message id); print one JSON line."""
     import nats
     from nats.js.api import ConsumerConfig, DeliverPolicy
 
     async def run() -> dict[str, Any]:
         seen: set[str] = set()
+        audit = LineAudit()
         counts = {"messages": 0, "first_at": 0.0, "last_at": 0.0}
         complete = asyncio.Event()
         activity = asyncio.Event()
@@ -252,9 +290,10 @@ def subscriber(url: str, subject: str, expected: int, idle_s: float) -> None:
             msg_id = (msg.headers or {}).get("Nats-Msg-Id", "")
             if msg_id not in seen:
                 seen.add(msg_id)
-                counts["last_at"] = time.time()
-                counts["first_at"] = counts["first_at"] or counts["last_at"]
-                if len(seen) >= expected:
+                if audit.feed(msg.data.decode(errors="replace")):
+                    counts["last_at"] = time.time()
+                    counts["first_at"] = counts["first_at"] or counts["last_at"]
+                if len(audit.indices) >= expected:
                     complete.set()
 
         nc = await nats.connect(url)
@@ -268,7 +307,7 @@ def subscriber(url: str, subject: str, expected: int, idle_s: float) -> None:
             except TimeoutError:
                 break
         await nc.close()
-        return {"distinct": len(seen), **counts}
+        return {"whole": len(audit.indices), **audit.report(expected), **counts}
 
     print(json.dumps(asyncio.run(run())), flush=True)
 
@@ -306,12 +345,11 @@ def follow(job: Any, on_line: Any) -> None:
 
 
 def run_follow(client: Any, image: str, lines: int) -> dict[str, float]:
-    seen = [0]
+    audit = LineAudit()
     first_at, last_at = [0.0], [0.0]
 
     def on_line(stream: str, seq: int, text: str) -> None:
-        if stream == "stdout" and text.startswith("bench line "):
-            seen[0] += 1
+        if stream == "stdout" and audit.feed(text):
             last_at[0] = time.time()
             first_at[0] = first_at[0] or last_at[0]
 
@@ -320,11 +358,11 @@ def run_follow(client: Any, image: str, lines: int) -> dict[str, float]:
         follow(job, on_line)
         # The supervisor reads the output to its end (bounded by a stall); this waits only
         # for a reader that gave up.
-        while seen[0] < lines and time.time() - max(last_at[0], first_at[0]) < IDLE_S:
+        while len(audit.indices) < lines and time.time() - max(last_at[0], first_at[0]) < IDLE_S:
             time.sleep(0.05)
     finally:
         job.remove()
-    return {"lines_per_s": rate(seen[0], first_at[0], last_at[0]), "lost": lines - seen[0]}
+    return {"lines_per_s": rate(len(audit.indices), first_at[0], last_at[0]), **audit.report(lines)}
 
 
 def rate(count: int, first_at: float, last_at: float) -> float:
@@ -365,10 +403,11 @@ def run_nats(client: Any, image: str, lines: int, nats_url: str) -> dict[str, fl
         if child.poll() is None:
             child.kill()
         link.stop(timeout_s=10)
-    distinct = int(report.get("distinct", 0))
+    whole = int(report.get("whole", 0))
     return {
-        "lines_per_s": rate(distinct, float(report.get("first_at", 0.0)), float(report.get("last_at", 0.0))),
-        "lost": lines - distinct,
+        "lines_per_s": rate(whole, float(report.get("first_at", 0.0)), float(report.get("last_at", 0.0))),
+        "lost": float(report.get("lost", lines)), "fragments": float(report.get("fragments", 0)),
+        "duplicates": float(report.get("duplicates", 0)), "late": float(report.get("late", 0)),
         "dropped": link.dropped,
     }
 
@@ -408,14 +447,17 @@ def log_throughput(args: argparse.Namespace) -> None:
 
     baseline = statistics.median(r["lines_per_s"] for r in results["follow"])
     print(f"\nlog throughput: {args.lines} lines x {args.rounds} round(s), median per mode")
-    print(f"{'mode':<8} {'lines/s':>10} {'lost':>6} {'vs follow':>10}   target")
+    print("(lost: printed lines never seen whole; fragments: cut lines seen; late: whole lines seen after a "
+          "later one; the worst round)")
+    print(f"{'mode':<8} {'lines/s':>10} {'lost':>6} {'frags':>6} {'dups':>6} {'late':>6} {'vs follow':>10}   target")
     for mode, runs in results.items():
         rate = statistics.median(r["lines_per_s"] for r in runs)
-        lost = max(int(r["lost"]) for r in runs)
+        worst = {k: max(int(r[k]) for r in runs) for k in ("lost", "fragments", "duplicates", "late")}
         target = "(baseline)" if mode == "follow" else (
             f">= {TARGET_LINES_PER_S} lines/s, 0 lost: "
-            + ("met" if rate >= TARGET_LINES_PER_S and lost == 0 else "NOT met"))
-        print(f"{mode:<8} {rate:>10.0f} {lost:>6} {rate / baseline:>9.2f}x   {target}")
+            + ("met" if rate >= TARGET_LINES_PER_S and worst["lost"] == 0 else "NOT met"))
+        print(f"{mode:<8} {rate:>10.0f} {worst['lost']:>6} {worst['fragments']:>6} {worst['duplicates']:>6} "
+              f"{worst['late']:>6} {rate / baseline:>9.2f}x   {target}")
     dropped = max(int(r.get("dropped", 0)) for r in results["nats"])
     print(f"NatsLink dropped (max over rounds): {dropped}")
 
