@@ -36,15 +36,20 @@ DRAIN_TIMEOUT_S = 3.0
 # After the exit, the output is read to its end: the readers may be far behind (a
 # burst of lines right before the exit, a slow host callback, a container log re-read)
 # and the last lines carry the result marker. The wait ends early only when the readers
-# take no line for DRAIN_STALL_S (a stream some leftover process holds open but never
-# writes), and in any case after DRAIN_LIMIT_S.
+# take no line for the job's ``drain_stall_s`` (default DRAIN_STALL_S: a pipe some
+# leftover process holds open but never writes to), and in any case after DRAIN_LIMIT_S.
 DRAIN_STALL_S = 15.0
 DRAIN_LIMIT_S = 120.0
 READ_CHUNK = 64 * 1024
 
 
 class LaunchedJob(Protocol):
-    """A started job process, wherever it runs."""
+    """A started job process, wherever it runs.
+
+    It may also have ``drain_stall_s``: how long its output may stay silent after the
+    exit before the supervisor stops waiting for the rest (None: no such bound, for
+    output that always ends, e.g. a log stream re-read in one long call).
+    """
 
     def stdout_chunks(self) -> Iterator[bytes]: ...
 
@@ -227,7 +232,7 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
         with lock:
             return lines_read[0]
 
-    _drain(readers, progress)
+    _drain(readers, progress, getattr(job, "drain_stall_s", DRAIN_STALL_S))
     with lock:
         facts = RunFacts(
             exit_code=exit_code,
@@ -247,7 +252,7 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
     return assemble_result(facts)
 
 
-def _drain(readers: Sequence[threading.Thread], progress: Callable[[], int]) -> None:
+def _drain(readers: Sequence[threading.Thread], progress: Callable[[], int], stall_s: float | None) -> None:
     """Wait until the readers reach the end of the job's output (see ``DRAIN_STALL_S``)."""
     began = last_change = time.monotonic()
     seen = progress()
@@ -257,10 +262,11 @@ def _drain(readers: Sequence[threading.Thread], progress: Callable[[], int]) -> 
             now, count = time.monotonic(), progress()
             if count != seen:
                 seen, last_change = count, now
-            if now - last_change > DRAIN_STALL_S or now - began > DRAIN_LIMIT_S:
+            stalled = stall_s is not None and now - last_change > stall_s
+            if stalled or now - began > DRAIN_LIMIT_S:
                 log.warning("stopped reading the job's output %.0f s after its exit (%s); "
                             "the result is built from what was read", now - began,
-                            "no new line" if now - last_change > DRAIN_STALL_S else "time limit")
+                            "no new line" if stalled else "time limit")
                 return
 
 
