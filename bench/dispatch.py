@@ -53,8 +53,8 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
 TARGET_LINES_PER_S = 20_000
-IDLE_S = 15.0
-"""A reader that saw no new line for this long has seen all it will."""
+IDLE_S = 60.0
+"""A reader that saw no new line for this long has seen all it will (a re-read finished log comes late)."""
 LINE_PAD = "x" * 40
 PRINTER = (
     "import sys\n"
