@@ -22,6 +22,8 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
 
 #: The timeout of the timeout scenarios: the SDK's start-up (imports) takes seconds on a busy machine.
 JOB_TIMEOUT = 40
+#: How long the agent may take to see a cancel (watch event, then its pass) on the loaded 2-core VM.
+CANCEL_SEEN_S = 1.5
 
 RAISES = """
     from armnet_runtime import Context, main
@@ -278,10 +280,12 @@ def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next
     st = status(bed.wait_phase("to-cancel", timeout=60))
     assert st["phase"] == "cancelled"
     bed.wait(lambda: not (bed.cell(cell).get("status") or {}).get("currentJob"), 30, f"{cell} released")
-    # The job ignores shutdown: it gets the cell's whole grace window (3 s), then the kill,
-    # within grace + 1 s of the cancel (finishedAt of a killed job is when the kill was sent).
+    # The job ignores shutdown: it gets the cell's whole grace window (3 s), then the kill
+    # within grace + 1 s of the window opening (finishedAt of a killed job is when the kill was
+    # sent), and the window opens once the agent has seen the cancel (a watch event, then a
+    # pass: 0.1-0.5 s on a quiet VM, up to 1.4 s measured at load average 35).
     assert seconds_between(report_time(asked), st["finishedAt"]) >= 3
-    assert seconds_between(report_time(stored), st["finishedAt"]) <= 3 + 1, st
+    assert seconds_between(report_time(stored), st["finishedAt"]) <= 3 + 1 + CANCEL_SEEN_S, st
     bed.submit("after-cancel", image, args={"lines": 2, "pause": 0.0}, timeout=120)
     after = status(bed.wait_phase("after-cancel", timeout=300))
     assert after["phase"] == "succeeded"
@@ -308,7 +312,7 @@ def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, 
         assert left == sorted(left, reverse=True), f"a later job left the queue first: {phases}"
         return all(phases.get(name) == "succeeded" for name in names)
 
-    bed.wait(sample, 400, "six queued jobs to succeed", every=0.2)
+    bed.wait(sample, 600, "six queued jobs to succeed", every=0.2)
     finished = {name: status(bed.job(name)) for name in names}
     by_cell: dict[str, list[str]] = {}
     for name in sorted(names, key=lambda n: finished[n]["startedAt"]):
