@@ -31,13 +31,25 @@ log = logging.getLogger(__name__)
 
 # How often the supervisor re-checks the clock and the job; bounds kill latency.
 POLL_INTERVAL_S = 0.05
-# How long to wait for the output readers to drain after the job is gone.
+# How long to wait for the engine to report the exit of a job just killed.
 DRAIN_TIMEOUT_S = 3.0
+# After the exit, the output is read to its end: the readers may be far behind (a
+# burst of lines right before the exit, a slow host callback, a container log re-read)
+# and the last lines carry the result marker. The wait ends early only when the readers
+# take no line for the job's ``drain_stall_s`` (default DRAIN_STALL_S: a pipe some
+# leftover process holds open but never writes to), and in any case after DRAIN_LIMIT_S.
+DRAIN_STALL_S = 15.0
+DRAIN_LIMIT_S = 120.0
 READ_CHUNK = 64 * 1024
 
 
 class LaunchedJob(Protocol):
-    """A started job process, wherever it runs."""
+    """A started job process, wherever it runs.
+
+    It may also have ``drain_stall_s``: how long its output may stay silent after the
+    exit before the supervisor stops waiting for the rest (None: no such bound, for
+    output that always ends, e.g. a log stream re-read in one long call).
+    """
 
     def stdout_chunks(self) -> Iterator[bytes]: ...
 
@@ -157,6 +169,7 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
     hooks = hooks or JobHooks()
     observer = OutputObserver(limits.tail_chars)
     lock = threading.Lock()
+    lines_read = [0]
     started_at = datetime.now(UTC)
     start = time.monotonic() - limits.already_elapsed_s
 
@@ -169,6 +182,8 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
                     hooks.on_event(event)
                 except Exception:  # noqa: BLE001 - a host display bug must not stop the job's output
                     log.exception("output callback failed")
+                with lock:
+                    lines_read[0] += 1
         except Exception:  # noqa: BLE001 - a broken stream ends that stream only
             log.exception("reading the job's %s failed", stream.value)
 
@@ -212,8 +227,12 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
     # The job ended when it was killed (the engine may take a while to report the exit)
     # or now; draining its output afterwards is not part of its run time.
     finished_at = killed_at or datetime.now(UTC)
-    for reader in readers:
-        reader.join(DRAIN_TIMEOUT_S)
+
+    def progress() -> int:
+        with lock:
+            return lines_read[0]
+
+    _drain(readers, progress, getattr(job, "drain_stall_s", DRAIN_STALL_S))
     with lock:
         facts = RunFacts(
             exit_code=exit_code,
@@ -231,6 +250,24 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
             finished_at=finished_at,
         )
     return assemble_result(facts)
+
+
+def _drain(readers: Sequence[threading.Thread], progress: Callable[[], int], stall_s: float | None) -> None:
+    """Wait until the readers reach the end of the job's output (see ``DRAIN_STALL_S``)."""
+    began = last_change = time.monotonic()
+    seen = progress()
+    for reader in readers:
+        while reader.is_alive():
+            reader.join(POLL_INTERVAL_S)
+            now, count = time.monotonic(), progress()
+            if count != seen:
+                seen, last_change = count, now
+            stalled = stall_s is not None and now - last_change > stall_s
+            if stalled or now - began > DRAIN_LIMIT_S:
+                log.warning("stopped reading the job's output %.0f s after its exit (%s); "
+                            "the result is built from what was read", now - began,
+                            "no new line" if stalled else "time limit")
+                return
 
 
 def _open_grace(hooks: JobHooks) -> None:

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
+import time
 
 import pytest
 from armnet_agent.supervise import JobHooks, SubprocessJob, SupervisorLimits, supervise
@@ -110,3 +112,47 @@ def test_an_adopted_job_keeps_the_clock_it_had_before_the_restart() -> None:
     )
     assert opened.is_set()
     assert result.status is JobStatus.TIMEOUT
+
+
+def test_a_result_printed_right_after_a_burst_of_output_is_kept_however_far_behind_the_reader_is() -> None:
+    # The job writes 20,000 lines and its result into a 1 MiB pipe and exits at once, while the
+    # host is slow to take the first line (a publish that stalls for a few seconds): the
+    # reader is far behind at the exit, and the result must still be read, not cut off by a
+    # clock started at the exit.
+    code = (
+        "import fcntl, sys\n"
+        "fcntl.fcntl(1, 1031, 1 << 20)  # F_SETPIPE_SZ: the whole burst fits, the job exits at once\n"
+        "sys.stdout.write(''.join(f'line {i:05d}\\n' for i in range(20_000)))\n"
+        f"sys.stdout.write({format_result('done')!r} + '\\n')\n"
+    )
+    first = threading.Event()
+
+    def slow_host(event: OutputEvent) -> None:
+        if not first.is_set():
+            first.set()
+            threading.Event().wait(4.0)
+
+    result = supervise(python_job(code), SupervisorLimits(timeout_seconds=60), JobHooks(on_event=slow_host))
+    assert result.status is JobStatus.SUCCEEDED
+    assert result.return_value == "done"
+    assert result.stdout.splitlines()[-2] == "line 19999"
+
+
+def test_output_held_open_by_a_silent_leftover_process_ends_the_wait_once_no_line_comes(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from armnet_agent.supervise import supervisor
+
+    monkeypatch.setattr(supervisor, "DRAIN_STALL_S", 0.5)
+    # A child in its own session keeps the job's stdout open, silent, after the job exits.
+    code = (
+        "import subprocess, sys\n"
+        "child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)'], start_new_session=True)\n"
+        f"print(child.pid, flush=True)\nprint({format_result('done')!r}, flush=True)\n"
+    )
+    began = time.monotonic()
+    result = supervise(python_job(code), SupervisorLimits(timeout_seconds=60))
+    waited = time.monotonic() - began
+    os.kill(int(result.stdout.split()[0]), signal.SIGKILL)
+    assert result.return_value == "done"
+    assert waited < 20, "the supervisor waited for the leftover process (30 s) instead of the output"
