@@ -13,6 +13,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from armnet_agent.node.follower_rule import follower_window
+
 ACTIVE_PHASES = ("dispatched", "running")
 TERMINAL_PHASES = ("succeeded", "failed", "timeout", "cancelled")
 
@@ -59,6 +61,7 @@ class _JobSpec(_Loose):
     timeout_seconds: int = Field(default=120, alias="timeoutSeconds")
     secrets: dict[str, str] = Field(default_factory=dict)
     cancel: bool = False
+    detach: bool = False
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,8 @@ class Job:
     cell_name: str | None
     started_at: datetime | None
     resource_version: str = ""
+    #: The heartbeat window of a job whose client follows it (``node.follower``); None: not watched.
+    follower_window_s: float | None = None
 
     @property
     def key(self) -> str:
@@ -186,6 +191,7 @@ def parse_job(obj: dict[str, Any]) -> Job:
         cell_name=status.get("cellName"),
         started_at=datetime.fromisoformat(started.replace("Z", "+00:00")) if started else None,
         resource_version=str(meta.get("resourceVersion", "")),
+        follower_window_s=follower_window(meta.get("annotations") or {}, spec.detach),
     )
 
 
