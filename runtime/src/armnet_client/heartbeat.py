@@ -21,7 +21,7 @@ import threading
 from datetime import datetime, timezone
 from typing import Optional
 
-from .logwire import job_subjects
+from .logwire import inbox_prefix, job_subjects
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +44,7 @@ class HeartbeatSender:
                  interval_s: float = DEFAULT_INTERVAL_S) -> None:
         self.url = url
         self.subject = heartbeat_subject(namespace, job_id)
+        self.inbox_prefix = inbox_prefix(namespace)
         self.interval_s = interval_s
         self.client = f"{socket.gethostname()}:{os.getpid()}"
         self.sent = 0
@@ -73,7 +74,7 @@ class HeartbeatSender:
             return None
 
         nc = await nats.connect(self.url, connect_timeout=3, max_reconnect_attempts=1,
-                                reconnect_time_wait=0.25, error_cb=quiet)
+                                reconnect_time_wait=0.25, error_cb=quiet, inbox_prefix=self.inbox_prefix)
         nc.options["max_reconnect_attempts"] = -1
         try:
             while not self._stop.is_set():
