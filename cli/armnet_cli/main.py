@@ -31,6 +31,7 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand("operator", "armnet_operator.cli", "run the kopf operator that binds RobotJobs to Cells"),
     Subcommand("dev", "armnet_cli.dev", "developer helpers: `armnet dev up` starts the local test bed"),
     *(Subcommand(*command) for command in CLIENT_COMMANDS),
+    Subcommand("completion", "armnet_cli.completion", "print a bash or zsh completion script for armnet"),
 )
 
 
