@@ -46,7 +46,7 @@ def follower_window(annotations: Mapping[str, str], detach: bool) -> float | Non
 def lost_follower_message(window_s: float, silent_s: float) -> str:
     return (
         f"cancelled: the client following this job (detach: false) sent no heartbeat for "
-        f"{silent_s:.0f} s (window {window_s:.0f} s), so it is gone; submit with detach: true "
+        f"{silent_s:.1f} s (window {window_s:g} s), so it is gone; submit with detach: true "
         f"(`armnet submit --detach`, JobSpec(detach=True)) to keep a job running without a follower"
     )
 

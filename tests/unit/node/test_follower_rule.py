@@ -92,5 +92,5 @@ def test_a_late_delivered_old_beat_never_moves_the_clock_back() -> None:
 
 def test_the_cancel_message_says_why_and_how_to_keep_a_job_running() -> None:
     message = lost_follower_message(30.0, 31.2)
-    assert "no heartbeat for 31 s (window 30 s)" in message
+    assert "no heartbeat for 31.2 s (window 30 s)" in message
     assert "detach: true" in message and "--detach" in message
