@@ -87,11 +87,29 @@ def test_describe_reads_flags_choices_and_positional_choices_from_argparse() -> 
     assert "--flag" in command.flags and "--flag" not in command.values
 
 
-@pytest.mark.skipif(shutil.which("zsh") is None, reason="zsh is not installed here")
-def test_the_zsh_script_loads_in_zsh(tmp_path: Path) -> None:
+def zsh_complete(line: str, tmp_path: Path) -> set[str]:
+    """What the function offers in zsh, called as bashcompinit's ``compgen -F`` calls it (sh emulation).
+
+    zsh's ``compgen -W`` leaves matching the typed prefix to zsh itself, so this is a set of candidates.
+    """
+    words = line.split(" ")
     source = tmp_path / "_armnet"
     source.write_text(zsh_script(describe(full_parser())))
-    subprocess.run(["zsh", "-f", "-c", f"source {source}"], check=True, timeout=30, cwd=tmp_path)
+    program = (f"source {source}\n"
+               f"emulate -L sh\nsetopt kshglob noshglob braceexpand\n"
+               f"COMP_WORDS=({' '.join(repr(w) for w in words)})\nCOMP_CWORD={len(words) - 1}\n"
+               "_armnet_complete\nprintf '%s\\n' \"${COMPREPLY[@]}\"\n")
+    done = subprocess.run(["zsh", "-f", "-c", program], capture_output=True, text=True, cwd=tmp_path,
+                          timeout=30, check=True)
+    return {w for w in done.stdout.splitlines() if w}
+
+
+@pytest.mark.skipif(shutil.which("zsh") is None, reason="zsh is not installed here")
+def test_in_zsh_the_same_function_offers_subcommands_flags_and_choices(tmp_path: Path) -> None:
+    assert {"submit", "logs", "completion"} <= zsh_complete("armnet ", tmp_path)
+    assert "--detach" in zsh_complete("armnet submit --de", tmp_path)
+    assert zsh_complete("armnet get -o ", tmp_path) == {"table", "wide", "json", "yaml", "name"}
+    assert zsh_complete("armnet completion ", tmp_path) == {"bash", "zsh"}
 
 
 def test_the_zsh_script_is_the_bash_function_through_bashcompinit() -> None:
