@@ -19,6 +19,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 import uuid
@@ -98,11 +99,22 @@ TELEOP_FOLLOWER = """
                     pass
         raise ConnectionError("the follower did not connect in 3 attempts")
 
+    def retried(call, *args):
+        for attempt in range(3):  # likewise every read (send_action reads first, to clamp)
+            try:
+                return call(*args)
+            except ConnectionError:
+                if attempt == 2:
+                    raise
+
+    def pan(robot):
+        return float(retried(robot.get_observation)["shoulder_pan.pos"])
+
     @main
     def run(ctx: Context):
         robot = connected(ctx)
         try:
-            start = float(robot.get_observation()["shoulder_pan.pos"])
+            start = pan(robot)
             ctx.report_progress("teleop ready")
             events, actions, last, moved = [], 0, None, 0.0
             deadline = time.monotonic() + float(ctx.args.get("seconds", 60))
@@ -114,19 +126,22 @@ TELEOP_FOLLOWER = """
                         break
                 action = ctx.cell.get_teleop_action()
                 if action:
-                    robot.send_action(action)
+                    retried(robot.send_action, action)
                     actions += 1
                     last = action
-                now = float(robot.get_observation()["shoulder_pan.pos"])
+                now = pan(robot)
                 moved = max(moved, abs(now - start))
                 time.sleep(1 / 30)
             if last is not None:
                 for _ in range(15):  # the last action, held: the follower settles on it
-                    robot.send_action(last)
+                    retried(robot.send_action, last)
                     time.sleep(1 / 30)
-            reached = float(robot.get_observation()["shoulder_pan.pos"])
+            reached = pan(robot)
         finally:
-            robot.disconnect()
+            try:
+                robot.disconnect()
+            except ConnectionError as exc:  # the connector turns torque off after the job anyway
+                print(f"disconnect: {exc}", flush=True)
         return {"start": start, "reached": reached, "moved": moved, "actions": actions, "events": events,
                 "last_action": last}
 """
@@ -272,6 +287,29 @@ def test_a_followed_job_is_cancelled_when_its_client_is_killed_and_a_detached_on
 # ------------------------------------------------------------------ teleop
 
 
+class Screen:
+    """What a terminal shows: everything the process writes to the pty, drained so it never blocks."""
+
+    def __init__(self, master: int) -> None:
+        self.master = master
+        self.text = b""
+        self._thread = threading.Thread(target=self._drain, daemon=True)
+
+    def start(self) -> Screen:
+        self._thread.start()
+        return self
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                chunk = os.read(self.master, 4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            self.text += chunk
+
+
 def test_teleop_with_the_simulated_leader_moves_the_follower_and_keys_reach_the_job(bed: AgentBed) -> None:
     client = client_of(bed)
     job = client.submit(spec(bed, bed.image("teleop", TELEOP_FOLLOWER), args={"seconds": 90},
@@ -282,13 +320,15 @@ def test_teleop_with_the_simulated_leader_moves_the_follower_and_keys_reach_the_
     leader = armnet(bed, "teleop", job.id, "--leader", "sim", "--rate", "30",
                     stdin=slave, stdout=slave, stderr=slave, close_fds=True)
     os.close(slave)
+    screen = Screen(master).start()
     try:
+        bed.wait(lambda: b"actions sent" in screen.text, 120, "armnet teleop to send actions")
         time.sleep(4)  # half a period of the simulated leader's sines
         for key in (b"\x1b[C", b"\x1b[D"):  # Right: next_episode, Left: rerecord_episode
             os.write(master, key)
             time.sleep(0.4)
         os.write(master, b"\x1b")  # Esc: stop_recording, and the session ends
-        assert leader.wait(15) == 0
+        assert leader.wait(30) == 0, screen.text[-2000:]
     finally:
         if leader.poll() is None:
             leader.kill()
