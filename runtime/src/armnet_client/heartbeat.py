@@ -5,9 +5,10 @@ Only the agent can enforce it in a way that survives a client crash, so the
 client's part is small: while it follows, publish ``{"at": <UTC time>,
 "client": <host:pid>}`` every ``interval_s`` on
 ``clients.<namespace>.<jobId>.heartbeat`` (plain NATS: a heartbeat is only
-worth anything now). The agent cancels the job when none arrived for its
-window. The subject is this client's proposal; docs/streams.md does not fix
-one yet.
+worth anything now; docs/streams.md). The agent watches a job only when its
+submitter declared a follower (the annotation ``armnet.io/follower-timeout-seconds``,
+``mapping.follower_metadata``) and cancels it when no beat arrived for that
+window (docs/agent.md, "Followed jobs").
 """
 
 from __future__ import annotations
