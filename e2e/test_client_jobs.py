@@ -156,7 +156,8 @@ def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[Ag
     bed.start_agent()
     try:
         for cell in cells:
-            bed.wait_ready(cell, timeout=90)
+            # The first health probe imports LeRobot: minutes on this 2-core host under the suite's load.
+            bed.wait_ready(cell, timeout=240)
         yield bed
     finally:
         bed.stop()
