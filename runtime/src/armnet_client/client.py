@@ -124,7 +124,8 @@ class Client:
         ``armnet.io/follower-timeout-seconds``): unless ``spec.detach``, the node
         agent cancels it when the heartbeats of :meth:`logs` stop for
         ``follower_timeout_s``. Without it nothing watches the job, as for
-        ``kubectl apply``.
+        ``kubectl apply``. Heartbeats need NATS: declare a follower only with a
+        NATS URL configured (``execute`` and ``armnet submit`` do so).
         """
         ns = namespace or self.namespace
         body = robotjob_body(spec, namespace=ns, name=name,
@@ -248,7 +249,8 @@ class Client:
         With ``follow`` and a reachable log stream, ``stdout``/``stderr`` of the
         result are the whole output read while following; otherwise as :meth:`wait`.
         """
-        job = self.submit(spec, follow=follow)
+        # Without NATS there are no heartbeats: declaring a follower would get the job cancelled.
+        job = self.submit(spec, follow=follow and self.nats_url is not None)
         if not follow:
             return self.wait(job.id)
         stdout: list[str] = []

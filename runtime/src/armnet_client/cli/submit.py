@@ -84,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     def body() -> int:
         client = client_from(args)
         client.follower_timeout_s = args.follower_timeout
-        follow = not args.detach
+        # Heartbeats need NATS: without a URL the follow polls the status and declares no follower.
+        follow = not args.detach and client.nats_url is not None
         if args.filename:
             manifest = read_manifest(args.filename)
             if args.detach:
