@@ -32,6 +32,10 @@ class AgentMetrics:
             "armnet_agent_heartbeat_age_seconds", "seconds since the cell's last successful heartbeat write",
             ["cell"], registry=r,
         )
+        self.follower_cancels = Counter(
+            "armnet_agent_follower_cancels_total",
+            "non-detached jobs cancelled because their following client stopped sending heartbeats", registry=r,
+        )
         self.lines_published = Counter(
             "armnet_agent_lines_published_total", "output lines handed to the stream publisher", registry=r
         )

@@ -32,6 +32,7 @@ from armnet_agent.connector.inputs import LocalOperatorInputs
 from armnet_agent.launch.container import ContainerJob
 from armnet_agent.launch.sim_cell import LocalCell
 from armnet_agent.node import report
+from armnet_agent.node.follower import guard_follower
 from armnet_agent.node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import TERMINAL_PHASES, Cell, Job, cancel_reason, parse_job
@@ -88,6 +89,8 @@ class JobRunner:
         self._flush_stop = threading.Event()
         #: The terminal status is written: nothing left to stop.
         self.reported = False
+        #: Why the agent itself stopped the job (a lost follower), written as the result's error.
+        self._stop_reason: str | None = None
         self._seen_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
 
@@ -108,6 +111,13 @@ class JobRunner:
         if not self.hooks.cancel_gracefully.is_set():
             log.info("stopping job %s (cancel, deletion or gone)", self.job.key)
         self.hooks.cancel_gracefully.set()
+
+    def stop_follower_lost(self, message: str) -> None:
+        """The job's following client went away (``node.follower``): cancel, saying why."""
+        if self._stop_reason is None and not self.hooks.cancel_gracefully.is_set():
+            self._stop_reason = message
+            self.deps.metrics.follower_cancels.inc()
+        self.stop()
 
     def interlock_trip(self) -> str | None:
         cell = self.local_cell
@@ -156,6 +166,7 @@ class JobRunner:
             tripped=ADOPTED_TRIP if adopted else None,
         )
         bridge = None
+        follower = None
         container_job: ContainerJob | None = None
         try:
             with local_cell:
@@ -174,6 +185,8 @@ class JobRunner:
                     container_job.remove()
                     return
                 output.status("running", {"startedAt": report.timestamp(started_at)})
+                follower = guard_follower(self.deps.link, job.namespace, job.uid, job.follower_window_s,
+                                          self.stop_follower_lost)
                 # The job's clock runs from startedAt (also across an agent restart).
                 elapsed = (datetime.now(UTC) - started_at).total_seconds()
                 limits = SupervisorLimits(
@@ -186,6 +199,8 @@ class JobRunner:
                 result = supervise(container_job, limits, self.hooks)
                 if container_job.oom_killed:
                     result = infra_failure("the container was killed for exceeding its memory limit (OOM)", limits)
+                elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
+                    result = result.model_copy(update={"error": self._stop_reason})
                 record = self._connector_record()
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
@@ -197,6 +212,8 @@ class JobRunner:
                 container_job.remove()
         finally:
             self._flush_stop.set()
+            if follower is not None:
+                follower.close()
             if bridge is not None:
                 bridge.close()
             self.local_cell = None
