@@ -62,6 +62,7 @@ def test_runtime_image_runs_a_customer_job_built_from_the_example(
         podman: Podman, runtime_image: str) -> None:
     tag = "localhost/armnet-example-job:test"
     podman.client.images.build(path=str(REPO_ROOT / "images" / "example-job"), tag=tag, rm=True,
+                               dockerfile="Containerfile",
                                buildargs={"RUNTIME": runtime_image}, network_mode="none")
     try:
         code, output = run_image(podman, tag, environment={
@@ -105,5 +106,5 @@ def test_no_image_ships_pip_in_its_venv_or_a_compiler(
     code, output = run_image(podman, image, entrypoint=["python", "-c", script])
 
     assert code == 0, output
-    assert output.split(maxsplit=1) == ["/opt/armnet/venv", "True []"]
+    assert output.strip().split(maxsplit=1) == ["/opt/armnet/venv", "True []"]
 
