@@ -27,8 +27,8 @@ from urllib.parse import urlparse
 import pytest
 import yaml
 
-from tests.integration.test_helm_lifecycle import helm_on
 from tests.integration.test_helm_chart import CHART
+from tests.integration.test_helm_lifecycle import helm_on
 from tests.testbed.controllers import WorkloadControllers
 from tests.testbed.kube import ControlPlane
 from tests.testbed.node import Node
