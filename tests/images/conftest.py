@@ -11,7 +11,14 @@ from typing import Any
 import pytest
 
 from tests.testbed.plugin import Podman, _start
-from tests.testbed.shipped_images import AGENT, OPERATOR, RUNTIME, ImageSpec, ensure_image
+from tests.testbed.shipped_images import (
+    AGENT,
+    OPERATOR,
+    RUNTIME,
+    RUNTIME_LEROBOT,
+    ImageSpec,
+    ensure_image,
+)
 
 
 def _image(spec: ImageSpec, podman: Podman, request: pytest.FixtureRequest) -> str:
@@ -22,6 +29,12 @@ def _image(spec: ImageSpec, podman: Podman, request: pytest.FixtureRequest) -> s
 @pytest.fixture(scope="session")
 def runtime_image(podman: Podman, base_image: str, request: pytest.FixtureRequest) -> str:
     return _image(RUNTIME, podman, request)
+
+
+@pytest.fixture(scope="session")
+def runtime_lerobot_image(podman: Podman, agent_image: str, request: pytest.FixtureRequest) -> str:
+    """Built after the agent image: both share the `lerobot` lock's venv layer."""
+    return _image(RUNTIME_LEROBOT, podman, request)
 
 
 @pytest.fixture(scope="session")

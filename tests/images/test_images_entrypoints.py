@@ -78,6 +78,16 @@ def test_runtime_image_runs_a_customer_job_built_from_the_example(
         "greeting": "hello, cell", "job_id": "job-7"}
 
 
+def test_runtime_lerobot_variant_imports_lerobots_robot_classes_as_uid_65532(
+        podman: Podman, runtime_lerobot_image: str) -> None:
+    code, output = run_image(podman, runtime_lerobot_image, ["python", "-c", (
+        "import os; from lerobot.robots.so_follower import SO101Follower; "
+        "import lerobot.cameras.opencv; print(os.getuid(), SO101Follower.__name__)")])
+
+    assert code == 0, output
+    assert output.strip().splitlines()[-1] == "65532 SO101Follower"
+
+
 def test_runtime_image_runs_jobs_as_uid_65532(podman: Podman, runtime_image: str) -> None:
     code, output = run_image(podman, runtime_image, ID)
 

@@ -40,6 +40,10 @@ from tests.testbed.procs import progress
 
 TORCH_PIN = "torch==2.13.0"
 LEROBOT_PIN = "lerobot==0.4.4"
+# What LeRobot 0.4.4's motor classes import beyond runtime's [lerobot] extra
+# (lerobot.utils.utils imports accelerate; datasets comes with lerobot.motors): the same
+# packages scripts/setup.d/10-python.sh installs, at the versions the suite runs with.
+LEROBOT_MISSING_FROM_EXTRA = ("accelerate==1.15.0", "datasets==5.2.0")
 HASH_LABEL = "armnet.io/content-hash"
 # Sources of our two wheels; a change in any of them is a new image.
 RUNTIME_SOURCES = ("runtime/pyproject.toml", "runtime/src")
@@ -70,11 +74,14 @@ ALL = {spec.name: spec for spec in (RUNTIME, RUNTIME_LEROBOT, OPERATOR, AGENT)}
 
 
 # ---------------------------------------------------------------------- locks
-def _pyproject_digest() -> str:
+def _lock_digest(lock: str) -> str:
+    """What decides a lock's content: the pyproject files, Python, and the lerobot pins."""
     digest = hashlib.sha256()
     for f in (REPO_ROOT / "pyproject.toml", REPO_ROOT / "runtime" / "pyproject.toml"):
         digest.update(f.read_bytes())
     digest.update(f"{sys.version_info[:2]} {TORCH_PIN} {LEROBOT_PIN}".encode())
+    if lock == "lerobot":
+        digest.update(repr(LEROBOT_MISSING_FROM_EXTRA).encode())
     return digest.hexdigest()[:16]
 
 
@@ -87,7 +94,7 @@ def _pip(*args: str) -> None:
 
 def lock_dir(lock: str, own_wheels: Sequence[Path]) -> Path:
     """The wheel folder of ``lock`` with its requirements.txt; built once (network: PyPI)."""
-    house = WHEEL_CACHE / f"lock-{lock}-{_pyproject_digest()}"
+    house = WHEEL_CACHE / f"lock-{lock}-{_lock_digest(lock)}"
     stamp = house / ".complete"
     if stamp.exists():
         return house
@@ -101,7 +108,7 @@ def lock_dir(lock: str, own_wheels: Sequence[Path]) -> Path:
     platform = [w for w in own_wheels if not w.name.startswith("armnet_runtime-")]
     wanted = {"runtime": [str(runtime)],
               "platform": [str(runtime), *map(str, platform)],
-              "lerobot": [f"{runtime}[lerobot]", *map(str, platform)]}[lock]
+              "lerobot": [f"{runtime}[lerobot]", *map(str, platform), *LEROBOT_MISSING_FROM_EXTRA]}[lock]
     links = str(runtime.parent)
     _pip("wheel", "-w", str(house), "--find-links", links, "-c", str(constraints), *wanted)
     if lock == "lerobot":  # LeRobot pins torch<2.11: its own deps come from the extra above
@@ -138,7 +145,7 @@ def content_hash(spec: ImageSpec, base_id: str, buildargs: dict[str, str]) -> st
     sources = PLATFORM_SOURCES if "armnet" in spec.own else RUNTIME_SOURCES
     for source in sources:
         _hash_tree(digest, REPO_ROOT / source)
-    digest.update(f"{spec.lock} {_pyproject_digest()} {base_id}".encode())
+    digest.update(f"{spec.lock} {_lock_digest(spec.lock)} {base_id}".encode())
     digest.update(repr(sorted(buildargs.items())).encode())
     return digest.hexdigest()[:12]
 
