@@ -335,6 +335,15 @@ def test_operator_role_names_no_secrets_and_no_pods() -> None:
     assert not any("*" in rule["verbs"] for rule in rules)
 
 
+def test_operator_reads_namespaces_only_when_it_serves_a_set_of_them() -> None:
+    def reads_namespaces(objects: list[dict[str, Any]]) -> bool:
+        return any("namespaces" in rule["resources"] and set(rule["verbs"]) == {"get", "list", "watch"}
+                   for rule in rules_of(objects, "ClusterRole", "-operator"))
+
+    assert reads_namespaces(render(values={"jobNamespaces": [{"name": "team-a"}]}))
+    assert not reads_namespaces(render())
+
+
 def test_agent_reads_only_the_listed_secrets_of_each_job_namespace() -> None:
     values = {"jobNamespaces": [{"name": "team-a", "secrets": ["hf-token"]}, {"name": "team-b"}]}
     objects = render(values=values)

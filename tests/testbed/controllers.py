@@ -3,9 +3,11 @@
 The rest of the test bed runs without them (pods are created with ``spec.nodeName``);
 the chart's real install does not: its operator Deployment and agent DaemonSet become
 pods only through the deployment, replicaset and daemonset controllers and the
-scheduler. Only the controllers that needs are on (plus the garbage collector, so an
-uninstall removes the pods, and the root-CA publisher, whose ``kube-root-ca.crt``
-ConfigMap the chart's projected token volume mounts). Both run with the admin
+scheduler. Only the controllers that needs are on, plus the garbage collector (an
+uninstall removes the pods), the root-CA publisher (the chart's projected token
+volume mounts its ``kube-root-ca.crt`` ConfigMap) and the node lifecycle controller
+(it lifts the ``node.kubernetes.io/not-ready`` taint a kubelet registers with, which
+would keep the scheduler from placing the operator). Both run with the admin
 kubeconfig, without leader election and without a serving port, and stop with the
 context manager. Binaries: scripts/setup.d/30-k8s.sh.
 """
@@ -21,7 +23,9 @@ from pathlib import Path
 from tests.testbed.kube import ControlPlane, k8s_bin_dir
 from tests.testbed.procs import ManagedProcess, progress, require_tool
 
-CONTROLLERS = ("deployment", "replicaset", "daemonset", "garbagecollector", "root-ca-cert-publisher")
+CONTROLLERS = ("deployment-controller", "replicaset-controller", "daemonset-controller",
+               "garbage-collector-controller", "root-ca-certificate-publisher-controller",
+               "node-lifecycle-controller")
 
 
 @dataclass
