@@ -16,6 +16,7 @@ socket, mounted in); the pod launcher replaces that.
 from __future__ import annotations
 
 import json
+import subprocess
 import tempfile
 import time
 import uuid
@@ -27,7 +28,7 @@ from urllib.parse import urlparse
 import pytest
 import yaml
 
-from tests.integration.test_helm_chart import CHART
+from tests.integration.test_helm_chart import CHART, helm_binary
 from tests.integration.test_helm_lifecycle import helm_on
 from tests.testbed.controllers import WorkloadControllers
 from tests.testbed.kube import ControlPlane
@@ -81,6 +82,7 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
         "image": {"operatorRepository": operator_image.rsplit(":", 1)[0],
                   "agentRepository": agent_image.rsplit(":", 1)[0], "tag": tag, "pullPolicy": "Never"},
         "jobNamespaces": [{"name": tenant}],
+        "crds": {"install": False},  # the test bed applied them (test_helm_lifecycle: adoption)
         "operator": {"replicas": 1, "hostNetwork": True, "metricsPort": free_port(), "extraEnv": to_api,
                      "readinessProbe": {"initialDelaySeconds": 1, "periodSeconds": 2,
                                         "failureThreshold": 3}},
@@ -103,7 +105,9 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
         helm_on(k8s, "install", name, str(CHART), "-n", system, values=values)
         yield state
     finally:
-        helm_on(k8s, "uninstall", name, "-n", system, "--wait", "--timeout", "60s")
+        subprocess.run([str(helm_binary()), "uninstall", name, "-n", system, "--wait", "--timeout",
+                        "60s", f"--kubeconfig={k8s.kubeconfig}"], capture_output=True, timeout=120,
+                       check=False)
         k8s.kubectl("delete", "pods", "--all", "-n", system, "--grace-period=1", "--wait=false",
                     check=False)
         wait_for("the release's pods to go", lambda: not (get_json(k8s, "pods", "-n", system) or
