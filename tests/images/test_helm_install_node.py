@@ -10,7 +10,8 @@ no kube-proxy and pods get an isolated bridge, so the `kubernetes` Service is no
 reachable from a pod; the operator and agent run with ``hostNetwork: true`` and
 ``KUBERNETES_SERVICE_HOST/PORT`` set to the apiserver's loopback address. The agent
 still launches job containers through a Docker-API engine (the session's Podman
-socket, mounted in); the pod launcher replaces that.
+socket, mounted in); the pod launcher replaces that. The job image is the example
+customer image (images/example-job) built on the shipped runtime image.
 """
 
 from __future__ import annotations
@@ -66,7 +67,7 @@ def common_tag(podman: Podman, images: list[str]) -> str:
 
 @pytest.fixture
 def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: str,
-            agent_image: str) -> Iterator[dict[str, Any]]:
+            agent_image: str, runtime_image: str) -> Iterator[dict[str, Any]]:
     """The chart installed, its pods running on the node; everything removed afterwards."""
     tag = common_tag(podman, [operator_image, agent_image])
     for image in (operator_image, agent_image):
@@ -99,7 +100,11 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
     }
     k8s.kubectl("label", "node", k8s_node.name, f"{ROBOT_HOST_LABEL}=true", "--overwrite")
     controllers = WorkloadControllers(plane=k8s).start()
-    state = {"k8s": k8s, "node": k8s_node, "system": system, "tenant": tenant, "name": name,
+    job_image = "localhost/armnet-example-job:it"
+    podman.client.images.build(path=str(CHART.parents[1] / "images" / "example-job"), tag=job_image,
+                               rm=True, dockerfile="Containerfile", buildargs={"RUNTIME": runtime_image},
+                               network_mode="none")
+    state = {"job_image": job_image, "k8s": k8s, "node": k8s_node, "system": system, "tenant": tenant, "name": name,
              "values": values, "controllers": controllers, "host": host}
     try:
         helm_on(k8s, "install", name, str(CHART), "-n", system, values=values)
@@ -148,7 +153,7 @@ def diagnose(state: dict[str, Any]) -> str:
     return "\n".join(parts)
 
 
-def test_helm_install_runs_the_shipped_images_on_the_node_and_a_simulated_cell_binds_a_job(
+def test_helm_install_runs_a_tenants_job_on_a_simulated_cell_with_the_shipped_images(
         release: dict[str, Any]) -> None:
     k8s: ControlPlane = release["k8s"]
     node: Node = release["node"]
@@ -165,14 +170,20 @@ def test_helm_install_runs_the_shipped_images_on_the_node_and_a_simulated_cell_b
              .get("phase") == "Ready", 180, lambda: diagnose(release))
     k8s.kubectl("apply", "-n", release["tenant"], "-f", "-", input=yaml.safe_dump({
         "apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": "hello"},
-        "spec": {"image": "localhost/armnet-example-job:absent", "embodiment": "lerobot/so-101",
+        "spec": {"image": release["job_image"], "args": {"name": "helm"}, "embodiment": "lerobot/so-101",
                  "timeoutSeconds": 60}}))
     job = wait_for("the job bound to the cell", lambda: (j := get_json(
         k8s, "robotjob", "hello", "-n", release["tenant"])) and (j.get("status") or {}).get("cellName") and j,
         60, lambda: diagnose(release))
 
+    done = wait_for("the job to finish", lambda: (j := get_json(
+        k8s, "robotjob", "hello", "-n", release["tenant"])) and (j.get("status") or {}).get("phase") in
+        ("succeeded", "failed") and j, 180, lambda: diagnose(release))
     assert operator["spec"]["nodeName"] == agent["spec"]["nodeName"] == node.name
     assert [c["image"] for c in operator["spec"]["containers"]] == [
         f"{release['values']['image']['operatorRepository']}:{release['values']['image']['tag']}"]
     assert operator["spec"]["securityContext"]["runAsUser"] == 65532
     assert job["status"]["cellName"] == cell
+    assert done["status"]["phase"] == "succeeded"
+    assert done["status"]["result"]["returnValue"] == {"greeting": "hello, helm",
+                                                       "job_id": done["status"]["jobId"]}
