@@ -220,8 +220,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import docker
 
     parser = argparse.ArgumentParser(prog="build-images", description=main.__doc__)
-    parser.add_argument("names", nargs="*", default=["runtime", "operator", "agent"],
-                        choices=sorted(ALL), help="images to build (default: runtime operator agent)")
+    parser.add_argument("names", nargs="*", metavar="NAME",
+                        help=f"images to build, of {', '.join(sorted(ALL))} (default: runtime operator agent)")
     parser.add_argument("--base", default=BASE_IMAGE,
                         help="base image with python3 + venv (default: the test bed's debootstrap "
                              "base; for registries e.g. docker.io/library/python:3.11-slim)")
@@ -229,9 +229,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="Docker API of the engine (default: DOCKER_HOST, else Podman's socket)")
     parser.add_argument("--version", default="0.1.0", help="org.opencontainers.image.version")
     args = parser.parse_args(argv)
+    names = args.names or ["runtime", "operator", "agent"]
+    unknown = sorted(set(names) - set(ALL))
+    if unknown:
+        parser.error(f"unknown image(s) {', '.join(unknown)}; choose from {', '.join(sorted(ALL))}")
     client = docker.DockerClient(base_url=args.engine, timeout=3600)
     built = [(name, ensure_image(ALL[name], client=client, base_image=args.base,
-                                 version=args.version)) for name in args.names]
+                                 version=args.version)) for name in names]
     print(f"{'image':<44} {'size':>10}")
     for _name, tag in built:
         print(f"{tag:<44} {image_size(client, tag) / 1e6:>8.0f} MB")
