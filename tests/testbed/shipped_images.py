@@ -40,10 +40,6 @@ from tests.testbed.procs import progress
 
 TORCH_PIN = "torch==2.13.0"
 LEROBOT_PIN = "lerobot==0.4.4"
-# What LeRobot 0.4.4's motor classes import beyond runtime's [lerobot] extra
-# (lerobot.utils.utils imports accelerate; datasets comes with lerobot.motors): the same
-# packages scripts/setup.d/10-python.sh installs, at the versions the suite runs with.
-LEROBOT_MISSING_FROM_EXTRA = ("accelerate==1.15.0", "datasets==5.2.0")
 HASH_LABEL = "armnet.io/content-hash"
 # Sources of our two wheels; a change in any of them is a new image.
 RUNTIME_SOURCES = ("runtime/pyproject.toml", "runtime/src")
@@ -80,8 +76,6 @@ def _lock_digest(lock: str) -> str:
     for f in (REPO_ROOT / "pyproject.toml", REPO_ROOT / "runtime" / "pyproject.toml"):
         digest.update(f.read_bytes())
     digest.update(f"{sys.version_info[:2]} {TORCH_PIN} {LEROBOT_PIN}".encode())
-    if lock == "lerobot":
-        digest.update(repr(LEROBOT_MISSING_FROM_EXTRA).encode())
     return digest.hexdigest()[:16]
 
 
@@ -108,7 +102,7 @@ def lock_dir(lock: str, own_wheels: Sequence[Path]) -> Path:
     platform = [w for w in own_wheels if not w.name.startswith("armnet_runtime-")]
     wanted = {"runtime": [str(runtime)],
               "platform": [str(runtime), *map(str, platform)],
-              "lerobot": [f"{runtime}[lerobot]", *map(str, platform), *LEROBOT_MISSING_FROM_EXTRA]}[lock]
+              "lerobot": [f"{runtime}[lerobot]", *map(str, platform)]}[lock]
     links = str(runtime.parent)
     _pip("wheel", "-w", str(house), "--find-links", links, "-c", str(constraints), *wanted)
     if lock == "lerobot":  # LeRobot pins torch<2.11: its own deps come from the extra above
