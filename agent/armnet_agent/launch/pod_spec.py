@@ -179,7 +179,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         *_dev_mounts(inputs),
     ]
     env = [{"name": SIDECAR_ENV, "value": json.dumps(dict(inputs.sidecar), sort_keys=True)}]
-    env += [{"name": k, "value": v} for k, v in sorted(inputs.connector_env.items())]
+    env += [{"name": k, "value": v} for k, v in sorted(_with_home(inputs.connector_env).items())]
     return {
         "name": CONNECTOR_CONTAINER,
         "image": inputs.connector_image,
@@ -202,7 +202,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
 
 
 def _job(inputs: PodInputs) -> dict[str, Any]:
-    env: list[dict[str, Any]] = [{"name": k, "value": v} for k, v in sorted(inputs.job_env.items())]
+    env: list[dict[str, Any]] = [{"name": k, "value": v} for k, v in sorted(_with_home(inputs.job_env).items())]
     env += [
         {"name": ref.env, "valueFrom": {"secretKeyRef": {"name": ref.secret, "key": ref.key}}}
         for ref in sorted(inputs.secrets, key=lambda r: r.env)
@@ -234,6 +234,11 @@ def _job(inputs: PodInputs) -> dict[str, Any]:
     if inputs.job_command is not None:
         container["command"] = list(inputs.job_command)
     return container
+
+
+def _with_home(env: Mapping[str, str]) -> dict[str, str]:
+    """A writable HOME (the root filesystem is read-only and the user has no passwd entry)."""
+    return {"HOME": "/tmp", **env}
 
 
 def _dev_mounts(inputs: PodInputs) -> list[dict[str, Any]]:
