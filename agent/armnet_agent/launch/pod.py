@@ -60,7 +60,7 @@ def container_state(pod: dict[str, Any], name: str) -> ContainerState:
             continue
         state = entry.get("state") or {}
         terminated = state.get("terminated")
-        started = bool(state.get("running")) or terminated is not None
+        started = "running" in state or terminated is not None
         exit_code = int(terminated.get("exitCode", -1)) if terminated is not None else None
         waiting = state.get("waiting") or {}
         reason = (terminated or {}).get("reason") or waiting.get("reason")
