@@ -107,7 +107,10 @@ def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str) -> Iterator[Agent
     bed.start_agent()
     try:
         for cell in bed.cells:  # type: ignore[attr-defined]
-            bed.wait_ready(cell, timeout=90)
+            try:
+                bed.wait_ready(cell, timeout=180)
+            except AssertionError as exc:
+                raise AssertionError(f"{json.dumps(bed.cell(cell).get('status'), indent=1)}\n{exc}") from None
         yield bed
     finally:
         bed.stop()
