@@ -243,6 +243,28 @@ def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
     assert lines == [f"line {i:03d}" for i in range(40)]
 
 
+def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails_with_the_reason(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("loses-connector", image, args={"lines": 40, "pause": 0.25}, timeout=200)
+    job = bed.wait_phase("loses-connector", ("running",), timeout=300)
+
+    def some_output() -> bool:
+        progress = status(bed.job("loses-connector")).get("progress") or ""
+        return progress.startswith("line ") and int(progress.split()[1]) >= 3
+
+    bed.wait(some_output, 60, "some output")
+    # SIGTERM to the sidecar's PID 1 (the kernel ignores SIGKILL to a namespace's init from inside it).
+    bed.k8s.kubectl("exec", "-n", bed.namespace, f"armnet-{job['metadata']['uid']}", "-c", "connector", "--",
+                    "python3", "-c", "import os, signal; os.kill(1, signal.SIGTERM)")
+    st = status(bed.wait_phase("loses-connector", timeout=300))
+    assert st["phase"] == "failed", json.dumps(st, indent=1)[:3000]
+    assert "connector sidecar restarted" in st["result"]["error"]
+    # The restarted connector's own record: it came back with the interlock tripped.
+    assert "connector restarted" in json.dumps(st["result"]), json.dumps(st["result"])[:3000]
+
+
 def test_the_agent_exports_the_pod_start_latency(bed: AgentBed, batch: dict[str, str]) -> None:
     bed.wait_phase(batch["failure"], timeout=300)
     text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()

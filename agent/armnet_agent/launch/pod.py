@@ -168,6 +168,10 @@ class PodJob:
         self._started.set()
         self._done.set()
 
+    def wait_started(self, timeout: float) -> bool:
+        """Until the job container runs (the sidecar served first) or the pod ended; False on timeout."""
+        return self._started.wait(timeout)
+
     @property
     def connector_restarts(self) -> int:
         return container_state(self.last_pod, CONNECTOR_CONTAINER).restarts

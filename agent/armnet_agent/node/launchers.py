@@ -48,6 +48,8 @@ from armnet_agent.supervise import LaunchedJob
 
 log = logging.getLogger(__name__)
 
+#: How long the runner waits for a job pod's container to start before it marks the job running anyway.
+POD_START_TIMEOUT_S = 120
 CONNECTOR_RESTARTED = (
     "the connector sidecar restarted during the job (the kubelet restarts a sidecar that dies); it came back with "
     "the interlock tripped and the job was failed rather than resumed"
@@ -323,17 +325,20 @@ class PodSession:
     def start(self) -> LaunchedJob:
         core, metrics = self.launcher.core, self.launcher.metrics
         request = self.request
+        job: PodJob | None = None
         if request.adopted is None:
             self._own_host_dirs()
             try:
-                self.job = PodJob.launch(core, self.launcher.manifest(request),
-                                         on_started=metrics.pod_start_latency.observe)
-                return self.job
+                job = PodJob.launch(core, self.launcher.manifest(request), on_started=metrics.pod_start_latency.observe)
             except PodExists:
                 pass  # this job's pod from an agent that died before it wrote running: adopt it
-        name = container_name(request.job.uid)
-        self.job = PodJob.adopt(core, request.job.namespace, name)
-        return self.job
+        if job is None:
+            job = PodJob.adopt(core, request.job.namespace, container_name(request.job.uid))
+        self.job = job
+        # "running" means the job's code runs: wait for its container (the sidecar is ready first).
+        if not job.wait_started(POD_START_TIMEOUT_S):
+            log.warning("job %s: its pod's container has not started after %d s", request.job.key, POD_START_TIMEOUT_S)
+        return job
 
     def _own_host_dirs(self) -> None:
         """The cache and volume are host directories: the job's non-root user must be able to write them."""
