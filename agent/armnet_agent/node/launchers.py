@@ -360,6 +360,9 @@ class PodSession:
             return None
         if job.connector_restarts > 0:
             self.launcher.metrics.connector_restarts.inc()
+            record = self.record()
+            if record.trip_message:
+                return f"{CONNECTOR_RESTARTED} (connector record: {record.trip_reason}: {record.trip_message})"
             return CONNECTOR_RESTARTED
         if job.failure is not None:
             self.launcher.metrics.pod_failures.labels(reason=_reason_label(job.failure)).inc()
