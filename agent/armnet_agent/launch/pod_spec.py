@@ -47,6 +47,10 @@ JOB_USER = 65532
 SOCKETS_SIZE = "256Mi"
 TMP_SIZE = "256Mi"
 DEVICE_DIR = "/dev/armnet"
+#: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
+STARTUP_PROBE_S = 300
+#: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
+STARTUP_PROBE_S = 300
 
 
 @dataclass(frozen=True)
@@ -187,8 +191,10 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         "command": list(inputs.connector_command),
         "restartPolicy": "Always",
         "env": env,
-        # Starts the customer container only once robot.sock exists (up to 60 s: LeRobot's import warm-up).
-        "startupProbe": _probe(robot_sock, 1, 60),
+        # The customer container starts only once robot.sock exists. A failed startup probe makes
+        # the kubelet restart the sidecar (and that fails the job), so the window is generous: a
+        # loaded host can take a minute or more to import the connector.
+        "startupProbe": _probe(robot_sock, 1, STARTUP_PROBE_S),
         "readinessProbe": _probe(robot_sock, 5, 3),
         "securityContext": {
             "allowPrivilegeEscalation": False,
