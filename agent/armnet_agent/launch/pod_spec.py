@@ -47,8 +47,10 @@ JOB_USER = 65532
 SOCKETS_SIZE = "256Mi"
 TMP_SIZE = "256Mi"
 DEVICE_DIR = "/dev/armnet"
+CONNECTOR_CPU_REQUEST = "250m"
 #: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
 STARTUP_PROBE_S = 300
+CONNECTOR_CPU_REQUEST = "250m"
 #: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
 STARTUP_PROBE_S = 300
 
@@ -203,7 +205,8 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
             "capabilities": {"drop": ["ALL"]},
         },
         "volumeMounts": mounts,
-        "resources": {"requests": {"cpu": "100m", "memory": "256Mi"}, "limits": {"memory": "2Gi"}},
+        # The connector answers bus calls under deadlines: CPU shares above a customer container's.
+        "resources": {"requests": {"cpu": CONNECTOR_CPU_REQUEST, "memory": "256Mi"}, "limits": {"memory": "2Gi"}},
     }
 
 
