@@ -15,6 +15,7 @@ by side on three cells; each test checks its own job.
 from __future__ import annotations
 
 import json
+import re
 import sys
 import urllib.request
 from collections.abc import Iterator
@@ -126,8 +127,9 @@ def batch(bed: AgentBed) -> dict[str, str]:
     bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", (EXAMPLES / "_so101_moves.py",))
     return {
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
-        "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=120),
-        "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=120,
+        # Generous timeouts: on a loaded host a pod's Python takes a minute or more to import the SDK.
+        "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=300),
+        "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
                             secrets={"API_TOKEN": "api-token"}),
         "timeout": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
     }
@@ -183,7 +185,11 @@ def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_
     assert seen["socket_at_start"] is True
     assert seen["uid"] != 0
     assert not seen["root_writable"]
-    assert not [d for d in seen["devices"] if "tty" in d or "pts/" in d or d.startswith("/dev/armnet")], seen
+    # The container's own devpts (/dev/pts/ptmx) and the runtime's defaults are fine; a host pty
+    # (/dev/pts/<n>), a serial adapter, a camera or the connector's device path are not.
+    host_devices = [d for d in seen["devices"]
+                    if d.startswith("/dev/armnet") or re.match(r"/dev/(pts/\d|ttyUSB|ttyACM|ttyS|video)", d)]
+    assert not host_devices, seen
     assert seen["secret_length"] == len(SECRET_VALUE)
     assert SECRET_VALUE not in json.dumps(job)
 
@@ -227,6 +233,13 @@ def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
     bed.wait(lambda: pod_of(bed, job) is None, 30, "the cancelled job's pod removed")
 
 
+def test_the_agent_exports_the_pod_start_latency(bed: AgentBed, batch: dict[str, str]) -> None:
+    bed.wait_phase(batch["failure"], timeout=400)  # launched by this agent process (not restarted yet)
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    count = [line for line in text.splitlines() if line.startswith("armnet_agent_pod_start_latency_seconds_count")]
+    assert count and float(count[0].split()[-1]) >= 1, count
+
+
 def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
@@ -238,7 +251,7 @@ def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
         progress = status(bed.job("survives")).get("progress") or ""
         return progress.startswith("line ") and int(progress.split()[1]) >= 5
 
-    bed.wait(some_output, 60, "some output")
+    bed.wait(some_output, 240, "some output")
     bed.kill_agent()
     bed.start_agent()
     st = status(bed.wait_phase("survives", timeout=300))
@@ -260,7 +273,7 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
         progress = status(bed.job("loses-connector")).get("progress") or ""
         return progress.startswith("line ") and int(progress.split()[1]) >= 3
 
-    bed.wait(some_output, 60, "some output")
+    bed.wait(some_output, 240, "some output")
     # SIGTERM to the sidecar's PID 1 (the kernel ignores SIGKILL to a namespace's init from inside it).
     bed.k8s.kubectl("exec", "-n", bed.namespace, f"armnet-{job['metadata']['uid']}", "-c", "connector", "--",
                     "python3", "-c", "import os, signal; os.kill(1, signal.SIGTERM)")
@@ -269,10 +282,3 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     assert "connector sidecar restarted" in st["result"]["error"]
     # The restarted connector's own record: it came back with the interlock tripped.
     assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]
-
-
-def test_the_agent_exports_the_pod_start_latency(bed: AgentBed, batch: dict[str, str]) -> None:
-    bed.wait_phase(batch["failure"], timeout=300)
-    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
-    count = [line for line in text.splitlines() if line.startswith("armnet_agent_pod_start_latency_seconds_count")]
-    assert count and float(count[0].split()[-1]) >= 1, count
