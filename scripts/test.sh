@@ -27,6 +27,7 @@ fi
 side_groups=(
   "e2e/test_agent_jobs.py"
   "e2e/test_client_jobs.py e2e/test_fms_browser.py e2e/test_fms_local.py"
+  "e2e/test_pod_jobs.py"
 )
 ignores=()
 side_pids=()
