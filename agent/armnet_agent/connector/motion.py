@@ -11,6 +11,7 @@ from __future__ import annotations
 import inspect
 import math
 import time
+from collections.abc import Mapping
 from typing import Any
 
 from .allowlist import CALIBRATION_METHODS, CLASSES
@@ -24,7 +25,9 @@ from .safety import (
     GOAL_POSITION,
     PROTECTED_REGISTERS,
     MotorFacts,
-    decide_goal_write,
+    MotorLimit,
+    compile_limits,
+    decide_goals,
     is_release_write,
 )
 
@@ -171,6 +174,18 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     return facts
 
 
+def _goal_limits(handle: Handle, motors: Any, limit: Any, normalize: bool) -> Mapping[str, MotorLimit]:
+    """The compiled goal rules of ``motors`` (``safety.compile_limits``), rebuilt only when their facts are."""
+    facts = _motor_facts(handle, motors)
+    cached = handle.limits_cache
+    if cached is None or cached[0] is not facts or cached[1] is not limit:
+        cached = handle.limits_cache = (facts, limit, {})
+    limits = cached[2].get(normalize)
+    if limits is None:
+        limits = cached[2][normalize] = compile_limits(facts, limit, normalize=normalize)
+    return limits
+
+
 def _replace_argument(obj: Any, method: str, args: list[Any], kwargs: dict[str, Any], name: str, value: Any) -> None:
     """Put ``value`` where the call passed parameter ``name`` (the clamp rewrites the call in place)."""
     if name in kwargs:
@@ -240,8 +255,8 @@ class MotionGuard:
             return {}
         limit = handle.arm_config.safety_limit if handle.arm_config is not None else None
         present = self._present(handle, list(known), normalize) if limit is not None else {}
-        facts = _motor_facts(handle, known)
-        decision = decide_goal_write(known, present, facts, limit, normalize=normalize, clamp=self.policy == "clamp")
+        limits = _goal_limits(handle, known, limit, normalize)
+        decision = decide_goals(known, present, limits, normalize=normalize, clamp=self.policy == "clamp")
         if decision.steps:
             self.recorder.record_steps(decision.steps)
         violation = decision.violation
