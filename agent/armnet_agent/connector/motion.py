@@ -129,7 +129,11 @@ def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tup
     else:
         raw = arguments.get("values")
         if isinstance(raw, dict):
-            values = {str(m): _number(str(m), v) for m, v in raw.items()}
+            values = {}
+            for m, v in raw.items():
+                name = m if type(m) is str else str(m)
+                # A finite float is taken as it is (the control loop's goals); anything else is converted or refused.
+                values[name] = v if type(v) is float and math.isfinite(v) else _number(name, v)
         else:
             values = {m: _number(m, raw) for m in handle.obj.motors}
     return str(data_name), values, normalize
@@ -142,12 +146,6 @@ def _motor_range(calibration: Any, motor: str) -> MotorRange | None:
     return MotorRange(cal.id, cal.range_min, cal.range_max, cal.drive_mode)
 
 
-def _fingerprint(motor: Any, cal: Any) -> tuple[Any, ...]:
-    if cal is None:
-        return (motor.norm_mode,)
-    return (motor.norm_mode, cal.id, cal.range_min, cal.range_max, cal.drive_mode)
-
-
 def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     """The facts of ``motors``, rebuilt only when a motor's mode or calibration changed.
 
@@ -157,7 +155,11 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     """
     bus_motors = handle.obj.motors
     calibration = handle.obj.calibration or {}
-    key = tuple((m, _fingerprint(bus_motors[m], calibration.get(m))) for m in motors)
+    key = tuple(
+        (m, bus_motors[m].norm_mode) if (cal := calibration.get(m)) is None
+        else (m, bus_motors[m].norm_mode, cal.id, cal.range_min, cal.range_max, cal.drive_mode)
+        for m in motors
+    )
     cached = handle.facts_cache
     if cached is not None and cached[0] == key:
         return cached[1]
@@ -254,7 +256,7 @@ class MotionGuard:
         if not known:
             return {}
         limit = handle.arm_config.safety_limit if handle.arm_config is not None else None
-        present = self._present(handle, list(known), normalize) if limit is not None else {}
+        present = self._present(handle, known, normalize) if limit is not None else {}
         limits = _goal_limits(handle, known, limit, normalize)
         decision = decide_goals(known, present, limits, normalize=normalize, clamp=self.policy == "clamp")
         if decision.steps:
@@ -287,13 +289,14 @@ class MotionGuard:
         values.update(clamped)
         _replace_argument(handle.obj, method, args, kwargs, "values", values)
 
-    def _present(self, handle: Handle, motors: list[str], normalize: bool) -> dict[str, float]:
+    def _present(self, handle: Handle, motors: dict[str, float], normalize: bool) -> dict[str, float]:
         cached = handle.present.get(normalize)
         if cached is not None and time.monotonic() - cached[0] <= self.present_max_age_s:
-            if all(m in cached[1] for m in motors):
+            if cached[1].keys() >= motors.keys():
                 return cached[1]
+        names = list(motors)
         values = with_read_retry(
-            handle, "sync_read", lambda: handle.obj.sync_read("Present_Position", motors, normalize=normalize),
+            handle, "sync_read", lambda: handle.obj.sync_read("Present_Position", names, normalize=normalize),
             on_retry=self._count_retry,
         )
         return {m: float(v) for m, v in values.items()}

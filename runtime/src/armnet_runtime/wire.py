@@ -86,6 +86,7 @@ _NUMPY_KINDS = frozenset("biufc")
 _NON_FINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
 _PLAIN_SCALARS = (str, int, bool, type(None))
 _PLAIN_NO_INT = (str, bool, type(None))
+_PLAIN_VALUES = frozenset((str, int, float, bool, type(None)))
 _allowed_type_cache: dict[str, type | None] = {}
 
 
@@ -207,7 +208,8 @@ def decode(obj: Any) -> Any:
     if kind is dict:
         tag = obj.get(TAG)
         if tag is None:
-            return {key: decode(item) for key, item in obj.items()}
+            # Plain values stand for themselves: only containers recurse (a goal dict is all floats).
+            return {key: item if type(item) in _PLAIN_VALUES else decode(item) for key, item in obj.items()}
         decoder = _DECODERS.get(tag) if type(tag) is str else None
         if decoder is None:
             raise ProtocolError(f"unknown tagged value kind {tag!r} (expected one of {sorted(_DECODERS)})")
@@ -218,7 +220,7 @@ def decode(obj: Any) -> Any:
         except (KeyError, TypeError, ValueError, binascii.Error) as exc:
             raise ProtocolError(f"malformed tagged {tag!r} value: {exc!r}") from exc
     if kind is list:
-        return [decode(item) for item in obj]
+        return [item if type(item) in _PLAIN_VALUES else decode(item) for item in obj]
     raise ProtocolError(f"not a tagged-JSON value: {kind.__qualname__}")
 
 
