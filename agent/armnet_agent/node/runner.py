@@ -17,6 +17,7 @@ The steps, each safe to repeat after a crash at any point:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import shutil
 import threading
@@ -185,7 +186,7 @@ class JobRunner:
                 result = supervise(container_job, limits, self.hooks)
                 if container_job.oom_killed:
                     result = infra_failure("the container was killed for exceeding its memory limit (OOM)", limits)
-                record = self._connector_record()
+                record = self._final_record(local_cell)
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
                 written = self._write_terminal(result, record)
@@ -285,6 +286,21 @@ class JobRunner:
             if event.kind == "begin" and event.index is not None:
                 return {"index": event.index, "total": event.total or 0}
         return None
+
+    def _final_record(self, local_cell: LocalCell) -> report.ConnectorRecord:
+        """The connector's account of the job, its safety report taken once it has let go of the arm.
+
+        Why the report after the stop: the connector's final release (torque off, read
+        back from the servos) belongs in the result's ``safety.torqueOffConfirmed``;
+        taken before, the report would only hold what the job's own closes did. The
+        interlock is read before: stopping trips it (teardown, not the job's doing).
+        """
+        record = self._connector_record()
+        connector = local_cell.connector
+        local_cell.stop_connector()
+        if connector is None:
+            return record
+        return dataclasses.replace(record, safety=connector.safety_report().as_status())
 
     def _connector_record(self) -> report.ConnectorRecord:
         cell = self.local_cell
