@@ -12,7 +12,9 @@ loop and on the same pty:
 - ``server``: the connector's side (parse the line, ``Session.handle``, which runs
   the allow-list plan, the motion guard, the policed bus and the real call,
   encode the reply line);
-- ``server - direct``: armnet's own work in the connector.
+- ``server - direct``: armnet's own work in the connector;
+- the same in CPU time (``time.thread_time``): on a machine other jobs load, the
+  wall clock of one call swings by the scheduler's whims, its CPU time much less.
 
 ``--profile`` adds a cProfile of the connector's handling (cumulative time,
 the functions that cost the most). The simulated servos live in their own
@@ -41,10 +43,11 @@ PAUSE_S = 0.002
 from proxy_overhead import SO101_JOINTS, WIGGLE_DEG, percentile, so101_bus_kwargs  # noqa: E402
 
 
-def _timed(bucket: list[float], call: Callable[[], Any]) -> Any:
-    began = time.perf_counter()
+def _timed(bucket: list[float], cpu: list[float], call: Callable[[], Any]) -> Any:
+    began, began_cpu = time.perf_counter(), time.thread_time()
     value = call()
     bucket.append(time.perf_counter() - began)
+    cpu.append(time.thread_time() - began_cpu)
     return value
 
 
@@ -100,7 +103,8 @@ def main() -> int:
                 start = direct.sync_read("Present_Position")
 
                 samples: dict[str, list[float]] = {
-                    f"{kind}_{call}": [] for kind in ("direct", "client", "server") for call in ("read", "write")
+                    f"{kind}_{call}": [] for kind in ("direct", "client", "server", "directcpu", "servercpu")
+                    for call in ("read", "write")
                 }
                 profiler = cProfile.Profile() if args.profile else None
                 lost = 0
@@ -109,13 +113,14 @@ def main() -> int:
                     began = time.perf_counter()
                     line = dumps_line({"op": "call", "method": method, "args": encode_args(call_args),
                                        "kwargs": encode({}), "object_id": object_id})
-                    middle = time.perf_counter()
+                    middle, middle_cpu = time.perf_counter(), time.thread_time()
                     if profiler is not None:
                         profiler.enable()
                     reply_line = encode_reply(session.handle(parse_request(line)))
                     if profiler is not None:
                         profiler.disable()
-                    after = time.perf_counter()
+                    after, after_cpu = time.perf_counter(), time.thread_time()
+                    samples[f"servercpu_{call}"].append(after_cpu - middle_cpu)
                     reply = loads_json(reply_line)
                     if not reply["ok"]:
                         raise RuntimeError(reply)
@@ -130,11 +135,11 @@ def main() -> int:
                     try:
                         # A pause before each call: the simulator is idle, as in a paced control loop.
                         time.sleep(PAUSE_S)
-                        _timed(samples["direct_read"], lambda: direct.sync_read("Present_Position"))
+                        _timed(samples["direct_read"], samples["directcpu_read"], lambda: direct.sync_read("Present_Position"))
                         time.sleep(PAUSE_S)
                         proxied("read", "sync_read", ("Present_Position",))
                         time.sleep(PAUSE_S)
-                        _timed(samples["direct_write"], lambda goals=goals: direct.sync_write("Goal_Position", goals))
+                        _timed(samples["direct_write"], samples["directcpu_write"], lambda goals=goals: direct.sync_write("Goal_Position", goals))
                         time.sleep(PAUSE_S)
                         proxied("write", "sync_write", ("Goal_Position", goals))
                     except (ConnectionError, RuntimeError):
@@ -150,6 +155,10 @@ def main() -> int:
               f"   server {s50:7.0f} / {percentile(row['server'], 90) * 1e6:6.0f}"
               f"   server - direct {s50 - d50:6.0f}"
               f"   client {percentile(row['client'], 50) * 1e6:5.0f} / {percentile(row['client'], 90) * 1e6:5.0f}")
+        dc50 = percentile(samples[f"directcpu_{call}"], 50) * 1e6
+        sc50 = percentile(samples[f"servercpu_{call}"], 50) * 1e6
+        print(f"{'':12}CPU time (robust to a loaded machine): direct {dc50:5.0f}   server {sc50:5.0f}"
+              f"   server - direct {sc50 - dc50:5.0f}")
     if profiler is not None:
         stats = pstats.Stats(profiler)
         stats.sort_stats(args.sort).print_stats(args.top)

@@ -110,12 +110,19 @@ def encode(value: Any) -> Any:
         for key in value:
             if type(key) is not str or key == TAG:
                 return {TAG: "dict", "items": [[encode(k), encode(v)] for k, v in value.items()]}
-        return {key: encode(item) for key, item in value.items()}
+        return {key: item if _is_plain(item) else encode(item) for key, item in value.items()}
     if kind is list:
-        return [encode(item) for item in value]
+        return [item if _is_plain(item) else encode(item) for item in value]
     if kind is tuple:
         return {TAG: "tuple", "items": [encode(item) for item in value]}
     return _encode_other(value, kind)
+
+
+def _is_plain(value: Any) -> bool:
+    """True for a value that is its own encoding (a string, a finite float, a bool or None):
+    containers skip the call to ``encode`` for these (a goal dict is all floats)."""
+    kind = type(value)
+    return kind in _PLAIN_NO_INT or (kind is float and math.isfinite(value))
 
 
 def jsonable(value: Any) -> Any:
