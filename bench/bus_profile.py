@@ -51,12 +51,46 @@ def _timed(bucket: list[float], cpu: list[float], call: Callable[[], Any]) -> An
     return value
 
 
+#: Stages that do not nest in one another (the register policy runs inside LeRobot's call).
+TOP_STAGES = ("decode arguments", "motion guard", "LeRobot call (incl. register policy)")
+
+
+def instrument_stages(current: dict[str, float]) -> None:
+    """Wrap the connector's stages so each adds its CPU time to ``current`` (signatures kept)."""
+    import functools
+
+    from armnet_agent.connector import motion, session
+    from armnet_agent.connector.policed_bus import BusPolicy
+    from lerobot.motors.feetech import FeetechMotorsBus
+
+    def wrap(owner: Any, name: str, stage: str) -> None:
+        original = getattr(owner, name)
+
+        @functools.wraps(original)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            began = time.thread_time()
+            try:
+                return original(*args, **kwargs)
+            finally:
+                current[stage] = current.get(stage, 0.0) + time.thread_time() - began
+
+        setattr(owner, name, timed)
+
+    wrap(session, "_arguments", "decode arguments")
+    wrap(motion.MotionGuard, "check", "motion guard")
+    wrap(BusPolicy, "check_all", "register policy (inside the LeRobot call)")
+    for method in ("sync_write", "sync_read"):
+        wrap(FeetechMotorsBus, method, "LeRobot call (incl. register policy)")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--calls", type=int, default=2000, help="ticks (one sync_read + one sync_write each)")
     parser.add_argument("--profile", action="store_true", help="cProfile the connector's handling")
     parser.add_argument("--sort", default="tottime", help="cProfile sort key (tottime, cumulative, ...)")
     parser.add_argument("--top", type=int, default=30, help="functions listed")
+    parser.add_argument("--stages", action="store_true",
+                        help="CPU time of each stage of the connector's handling (wrappers add ~1 us each)")
     args = parser.parse_args()
 
     from armnet_agent.connector import Connector
@@ -108,19 +142,35 @@ def main() -> int:
                 }
                 profiler = cProfile.Profile() if args.profile else None
                 lost = 0
+                stage_cpu: dict[str, list[float]] = {}
+                current: dict[str, float] = {}
+                if args.stages:
+                    instrument_stages(current)
 
                 def proxied(call: str, method: str, call_args: tuple[Any, ...]) -> None:
                     began = time.perf_counter()
                     line = dumps_line({"op": "call", "method": method, "args": encode_args(call_args),
                                        "kwargs": encode({}), "object_id": object_id})
+                    current.clear()
                     middle, middle_cpu = time.perf_counter(), time.thread_time()
                     if profiler is not None:
                         profiler.enable()
-                    reply_line = encode_reply(session.handle(parse_request(line)))
+                    request = parse_request(line)
+                    parsed_cpu = time.thread_time()
+                    reply = session.handle(request)
+                    handled_cpu = time.thread_time()
+                    reply_line = encode_reply(reply)
                     if profiler is not None:
                         profiler.disable()
                     after, after_cpu = time.perf_counter(), time.thread_time()
                     samples[f"servercpu_{call}"].append(after_cpu - middle_cpu)
+                    if args.stages:
+                        current["parse request line"] = parsed_cpu - middle_cpu
+                        current["encode reply line"] = after_cpu - handled_cpu
+                        current["session (dispatch, plan, lock, reply dict)"] = (handled_cpu - parsed_cpu) - sum(
+                            v for k, v in current.items() if k in TOP_STAGES)
+                        for stage, spent in current.items():
+                            stage_cpu.setdefault(f"{method} {stage}", []).append(spent)
                     reply = loads_json(reply_line)
                     if not reply["ok"]:
                         raise RuntimeError(reply)
@@ -159,6 +209,10 @@ def main() -> int:
         sc50 = percentile(samples[f"servercpu_{call}"], 50) * 1e6
         print(f"{'':12}CPU time (robust to a loaded machine): direct {dc50:5.0f}   server {sc50:5.0f}"
               f"   server - direct {sc50 - dc50:5.0f}")
+    if stage_cpu:
+        print("CPU time per stage of the connector's handling, p50 (microseconds):")
+        for stage, values in stage_cpu.items():
+            print(f"  {stage:<55} {percentile(values, 50) * 1e6:7.1f}")
     if profiler is not None:
         stats = pstats.Stats(profiler)
         stats.sort_stats(args.sort).print_stats(args.top)

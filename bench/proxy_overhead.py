@@ -136,7 +136,7 @@ class Client:
         self.buses = buses
         self.cameras = cameras
         for bus in buses:
-            bus.connect()
+            connect_with_retries(bus)
         for camera in cameras:
             camera.connect()
         self.starts = [bus.sync_read("Present_Position") for bus in buses]
@@ -146,6 +146,20 @@ class Client:
             camera.disconnect()
         for bus in self.buses:
             bus.disconnect(disable_torque=False)
+
+
+def connect_with_retries(bus: Any, attempts: int = 3) -> None:
+    """``bus.connect()``; a starved simulator can miss the handshake on a loaded machine: try again."""
+    for attempt in range(attempts):
+        try:
+            bus.connect()
+            return
+        except ConnectionError:
+            if attempt == attempts - 1:
+                raise
+            if bus.is_connected:  # a failed handshake leaves the port open
+                bus.disconnect(disable_torque=False)
+            time.sleep(0.2)
 
 
 def direct_client(cell: dict[str, Any], arms: int, cameras: int) -> Client:
