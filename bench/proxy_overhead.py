@@ -154,7 +154,7 @@ def connect_with_retries(bus: Any, attempts: int = 3) -> None:
         try:
             bus.connect()
             return
-        except ConnectionError:
+        except (ConnectionError, RuntimeError):  # RuntimeError: LeRobot's handshake found servos missing
             if attempt == attempts - 1:
                 raise
             if bus.is_connected:  # a failed handshake leaves the port open
