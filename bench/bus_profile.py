@@ -14,7 +14,9 @@ loop and on the same pty:
   encode the reply line);
 - ``server - direct``: armnet's own work in the connector;
 - the same in CPU time (``time.thread_time``): on a machine other jobs load, the
-  wall clock of one call swings by the scheduler's whims, its CPU time much less.
+  wall clock of one call swings by the scheduler's whims, its CPU time much less
+  (for ``sync_write``; a ``sync_read``'s CPU time includes LeRobot polling the port
+  for the servos' reply, so it follows the simulator's speed).
 
 ``--profile`` adds a cProfile of the connector's handling (cumulative time,
 the functions that cost the most). The simulated servos live in their own
@@ -40,7 +42,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 PAUSE_S = 0.002
 
-from proxy_overhead import SO101_JOINTS, WIGGLE_DEG, percentile, so101_bus_kwargs  # noqa: E402
+from proxy_overhead import (  # noqa: E402
+    SO101_JOINTS,
+    WIGGLE_DEG,
+    connect_with_retries,
+    percentile,
+    so101_bus_kwargs,
+)
 
 
 def _timed(bucket: list[float], cpu: list[float], call: Callable[[], Any]) -> Any:
@@ -130,10 +138,11 @@ def main() -> int:
                 created = serve({"op": "create", "class": "FeetechMotorsBus", "args": [],
                                  "kwargs": encode({"port": arm.endpoint, **bus_kwargs})})
                 object_id = created["object_id"]
-                assert serve({"op": "call", "object_id": object_id, "method": "connect", "args": [],
-                              "kwargs": {}})["ok"]
+                connect = {"op": "call", "object_id": object_id, "method": "connect", "args": [], "kwargs": {}}
+                if not any(serve(connect)["ok"] for _ in range(3)):  # a starved simulator can miss a handshake
+                    raise RuntimeError("the connector's bus could not connect to the simulator")
                 direct = FeetechMotorsBus(port=ports[arm.name], **so101_bus_kwargs(str(arm.calibration_file)))
-                direct.connect()
+                connect_with_retries(direct)
                 start = direct.sync_read("Present_Position")
 
                 samples: dict[str, list[float]] = {
