@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import operator
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -146,6 +147,10 @@ def _motor_range(calibration: Any, motor: str) -> MotorRange | None:
     return MotorRange(cal.id, cal.range_min, cal.range_max, cal.drive_mode)
 
 
+#: The values of a ``MotorCalibration`` the facts are built from, read in one C call.
+_calibration_values = operator.attrgetter("id", "range_min", "range_max", "drive_mode")
+
+
 def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     """The facts of ``motors``, rebuilt only when a motor's mode or calibration changed.
 
@@ -155,11 +160,10 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     """
     bus_motors = handle.obj.motors
     calibration = handle.obj.calibration or {}
-    key = tuple(
-        (m, bus_motors[m].norm_mode) if (cal := calibration.get(m)) is None
-        else (m, bus_motors[m].norm_mode, cal.id, cal.range_min, cal.range_max, cal.drive_mode)
+    key = tuple([
+        (m, bus_motors[m].norm_mode, None if (cal := calibration.get(m)) is None else _calibration_values(cal))
         for m in motors
-    )
+    ])
     cached = handle.facts_cache
     if cached is not None and cached[0] == key:
         return cached[1]

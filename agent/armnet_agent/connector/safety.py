@@ -188,9 +188,13 @@ def decide_goals(
     to present ± limit, as LeRobot's ``ensure_safe_goal_position`` does. Motors
     without rules (not motors of the bus) are left to the real call, which refuses them.
     """
-    steps = {m: goals[m] - present[m] for m in goals if m in present}
-    violation = None
+    steps: dict[str, float] = {}
+    result: dict[str, float] | None = None  # a copy of the goals, made at the first clamp
+    clamped: list[str] = []
     for motor, goal in goals.items():
+        here = present.get(motor)
+        if here is not None:
+            step = steps[motor] = goal - here
         rules = limits.get(motor)
         if rules is None:
             continue
@@ -198,26 +202,30 @@ def decide_goals(
         if bounds is not None:
             raw = to_raw(goal, rules.norm_mode, rules.to_raw_range) if rules.to_raw_range is not None else int(goal)
             if not bounds[0] <= raw <= bounds[1]:
-                violation = _absolute_violation(motor, raw, bounds)
-                break
-        if not clamp and rules.relative is not None and motor in steps:
-            step = steps[motor]
-            if abs(step) > rules.relative:
-                violation = Violation(motor, "relative", goal, rules.relative, present=present[motor], step=step)
-                break
-    if violation is not None or not clamp:
-        return GoalDecision(dict(goals), (), steps, violation)
-    result = dict(goals)
-    clamped = []
-    for motor, step in steps.items():
-        rules = limits.get(motor)
-        if rules is None or rules.relative is None or abs(step) <= rules.relative:
+                return _refused(goals, present, steps, _absolute_violation(motor, raw, bounds))
+        relative = rules.relative
+        if here is None or relative is None or abs(step) <= relative:
             continue
+        if not clamp:
+            violation = Violation(motor, "relative", goal, relative, present=here, step=step)
+            return _refused(goals, present, steps, violation)
+        if result is None:
+            result = dict(goals)
         # A raw goal stays whole ticks, inside the limit.
-        allowed = rules.relative if normalize else float(math.floor(rules.relative))
-        result[motor] = present[motor] + math.copysign(allowed, step)
+        allowed = relative if normalize else float(math.floor(relative))
+        result[motor] = here + math.copysign(allowed, step)
         clamped.append(motor)
-    return GoalDecision(result, tuple(clamped), steps, None)
+    return GoalDecision(dict(goals) if result is None else result, tuple(clamped), steps, None)
+
+
+def _refused(
+    goals: Mapping[str, float], present: Mapping[str, float], steps: dict[str, float], violation: Violation
+) -> GoalDecision:
+    """The decision on a violation: nothing clamped, and the step of every motor asked (for the report)."""
+    for motor, goal in goals.items():
+        if motor not in steps and motor in present:
+            steps[motor] = goal - present[motor]
+    return GoalDecision(dict(goals), (), {m: steps[m] for m in goals if m in steps}, violation)
 
 
 def check_goal_write(
