@@ -89,6 +89,7 @@ def read_calibration(
         raise ConnectionError(f"could not open the servo bus at {port}")
     try:
         handler.setBaudRate(baudrate)
+        _reply_window_as_lerobot(handler)
         packets = PacketHandler(0)
         held: dict[int, tuple[int, int, int] | None] = {}
         for motor_id in sorted(set(motor_ids)):
@@ -102,6 +103,21 @@ def read_calibration(
         return held
     finally:
         handler.closePort()
+
+
+def _reply_window_as_lerobot(handler: Any) -> None:
+    """Give each reply the window LeRobot's bus gives it (50 ms plus the bytes' time).
+
+    Why: the SDK's own window (~34 ms at 1 Mbaud) is shorter than the one LeRobot
+    patches in, and a servo (or a loaded machine's simulator) answering within
+    LeRobot's window must read the same here as through LeRobot.
+    """
+
+    def set_packet_timeout(packet_length: int) -> None:
+        handler.packet_start_time = handler.getCurrentTime()
+        handler.packet_timeout = handler.tx_time_per_byte * (packet_length + 3.0) + 50
+
+    handler.setPacketTimeout = set_packet_timeout
 
 
 def _read_word(packets: Any, handler: Any, motor_id: int, address: int, success: int) -> int | None:
