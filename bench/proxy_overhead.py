@@ -30,7 +30,13 @@ figure is printed next to its target (issue #10):
 - camera ``read_latest``: proxy overhead <= 1 ms p50 and <= 2x the frame copy;
 - ticks on time: >= 99 % (100 Hz one arm + one camera; 30 Hz bimanual).
 
+``--compare-with TREE`` adds a third way in the same ticks: the same proxy to a
+connector run from another checkout (its own simulator), for a before/after of a
+change on a machine others load (only the connector side differs: the bench's
+own proxy code is this tree's).
+
     ~/.cache/armnet/venv/bin/python bench/proxy_overhead.py [--ticks 500] [--rounds 2] [--camera | --bimanual]
+        [--compare-with /path/to/other/checkout]
 """
 
 from __future__ import annotations
@@ -130,7 +136,7 @@ class Client:
         self.buses = buses
         self.cameras = cameras
         for bus in buses:
-            bus.connect()
+            connect_with_retries(bus)
         for camera in cameras:
             camera.connect()
         self.starts = [bus.sync_read("Present_Position") for bus in buses]
@@ -140,6 +146,20 @@ class Client:
             camera.disconnect()
         for bus in self.buses:
             bus.disconnect(disable_torque=False)
+
+
+def connect_with_retries(bus: Any, attempts: int = 3) -> None:
+    """``bus.connect()``; a starved simulator can miss the handshake on a loaded machine: try again."""
+    for attempt in range(attempts):
+        try:
+            bus.connect()
+            return
+        except (ConnectionError, RuntimeError):  # RuntimeError: LeRobot's handshake found servos missing
+            if attempt == attempts - 1:
+                raise
+            if bus.is_connected:  # a failed handshake leaves the port open
+                bus.disconnect(disable_torque=False)
+            time.sleep(0.2)
 
 
 def direct_client(cell: dict[str, Any], arms: int, cameras: int) -> Client:
@@ -335,6 +355,18 @@ def verdict(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
 
+def report_baseline(totals: dict[str, Samples], raw_p50: float) -> None:
+    """``--compare-with``: the same calls through the other tree's connector, in the same ticks."""
+    direct, proxy, baseline = totals["direct"], totals["proxy"], totals.get("baseline")
+    if baseline is None or not baseline.ticks:
+        return
+    for call in ("sync_read", "sync_write"):
+        d50 = us(direct.calls[call], 50)
+        b50, p50 = us(baseline.calls[call], 50), us(proxy.calls[call], 50)
+        print(f"{call}: baseline tree's proxy p50 {b50:.0f} us (share {b50 - d50 - raw_p50:.0f} us), "
+              f"this tree's {p50:.0f} us (share {p50 - d50 - raw_p50:.0f} us): this tree saves {b50 - p50:.0f} us")
+
+
 def report(totals: dict[str, Samples], *, cameras: int, hz: float) -> bool:
     direct, proxy = totals["direct"], totals["proxy"]
     raw, hello, copy = totals["raw"].calls["raw"], totals["hello"].calls["hello"], totals["copy"].calls["copy"]
@@ -367,6 +399,7 @@ def report(totals: dict[str, Samples], *, cameras: int, hz: float) -> bool:
         ok = ok and camera_ok
         print(f"camera read_latest: proxy overhead {overhead:.0f} us p50 = {overhead / c50:.2f}x the frame copy "
               f"(target <= {TARGET_CAMERA_US:.0f} us and <= {TARGET_COPY_RATIO:g}x: {verdict(camera_ok)})")
+    report_baseline(totals, r50)
     print(f"failed ticks (bus reply lost): direct {direct.failed}, proxy {proxy.failed}")
     direct_share, proxy_share = direct.on_time / direct.ticks, proxy.on_time / proxy.ticks
     ok = ok and proxy_share >= TARGET_ON_TIME
@@ -383,6 +416,11 @@ def main() -> int:
     shape = parser.add_mutually_exclusive_group()
     shape.add_argument("--camera", action="store_true", help="100 Hz: one arm and one camera")
     shape.add_argument("--bimanual", action="store_true", help="30 Hz: a bimanual SO-101 and two cameras")
+    parser.add_argument(
+        "--compare-with", metavar="TREE", type=Path,
+        help="also tick a proxy to a connector run from another checkout (say the code before a change), "
+             "in the same ticks: a before/after on a shared machine",
+    )
     parser.add_argument("--serve-cell", metavar="PRESET", help=argparse.SUPPRESS)
     parser.add_argument("--serve-echo", metavar="PATH", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -396,15 +434,21 @@ def main() -> int:
     cell_process = subprocess.Popen(
         [sys.executable, __file__, "--serve-cell", preset], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
     )
+    baseline_process = serve_baseline(args.compare_with, preset) if args.compare_with else None
     try:
         assert cell_process.stdout is not None
         cell = json.loads(cell_process.stdout.readline())
-        totals = {name: Samples() for name in ("direct", "proxy", "hello", "raw", "copy")}
+        totals = {name: Samples() for name in ("direct", "proxy", "hello", "raw", "copy", "baseline")}
         clients: list[Probe] = []
         echo_dir = tempfile.TemporaryDirectory(prefix="armnet-bench-echo-")
         try:
             for make in (direct_client, proxy_client):
                 clients.append(make(cell, arms, cameras))
+            if baseline_process is not None:
+                assert baseline_process.stdout is not None
+                baseline = proxy_client(json.loads(baseline_process.stdout.readline()), arms, 0)
+                baseline.name = "baseline"
+                clients.append(baseline)
             clients += [HelloProbe(cell), RawEchoProbe(echo_dir.name), CopyProbe()]
             run_ticks(clients, 20, 1.0 / hz)  # warm-up: caches, first frames
             for _ in range(args.rounds):
@@ -417,10 +461,22 @@ def main() -> int:
             echo_dir.cleanup()
         report(totals, cameras=cameras, hz=hz)
     finally:
-        if cell_process.stdin is not None:
-            cell_process.stdin.close()
-        cell_process.wait(timeout=30)
+        for process in (cell_process, baseline_process):
+            if process is not None and process.stdin is not None:
+                process.stdin.close()
+                process.wait(timeout=30)
     return 0
+
+
+def serve_baseline(tree: Path, preset: str) -> subprocess.Popen[str]:
+    """The cell of another checkout (its own simulator and connector), for ``--compare-with``."""
+    tree = tree.resolve()
+    paths = [tree / "runtime" / "src", tree / "agent", tree / "operator", tree / "cli", tree]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(str(path) for path in paths)}
+    return subprocess.Popen(
+        [sys.executable, str(tree / "bench" / "proxy_overhead.py"), "--serve-cell", preset],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+    )
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import pytest
 from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
 
 from tests.integration.client_bed import Publisher, Tenant, stdout_lines
-from tests.integration.test_operator_scheduling_live import Bed, running_operator
+from tests.integration.operator_bed import Bed, running_operator
 
 pytestmark = pytest.mark.integration
 

@@ -14,7 +14,6 @@ import itertools
 import json
 import os
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -22,7 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from kubernetes.client import ApiException
 
-from tests.integration.test_operator_scheduling_live import Bed, G, V, running_operator
+from tests.integration.operator_bed import Bed, G, V, running_operator
 
 pytestmark = [
     pytest.mark.integration,
@@ -113,15 +112,6 @@ def names_its_field(error: ApiException) -> bool:
     causes = (body.get("details") or {}).get("causes") or []
     # A cause without a field is a CEL rule at an object's root (it names its field in the message).
     return bool(causes) and all(c.get("field") or "spec." in c.get("message", "") for c in causes)
-
-
-@pytest.fixture
-def bed(k8s: Any, namespace: str) -> Iterator[Bed]:
-    bed = Bed(k8s, namespace)
-    try:
-        yield bed
-    finally:
-        bed.close()
 
 
 def test_hostile_manifests_never_stop_the_operator_and_a_good_cell_keeps_binding(

@@ -9,13 +9,12 @@ fails or is repaired with a reason, while other jobs keep binding.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
 import yaml
 
-from tests.integration.test_operator_scheduling_live import Bed, G, V, running_operator
+from tests.integration.operator_bed import Bed, G, V
 
 pytestmark = pytest.mark.integration
 
@@ -23,21 +22,6 @@ pytestmark = pytest.mark.integration
 def deep_json(levels: int) -> str:
     """Built as text: encoding a 1,000-level dict would itself need the recursion headroom."""
     return '{"a":' * (levels - 1) + '{"leaf":1}' + "}" * (levels - 1)
-
-
-@pytest.fixture
-def bed(k8s: Any, namespace: str) -> Iterator[Bed]:
-    bed = Bed(k8s, namespace)
-    try:
-        yield bed
-    finally:
-        bed.close()
-
-
-@pytest.fixture
-def operator(k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
-    with running_operator(k8s, namespace, monkeypatch) as controller:
-        yield controller
 
 
 def rejected(bed: Bed, doc: dict[str, Any]) -> str:

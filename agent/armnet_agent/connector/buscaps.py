@@ -62,6 +62,16 @@ def capped_parameters(class_name: str, method: Any) -> tuple[str, ...]:
     return parameters if any(name in caps for name in parameters) else ()
 
 
+def first_capped(class_name: str, parameters: tuple[str, ...]) -> int:
+    """The position of the first capped parameter in ``parameters`` (``len(parameters)`` when none).
+
+    A call with fewer positional arguments and no keyword arguments passes no capped
+    value: ``cap_call`` has nothing to do (the control loop's usual call).
+    """
+    caps = CAPS.get(class_name, {})
+    return next((index for index, name in enumerate(parameters) if name in caps), len(parameters))
+
+
 def cap_call(class_name: str, parameters: tuple[str, ...], args: list[Any], kwargs: dict[str, Any]) -> Capped:
     """``args``/``kwargs`` of a call with every capped parameter held within its cap,
     wherever the job passed it (by position or by name). ``parameters``: the method's

@@ -5,12 +5,12 @@ for the same goal; the cell must then say "calibration not present" with the
 reason, and never be silently "fixed". ``calibration_mismatches`` is the pure
 decision (table-tested); ``read_calibration`` is the one read path the node
 agent's health probe calls when no job holds the bus (docs/connector.md,
-"Calibration check").
+"Calibration check"): plain ``scservo_sdk`` reads, so the probe never loads LeRobot.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,27 +52,84 @@ def calibration_mismatches(
     return found
 
 
-def read_calibration(port: str, cell_motors: Mapping[str, Any]) -> dict[int, tuple[int, int, int] | None]:
+#: STS3215 addresses of those registers (two bytes each), as in LeRobot's control table.
+CALIBRATION_ADDRESSES = {"Homing_Offset": 31, "Min_Position_Limit": 9, "Max_Position_Limit": 11}
+#: Homing_Offset is sign-magnitude, its sign at bit 11 (LeRobot's STS encoding table).
+HOMING_OFFSET_SIGN_BIT = 11
+#: The line speed of the cell's Feetech bus (LeRobot's default for these servos).
+BAUD_RATE = 1_000_000
+#: Extra tries per register: a loaded machine can miss a reply (LeRobot's probe used 2 too).
+READ_RETRIES = 2
+
+
+def _sign_magnitude(value: int, sign_bit: int) -> int:
+    magnitude = value & ((1 << sign_bit) - 1)
+    return -magnitude if (value >> sign_bit) & 1 else magnitude
+
+
+def read_calibration(
+    port: str, motor_ids: Iterable[int], *, baudrate: int = BAUD_RATE
+) -> dict[int, tuple[int, int, int] | None]:
     """The calibration registers of each servo on ``port``, by id (None: it did not answer).
 
-    ``cell_motors`` is the cell's motor table (name -> ``lerobot.motors.Motor``).
-    Reads only, through the real LeRobot/feetech SDK path, torque untouched; the
-    caller must hold the bus (no job running). Raises ``ConnectionError`` if the
-    port cannot be opened.
+    Plain ``scservo_sdk`` reads (protocol 0, no LeRobot): the node agent's idle health
+    probe calls this, and must stay light. Values as LeRobot's ``read(...,
+    normalize=False)`` gives them (Homing_Offset's sign decoded). Reads only, torque
+    untouched; the caller must hold the bus (no job running). Raises
+    ``ConnectionError`` if the port cannot be opened.
     """
-    from lerobot.motors.feetech import FeetechMotorsBus  # the SDK: heavy, only when a probe runs
+    from scservo_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
-    bus = FeetechMotorsBus(port=port, motors=dict(cell_motors))
-    bus.connect(handshake=False)
+    handler = PortHandler(port)
     try:
+        opened = handler.openPort()
+    except OSError as exc:  # pyserial's SerialException
+        raise ConnectionError(f"could not open the servo bus at {port}: {exc}") from None
+    if not opened:
+        raise ConnectionError(f"could not open the servo bus at {port}")
+    try:
+        handler.setBaudRate(baudrate)
+        _reply_window_as_lerobot(handler)
+        packets = PacketHandler(0)
         held: dict[int, tuple[int, int, int] | None] = {}
-        for name, motor in bus.motors.items():
-            try:
-                values = [int(bus.read(reg, name, normalize=False, num_retry=2)) for reg in CALIBRATION_REGISTERS]
-            except (ConnectionError, RuntimeError):  # a servo that does not answer is a mismatch, not a crash
-                held[motor.id] = None
+        for motor_id in sorted(set(motor_ids)):
+            values = [_read_word(packets, handler, motor_id, CALIBRATION_ADDRESSES[r], COMM_SUCCESS)
+                      for r in CALIBRATION_REGISTERS]
+            homing, low, high = values
+            if homing is None or low is None or high is None:  # a servo that does not answer is a mismatch
+                held[motor_id] = None
                 continue
-            held[motor.id] = (values[0], values[1], values[2])
+            held[motor_id] = (_sign_magnitude(homing, HOMING_OFFSET_SIGN_BIT), low, high)
         return held
     finally:
-        bus.disconnect(disable_torque=False)
+        handler.closePort()
+
+
+def _reply_window_as_lerobot(handler: Any) -> None:
+    """Give each reply the window LeRobot's bus gives it (50 ms plus the bytes' time).
+
+    Why: the SDK's own window (~34 ms at 1 Mbaud) is shorter than the one LeRobot
+    patches in, and a servo (or a loaded machine's simulator) answering within
+    LeRobot's window must read the same here as through LeRobot.
+    """
+
+    def set_packet_timeout(packet_length: int) -> None:
+        handler.packet_start_time = handler.getCurrentTime()
+        handler.packet_timeout = handler.tx_time_per_byte * (packet_length + 3.0) + 50
+
+    handler.setPacketTimeout = set_packet_timeout
+
+
+def _read_word(packets: Any, handler: Any, motor_id: int, address: int, success: int) -> int | None:
+    """A two-byte register, or None when the servo stays silent, reports an error or cuts its reply short.
+
+    ``scservo_sdk`` raises IndexError on a truncated reply instead of reporting it.
+    """
+    for _attempt in range(1 + READ_RETRIES):
+        try:
+            value, result, error = packets.read2ByteTxRx(handler, motor_id, address)
+        except (IndexError, OSError):
+            continue
+        if result == success and not error:
+            return int(value)
+    return None

@@ -54,6 +54,8 @@ class Handle:
     present: dict[bool, tuple[float, dict[str, float]]] = field(default_factory=dict)
     #: The safety facts of the motors last written, with the values they were built from.
     facts_cache: tuple[tuple[Any, ...], dict[str, Any]] | None = None
+    #: The goal rules compiled from those facts: (facts, relative limit, {normalize: rules}).
+    limits_cache: tuple[dict[str, Any], Any, dict[bool, Any]] | None = None
 
 
 #: How long a request waits for a device another request is using before it is refused.

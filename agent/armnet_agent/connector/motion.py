@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import inspect
 import math
+import operator
 import time
+from collections.abc import Mapping
 from typing import Any
 
 from .allowlist import CALIBRATION_METHODS, CLASSES
@@ -24,7 +26,9 @@ from .safety import (
     GOAL_POSITION,
     PROTECTED_REGISTERS,
     MotorFacts,
-    decide_goal_write,
+    MotorLimit,
+    compile_limits,
+    decide_goals,
     is_release_write,
 )
 
@@ -126,7 +130,11 @@ def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tup
     else:
         raw = arguments.get("values")
         if isinstance(raw, dict):
-            values = {str(m): _number(str(m), v) for m, v in raw.items()}
+            values = {}
+            for m, v in raw.items():
+                name = m if type(m) is str else str(m)
+                # A finite float is taken as it is (the control loop's goals); anything else is converted or refused.
+                values[name] = v if type(v) is float and math.isfinite(v) else _number(name, v)
         else:
             values = {m: _number(m, raw) for m in handle.obj.motors}
     return str(data_name), values, normalize
@@ -139,10 +147,8 @@ def _motor_range(calibration: Any, motor: str) -> MotorRange | None:
     return MotorRange(cal.id, cal.range_min, cal.range_max, cal.drive_mode)
 
 
-def _fingerprint(motor: Any, cal: Any) -> tuple[Any, ...]:
-    if cal is None:
-        return (motor.norm_mode,)
-    return (motor.norm_mode, cal.id, cal.range_min, cal.range_max, cal.drive_mode)
+#: The values of a ``MotorCalibration`` the facts are built from, read in one C call.
+_calibration_values = operator.attrgetter("id", "range_min", "range_max", "drive_mode")
 
 
 def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
@@ -154,7 +160,10 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     """
     bus_motors = handle.obj.motors
     calibration = handle.obj.calibration or {}
-    key = tuple((m, _fingerprint(bus_motors[m], calibration.get(m))) for m in motors)
+    key = tuple([
+        (m, bus_motors[m].norm_mode, None if (cal := calibration.get(m)) is None else _calibration_values(cal))
+        for m in motors
+    ])
     cached = handle.facts_cache
     if cached is not None and cached[0] == key:
         return cached[1]
@@ -169,6 +178,18 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     }
     handle.facts_cache = (key, facts)
     return facts
+
+
+def _goal_limits(handle: Handle, motors: Any, limit: Any, normalize: bool) -> Mapping[str, MotorLimit]:
+    """The compiled goal rules of ``motors`` (``safety.compile_limits``), rebuilt only when their facts are."""
+    facts = _motor_facts(handle, motors)
+    cached = handle.limits_cache
+    if cached is None or cached[0] is not facts or cached[1] is not limit:
+        cached = handle.limits_cache = (facts, limit, {})
+    limits = cached[2].get(normalize)
+    if limits is None:
+        limits = cached[2][normalize] = compile_limits(facts, limit, normalize=normalize)
+    return limits
 
 
 def _replace_argument(obj: Any, method: str, args: list[Any], kwargs: dict[str, Any], name: str, value: Any) -> None:
@@ -235,13 +256,13 @@ class MotionGuard:
     def _check_goals(self, handle: Handle, goals: dict[str, float], normalize: bool) -> dict[str, float]:
         """The goals the policy clamped (motor -> new goal); raises on a violation."""
         motors = handle.obj.motors
-        known = {m: v for m, v in goals.items() if m in motors}
+        known = goals if motors.keys() >= goals.keys() else {m: v for m, v in goals.items() if m in motors}
         if not known:
             return {}
         limit = handle.arm_config.safety_limit if handle.arm_config is not None else None
-        present = self._present(handle, list(known), normalize) if limit is not None else {}
-        facts = _motor_facts(handle, known)
-        decision = decide_goal_write(known, present, facts, limit, normalize=normalize, clamp=self.policy == "clamp")
+        present = self._present(handle, known, normalize) if limit is not None else {}
+        limits = _goal_limits(handle, known, limit, normalize)
+        decision = decide_goals(known, present, limits, normalize=normalize, clamp=self.policy == "clamp")
         if decision.steps:
             self.recorder.record_steps(decision.steps)
         violation = decision.violation
@@ -272,13 +293,14 @@ class MotionGuard:
         values.update(clamped)
         _replace_argument(handle.obj, method, args, kwargs, "values", values)
 
-    def _present(self, handle: Handle, motors: list[str], normalize: bool) -> dict[str, float]:
+    def _present(self, handle: Handle, motors: dict[str, float], normalize: bool) -> dict[str, float]:
         cached = handle.present.get(normalize)
         if cached is not None and time.monotonic() - cached[0] <= self.present_max_age_s:
-            if all(m in cached[1] for m in motors):
+            if cached[1].keys() >= motors.keys():
                 return cached[1]
+        names = list(motors)
         values = with_read_retry(
-            handle, "sync_read", lambda: handle.obj.sync_read("Present_Position", motors, normalize=normalize),
+            handle, "sync_read", lambda: handle.obj.sync_read("Present_Position", names, normalize=normalize),
             on_retry=self._count_retry,
         )
         return {m: float(v) for m, v in values.items()}

@@ -25,7 +25,7 @@ from .calibration_check import calibration_mismatches
 from .errors import RequestError
 from .identity import CellMotor
 from .interlock import Interlock
-from .registers import needs_current_value, write_refusal
+from .registers import is_goal_register, needs_current_value, write_refusal
 from .report import SafetyRecorder
 
 log = logging.getLogger(__name__)
@@ -38,6 +38,10 @@ CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit"
 RANGE_RECORDING_MAX_S = 300.0
 #: How often it reads the positions while the operator moves the joints.
 RANGE_RECORDING_POLL_S = 0.05
+
+
+def _nothing() -> None:
+    return None
 
 
 def _never_ends(_timeout_s: float) -> bool:
@@ -65,6 +69,29 @@ class BusPolicy:
     #: confirmation or a stop): waits up to the given seconds, True when the operator ends it.
     end_recording: Callable[[float], bool] = _never_ends
     recording_max_s: float = RANGE_RECORDING_MAX_S
+    #: Per register address: the servo ids whose register there is a goal (``is_goal_register``).
+    #: Filled on first use; the cell's motor table and the control tables never change.
+    _goal_ids: dict[int, frozenset[int]] = field(default_factory=dict, init=False, compare=False, repr=False)
+
+    def check_all(self, register_at: Any, address: int, ids_values: Mapping[int, Any]) -> None:
+        """``check`` for each servo of a sync write (which never needs the value a servo holds).
+
+        The usual control-loop write, goals while the interlock is clear, is decided by
+        one lookup: each servo's register at ``address`` is its goal, which this policy
+        allows (the motion guard has already checked the values against the cell's limits).
+        Anything else goes through ``check`` servo by servo.
+        """
+        if not self.interlock.tripped:
+            goal_ids = self._goal_ids.get(address)
+            if goal_ids is None:
+                goal_ids = self._goal_ids[address] = frozenset(
+                    motor_id for motor_id, (_name, motor) in self.motors_by_id.items()
+                    if is_goal_register(motor.model, register_at(motor.model, address))
+                )
+            if goal_ids.issuperset(ids_values):
+                return
+        for motor_id, value in ids_values.items():
+            self.check(register_at, address, motor_id, int(value), _nothing)
 
     def check(self, register_at: Any, address: int, motor_id: int, value: int, read_current: Any) -> None:
         """Raise ``RequestError("NotAllowed")`` unless writing ``value`` at ``address`` of ``motor_id`` is allowed."""
@@ -119,8 +146,7 @@ def policed_bus_class() -> type:
             return super()._write(addr, length, motor_id, value, **kwargs)
 
         def _sync_write(self, addr: int, length: int, ids_values: dict[int, int], *args: Any, **kwargs: Any) -> Any:
-            for motor_id, value in ids_values.items():
-                self._armnet_policy.check(self._register_at, addr, motor_id, int(value), lambda: None)
+            self._armnet_policy.check_all(self._register_at, addr, ids_values)
             return super()._sync_write(addr, length, ids_values, *args, **kwargs)
 
         # Torque on/off without Lock: the cell keeps its servos' EEPROM locked (a calibration

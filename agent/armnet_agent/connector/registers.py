@@ -105,6 +105,16 @@ def bounds_for(register: str, overrides: Mapping[str, tuple[int, int]] | None) -
     return DEFAULT_BOUNDS.get(register)
 
 
+def is_goal_register(model: str, register: str | None) -> bool:
+    """True for the register whose writes this policy leaves to the motion guard (``Rule.GOAL``).
+
+    While the interlock is clear such a write is allowed here whatever its value, so
+    the policed bus decides a whole ``sync_write`` of it with one lookup per address.
+    """
+    rule = POLICIES.get(model, {}).get(register) if register is not None else None
+    return rule is not None and rule.rule is Rule.GOAL
+
+
 def needs_current_value(model: str, register: str) -> bool:
     """True when deciding a write needs the value the servo holds (a no-op EEPROM write)."""
     rule = POLICIES.get(model, {}).get(register)

@@ -120,6 +120,114 @@ def limit_in_write_units(limit: float, fact: MotorFacts, *, normalize: bool) -> 
     return ticks / per_unit if per_unit > 0 else limit
 
 
+@dataclass(frozen=True, slots=True)
+class MotorLimit:
+    """One motor's goal rules for one kind of write (normalised or raw), worked out from its facts.
+
+    Why: the facts change only when the customer recalibrates, and the relative limit
+    in the write's units takes two unit conversions to find; a control loop writes the
+    same motors at 100 Hz. ``compile_limits`` builds these once per shape; the check of
+    each goal against them still runs on every write.
+    """
+
+    norm_mode: str
+    #: The calibration a normalised goal is converted to raw ticks with; None: the goal is raw ticks.
+    to_raw_range: MotorRange | None
+    #: The cell's calibrated range in raw ticks; None: the absolute rule does not apply.
+    cell_bounds: tuple[int, int] | None
+    #: The cell's relative limit in the write's units; None: no relative limit.
+    relative: float | None
+
+
+def compile_limits(
+    facts: Mapping[str, MotorFacts], limit: float | Mapping[str, float] | None, *, normalize: bool
+) -> dict[str, MotorLimit]:
+    """The goal rules of each motor in ``facts`` for writes in ``normalize``'s units."""
+    compiled = {}
+    for motor, fact in facts.items():
+        bounds = to_raw_range = None
+        # Normalised without a bus calibration: the real call fails on its own, nothing to check.
+        if fact.cell_range is not None and (fact.bus_range is not None or not normalize):
+            bounds = (fact.cell_range.range_min, fact.cell_range.range_max)
+            to_raw_range = fact.bus_range if normalize else None
+        relative = limit_for(limit, motor)
+        if relative is not None:
+            relative = limit_in_write_units(relative, fact, normalize=normalize)
+        compiled[motor] = MotorLimit(fact.norm_mode, to_raw_range, bounds, relative)
+    return compiled
+
+
+def _absolute_violation(motor: str, raw: int, bounds: tuple[int, int]) -> Violation:
+    low, high = bounds
+    return Violation(motor, "absolute", float(raw), float(high), bounds=(low, high))
+
+
+@dataclass(frozen=True, slots=True)
+class GoalDecision:
+    """What becomes of one goal write: the goals to send, which were clamped, and the steps asked."""
+
+    goals: dict[str, float]
+    clamped: tuple[str, ...] = ()
+    #: Step from the present position per motor, as requested (before any clamp).
+    steps: dict[str, float] | None = None
+    violation: Violation | None = None
+
+
+def decide_goals(
+    goals: Mapping[str, float],
+    present: Mapping[str, float],
+    limits: Mapping[str, MotorLimit],
+    *,
+    normalize: bool,
+    clamp: bool,
+) -> GoalDecision:
+    """The ``clamp``/``trip`` safety policy over one goal write, with each motor's rules compiled.
+
+    A goal outside the calibrated range is always a violation. A step beyond the
+    relative limit is a violation under ``trip``; under ``clamp`` the goal is moved
+    to present ± limit, as LeRobot's ``ensure_safe_goal_position`` does. Motors
+    without rules (not motors of the bus) are left to the real call, which refuses them.
+    """
+    steps: dict[str, float] = {}
+    result: dict[str, float] | None = None  # a copy of the goals, made at the first clamp
+    clamped: list[str] = []
+    for motor, goal in goals.items():
+        here = present.get(motor)
+        if here is not None:
+            step = steps[motor] = goal - here
+        rules = limits.get(motor)
+        if rules is None:
+            continue
+        bounds = rules.cell_bounds
+        if bounds is not None:
+            raw = to_raw(goal, rules.norm_mode, rules.to_raw_range) if rules.to_raw_range is not None else int(goal)
+            if not bounds[0] <= raw <= bounds[1]:
+                return _refused(goals, present, steps, _absolute_violation(motor, raw, bounds))
+        relative = rules.relative
+        if here is None or relative is None or abs(step) <= relative:
+            continue
+        if not clamp:
+            violation = Violation(motor, "relative", goal, relative, present=here, step=step)
+            return _refused(goals, present, steps, violation)
+        if result is None:
+            result = dict(goals)
+        # A raw goal stays whole ticks, inside the limit.
+        allowed = relative if normalize else float(math.floor(relative))
+        result[motor] = here + math.copysign(allowed, step)
+        clamped.append(motor)
+    return GoalDecision(dict(goals) if result is None else result, tuple(clamped), steps, None)
+
+
+def _refused(
+    goals: Mapping[str, float], present: Mapping[str, float], steps: dict[str, float], violation: Violation
+) -> GoalDecision:
+    """The decision on a violation: nothing clamped, and the step of every motor asked (for the report)."""
+    for motor, goal in goals.items():
+        if motor not in steps and motor in present:
+            steps[motor] = goal - present[motor]
+    return GoalDecision(dict(goals), (), {m: steps[m] for m in goals if m in steps}, violation)
+
+
 def check_goal_write(
     goals: Mapping[str, float],
     present: Mapping[str, float],
@@ -136,34 +244,8 @@ def check_goal_write(
     checks it against the cell's calibrated range, so a customer calibration
     cannot widen the range.
     """
-    for motor, goal in goals.items():
-        fact = facts.get(motor)
-        if fact is None:
-            continue  # not a motor of this bus: the real call refuses it
-        if fact.cell_range is not None and (fact.bus_range is not None or not normalize):
-            # (normalised without a bus calibration: the real call fails on its own)
-            raw = to_raw(goal, fact.norm_mode, fact.bus_range) if fact.bus_range and normalize else int(goal)
-            low, high = fact.cell_range.range_min, fact.cell_range.range_max
-            if not low <= raw <= high:
-                return Violation(motor, "absolute", float(raw), float(high), bounds=(low, high))
-        rel = limit_for(limit, motor)
-        if rel is not None and motor in present:
-            rel = limit_in_write_units(rel, fact, normalize=normalize)
-            step = goal - present[motor]
-            if abs(step) > rel:
-                return Violation(motor, "relative", goal, rel, present=present[motor], step=step)
-    return None
-
-
-@dataclass(frozen=True)
-class GoalDecision:
-    """What becomes of one goal write: the goals to send, which were clamped, and the steps asked."""
-
-    goals: dict[str, float]
-    clamped: tuple[str, ...] = ()
-    #: Step from the present position per motor, as requested (before any clamp).
-    steps: dict[str, float] | None = None
-    violation: Violation | None = None
+    limits = compile_limits(facts, limit, normalize=normalize)
+    return decide_goals(goals, present, limits, normalize=normalize, clamp=False).violation
 
 
 def decide_goal_write(
@@ -175,32 +257,9 @@ def decide_goal_write(
     normalize: bool,
     clamp: bool,
 ) -> GoalDecision:
-    """The ``clamp``/``trip`` safety policy over one goal write.
-
-    A goal outside the calibrated range is always a violation. A step beyond the
-    relative limit is a violation under ``trip``; under ``clamp`` the goal is moved
-    to present ± limit, as LeRobot's ``ensure_safe_goal_position`` does.
-    """
-    steps = {m: goals[m] - present[m] for m in goals if m in present}
-    if not clamp:
-        return GoalDecision(dict(goals), (), steps, check_goal_write(goals, present, facts, limit, normalize=normalize))
-    absolute = check_goal_write(goals, {}, facts, None, normalize=normalize)
-    if absolute is not None:
-        return GoalDecision(dict(goals), (), steps, absolute)
-    result = dict(goals)
-    clamped = []
-    for motor, step in steps.items():
-        fact = facts.get(motor)
-        rel = limit_for(limit, motor)
-        if fact is None or rel is None:
-            continue
-        rel = limit_in_write_units(rel, fact, normalize=normalize)
-        if abs(step) > rel:
-            # A raw goal stays whole ticks, inside the limit.
-            allowed = rel if normalize else float(math.floor(rel))
-            result[motor] = present[motor] + math.copysign(allowed, step)
-            clamped.append(motor)
-    return GoalDecision(result, tuple(clamped), steps, None)
+    """``decide_goals`` with the rules compiled from ``facts`` and ``limit`` for this one write."""
+    limits = compile_limits(facts, limit, normalize=normalize)
+    return decide_goals(goals, present, limits, normalize=normalize, clamp=clamp)
 
 
 def plan_rest_steps(

@@ -17,7 +17,7 @@ from armnet_runtime.wire import decode, encode
 
 from . import __version__
 from .allowlist import CLASSES, refusal
-from .buscaps import cap_call, capped_parameters
+from .buscaps import cap_call, capped_parameters, first_capped
 from .cell import CellState, RolloutEvent
 from .errors import RequestError, bounded, failure_reply, not_allowed, protocol_error
 from .frames import FrameAreas, FramePublisher
@@ -133,6 +133,8 @@ class _CallPlan:
     frame_read: bool
     #: The method's parameter names when some are capped (``buscaps``), else ``()``.
     capped: tuple[str, ...] = ()
+    #: Calls with at most this many positional arguments and no keyword ones pass no capped value.
+    capped_from: int = 0
 
 
 class RobotSession(Session):
@@ -256,9 +258,10 @@ class RobotSession(Session):
         if why is not None:
             raise not_allowed(why)
         camera = handle.class_name == "OpenCVCamera"
+        capped = capped_parameters(handle.class_name, getattr(handle.obj, method, None))
         plan = _CallPlan(
             handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS,
-            capped_parameters(handle.class_name, getattr(handle.obj, method, None)),
+            capped, first_capped(handle.class_name, capped),
         )
         if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
             self._plans[(request["object_id"], method)] = plan
@@ -268,7 +271,7 @@ class RobotSession(Session):
         plan = self._call_plan(request)
         handle, method, camera = plan.handle, request["method"], plan.camera
         args, kwargs = _arguments(request)
-        if plan.capped:
+        if plan.capped and (kwargs or len(args) > plan.capped_from):
             capped = cap_call(handle.class_name, plan.capped, args, kwargs)
             if capped.lowered:
                 self.cell.counters.calls_capped += 1
@@ -289,7 +292,7 @@ class RobotSession(Session):
                 self.cell.guard.remember_present(handle, args, kwargs, result)
         if camera and method == "connect":
             self._frames_connected(handle, True)
-        if _is_context_manager(result):
+        if result is not None and _is_context_manager(result):
             context = _Context(handle, result.__enter__, lambda exc: bool(result.__exit__(
                 type(exc) if exc else None, exc, None)))
             return {"ok": True, "context_manager": True, "object_id": self._add("c", context)}

@@ -72,10 +72,15 @@ class LocalCellFile(BaseModel):
 
 @dataclass(frozen=True)
 class CameraSpec:
+    """One camera of a cell, as a local run and the node agent's Cell both describe it."""
+
     name: str
     width: int = 640
     height: int = 480
     fps: int = 30
+    #: The device (an index or a path) on the cell's host; None on a simulated cell,
+    #: where the simulator serves each camera by its name.
+    index_or_path: int | str | None = None
 
 
 @dataclass(frozen=True)

@@ -145,7 +145,13 @@ class LocalCell:
         if self.connector is not None:
             self.connector.pass_deadline()
 
-    def stop(self) -> None:
+    def stop_connector(self) -> None:
+        """Stop the connector: it lets go of every arm (torque off, read back) and stays readable.
+
+        Why apart from ``stop``: the job's record must hold the connector's final
+        release, which exists only once it has stopped; the caller reads the record
+        after this, then ``stop`` (or the ``with`` exit) tears the rest down.
+        """
         if self.connector is not None:
             # Stopping trips the interlock by design; that is teardown, not news for the user.
             connector_log = logging.getLogger("armnet_agent.connector")
@@ -155,7 +161,10 @@ class LocalCell:
                 self.connector.stop()
             finally:
                 connector_log.setLevel(level)
-            self.connector = None
+
+    def stop(self) -> None:
+        self.stop_connector()
+        self.connector = None
         if self.sim is not None and self._owns_sim:
             self.sim.stop()
         self.sim = None

@@ -204,15 +204,24 @@ class ContainerSession:
         return events[-1].index if events and events[-1].kind == "begin" else None
 
     def record(self) -> report.ConnectorRecord:
+        """The connector's account of the job, its safety report taken once it has let go of the arm.
+
+        Why the report after the stop: the connector's final release (torque off, read
+        back from the servos) belongs in the result's ``safety.torqueOffConfirmed``;
+        taken before, the report would only hold what the job's own closes did. The
+        interlock is read before: stopping trips it (teardown, not the job's doing).
+        """
         connector = self.local_cell.connector
         if connector is None:
             return report.ConnectorRecord()
         trip = connector.interlock.trip_info
         rollout = self.rollout()
+        violations = connector.counters.safety_violations
+        self.local_cell.stop_connector()
         return report.ConnectorRecord(
             trip_reason=trip.reason.value if trip is not None else None,
             trip_message=trip.message if trip is not None else None,
-            safety_violations=connector.counters.safety_violations,
+            safety_violations=violations,
             rollout_index=rollout["index"] if rollout else None,
             rollout_total=rollout["total"] if rollout else None,
             safety=connector.safety_report().as_status(),

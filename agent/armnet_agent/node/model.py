@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.follower_rule import follower_window
 
 ACTIVE_PHASES = ("dispatched", "running")
@@ -72,15 +73,6 @@ class ArmSpec:
     robot_id: str | None = None
     calibration_dir: str | None = None
     safety_limit: float | None = None
-
-
-@dataclass(frozen=True)
-class CameraSpec:
-    name: str
-    index_or_path: int | str
-    width: int = 640
-    height: int = 480
-    fps: int = 30
 
 
 @dataclass(frozen=True)
@@ -153,7 +145,7 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
         simulated=spec.simulated,
         arms=arms,
         cameras=tuple(
-            CameraSpec(name, c.index_or_path, c.width, c.height, c.fps) for name, c in sorted(spec.cameras.items())
+            CameraSpec(name, c.width, c.height, c.fps, c.index_or_path) for name, c in sorted(spec.cameras.items())
         ),
         language_instruction=spec.language_instruction,
         grace_seconds=float(spec.grace_period_seconds),

@@ -20,7 +20,6 @@ from armnet_runtime import env as env_keys
 
 from armnet_agent.launch.cell_spec import (
     EMBODIMENT_PRESET,
-    CameraSpec,
     CellLayout,
     LocalCellSpec,
     build_job_env,
@@ -100,7 +99,7 @@ def cell_spec_for(cell: Cell) -> LocalCellSpec:
         safety_policy=cell.safety_policy,
         allow_calibration_jobs=cell.allow_calibration_jobs,
         register_bounds=cell.register_bounds,
-        cameras=tuple(CameraSpec(c.name, c.width, c.height, c.fps) for c in cell.cameras),
+        cameras=cell.cameras,
         grace_seconds=cell.grace_seconds,
         reset_timeout_seconds=cell.reset_timeout_seconds,
         language_instruction=cell.language_instruction,

@@ -63,16 +63,13 @@ def probe_arm(port: str, calibration_file: Path | None, motors: Iterable[str] = 
 def eeprom_mismatches(port: str, ranges: Mapping[str, MotorRange]) -> tuple[str, ...]:
     """The calibration registers whose EEPROM value is not the cell's file's, as readable lines.
 
-    Read through the connector's own check (the real LeRobot bus, reads only). A read
+    Read through the connector's own check (plain ``scservo_sdk`` reads, no LeRobot). A read
     that fails says nothing here: HardwareReady already reports servos that do not answer.
     """
-    from lerobot.motors import Motor, MotorNormMode
-
-    motors = {name: Motor(r.id, "sts3215", MotorNormMode.RANGE_M100_100) for name, r in ranges.items()}
     expected = {r.id: (r.homing_offset, r.range_min, r.range_max) for r in ranges.values()}
     names = {r.id: name for name, r in ranges.items()}
     try:
-        held = read_calibration(port, motors)
+        held = read_calibration(port, expected, baudrate=BAUD_RATE)
     except Exception as exc:  # noqa: BLE001 - a probe never fails the heartbeat; pings report the bus
         log.debug("calibration read on %s failed: %s", port, exc)
         return ()

@@ -86,6 +86,7 @@ _NUMPY_KINDS = frozenset("biufc")
 _NON_FINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
 _PLAIN_SCALARS = (str, int, bool, type(None))
 _PLAIN_NO_INT = (str, bool, type(None))
+_PLAIN_VALUES = frozenset((str, int, float, bool, type(None)))
 _allowed_type_cache: dict[str, type | None] = {}
 
 
@@ -109,12 +110,19 @@ def encode(value: Any) -> Any:
         for key in value:
             if type(key) is not str or key == TAG:
                 return {TAG: "dict", "items": [[encode(k), encode(v)] for k, v in value.items()]}
-        return {key: encode(item) for key, item in value.items()}
+        return {key: item if _is_plain(item) else encode(item) for key, item in value.items()}
     if kind is list:
-        return [encode(item) for item in value]
+        return [item if _is_plain(item) else encode(item) for item in value]
     if kind is tuple:
         return {TAG: "tuple", "items": [encode(item) for item in value]}
     return _encode_other(value, kind)
+
+
+def _is_plain(value: Any) -> bool:
+    """True for a value that is its own encoding (a string, a finite float, a bool or None):
+    containers skip the call to ``encode`` for these (a goal dict is all floats)."""
+    kind = type(value)
+    return kind in _PLAIN_NO_INT or (kind is float and math.isfinite(value))
 
 
 def jsonable(value: Any) -> Any:
@@ -207,7 +215,8 @@ def decode(obj: Any) -> Any:
     if kind is dict:
         tag = obj.get(TAG)
         if tag is None:
-            return {key: decode(item) for key, item in obj.items()}
+            # Plain values stand for themselves: only containers recurse (a goal dict is all floats).
+            return {key: item if type(item) in _PLAIN_VALUES else decode(item) for key, item in obj.items()}
         decoder = _DECODERS.get(tag) if type(tag) is str else None
         if decoder is None:
             raise ProtocolError(f"unknown tagged value kind {tag!r} (expected one of {sorted(_DECODERS)})")
@@ -218,7 +227,7 @@ def decode(obj: Any) -> Any:
         except (KeyError, TypeError, ValueError, binascii.Error) as exc:
             raise ProtocolError(f"malformed tagged {tag!r} value: {exc!r}") from exc
     if kind is list:
-        return [decode(item) for item in obj]
+        return [item if type(item) in _PLAIN_VALUES else decode(item) for item in obj]
     raise ProtocolError(f"not a tagged-JSON value: {kind.__qualname__}")
 
 

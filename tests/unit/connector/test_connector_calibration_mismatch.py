@@ -7,6 +7,8 @@ through the connector; the connector's record names the servo and register.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from typing import Any
 
 import pytest
@@ -53,6 +55,45 @@ def test_a_homing_offset_changed_outside_armnet_is_reported_at_connect_and_left_
 
 
 def test_read_calibration_reads_every_servo_of_the_cell_on_the_port(sim_cell, motors) -> None:
-    held = read_calibration(sim_cell.arm.port, motors)
+    held = read_calibration(sim_cell.arm.port, [motor.id for motor in motors.values()])
     assert sorted(held) == [1, 2, 3, 4, 5, 6]
     assert held[5] is not None and held[5][0] == sim_cell.arm.register("wrist_roll", "Homing_Offset")
+
+
+def test_read_calibration_gives_the_values_lerobot_reads_including_a_negative_homing_offset(
+    sim_cell, motors
+) -> None:
+    from lerobot.motors.feetech import FeetechMotorsBus
+
+    change_homing_outside_armnet(sim_cell.arm.port, motors, "elbow_flex", -321)  # sign-magnitude on the wire
+    bare = FeetechMotorsBus(port=sim_cell.arm.port, motors=motors)
+    bare.connect(handshake=False)
+    try:
+        lerobot = {
+            motor.id: tuple(int(bare.read(register, name, normalize=False, num_retry=2))
+                            for register in ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit"))
+            for name, motor in motors.items()
+        }
+    finally:
+        bare.disconnect(disable_torque=False)
+    held = read_calibration(sim_cell.arm.port, lerobot)
+    assert held == lerobot
+    assert held[motors["elbow_flex"].id] == (-321, *lerobot[motors["elbow_flex"].id][1:])
+
+
+def test_read_calibration_reports_a_servo_that_does_not_answer_as_none(sim_cell) -> None:
+    assert read_calibration(sim_cell.arm.port, [1, 42]) == {1: read_calibration(sim_cell.arm.port, [1])[1], 42: None}
+
+
+def test_read_calibration_never_loads_lerobot() -> None:
+    code = (
+        "import sys\n"
+        "from armnet_agent.connector.calibration_check import read_calibration\n"
+        "try:\n"
+        "    read_calibration('/dev/null-armnet-no-such-port', [1])\n"
+        "except ConnectionError:\n"
+        "    pass\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'lerobot'))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

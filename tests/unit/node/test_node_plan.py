@@ -67,6 +67,14 @@ def test_the_job_env_holds_exactly_the_sdk_variables_and_a_cell_config_the_sdk_p
     assert env[env_keys.VOLUME_HOME].endswith("/volumes/team-a")
 
 
+def test_the_cells_cameras_reach_the_launch_plan_as_the_cell_describes_them() -> None:
+    cell = parse_cell(cell_obj())
+    plan = plan_launch(parse_job(job_obj()), cell, PATHS, {})
+    assert plan.cell_spec.cameras == cell.cameras
+    [front] = plan.cell_spec.cameras
+    assert (front.name, front.index_or_path, front.width, front.height, front.fps) == ("front", 0, 320, 240, 15)
+
+
 def test_the_cell_spec_sets_grace_and_reset_timeout_of_the_connector() -> None:
     plan = plan_launch(parse_job(job_obj()), parse_cell(cell_obj()), PATHS, {})
     assert plan.grace_seconds == 4

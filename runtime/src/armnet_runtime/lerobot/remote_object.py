@@ -207,6 +207,8 @@ class RemoteObjectProxy:
 
     def _send(self, payload: dict[str, Any]) -> dict[str, Any]:
         reply = self._transport(payload)
+        if reply.get("ok"):
+            return reply  # the usual reply: no failure message to build
         return check_response(reply, error_message=f"remote {self._remote_class} {payload['op']} failed")
 
     def _create(self) -> None:

@@ -1,0 +1,232 @@
+"""Where armnet's share of a bus call goes: the connector's handling, stage by stage, in one process.
+
+``proxy_overhead.py`` measures the whole hop (proxy -> socket -> connector ->
+bus -> reply) against a raw line round trip. This tool opens the hop up: it
+drives a real connector's ``RobotSession`` directly (no socket) with the
+requests a proxied SO-101 control loop sends, and times, per call, in the same
+loop and on the same pty:
+
+- ``direct``: the real ``FeetechMotorsBus`` call (what the job pays on a bare arm);
+- ``client``: the proxy's side, without the socket (encode the arguments, the
+  request line, parse the reply line, decode the value);
+- ``server``: the connector's side (parse the line, ``Session.handle``, which runs
+  the allow-list plan, the motion guard, the policed bus and the real call,
+  encode the reply line);
+- ``server - direct``: armnet's own work in the connector;
+- the same in CPU time (``time.thread_time``): on a machine other jobs load, the
+  wall clock of one call swings by the scheduler's whims, its CPU time much less
+  (for ``sync_write``; a ``sync_read``'s CPU time includes LeRobot polling the port
+  for the servos' reply, so it follows the simulator's speed).
+
+``--profile`` adds a cProfile of the connector's handling (cumulative time,
+the functions that cost the most). The simulated servos live in their own
+process, as in ``proxy_overhead.py``.
+
+    ~/.cache/armnet/venv/bin/python bench/bus_profile.py [--calls 2000] [--profile]
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import math
+import pstats
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+PAUSE_S = 0.002
+
+from proxy_overhead import (  # noqa: E402
+    SO101_JOINTS,
+    WIGGLE_DEG,
+    connect_with_retries,
+    percentile,
+    so101_bus_kwargs,
+)
+
+
+def _timed(bucket: list[float], cpu: list[float], call: Callable[[], Any]) -> Any:
+    began, began_cpu = time.perf_counter(), time.thread_time()
+    value = call()
+    bucket.append(time.perf_counter() - began)
+    cpu.append(time.thread_time() - began_cpu)
+    return value
+
+
+#: Stages that do not nest in one another (the register policy runs inside LeRobot's call).
+TOP_STAGES = ("decode arguments", "motion guard", "LeRobot call (incl. register policy)")
+
+
+def instrument_stages(current: dict[str, float]) -> None:
+    """Wrap the connector's stages so each adds its CPU time to ``current`` (signatures kept)."""
+    import functools
+
+    from armnet_agent.connector import motion, session
+    from armnet_agent.connector.policed_bus import BusPolicy
+    from lerobot.motors.feetech import FeetechMotorsBus
+
+    def wrap(owner: Any, name: str, stage: str) -> None:
+        original = getattr(owner, name)
+
+        @functools.wraps(original)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            began = time.thread_time()
+            try:
+                return original(*args, **kwargs)
+            finally:
+                current[stage] = current.get(stage, 0.0) + time.thread_time() - began
+
+        setattr(owner, name, timed)
+
+    wrap(session, "_arguments", "decode arguments")
+    wrap(motion.MotionGuard, "check", "motion guard")
+    wrap(BusPolicy, "check_all", "register policy (inside the LeRobot call)")
+    for method in ("sync_write", "sync_read"):
+        wrap(FeetechMotorsBus, method, "LeRobot call (incl. register policy)")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--calls", type=int, default=2000, help="ticks (one sync_read + one sync_write each)")
+    parser.add_argument("--profile", action="store_true", help="cProfile the connector's handling")
+    parser.add_argument("--sort", default="tottime", help="cProfile sort key (tottime, cumulative, ...)")
+    parser.add_argument("--top", type=int, default=30, help="functions listed")
+    parser.add_argument("--stages", action="store_true",
+                        help="CPU time of each stage of the connector's handling (wrappers add ~1 us each)")
+    args = parser.parse_args()
+
+    from armnet_agent.connector import Connector
+    from armnet_agent.connector.server import encode_reply, parse_request
+    from armnet_agent.connector.session import RobotSession
+    from armnet_agent.launch.cell_spec import plan_layout, resolve_spec
+    from armnet_agent.launch.sim_cell import build_connector_config
+    from armnet_agent.sim import SimulatedCellProcess
+    from armnet_agent.sim.calibration import builtin_calibration, write_calibration
+    from armnet_agent.sim.presets import PRESETS
+    from armnet_runtime.lerobot.remote_object import encode_args
+    from armnet_runtime.wire import decode, dumps_line, encode, loads_json
+    from lerobot.motors.feetech import FeetechMotorsBus
+
+    spec = resolve_spec(embodiment=None, preset="so101", task=None, grace_seconds=None)
+    with tempfile.TemporaryDirectory(prefix="armnet-profile-", dir="/dev/shm") as run_dir:
+        layout = plan_layout(spec, Path(run_dir))
+        for directory in (layout.socket_dir, layout.calibration_dir):
+            directory.mkdir(parents=True, exist_ok=True)
+        shipped = {arm.name: arm.calibration for arm in PRESETS[spec.preset]}
+        calibrations = {}
+        for arm in layout.arms:
+            calibrations[arm.name] = builtin_calibration(shipped[arm.name])
+            write_calibration(arm.calibration_file, calibrations[arm.name])
+        with SimulatedCellProcess(spec.preset, calibrations=calibrations) as sim:
+            ports = sim.ports()
+            config = build_connector_config(spec, layout, ports)
+            arm = layout.arms[0]
+            bus_kwargs = so101_bus_kwargs(str(arm.calibration_file))
+            with Connector(config, layout.socket_dir) as connector:
+                session = RobotSession(connector.cell, connector.frames)
+
+                def serve(request: dict[str, Any]) -> dict[str, Any]:
+                    reply = session.handle(parse_request(dumps_line(request)))
+                    return loads_json(encode_reply(reply))
+
+                created = serve({"op": "create", "class": "FeetechMotorsBus", "args": [],
+                                 "kwargs": encode({"port": arm.endpoint, **bus_kwargs})})
+                object_id = created["object_id"]
+                connect = {"op": "call", "object_id": object_id, "method": "connect", "args": [], "kwargs": {}}
+                if not any(serve(connect)["ok"] for _ in range(3)):  # a starved simulator can miss a handshake
+                    raise RuntimeError("the connector's bus could not connect to the simulator")
+                direct = FeetechMotorsBus(port=ports[arm.name], **so101_bus_kwargs(str(arm.calibration_file)))
+                connect_with_retries(direct)
+                start = direct.sync_read("Present_Position")
+
+                samples: dict[str, list[float]] = {
+                    f"{kind}_{call}": [] for kind in ("direct", "client", "server", "directcpu", "servercpu")
+                    for call in ("read", "write")
+                }
+                profiler = cProfile.Profile() if args.profile else None
+                lost = 0
+                stage_cpu: dict[str, list[float]] = {}
+                current: dict[str, float] = {}
+                if args.stages:
+                    instrument_stages(current)
+
+                def proxied(call: str, method: str, call_args: tuple[Any, ...]) -> None:
+                    began = time.perf_counter()
+                    line = dumps_line({"op": "call", "method": method, "args": encode_args(call_args),
+                                       "kwargs": encode({}), "object_id": object_id})
+                    current.clear()
+                    middle, middle_cpu = time.perf_counter(), time.thread_time()
+                    if profiler is not None:
+                        profiler.enable()
+                    request = parse_request(line)
+                    parsed_cpu = time.thread_time()
+                    reply = session.handle(request)
+                    handled_cpu = time.thread_time()
+                    reply_line = encode_reply(reply)
+                    if profiler is not None:
+                        profiler.disable()
+                    after, after_cpu = time.perf_counter(), time.thread_time()
+                    samples[f"servercpu_{call}"].append(after_cpu - middle_cpu)
+                    if args.stages:
+                        current["parse request line"] = parsed_cpu - middle_cpu
+                        current["encode reply line"] = after_cpu - handled_cpu
+                        current["session (dispatch, plan, lock, reply dict)"] = (handled_cpu - parsed_cpu) - sum(
+                            v for k, v in current.items() if k in TOP_STAGES)
+                        for stage, spent in current.items():
+                            stage_cpu.setdefault(f"{method} {stage}", []).append(spent)
+                    reply = loads_json(reply_line)
+                    if not reply["ok"]:
+                        raise RuntimeError(reply)
+                    decode(reply.get("value"))
+                    done = time.perf_counter()
+                    samples[f"server_{call}"].append(after - middle)
+                    samples[f"client_{call}"].append((middle - began) + (done - after))
+
+                for tick in range(args.calls):
+                    offset = WIGGLE_DEG * math.sin(tick / 20.0)
+                    goals = {n: start[n] + (offset if n != "gripper" else 0.0) for n in SO101_JOINTS}
+                    try:
+                        # A pause before each call: the simulator is idle, as in a paced control loop.
+                        time.sleep(PAUSE_S)
+                        _timed(samples["direct_read"], samples["directcpu_read"], lambda: direct.sync_read("Present_Position"))
+                        time.sleep(PAUSE_S)
+                        proxied("read", "sync_read", ("Present_Position",))
+                        time.sleep(PAUSE_S)
+                        _timed(samples["direct_write"], samples["directcpu_write"], lambda goals=goals: direct.sync_write("Goal_Position", goals))
+                        time.sleep(PAUSE_S)
+                        proxied("write", "sync_write", ("Goal_Position", goals))
+                    except (ConnectionError, RuntimeError):
+                        lost += 1  # a starved simulator misses a reply now and then: count it, go on
+                direct.disconnect(disable_torque=False)
+                session.close()
+
+    print(f"{args.calls} ticks ({lost} lost a servo reply), p50 / p90 in microseconds")
+    for call in ("read", "write"):
+        row = {kind: samples[f"{kind}_{call}"] for kind in ("direct", "client", "server")}
+        d50, s50 = percentile(row["direct"], 50) * 1e6, percentile(row["server"], 50) * 1e6
+        print(f"sync_{call:<6} direct {d50:7.0f} / {percentile(row['direct'], 90) * 1e6:6.0f}"
+              f"   server {s50:7.0f} / {percentile(row['server'], 90) * 1e6:6.0f}"
+              f"   server - direct {s50 - d50:6.0f}"
+              f"   client {percentile(row['client'], 50) * 1e6:5.0f} / {percentile(row['client'], 90) * 1e6:5.0f}")
+        dc50 = percentile(samples[f"directcpu_{call}"], 50) * 1e6
+        sc50 = percentile(samples[f"servercpu_{call}"], 50) * 1e6
+        print(f"{'':12}CPU time (robust to a loaded machine): direct {dc50:5.0f}   server {sc50:5.0f}"
+              f"   server - direct {sc50 - dc50:5.0f}")
+    if stage_cpu:
+        print("CPU time per stage of the connector's handling, p50 (microseconds):")
+        for stage, values in stage_cpu.items():
+            print(f"  {stage:<55} {percentile(values, 50) * 1e6:7.1f}")
+    if profiler is not None:
+        stats = pstats.Stats(profiler)
+        stats.sort_stats(args.sort).print_stats(args.top)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
