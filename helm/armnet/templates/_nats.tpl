@@ -26,8 +26,10 @@ accounts {
         user: fms
         password: $NATS_FMS_PASSWORD
         permissions: {
-          publish: ["fms.>", "$JS.API.CONSUMER.CREATE.ARMNET_LOGS.>", "$JS.API.CONSUMER.INFO.ARMNET_LOGS.>", "$JS.API.CONSUMER.DELETE.ARMNET_LOGS.>", "$JS.API.STREAM.INFO.ARMNET_LOGS", "$JS.ACK.ARMNET_LOGS.>"]
-          subscribe: ["logs.>", "_INBOX.>"]
+          # Operator inputs to jobs (reset.confirm, outcome) and the agents' reset notices;
+          # nothing else: the page shows no logs, and it sends no requests (no inbox).
+          publish: ["fms.>"]
+          subscribe: ["fms.*.reset.requested"]
         }
       }
       {{- range $d.auth.tenants }}
