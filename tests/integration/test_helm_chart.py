@@ -135,7 +135,7 @@ def test_every_option_on_renders_every_kind_the_chart_knows() -> None:
                      "Role", "RoleBinding", "Deployment", "PodDisruptionBudget", "DaemonSet", "Service",
                      "ConfigMap", "StatefulSet", "ServiceMonitor", "PrometheusRule",
                      "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding",
-                     "Secret", "ValidatingWebhookConfiguration"}
+                     "Secret", "ValidatingWebhookConfiguration", "NetworkPolicy"}
 
 
 @pytest.mark.parametrize(("values", "path"), [

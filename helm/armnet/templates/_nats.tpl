@@ -18,7 +18,8 @@ accounts {
         user: agent
         password: $NATS_AGENT_PASSWORD
         permissions: {
-          publish: ["logs.>", "$JS.API.>", "_INBOX.>"]
+          # fms.<cell>.reset.requested: a job's reset waits, for the cell operators' page.
+          publish: ["logs.>", "fms.*.reset.requested", "$JS.API.>", "_INBOX.>"]
           subscribe: ["teleop.>", "fms.>", "clients.>", "_INBOX.>"]
         }
       }
