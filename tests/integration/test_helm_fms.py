@@ -17,21 +17,18 @@ from typing import Any
 import pytest
 import yaml
 
+from tests.integration import test_helm_nats
 from tests.integration.test_helm_chart import ALL_OPTIONS, CHART, find, helm, render
-from tests.integration.test_helm_nats import (  # noqa: F401  (server: the fixture)
-    Server,
-    connect,
-    run,
-    server,
-    settle,
-    violated,
-)
+from tests.integration.test_helm_nats import Server, connect, run, settle, violated
 from tests.support.fms_objects import FMS_RULES
 from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 
 TOKENS = [{"name": "maria", "token": "maria-token-0123456789"}, {"name": "lee@lab-1", "token": "lee-token-0123456789ab"}]
+#: The chart's nats.conf (auth on) in a real nats-server: the fixture test_helm_nats.py uses.
+server = test_helm_nats.server
+
 ENABLED = {"fms": {"enabled": True, "operators": TOKENS}}
 
 
