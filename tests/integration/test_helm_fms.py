@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import base64
+import json
 from pathlib import Path
 from typing import Any
 
@@ -338,3 +339,29 @@ def test_fms_user_cannot_publish_job_output_or_teleop_input(server: Server) -> N
         assert violated(errors, 'Publish to "teleop.team-a.job-1.action"'), errors
 
     run(server, body)
+
+
+# ---------------------------------------------------------------------------- upgrades
+def test_an_upgrade_keeps_the_generated_session_key_and_takes_the_new_operators(
+        k8s: ControlPlane, namespace: str) -> None:
+    from tests.integration.test_helm_lifecycle import helm_on
+
+    release = "fms-keep"
+    only_fms = {"crds": {"install": False}, "operator": {"enabled": False}, "agent": {"enabled": False},
+                "admissionWebhook": {"enabled": False}, "fms": ENABLED["fms"]}
+
+    def secret() -> dict[str, str]:
+        data = json.loads(k8s.kubectl("get", "secret", f"{release}-armnet-fms", "-n", namespace, "-o", "json").stdout)
+        return {k: base64.b64decode(v).decode() for k, v in data["data"].items()}
+
+    helm_on(k8s, "install", release, str(CHART), "-n", namespace, values=only_fms)
+    try:
+        before = secret()
+        helm_on(k8s, "upgrade", release, str(CHART), "-n", namespace,
+                values={**only_fms, "fms": {**ENABLED["fms"], "operators": TOKENS[:1]}})
+        after = secret()
+    finally:
+        helm_on(k8s, "uninstall", release, "-n", namespace)
+
+    assert after["session-key"] == before["session-key"]
+    assert after["operators"] == f"{TOKENS[0]['name']}:{TOKENS[0]['token']}\n"
