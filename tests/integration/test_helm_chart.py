@@ -135,7 +135,7 @@ def test_every_option_on_renders_every_kind_the_chart_knows() -> None:
                      "Role", "RoleBinding", "Deployment", "PodDisruptionBudget", "DaemonSet", "Service",
                      "ConfigMap", "StatefulSet", "ServiceMonitor", "PrometheusRule",
                      "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding",
-                     "Secret", "ValidatingWebhookConfiguration"}
+                     "Secret", "ValidatingWebhookConfiguration", "NetworkPolicy"}
 
 
 @pytest.mark.parametrize(("values", "path"), [
@@ -181,7 +181,7 @@ def test_a_release_name_other_than_armnet_prefixes_every_object(release: str, pr
         [o["metadata"]["name"] for o in objects if not o["metadata"]["name"].startswith(prefix)]
     binding = find(objects, "ClusterRoleBinding", "-operator")
     assert binding["subjects"] == [{"kind": "ServiceAccount", "name": f"{prefix}-operator", "namespace": "ops"}]
-    lease_env = env_of(find(objects, "Deployment")["spec"]["template"]["spec"]["containers"][0])
+    lease_env = env_of(find(objects, "Deployment", "-operator")["spec"]["template"]["spec"]["containers"][0])
     assert lease_env["ARMNET_OPERATOR_LEASE_NAMESPACE"] == "ops"
 
 

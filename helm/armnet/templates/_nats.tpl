@@ -18,7 +18,8 @@ accounts {
         user: agent
         password: $NATS_AGENT_PASSWORD
         permissions: {
-          publish: ["logs.>", "$JS.API.>", "_INBOX.>"]
+          # fms.<cell>.reset.requested: a job's reset waits, for the cell operators' page.
+          publish: ["logs.>", "fms.*.reset.requested", "$JS.API.>", "_INBOX.>"]
           subscribe: ["teleop.>", "fms.>", "clients.>", "_INBOX.>"]
         }
       }
@@ -26,8 +27,10 @@ accounts {
         user: fms
         password: $NATS_FMS_PASSWORD
         permissions: {
-          publish: ["fms.>", "$JS.API.CONSUMER.CREATE.ARMNET_LOGS.>", "$JS.API.CONSUMER.INFO.ARMNET_LOGS.>", "$JS.API.CONSUMER.DELETE.ARMNET_LOGS.>", "$JS.API.STREAM.INFO.ARMNET_LOGS", "$JS.ACK.ARMNET_LOGS.>"]
-          subscribe: ["logs.>", "_INBOX.>"]
+          # Operator inputs to jobs (reset.confirm, outcome) and the agents' reset notices;
+          # nothing else: the page shows no logs, and it sends no requests (no inbox).
+          publish: ["fms.>"]
+          subscribe: ["fms.*.reset.requested"]
         }
       }
       {{- range $d.auth.tenants }}
