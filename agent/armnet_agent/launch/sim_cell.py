@@ -145,6 +145,11 @@ class LocalCell:
         if self.connector is not None:
             self.connector.pass_deadline()
 
+    def cancel(self) -> None:
+        """The job was cancelled: trip the interlock (naming the cancel) and open the grace window."""
+        if self.connector is not None:
+            self.connector.cancel()
+
     def stop(self) -> None:
         if self.connector is not None:
             # Stopping trips the interlock by design; that is teardown, not news for the user.

@@ -161,6 +161,7 @@ class JobRunner:
             with local_cell:
                 self.local_cell = local_cell
                 self.hooks.on_deadline = local_cell.pass_deadline
+                self.hooks.on_cancel = local_cell.cancel
                 bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout)
                 try:
