@@ -169,6 +169,7 @@ class JobRunner:
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
                     self._fail_before_start(_engine_error(exc, job.image))
                     return
+                self.deps.metrics.job_log_reads.labels(via="file" if container_job.log_file else "engine_api").inc()
                 started_at = self._mark_running(adopted)
                 if started_at is None:
                     container_job.kill()
