@@ -208,6 +208,13 @@ class ContainerJob:
                             delivered = True
                             yield out
                         continue
+                    if os.fstat(file.fileno()).st_size < file.tell():
+                        # conmon truncates the file at ``log_size_max`` (not set by default): lines
+                        # written before it were read; go on from the new start.
+                        log.warning("the container's log file %s was truncated (log_size_max in "
+                                    "containers.conf?); reading on from its start", path)
+                        file.seek(0)
+                        continue
                     if exited:
                         if settled:
                             break
