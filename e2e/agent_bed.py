@@ -54,6 +54,13 @@ class AgentBed:
         self.metrics_port = free_port()
         self._images: dict[str, str] = {}
         self._agent_starts = 0
+        #: Extra ``armnet agent`` arguments (the pod launcher's beds pass ``--launcher pod`` ...).
+        self.agent_args: list[str] = []
+        #: Extra Containerfile lines for job images (before the COPY).
+        self.image_lines: list[str] = []
+        #: Called with each job image's tag once built (the pod beds import it into the node).
+        self.on_image: Callable[[str], None] | None = None
+        self.image_prefix = "armnet-e2e"
 
     # -- processes -----------------------------------------------------------------
 
@@ -80,6 +87,7 @@ class AgentBed:
             argv += ["--dev-mount", mount]
         if self.nats_url:
             argv += ["--nats-url", self.nats_url]
+        argv += self.agent_args
         log = open(self.log_dir / f"agent-{self._agent_starts}.log", "ab")  # noqa: SIM115
         self.agent = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self._env())
 
@@ -140,10 +148,13 @@ class AgentBed:
         for path in extra_files:
             (context / path.name).write_text(path.read_text())
         (context / "Containerfile").write_text(
-            f"FROM {self.base_image}\nCOPY . /job/\nCMD [\"armnet-runtime\", \"/job/main.py\"]\n"
+            f"FROM {self.base_image}\n" + "".join(f"{line}\n" for line in self.image_lines)
+            + "COPY . /job/\nCMD [\"armnet-runtime\", \"/job/main.py\"]\n"
         )
-        tag = f"localhost/armnet-e2e-{name}:dev"
+        tag = f"localhost/{self.image_prefix}-{name}:dev"
         self.podman.client.images.build(path=str(context), dockerfile="Containerfile", tag=tag, rm=True)
+        if self.on_image is not None:
+            self.on_image(tag)
         self._images[name] = tag
         return tag
 

@@ -20,21 +20,38 @@ if [ "$#" -gt 0 ]; then
   exec "$venv/bin/python" -m pytest "$@"
 fi
 
-# The node agent's end-to-end scenarios spend their minutes waiting (jobs running in
-# containers, timeouts, grace windows), so they run beside the rest of the suite, in a
-# pytest session of their own (its own control plane, NATS and Podman service).
-side_tests=(e2e/test_agent_jobs.py)
-side_log="$(mktemp /tmp/armnet-test-side.XXXXXX)"
-trap 'rm -f "$side_log"' EXIT
-"$venv/bin/python" -m pytest "${side_tests[@]}" >"$side_log" 2>&1 &
-side_pid=$!
+# The end-to-end scenarios through the node agent spend their minutes waiting (jobs
+# running in containers, timeouts, grace windows, a browser), so they run beside the
+# rest of the suite, each group in a pytest session of its own (its own control plane,
+# NATS and Podman service). One group per line; files separated by spaces.
+side_groups=(
+  "e2e/test_agent_jobs.py"
+  "e2e/test_client_jobs.py e2e/test_fms_browser.py e2e/test_fms_local.py"
+  "e2e/test_pod_jobs.py"
+)
+ignores=()
+side_pids=()
+side_logs=()
+for group in "${side_groups[@]}"; do
+  read -r -a files <<<"$group"
+  log="$(mktemp /tmp/armnet-test-side.XXXXXX)"
+  side_logs+=("$log")
+  "$venv/bin/python" -m pytest "${files[@]}" >"$log" 2>&1 &
+  side_pids+=("$!")
+  for f in "${files[@]}"; do ignores+=("--ignore=$f"); done
+done
+trap 'rm -f "${side_logs[@]}"' EXIT
 main_rc=0
-"$venv/bin/python" -m pytest "${side_tests[@]/#/--ignore=}" || main_rc=$?
-side_rc=0
-wait "$side_pid" || side_rc=$?
-echo "== pytest: ${side_tests[*]} (run beside the rest) =="
-cat "$side_log"
-if [ "$main_rc" -ne 0 ] || [ "$side_rc" -ne 0 ]; then
-  echo "pytest failed: suite exit $main_rc, ${side_tests[*]} exit $side_rc" >&2
+"$venv/bin/python" -m pytest "${ignores[@]}" || main_rc=$?
+failed=()
+for i in "${!side_groups[@]}"; do
+  rc=0
+  wait "${side_pids[$i]}" || rc=$?
+  echo "== pytest: ${side_groups[$i]} (run beside the rest) =="
+  cat "${side_logs[$i]}"
+  if [ "$rc" -ne 0 ]; then failed+=("${side_groups[$i]} (exit $rc)"); fi
+done
+if [ "$main_rc" -ne 0 ] || [ "${#failed[@]}" -gt 0 ]; then
+  echo "pytest failed: suite exit $main_rc; side groups failed: ${failed[*]:-none}" >&2
   exit 1
 fi

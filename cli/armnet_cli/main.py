@@ -32,6 +32,7 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand("fms", "armnet_fms.cli", "serve the cell operator's web page: cells, resets, outcomes, stop"),
     Subcommand("dev", "armnet_cli.dev", "developer helpers: `armnet dev up` starts the local test bed"),
     *(Subcommand(*command) for command in CLIENT_COMMANDS),
+    Subcommand("completion", "armnet_cli.completion", "print a bash or zsh completion script for armnet"),
 )
 
 

@@ -116,6 +116,27 @@ else
   have kubelet "v$K8S_VERSION" || { log "kubelet does not report v$K8S_VERSION"; exit 1; }
 fi
 
+# ---------------------------------------------------------------- controller manager + scheduler
+# Only the chart's real install on the test-bed node needs them (a Deployment and a
+# DaemonSet become pods): tests/testbed/controllers.py starts them for that test alone.
+# Same wrapper module, flags and pattern as the kubelet.
+for component in kube-controller-manager kube-scheduler; do
+  if have "$component" "v$K8S_VERSION"; then
+    log "$component v$K8S_VERSION cached in $bin"
+    continue
+  fi
+  cd "$root/src/kubernetes"
+  if ! grep -q "\"k8s.io/kubernetes/cmd/$component\"" tools.go; then
+    log "adding $component to the wrapper module"
+    sed -i "s|^\t_ \"k8s.io/kubernetes/cmd/kubectl\"\$|&\n\t_ \"k8s.io/kubernetes/cmd/$component\"|" tools.go
+    grep -q "\"k8s.io/kubernetes/cmd/$component\"" tools.go || { log "could not add $component to $PWD/tools.go"; exit 1; }
+    nice -n 10 go get "k8s.io/kubernetes/cmd/$component@v$K8S_VERSION"
+  fi
+  CGO_ENABLED=0 build_with_progress "$component" -trimpath -ldflags "$ldf" -o "$bin/$component.tmp" "k8s.io/kubernetes/cmd/$component"
+  mv "$bin/$component.tmp" "$bin/$component"
+  have "$component" "v$K8S_VERSION" || { log "$component does not report v$K8S_VERSION"; exit 1; }
+done
+
 # ---------------------------------------------------------------- etcd
 if have etcd "$ETCD_VERSION"; then
   log "etcd $ETCD_VERSION cached in $bin"

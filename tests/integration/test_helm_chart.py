@@ -250,6 +250,34 @@ def test_operator_runs_non_root_read_only_with_only_a_projected_token() -> None:
 
 
 # ---------------------------------------------------------------------------- agent
+def test_operator_and_agent_run_their_own_images_at_the_chart_version() -> None:
+    objects = render()
+    operator = find(objects, "Deployment")["spec"]["template"]["spec"]["containers"][0]
+    agent = find(objects, "DaemonSet")["spec"]["template"]["spec"]["containers"][0]
+
+    assert operator["image"] == "localhost/armnet-operator:0.1.0"
+    assert agent["image"] == "localhost/armnet-agent:0.1.0"
+    assert env_of(agent)["ARMNET_AGENT_CONNECTOR_IMAGE"] == "localhost/armnet-agent:0.1.0"
+
+
+def test_one_tag_moves_both_images() -> None:
+    objects = render(values={"image": {"tag": "abc123"}})
+    images = [c["image"] for kind in ("Deployment", "DaemonSet")
+              for c in find(objects, kind)["spec"]["template"]["spec"]["containers"]]
+
+    assert images == ["localhost/armnet-operator:abc123", "localhost/armnet-agent:abc123"]
+
+
+def test_pods_use_the_pod_network_unless_host_network_is_asked_for() -> None:
+    default = render()
+    on = render(values={"operator": {"hostNetwork": True}, "agent": {"hostNetwork": True}})
+
+    for kind in ("Deployment", "DaemonSet"):
+        assert "hostNetwork" not in find(default, kind)["spec"]["template"]["spec"]
+        pod = find(on, kind)["spec"]["template"]["spec"]
+        assert (pod["hostNetwork"], pod["dnsPolicy"]) == (True, "ClusterFirstWithHostNet")
+
+
 def test_agent_runs_only_on_nodes_with_the_configured_robot_host_label() -> None:
     values = {"agent": {"robotHostLabel": {"key": "example.com/robot", "value": "so101"}}}
     pod = find(render(values=values), "DaemonSet")["spec"]["template"]["spec"]
@@ -306,6 +334,15 @@ def test_operator_role_names_no_secrets_and_no_pods() -> None:
 
     assert not resources & {"secrets", "pods", "*"}
     assert not any("*" in rule["verbs"] for rule in rules)
+
+
+def test_operator_reads_namespaces_only_when_it_serves_a_set_of_them() -> None:
+    def reads_namespaces(objects: list[dict[str, Any]]) -> bool:
+        return any("namespaces" in rule["resources"] and set(rule["verbs"]) == {"get", "list", "watch"}
+                   for rule in rules_of(objects, "ClusterRole", "-operator"))
+
+    assert reads_namespaces(render(values={"jobNamespaces": [{"name": "team-a"}]}))
+    assert not reads_namespaces(render())
 
 
 def test_agent_reads_only_the_listed_secrets_of_each_job_namespace() -> None:

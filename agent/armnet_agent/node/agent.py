@@ -15,14 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from armnet_agent.launch.plan import (
-    LABEL_CELL,
-    LABEL_JOB_UID,
-    LABEL_MANAGED_BY,
-    LABEL_NAMESPACE,
-    MANAGED_BY_AGENT,
-)
+from armnet_agent.launch.plan import LABEL_CELL, LABEL_NAMESPACE
 from armnet_agent.node.kube import GROUP, VERSION, AgentKube, KubeError
+from armnet_agent.node.launchers import JobLauncher
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import Cell, Job, parse_cell, parse_job
 from armnet_agent.node.plan import HostPaths
@@ -46,16 +41,16 @@ class AgentSettings:
 
 class NodeAgent:
     def __init__(
-        self, settings: AgentSettings, kube: AgentKube, engine: Any, metrics: AgentMetrics, link: Link
+        self, settings: AgentSettings, kube: AgentKube, launcher: JobLauncher, metrics: AgentMetrics, link: Link
     ) -> None:
         self.settings = settings
         self.kube = kube
-        self.engine = engine
+        self.launcher = launcher
         self.metrics = metrics
         self.link = link
         self.deps = RunnerDeps(
             kube=kube,
-            engine=engine,
+            launcher=launcher,
             paths=HostPaths(settings.state_dir, settings.dev_mounts, settings.dev_env or None),
             metrics=metrics,
             link=link,
@@ -118,12 +113,11 @@ class NodeAgent:
                 log.warning("%s", exc)
         return jobs
 
-    def _containers(self) -> dict[str, dict[str, Any]]:
-        """Job uid -> the engine's row of its container (one list call, no per-container inspect)."""
-        rows = self.engine.api.containers(all=True, filters={"label": f"{LABEL_MANAGED_BY}={MANAGED_BY_AGENT}"})
-        return {(row.get("Labels") or {}).get(LABEL_JOB_UID, ""): row for row in rows}
+    def _containers(self) -> dict[str, Any]:
+        """Job uid -> the launcher's row of its container or pod (one list call)."""
+        return self.launcher.running()
 
-    def _remove_orphans(self, jobs: list[Job], containers: dict[str, dict[str, Any]]) -> None:
+    def _remove_orphans(self, jobs: list[Job], containers: dict[str, Any]) -> None:
         """A container of one of this node's cells whose RobotJob no longer exists.
 
         Only this node's cells: another agent may share the engine (its jobs are
@@ -132,15 +126,15 @@ class NodeAgent:
         known = {job.uid for job in jobs}
         running = {w.runner.uid for w in self.workers.values() if w.runner is not None}
         for uid, row in containers.items():
-            labels = row.get("Labels") or {}
+            labels = self.launcher.row_labels(row)
             namespace = labels.get(LABEL_NAMESPACE, "")
             mine = labels.get(LABEL_CELL) in self.workers
             watched = not self.settings.namespaces or namespace in self.settings.namespaces
             if uid in known or uid in running or not watched or not mine:
                 continue
-            log.warning("removing container %s: its RobotJob (uid %s) no longer exists", row.get("Id", "")[:12], uid)
+            log.warning("removing the %s of job uid %s: its RobotJob no longer exists", self.launcher.kind, uid)
             try:
-                self.engine.api.remove_container(row["Id"], force=True)
+                self.launcher.remove(row)
             except Exception:  # noqa: BLE001 - gone already
                 log.debug("orphan removal failed", exc_info=True)
 

@@ -15,11 +15,13 @@ import signal
 import socket
 import tempfile
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 from armnet_agent.launch.container import EngineUnavailable, connect_engine
 from armnet_agent.node.agent import AgentSettings, NodeAgent
 from armnet_agent.node.kube import AgentKube, make_client
+from armnet_agent.node.launchers import ContainerLauncher, JobLauncher, PodLauncher, PodSettings
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.publish import open_link, register_metrics
 
@@ -53,6 +55,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="development only: mount this host path read-only at the same path in job containers")
     parser.add_argument("--dev-env", action="append", default=[],
                         help="development only: NAME=VALUE added to every job container's env (e.g. PATH)")
+    parser.add_argument("--launcher", choices=("container", "pod"), default=_env("LAUNCHER", "container"),
+                        help="run jobs as containers through the Docker API (connector in the agent) or as pods "
+                             "on this Kubernetes node (connector as the pod's native sidecar); see docs/agent.md")
+    parser.add_argument("--connector-image", default=_env("CONNECTOR_IMAGE", "armnet/connector:latest"),
+                        help="pod launcher: the connector sidecar's image")
+    parser.add_argument("--connector-command", default=_env("CONNECTOR_COMMAND"),
+                        help="pod launcher: the sidecar's command, space-separated "
+                             "(default: python3 -m armnet_agent.launch.sidecar)")
+    parser.add_argument("--image-pull-policy", default=_env("IMAGE_PULL_POLICY", "IfNotPresent"),
+                        choices=("Always", "IfNotPresent", "Never"), help="pod launcher: for both containers")
     parser.add_argument("--verbose", action="store_true")
 
 
@@ -60,11 +72,6 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s armnet agent %(levelname)s %(name)s: %(message)s")
     logging.getLogger("armnet_agent.node").setLevel(logging.INFO)
-    try:
-        engine = connect_engine(args.engine_url)
-    except EngineUnavailable as exc:
-        logging.error("%s", exc)
-        return 1
     dev_env = {}
     for item in args.dev_env:
         key, sep, value = item.partition("=")
@@ -87,7 +94,29 @@ def run(args: argparse.Namespace) -> int:
     metrics.serve(args.metrics_port, args.metrics_address)
     link = open_link(args.nats_url, state_dir / "spool")
     register_metrics(link, metrics.registry)
-    kube = AgentKube(make_client(args.kubeconfig), settings.namespaces)
+    api = make_client(args.kubeconfig)
+    kube = AgentKube(api, settings.namespaces)
+    launcher: JobLauncher
+    if args.launcher == "pod":
+        from kubernetes import client
+
+        pod_settings = PodSettings(
+            node_name=settings.node_name,
+            connector_image=args.connector_image,
+            image_pull_policy=args.image_pull_policy,
+            dev_mounts=settings.dev_mounts,
+            dev_env=dev_env,
+        )
+        if args.connector_command:
+            pod_settings = replace(pod_settings, connector_command=tuple(args.connector_command.split()))
+        launcher = PodLauncher(client.CoreV1Api(api), pod_settings, metrics, settings.namespaces)
+    else:
+        try:
+            engine = connect_engine(args.engine_url)
+        except EngineUnavailable as exc:
+            logging.error("%s", exc)
+            return 1
+        launcher = ContainerLauncher(engine, metrics)
     stop = threading.Event()
 
     def _stop(signum: int, frame: object) -> None:
@@ -95,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    agent = NodeAgent(settings, kube, engine, metrics, link)
+    agent = NodeAgent(settings, kube, launcher, metrics, link)
     try:
         agent.run(stop)
     finally:

@@ -123,22 +123,35 @@ class AgentKube:
         """
         values: dict[str, str] = {}
         for env_name, secret_name in sorted(wanted.items()):
-            try:
-                secret = self.core.read_namespaced_secret(secret_name, namespace)
-            except ApiException as exc:
-                if exc.status == 404:
-                    raise SecretMissing(
-                        f"Secret {secret_name!r} (for {env_name}) does not exist in namespace {namespace}; "
-                        f"create it there: kubectl -n {namespace} create secret generic {secret_name} "
-                        f"--from-literal={env_name}=..."
-                    ) from exc
-                raise _error(exc, f"secret {namespace}/{secret_name}") from exc
-            data = secret.data or {}
-            key = env_name if env_name in data else (next(iter(data)) if len(data) == 1 else None)
-            if key is None:
-                raise SecretMissing(
-                    f"Secret {secret_name!r} in namespace {namespace} has no key {env_name!r} "
-                    f"(keys: {sorted(data)}); add it or keep one key only"
-                )
+            data, key = self._secret_key(namespace, env_name, secret_name)
             values[env_name] = base64.b64decode(data[key]).decode("utf-8", errors="replace")
         return values
+
+    def secret_keys(self, namespace: str, wanted: dict[str, str]) -> list[tuple[str, str, str]]:
+        """``(env var, Secret, key)`` per wanted variable, checked like :meth:`resolve_secrets`.
+
+        For the pod launcher: the pod takes the value through a ``secretKeyRef``,
+        so the value never passes through the agent into the pod spec.
+        """
+        return [(env_name, secret_name, self._secret_key(namespace, env_name, secret_name)[1])
+                for env_name, secret_name in sorted(wanted.items())]
+
+    def _secret_key(self, namespace: str, env_name: str, secret_name: str) -> tuple[dict[str, Any], str]:
+        try:
+            secret = self.core.read_namespaced_secret(secret_name, namespace)
+        except ApiException as exc:
+            if exc.status == 404:
+                raise SecretMissing(
+                    f"Secret {secret_name!r} (for {env_name}) does not exist in namespace {namespace}; "
+                    f"create it there: kubectl -n {namespace} create secret generic {secret_name} "
+                    f"--from-literal={env_name}=..."
+                ) from exc
+            raise _error(exc, f"secret {namespace}/{secret_name}") from exc
+        data = secret.data or {}
+        key = env_name if env_name in data else (next(iter(data)) if len(data) == 1 else None)
+        if key is None:
+            raise SecretMissing(
+                f"Secret {secret_name!r} in namespace {namespace} has no key {env_name!r} "
+                f"(keys: {sorted(data)}); add it or keep one key only"
+            )
+        return data, key

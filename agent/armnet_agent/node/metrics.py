@@ -32,6 +32,10 @@ class AgentMetrics:
             "armnet_agent_heartbeat_age_seconds", "seconds since the cell's last successful heartbeat write",
             ["cell"], registry=r,
         )
+        self.follower_cancels = Counter(
+            "armnet_agent_follower_cancels_total",
+            "non-detached jobs cancelled because their following client stopped sending heartbeats", registry=r,
+        )
         self.lines_published = Counter(
             "armnet_agent_lines_published_total", "output lines handed to the stream publisher", registry=r
         )
@@ -42,6 +46,21 @@ class AgentMetrics:
         )
         self.lines_dropped = Counter(
             "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
+        )
+
+        self.pod_start_latency = Histogram(
+            "armnet_agent_pod_start_latency_seconds",
+            "pod launcher: pod created -> the job container started (connector sidecar ready first)",
+            buckets=(0.5, 1, 2, 3, 5, 10, 20, 30, 60), registry=r,
+        )
+        self.pod_failures = Counter(
+            "armnet_agent_pod_failures_total",
+            "pod launcher: job pods that ended without a job result (image missing, deadline, connector restarted)",
+            ["reason"], registry=r,
+        )
+        self.connector_restarts = Counter(
+            "armnet_agent_connector_restarts_total",
+            "pod launcher: jobs whose connector sidecar was restarted by the kubelet (the job fails)", registry=r,
         )
 
     def serve(self, port: int, address: str) -> None:

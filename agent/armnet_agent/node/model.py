@@ -13,6 +13,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from armnet_agent.node.follower_rule import follower_window
+
 ACTIVE_PHASES = ("dispatched", "running")
 TERMINAL_PHASES = ("succeeded", "failed", "timeout", "cancelled")
 #: Set by the FMS's Stop together with ``spec.cancel`` (docs/fms.md).
@@ -61,6 +63,7 @@ class _JobSpec(_Loose):
     timeout_seconds: int = Field(default=120, alias="timeoutSeconds")
     secrets: dict[str, str] = Field(default_factory=dict)
     cancel: bool = False
+    detach: bool = False
 
 
 @dataclass(frozen=True)
@@ -119,6 +122,8 @@ class Job:
     resource_version: str = ""
     #: The cell operator who stopped the job from the FMS (``armnet.io/stopped-by``), if any.
     stopped_by: str | None = None
+    #: The heartbeat window of a job whose client follows it (``node.follower``); None: not watched.
+    follower_window_s: float | None = None
 
     @property
     def key(self) -> str:
@@ -191,6 +196,7 @@ def parse_job(obj: dict[str, Any]) -> Job:
         started_at=datetime.fromisoformat(started.replace("Z", "+00:00")) if started else None,
         resource_version=str(meta.get("resourceVersion", "")),
         stopped_by=_operator_name((meta.get("annotations") or {}).get(STOPPED_BY_ANNOTATION)),
+        follower_window_s=follower_window(meta.get("annotations") or {}, spec.detach),
     )
 
 

@@ -6,8 +6,9 @@ The steps, each safe to repeat after a crash at any point:
    missing Secret or an impossible plan ends ``failed`` before anything starts;
 2. start the cell's connector for this job (in this process, on the cell's
    simulator) on the job's socket directory;
-3. start the container named after the job's UID (the engine refuses a second
-   one: a job never runs twice), or adopt the one a previous agent started;
+3. start the container or pod named after the job's UID (the engine or the API
+   server refuses a second one: a job never runs twice), or adopt the one a
+   previous agent started (``launchers``: container engine or pod);
 4. write ``running`` + ``startedAt``; supervise (``armnet_agent.supervise``):
    output lines, progress, the deadline and grace window, graceful cancel;
 5. write the terminal status, then remove the container. A container still
@@ -29,10 +30,11 @@ from typing import Any
 from armnet_core import JobResult, JobStatus
 
 from armnet_agent.connector.inputs import LocalOperatorInputs
-from armnet_agent.launch.container import ContainerJob
-from armnet_agent.launch.sim_cell import LocalCell
+from armnet_agent.launch.pod_spec import SecretRef
 from armnet_agent.node import report
+from armnet_agent.node.follower import guard_follower
 from armnet_agent.node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
+from armnet_agent.node.launchers import JobLauncher, JobSession, SessionRequest
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import TERMINAL_PHASES, Cell, Job, cancel_reason, parse_job
 from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
@@ -54,7 +56,7 @@ ADOPTED_TRIP = (
 @dataclass
 class RunnerDeps:
     kube: AgentKube
-    engine: Any
+    launcher: JobLauncher
     paths: HostPaths
     metrics: AgentMetrics
     link: Link
@@ -79,7 +81,7 @@ class JobRunner:
         self.deps = deps
         self.adopted_container = container
         self.hooks = JobHooks()
-        self.local_cell: LocalCell | None = None
+        self.session: JobSession | None = None
         self._on_done = on_done
         self._progress: str | None = None
         self._rollout: dict[str, int] | None = None
@@ -88,6 +90,8 @@ class JobRunner:
         self._flush_stop = threading.Event()
         #: The terminal status is written: nothing left to stop.
         self.reported = False
+        #: Why the agent itself stopped the job (a lost follower), written as the result's error.
+        self._stop_reason: str | None = None
         self._seen_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
 
@@ -109,13 +113,16 @@ class JobRunner:
             log.info("stopping job %s (cancel, deletion or gone)", self.job.key)
         self.hooks.cancel_gracefully.set()
 
+    def stop_follower_lost(self, message: str) -> None:
+        """The job's following client went away (``node.follower``): cancel, saying why."""
+        if self._stop_reason is None and not self.hooks.cancel_gracefully.is_set():
+            self._stop_reason = message
+            self.deps.metrics.follower_cancels.inc()
+        self.stop()
+
     def interlock_trip(self) -> str | None:
-        cell = self.local_cell
-        connector = cell.connector if cell is not None else None
-        if connector is None:
-            return None
-        trip = connector.interlock.trip_info
-        return trip.message if trip is not None else None
+        session = self.session
+        return session.interlock_trip() if session is not None else None
 
     # -- the run -------------------------------------------------------------------
 
@@ -136,9 +143,14 @@ class JobRunner:
         adopted = self.adopted_container is not None
         if not adopted and not self._still_dispatched():
             return
+        launcher = self.deps.launcher
         try:
-            secrets = self.deps.kube.resolve_secrets(job.namespace, job.secrets)
-            plan = plan_launch(job, cell, self.deps.paths, secrets)
+            if launcher.secrets_by_ref:
+                refs = tuple(SecretRef(*key) for key in self.deps.kube.secret_keys(job.namespace, job.secrets))
+                plan = plan_launch(job, cell, self.deps.paths, {})
+            else:
+                refs = ()
+                plan = plan_launch(job, cell, self.deps.paths, self.deps.kube.resolve_secrets(job.namespace, job.secrets))
         except (SecretMissing, LaunchError) as exc:
             self._fail_before_start(str(exc))
             return
@@ -146,36 +158,34 @@ class JobRunner:
             directory.mkdir(parents=True, exist_ok=True)
         inputs = LocalOperatorInputs()
         output = job_output(self.deps.link, job.namespace, job.uid)
-        local_cell = LocalCell(
-            plan.cell_spec,
-            plan.layout.socket_dir.parent,
-            layout=plan.layout,
-            sim=self.sim,
-            inputs=inputs,
-            on_grace_expired=self.hooks.kill_now.set,
-            tripped=ADOPTED_TRIP if adopted else None,
+        request = SessionRequest(
+            job=job, cell=cell, plan=plan, sim=self.sim, adopted=self.adopted_container,
+            tripped=ADOPTED_TRIP if adopted else None, inputs=inputs,
+            on_grace_expired=self.hooks.kill_now.set, secret_refs=refs,
         )
         bridge = None
-        container_job: ContainerJob | None = None
+        follower = None
         try:
-            with local_cell:
-                self.local_cell = local_cell
-                self.hooks.on_deadline = local_cell.pass_deadline
-                self.hooks.on_cancel = local_cell.cancel
+            with launcher.session(request) as session:
+                self.session = session
+                self.hooks.on_deadline = session.on_deadline
+                self.hooks.on_cancel = session.on_cancel
                 bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout)
                 try:
-                    container_job = self._container(plan)
+                    launched = session.start()
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
                     self._fail_before_start(_engine_error(exc, job.image))
                     return
-                self.deps.metrics.job_log_reads.labels(via="file" if container_job.log_file else "engine_api").inc()
+                self._count_start(adopted)
                 started_at = self._mark_running(adopted)
                 if started_at is None:
-                    container_job.kill()
-                    container_job.remove()
+                    launched.kill()
+                    session.remove()
                     return
                 output.status("running", {"startedAt": report.timestamp(started_at)})
+                follower = guard_follower(self.deps.link, job.namespace, job.uid, job.follower_window_s,
+                                          self.stop_follower_lost)
                 # The job's clock runs from startedAt (also across an agent restart).
                 elapsed = (datetime.now(UTC) - started_at).total_seconds()
                 limits = SupervisorLimits(
@@ -185,10 +195,13 @@ class JobRunner:
                 self.hooks.on_event = self._event_sink(output)
                 flusher = threading.Thread(target=self._flush_progress, daemon=True)
                 flusher.start()
-                result = supervise(container_job, limits, self.hooks)
-                if container_job.oom_killed:
-                    result = infra_failure("the container was killed for exceeding its memory limit (OOM)", limits)
-                record = self._connector_record()
+                result = supervise(launched, limits, self.hooks)
+                failure = session.failure()
+                if failure is not None and result.status not in (JobStatus.TIMEOUT, JobStatus.CANCELLED):
+                    result = infra_failure(failure, limits)
+                elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
+                    result = result.model_copy(update={"error": self._stop_reason})
+                record = session.record()
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
                 written = self._write_terminal(result, record)
@@ -196,13 +209,22 @@ class JobRunner:
                 if written:
                     output.status(result.status.value, {"exitCode": result.exit_code})
                     self._count(result, record, started_at)
-                container_job.remove()
+                session.remove()
         finally:
             self._flush_stop.set()
+            if follower is not None:
+                follower.close()
             if bridge is not None:
                 bridge.close()
-            self.local_cell = None
+            self.session = None
             shutil.rmtree(plan.layout.socket_dir.parent, ignore_errors=True)
+
+    def _count_start(self, adopted: bool) -> None:
+        if adopted:
+            self.deps.metrics.jobs_adopted.inc()
+        else:
+            self.deps.metrics.jobs_started.inc()
+            self.deps.metrics.launch_latency.observe(time.monotonic() - self._seen_at)
 
     def _still_dispatched(self) -> bool:
         """A fresh read right before launch: a stale list must never start a job twice."""
@@ -211,18 +233,6 @@ class JobRunner:
         except Gone:
             return False
         return current.uid == self.job.uid and current.phase == "dispatched" and not current.stopping
-
-    def _container(self, plan: Any) -> ContainerJob:
-        if self.adopted_container is not None:
-            container = self.adopted_container
-            if container.status == "created":
-                container.start()
-            self.deps.metrics.jobs_adopted.inc()
-            return ContainerJob.adopt(self.deps.engine, container)
-        job = ContainerJob.launch(self.deps.engine, plan.container)
-        self.deps.metrics.jobs_started.inc()
-        self.deps.metrics.launch_latency.observe(time.monotonic() - self._seen_at)
-        return job
 
     def _mark_running(self, adopted: bool) -> datetime | None:
         """``running`` + ``startedAt`` (kept if already written); None if the job is no longer ours."""
@@ -281,36 +291,13 @@ class JobRunner:
                 log.warning("job %s: progress not written: %s", self.job.key, exc)
 
     def _latest_rollout(self) -> dict[str, int] | None:
-        cell = self.local_cell
-        if cell is None or cell.connector is None:
-            return None
-        for event in reversed(list(cell.connector.cell.rollouts)):
-            if event.kind == "begin" and event.index is not None:
-                return {"index": event.index, "total": event.total or 0}
-        return None
+        session = self.session
+        return session.rollout() if session is not None else None
 
     def _active_rollout(self) -> int | None:
-        """The index of the rollout the job is in now: its last rollout event is a begin."""
-        cell = self.local_cell
-        if cell is None or cell.connector is None:
-            return None
-        events = list(cell.connector.cell.rollouts)
-        return events[-1].index if events and events[-1].kind == "begin" else None
-
-    def _connector_record(self) -> report.ConnectorRecord:
-        cell = self.local_cell
-        if cell is None or cell.connector is None:
-            return report.ConnectorRecord()
-        trip = cell.connector.interlock.trip_info
-        rollout = self._latest_rollout()
-        return report.ConnectorRecord(
-            trip_reason=trip.reason.value if trip is not None else None,
-            trip_message=trip.message if trip is not None else None,
-            safety_violations=cell.connector.counters.safety_violations,
-            rollout_index=rollout["index"] if rollout else None,
-            rollout_total=rollout["total"] if rollout else None,
-            safety=cell.connector.safety_report().as_status(),
-        )
+        """The index of the rollout the job is in now (operator verdicts for any other are dropped)."""
+        session = self.session
+        return session.active_rollout() if session is not None else None
 
     # -- status writes ----------------------------------------------------------------
 
@@ -359,7 +346,10 @@ class JobRunner:
 
 def _engine_error(exc: Exception, image: str) -> str:
     from docker.errors import ImageNotFound, NotFound
+    from kubernetes.client.exceptions import ApiException
 
     if isinstance(exc, ImageNotFound | NotFound):
         return f"image {image} not found on this node; push it to a registry the node can pull from"
-    return f"the container engine failed to start the job: {type(exc).__name__}: {str(exc)[:300]}"
+    if isinstance(exc, ApiException):
+        return f"the API server refused the job's pod: {exc.status} {exc.reason}: {str(exc.body)[:300]}"
+    return f"the launcher failed to start the job: {type(exc).__name__}: {str(exc)[:300]}"

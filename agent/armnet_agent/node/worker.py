@@ -138,17 +138,11 @@ class CellWorker:
                     self._begin(job, None)
                     return
 
-    def _container(self, row: dict[str, Any]) -> Any:
-        try:
-            return self.deps.engine.containers.get(row["Id"])
-        except Exception:  # noqa: BLE001 - gone between the list and now
-            return None
+    def _container(self, row: Any) -> Any:
+        return self.deps.launcher.handle(row)
 
-    def _remove(self, row: dict[str, Any]) -> None:
-        try:
-            self.deps.engine.api.remove_container(row["Id"], force=True)
-        except Exception:  # noqa: BLE001 - already gone
-            log.debug("removing a reported container failed", exc_info=True)
+    def _remove(self, row: Any) -> None:
+        self.deps.launcher.remove(row)
 
     def _begin(self, job: Job, container: Any) -> None:
         verb = "adopting" if container is not None else "launching"

@@ -36,13 +36,17 @@ app.kubernetes.io/instance: {{ $.Release.Name }}
 app.kubernetes.io/component: {{ index . 1 }}
 {{- end -}}
 
-{{- define "armnet.image" -}}
-{{- printf "%s:%s" .Values.image.repository (default .Chart.AppVersion .Values.image.tag) -}}
+{{- define "armnet.operatorImage" -}}
+{{- printf "%s:%s" .Values.image.operatorRepository (default .Chart.AppVersion .Values.image.tag) -}}
+{{- end -}}
+
+{{- define "armnet.agentImage" -}}
+{{- printf "%s:%s" .Values.image.agentRepository (default .Chart.AppVersion .Values.image.tag) -}}
 {{- end -}}
 
 {{- define "armnet.connectorImage" -}}
 {{- $c := .Values.agent.connectorImage -}}
-{{- printf "%s:%s" (default .Values.image.repository $c.repository) (default (default .Chart.AppVersion .Values.image.tag) $c.tag) -}}
+{{- printf "%s:%s" (default .Values.image.agentRepository $c.repository) (default (default .Chart.AppVersion .Values.image.tag) $c.tag) -}}
 {{- end -}}
 
 {{- define "armnet.operatorAccount" -}}{{ include "armnet.fullname" . }}-operator{{- end -}}

@@ -19,7 +19,7 @@ accounts {
         password: $NATS_AGENT_PASSWORD
         permissions: {
           publish: ["logs.>", "$JS.API.>", "_INBOX.>"]
-          subscribe: ["teleop.>", "fms.>", "_INBOX.>"]
+          subscribe: ["teleop.>", "fms.>", "clients.>", "_INBOX.>"]
         }
       }
       {
@@ -37,8 +37,11 @@ accounts {
         permissions: {
           # Only its own namespace: live output, teleop input, and stream consumers
           # whose filter subject is inside logs.{{ . }}.> (the server checks the filter
-          # in the subject of the CONSUMER.CREATE request).
-          publish: [{{ printf "teleop.%s.>" . | quote }}, {{ printf "$JS.API.CONSUMER.CREATE.ARMNET_LOGS.*.logs.%s.>" . | quote }}, "$JS.API.STREAM.INFO.ARMNET_LOGS"]
+          # in the subject of the CONSUMER.CREATE request). Fetching from, reading and
+          # deleting a consumer need its name: the client names each one with 128 random
+          # bits and tenants cannot list consumers, so only their creator can use them.
+          # clients.<ns>.> carries the heartbeats of a client following a non-detached job.
+          publish: [{{ printf "teleop.%s.>" . | quote }}, {{ printf "clients.%s.>" . | quote }}, {{ printf "$JS.API.CONSUMER.CREATE.ARMNET_LOGS.*.logs.%s.>" . | quote }}, "$JS.API.STREAM.INFO.ARMNET_LOGS", "$JS.API.CONSUMER.MSG.NEXT.ARMNET_LOGS.*", "$JS.API.CONSUMER.INFO.ARMNET_LOGS.*", "$JS.API.CONSUMER.DELETE.ARMNET_LOGS.*"]
           # Replies only on its own inbox prefix: the client sets inbox_prefix "_INBOX.{{ . }}"
           # (a shared _INBOX.> would let one tenant read another's replies).
           subscribe: [{{ printf "logs.%s.>" . | quote }}, {{ printf "_INBOX.%s.>" . | quote }}]

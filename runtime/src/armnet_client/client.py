@@ -29,6 +29,7 @@ from .mapping import (
     JobView,
     cancel_patch,
     cell_view_of,
+    follower_metadata,
     generated_name_prefix,
     job_from_robotjob,
     result_from_robotjob,
@@ -39,6 +40,8 @@ from .resources import API_VERSION, CELLS, GROUP, JOBS, VERSION, Cell, RobotJob,
 from .statusfeed import status_events
 
 log = logging.getLogger("armnet_client")
+
+DEFAULT_FOLLOWER_TIMEOUT_S = 30.0
 
 NATS_URL_ENV = ("ARMNET_NATS_URL", "NATS_URL")
 
@@ -58,6 +61,7 @@ class Client:
         kubeconfig: Optional[str] = None, nats_url: Optional[str] = None,
         stream: str = DEFAULT_STREAM, poll_interval_s: float = 1.0,
         heartbeat_interval_s: float = DEFAULT_INTERVAL_S, env: Optional[Mapping[str, str]] = None,
+        follower_timeout_s: float = DEFAULT_FOLLOWER_TIMEOUT_S,
     ) -> None:
         environ = os.environ if env is None else env
         self._target = kube.ClusterTarget(kubeconfig, context, namespace)
@@ -67,6 +71,9 @@ class Client:
         self.stream = stream
         self.poll_interval_s = poll_interval_s
         self.heartbeat_interval_s = heartbeat_interval_s
+        #: A job submitted to be followed (``execute``, ``armnet submit``) and not detached is
+        #: cancelled by the node agent when this client's heartbeats stop for this long.
+        self.follower_timeout_s = follower_timeout_s
 
     # ---- cluster access
     @property
@@ -110,10 +117,19 @@ class Client:
 
     # ---- jobs
     def submit(self, spec: JobSpec, *, namespace: Optional[str] = None,
-               name: Optional[str] = None) -> Job:
-        """Create the RobotJob for ``spec``; the returned ``Job.id`` is its (maybe generated) name."""
+               name: Optional[str] = None, follow: bool = False) -> Job:
+        """Create the RobotJob for ``spec``; the returned ``Job.id`` is its (maybe generated) name.
+
+        ``follow=True`` declares that this client follows the job (annotation
+        ``armnet.io/follower-timeout-seconds``): unless ``spec.detach``, the node
+        agent cancels it when the heartbeats of :meth:`logs` stop for
+        ``follower_timeout_s``. Without it nothing watches the job, as for
+        ``kubectl apply``. Heartbeats need NATS: declare a follower only with a
+        NATS URL configured (``execute`` and ``armnet submit`` do so).
+        """
         ns = namespace or self.namespace
-        body = robotjob_body(spec, namespace=ns, name=name)
+        body = robotjob_body(spec, namespace=ns, name=name,
+                             follower_window_s=self.follower_timeout_s if follow else None)
         created = self._call("create", "robotjobs", lambda: self._api().create_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS, body), namespace=ns)
         job = job_from_robotjob(RobotJob.model_validate(created))
@@ -136,7 +152,8 @@ class Client:
         return sorted(jobs, key=lambda j: (j.metadata.creation_timestamp.isoformat()
                                            if j.metadata.creation_timestamp else "", j.metadata.name))
 
-    def submit_manifest(self, manifest: dict[str, Any], *, namespace: Optional[str] = None) -> Job:
+    def submit_manifest(self, manifest: dict[str, Any], *, namespace: Optional[str] = None,
+                        follow: bool = False) -> Job:
         """Create a RobotJob manifest as written (``armnet submit -f``), in ``namespace`` if given.
 
         The body is validated against the client's model of the CRD first, so a
@@ -147,6 +164,10 @@ class Client:
         metadata = dict(manifest.get("metadata") or {})
         ns = namespace or metadata.get("namespace") or self.namespace
         metadata["namespace"] = ns
+        if follow:
+            declared = follower_metadata(bool((manifest.get("spec") or {}).get("detach")), self.follower_timeout_s)
+            if declared:
+                metadata["annotations"] = {**(metadata.get("annotations") or {}), **declared["annotations"]}
         body = {**manifest, "apiVersion": API_VERSION, "metadata": metadata}
         try:
             RobotJobSpec.model_validate(body.get("spec") or {})
@@ -228,7 +249,8 @@ class Client:
         With ``follow`` and a reachable log stream, ``stdout``/``stderr`` of the
         result are the whole output read while following; otherwise as :meth:`wait`.
         """
-        job = self.submit(spec)
+        # Without NATS there are no heartbeats: declaring a follower would get the job cancelled.
+        job = self.submit(spec, follow=follow and self.nats_url is not None)
         if not follow:
             return self.wait(job.id)
         stdout: list[str] = []

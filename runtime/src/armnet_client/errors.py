@@ -62,5 +62,17 @@ class NatsUnreachable(ClientError, ConnectionError):
     """The NATS server holding the job logs did not answer; callers fall back to status polling."""
 
 
+class NatsForbidden(ClientError, PermissionError):
+    """The NATS server refused this user the job's log subjects (per-namespace NATS users)."""
+
+    def __init__(self, namespace: str, detail: str) -> None:
+        self.namespace = namespace
+        super().__init__(
+            f"NATS refused reading the logs of namespace {namespace!r} ({detail}): your NATS user "
+            "may read only its own namespace's logs; use the credentials of that namespace in "
+            "--nats-url (nats://tenant-<namespace>:<password>@host:4222)"
+        )
+
+
 class WaitTimeout(ClientError, TimeoutError):
     """``wait`` gave up before the job reached a terminal phase (the job keeps running)."""

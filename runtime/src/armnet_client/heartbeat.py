@@ -5,9 +5,10 @@ Only the agent can enforce it in a way that survives a client crash, so the
 client's part is small: while it follows, publish ``{"at": <UTC time>,
 "client": <host:pid>}`` every ``interval_s`` on
 ``clients.<namespace>.<jobId>.heartbeat`` (plain NATS: a heartbeat is only
-worth anything now). The agent cancels the job when none arrived for its
-window. The subject is this client's proposal; docs/streams.md does not fix
-one yet.
+worth anything now; docs/streams.md). The agent watches a job only when its
+submitter declared a follower (the annotation ``armnet.io/follower-timeout-seconds``,
+``mapping.follower_metadata``) and cancels it when no beat arrived for that
+window (docs/agent.md, "Followed jobs").
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import threading
 from datetime import datetime, timezone
 from typing import Optional
 
-from .logwire import job_subjects
+from .logwire import inbox_prefix, job_subjects
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +45,7 @@ class HeartbeatSender:
                  interval_s: float = DEFAULT_INTERVAL_S) -> None:
         self.url = url
         self.subject = heartbeat_subject(namespace, job_id)
+        self.inbox_prefix = inbox_prefix(namespace)
         self.interval_s = interval_s
         self.client = f"{socket.gethostname()}:{os.getpid()}"
         self.sent = 0
@@ -73,7 +75,7 @@ class HeartbeatSender:
             return None
 
         nc = await nats.connect(self.url, connect_timeout=3, max_reconnect_attempts=1,
-                                reconnect_time_wait=0.25, error_cb=quiet)
+                                reconnect_time_wait=0.25, error_cb=quiet, inbox_prefix=self.inbox_prefix)
         nc.options["max_reconnect_attempts"] = -1
         try:
             while not self._stop.is_set():

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Optional
 
-from .errors import NatsUnreachable
-from .logwire import CaughtUp, Event, LogLine, decode, job_subjects
+from .errors import NatsForbidden, NatsUnreachable
+from .logwire import CaughtUp, Event, LogLine, consumer_name, decode, inbox_prefix, job_subjects
 
 __all__ = ["DEFAULT_STREAM", "CaughtUp", "Event", "FollowSettings", "follow_events"]
 
@@ -49,13 +49,16 @@ class FollowSettings:
 class _Session:
     """One connection and the current ephemeral consumer; rebuilt consumers start after ``last``."""
 
-    def __init__(self, settings: FollowSettings, subject: str) -> None:
+    def __init__(self, settings: FollowSettings, namespace: str, subject: str) -> None:
         self.settings = settings
+        self.namespace = namespace
         self.subject = subject
         self.nc: Any = None
         self.sub: Any = None
         self.reconnects = 0
         self.seen_reconnects = 0
+        #: Permission violations the server reported (asynchronously, through the error callback).
+        self.violations: list[str] = []
 
     async def connect(self) -> None:
         import nats
@@ -64,14 +67,15 @@ class _Session:
         async def on_reconnect() -> None:
             self.reconnects += 1
 
-        async def quiet(_exc: Exception) -> None:
-            return None
+        async def quiet(exc: Exception) -> None:
+            if "permissions violation" in str(exc).lower():
+                self.violations.append(str(exc))
 
         try:
             self.nc = await nats.connect(
                 self.settings.url, connect_timeout=self.settings.connect_timeout_s,
                 max_reconnect_attempts=1, reconnect_time_wait=0.25,
-                reconnected_cb=on_reconnect, error_cb=quiet,
+                reconnected_cb=on_reconnect, error_cb=quiet, inbox_prefix=inbox_prefix(self.namespace),
             )
             # nats-py applies the reconnect budget to the first connect too: fail
             # fast on a wrong URL, then keep reconnecting for as long as we follow.
@@ -82,15 +86,18 @@ class _Session:
             ) from exc
 
     async def subscribe(self, after: int, since: Optional[datetime]) -> None:
+        import uuid
+
         from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 
         await self.drop_consumer()
+        name = consumer_name(self.namespace, uuid.uuid4().hex)
         if after == 0 and since is not None:
-            config = ConsumerConfig(deliver_policy=DeliverPolicy.BY_START_TIME,
+            config = ConsumerConfig(name=name, deliver_policy=DeliverPolicy.BY_START_TIME,
                                     opt_start_time=since, ack_policy=AckPolicy.NONE,
                                     inactive_threshold=30.0)
         else:
-            config = ConsumerConfig(deliver_policy=DeliverPolicy.BY_START_SEQUENCE,
+            config = ConsumerConfig(name=name, deliver_policy=DeliverPolicy.BY_START_SEQUENCE,
                                     opt_start_seq=after + 1, ack_policy=AckPolicy.NONE,
                                     inactive_threshold=30.0)
         js = self.nc.jetstream()
@@ -99,6 +106,7 @@ class _Session:
 
     async def first_subscribe(self, since: Optional[datetime]) -> None:
         """The first consumer; a server without the log stream is as good as no server for logs."""
+        from nats.errors import TimeoutError as NatsTimeout
         from nats.js.errors import NotFoundError
 
         try:
@@ -108,6 +116,12 @@ class _Session:
                 f"NATS at {self.settings.url} has no stream {self.settings.stream}: no node agent "
                 "has published job logs there (wrong server, or the agents use another --stream)"
             ) from exc
+        except (TimeoutError, NatsTimeout) as exc:
+            # A refused request gets no reply: the server says why on the error callback.
+            await asyncio.sleep(0.1)
+            if self.violations:
+                raise NatsForbidden(self.namespace, self.violations[0]) from exc
+            raise
 
     async def drop_consumer(self) -> None:
         sub, self.sub = self.sub, None
@@ -153,7 +167,7 @@ def follow_events(
     cannot be reached at the start or stays away longer than ``outage_limit_s``.
     """
     loop = asyncio.new_event_loop()
-    session = _Session(settings, job_subjects(namespace, job_id))
+    session = _Session(settings, namespace, job_subjects(namespace, job_id))
     last = 0
     caught_up = False
     outage_since: Optional[float] = None

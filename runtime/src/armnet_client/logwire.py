@@ -67,6 +67,27 @@ def job_subjects(namespace: str, job_id: str) -> str:
     return f"logs.{namespace}.{job_id}.>"
 
 
+def inbox_prefix(namespace: str) -> str:
+    """``_INBOX.<namespace>``: replies to this client's requests (JetStream API, fetches) come here.
+
+    With per-tenant NATS users (the chart's ``nats.deploy.auth``) a tenant may
+    subscribe only to its own ``_INBOX.<namespace>.>``; a shared ``_INBOX.>``
+    would let one tenant read another's replies. Harmless on an open server.
+    """
+    job_subjects(namespace, "x")
+    return f"_INBOX.{namespace}"
+
+
+def consumer_name(namespace: str, nonce: str) -> str:
+    """A unique, unguessable name for one follow's ephemeral consumer.
+
+    Named, not server-named, so the create request's subject carries the
+    filter (``$JS.API.CONSUMER.CREATE.<stream>.<name>.logs.<ns>.>``) and NATS
+    permissions can limit a tenant to its own namespace's logs.
+    """
+    return f"armnet-{namespace}-{nonce}"
+
+
 def kind_of(subject: str) -> str:
     return subject.rsplit(".", 1)[-1]
 

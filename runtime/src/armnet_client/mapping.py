@@ -17,12 +17,19 @@ from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatu
 
 from .resources import API_VERSION, Cell, RobotJob
 
+FOLLOWER_ANNOTATION = "armnet.io/follower-timeout-seconds"
+"""Declares that this client follows the job and beats (the agent's ``node.follower_rule`` reads it)."""
+
 _NAME_CHARS = re.compile(r"[^a-z0-9-]+")
 _GENERATED_PREFIX_MAX = 40
 
 
-def robotjob_body(spec: JobSpec, *, namespace: str, name: Optional[str] = None) -> dict[str, Any]:
+def robotjob_body(spec: JobSpec, *, namespace: str, name: Optional[str] = None,
+                  follower_window_s: Optional[float] = None) -> dict[str, Any]:
     """The RobotJob to create for ``spec``: ``metadata.name`` when given, else a generated name.
+
+    ``follower_window_s``: this client will follow the job and send heartbeats;
+    a non-detached job is then cancelled by the agent when they stop for that long.
 
     Defaults are written out (``timeoutSeconds``, ``detach``...) so what the
     user sees in ``kubectl get -o yaml`` is what they asked for, not a default
@@ -43,7 +50,15 @@ def robotjob_body(spec: JobSpec, *, namespace: str, name: Optional[str] = None) 
         metadata["name"] = name
     else:
         metadata["generateName"] = generated_name_prefix(spec.image)
+    metadata.update(follower_metadata(spec.detach, follower_window_s))
     return {"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": metadata, "spec": body}
+
+
+def follower_metadata(detach: bool, window_s: Optional[float]) -> dict[str, Any]:
+    """The annotation that declares a following client (nothing for a detached job or no follower)."""
+    if detach or window_s is None:
+        return {}
+    return {"annotations": {FOLLOWER_ANNOTATION: f"{window_s:g}"}}
 
 
 def generated_name_prefix(image: str) -> str:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from .errors import NatsUnreachable
+from .logwire import inbox_prefix
 from .teleop import STOP_RECORDING, action_payload, event_payload, teleop_subject
 
 log = logging.getLogger(__name__)
@@ -42,7 +43,7 @@ async def run_session(
 
     try:
         nc = await nats.connect(url, connect_timeout=3, max_reconnect_attempts=1,
-                                reconnect_time_wait=0.25)
+                                reconnect_time_wait=0.25, inbox_prefix=inbox_prefix(namespace))
     except (TimeoutError, NoServersError, OSError) as exc:
         raise NatsUnreachable(f"cannot reach NATS at {url}: {exc}; teleop needs it") from exc
     nc.options["max_reconnect_attempts"] = -1

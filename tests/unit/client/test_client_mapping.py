@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 from armnet_client.mapping import (
+    FOLLOWER_ANNOTATION,
     cancel_patch,
     cell_view_of,
     generated_name_prefix,
@@ -163,3 +164,17 @@ def test_a_cell_view_lists_only_the_false_health_conditions() -> None:
 
 def test_a_cell_the_operator_never_saw_is_unknown() -> None:
     assert cell_view_of(Cell.model_validate(a_cell())).phase == "Unknown"
+
+
+def test_a_job_submitted_to_be_followed_declares_its_follower_window() -> None:
+    body = robotjob_body(full_spec().model_copy(update={"detach": False}), namespace="a", follower_window_s=12)
+    assert body["metadata"]["annotations"] == {FOLLOWER_ANNOTATION: "12"}
+
+
+def test_a_job_submitted_without_a_follower_has_no_follower_annotation() -> None:
+    assert "annotations" not in robotjob_body(full_spec(), namespace="a")["metadata"]
+
+
+def test_a_detached_job_never_declares_a_follower() -> None:
+    body = robotjob_body(full_spec().model_copy(update={"detach": True}), namespace="a", follower_window_s=12)
+    assert "annotations" not in body["metadata"]

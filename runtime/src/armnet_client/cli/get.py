@@ -12,12 +12,13 @@ EXAMPLES = """
   armnet get                      # the namespace's jobs: status, cell, queue reason #position, age
   armnet get pick-7x2k -o json    # one job as JSON (the SDK's Job plus queue and progress)
   armnet get -o wide -n team-a    # with task, priority, image, progress and rollout
+  armnet get -o name              # robotjob/<name> per line, for scripts (and shell completion)
 """
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("job", nargs="?", help="a RobotJob name (default: all in the namespace)")
-    parser.add_argument("-o", "--output", choices=("table", "wide", "json", "yaml"), default="table")
+    parser.add_argument("-o", "--output", choices=("table", "wide", "json", "yaml", "name"), default="table")
     add_cluster_options(parser, EXAMPLES)
 
 
@@ -28,6 +29,9 @@ def run(args: argparse.Namespace) -> int:
         if args.output in ("json", "yaml"):
             documents = [job_document(job_from_robotjob(j), view_of(j)) for j in jobs]
             print(dumps(documents[0] if args.job else {"items": documents}, args.output))
+        elif args.output == "name":
+            for job in jobs:
+                print(f"robotjob/{job.metadata.name}")
         elif not jobs:
             print(f"No RobotJobs in namespace {client.namespace}.")
         else:

@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", help="the RobotJob's name (default: generated from the image)")
     parser.add_argument("--detach", action="store_true", help="print the name and return; the job "
                         "keeps running when this client goes away")
+    parser.add_argument("--follower-timeout", type=float, default=30.0, metavar="S",
+                        help="without --detach: the node agent cancels the job when this client's "
+                        "heartbeats stop for S seconds (a crash, a closed laptop); default 30")
     add_cluster_options(parser, EXAMPLES)
 
 
@@ -80,13 +83,16 @@ def read_manifest(path: str) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     def body() -> int:
         client = client_from(args)
+        client.follower_timeout_s = args.follower_timeout
+        # Heartbeats need NATS: without a URL the follow polls the status and declares no follower.
+        follow = not args.detach and client.nats_url is not None
         if args.filename:
             manifest = read_manifest(args.filename)
             if args.detach:
                 manifest.setdefault("spec", {})["detach"] = True
-            job = client.submit_manifest(manifest, namespace=args.namespace)
+            job = client.submit_manifest(manifest, namespace=args.namespace, follow=follow)
         else:
-            job = client.submit(spec_from_flags(args), name=args.name)
+            job = client.submit(spec_from_flags(args), name=args.name, follow=follow)
         print(job.id, flush=True)
         if args.detach:
             return 0

@@ -1,0 +1,278 @@
+"""A job as a Kubernetes pod: the customer container and the connector as a native sidecar. Pure.
+
+The pod launcher (``launch.pod``) turns a launch plan into this manifest and
+creates it; nothing here talks to the API. The shape is the security contract
+of a job on a robot host, so each choice is deliberate:
+
+- the connector is an init container with ``restartPolicy: Always`` (a native
+  sidecar) and a startup probe on its ``robot.sock``: the kubelet starts the
+  customer container only once the connector serves;
+- the sockets (and the camera frame areas the connector keeps beside them) live
+  in an ``emptyDir`` with ``medium: Memory`` shared by both containers; the
+  calibration the connector writes is another ``emptyDir``, read-only for the job;
+- devices (the cell's serial ports) are mounted into the connector only; the
+  customer container sees neither serial devices nor cameras;
+- the customer container runs as a non-root user, without privilege
+  escalation, capabilities or host namespaces, with a read-only root
+  filesystem (``/tmp`` is an ``emptyDir``), and no service-account token;
+- Secrets reach it as ``secretKeyRef`` env vars: the agent never copies a
+  value into the spec;
+- ``activeDeadlineSeconds`` (timeout + grace + margin) is the backstop that
+  ends the pod even if the agent is gone; ``restartPolicy: Never``;
+- an owner reference to the RobotJob, so deleting the job collects the pod.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from armnet_agent.launch.plan import LABEL_CELL, LABEL_NAME, LABEL_NAMESPACE
+
+CONNECTOR_CONTAINER = "connector"
+JOB_CONTAINER = "job"
+#: Env var carrying the sidecar's whole configuration (``launch.sidecar``).
+SIDECAR_ENV = "ARMNET_SIDECAR"
+ANNOTATION_JOB = "armnet.io/job"
+ANNOTATION_CELL = "armnet.io/cell"
+ANNOTATION_TIMEOUT = "armnet.io/timeout-seconds"
+#: Seconds beyond timeout + grace before the kubelet's own deadline ends the pod.
+DEADLINE_MARGIN_S = 30
+#: Seconds the connector gets on SIGTERM to turn torque off and report, beyond the job's grace.
+CONNECTOR_STOP_S = 10
+#: The customer's user: any non-root id; 65532 is the distroless "nonroot" convention.
+JOB_USER = 65532
+SOCKETS_SIZE = "256Mi"
+TMP_SIZE = "256Mi"
+DEVICE_DIR = "/dev/armnet"
+CONNECTOR_CPU_REQUEST = "250m"
+#: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
+STARTUP_PROBE_S = 300
+CONNECTOR_CPU_REQUEST = "250m"
+#: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
+STARTUP_PROBE_S = 300
+
+
+@dataclass(frozen=True)
+class SecretRef:
+    """One env var of the job taken from a key of a Secret in the job's namespace."""
+
+    env: str
+    secret: str
+    key: str
+
+
+@dataclass(frozen=True)
+class PodResources:
+    """Requests and limits of the customer container (the CRDs carry none yet: agent defaults)."""
+
+    cpu_request: str = "100m"
+    memory_request: str = "256Mi"
+    cpu_limit: str | None = None
+    memory_limit: str | None = "4Gi"
+
+    def as_spec(self) -> dict[str, dict[str, str]]:
+        limits = {k: v for k, v in (("cpu", self.cpu_limit), ("memory", self.memory_limit)) if v}
+        spec = {"requests": {"cpu": self.cpu_request, "memory": self.memory_request}}
+        return {**spec, "limits": limits} if limits else spec
+
+
+@dataclass(frozen=True)
+class PodInputs:
+    """Everything the pod of one job is made of; paths are inside the containers."""
+
+    name: str
+    namespace: str
+    node_name: str
+    job_name: str
+    job_uid: str
+    labels: Mapping[str, str]
+    job_image: str
+    job_env: Mapping[str, str]
+    connector_image: str
+    connector_command: tuple[str, ...]
+    #: The sidecar's configuration document (``launch.sidecar.SidecarConfig`` as JSON data).
+    sidecar: Mapping[str, Any]
+    socket_dir: str
+    calibration_dir: str
+    #: Host directories (persist across jobs): the cell's cache and the namespace's volume.
+    cache_dir: str
+    volume_dir: str
+    timeout_seconds: int
+    grace_seconds: float
+    job_command: tuple[str, ...] | None = None
+    secrets: tuple[SecretRef, ...] = ()
+    #: Arm name -> host device path (a serial port or a simulator's pty); the connector's only.
+    devices: Mapping[str, str] = field(default_factory=dict)
+    resources: PodResources = PodResources()
+    #: Development only: host paths mounted read-only at the same path in both containers.
+    dev_mounts: tuple[str, ...] = ()
+    connector_env: Mapping[str, str] = field(default_factory=dict)
+    image_pull_policy: str = "IfNotPresent"
+    job_read_only_root: bool = True
+    job_user: int = JOB_USER
+
+
+def device_path(arm: str) -> str:
+    """Where the connector finds an arm's serial device inside its container."""
+    return f"{DEVICE_DIR}/{arm}"
+
+
+def active_deadline_seconds(timeout_seconds: int, grace_seconds: float) -> int:
+    """The kubelet's backstop: the supervisor ends the job first unless the agent is gone."""
+    return int(timeout_seconds + grace_seconds + 0.999) + DEADLINE_MARGIN_S
+
+
+def build_pod(inputs: PodInputs) -> dict[str, Any]:
+    """The Pod manifest of one job (see the module docstring for why each field is so)."""
+    volumes = _volumes(inputs)
+    spec: dict[str, Any] = {
+        "nodeName": inputs.node_name,
+        "restartPolicy": "Never",
+        "activeDeadlineSeconds": active_deadline_seconds(inputs.timeout_seconds, inputs.grace_seconds),
+        "terminationGracePeriodSeconds": int(inputs.grace_seconds + 0.999) + CONNECTOR_STOP_S,
+        "automountServiceAccountToken": False,
+        "enableServiceLinks": False,
+        "hostNetwork": False,
+        "hostPID": False,
+        "hostIPC": False,
+        # No cluster DNS on a robot host: the node's resolver, no MissingClusterDNS events.
+        "dnsPolicy": "Default",
+        "securityContext": {"seccompProfile": {"type": "RuntimeDefault"}},
+        "initContainers": [_connector(inputs)],
+        "containers": [_job(inputs)],
+        "volumes": volumes,
+    }
+    return {
+        "apiVersion": "v1",
+        "kind": "Pod",
+        "metadata": {
+            "name": inputs.name,
+            "namespace": inputs.namespace,
+            "labels": dict(inputs.labels),
+            "annotations": {
+                ANNOTATION_JOB: f"{inputs.namespace}/{inputs.job_name}",
+                ANNOTATION_CELL: inputs.labels.get(LABEL_CELL, ""),
+                ANNOTATION_TIMEOUT: str(inputs.timeout_seconds),
+            },
+            "ownerReferences": [{
+                "apiVersion": "armnet.io/v1alpha1",
+                "kind": "RobotJob",
+                "name": inputs.job_name,
+                "uid": inputs.job_uid,
+                "controller": True,
+                "blockOwnerDeletion": False,
+            }],
+        },
+        "spec": spec,
+    }
+
+
+def _probe(socket_path: str, period: int, failures: int) -> dict[str, Any]:
+    return {"exec": {"command": ["test", "-S", socket_path]}, "periodSeconds": period,
+            "failureThreshold": failures, "timeoutSeconds": 2}
+
+
+def _connector(inputs: PodInputs) -> dict[str, Any]:
+    robot_sock = f"{inputs.socket_dir}/robot.sock"
+    mounts = [
+        {"name": "sockets", "mountPath": inputs.socket_dir},
+        {"name": "calibration", "mountPath": inputs.calibration_dir},
+        {"name": "connector-tmp", "mountPath": "/tmp"},
+        *({"name": f"device-{i}", "mountPath": device_path(arm)} for i, arm in enumerate(sorted(inputs.devices))),
+        *_dev_mounts(inputs),
+    ]
+    env = [{"name": SIDECAR_ENV, "value": json.dumps(dict(inputs.sidecar), sort_keys=True)}]
+    env += [{"name": k, "value": v} for k, v in sorted(_with_home(inputs.connector_env).items())]
+    return {
+        "name": CONNECTOR_CONTAINER,
+        "image": inputs.connector_image,
+        "imagePullPolicy": inputs.image_pull_policy,
+        "command": list(inputs.connector_command),
+        "restartPolicy": "Always",
+        "env": env,
+        # The customer container starts only once robot.sock exists. A failed startup probe makes
+        # the kubelet restart the sidecar (and that fails the job), so the window is generous: a
+        # loaded host can take a minute or more to import the connector.
+        "startupProbe": _probe(robot_sock, 1, STARTUP_PROBE_S),
+        "readinessProbe": _probe(robot_sock, 5, 3),
+        "securityContext": {
+            "allowPrivilegeEscalation": False,
+            "privileged": False,
+            "readOnlyRootFilesystem": True,
+            "capabilities": {"drop": ["ALL"]},
+        },
+        "volumeMounts": mounts,
+        # The connector answers bus calls under deadlines: CPU shares above a customer container's.
+        "resources": {"requests": {"cpu": CONNECTOR_CPU_REQUEST, "memory": "256Mi"}, "limits": {"memory": "2Gi"}},
+    }
+
+
+def _job(inputs: PodInputs) -> dict[str, Any]:
+    env: list[dict[str, Any]] = [{"name": k, "value": v} for k, v in sorted(_with_home(inputs.job_env).items())]
+    env += [
+        {"name": ref.env, "valueFrom": {"secretKeyRef": {"name": ref.secret, "key": ref.key}}}
+        for ref in sorted(inputs.secrets, key=lambda r: r.env)
+    ]
+    container: dict[str, Any] = {
+        "name": JOB_CONTAINER,
+        "image": inputs.job_image,
+        "imagePullPolicy": inputs.image_pull_policy,
+        "env": env,
+        "securityContext": {
+            "runAsNonRoot": True,
+            "runAsUser": inputs.job_user,
+            "runAsGroup": inputs.job_user,
+            "allowPrivilegeEscalation": False,
+            "privileged": False,
+            "readOnlyRootFilesystem": inputs.job_read_only_root,
+            "capabilities": {"drop": ["ALL"]},
+        },
+        "volumeMounts": [
+            {"name": "sockets", "mountPath": inputs.socket_dir},
+            {"name": "calibration", "mountPath": inputs.calibration_dir, "readOnly": True},
+            {"name": "cache", "mountPath": inputs.cache_dir},
+            {"name": "volume", "mountPath": inputs.volume_dir},
+            {"name": "job-tmp", "mountPath": "/tmp"},
+            *_dev_mounts(inputs),
+        ],
+        "resources": inputs.resources.as_spec(),
+    }
+    if inputs.job_command is not None:
+        container["command"] = list(inputs.job_command)
+    return container
+
+
+def _with_home(env: Mapping[str, str]) -> dict[str, str]:
+    """A writable HOME (the root filesystem is read-only and the user has no passwd entry)."""
+    return {"HOME": "/tmp", **env}
+
+
+def _dev_mounts(inputs: PodInputs) -> list[dict[str, Any]]:
+    return [{"name": f"dev-{i}", "mountPath": path, "readOnly": True} for i, path in enumerate(inputs.dev_mounts)]
+
+
+def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
+    volumes: list[dict[str, Any]] = [
+        {"name": "sockets", "emptyDir": {"medium": "Memory", "sizeLimit": SOCKETS_SIZE}},
+        {"name": "calibration", "emptyDir": {"sizeLimit": "16Mi"}},
+        {"name": "job-tmp", "emptyDir": {"sizeLimit": TMP_SIZE}},
+        {"name": "connector-tmp", "emptyDir": {"sizeLimit": "64Mi"}},
+        {"name": "cache", "hostPath": {"path": inputs.cache_dir, "type": "DirectoryOrCreate"}},
+        {"name": "volume", "hostPath": {"path": inputs.volume_dir, "type": "DirectoryOrCreate"}},
+    ]
+    volumes += [
+        {"name": f"device-{i}", "hostPath": {"path": inputs.devices[arm], "type": "CharDevice"}}
+        for i, arm in enumerate(sorted(inputs.devices))
+    ]
+    volumes += [
+        {"name": f"dev-{i}", "hostPath": {"path": path, "type": "Directory"}} for i, path in enumerate(inputs.dev_mounts)
+    ]
+    return volumes
+
+
+def pod_identity(labels: Mapping[str, str]) -> tuple[str, str]:
+    """``(namespace, name)`` of the RobotJob a pod's labels name."""
+    return labels.get(LABEL_NAMESPACE, ""), labels.get(LABEL_NAME, "")

@@ -1,0 +1,137 @@
+"""The connector sidecar of a job pod: ``python -m armnet_agent.launch.sidecar``.
+
+The pod launcher puts the whole configuration in one env var
+(``pod_spec.SIDECAR_ENV``): the connector config (ports are the devices the
+pod mounts into this container only), the calibration files to write into the
+shared calibration volume, and the job's deadline (the connector runs the
+job's clock itself in a pod: the agent cannot call into it).
+
+Two facts of native sidecars shape this module:
+
+- the kubelet restarts a sidecar that dies, even with ``restartPolicy: Never``.
+  A connector that comes back mid-job has lost its view of the arm, so the
+  first start leaves a marker in the sockets volume (which outlives container
+  restarts) and a later start trips the interlock at once: no motion resumes
+  silently; the agent also sees the restart count and fails the job;
+- the agent reads the connector's account of the job from this container's
+  log: at stop the sidecar prints one ``RECORD_MARKER`` line with it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+RECORD_MARKER = "ARMNET_CONNECTOR_RECORD "
+STARTED_MARKER = ".connector-started"
+RESTARTED_MESSAGE = (
+    "the connector restarted while the job ran; its view of the arm was lost, so it refuses motion for the rest of "
+    "the job"
+)
+SIGNAL_POLL_S = 0.1
+
+
+@dataclass(frozen=True)
+class SidecarConfig:
+    connector: Mapping[str, Any]
+    socket_dir: str
+    #: Calibration file path -> its JSON content.
+    calibration: Mapping[str, Any]
+
+    def as_data(self) -> dict[str, Any]:
+        return {"connector": dict(self.connector), "socket_dir": self.socket_dir, "calibration": dict(self.calibration)}
+
+    @classmethod
+    def from_data(cls, data: Mapping[str, Any]) -> SidecarConfig:
+        return cls(connector=data["connector"], socket_dir=data["socket_dir"], calibration=data.get("calibration", {}))
+
+
+def record_line(record: Mapping[str, Any]) -> str:
+    return RECORD_MARKER + json.dumps(record, sort_keys=True, default=str)
+
+
+def parse_record(log_text: str) -> dict[str, Any] | None:
+    """The last record line of a connector log (a restarted connector prints one per life)."""
+    found: dict[str, Any] | None = None
+    for line in log_text.splitlines():
+        if line.startswith(RECORD_MARKER):
+            try:
+                value = json.loads(line[len(RECORD_MARKER):])
+            except ValueError:
+                continue
+            if isinstance(value, dict):
+                found = value
+    return found
+
+
+def main() -> int:
+    from armnet_agent.connector import Connector, ConnectorConfig
+    from armnet_agent.connector.interlock import TripReason
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    from armnet_agent.launch.pod_spec import SIDECAR_ENV
+
+    config = SidecarConfig.from_data(json.loads(os.environ[SIDECAR_ENV]))
+    for path, content in config.calibration.items():
+        target = Path(path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(json.dumps(content, indent=2))
+    socket_dir = Path(config.socket_dir)
+    socket_dir.mkdir(parents=True, exist_ok=True)
+    marker = socket_dir / STARTED_MARKER
+    restarted = marker.exists()
+    marker.touch()
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    connector = Connector(ConnectorConfig.model_validate(dict(config.connector)), socket_dir)
+    if restarted:
+        connector.interlock.trip(TripReason.AGENT_RESTARTED, RESTARTED_MESSAGE)
+    connector.start()
+    print(f"armnet connector sidecar: serving {socket_dir}" + (" (restarted: interlock tripped)" if restarted else ""),
+          file=sys.stderr, flush=True)
+    try:
+        while not stop.wait(SIGNAL_POLL_S):
+            pass
+    finally:
+        record = _record(connector)
+        connector.stop()
+        record["safety"] = connector.safety_report().as_status()
+        record["restarted"] = restarted
+        print(record_line(record), flush=True)
+    return 0
+
+
+def _record(connector: Any) -> dict[str, Any]:
+    """The connector's account before its own stop trips the interlock (``shutdown`` is teardown, not news)."""
+    trip = connector.interlock.trip_info
+    rollout = None
+    for event in reversed(list(connector.cell.rollouts)):
+        if event.kind == "begin" and event.index is not None:
+            rollout = event
+            break
+    return {
+        "trip_reason": trip.reason.value if trip is not None else None,
+        "trip_message": trip.message if trip is not None else None,
+        "safety_violations": connector.counters.safety_violations,
+        "rollout_index": rollout.index if rollout is not None else None,
+        "rollout_total": (rollout.total or 0) if rollout is not None else None,
+    }
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

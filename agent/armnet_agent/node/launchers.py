@@ -1,0 +1,438 @@
+"""Where the node agent runs a job: a container-engine container or a Kubernetes pod (``--launcher``).
+
+Both launchers give the runner the same things, so there is one run path
+(``runner.JobRunner``): the launched job for the supervisor (``LaunchedJob``),
+the job's record from the connector, and a way to find, adopt and remove the
+jobs a previous agent process started (by label).
+
+- ``ContainerLauncher``: the customer container through the Docker API; the
+  connector runs in the agent's process on the cell's simulator (``LocalCell``).
+- ``PodLauncher``: one pod per job on this node (``launch.pod_spec``), the
+  connector as its native sidecar; the agent keeps the cell's simulator and
+  hands its ptys to the connector container only.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from armnet_runtime import env as env_keys
+
+from armnet_agent.connector.inputs import LocalOperatorInputs
+from armnet_agent.launch.container import ContainerJob
+from armnet_agent.launch.plan import LABEL_JOB_UID, LABEL_MANAGED_BY, MANAGED_BY_AGENT
+from armnet_agent.launch.pod import PodExists, PodJob
+from armnet_agent.launch.pod_spec import (
+    JOB_USER,
+    PodInputs,
+    PodResources,
+    SecretRef,
+    build_pod,
+    device_path,
+)
+from armnet_agent.launch.sidecar import SidecarConfig
+from armnet_agent.launch.sim_cell import LocalCell, build_connector_config
+from armnet_agent.node import report
+from armnet_agent.node.metrics import AgentMetrics
+from armnet_agent.node.model import Cell, Job
+from armnet_agent.node.plan import LaunchPlan, container_name
+from armnet_agent.sim.calibration import builtin_calibration, dump_calibration
+from armnet_agent.sim.presets import PRESETS, SimulatedCell
+from armnet_agent.supervise import LaunchedJob
+
+log = logging.getLogger(__name__)
+
+#: How long the runner waits for a job pod's container to start before it marks the job running anyway.
+POD_START_TIMEOUT_S = 120
+CONNECTOR_RESTARTED = (
+    "the connector sidecar restarted during the job (the kubelet restarts a sidecar that dies); it came back with "
+    "the interlock tripped and the job was failed rather than resumed"
+)
+
+
+class JobSession(Protocol):
+    """One job's launch on one launcher, from start (or adoption) to removal."""
+
+    def start(self) -> LaunchedJob: ...
+
+    def on_deadline(self) -> None: ...
+
+    def on_cancel(self) -> None:
+        """Open the grace window of a graceful cancel (the interlock's reason names the cancel)."""
+        ...
+
+    def failure(self) -> str | None:
+        """An infrastructure failure that overrides the job's own result (OOM, connector restart)."""
+        ...
+
+    def record(self) -> report.ConnectorRecord: ...
+
+    def rollout(self) -> dict[str, int] | None: ...
+
+    def active_rollout(self) -> int | None:
+        """The rollout the job is in now (its last rollout event is a begin), else None."""
+        ...
+
+    def interlock_trip(self) -> str | None: ...
+
+    def remove(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class SessionRequest:
+    job: Job
+    cell: Cell
+    plan: LaunchPlan
+    sim: SimulatedCell | None
+    #: The launcher's handle of a job a previous agent started (re-adoption), else None.
+    adopted: Any
+    tripped: str | None
+    inputs: LocalOperatorInputs
+    on_grace_expired: Callable[[], None]
+    secret_refs: tuple[SecretRef, ...] = ()
+
+
+class JobLauncher(Protocol):
+    kind: str
+    secrets_by_ref: bool
+
+    def running(self) -> dict[str, Any]:
+        """Job uid -> a row of every job this agent's launcher started and did not remove."""
+        ...
+
+    def row_labels(self, row: Any) -> Mapping[str, str]: ...
+
+    def handle(self, row: Any) -> Any:
+        """The adoptable handle of a row, or None if it is gone since the list."""
+        ...
+
+    def remove(self, row: Any) -> None: ...
+
+    def session(self, request: SessionRequest) -> Any:
+        """A context manager yielding the job's :class:`JobSession`."""
+        ...
+
+
+# -- the container engine ----------------------------------------------------------------
+
+
+class ContainerLauncher:
+    kind = "container"
+    #: Secrets reach the container as env values (the Docker API has no secret references).
+    secrets_by_ref = False
+
+    def __init__(self, engine: Any, metrics: AgentMetrics) -> None:
+        self.engine = engine
+        self.metrics = metrics
+
+    def running(self) -> dict[str, Any]:
+        rows = self.engine.api.containers(all=True, filters={"label": f"{LABEL_MANAGED_BY}={MANAGED_BY_AGENT}"})
+        return {(row.get("Labels") or {}).get(LABEL_JOB_UID, ""): row for row in rows}
+
+    def row_labels(self, row: Any) -> Mapping[str, str]:
+        return dict(row.get("Labels") or {})
+
+    def handle(self, row: Any) -> Any:
+        try:
+            return self.engine.containers.get(row["Id"])
+        except Exception:  # noqa: BLE001 - gone between the list and now
+            return None
+
+    def remove(self, row: Any) -> None:
+        try:
+            self.engine.api.remove_container(row["Id"], force=True)
+        except Exception:  # noqa: BLE001 - already gone
+            log.debug("removing a container failed", exc_info=True)
+
+    @contextmanager
+    def session(self, request: SessionRequest) -> Iterator[ContainerSession]:
+        plan = request.plan
+        local_cell = LocalCell(
+            plan.cell_spec, plan.layout.socket_dir.parent, layout=plan.layout, sim=request.sim,
+            inputs=request.inputs, on_grace_expired=request.on_grace_expired, tripped=request.tripped,
+        )
+        with local_cell:
+            yield ContainerSession(self, request, local_cell)
+
+
+class ContainerSession:
+    def __init__(self, launcher: ContainerLauncher, request: SessionRequest, local_cell: LocalCell) -> None:
+        self.launcher = launcher
+        self.request = request
+        self.local_cell = local_cell
+        self.job: ContainerJob | None = None
+
+    def start(self) -> LaunchedJob:
+        adopted = self.request.adopted
+        if adopted is not None:
+            if adopted.status == "created":
+                adopted.start()
+            self.job = ContainerJob.adopt(self.launcher.engine, adopted)
+        else:
+            self.job = ContainerJob.launch(self.launcher.engine, self.request.plan.container)
+        via = "file" if self.job.log_file is not None else "engine_api"
+        self.launcher.metrics.job_log_reads.labels(via=via).inc()
+        return self.job
+
+    def on_deadline(self) -> None:
+        self.local_cell.pass_deadline()
+
+    def on_cancel(self) -> None:
+        self.local_cell.cancel()
+
+    def failure(self) -> str | None:
+        if self.job is not None and self.job.oom_killed:
+            return "the container was killed for exceeding its memory limit (OOM)"
+        return None
+
+    def interlock_trip(self) -> str | None:
+        connector = self.local_cell.connector
+        trip = connector.interlock.trip_info if connector is not None else None
+        return trip.message if trip is not None else None
+
+    def rollout(self) -> dict[str, int] | None:
+        connector = self.local_cell.connector
+        if connector is None:
+            return None
+        for event in reversed(list(connector.cell.rollouts)):
+            if event.kind == "begin" and event.index is not None:
+                return {"index": event.index, "total": event.total or 0}
+        return None
+
+    def active_rollout(self) -> int | None:
+        connector = self.local_cell.connector
+        if connector is None:
+            return None
+        events = list(connector.cell.rollouts)
+        return events[-1].index if events and events[-1].kind == "begin" else None
+
+    def record(self) -> report.ConnectorRecord:
+        connector = self.local_cell.connector
+        if connector is None:
+            return report.ConnectorRecord()
+        trip = connector.interlock.trip_info
+        rollout = self.rollout()
+        return report.ConnectorRecord(
+            trip_reason=trip.reason.value if trip is not None else None,
+            trip_message=trip.message if trip is not None else None,
+            safety_violations=connector.counters.safety_violations,
+            rollout_index=rollout["index"] if rollout else None,
+            rollout_total=rollout["total"] if rollout else None,
+            safety=connector.safety_report().as_status(),
+        )
+
+    def remove(self) -> None:
+        if self.job is not None:
+            self.job.remove()
+
+
+# -- Kubernetes pods -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PodSettings:
+    node_name: str
+    connector_image: str
+    connector_command: tuple[str, ...] = ("python3", "-m", "armnet_agent.launch.sidecar")
+    image_pull_policy: str = "IfNotPresent"
+    resources: PodResources = PodResources()
+    job_read_only_root: bool = True
+    job_user: int = JOB_USER
+    dev_mounts: tuple[str, ...] = ()
+    dev_env: Mapping[str, str] = field(default_factory=dict)
+
+
+class PodLauncher:
+    kind = "pod"
+    #: Secrets reach the pod as ``secretKeyRef`` env vars: the agent never holds the values.
+    secrets_by_ref = True
+
+    def __init__(self, core: Any, settings: PodSettings, metrics: AgentMetrics, namespaces: tuple[str, ...] = ()) -> None:
+        self.core = core
+        self.settings = settings
+        self.metrics = metrics
+        self.namespaces = namespaces
+
+    def running(self) -> dict[str, Any]:
+        """This node's job pods, by label (re-adoption reads the pod, never the agent's memory)."""
+        selector = f"{LABEL_MANAGED_BY}={MANAGED_BY_AGENT}"
+        node = f"spec.nodeName={self.settings.node_name}"
+        if self.namespaces:
+            items = [p for ns in self.namespaces for p in self.core.list_namespaced_pod(
+                ns, label_selector=selector, field_selector=node).items]
+        else:
+            items = self.core.list_pod_for_all_namespaces(label_selector=selector, field_selector=node).items
+        rows = [self.core.api_client.sanitize_for_serialization(pod) for pod in items]
+        return {(row["metadata"].get("labels") or {}).get(LABEL_JOB_UID, ""): row for row in rows}
+
+    def row_labels(self, row: Any) -> Mapping[str, str]:
+        return dict(row["metadata"].get("labels") or {})
+
+    def handle(self, row: Any) -> Any:
+        return row
+
+    def remove(self, row: Any) -> None:
+        meta = row["metadata"]
+        PodJob(self.core, meta["namespace"], meta["name"], follow=False).delete(grace_seconds=0)
+
+    @contextmanager
+    def session(self, request: SessionRequest) -> Iterator[PodSession]:
+        yield PodSession(self, request)
+
+    def manifest(self, request: SessionRequest) -> dict[str, Any]:
+        """The job's pod (pure given the request: ``launch.pod_spec`` decides its shape)."""
+        s = self.settings
+        plan, job, cell = request.plan, request.job, request.cell
+        layout = plan.layout
+        ports = {arm.name: device_path(arm.name) for arm in layout.arms}
+        config = build_connector_config(plan.cell_spec, layout, ports)
+        # In a pod the connector runs the job's clock (the agent cannot call into it).
+        config = config.model_copy(update={"timeout_seconds": float(job.timeout_seconds)})
+        shipped = {preset.name: preset.calibration for preset in PRESETS[plan.cell_spec.preset]}
+        calibration = {
+            str(arm.calibration_file): json.loads(dump_calibration(builtin_calibration(shipped[arm.name])))
+            for arm in layout.arms
+        }
+        sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration)
+        devices = dict(request.sim.ports()) if request.sim is not None else {}
+        env = dict(plan.container.env)
+        if request.secret_refs:
+            env[env_keys.SECRETS] = json.dumps(sorted(ref.env for ref in request.secret_refs))
+        inputs = PodInputs(
+            name=container_name(job.uid),
+            namespace=job.namespace,
+            node_name=s.node_name,
+            job_name=job.name,
+            job_uid=job.uid,
+            labels=plan.container.labels,
+            job_image=job.image,
+            job_env=env,
+            connector_image=s.connector_image,
+            connector_command=s.connector_command,
+            sidecar=sidecar.as_data(),
+            socket_dir=str(layout.socket_dir),
+            calibration_dir=str(layout.calibration_dir),
+            cache_dir=str(layout.cache_dir),
+            volume_dir=str(layout.volume_dir),
+            timeout_seconds=job.timeout_seconds,
+            grace_seconds=cell.grace_seconds,
+            job_command=plan.container.command,
+            secrets=request.secret_refs,
+            devices={arm: devices[arm] for arm in ports if arm in devices},
+            resources=s.resources,
+            dev_mounts=s.dev_mounts,
+            connector_env=dict(s.dev_env),
+            image_pull_policy=s.image_pull_policy,
+            job_read_only_root=s.job_read_only_root,
+            job_user=s.job_user,
+        )
+        return build_pod(inputs)
+
+
+class PodSession:
+    def __init__(self, launcher: PodLauncher, request: SessionRequest) -> None:
+        self.launcher = launcher
+        self.request = request
+        self.job: PodJob | None = None
+        self._record: report.ConnectorRecord | None = None
+
+    def start(self) -> LaunchedJob:
+        core, metrics = self.launcher.core, self.launcher.metrics
+        request = self.request
+        job: PodJob | None = None
+        if request.adopted is None:
+            self._own_host_dirs()
+            try:
+                job = PodJob.launch(core, self.launcher.manifest(request), on_started=metrics.pod_start_latency.observe)
+            except PodExists:
+                pass  # this job's pod from an agent that died before it wrote running: adopt it
+        if job is None:
+            job = PodJob.adopt(core, request.job.namespace, container_name(request.job.uid))
+        self.job = job
+        # "running" means the job's code runs: wait for its container (the sidecar is ready first).
+        if not job.wait_started(POD_START_TIMEOUT_S):
+            log.warning("job %s: its pod's container has not started after %d s", request.job.key, POD_START_TIMEOUT_S)
+        return job
+
+    def _own_host_dirs(self) -> None:
+        """The cache and volume are host directories: the job's non-root user must be able to write them."""
+        layout = self.request.plan.layout
+        uid = self.launcher.settings.job_user
+        for directory in (layout.cache_dir, layout.volume_dir):
+            directory.mkdir(parents=True, exist_ok=True)
+            try:
+                os.chown(directory, uid, uid)
+            except PermissionError:
+                log.warning("cannot hand %s to uid %d (the agent is not root): the job cannot write it", directory, uid)
+
+    def on_deadline(self) -> None:
+        """Nothing to call: the sidecar runs the job's deadline itself; the supervisor kills after grace."""
+
+    def on_cancel(self) -> None:
+        """Nothing to call, as at the deadline: the supervisor kills after grace."""
+
+    def failure(self) -> str | None:
+        job = self.job
+        if job is None:
+            return None
+        if job.connector_restarts > 0:
+            self.launcher.metrics.connector_restarts.inc()
+            record = self.record()
+            if record.trip_message:
+                return f"{CONNECTOR_RESTARTED} (connector record: {record.trip_reason}: {record.trip_message})"
+            return CONNECTOR_RESTARTED
+        if job.failure is not None:
+            self.launcher.metrics.pod_failures.labels(reason=_reason_label(job.failure)).inc()
+            return f"the job's pod ended without running the job: {job.failure}"
+        if job.oom_killed:
+            return "the job container was killed for exceeding its memory limit (OOM)"
+        return None
+
+    def interlock_trip(self) -> str | None:
+        return None  # the connector is in the pod; its trips reach the status through its record
+
+    def rollout(self) -> dict[str, int] | None:
+        return None
+
+    def active_rollout(self) -> int | None:
+        # Operator inputs do not reach a sidecar yet (docs/agent.md, the pod launcher).
+        return None
+
+    def record(self) -> report.ConnectorRecord:
+        if self._record is None:
+            data = self.job.connector_record() if self.job is not None else None
+            self._record = _connector_record(data)
+        return self._record
+
+    def remove(self) -> None:
+        if self.job is not None:
+            self.job.remove()
+
+
+def _reason_label(failure: str) -> str:
+    """A bounded label value for the failure counter."""
+    for known in ("ErrImageNeverPull", "ErrImagePull", "ImagePullBackOff", "DeadlineExceeded", "deleted",
+                  "CreateContainerConfigError", "CreateContainerError", "RunContainerError"):
+        if known in failure:
+            return known
+    return "other"
+
+
+def _connector_record(data: Mapping[str, Any] | None) -> report.ConnectorRecord:
+    if not data:
+        return report.ConnectorRecord()
+    return report.ConnectorRecord(
+        trip_reason=data.get("trip_reason"),
+        trip_message=data.get("trip_message"),
+        safety_violations=int(data.get("safety_violations") or 0),
+        rollout_index=data.get("rollout_index"),
+        rollout_total=data.get("rollout_total"),
+        safety=dict(data.get("safety") or {}),
+    )
+

@@ -1,0 +1,284 @@
+"""Jobs as real Kubernetes pods: ``kubectl apply`` a RobotJob, the agent's pod launcher runs it on the node.
+
+Real kube-apiserver + etcd, the test bed's real node (containerd + kubelet),
+the real ``armnet operator`` and ``armnet agent --launcher pod`` processes. The
+connector runs as the job pod's native sidecar and reaches the cell simulator's
+pty through a device mount of its own; the customer container runs non-root
+and sees no device. Development stand-in for the images: the base image with
+this machine's venv and worktree mounted read-only (``--dev-mount``), like the
+container launcher's e2e.
+
+One bed per module: the independent jobs are submitted together and run side
+by side on three cells; each test checks its own job.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+import urllib.request
+from collections.abc import Iterator
+from datetime import datetime
+from typing import Any
+
+import pytest
+
+from e2e.agent_bed import EXAMPLES, AgentBed
+
+pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
+
+JOB_TIMEOUT = 25
+
+RAISES = """
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        print("about to fail", flush=True)
+        raise ValueError("the gripper saw no cube")
+"""
+
+IGNORES_SHUTDOWN = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        while True:
+            time.sleep(0.1)
+"""
+
+COUNTS_SLOWLY = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        for i in range(ctx.args.get("lines", 30)):
+            print(f"line {i:03d}", flush=True)
+            ctx.report_progress(f"line {i}")
+            time.sleep(ctx.args.get("pause", 0.25))
+        return {"lines": ctx.args.get("lines", 30)}
+"""
+
+# What the customer container sees, checked from inside it: the socket was there at its
+# first instruction (the sidecar's startup probe gated it), no serial device, no root.
+LOOKS_AROUND = """
+    import os
+    import stat
+    socket_at_start = os.path.exists(os.environ["ARMNET_CELL_SOCKET"].removeprefix("unix://"))
+    from armnet_runtime import Context, main
+
+    def char_devices():
+        found = []
+        for top, dirs, files in os.walk("/dev"):
+            for name in files:
+                path = os.path.join(top, name)
+                try:
+                    if stat.S_ISCHR(os.stat(path).st_mode):
+                        found.append(path)
+                except OSError:
+                    pass
+        return sorted(found)
+
+    @main
+    def run(ctx: Context):
+        return {"socket_at_start": socket_at_start, "uid": os.getuid(), "devices": char_devices(),
+                "secret_length": len(ctx.secrets.get("API_TOKEN", "")),
+                "root_writable": os.access("/", os.W_OK)}
+"""
+
+SECRET_VALUE = "s3cr3t-pod-value-42"
+
+
+@pytest.fixture(scope="module")
+def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str) -> Iterator[AgentBed]:
+    namespace = k8s.create_namespace("pod-e2e")
+    bed = AgentBed(k8s, podman, base_image, namespace)
+    bed.node = k8s_node.name
+    bed.image_prefix = "armnet-pod-e2e"
+    # The non-root job user must reach the venv mounted under /root (development stand-in only).
+    bed.image_lines = ["RUN chmod 0755 /root"]
+    bed.on_image = k8s_node.import_image
+    bed.agent_args = ["--launcher", "pod", "--connector-image", base_image, "--image-pull-policy", "Never",
+                      "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar"]
+    bed.cells = [bed.add_cell(f"pod-{c}") for c in "abc"]  # type: ignore[attr-defined]
+    bed.start_operator()
+    bed.start_agent()
+    try:
+        for cell in bed.cells:  # type: ignore[attr-defined]
+            try:
+                bed.wait_ready(cell, timeout=180)
+            except AssertionError as exc:
+                raise AssertionError(f"{json.dumps(bed.cell(cell).get('status'), indent=1)}\n{exc}") from None
+        yield bed
+    finally:
+        bed.stop()
+        k8s.kubectl("delete", "pods", "--all", "-n", namespace, "--grace-period=0", "--force", check=False)
+        k8s.delete_namespace(namespace)
+
+
+@pytest.fixture(scope="module")
+def batch(bed: AgentBed) -> dict[str, str]:
+    """The independent scenarios' jobs, submitted together so they run side by side."""
+    bed.k8s.kubectl("create", "secret", "generic", "api-token", "-n", bed.namespace,
+                    f"--from-literal=API_TOKEN={SECRET_VALUE}")
+    bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", (EXAMPLES / "_so101_moves.py",))
+    return {
+        "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
+        # Generous timeouts: on a loaded host a pod's Python takes a minute or more to import the SDK.
+        "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=300),
+        "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
+                            secrets={"API_TOKEN": "api-token"}),
+        "timeout": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
+    }
+
+
+def status(job: dict[str, Any]) -> dict[str, Any]:
+    return job.get("status") or {}
+
+
+def explain(st: dict[str, Any]) -> str:
+    """The parts of a status that say why a job ended (error, traceback, the output's end)."""
+    result = st.get("result") or {}
+    return (f"phase {st.get('phase')}\nerror: {result.get('error')}\ntraceback: {result.get('traceback')}\n"
+            f"stdout tail: {(result.get('stdoutTail') or '')[-4000:]}")
+
+
+def seconds_between(start: str, end: str) -> float:
+    parse = lambda s: datetime.fromisoformat(s.replace("Z", "+00:00"))  # noqa: E731
+    return (parse(end) - parse(start)).total_seconds()
+
+
+def pod_of(bed: AgentBed, job: dict[str, Any]) -> dict[str, Any] | None:
+    out = bed.k8s.kubectl("get", "pod", f"armnet-{job['metadata']['uid']}", "-n", bed.namespace, "-o", "json",
+                          check=False)
+    return json.loads(out.stdout) if out.returncode == 0 else None
+
+
+def test_a_bus_loop_job_in_a_pod_moves_the_arm_through_the_sidecar_and_succeeds(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["success"], timeout=300))
+    assert st["phase"] == "succeeded", explain(st)
+    finals = st["result"]["returnValue"]["final_positions"]
+    assert set(finals) >= {"shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"}
+    assert st["result"]["exitCode"] == 0
+    assert st["result"]["safety"]["policy"] == "clamp"  # the sidecar's record reached the status
+
+
+def test_a_job_pod_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:
+    st = status(bed.wait_phase(batch["failure"], timeout=300))
+    assert st["phase"] == "failed", explain(st)
+    assert "ValueError: the gripper saw no cube" in st["result"]["traceback"]
+    assert "about to fail" in st["result"]["stdoutTail"]
+
+
+def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_and_sees_no_device(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    job = bed.wait_phase(batch["shape"], timeout=300)
+    st = status(job)
+    assert st["phase"] == "succeeded", explain(st)
+    seen = st["result"]["returnValue"]
+    assert seen["socket_at_start"] is True
+    assert seen["uid"] != 0
+    assert not seen["root_writable"]
+    # The container's own devpts (/dev/pts/ptmx) and the runtime's defaults are fine; a host pty
+    # (/dev/pts/<n>), a serial adapter, a camera or the connector's device path are not.
+    host_devices = [d for d in seen["devices"]
+                    if d.startswith("/dev/armnet") or re.match(r"/dev/(pts/\d|ttyUSB|ttyACM|ttyS|video)", d)]
+    assert not host_devices, seen
+    assert seen["secret_length"] == len(SECRET_VALUE)
+    assert SECRET_VALUE not in json.dumps(job)
+
+
+def test_a_job_pod_ignoring_shutdown_is_killed_after_grace_and_ends_timeout(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["timeout"], timeout=300))
+    assert st["phase"] == "timeout", explain(st)
+    assert "killed at the end of the 3 s grace window" in st["result"]["error"]
+    assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 5
+
+
+def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("to-cancel", image, args={"lines": 1000, "pause": 0.2}, timeout=300)
+    job = bed.wait_phase("to-cancel", ("running",), timeout=300)
+    pod = bed.wait(lambda: pod_of(bed, job), 30, "the job's pod")
+    spec = pod["spec"]
+    connector, = spec["initContainers"]
+    customer, = spec["containers"]
+    assert connector["restartPolicy"] == "Always" and "startupProbe" in connector
+    assert spec["restartPolicy"] == "Never" and spec["automountServiceAccountToken"] is False
+    assert spec["activeDeadlineSeconds"] >= 300 + 3
+    assert pod["metadata"]["ownerReferences"][0]["uid"] == job["metadata"]["uid"]
+    volumes = {v["name"]: v for v in spec["volumes"]}
+    devices = {name for name, v in volumes.items() if v.get("hostPath", {}).get("type") == "CharDevice"}
+    assert devices and devices <= {m["name"] for m in connector["volumeMounts"]}
+    assert not devices & {m["name"] for m in customer["volumeMounts"]}
+    assert volumes["sockets"]["emptyDir"]["medium"] == "Memory"
+    assert customer["securityContext"]["runAsNonRoot"] is True
+    assert customer["securityContext"]["allowPrivilegeEscalation"] is False
+    started = {s["name"]: s for s in pod["status"].get("initContainerStatuses", [])}
+    assert started["connector"]["started"] is True and started["connector"]["ready"] is True
+
+    bed.k8s.kubectl("patch", "rj", "to-cancel", "-n", bed.namespace, "--type=merge", "-p", '{"spec":{"cancel":true}}')
+    st = status(bed.wait_phase("to-cancel", timeout=60))
+    assert st["phase"] == "cancelled", explain(st)
+    bed.wait(lambda: pod_of(bed, job) is None, 30, "the cancelled job's pod removed")
+
+
+def test_the_agent_exports_the_pod_start_latency(bed: AgentBed, batch: dict[str, str]) -> None:
+    bed.wait_phase(batch["failure"], timeout=400)  # launched by this agent process (not restarted yet)
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    count = [line for line in text.splitlines() if line.startswith("armnet_agent_pod_start_latency_seconds_count")]
+    assert count and float(count[0].split()[-1]) >= 1, count
+
+
+def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("survives", image, args={"lines": 40, "pause": 0.25}, timeout=200)
+    bed.wait_phase("survives", ("running",), timeout=300)
+
+    def some_output() -> bool:
+        progress = status(bed.job("survives")).get("progress") or ""
+        return progress.startswith("line ") and int(progress.split()[1]) >= 5
+
+    bed.wait(some_output, 240, "some output")
+    bed.kill_agent()
+    bed.start_agent()
+    st = status(bed.wait_phase("survives", timeout=300))
+    assert st["phase"] == "succeeded", explain(st)
+    assert st["result"]["returnValue"] == {"lines": 40}
+    printed = [line.split(" ", 1)[-1] for line in st["result"]["stdoutTail"].splitlines()]  # after the timestamp
+    lines = [line for line in printed if line.startswith("line ")]
+    assert lines == [f"line {i:03d}" for i in range(40)]
+
+
+def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails_with_the_reason(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    image = bed.image("counts", COUNTS_SLOWLY)
+    bed.submit("loses-connector", image, args={"lines": 40, "pause": 0.25}, timeout=200)
+    job = bed.wait_phase("loses-connector", ("running",), timeout=300)
+
+    def some_output() -> bool:
+        progress = status(bed.job("loses-connector")).get("progress") or ""
+        return progress.startswith("line ") and int(progress.split()[1]) >= 3
+
+    bed.wait(some_output, 240, "some output")
+    # SIGTERM to the sidecar's PID 1 (the kernel ignores SIGKILL to a namespace's init from inside it).
+    bed.k8s.kubectl("exec", "-n", bed.namespace, f"armnet-{job['metadata']['uid']}", "-c", "connector", "--",
+                    "python3", "-c", "import os, signal; os.kill(1, signal.SIGTERM)")
+    st = status(bed.wait_phase("loses-connector", timeout=300))
+    assert st["phase"] == "failed", explain(st)
+    assert "connector sidecar restarted" in st["result"]["error"]
+    # The restarted connector's own record: it came back with the interlock tripped.
+    assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]

@@ -1,0 +1,240 @@
+"""The shipped images (images/runtime, images/operator, images/agent), built without a registry.
+
+Each image's build context holds two wheel folders, so the Containerfiles install
+offline and the big layer is built once:
+
+- ``deps/``: a locked dependency set (``deps/requirements.txt``, one ``name==version``
+  per wheel in the folder), cached under ~/.cache/armnet/wheelhouse by a hash of the
+  pyproject files. Three locks: ``runtime`` (the SDK's closure), ``platform`` (the
+  operator's: the root distribution's closure) and ``lerobot`` (the platform lock plus
+  ``armnet-runtime[lerobot]`` and LeRobot 0.4.4; torch 2.13.0 from PyPI, a CUDA build
+  that also runs on CPU, ~5 GB installed). The agent image and the runtime image's
+  LeRobot variant use the same ``lerobot`` lock, so their dependency layer is one layer
+  on a robot host.
+- ``wheels/``: this repository's own wheels, rebuilt every time (small).
+
+``ensure_image`` tags each build with a hash of everything that goes into it (the
+Containerfile folder, the lock, the sources of our wheels, the base image id and the
+build arguments) and skips the build when Podman has that tag: a warm test session
+builds nothing. scripts/build-images.sh calls ``main`` to build all three for a real
+registry (``--base python:3.11-slim``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tests.testbed.images import BASE_IMAGE, REPO_ROOT, WHEEL_CACHE, build_wheels
+from tests.testbed.procs import progress
+
+TORCH_PIN = "torch==2.13.0"
+LEROBOT_PIN = "lerobot==0.4.4"
+HASH_LABEL = "armnet.io/content-hash"
+# Sources of our two wheels; a change in any of them is a new image.
+RUNTIME_SOURCES = ("runtime/pyproject.toml", "runtime/src")
+PLATFORM_SOURCES = (*RUNTIME_SOURCES, "pyproject.toml", "README.md", "operator", "agent", "cli")
+
+
+@dataclass(frozen=True)
+class ImageSpec:
+    """One shipped image: which Containerfile, which lock, which of our wheels."""
+
+    name: str
+    containerfile_dir: str
+    lock: str
+    own: tuple[str, ...]
+    buildargs: tuple[tuple[str, str], ...] = field(default=())
+
+    @property
+    def repository(self) -> str:
+        return f"localhost/armnet-{self.name}"
+
+
+RUNTIME = ImageSpec("runtime", "images/runtime", "runtime", ("armnet_runtime",))
+RUNTIME_LEROBOT = ImageSpec("runtime-lerobot", "images/runtime", "lerobot", ("armnet_runtime",),
+                            (("LEROBOT", "1"),))
+OPERATOR = ImageSpec("operator", "images/operator", "platform", ("armnet_runtime", "armnet"))
+AGENT = ImageSpec("agent", "images/agent", "lerobot", ("armnet_runtime", "armnet"))
+ALL = {spec.name: spec for spec in (RUNTIME, RUNTIME_LEROBOT, OPERATOR, AGENT)}
+
+
+# ---------------------------------------------------------------------- locks
+def _lock_digest(lock: str) -> str:
+    """What decides a lock's content: the pyproject files, Python, and the lerobot pins."""
+    digest = hashlib.sha256()
+    for f in (REPO_ROOT / "pyproject.toml", REPO_ROOT / "runtime" / "pyproject.toml"):
+        digest.update(f.read_bytes())
+    digest.update(f"{sys.version_info[:2]} {TORCH_PIN} {LEROBOT_PIN}".encode())
+    return digest.hexdigest()[:16]
+
+
+def _pip(*args: str) -> None:
+    argv = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q", *args]
+    result = subprocess.run(argv, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}")
+
+
+def lock_dir(lock: str, own_wheels: Sequence[Path]) -> Path:
+    """The wheel folder of ``lock`` with its requirements.txt; built once (network: PyPI)."""
+    house = WHEEL_CACHE / f"lock-{lock}-{_lock_digest(lock)}"
+    stamp = house / ".complete"
+    if stamp.exists():
+        return house
+    started = time.monotonic()
+    progress(f"building the {lock} dependency lock {house} (cold: minutes; lerobot: ~4 GB)")
+    shutil.rmtree(house, ignore_errors=True)
+    house.mkdir(parents=True)
+    constraints = house / ".constraints.txt"
+    constraints.write_text(TORCH_PIN + "\n")
+    runtime = next(w for w in own_wheels if w.name.startswith("armnet_runtime-"))
+    platform = [w for w in own_wheels if not w.name.startswith("armnet_runtime-")]
+    wanted = {"runtime": [str(runtime)],
+              "platform": [str(runtime), *map(str, platform)],
+              "lerobot": [f"{runtime}[lerobot]", *map(str, platform)]}[lock]
+    links = str(runtime.parent)
+    _pip("wheel", "-w", str(house), "--find-links", links, "-c", str(constraints), *wanted)
+    if lock == "lerobot":  # LeRobot pins torch<2.11: its own deps come from the extra above
+        _pip("wheel", "-w", str(house), "--no-deps", LEROBOT_PIN)
+    for own in own_wheels:  # ours are rebuilt for every image; the lock holds dependencies only
+        (house / own.name).unlink(missing_ok=True)
+    (house / "requirements.txt").write_text("".join(
+        f"{requirement(wheel)}\n" for wheel in sorted(house.glob("*.whl"))))
+    stamp.touch()
+    progress(f"{lock} lock ready in {time.monotonic() - started:.0f} s")
+    return house
+
+
+def requirement(wheel: Path) -> str:
+    """``name==version`` of a wheel file (PEP 427 file name)."""
+    name, version = wheel.name.split("-")[:2]
+    return f"{name}=={version}"
+
+
+# ---------------------------------------------------------------------- content hash
+def _hash_tree(digest: Any, path: Path) -> None:
+    files = [path] if path.is_file() else sorted(
+        p for p in path.rglob("*") if p.is_file() and "__pycache__" not in p.parts
+        and not p.name.endswith(".pyc") and ".egg-info" not in str(p))
+    for f in files:
+        digest.update(str(f.relative_to(REPO_ROOT)).encode())
+        digest.update(f.read_bytes())
+
+
+def content_hash(spec: ImageSpec, base_id: str, buildargs: dict[str, str]) -> str:
+    """What the image is made of: a change in any input is a different tag."""
+    digest = hashlib.sha256()
+    _hash_tree(digest, REPO_ROOT / spec.containerfile_dir)
+    sources = PLATFORM_SOURCES if "armnet" in spec.own else RUNTIME_SOURCES
+    for source in sources:
+        _hash_tree(digest, REPO_ROOT / source)
+    digest.update(f"{spec.lock} {_lock_digest(spec.lock)} {base_id}".encode())
+    digest.update(repr(sorted(buildargs.items())).encode())
+    return digest.hexdigest()[:12]
+
+
+# ---------------------------------------------------------------------- build
+def _revision() -> str:
+    result = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"],
+                            capture_output=True, text=True, check=False)
+    return result.stdout.strip() or "unknown"
+
+
+def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
+                 version: str = "0.1.0") -> str:
+    """The image's content-hash tag, built now only if Podman does not have it yet."""
+    import docker
+
+    try:
+        base_id = str(client.images.get(base_image).id)
+    except docker.errors.ImageNotFound:
+        if base_image.startswith("localhost/"):
+            raise
+        base_id = str(client.images.pull(base_image).id)
+    args = {"BASE": base_image, **dict(spec.buildargs)}
+    tag = f"{spec.repository}:{content_hash(spec, base_id, args)}"
+    try:
+        client.images.get(tag)
+        return tag
+    except docker.errors.ImageNotFound:
+        pass
+    started = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix=f"armnet-{spec.name}-") as tmp:
+        context = Path(tmp) / "context"
+        shutil.copytree(REPO_ROOT / spec.containerfile_dir, context)
+        own = [w for w in build_wheels(Path(tmp) / "all-wheels")
+               if any(w.name.startswith(prefix + "-") for prefix in spec.own)]
+        house = lock_dir(spec.lock, own)
+        _link_all((context / "deps"), [*house.glob("*.whl"), house / "requirements.txt"])
+        _link_all(context / "wheels", own)
+        labels = {"VERSION": version, "REVISION": _revision(),
+                  "CREATED": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        progress(f"building {tag} ({spec.containerfile_dir}, lock {spec.lock})")
+        try:
+            image, _logs = client.images.build(
+                path=str(context), dockerfile="Containerfile", tag=tag, rm=True, forcerm=True,
+                buildargs={**args, **labels}, labels={HASH_LABEL: tag.rsplit(":", 1)[1]},
+                network_mode="none", timeout=3600,
+            )
+        except docker.errors.BuildError as exc:
+            lines = [str(c.get("stream", c.get("error", ""))).rstrip() for c in exc.build_log]
+            raise RuntimeError(f"building {tag} failed: {exc.msg}\n" + "\n".join(lines[-40:])) from exc
+    image.tag(spec.repository, "dev")
+    progress(f"built {tag} in {time.monotonic() - started:.0f} s")
+    return tag
+
+
+def _link_all(dest: Path, files: Iterable[Path]) -> None:
+    dest.mkdir(parents=True, exist_ok=True)
+    for f in files:
+        try:
+            os.link(f, dest / f.name)
+        except OSError:
+            shutil.copy2(f, dest / f.name)
+
+
+def image_size(client: Any, tag: str) -> int:
+    return int(client.images.get(tag).attrs.get("Size", 0))
+
+
+# ---------------------------------------------------------------------- CLI
+def main(argv: Sequence[str] | None = None) -> int:
+    """Build the shipped images and print their sizes (scripts/build-images.sh)."""
+    import docker
+
+    parser = argparse.ArgumentParser(prog="build-images", description=main.__doc__)
+    parser.add_argument("names", nargs="*", metavar="NAME",
+                        help=f"images to build, of {', '.join(sorted(ALL))} (default: runtime operator agent)")
+    parser.add_argument("--base", default=BASE_IMAGE,
+                        help="base image with python3 + venv (default: the test bed's debootstrap "
+                             "base; for registries e.g. docker.io/library/python:3.11-slim)")
+    parser.add_argument("--engine", default=os.environ.get("DOCKER_HOST", "unix:///run/podman/podman.sock"),
+                        help="Docker API of the engine (default: DOCKER_HOST, else Podman's socket)")
+    parser.add_argument("--version", default="0.1.0", help="org.opencontainers.image.version")
+    args = parser.parse_args(argv)
+    names = args.names or ["runtime", "operator", "agent"]
+    unknown = sorted(set(names) - set(ALL))
+    if unknown:
+        parser.error(f"unknown image(s) {', '.join(unknown)}; choose from {', '.join(sorted(ALL))}")
+    client = docker.DockerClient(base_url=args.engine, timeout=3600)
+    built = [(name, ensure_image(ALL[name], client=client, base_image=args.base,
+                                 version=args.version)) for name in names]
+    print(f"{'image':<44} {'size':>10}")
+    for _name, tag in built:
+        print(f"{tag:<44} {image_size(client, tag) / 1e6:>8.0f} MB")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,161 @@
+"""A job's pod: the connector as a native sidecar, devices for it alone, a locked-down customer container."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+from armnet_agent.launch.plan import LABEL_CELL, LABEL_JOB_UID
+from armnet_agent.launch.pod_spec import (
+    ANNOTATION_CELL,
+    ANNOTATION_JOB,
+    CONNECTOR_CONTAINER,
+    DEADLINE_MARGIN_S,
+    JOB_CONTAINER,
+    SIDECAR_ENV,
+    PodInputs,
+    SecretRef,
+    active_deadline_seconds,
+    build_pod,
+    device_path,
+)
+
+pytestmark = pytest.mark.unit
+
+SOCKETS = "/var/lib/armnet/run/uid-1/sockets"
+
+
+def inputs(**changes: Any) -> PodInputs:
+    base: dict[str, Any] = {
+        "name": "armnet-uid-1", "namespace": "team-a", "node_name": "robot-host-1",
+        "job_name": "pick-1", "job_uid": "uid-1",
+        "labels": {LABEL_CELL: "cell-1", LABEL_JOB_UID: "uid-1"},
+        "job_image": "registry.example/pick:1", "job_env": {"ARMNET_JOB_ID": "uid-1"},
+        "connector_image": "armnet/connector:1", "connector_command": ("python3", "-m", "armnet_agent.launch.sidecar"),
+        "sidecar": {"socket_dir": SOCKETS, "connector": {"arms": {}}, "calibration": {}},
+        "socket_dir": SOCKETS, "calibration_dir": "/var/lib/armnet/run/uid-1/calibration",
+        "cache_dir": "/var/lib/armnet/cells/cell-1/cache", "volume_dir": "/var/lib/armnet/volumes/team-a",
+        "timeout_seconds": 600, "grace_seconds": 10,
+        "devices": {"arm": "/dev/serial/by-id/usb-feetech-1"},
+    }
+    base.update(changes)
+    return PodInputs(**base)
+
+
+def containers(pod: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    (connector,) = pod["spec"]["initContainers"]
+    (job,) = pod["spec"]["containers"]
+    return connector, job
+
+
+def mounted_volumes(container: dict[str, Any], pod: dict[str, Any]) -> list[dict[str, Any]]:
+    names = {m["name"] for m in container["volumeMounts"]}
+    return [v for v in pod["spec"]["volumes"] if v["name"] in names]
+
+
+def test_the_connector_is_a_native_sidecar_whose_startup_probe_waits_for_its_socket() -> None:
+    connector, _ = containers(build_pod(inputs()))
+    assert connector["name"] == CONNECTOR_CONTAINER
+    assert connector["restartPolicy"] == "Always"
+    assert connector["startupProbe"]["exec"]["command"] == ["test", "-S", f"{SOCKETS}/robot.sock"]
+    assert connector["readinessProbe"]["exec"]["command"] == ["test", "-S", f"{SOCKETS}/robot.sock"]
+
+
+def test_both_containers_share_the_sockets_in_a_memory_backed_empty_dir() -> None:
+    pod = build_pod(inputs())
+    volumes = {v["name"]: v for v in pod["spec"]["volumes"]}
+    assert volumes["sockets"]["emptyDir"]["medium"] == "Memory"
+    for container in containers(pod):
+        assert {"name": "sockets", "mountPath": SOCKETS} in container["volumeMounts"]
+
+
+def test_the_device_is_mounted_into_the_connector_only() -> None:
+    pod = build_pod(inputs())
+    connector, job = containers(pod)
+    connector_devices = [v for v in mounted_volumes(connector, pod) if v.get("hostPath", {}).get("type") == "CharDevice"]
+    assert [v["hostPath"]["path"] for v in connector_devices] == ["/dev/serial/by-id/usb-feetech-1"]
+    assert device_path("arm") in {m["mountPath"] for m in connector["volumeMounts"]}
+    assert not [v for v in mounted_volumes(job, pod) if v.get("hostPath", {}).get("type") == "CharDevice"]
+    assert not [m for m in job["volumeMounts"] if m["mountPath"].startswith("/dev")]
+
+
+def test_the_customer_container_is_non_root_without_privileges_and_with_a_read_only_root() -> None:
+    _, job = containers(build_pod(inputs()))
+    context = job["securityContext"]
+    assert context["runAsNonRoot"] is True and context["runAsUser"] != 0
+    assert context["allowPrivilegeEscalation"] is False and context["privileged"] is False
+    assert context["readOnlyRootFilesystem"] is True
+    assert context["capabilities"] == {"drop": ["ALL"]}
+    assert {"name": "job-tmp", "mountPath": "/tmp"} in job["volumeMounts"]
+
+
+def test_the_calibration_is_read_only_for_the_customer_and_written_by_the_connector() -> None:
+    connector, job = containers(build_pod(inputs()))
+    calibration = [m for m in job["volumeMounts"] if m["name"] == "calibration"]
+    assert calibration[0]["readOnly"] is True
+    assert not [m for m in connector["volumeMounts"] if m["name"] == "calibration" and m.get("readOnly")]
+
+
+def test_the_pod_uses_no_host_namespace_and_mounts_no_service_account_token() -> None:
+    spec = build_pod(inputs())["spec"]
+    assert spec["hostNetwork"] is False and spec["hostPID"] is False and spec["hostIPC"] is False
+    assert spec["automountServiceAccountToken"] is False
+
+
+def test_the_pod_never_restarts_and_runs_on_the_agents_own_node() -> None:
+    spec = build_pod(inputs())["spec"]
+    assert spec["restartPolicy"] == "Never"
+    assert spec["nodeName"] == "robot-host-1"
+
+
+def test_the_active_deadline_is_timeout_plus_grace_plus_a_margin() -> None:
+    assert build_pod(inputs())["spec"]["activeDeadlineSeconds"] == 600 + 10 + DEADLINE_MARGIN_S
+    assert active_deadline_seconds(60, 2.5) == 60 + 3 + DEADLINE_MARGIN_S
+
+
+def test_the_robotjob_owns_the_pod() -> None:
+    (owner,) = build_pod(inputs())["metadata"]["ownerReferences"]
+    assert owner == {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "name": "pick-1", "uid": "uid-1",
+                     "controller": True, "blockOwnerDeletion": False}
+
+
+def test_labels_and_annotations_tie_the_pod_to_its_cell_and_job() -> None:
+    meta = build_pod(inputs())["metadata"]
+    assert meta["labels"][LABEL_CELL] == "cell-1" and meta["labels"][LABEL_JOB_UID] == "uid-1"
+    assert meta["annotations"][ANNOTATION_JOB] == "team-a/pick-1"
+    assert meta["annotations"][ANNOTATION_CELL] == "cell-1"
+    assert meta["namespace"] == "team-a"
+
+
+def test_secrets_are_secret_key_refs_and_no_value_is_in_the_pod() -> None:
+    pod = build_pod(inputs(secrets=(SecretRef("API_TOKEN", "api-token", "token"),)))
+    _, job = containers(pod)
+    (entry,) = [e for e in job["env"] if e["name"] == "API_TOKEN"]
+    assert entry == {"name": "API_TOKEN", "valueFrom": {"secretKeyRef": {"name": "api-token", "key": "token"}}}
+
+
+def test_the_sidecar_gets_its_configuration_as_one_json_env_var() -> None:
+    connector, job = containers(build_pod(inputs()))
+    (entry,) = [e for e in connector["env"] if e["name"] == SIDECAR_ENV]
+    assert json.loads(entry["value"])["socket_dir"] == SOCKETS
+    assert SIDECAR_ENV not in {e["name"] for e in job["env"]}
+
+
+def test_the_customer_container_runs_the_images_own_command_unless_one_is_given() -> None:
+    _, job = containers(build_pod(inputs()))
+    assert "command" not in job and job["name"] == JOB_CONTAINER
+    _, job = containers(build_pod(inputs(job_command=("armnet-runtime", "/job/main.py"))))
+    assert job["command"] == ["armnet-runtime", "/job/main.py"]
+
+
+def test_resources_have_requests_and_a_memory_limit() -> None:
+    _, job = containers(build_pod(inputs()))
+    assert set(job["resources"]["requests"]) == {"cpu", "memory"}
+    assert "memory" in job["resources"]["limits"]
+
+
+def test_development_mounts_are_read_only_in_both_containers() -> None:
+    pod = build_pod(inputs(dev_mounts=("/opt/venv",)))
+    for container in containers(pod):
+        assert {"name": "dev-0", "mountPath": "/opt/venv", "readOnly": True} in container["volumeMounts"]
