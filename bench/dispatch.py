@@ -20,7 +20,9 @@ line goes through ``JobStream.line`` -> ``NatsLink`` -> JetStream, while a
 subscriber in another process (a JetStream ordered consumer from the first
 message, as a client following a job would use) audits what it receives (one
 message per id): every printed line whole, once, in order, or lost, cut into
-fragments, repeated or late. The ``follow`` mode is the same run without NATS: the baseline.
+fragments, repeated or late. The ``follow`` mode is the same run without NATS: the baseline
+(``ContainerJob`` reading Podman's k8s-file log file); the ``api`` mode is that
+path with the Docker API's follow instead (the fallback, and the path before).
 Printed per mode: lines/s (first -> last line seen by the reader),
 lines lost, the ratio to the baseline, next to the target (>= 20,000 lines/s,
 zero loss).
@@ -312,8 +314,9 @@ def subscriber(url: str, subject: str, expected: int, idle_s: float) -> None:
     print(json.dumps(asyncio.run(run())), flush=True)
 
 
-def start_container(client: Any, image: str, lines: int) -> Any:
-    """The printing container on the agent's follow path (``ContainerJob``)."""
+def start_container(client: Any, image: str, lines: int, read_log_file: bool = True) -> Any:
+    """The printing container on the agent's follow path (``ContainerJob``; ``read_log_file=False``:
+    the Docker API's follow, the fallback)."""
     try:
         from armnet_agent.launch.container import ULIMITS, ContainerJob
     except ImportError:  # before the launch/ refactor
@@ -326,7 +329,9 @@ def start_container(client: Any, image: str, lines: int) -> Any:
         labels={"armnet.io/bench": "dispatch"}, detach=True,
     )
     container.start()
-    return ContainerJob(client, container)
+    job = ContainerJob(client, container)
+    job.read_log_file = read_log_file
+    return job
 
 
 def follow(job: Any, on_line: Any) -> None:
@@ -344,7 +349,7 @@ def follow(job: Any, on_line: Any) -> None:
     supervise(job, SupervisorLimits(timeout_seconds=600, grace_seconds=5), JobHooks(on_event=on_event))
 
 
-def run_follow(client: Any, image: str, lines: int) -> dict[str, float]:
+def run_follow(client: Any, image: str, lines: int, read_log_file: bool = True) -> dict[str, float]:
     audit = LineAudit()
     first_at, last_at = [0.0], [0.0]
 
@@ -353,7 +358,7 @@ def run_follow(client: Any, image: str, lines: int) -> dict[str, float]:
             last_at[0] = time.time()
             first_at[0] = first_at[0] or last_at[0]
 
-    job = start_container(client, image, lines)
+    job = start_container(client, image, lines, read_log_file)
     try:
         follow(job, on_line)
         # The supervisor reads the output to its end (bounded by a stall); this waits only
@@ -439,10 +444,11 @@ def services(args: argparse.Namespace) -> Iterator[tuple[Any, str, str, str]]:
 
 
 def log_throughput(args: argparse.Namespace) -> None:
-    results: dict[str, list[dict[str, float]]] = {"follow": [], "nats": []}
+    results: dict[str, list[dict[str, float]]] = {"follow": [], "api": [], "nats": []}
     with services(args) as (client, _, image, nats_url):
-        for _ in range(args.rounds):  # the modes take turns, so both see the same machine load
+        for _ in range(args.rounds):  # the modes take turns, so all see the same machine load
             results["follow"].append(run_follow(client, image, args.lines))
+            results["api"].append(run_follow(client, image, args.lines, read_log_file=False))
             results["nats"].append(run_nats(client, image, args.lines, nats_url))
 
     baseline = statistics.median(r["lines_per_s"] for r in results["follow"])
@@ -453,7 +459,7 @@ def log_throughput(args: argparse.Namespace) -> None:
     for mode, runs in results.items():
         rate = statistics.median(r["lines_per_s"] for r in runs)
         worst = {k: max(int(r[k]) for r in runs) for k in ("lost", "fragments", "duplicates", "late")}
-        target = "(baseline)" if mode == "follow" else (
+        target = "(baseline)" if mode == "follow" else "(the Docker API's follow: the fallback)" if mode == "api" else (
             f">= {TARGET_LINES_PER_S} lines/s, 0 lost: "
             + ("met" if rate >= TARGET_LINES_PER_S and worst["lost"] == 0 else "NOT met"))
         print(f"{mode:<8} {rate:>10.0f} {worst['lost']:>6} {worst['fragments']:>6} {worst['duplicates']:>6} "

@@ -375,6 +375,9 @@ def test_the_agent_exports_job_and_heartbeat_metrics(bed: AgentBed, batch: dict[
     assert 'armnet_agent_jobs_finished_total{outcome="succeeded"}' in text
     assert "armnet_agent_heartbeat_age_seconds{cell=" in text
     assert "armnet_agent_launch_latency_seconds_count" in text
+    # The agent runs beside its Podman: every job's output is read from the engine's log file.
+    assert 'armnet_agent_job_log_reads_total{via="file"}' in text
+    assert 'armnet_agent_job_log_reads_total{via="engine_api"}' not in text
 
 
 def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a_clear_error(

@@ -12,6 +12,7 @@ from __future__ import annotations
 import sys
 import tempfile
 import textwrap
+import threading
 from collections import Counter
 from pathlib import Path
 
@@ -121,6 +122,7 @@ def test_a_container_jobs_output_arrives_whole_and_once_even_when_the_follow_dro
     )
     container.start()
     job = ContainerJob(podman.client, container)
+    job.read_log_file = False  # the Docker API's follow: the fallback when the log file cannot be read
     job.follow_grace_s = grace
     try:
         output = b"".join(job.stdout_chunks()).decode()
@@ -134,3 +136,34 @@ def test_a_container_jobs_output_arrives_whole_and_once_even_when_the_follow_dro
     # well (it cannot be taken back), next to the whole line.
     fragments = set(counts) - set(expected)
     assert len(fragments) <= 5, f"fragments: {sorted(fragments)[:10]}"
+
+
+def test_an_exit_burst_read_from_the_log_file_arrives_complete_and_in_order_on_each_stream(
+    podman: Podman, base_image: str
+) -> None:
+    """50,000 lines printed as fast as Python can, the container exiting right after; every
+    100th line also goes to stderr, so the records of both streams interleave in the file."""
+    lines = 50_000
+    printer = (
+        "import sys\n"
+        f"for i in range({lines}):\n"
+        "    sys.stdout.write(f'line {i}\\n')\n"
+        "    if i % 100 == 0: sys.stderr.write(f'err {i}\\n')\n"
+    )
+    container = podman.client.containers.create(
+        base_image, ["python3", "-c", printer], network_mode="host", ulimits=podman.ulimits(), detach=True,
+    )
+    container.start()
+    job = ContainerJob(podman.client, container)
+    try:
+        assert job.log_file is not None, "Podman's k8s-file log is read directly on this host"
+        stderr: list[bytes] = []
+        reader = threading.Thread(target=lambda: stderr.extend(job.stderr_chunks()))
+        reader.start()
+        stdout = b"".join(job.stdout_chunks()).decode()
+        reader.join(60)
+        assert job.wait(60) == 0
+    finally:
+        job.remove()
+    assert stdout.splitlines() == [f"line {i}" for i in range(lines)]
+    assert b"".join(stderr).decode().splitlines() == [f"err {i}" for i in range(0, lines, 100)]

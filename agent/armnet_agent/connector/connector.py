@@ -147,8 +147,12 @@ class Connector:
         return self.cell.deadline.grace_expired
 
     def pass_deadline(self) -> None:
-        """Open the grace window now (e.g. the job was cancelled)."""
+        """Open the grace window now: the job ran out of time."""
         self.cell.deadline.pass_deadline()
+
+    def cancel(self) -> None:
+        """Open the grace window now: the job was cancelled (the interlock's reason says so)."""
+        self.cell.deadline.cancel()
 
     @property
     def interlock(self) -> Interlock:

@@ -16,6 +16,8 @@ from .interlock import Interlock, TripReason
 
 log = logging.getLogger(__name__)
 
+CANCELLED_MESSAGE = "the job was cancelled"
+
 
 class Deadline:
     """Timer thread: deadline → interlock + grace window → ``on_grace_expired``."""
@@ -67,12 +69,24 @@ class Deadline:
                 log.exception("on_grace_expired callback failed")
 
     def pass_deadline(self) -> None:
-        """Enter the grace window now (the timer does this; hosts may too, e.g. on cancel)."""
+        """Enter the grace window now because the job ran out of time (the timer does this)."""
+        self._enter_grace(f"the job exceeded its timeout of {self.timeout_s} s")
+
+    def cancel(self) -> None:
+        """Enter the grace window now because the job was cancelled.
+
+        The same window as a timeout (the job gets ``grace_s`` to save its data),
+        but the interlock's reason names the cancel: a job without a timeout was
+        otherwise told it "exceeded its timeout of None s".
+        """
+        self._enter_grace(CANCELLED_MESSAGE)
+
+    def _enter_grace(self, why: str) -> None:
         if self._passed_at is not None:
             return
         self._passed_at = self._clock()
-        self._interlock.trip(TripReason.DEADLINE, f"the job exceeded its timeout of {self.timeout_s} s")
-        log.warning("deadline passed: interlock tripped, grace window of %.1f s open", self.grace_s)
+        self._interlock.trip(TripReason.DEADLINE, why)
+        log.warning("%s: interlock tripped, grace window of %.1f s open", why, self.grace_s)
 
     @property
     def deadline_passed(self) -> bool:

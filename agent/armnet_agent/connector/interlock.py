@@ -64,7 +64,7 @@ class Interlock:
         if trip.reason is TripReason.DEADLINE:
             return (
                 "ShuttingDown",
-                "the job is past its deadline (grace window): robot motion is refused. "
+                f"the job is in its grace window ({trip.message}): robot motion is refused. "
                 "Finish up (save your data) and return; ctx.is_shutting_down() is True.",
             )
         return (

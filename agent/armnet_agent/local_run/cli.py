@@ -217,6 +217,7 @@ def run_local_job(
             if page is not None:
                 page.cell = cell
             hooks.on_deadline = cell.pass_deadline
+            hooks.on_cancel = cell.cancel
             env = build_job_env(
                 spec, cell.layout, job_id=job_id, timeout_seconds=request.timeout_seconds, args=request.job_args
             )

@@ -63,6 +63,10 @@ class JobSession(Protocol):
 
     def on_deadline(self) -> None: ...
 
+    def on_cancel(self) -> None:
+        """Open the grace window of a graceful cancel (the interlock's reason names the cancel)."""
+        ...
+
     def failure(self) -> str | None:
         """An infrastructure failure that overrides the job's own result (OOM, connector restart)."""
         ...
@@ -172,10 +176,15 @@ class ContainerSession:
             self.job = ContainerJob.adopt(self.launcher.engine, adopted)
         else:
             self.job = ContainerJob.launch(self.launcher.engine, self.request.plan.container)
+        via = "file" if self.job.log_file is not None else "engine_api"
+        self.launcher.metrics.job_log_reads.labels(via=via).inc()
         return self.job
 
     def on_deadline(self) -> None:
         self.local_cell.pass_deadline()
+
+    def on_cancel(self) -> None:
+        self.local_cell.cancel()
 
     def failure(self) -> str | None:
         if self.job is not None and self.job.oom_killed:
@@ -373,6 +382,9 @@ class PodSession:
 
     def on_deadline(self) -> None:
         """Nothing to call: the sidecar runs the job's deadline itself; the supervisor kills after grace."""
+
+    def on_cancel(self) -> None:
+        """Nothing to call, as at the deadline: the supervisor kills after grace."""
 
     def failure(self) -> str | None:
         job = self.job

@@ -39,6 +39,11 @@ class AgentMetrics:
         self.lines_published = Counter(
             "armnet_agent_lines_published_total", "output lines handed to the stream publisher", registry=r
         )
+        self.job_log_reads = Counter(
+            "armnet_agent_job_log_reads_total",
+            "jobs whose output was read from the engine's log file (file) or the slower Docker API follow "
+            "that may reorder an exit burst (engine_api)", ["via"], registry=r,
+        )
         self.lines_dropped = Counter(
             "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
         )

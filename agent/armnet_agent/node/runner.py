@@ -169,6 +169,7 @@ class JobRunner:
             with launcher.session(request) as session:
                 self.session = session
                 self.hooks.on_deadline = session.on_deadline
+                self.hooks.on_cancel = session.on_cancel
                 bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout)
                 try:

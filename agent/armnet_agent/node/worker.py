@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_agent.node import health, report
+from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.kube import Conflict, Gone, KubeError
 from armnet_agent.node.model import (
     ACTIVE_PHASES,
@@ -57,6 +58,7 @@ class CellWorker:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._last_probe: health.CellProbe | None = None
+        self._bus = BusTurns()
         self._unplugged: frozenset[str] = frozenset()
         self._calibration_files: dict[str, Path] = {}
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
@@ -145,7 +147,8 @@ class CellWorker:
     def _begin(self, job: Job, container: Any) -> None:
         verb = "adopting" if container is not None else "launching"
         log.info("cell %s: %s job %s", self.cell.name, verb, job.key)
-        self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container).start()
+        with self._bus.launching():  # a probe under way ends before the job's connector opens the port
+            self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container).start()
 
     def _vanished(self, job: Job) -> None:
         log.warning("job %s: %s", job.key, VANISHED)
@@ -171,14 +174,23 @@ class CellWorker:
             self._stop.wait(self.settings.heartbeat_period)
 
     def probe(self) -> health.CellProbe:
+        """The cell's health facts: read from the hardware when idle, else the last idle probe's."""
+        fresh = self._bus.probe(self._read_hardware, bus_held=self._bus_held_with_facts)
+        if fresh is not None:
+            self._last_probe = fresh
+            return fresh
+        runner, last = self.runner, self._last_probe
+        assert last is not None  # no fresh probe only when a job holds the bus and an idle probe exists
+        return health.CellProbe(
+            arms=last.arms, cameras=last.cameras, interlock_trip=runner.interlock_trip() if runner else None,
+            bus_held_by_job=True,
+        )
+
+    def _bus_held_with_facts(self) -> bool:
         runner = self.runner
-        busy = runner is not None and not runner.done
-        if busy and self._last_probe is not None:
-            last = self._last_probe
-            return health.CellProbe(
-                arms=last.arms, cameras=last.cameras, interlock_trip=runner.interlock_trip() if runner else None,
-                bus_held_by_job=True,
-            )
+        return runner is not None and not runner.done and self._last_probe is not None
+
+    def _read_hardware(self) -> health.CellProbe:
         arms = {}
         if self.sim is not None:
             for name, port in self.sim.ports().items():
@@ -191,9 +203,7 @@ class CellWorker:
                 arms[name] = probe_arm(arm.port or f"<no port configured for arm {name}>", calibration)
         # Simulated cameras draw the simulator; a real camera probe needs the device (not probed yet).
         cameras: dict[str, str | None] = {camera.name: None for camera in self.cell.cameras}
-        probe = health.CellProbe(arms=arms, cameras=cameras)
-        self._last_probe = probe
-        return probe
+        return health.CellProbe(arms=arms, cameras=cameras)
 
     def _heartbeat(self) -> None:
         try:

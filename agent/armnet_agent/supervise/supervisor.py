@@ -87,6 +87,9 @@ class JobHooks:
 
     on_event: Callable[[OutputEvent], None] = _noop_event
     on_deadline: Callable[[], None] = _noop
+    # Opens the grace window of a graceful cancel (the interlock then names the cancel,
+    # not a timeout); ``None``: ``on_deadline`` does.
+    on_cancel: Callable[[], None] | None = None
     # Set by the host to end the grace window early (e.g. the connector's
     # grace-expired callback) or to cancel the job outright.
     kill_now: threading.Event = field(default_factory=threading.Event)
@@ -211,7 +214,7 @@ def supervise(job: LaunchedJob, limits: SupervisorLimits, hooks: JobHooks | None
             cancelled = True
             deadline_passed = True
             kill_at = min(kill_at, now + limits.grace_seconds)
-            _open_grace(hooks)
+            _open_grace(hooks, cancelled=True)
         if not deadline_passed and now >= deadline:
             deadline_passed = True
             _open_grace(hooks)
@@ -270,9 +273,10 @@ def _drain(readers: Sequence[threading.Thread], progress: Callable[[], int], sta
                 return
 
 
-def _open_grace(hooks: JobHooks) -> None:
+def _open_grace(hooks: JobHooks, cancelled: bool = False) -> None:
+    opener = hooks.on_cancel if cancelled and hooks.on_cancel is not None else hooks.on_deadline
     try:
-        hooks.on_deadline()
+        opener()
     except Exception:  # noqa: BLE001 - the kill at grace end must happen regardless
         log.exception("opening the grace window failed")
 

@@ -40,6 +40,22 @@ def test_past_the_deadline_motion_is_refused_as_shutting_down(make_connector, ce
     assert reply["error_type"] == "ShuttingDown" and "is_shutting_down" in reply["error"]
 
 
+def test_a_cancel_trips_the_interlock_naming_the_cancel_not_a_timeout(make_connector, cell_config) -> None:
+    connector = make_connector(cell_config(None))
+    connector.cancel()
+    trip = connector.interlock.trip_info
+    assert trip is not None and trip.message == "the job was cancelled"
+    assert connector.deadline_passed and connector.cell.deadline.grace_remaining_s() is not None
+
+
+def test_a_cancelled_job_is_refused_motion_with_the_cancel_named(make_connector, cell_config, client_for) -> None:
+    connector = make_connector(cell_config(None, timeoutSeconds=600))
+    connector.cancel()
+    reply = client_for(connector.robot_endpoint).request({"op": "return_to_rest"})
+    assert reply["error_type"] == "ShuttingDown"
+    assert "cancelled" in reply["error"] and "timeout" not in reply["error"]
+
+
 def test_without_a_timeout_there_is_no_deadline(make_connector, cell_config) -> None:
     connector = make_connector(cell_config(None))
     time.sleep(0.1)

@@ -94,6 +94,19 @@ def test_a_graceful_cancel_opens_the_grace_window_then_kills_and_ends_cancelled(
     assert result.status is JobStatus.CANCELLED
 
 
+def test_a_graceful_cancel_opens_the_grace_window_through_the_cancel_hook_when_the_host_has_one() -> None:
+    deadline_opened, cancel_opened = threading.Event(), threading.Event()
+    hooks = JobHooks(on_deadline=deadline_opened.set, on_cancel=cancel_opened.set)
+    hooks.cancel_gracefully.set()
+    result = supervise(
+        python_job("import time\nwhile True: time.sleep(0.1)"),
+        SupervisorLimits(timeout_seconds=60, grace_seconds=0.3),
+        hooks,
+    )
+    assert cancel_opened.is_set() and not deadline_opened.is_set()
+    assert result.status is JobStatus.CANCELLED
+
+
 def test_a_job_that_stops_within_a_graceful_cancel_keeps_its_return_value() -> None:
     hooks = JobHooks()
     code = f"import time\ntime.sleep(0.3)\nprint({format_result('done')!r})"
