@@ -58,8 +58,9 @@ CALIBRATION_ADDRESSES = {"Homing_Offset": 31, "Min_Position_Limit": 9, "Max_Posi
 HOMING_OFFSET_SIGN_BIT = 11
 #: The line speed of the cell's Feetech bus (LeRobot's default for these servos).
 BAUD_RATE = 1_000_000
-#: Extra tries per register: a loaded machine can miss a reply (LeRobot's probe used 2 too).
-READ_RETRIES = 2
+#: Extra tries per register: a loaded machine can miss a reply (LeRobot's reads use 2; the idle
+#: probe can afford more, and a read that never answers says nothing about calibration).
+READ_RETRIES = 5
 
 
 def _sign_magnitude(value: int, sign_bit: int) -> int:
