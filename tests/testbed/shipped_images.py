@@ -41,9 +41,10 @@ from tests.testbed.procs import progress
 TORCH_PIN = "torch==2.13.0"
 LEROBOT_PIN = "lerobot==0.4.4"
 HASH_LABEL = "armnet.io/content-hash"
-# Sources of our two wheels; a change in any of them is a new image.
+# Sources of our two wheels; a change in any of them is a new image. README.md goes into the
+# root wheel's metadata only (its long description), so an edit there rebuilds nothing.
 RUNTIME_SOURCES = ("runtime/pyproject.toml", "runtime/src")
-PLATFORM_SOURCES = (*RUNTIME_SOURCES, "pyproject.toml", "README.md", "operator", "agent", "cli")
+PLATFORM_SOURCES = (*RUNTIME_SOURCES, "pyproject.toml", "operator", "agent", "cli", "fms")
 
 
 @dataclass(frozen=True)
