@@ -193,7 +193,31 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
             raise RuntimeError(f"building {tag} failed: {exc.msg}\n" + "\n".join(lines[-40:])) from exc
     image.tag(spec.repository, "dev")
     progress(f"built {tag} in {time.monotonic() - started:.0f} s")
+    _drop_older_builds(client, spec.repository, keep=str(image.id))
     return tag
+
+
+def _drop_older_builds(client: Any, repository: str, *, keep: str) -> None:
+    """Remove this repository's earlier content-hash builds and the build's dangling stages.
+
+    Why: each change to our sources is a new image, and the agent's is ~6 GB; a machine
+    that runs the suite after every commit would otherwise fill its disk within a day.
+    Only images this module tagged (the content-hash label) and untagged build leftovers
+    are removed; an image a container still uses stays (Podman refuses, and we go on).
+    """
+    import docker
+
+    for image in client.images.list(name=repository, filters={"label": HASH_LABEL}):
+        if image.id == keep:
+            continue
+        try:
+            client.images.remove(image.id, force=True)
+        except docker.errors.APIError as exc:
+            progress(f"kept an earlier build of {repository} ({image.id[:19]}): {exc}")
+    try:
+        client.images.prune(filters={"dangling": True})
+    except docker.errors.APIError as exc:
+        progress(f"could not prune dangling build stages: {exc}")
 
 
 def _link_all(dest: Path, files: Iterable[Path]) -> None:
