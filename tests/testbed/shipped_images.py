@@ -203,7 +203,9 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str) -> None:
     Why: each change to our sources is a new image, and the agent's is ~6 GB; a machine
     that runs the suite after every commit would otherwise fill its disk within a day.
     Only images this module tagged (the content-hash label) and untagged build leftovers
-    are removed; an image a container still uses stays (Podman refuses, and we go on).
+    older than a day are removed (younger stages are the layer cache the next build of a
+    sibling image reuses: the agent and runtime-lerobot share their ~5 GB dependency
+    stage); an image a container still uses stays (Podman refuses, and we go on).
     """
     import docker
 
@@ -215,7 +217,7 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str) -> None:
         except docker.errors.APIError as exc:
             progress(f"kept an earlier build of {repository} ({image.id[:19]}): {exc}")
     try:
-        client.images.prune(filters={"dangling": True})
+        client.images.prune(filters={"dangling": True, "until": "24h"})
     except docker.errors.APIError as exc:
         progress(f"could not prune dangling build stages: {exc}")
 
