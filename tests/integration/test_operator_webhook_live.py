@@ -33,7 +33,7 @@ from armnet_operator.args import MAX_ARGS_BYTES, MAX_ARGS_DEPTH
 from armnet_operator.handlers import build_registry
 from kopf.testing import KopfRunner
 
-from tests.integration.test_operator_scheduling_live import Bed, G, V, operator_settings
+from tests.integration.operator_bed import Bed, G, V, operator_settings
 
 pytestmark = pytest.mark.integration
 WEBHOOK_NAME = "robotjobs.armnet.io"
