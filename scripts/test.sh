@@ -21,13 +21,13 @@ if [ "$#" -gt 0 ]; then
 fi
 
 # The end-to-end scenarios through the node agent spend their minutes waiting (jobs
-# running in containers, timeouts, grace windows, a browser), so they run beside the
-# rest of the suite, each group in a pytest session of its own (its own control plane,
-# NATS and Podman service). One group per line; files separated by spaces.
+# running in containers and pods, timeouts, grace windows, a browser), so they run beside
+# the rest of the suite, in a pytest session of their own (its own control plane, NATS and
+# Podman service). One session beside the main one, not more: on two cores, four sessions
+# at once starved the simulated servos (missed status packets) and failed jobs.
+# One group per line; files separated by spaces; each group is its own session.
 side_groups=(
-  "e2e/test_agent_jobs.py"
-  "e2e/test_client_jobs.py e2e/test_fms_browser.py e2e/test_fms_local.py"
-  "e2e/test_pod_jobs.py"
+  "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_browser.py e2e/test_fms_local.py e2e/test_pod_jobs.py"
 )
 ignores=()
 side_pids=()
