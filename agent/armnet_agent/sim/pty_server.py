@@ -10,10 +10,14 @@ from running the real SDK against a pty (reference §9, §10):
   reply would be taken as the answer to the client's next request;
 - writes are non-blocking: when nobody drains the slave, replies are dropped as
   on a bus with no listener, instead of wedging the thread;
-- the serving thread asks for a higher scheduling priority (best effort: it
-  needs ``CAP_SYS_NICE``), because a reply that misses the client's deadline is
-  a failed transaction; the thread sleeps in ``select`` between requests, so
-  the boost costs the machine nothing.
+- the serving thread asks for real-time scheduling (``SCHED_FIFO`` at the lowest
+  real-time priority), else a lower nice value (best effort: both need
+  ``CAP_SYS_NICE``), because a reply that misses the client's deadline is a
+  failed transaction. A real servo answers on its own CPU; on a loaded 2-core
+  test host a nice value alone still let replies miss LeRobot's ~16 ms packet
+  timeout. The thread sleeps in ``select`` between requests, so the boost costs
+  the machine nothing, and the kernel's real-time throttling bounds it if it
+  ever spun.
 """
 
 from __future__ import annotations
@@ -35,7 +39,9 @@ log = logging.getLogger(__name__)
 
 #: How long a reply may wait for room in the pty buffer before it is dropped.
 WRITE_DEADLINE_S = 0.05
-#: Nice value requested for the serving thread (lower = scheduled sooner).
+#: ``SCHED_FIFO`` priority requested for the serving thread (the lowest real-time one).
+REALTIME_PRIORITY = 1
+#: Nice value requested for the serving thread when real-time scheduling is refused.
 BOOSTED_NICE = -10
 #: Linux ``TCGETS2``: reads ``struct termios2``, whose ``c_ospeed`` (bytes 40..44) is the
 #: line speed in bit/s, also for the non-standard rates pyserial sets with ``BOTHER``.
@@ -192,7 +198,17 @@ def _set_line_speed(fd: int, speed: int) -> None:
 
 
 def _boost_this_thread() -> None:
-    """Lower this thread's nice value (Linux nice is per thread); ignore if not permitted."""
+    """Real-time scheduling for this thread, else a lower nice value; ignore if neither is permitted.
+
+    Both are per thread on Linux (``0`` names the calling thread). Inside a
+    container without ``CAP_SYS_NICE`` both are refused and the thread runs as
+    any other.
+    """
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+        return
+    except (PermissionError, OSError) as exc:
+        log.debug("no real-time scheduling for the simulator thread: %s", exc)
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BOOSTED_NICE)
     except (PermissionError, OSError) as exc:

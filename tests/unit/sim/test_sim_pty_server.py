@@ -1,0 +1,47 @@
+"""The pty server answers like hardware with its own CPU: its thread is scheduled first."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+from armnet_agent.sim.pty_server import PtyServer
+
+pytestmark = pytest.mark.unit
+
+
+def serving_thread_id(server: PtyServer) -> int:
+    thread = server._thread  # noqa: SLF001 - the scheduling policy is a property of this one thread
+    assert thread is not None and thread.native_id is not None
+    return thread.native_id
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="real-time scheduling needs CAP_SYS_NICE (the test bed runs as root)")
+def test_the_serving_thread_runs_real_time_when_permitted_and_still_echoes() -> None:
+    server = PtyServer(lambda data, _now: data.upper(), name="pty-test")
+    server.start()
+    try:
+        port = os.open(server.port, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(port, b"ping")
+            deadline, reply = time.monotonic() + 5, b""
+            while len(reply) < 4 and time.monotonic() < deadline:
+                reply += os.read(port, 4)
+            assert reply == b"PING"
+            # Asked once the thread has answered: it sets its policy before its first select.
+            assert os.sched_getscheduler(serving_thread_id(server)) == os.SCHED_FIFO
+        finally:
+            os.close(port)
+    finally:
+        server.stop()
+
+
+def test_without_the_boost_the_serving_thread_keeps_the_normal_policy() -> None:
+    server = PtyServer(lambda data, _now: data, name="pty-test", boost_priority=False)
+    server.start()
+    try:
+        time.sleep(0.2)  # long past the point where a boosted thread would have set its policy
+        assert os.sched_getscheduler(serving_thread_id(server)) == os.SCHED_OTHER
+    finally:
+        server.stop()
