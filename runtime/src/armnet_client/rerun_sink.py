@@ -17,7 +17,7 @@ from typing import Any, Optional
 from armnet_runtime.rerun import Packet
 
 from .errors import RerunMissing
-from .viewer import Jpeg, RawImage, Scalar, Skipped, entity_logs
+from .viewer import Jpeg, RawImage, Scalar, Skipped, entity_logs, timelines
 
 logger = logging.getLogger(__name__)
 
@@ -53,8 +53,9 @@ def replay(packets: Iterable[Packet], *, app_id: str, save: Optional[str]) -> Re
         else:
             rec.spawn()
         for packet in packets:
-            rec.set_time("time", timestamp=packet.timestamp_ns / 1e9)
-            rec.set_time("frame", sequence=packet.sequence)
+            seconds, frame = timelines(packet)
+            rec.set_time("time", timestamp=seconds)
+            rec.set_time("frame", sequence=frame)
             for entry in packet.entries:
                 logged = entity_logs(entry)
                 if isinstance(logged, Scalar):

@@ -123,6 +123,21 @@ def entity_logs(entry: Entry) -> Logged:
     return RawImage(entry.path, image.data, image.width, image.height, COLOR_MODELS[image.channels])
 
 
+#: The latest instant and frame number Rerun's timelines take (its times are signed 64-bit
+#: nanoseconds, so seconds beyond 2**62 ns round past the limit and overflow).
+_MAX_TIME_NS = 1 << 62
+_MAX_FRAME = (1 << 63) - 1
+
+
+def timelines(packet: Packet) -> tuple[float, int]:
+    """The packet's ``time`` (seconds since the epoch) and ``frame`` (its sequence), inside Rerun's range.
+
+    Both come from the job: a value Rerun cannot hold is clamped, not allowed to end the replay.
+    """
+    seconds = min(max(packet.timestamp_ns, 0), _MAX_TIME_NS) / 1e9
+    return seconds, min(max(packet.sequence, 0), _MAX_FRAME)
+
+
 def application_id(job: str) -> str:
     """The Rerun application id for a job: ``armnet-<job>`` in the letters Rerun accepts as is.
 

@@ -17,6 +17,7 @@ from armnet_client.viewer import (
     entity_logs,
     packet_document,
     packet_of,
+    timelines,
 )
 from armnet_runtime.markers import format_rerun
 from armnet_runtime.rerun import (
@@ -94,3 +95,15 @@ def test_an_image_the_viewer_cannot_show_as_declared_is_skipped_with_the_reason(
 
 def test_the_application_id_is_the_job_name_in_letters_rerun_keeps_as_is() -> None:
     assert application_id("pick.v2-7x2k") == "armnet-pick-v2-7x2k"
+
+
+def test_a_packets_time_and_frame_are_its_timestamp_and_sequence() -> None:
+    assert timelines(PACKET) == (1_700_000_000.0, 4)
+
+
+def test_times_and_frames_rerun_cannot_hold_are_clamped_not_allowed_to_end_the_replay() -> None:
+    hostile = Packet("uid", (1 << 63) - 1, (1 << 64) - 1, 0)
+
+    seconds, frame = timelines(hostile)
+    assert seconds * 1e9 < 2**63 and frame == 2**63 - 1
+    assert timelines(Packet("uid", -(1 << 63), 0, 0)) == (0.0, 0)
