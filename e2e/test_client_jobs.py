@@ -107,8 +107,11 @@ TELEOP_FOLLOWER = """
                 if attempt == 2:
                     raise
 
-    def pan(robot):
-        return float(retried(robot.get_observation)["shoulder_pan.pos"])
+    def pan(robot, ctx=None):
+        observation = retried(robot.get_observation)
+        if ctx is not None:  # reported back: `armnet teleop` shows it as the follower's state
+            ctx.log_rerun_data(observation=observation)
+        return float(observation["shoulder_pan.pos"])
 
     @main
     def run(ctx: Context):
@@ -129,7 +132,7 @@ TELEOP_FOLLOWER = """
                     retried(robot.send_action, action)
                     actions += 1
                     last = action
-                now = pan(robot)
+                now = pan(robot, ctx)
                 moved = max(moved, abs(now - start))
                 time.sleep(1 / 30)
             if last is not None:
@@ -327,6 +330,7 @@ def test_teleop_with_the_simulated_leader_moves_the_follower_and_keys_reach_the_
     try:
         bed.wait(lambda: b"actions sent" in screen.text, 120, "armnet teleop to send actions")
         time.sleep(4)  # half a period of the simulated leader's sines
+        bed.wait(lambda: b"follower (" in screen.text, 60, "the follower's state, as the job reports it")
         for key in (b"\x1b[C", b"\x1b[D"):  # Right: next_episode, Left: rerecord_episode
             os.write(master, key)
             time.sleep(0.4)

@@ -30,8 +30,8 @@ if [ ! -f "$stamp" ]; then
   touch "$stamp"
 fi
 
-echo "[setup/python] installing armnet (editable) and dev tools"
-"${pip[@]}" install -c <(echo "$torch_pin") -e "$here/runtime[fast]" -e "$here[dev]"
+echo "[setup/python] installing armnet (editable), rerun-sdk for armnet view, and dev tools"
+"${pip[@]}" install -c <(echo "$torch_pin") -e "$here/runtime[fast,view]" -e "$here[dev]"
 "$venv/bin/python" -c "import lerobot.motors.feetech, lerobot.cameras.opencv, scservo_sdk, armnet_runtime" \
   || { echo "[setup/python] LeRobot motors/cameras do not import; see shared reference lerobot-feetech.md §0" >&2; exit 1; }
 "$venv/bin/python" -c "from lerobot.robots.so_follower import SO101Follower; from lerobot.robots.bi_so_follower import BiSOFollower" \

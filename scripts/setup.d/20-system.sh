@@ -4,7 +4,8 @@
 # NATS with JetStream, openssl; for the test-bed node (../shared/reference/k8s-node.md):
 # containerd, the CNI plugins (in /usr/lib/cni), and gcc + buildah to build the
 # pause image (step 45); Chromium and its WebDriver for the FMS page's browser tests
-# (tests/browser/, driven with selenium). `apt-get update` runs once and only when something
+# (tests/browser/, driven with selenium); zsh, so the `armnet completion zsh` test runs the
+# generated script in real zsh instead of skipping. `apt-get update` runs once and only when something
 # is missing, so a warm run never touches the network.
 #
 # Also writes /etc/containers/containers.conf (runc + ulimits below the VM's hard
@@ -13,7 +14,7 @@ set -euo pipefail
 log() { echo "[setup/system] $*"; }
 
 packages=(podman runc debootstrap nats-server openssl ca-certificates
-          containerd containernetworking-plugins buildah gcc libc6-dev chromium chromium-driver)
+          containerd containernetworking-plugins buildah gcc libc6-dev chromium chromium-driver zsh)
 
 missing=()
 for p in "${packages[@]}"; do
@@ -70,3 +71,4 @@ podman --version
 runc --version | head -1
 nats-server --version
 containerd --version
+zsh --version

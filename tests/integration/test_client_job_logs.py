@@ -7,17 +7,18 @@ client says so once and follows the job's status instead.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import logging
+from pathlib import Path
 from typing import Any
 
 import pytest
 from armnet_core.models import JobSpec
-from armnet_runtime.rerun import Entry, Packet, encode_packet
+from armnet_runtime.rerun import ENCODING_JPEG, Entry, ImageData, Packet, encode_packet
 
 from tests.integration.client_bed import Publisher, Tenant, stdout_lines, terminal
 from tests.testbed.natsd import NatsServer
+from tests.testbed.rrd import recorded
 
 pytestmark = pytest.mark.integration
 
@@ -101,24 +102,26 @@ def test_armnet_view_dump_decodes_the_jobs_rerun_packets_from_the_stream(
     assert dumped[2]["entries"] == [{"path": "action.gripper.pos", "scalar": 2.0}]
 
 
-def test_armnet_view_save_writes_a_recording_or_says_how_to_get_rerun_sdk(
-    tenant: Tenant, nats_server: str, tmp_path: Any, capsys: pytest.CaptureFixture[str]
+def test_armnet_view_save_writes_the_packets_from_the_stream_into_an_rrd_rerun_reads_back(
+    tenant: Tenant, nats_server: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    pytest.importorskip("rerun", reason="rerun-sdk: pip install 'armnet-runtime[view]' (scripts/setup.sh does)")
     client = tenant.client()
     client.submit(SPEC, name="saved")
     uid = client.read("saved").metadata.uid
     assert uid
-    packet = Packet(uid, 1_700_000_000_000_000_000, 0, 0, (Entry("action.gripper.pos", scalar=1.0),))
-    Publisher(nats_server, tenant.namespace, uid).publish([("rerun", 1, encode_packet(packet))])
+    packets = [Packet(uid, 1_700_000_000_000_000_000 + i, i, 0, (
+        Entry("action.gripper.pos", scalar=float(i)),
+        Entry("observation.front", image=ImageData(2, 1, 3, ENCODING_JPEG, b"\xff\xd8" + bytes([i]))),
+    )) for i in range(3)]
+    Publisher(nats_server, tenant.namespace, uid).publish(
+        [("rerun", i + 1, encode_packet(p)) for i, p in enumerate(packets)])
     out = tmp_path / "out.rrd"
 
-    code = tenant.cli("view", "saved", "--save", str(out), "--nats-url", nats_server)
+    assert tenant.cli("view", "saved", "--save", str(out), "--nats-url", nats_server) == 0
 
-    if importlib.util.find_spec("rerun") is None:  # rerun-sdk does not install in this venv today
-        assert code == 1
-        assert "pip install rerun-sdk" in capsys.readouterr().err
-    else:
-        import rerun as rr
-
-        assert code == 0
-        assert rr.dataframe.load_recording(str(out)) is not None
+    assert recorded(out) == {
+        "/action.gripper.pos": [(0, 0.0), (1, 1.0), (2, 2.0)],
+        "/observation.front": [(i, ("encoded", "image/jpeg", b"\xff\xd8" + bytes([i]))) for i in range(3)],
+    }
+    assert f"3 packets to {out}" in capsys.readouterr().err

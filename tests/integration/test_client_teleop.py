@@ -1,8 +1,10 @@
-"""``armnet teleop --leader sim`` in a real terminal (a pty): actions at the rate, keys as events, Esc ends it.
+"""``armnet teleop --leader sim`` in a real terminal (a pty): actions at the rate, keys as events, Esc ends it,
+and the follower's state shown as the job's Rerun packets report it.
 
 The process runs like a user runs it (``python -m armnet_client teleop``) as a
 tenant; the test subscribes to the job's teleop subjects on the real nats-server
-as the agent's bridge will. Moving a follower needs the agent (later).
+as the agent's bridge does, and publishes the job's Rerun packets into JetStream
+as the agent does. Moving a real follower: e2e/test_client_jobs.py.
 """
 
 from __future__ import annotations
@@ -13,14 +15,17 @@ import os
 import pty
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import nats
 import pytest
 from armnet_core.models import JobSpec
+from armnet_runtime.rerun import Entry, Packet, encode_packet
 
-from tests.integration.client_bed import Tenant
+from tests.integration.client_bed import Publisher, Tenant
 
 pytestmark = pytest.mark.integration
 
@@ -75,3 +80,59 @@ def test_teleop_publishes_sampled_actions_and_key_events_then_esc_ends_it(
     assert set(actions[0]) == {"shoulder_pan.pos", "shoulder_lift.pos", "elbow_flex.pos",
                                "wrist_flex.pos", "wrist_roll.pos", "gripper.pos"}
     assert len({a["shoulder_pan.pos"] for a in actions}) > 1
+
+
+class Screen:
+    """Everything the process writes to the pty, drained in a thread so it never blocks on output."""
+
+    def __init__(self, master: int) -> None:
+        self.master, self.text = master, b""
+        threading.Thread(target=self._drain, daemon=True).start()
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                chunk = os.read(self.master, 4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            self.text += chunk
+
+    def wait_for(self, seen: Callable[[bytes], bool], what: str, timeout: float = 20) -> None:
+        deadline = time.monotonic() + timeout
+        while not seen(self.text):
+            assert time.monotonic() < deadline, f"{what} not on screen: {self.text[-1500:]!r}"
+            time.sleep(0.05)
+
+
+def test_teleop_shows_the_followers_state_from_the_jobs_rerun_packets(
+    k8s: Any, namespace: str, nats_server: str
+) -> None:
+    tenant = Tenant(k8s, namespace)
+    client = tenant.client()
+    client.submit(JobSpec(image="localhost/pick:dev", embodiment="test/teleop"), name="watched")
+    uid = client.read("watched").metadata.uid
+    assert uid
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armnet_client", "teleop", "watched", "--leader", "sim", "--rate", "20",
+         "--kubeconfig", tenant.kubeconfig, "-n", namespace, "--nats-url", nats_server],
+        stdin=slave, stdout=slave, stderr=slave, env={**os.environ}, close_fds=True)
+    os.close(slave)
+    screen = Screen(master)
+    try:
+        screen.wait_for(lambda text: b"follower: no state yet" in text, "the waiting follower line")
+        Publisher(nats_server, namespace, uid).publish([("rerun", i + 1, encode_packet(Packet(uid, i, i, 0, (
+            Entry("observation.shoulder_pan.pos", scalar=12.5 + i),
+            Entry("action.shoulder_pan.pos", scalar=99.0),
+            Entry("observation.gripper.pos", scalar=40.0),
+        )))) for i in range(2)])
+
+        screen.wait_for(lambda text: b"shoulder_pan 13.5  gripper 40.0" in text, "the follower's last state")
+        os.write(master, b"\x1b")
+        assert proc.wait(timeout=10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        os.close(master)

@@ -76,3 +76,13 @@ class NatsForbidden(ClientError, PermissionError):
 
 class WaitTimeout(ClientError, TimeoutError):
     """``wait`` gave up before the job reached a terminal phase (the job keeps running)."""
+
+
+class RerunMissing(ClientError):
+    """``armnet view`` into a viewer or ``.rrd`` needs ``rerun-sdk``, which is not installed here."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            "watching Rerun data needs rerun-sdk: pip install 'armnet-runtime[view]' "
+            "(or use --dump for the decoded packets as JSON lines)"
+        )

@@ -7,13 +7,21 @@ an old action replayed later would be wrong, not late). Keys publish
 ``{"event": ...}`` on ``teleop.<namespace>.<jobId>.event`` with LeRobot's
 recording shortcuts: Right arrow ``next_episode``, Left arrow
 ``rerecord_episode``, Esc ``stop_recording`` (docs/streams.md).
+
+The follower's state comes back the way the job reports it: the observation
+scalars of its ``ctx.log_rerun_data(observation=...)`` packets on
+``logs.<namespace>.<jobId>.rerun`` (the same packets ``armnet view`` shows).
+The client never asks the cell: the job, not the client, decides what to report.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from typing import Optional
+
+from armnet_runtime.rerun import Packet
 
 from .logwire import job_subjects
 
@@ -21,6 +29,7 @@ NEXT_EPISODE = "next_episode"
 RERECORD_EPISODE = "rerecord_episode"
 STOP_RECORDING = "stop_recording"
 
+_OBSERVATION = "observation."
 _RIGHT = b"\x1b[C"
 _LEFT = b"\x1b[D"
 _ESC = b"\x1b"
@@ -89,3 +98,47 @@ def leader_label(leader: str) -> str:
 
 def stop_requested(events: list[str]) -> Optional[str]:
     return STOP_RECORDING if STOP_RECORDING in events else None
+
+
+def rerun_subject(namespace: str, job_id: str) -> str:
+    """``logs.<ns>.<jobId>.rerun``: where the job's Rerun packets (and so the follower's state) arrive."""
+    return job_subjects(namespace, job_id)[:-1] + "rerun"
+
+
+def follower_state(packet: Packet) -> Optional[dict[str, float]]:
+    """The observation scalars of one packet, keyed as the job's observation (``shoulder_pan.pos``).
+
+    ``None`` for a packet without observation scalars (an action-only or
+    image-only frame), so the last known state stays on screen.
+    """
+    state = {entry.path[len(_OBSERVATION):]: entry.scalar for entry in packet.entries
+             if entry.scalar is not None and entry.path.startswith(_OBSERVATION)}
+    return state or None
+
+
+@dataclass(frozen=True)
+class FollowerView:
+    """The follower's last reported state and how long ago it arrived (``None``: nothing yet)."""
+
+    state: Optional[dict[str, float]] = None
+    age_s: float = 0.0
+
+
+def status_lines(leader: str, actions: int, last_event: Optional[str], follower: FollowerView) -> list[str]:
+    """The two live lines ``armnet teleop`` keeps redrawn: what was sent, and the follower's state."""
+    sent = f"{leader_label(leader)}: {actions} actions sent, last event {last_event or '-'}"
+    if follower.state is None:
+        return [sent, "follower: no state yet (the job reports it with ctx.log_rerun_data(observation=...))"]
+    joints = "  ".join(f"{name.removesuffix('.pos')} {value:.1f}" for name, value in follower.state.items())
+    return [sent, f"follower ({follower.age_s:.1f} s ago): {joints}"]
+
+
+def redraw(lines: list[str], drawn_before: int, width: int) -> str:
+    """Terminal output that replaces the ``drawn_before`` lines last drawn with ``lines``.
+
+    Each line is cut to ``width`` so none wraps (a wrapped line would break the
+    cursor arithmetic); the cursor ends at the end of the last line.
+    """
+    up = f"\x1b[{drawn_before - 1}A" if drawn_before > 1 else ""
+    cut = max(width - 1, 1)
+    return up + "\r" + "\n".join("\x1b[2K" + line[:cut] for line in lines)

@@ -3,7 +3,9 @@
 One asyncio loop: a ticker samples the leader every ``1/rate`` seconds and
 publishes the sample (never a backlog: a slow tick is skipped, not queued), and
 a reader turns terminal keys into events. ``stop_recording`` (Esc) also ends
-the session after it was flushed to the server.
+the session after it was flushed to the server. A subscription to the job's
+live Rerun packets keeps the follower's last reported state in the stats (plain
+NATS, live only: an old state replayed would be wrong, not late).
 """
 
 from __future__ import annotations
@@ -16,8 +18,16 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from .errors import NatsUnreachable
-from .logwire import inbox_prefix
-from .teleop import STOP_RECORDING, action_payload, event_payload, teleop_subject
+from .logwire import decode, inbox_prefix
+from .teleop import (
+    STOP_RECORDING,
+    action_payload,
+    event_payload,
+    follower_state,
+    rerun_subject,
+    teleop_subject,
+)
+from .viewer import packet_of
 
 log = logging.getLogger(__name__)
 
@@ -27,9 +37,13 @@ Leader = Callable[[float], dict[str, float]]
 
 @dataclass
 class TeleopStats:
+    """What the session sent so far, and the follower's state as the job last reported it."""
+
     actions: int = 0
     events: int = 0
     last_event: Optional[str] = None
+    follower: Optional[dict[str, float]] = None
+    follower_at: Optional[float] = None  # time.monotonic() when that state arrived
 
 
 async def run_session(
@@ -50,6 +64,15 @@ async def run_session(
     action_subject = teleop_subject(namespace, job_id, "action")
     event_subject = teleop_subject(namespace, job_id, "event")
     stats = TeleopStats()
+
+    async def on_packet(msg: Any) -> None:
+        packet = packet_of(decode(msg.subject, msg.data, msg_id=None, stream_seq=0, stored_at=None))
+        state = follower_state(packet) if packet is not None else None
+        if state is not None:
+            stats.follower, stats.follower_at = state, time.monotonic()
+
+    await nc.subscribe(rerun_subject(namespace, job_id), cb=on_packet)
+    await nc.flush()  # the server has the subscription before the first line says "no state yet"
     started = time.monotonic()
     period = 1.0 / rate_hz
     next_tick = started

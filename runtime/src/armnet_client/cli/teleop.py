@@ -2,7 +2,8 @@
 
 Samples the leader at ``--rate`` and publishes the latest action; on a terminal,
 Right arrow / Left arrow / Esc send ``next_episode`` / ``rerecord_episode`` /
-``stop_recording`` (Esc also ends the session). Ctrl-C ends it too.
+``stop_recording`` (Esc also ends the session). Ctrl-C ends it too. On a terminal
+two live lines show what was sent and the follower's state as the job reports it.
 """
 
 from __future__ import annotations
@@ -11,12 +12,21 @@ import argparse
 import asyncio
 import contextlib
 import os
+import shutil
 import sys
+import time
 from collections.abc import Iterator
 from typing import Optional
 
 from ..errors import NatsUnreachable
-from ..teleop import events_of_keys, leader_label, simulated_action
+from ..teleop import (
+    FollowerView,
+    events_of_keys,
+    leader_label,
+    redraw,
+    simulated_action,
+    status_lines,
+)
 from ..teleop_link import Leader, TeleopStats, lerobot_leader, run_session
 from .common import add_cluster_options, client_from, guarded
 
@@ -63,12 +73,18 @@ async def _session(url: str, ns: str, job_id: str, args: argparse.Namespace) -> 
     else:
         leader, disconnect = lerobot_leader(args.leader, args.leader_id)
     fd = sys.stdin.fileno()
+    drawn = 0
 
     def on_tick(stats: TeleopStats) -> None:
-        if sys.stderr.isatty():
-            sys.stderr.write(f"\r\x1b[2K{leader_label(args.leader)}: {stats.actions} actions sent, "
-                             f"last event {stats.last_event or '-'}")
-            sys.stderr.flush()
+        nonlocal drawn
+        if not sys.stderr.isatty():
+            return
+        follower = FollowerView() if stats.follower_at is None else FollowerView(
+            stats.follower, time.monotonic() - stats.follower_at)
+        lines = status_lines(args.leader, stats.actions, stats.last_event, follower)
+        sys.stderr.write(redraw(lines, drawn, shutil.get_terminal_size().columns))
+        sys.stderr.flush()
+        drawn = len(lines)
 
     def read_keys() -> None:
         for event in events_of_keys(os.read(fd, 64)):

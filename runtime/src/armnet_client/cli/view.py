@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections.abc import Iterator
 
 from armnet_runtime.rerun import Packet
 
-from ..errors import ClientError
-from ..viewer import packet_document, packet_of, replay
+from ..viewer import application_id, packet_document, packet_of
 from .common import add_cluster_options, client_from, guarded
 
 EXAMPLES = """
-  armnet view pick-7x2k                   # spawn a Rerun viewer and replay (needs rerun-sdk)
-  armnet view pick-7x2k --save run.rrd    # write a recording instead
+  armnet view pick-7x2k                   # spawn a Rerun viewer and replay (needs armnet-runtime[view])
+  armnet view -f pick-7x2k                # ... and keep streaming live packets until the job ends
+  armnet view pick-7x2k --save run.rrd    # write a recording instead (open it with: rerun run.rrd)
   armnet view pick-7x2k --dump | head     # decoded packets as JSON lines (no rerun-sdk needed)
-  armnet view -f pick-7x2k                # keep replaying live packets until the job ends
 """
 
 
@@ -42,10 +42,12 @@ def run(args: argparse.Namespace) -> int:
             for packet in packets():
                 print(json.dumps(packet_document(packet)), flush=True)
             return 0
-        try:
-            replay(packets(), app_id=f"armnet/{args.job}", save=args.save)
-        except RuntimeError as exc:
-            raise ClientError(str(exc)) from exc
+        from ..rerun_sink import replay
+
+        done = replay(packets(), app_id=application_id(args.job), save=args.save)
+        where = args.save if args.save else "the Rerun viewer"
+        print(f"view: {done.packets} packets to {where}; frames the job's streamer dropped: "
+              f"{done.dropped}; malformed entries skipped: {done.skipped}", file=sys.stderr)
         return 0
 
     return guarded(body)
