@@ -286,21 +286,11 @@ class JobRunner:
             if rollout is not None and rollout != self._rollout:
                 self._rollout = rollout
                 self._progress_dirty.set()
-            self.rollouts.sync()
-            history = self.rollouts.unwritten()
-            if not self._progress_dirty.is_set() and history is None:
-                continue
-            self._progress_dirty.clear()
-            rollouts = as_status(history) if history is not None else None
-            try:
-                self.deps.kube.patch_job_status(
-                    self.job.namespace, self.job.name, report.progress_patch(self._progress, self._rollout, rollouts)
-                )
-            except KubeError as exc:
-                log.warning("job %s: progress not written: %s", self.job.key, exc)
-                continue
-            if history is not None:
-                self.rollouts.written(history)
+            force = self._progress_dirty.is_set()
+            self._progress_dirty.clear()  # a progress line arriving during the write sets it again
+            if not write_progress(self.deps.kube, self.job, self._progress, self._rollout, self.rollouts,
+                                  force=force) and force:
+                self._progress_dirty.set()  # the write failed: try again on the next pass
 
     def _latest_rollout(self) -> dict[str, int] | None:
         session = self.session
@@ -366,6 +356,27 @@ class JobRunner:
             metrics.timeouts.inc()
         if record.trip_reason is not None:
             metrics.interlock_trips.labels(reason=record.trip_reason).inc()
+
+
+def write_progress(kube: AgentKube, job: Job, progress: str | None, rollout: dict[str, int] | None,
+                   rollouts: RolloutRecorder, *, force: bool) -> bool:
+    """One progress write: the progress and rollout (when ``force``) and the rollout history if it changed.
+
+    False when there was nothing to write or the write failed (the caller tries again on its next pass).
+    """
+    rollouts.sync()
+    history = rollouts.unwritten()
+    if not force and history is None:
+        return False
+    body = report.progress_patch(progress, rollout, as_status(history) if history is not None else None)
+    try:
+        kube.patch_job_status(job.namespace, job.name, body)
+    except KubeError as exc:
+        log.warning("job %s: progress not written: %s", job.key, exc)
+        return False
+    if history is not None:
+        rollouts.written(history)
+    return True
 
 
 def _engine_error(exc: Exception, image: str) -> str:
