@@ -49,6 +49,8 @@ class JobSummary:
     rollout_total: int | None
     #: The current rollout is still going (the agent's history has not recorded its end).
     rollout_active: bool = False
+    #: The current rollout asked for Success/Fail (``rollout_begin(outcome_controls=True)``, the default).
+    outcome_controls: bool = True
     #: The latest verdicts, newest first.
     verdicts: tuple[Verdict, ...] = ()
 
@@ -154,6 +156,14 @@ def rollout_active(index: int | None, history: list[Mapping[str, Any]]) -> bool:
     return True
 
 
+def outcome_controls(index: int | None, history: list[Mapping[str, Any]]) -> bool:
+    """Whether rollout ``index`` asked for the operator's verdict (True unless the agent recorded it did not)."""
+    for row in reversed(history):
+        if _int(row.get("index")) == index:
+            return row.get("outcomeControls") is not False
+    return True
+
+
 def verdicts(history: list[Mapping[str, Any]], limit: int = VERDICTS_SHOWN) -> tuple[Verdict, ...]:
     """The latest marked rollouts, newest first (malformed rows skipped, texts bounded)."""
     found = []
@@ -180,6 +190,7 @@ def summarize_job(job: Mapping[str, Any]) -> JobSummary:
         rollout_index=index,
         rollout_total=_int(rollout.get("total")),
         rollout_active=rollout_active(index, history),
+        outcome_controls=outcome_controls(index, history),
         verdicts=verdicts(history),
     )
 
@@ -248,6 +259,7 @@ def row_json(row: CellRow, now: float) -> dict[str, Any]:
             "namespace": job.namespace, "name": job.name, "tenant": job.namespace, "phase": job.phase,
             "progress": job.progress, "rolloutIndex": job.rollout_index, "rolloutTotal": job.rollout_total,
             "active": job.phase in ACTIVE_JOB_PHASES, "rolloutActive": job.active_phase and job.rollout_active,
+            "outcomeControls": job.outcome_controls,
             "verdicts": [{"index": v.index, "total": v.total, "outcome": v.outcome, "by": v.by, "at": v.at}
                          for v in job.verdicts],
         },

@@ -56,6 +56,8 @@ class RolloutEntry:
     marked_by: str | None = None
     marked_at: datetime | None = None
     ended_at: datetime | None = None
+    #: The job asked for the cell operator's Success/Fail buttons (``rollout_begin(outcome_controls=...)``).
+    outcome_controls: bool = True
 
     @property
     def open(self) -> bool:
@@ -67,6 +69,7 @@ class Begun:
     index: int
     total: int
     at: datetime
+    outcome_controls: bool = True
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,8 @@ def _begun(history: History, change: Begun, limit: int) -> History:
         return history
     if last is not None and last.open:
         history = (*history[:-1], replace(last, ended_at=change.at))
-    entry = RolloutEntry(index=_count(change.index), total=_count(change.total), started_at=change.at)
+    entry = RolloutEntry(index=_count(change.index), total=_count(change.total), started_at=change.at,
+                         outcome_controls=change.outcome_controls)
     return (*history, entry)[-limit:] if limit > 0 else ()
 
 
@@ -140,7 +144,7 @@ def as_status(history: History) -> list[dict[str, Any]]:
     rows = []
     for entry in history:
         row: dict[str, Any] = {"index": entry.index, "total": entry.total, "outcome": entry.outcome.value,
-                               "startedAt": timestamp(entry.started_at)}
+                               "startedAt": timestamp(entry.started_at), "outcomeControls": entry.outcome_controls}
         if entry.marked_by is not None:
             row["markedBy"] = entry.marked_by
         if entry.marked_at is not None:
@@ -172,6 +176,7 @@ def _entry(row: Any) -> RolloutEntry | None:
         outcome=Outcome(outcome) if outcome in tuple(Outcome) else Outcome.UNMARKED,
         marked_by=operator_name(by) if isinstance(by, str) else None,
         marked_at=_time(row.get("markedAt")), ended_at=_time(row.get("endedAt")),
+        outcome_controls=row.get("outcomeControls") is not False,
     )
 
 

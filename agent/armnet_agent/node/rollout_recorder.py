@@ -35,12 +35,16 @@ class ConnectorRolloutEvent(Protocol):
     @property
     def total(self) -> int | None: ...
 
+    @property
+    def outcome_controls(self) -> bool | None: ...
+
 
 def change_of(event: ConnectorRolloutEvent) -> rh.RolloutChange | None:
     """The history change a connector event means (None for one the history does not record)."""
     at = datetime.fromtimestamp(event.at, UTC)
     if event.kind == "begin" and event.index is not None:
-        return rh.Begun(index=event.index, total=event.total or 0, at=at)
+        return rh.Begun(index=event.index, total=event.total or 0, at=at,
+                        outcome_controls=event.outcome_controls is not False)
     if event.kind == "end":
         return rh.Ended(at=at)
     return None

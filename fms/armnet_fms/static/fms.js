@@ -84,8 +84,8 @@
       resetDeadline = Date.now() + cell.reset.secondsLeft * 1000;
     }
     tickReset();
-    // Success/Fail only while the rollout runs: once the agent recorded its end, a verdict would be dropped.
-    const rolling = active && job.rolloutIndex !== null && job.rolloutActive;
+    // Success/Fail only while a rollout that asked for them runs: after its end a verdict would be dropped.
+    const rolling = active && job.rolloutIndex !== null && job.rolloutActive && job.outcomeControls;
     document.getElementById("outcome-box").hidden = !rolling;
     if (rolling) {
       document.getElementById("outcome-box").dataset.rollout = String(job.rolloutIndex);

@@ -89,6 +89,12 @@ def test_a_verdict_for_the_current_rollout_is_sent() -> None:
     assert [subject for subject, _ in plan.messages] == ["fms.so101-a.outcome"]
 
 
+def test_a_verdict_for_a_rollout_begun_without_outcome_controls_is_refused() -> None:
+    job = a_job(rollout={"index": 1, "total": 1}, rollouts=[{**a_rollout(1, 1, ended=False), "outcomeControls": False}])
+    with pytest.raises(Refused, match="asks for no verdict"):
+        plan_action(ActionKind.SUCCESS, row(job), "maria", NOW, request="1")
+
+
 def test_a_verdict_for_a_rollout_that_has_ended_is_refused() -> None:
     job = a_job(rollout={"index": 3, "total": 10}, rollouts=[a_rollout(3, 10, ended=True)])
     with pytest.raises(Refused, match="rollout 3 of job team-a/eval-1 has ended"):

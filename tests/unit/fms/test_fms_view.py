@@ -22,7 +22,7 @@ def test_a_row_names_the_current_job_its_tenant_and_the_rollout_progress() -> No
     row = row_json(only_row([a_cell()], [a_job(rollout={"index": 2, "total": 5}, progress="picking")]), NOW)
     assert row["job"] == {"namespace": "team-a", "name": "eval-1", "tenant": "team-a", "phase": "running",
                           "progress": "picking", "rolloutIndex": 2, "rolloutTotal": 5, "active": True,
-                          "rolloutActive": True, "verdicts": []}
+                          "rolloutActive": True, "outcomeControls": True, "verdicts": []}
 
 
 def test_a_rollout_whose_end_the_agent_recorded_is_not_active() -> None:
@@ -33,6 +33,11 @@ def test_a_rollout_whose_end_the_agent_recorded_is_not_active() -> None:
 def test_a_rollout_begun_and_not_ended_is_active() -> None:
     job = a_job(rollout={"index": 2, "total": 2}, rollouts=[a_rollout(1), a_rollout(2, ended=False)])
     assert row_json(only_row([a_cell()], [job]), NOW)["job"]["rolloutActive"] is True
+
+
+def test_a_rollout_begun_without_outcome_controls_asks_for_no_verdict() -> None:
+    job = a_job(rollout={"index": 1, "total": 1}, rollouts=[{**a_rollout(1, ended=False), "outcomeControls": False}])
+    assert row_json(only_row([a_cell()], [job]), NOW)["job"]["outcomeControls"] is False
 
 
 def test_a_rollout_of_a_job_that_ended_is_not_active() -> None:

@@ -111,13 +111,15 @@ def test_the_status_form_names_every_field_and_leaves_out_the_absent_ones() -> N
     history = fold(Begun(1, 2, at(0)), Marked(False, "ana", at(1.5), 1), Ended(at(2)), Begun(2, 2, at(3)))
     assert as_status(history) == [
         {"index": 1, "total": 2, "outcome": "failure", "startedAt": "2026-03-01T12:00:00.000Z",
-         "markedBy": "ana", "markedAt": "2026-03-01T12:00:01.500Z", "endedAt": "2026-03-01T12:00:02.000Z"},
-        {"index": 2, "total": 2, "outcome": "unmarked", "startedAt": "2026-03-01T12:00:03.000Z"},
+         "outcomeControls": True, "markedBy": "ana", "markedAt": "2026-03-01T12:00:01.500Z",
+         "endedAt": "2026-03-01T12:00:02.000Z"},
+        {"index": 2, "total": 2, "outcome": "unmarked", "startedAt": "2026-03-01T12:00:03.000Z",
+         "outcomeControls": True},
     ]
 
 
 def test_the_status_form_reads_back_as_the_same_history() -> None:
-    history = fold(Begun(1, 2, at(0)), Marked(False, "ana", at(1.5), 1), Ended(at(2)), Begun(2, 2, at(3)))
+    history = fold(Begun(1, 2, at(0)), Marked(False, "ana", at(1.5), 1), Ended(at(2)), Begun(2, 2, at(3), False))
     assert from_status(as_status(history)) == history
 
 
@@ -168,6 +170,7 @@ class Event:
     at: float
     index: int | None = None
     total: int | None = None
+    outcome_controls: bool | None = None
 
 
 class Connector:
@@ -187,6 +190,15 @@ def test_the_recorder_takes_each_connector_event_once() -> None:
     connector.events += [Event("end", at(1).timestamp()), Event("begin", at(2).timestamp(), 2, 2)]
     recorder.sync()
     assert [(e.index, e.open) for e in recorder.history] == [(1, False), (2, True)]
+
+
+def test_a_rollout_begun_without_outcome_controls_is_recorded_so() -> None:
+    connector = Connector()
+    recorder = RolloutRecorder(connector)
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2, outcome_controls=False),
+                         Event("begin", at(1).timestamp(), 2, 2)]  # a connector that did not say: the SDK default
+    recorder.sync()
+    assert [e.outcome_controls for e in recorder.history] == [False, True]
 
 
 def test_a_verdict_catches_up_with_the_connector_before_it_is_recorded() -> None:
