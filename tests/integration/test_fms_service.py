@@ -105,7 +105,8 @@ def fms(k8s: Any, nats_server: str) -> Iterator[FmsServer]:
 @pytest.fixture
 def bed(k8s: Any, namespace: str, nats_server: str, fms: FmsServer) -> Iterator[Bed]:
     bed = Bed(k8s, namespace, nats_server, fms)
-    wait_for(bed.row, what="the FMS to list the cell")
+    # The cell and its job (two watches: on a loaded host the job can arrive a moment after the cell).
+    wait_for(lambda: (row := bed.row()) and row["job"], what="the FMS to list the cell and its job")
     yield bed
     bed.close()
 
