@@ -298,7 +298,10 @@ class JobRunner:
 
     def _rollout_events(self) -> list[Any]:
         session = self.session
-        return list(session.rollout_events()) if session is not None else []
+        try:
+            return list(session.rollout_events()) if session is not None else []
+        except RuntimeError:  # the connector's deque changed while copied: the next pass takes them
+            return []
 
     def _record_verdict(self, success: bool, by: str, rollout: int | None) -> None:
         """A verdict the bridge passed to the job: into the history, written with the next progress write."""
