@@ -145,11 +145,16 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
     click_when_visible(browser, "mark-fail")
     wait_text(browser, "action-result", "rollout 1/2 marked failure")
     wait_text(browser, "outcome-rollout", "2/2")
+    wait_text(browser, "verdicts", f"Rollout 1/2: failure, marked by {OPERATOR}")  # the page reads status.rollouts
     click_when_visible(browser, "mark-success")
     job = bed.wait_phase(jobs["reset"], timeout=120)
     st = job["status"]
     assert st["phase"] == "succeeded", json.dumps(st)[:3000]
     assert st["result"]["returnValue"] == {"outcomes": [False, True]}
+    # The agent recorded each rollout and its verdict with who marked it (status.rollouts).
+    assert [(r["index"], r["total"], r["outcome"], r.get("markedBy")) for r in st["rollouts"]] == [
+        (1, 2, "failure", OPERATOR), (2, 2, "success", OPERATOR)], json.dumps(st.get("rollouts"))
+    assert all(r["startedAt"] <= r["markedAt"] <= r["endedAt"] for r in st["rollouts"])
     assert console_errors(browser) == []
     events = json.loads(bed.k8s.kubectl("get", "events", "-n", bed.namespace, "-o", "json").stdout)["items"]
     audit = [e["message"] for e in events if e["involvedObject"]["name"] == jobs["reset"]

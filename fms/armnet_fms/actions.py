@@ -102,6 +102,12 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
         if request and request != str(row.job.rollout_index):
             raise Refused(f"this verdict was for rollout {request[:12]}; the job is on rollout "
                           f"{row.job.rollout_index} now: look again before marking it")
+        if not row.job.rollout_active:
+            raise Refused(f"rollout {row.job.rollout_index} of job {row.job.key} has ended; "
+                          "a verdict can only be given while the rollout runs")
+        if not row.job.outcome_controls:
+            raise Refused(f"rollout {row.job.rollout_index} of job {row.job.key} asks for no verdict "
+                          "(the job began it with outcome_controls=False)")
         success = kind is ActionKind.SUCCESS
         where = f"rollout {row.job.rollout_index}/{row.job.rollout_total}"
         verdict = "success" if success else "failure"

@@ -15,6 +15,20 @@ from typing import Any
 SITE_LABEL = "armnet.io/site"
 INTERLOCK_CONDITION = "InterlockClear"
 ACTIVE_JOB_PHASES = ("dispatched", "running")
+#: The latest verdicts the cell view lists (``status.rollouts`` keeps up to 50).
+VERDICTS_SHOWN = 5
+OUTCOMES = ("success", "failure")
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A cell operator's verdict on one rollout, as the agent recorded it in ``status.rollouts``."""
+
+    index: int
+    total: int
+    outcome: str  # "success" | "failure"
+    by: str
+    at: str
 
 
 @dataclass(frozen=True)
@@ -33,6 +47,12 @@ class JobSummary:
     progress: str
     rollout_index: int | None
     rollout_total: int | None
+    #: The current rollout is still going (the agent's history has not recorded its end).
+    rollout_active: bool = False
+    #: The current rollout asked for Success/Fail (``rollout_begin(outcome_controls=True)``, the default).
+    outcome_controls: bool = True
+    #: The latest verdicts, newest first.
+    verdicts: tuple[Verdict, ...] = ()
 
     @property
     def key(self) -> str:
@@ -112,15 +132,66 @@ def pending_from_notice(cell: str, notice: Mapping[str, Any], reset_timeout_s: f
                         deadline=now + reset_timeout_s)
 
 
+def _int(value: Any) -> int | None:
+    return value if type(value) is int else None
+
+
+def _history(status: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    rows = status.get("rollouts")
+    return [row for row in rows if isinstance(row, Mapping)] if isinstance(rows, list) else []
+
+
+def rollout_active(index: int | None, history: list[Mapping[str, Any]]) -> bool:
+    """Whether rollout ``index`` still runs: it began and the agent has not recorded its end.
+
+    An agent that keeps no history (older, or the pod launcher) leaves only
+    ``status.rollout``: that rollout counts as active, as before, and the agent
+    still drops a verdict for a rollout that has ended.
+    """
+    if index is None:
+        return False
+    for row in reversed(history):
+        if _int(row.get("index")) == index:
+            return not row.get("endedAt")
+    return True
+
+
+def outcome_controls(index: int | None, history: list[Mapping[str, Any]]) -> bool:
+    """Whether rollout ``index`` asked for the operator's verdict (True unless the agent recorded it did not)."""
+    for row in reversed(history):
+        if _int(row.get("index")) == index:
+            return row.get("outcomeControls") is not False
+    return True
+
+
+def verdicts(history: list[Mapping[str, Any]], limit: int = VERDICTS_SHOWN) -> tuple[Verdict, ...]:
+    """The latest marked rollouts, newest first (malformed rows skipped, texts bounded)."""
+    found = []
+    for row in reversed(history):
+        index, total, outcome = _int(row.get("index")), _int(row.get("total")), row.get("outcome")
+        if index is None or outcome not in OUTCOMES:
+            continue
+        found.append(Verdict(index=index, total=total or 0, outcome=str(outcome),
+                             by=str(row.get("markedBy") or "")[:128], at=str(row.get("markedAt") or "")[:40]))
+        if len(found) >= limit:
+            break
+    return tuple(found)
+
+
 def summarize_job(job: Mapping[str, Any]) -> JobSummary:
     meta, status = job.get("metadata") or {}, job.get("status") or {}
     rollout = status.get("rollout") or {}
+    history = _history(status)
+    index = _int(rollout.get("index"))
     return JobSummary(
         namespace=str(meta.get("namespace", "")), name=str(meta.get("name", "")),
         uid=str(status.get("jobId") or meta.get("uid", "")), phase=str(status.get("phase", "")),
         progress=str(status.get("progress") or "")[:300],
-        rollout_index=rollout.get("index") if isinstance(rollout.get("index"), int) else None,
-        rollout_total=rollout.get("total") if isinstance(rollout.get("total"), int) else None,
+        rollout_index=index,
+        rollout_total=_int(rollout.get("total")),
+        rollout_active=rollout_active(index, history),
+        outcome_controls=outcome_controls(index, history),
+        verdicts=verdicts(history),
     )
 
 
@@ -187,7 +258,10 @@ def row_json(row: CellRow, now: float) -> dict[str, Any]:
         "job": None if job is None else {
             "namespace": job.namespace, "name": job.name, "tenant": job.namespace, "phase": job.phase,
             "progress": job.progress, "rolloutIndex": job.rollout_index, "rolloutTotal": job.rollout_total,
-            "active": job.phase in ACTIVE_JOB_PHASES,
+            "active": job.phase in ACTIVE_JOB_PHASES, "rolloutActive": job.active_phase and job.rollout_active,
+            "outcomeControls": job.outcome_controls,
+            "verdicts": [{"index": v.index, "total": v.total, "outcome": v.outcome, "by": v.by, "at": v.at}
+                         for v in job.verdicts],
         },
         "reset": None if row.reset is None else {
             "request": row.reset.request_id, "secondsLeft": round(row.reset.seconds_left(now), 1),

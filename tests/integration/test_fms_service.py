@@ -3,7 +3,9 @@
 The FMS process runs as a least-privileged user (``FMS_RULES``, what the chart's
 ClusterRole should grant). The job side is the agent's own
 ``OperatorInputsBridge`` feeding a ``LocalOperatorInputs``: exactly what a
-running job's connector waits on.
+running job's connector waits on; its verdicts go to the agent's
+``RolloutRecorder`` and the runner's ``write_progress`` writes the history into
+the job's status, over rollout events shaped as the connector records them.
 """
 
 from __future__ import annotations
@@ -17,8 +19,13 @@ from typing import Any
 
 import httpx
 import pytest
+from armnet_agent.connector.cell import RolloutEvent
 from armnet_agent.connector.inputs import LocalOperatorInputs
 from armnet_agent.node.inputs_bridge import OperatorInputsBridge
+from armnet_agent.node.kube import AgentKube
+from armnet_agent.node.model import parse_job
+from armnet_agent.node.rollout_recorder import RolloutRecorder
+from armnet_agent.node.runner import write_progress
 from armnet_agent.node.streams import NatsLink, StreamSettings
 
 from tests.support.fms_objects import (
@@ -57,9 +64,12 @@ class Bed:
         self.job_id = running_on(k8s, self.cell, job, rollout={"index": 2, "total": 5})
         cell_busy(k8s, self.cell, f"{namespace}/eval-1", heartbeat=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"))
         self.inputs = LocalOperatorInputs()
+        #: The connector's rollout record: the job is in rollout 2 of 5.
+        self.rollout_events = [RolloutEvent("begin", time.time(), 2, 5, True)]
+        self.rollouts = RolloutRecorder(lambda: list(self.rollout_events))
         self.link = NatsLink(StreamSettings(url=nats_url)).start()
         self.bridge = OperatorInputsBridge(self.link, self.inputs, namespace=namespace, job_uid=self.job_id,
-                                           cell=self.cell).start()
+                                           cell=self.cell, on_verdict=self.rollouts.verdict).start()
         assert self.bridge.wait_active(20)
         self.http = httpx.Client(base_url=fms.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=10)
 
@@ -69,6 +79,13 @@ class Bed:
 
     def act(self, action: str, **body: Any) -> httpx.Response:
         return self.http.post(f"/api/cells/{self.cell}/{action}", json=body)
+
+    def write_rollouts(self) -> dict[str, Any]:
+        """The agent's progress write (once a second in a running job), then the job as the API has it."""
+        job = parse_job(get(self.k8s, "robotjob", "eval-1", self.namespace))
+        write_progress(AgentKube(self.k8s.api_client()), job, None, {"index": 2, "total": 5}, self.rollouts,
+                       force=False)
+        return get(self.k8s, "robotjob", "eval-1", self.namespace)
 
     def close(self) -> None:
         self.http.close()
@@ -88,7 +105,8 @@ def fms(k8s: Any, nats_server: str) -> Iterator[FmsServer]:
 @pytest.fixture
 def bed(k8s: Any, namespace: str, nats_server: str, fms: FmsServer) -> Iterator[Bed]:
     bed = Bed(k8s, namespace, nats_server, fms)
-    wait_for(bed.row, what="the FMS to list the cell")
+    # The cell and its job (two watches: on a loaded host the job can arrive a moment after the cell).
+    wait_for(lambda: (row := bed.row()) and row["job"], what="the FMS to list the cell and its job")
     yield bed
     bed.close()
 
@@ -141,6 +159,25 @@ def test_fail_reaches_the_job_as_an_unsuccessful_outcome_and_is_audited(bed: Bed
     events = wait_for(lambda: events_about(bed.k8s, bed.namespace, "eval-1"), what="the audit event")
     assert events[0]["reason"] == "RolloutMarked"
     assert events[0]["message"] == f"rollout 2/5 marked failure by cell operator {OPERATOR}"
+
+
+def test_a_verdict_lands_in_the_jobs_rollout_history_naming_the_operator(bed: Bed) -> None:
+    assert bed.act("fail", request="2").status_code == 200
+    wait_for(lambda: bed.bridge.accepted >= 1, what="the bridge to take the outcome")
+    [entry] = bed.write_rollouts()["status"]["rollouts"]
+    assert (entry["index"], entry["total"], entry["outcome"], entry["markedBy"]) == (2, 5, "failure", OPERATOR)
+    assert "markedAt" in entry and "endedAt" not in entry
+    verdicts = wait_for(lambda: bed.row()["job"]["verdicts"], what="the verdict on the page")  # type: ignore[index]
+    assert [(v["index"], v["outcome"], v["by"]) for v in verdicts] == [(2, "failure", OPERATOR)]
+
+
+def test_once_the_rollout_ended_the_page_shows_it_ended_and_a_verdict_is_refused(bed: Bed) -> None:
+    assert bed.row()["job"]["rolloutActive"] is True  # type: ignore[index]
+    bed.rollout_events.append(RolloutEvent("end", time.time()))
+    assert bed.write_rollouts()["status"]["rollouts"][0]["endedAt"]
+    wait_for(lambda: bed.row()["job"]["rolloutActive"] is False, what="the page to see the end")  # type: ignore[index]
+    late = bed.act("success", request="2")
+    assert late.status_code == 409 and "has ended" in late.json()["error"]
 
 
 def test_stop_cancels_the_job_and_names_the_operator(bed: Bed) -> None:

@@ -5,11 +5,15 @@ from __future__ import annotations
 import json
 import subprocess
 import uuid
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
+from armnet_agent.node import rollout_history as rh
+from kubernetes import client
+from kubernetes.client.exceptions import ApiException
 
 pytestmark = pytest.mark.integration
 
@@ -110,3 +114,19 @@ def test_kubectl_get_armnet_lists_jobs_and_cells_with_their_columns(k8s: Any, na
     assert header == ["NAME", "PHASE", "CELL", "EMBODIMENT", "AGE"]
     cells = k8s.kubectl("get", "cells").stdout.splitlines()
     assert not cells or cells[0].split() == ["NAME", "EMBODIMENT", "TASK", "PHASE", "JOB", "NODE", "AGE"]
+
+
+def test_the_rollout_history_holds_the_agents_fifty_newest_and_refuses_more(k8s: Any, namespace: str) -> None:
+    history: rh.History = ()
+    moment = datetime(2026, 3, 1, tzinfo=UTC)
+    for index in range(1, rh.MAX_ENTRIES + 3):
+        history = rh.apply(rh.apply(history, rh.Begun(index, 60, moment)), rh.Marked(index % 2 == 0, "ana", moment))
+    rows = rh.as_status(history)
+    apply(k8s, job(namespace, "history"))
+    custom = client.CustomObjectsApi(k8s.api_client())
+    args = ("armnet.io", "v1alpha1", namespace, "robotjobs", "history")
+    custom.patch_namespaced_custom_object_status(*args, {"status": {"rollouts": rows}})
+    assert get(k8s, namespace, "history")["status"]["rollouts"] == rows
+    with pytest.raises(ApiException) as refused:
+        custom.patch_namespaced_custom_object_status(*args, {"status": {"rollouts": [*rows, rows[-1]]}})
+    assert refused.value.status == 422 and "status.rollouts" in str(refused.value.body)

@@ -120,6 +120,7 @@ def test_a_hostile_teleop_action_is_dropped_and_counted(job: Job, body: Any) -> 
 @pytest.mark.parametrize(("kind", "body"), [
     ("event", {"event": "launch_missiles"}), ("event", {"event": 1}),
     ("outcome", {"success": "yes", "by": "ana"}), ("outcome", {"success": True}),
+    ("outcome", {"success": True, "by": ""}), ("outcome", {"success": True, "by": "ana\u001b[2J"}),
     ("stop", {"by": 7}), ("stop", {"by": "ana", "reason": "x" * 5000}),
     ("reset.confirm", {"by": {"name": "ana"}}), ("reset.confirm", []),
 ])

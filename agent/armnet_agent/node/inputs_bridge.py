@@ -17,11 +17,12 @@ from __future__ import annotations
 import json
 import logging
 import math
+import unicodedata
 from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from armnet_agent.connector.inputs import LocalOperatorInputs, OperatorInputs
 from armnet_agent.connector.ratelog import RateLimitedLog
@@ -33,6 +34,16 @@ log = logging.getLogger(__name__)
 MAX_INPUT_BYTES = 16 * 1024
 MAX_ACTION_MOTORS = 64
 Name = Annotated[str, Field(max_length=128)]
+
+
+def _printable(name: str) -> str:
+    if any(unicodedata.category(c)[0] == "C" for c in name):
+        raise ValueError("an operator name must not hold control or format characters")
+    return name
+
+
+#: Who sent an input: recorded in the job's status (``status.rollouts[].markedBy``) and logs.
+OperatorName = Annotated[str, Field(min_length=1, max_length=128), AfterValidator(_printable)]
 
 
 class _Input(BaseModel):
@@ -59,7 +70,7 @@ class TeleopEvent(_Input):
 class ResetConfirm(_Input):
     """``request`` names the reset confirmed (the notice's ``request``); null: whichever reset waits."""
 
-    by: Name
+    by: OperatorName
     request: int | Name | None = None
 
 
@@ -67,12 +78,12 @@ class Outcome(_Input):
     """``rollout`` names the rollout judged (the FMS sends the index it showed); null: whichever is active."""
 
     success: bool
-    by: Name
+    by: OperatorName
     rollout: int | None = None
 
 
 class Stop(_Input):
-    by: Name
+    by: OperatorName
     reason: str = Field(default="", max_length=1024)
 
 
@@ -103,10 +114,16 @@ class OperatorInputsBridge:
 
     def __init__(self, link: NatsLink, inputs: OperatorInputs, *, namespace: str, job_uid: str,
                  cell: str, announce_resets: bool = True,
-                 active_rollout: Callable[[], int | None] | None = None) -> None:
-        """``active_rollout``: the index of the rollout the job is in now (None between rollouts)."""
+                 active_rollout: Callable[[], int | None] | None = None,
+                 on_verdict: Callable[[bool, str, int | None], None] | None = None) -> None:
+        """``active_rollout``: the index of the rollout the job is in now (None between rollouts).
+
+        ``on_verdict(success, by, rollout)`` is told each verdict passed to the job (the
+        runner records it in ``status.rollouts``).
+        """
         self.link = link
         self._active_rollout = active_rollout
+        self._on_verdict = on_verdict
         self.inputs = inputs
         self.namespace, self.job_uid = namespace, job_uid
         self.reset_requested_subject = fms_subject(cell, "reset.requested")
@@ -200,6 +217,8 @@ class OperatorInputsBridge:
                 return
         log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
         self.inputs.report_outcome(message.success)
+        if self._on_verdict is not None:
+            self._on_verdict(message.success, message.by, message.rollout)
 
     def _stop(self, message: _Input) -> None:
         assert isinstance(message, Stop)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import os
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -77,6 +77,10 @@ class JobSession(Protocol):
 
     def active_rollout(self) -> int | None:
         """The rollout the job is in now (its last rollout event is a begin), else None."""
+        ...
+
+    def rollout_events(self) -> Sequence[Any]:
+        """The connector's latest rollout begins and ends, oldest first (``connector.cell.RolloutEvent``)."""
         ...
 
     def interlock_trip(self) -> str | None: ...
@@ -211,6 +215,10 @@ class ContainerSession:
             return None
         events = list(connector.cell.rollouts)
         return events[-1].index if events and events[-1].kind == "begin" else None
+
+    def rollout_events(self) -> Sequence[Any]:
+        connector = self.local_cell.connector
+        return list(connector.cell.rollouts) if connector is not None else []
 
     def record(self) -> report.ConnectorRecord:
         """The connector's account of the job, its safety report taken once it has let go of the arm.
@@ -412,6 +420,9 @@ class PodSession:
     def active_rollout(self) -> int | None:
         # Operator inputs do not reach a sidecar yet (docs/agent.md, the pod launcher).
         return None
+
+    def rollout_events(self) -> Sequence[Any]:
+        return []  # the sidecar's rollouts reach the agent only in its final record
 
     def record(self) -> report.ConnectorRecord:
         if self._record is None:

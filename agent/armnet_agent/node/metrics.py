@@ -44,6 +44,11 @@ class AgentMetrics:
             "jobs whose output was read from the engine's log file (file) or the slower Docker API follow "
             "that may reorder an exit burst (engine_api)", ["via"], registry=r,
         )
+        self.rollout_verdicts = Counter(
+            "armnet_agent_rollout_verdicts_total",
+            "cell operators' rollout verdicts passed to jobs and recorded in status.rollouts", ["outcome"],
+            registry=r,
+        )
         self.lines_dropped = Counter(
             "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
         )

@@ -14,6 +14,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from armnet_agent.launch.cell_spec import CameraSpec
+from armnet_agent.node import rollout_history
 from armnet_agent.node.follower_rule import follower_window
 
 ACTIVE_PHASES = ("dispatched", "running")
@@ -116,6 +117,8 @@ class Job:
     stopped_by: str | None = None
     #: The heartbeat window of a job whose client follows it (``node.follower``); None: not watched.
     follower_window_s: float | None = None
+    #: ``status.rollouts`` as last written (kept when an agent restart re-adopts the job).
+    rollouts: rollout_history.History = ()
 
     @property
     def key(self) -> str:
@@ -189,6 +192,7 @@ def parse_job(obj: dict[str, Any]) -> Job:
         resource_version=str(meta.get("resourceVersion", "")),
         stopped_by=_operator_name((meta.get("annotations") or {}).get(STOPPED_BY_ANNOTATION)),
         follower_window_s=follower_window(meta.get("annotations") or {}, spec.detach),
+        rollouts=rollout_history.from_status(status.get("rollouts")),
     )
 
 

@@ -82,10 +82,12 @@ def job_output(link: Link, namespace: str, job_uid: str) -> JobOutput:
 
 
 def inputs_bridge(link: Link, inputs: OperatorInputs, *, namespace: str, job_uid: str, cell: str,
-                  active_rollout: Callable[[], int | None] | None = None) -> Closable:
+                  active_rollout: Callable[[], int | None] | None = None,
+                  on_verdict: Callable[[bool, str, int | None], None] | None = None) -> Closable:
     if isinstance(link, NoLink):
         return NoBridge()
     bridge: Closable = streams.OperatorInputsBridge(
-        link, inputs, namespace=namespace, job_uid=job_uid, cell=cell, active_rollout=active_rollout
+        link, inputs, namespace=namespace, job_uid=job_uid, cell=cell, active_rollout=active_rollout,
+        on_verdict=on_verdict,
     ).start()
     return bridge

@@ -71,20 +71,28 @@ def running_patch(resource_version: str, started_at: datetime) -> dict[str, Any]
     }
 
 
-def progress_patch(progress: str | None, rollout: Mapping[str, int] | None) -> dict[str, Any]:
-    """No resourceVersion: progress never changes the phase, and the latest value wins."""
+def progress_patch(progress: str | None, rollout: Mapping[str, int] | None,
+                   rollouts: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """No resourceVersion: progress never changes the phase, and the latest value wins.
+
+    ``rollouts`` is the whole rollout history (``rollout_history.as_status``): a merge
+    patch replaces the list, so the same history written twice changes nothing.
+    """
     status: dict[str, Any] = {}
     if progress is not None:
         status["progress"] = _keep_end(progress, PROGRESS_MAX)
     if rollout:
         status["rollout"] = dict(rollout)
+    if rollouts is not None:
+        status["rollouts"] = rollouts
     return {"status": status}
 
 
 def terminal_patch(
-    resource_version: str, result: JobResult, record: ConnectorRecord | None = None
+    resource_version: str, result: JobResult, record: ConnectorRecord | None = None,
+    rollouts: list[dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
-    """The terminal phase, ``finishedAt`` and ``result`` of a finished job."""
+    """The terminal phase, ``finishedAt`` and ``result`` of a finished job (and its final rollout history)."""
     record = record or ConnectorRecord()
     error = result.error
     if record.trip_reason == "safety" and record.trip_message:
@@ -110,6 +118,8 @@ def terminal_patch(
     }
     if record.rollout_index is not None:
         status["rollout"] = {"index": record.rollout_index, "total": record.rollout_total or 0}
+    if rollouts:
+        status["rollouts"] = rollouts
     return {"metadata": {"resourceVersion": resource_version}, "status": status}
 
 

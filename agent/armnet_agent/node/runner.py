@@ -39,6 +39,8 @@ from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import TERMINAL_PHASES, Cell, Job, cancel_reason, parse_job
 from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
 from armnet_agent.node.publish import Link, inputs_bridge, job_output
+from armnet_agent.node.rollout_history import as_status
+from armnet_agent.node.rollout_recorder import RolloutRecorder
 from armnet_agent.sim.presets import SimulatedCell
 from armnet_agent.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
 from armnet_agent.supervise.observe import EventKind, OutputEvent
@@ -85,6 +87,8 @@ class JobRunner:
         self._on_done = on_done
         self._progress: str | None = None
         self._rollout: dict[str, int] | None = None
+        #: The job's rollout history (``status.rollouts``), kept across an agent restart.
+        self.rollouts = RolloutRecorder(self._rollout_events, history=job.rollouts)
         self._progress_dirty = threading.Event()
         self._finished = threading.Event()
         self._flush_stop = threading.Event()
@@ -171,7 +175,8 @@ class JobRunner:
                 self.hooks.on_deadline = session.on_deadline
                 self.hooks.on_cancel = session.on_cancel
                 bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
-                                       cell=cell.name, active_rollout=self._active_rollout)
+                                       cell=cell.name, active_rollout=self._active_rollout,
+                                       on_verdict=self._record_verdict)
                 try:
                     launched = session.start()
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
@@ -201,6 +206,7 @@ class JobRunner:
                     result = infra_failure(failure, limits)
                 elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
                     result = result.model_copy(update={"error": self._stop_reason})
+                self.rollouts.sync()  # the last begins and ends, before the connector stops
                 record = session.record()
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
@@ -280,19 +286,30 @@ class JobRunner:
             if rollout is not None and rollout != self._rollout:
                 self._rollout = rollout
                 self._progress_dirty.set()
-            if not self._progress_dirty.is_set():
-                continue
-            self._progress_dirty.clear()
-            try:
-                self.deps.kube.patch_job_status(
-                    self.job.namespace, self.job.name, report.progress_patch(self._progress, self._rollout)
-                )
-            except KubeError as exc:
-                log.warning("job %s: progress not written: %s", self.job.key, exc)
+            force = self._progress_dirty.is_set()
+            self._progress_dirty.clear()  # a progress line arriving during the write sets it again
+            if not write_progress(self.deps.kube, self.job, self._progress, self._rollout, self.rollouts,
+                                  force=force) and force:
+                self._progress_dirty.set()  # the write failed: try again on the next pass
 
     def _latest_rollout(self) -> dict[str, int] | None:
         session = self.session
         return session.rollout() if session is not None else None
+
+    def _rollout_events(self) -> list[Any]:
+        session = self.session
+        try:
+            return list(session.rollout_events()) if session is not None else []
+        except RuntimeError:  # the connector's deque changed while copied: the next pass takes them
+            return []
+
+    def _record_verdict(self, success: bool, by: str, rollout: int | None) -> None:
+        """A verdict the bridge passed to the job: into the history, written with the next progress write."""
+        try:
+            self.rollouts.verdict(success, by, rollout)
+            self.deps.metrics.rollout_verdicts.labels(outcome="success" if success else "failure").inc()
+        except Exception:  # noqa: BLE001 - the record must never stop the bridge delivering inputs
+            log.exception("job %s: the verdict by %s was not recorded", self.job.key, by[:128])
 
     def _active_rollout(self) -> int | None:
         """The index of the rollout the job is in now (operator verdicts for any other are dropped)."""
@@ -311,7 +328,7 @@ class JobRunner:
         def body(current: Job) -> dict[str, Any]:
             reason = cancel_reason(current) if result.status is JobStatus.CANCELLED else None
             final = result.model_copy(update={"error": reason}) if reason else result
-            return report.terminal_patch(current.resource_version, final, record)
+            return report.terminal_patch(current.resource_version, final, record, as_status(self.rollouts.history))
 
         return self._write(body)
 
@@ -342,6 +359,27 @@ class JobRunner:
             metrics.timeouts.inc()
         if record.trip_reason is not None:
             metrics.interlock_trips.labels(reason=record.trip_reason).inc()
+
+
+def write_progress(kube: AgentKube, job: Job, progress: str | None, rollout: dict[str, int] | None,
+                   rollouts: RolloutRecorder, *, force: bool) -> bool:
+    """One progress write: the progress and rollout (when ``force``) and the rollout history if it changed.
+
+    False when there was nothing to write or the write failed (the caller tries again on its next pass).
+    """
+    rollouts.sync()
+    history = rollouts.unwritten()
+    if not force and history is None:
+        return False
+    body = report.progress_patch(progress, rollout, as_status(history) if history is not None else None)
+    try:
+        kube.patch_job_status(job.namespace, job.name, body)
+    except KubeError as exc:
+        log.warning("job %s: progress not written: %s", job.key, exc)
+        return False
+    if history is not None:
+        rollouts.written(history)
+    return True
 
 
 def _engine_error(exc: Exception, image: str) -> str:

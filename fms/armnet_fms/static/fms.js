@@ -41,7 +41,7 @@
     card.appendChild(el("p", "job", job ? `Job ${job.namespace}/${job.name} (${job.phase})` : "No job"));
     if (job && job.rolloutIndex !== null) {
       const total = job.rolloutTotal ? `/${job.rolloutTotal}` : "";
-      card.appendChild(el("p", "rollout", `Rollout ${job.rolloutIndex}${total}`));
+      card.appendChild(el("p", "rollout", `Rollout ${job.rolloutIndex}${total}${job.rolloutActive ? "" : " (ended)"}`));
     }
     if (job && job.progress) card.appendChild(el("p", "progress", job.progress));
     for (const c of cell.falseConditions) {
@@ -84,15 +84,26 @@
       resetDeadline = Date.now() + cell.reset.secondsLeft * 1000;
     }
     tickReset();
-    document.getElementById("outcome-box").hidden = !(active && job.rolloutIndex !== null);
-    if (active && job.rolloutIndex !== null) {
+    // Success/Fail only while a rollout that asked for them runs: after its end a verdict would be dropped.
+    const rolling = active && job.rolloutIndex !== null && job.rolloutActive && job.outcomeControls;
+    document.getElementById("outcome-box").hidden = !rolling;
+    if (rolling) {
       document.getElementById("outcome-box").dataset.rollout = String(job.rolloutIndex);
       document.getElementById("outcome-rollout").textContent =
         `${job.rolloutIndex}${job.rolloutTotal ? "/" + job.rolloutTotal : ""}`;
     }
+    renderVerdicts((job && job.verdicts) || []);
     document.getElementById("stop-box").hidden = !active;
     document.getElementById("cordon").hidden = cell.unschedulable;
     document.getElementById("uncordon").hidden = !cell.unschedulable;
+  }
+
+  function renderVerdicts(verdicts) {
+    const list = document.getElementById("verdicts");
+    document.getElementById("verdicts-box").hidden = !verdicts.length;
+    list.replaceChildren(...verdicts.map((v) => el("li", `verdict ${v.outcome}`,
+      `Rollout ${v.index}${v.total ? "/" + v.total : ""}: ${v.outcome}, marked by ${v.by || "?"}` +
+      (v.at ? ` at ${new Date(v.at).toLocaleTimeString()}` : ""))));
   }
 
   function tickReset() {

@@ -15,7 +15,7 @@ from typing import Any, Optional
 
 from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
 
-from .resources import API_VERSION, Cell, RobotJob
+from .resources import API_VERSION, Cell, RobotJob, RolloutRecord
 
 FOLLOWER_ANNOTATION = "armnet.io/follower-timeout-seconds"
 """Declares that this client follows the job and beats (the agent's ``node.follower_rule`` reads it)."""
@@ -152,6 +152,8 @@ class JobView:
     started_at: Optional[datetime]
     finished_at: Optional[datetime]
     image: str
+    #: The rollout history the node agent recorded (oldest first, at most 50).
+    rollouts: tuple[RolloutRecord, ...] = ()
 
 
 def view_of(job: RobotJob) -> JobView:
@@ -174,6 +176,7 @@ def view_of(job: RobotJob) -> JobView:
         started_at=job.status.started_at,
         finished_at=job.status.finished_at,
         image=job.spec.image,
+        rollouts=tuple(job.status.rollouts),
     )
 
 

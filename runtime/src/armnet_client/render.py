@@ -73,9 +73,20 @@ def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) ->
         if wide:
             rollout = f" [rollout {job.rollout[0]}/{job.rollout[1]}]" if job.rollout else ""
             row += [job.task or "<any>", str(job.priority), job.image,
-                    ((job.progress or "") + rollout).strip() or "-"]
+                    ((job.progress or "") + rollout + verdict_counts(job)).strip() or "-"]
         rows.append(row)
     return table(headers, rows)
+
+
+def verdict_counts(job: JobView) -> str:
+    """`` [marked: 3 success, 1 failure]`` from the job's rollout history; empty when nothing was marked."""
+    success = sum(1 for r in job.rollouts if r.outcome == "success")
+    failure = sum(1 for r in job.rollouts if r.outcome == "failure")
+    return f" [marked: {success} success, {failure} failure]" if success or failure else ""
+
+
+def _when(moment: Optional[datetime]) -> Optional[str]:
+    return moment.isoformat() if moment else None
 
 
 def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False) -> str:
@@ -104,6 +115,9 @@ def job_document(job: Job, view: JobView) -> dict[str, Any]:
         "queue": {"reason": view.queued_reason, "position": view.queue_position},
         "progress": view.progress,
         "rollout": {"index": view.rollout[0], "total": view.rollout[1]} if view.rollout else None,
+        "rollouts": [{"index": r.index, "total": r.total, "outcome": r.outcome, "markedBy": r.marked_by,
+                      "markedAt": _when(r.marked_at), "startedAt": _when(r.started_at), "endedAt": _when(r.ended_at)}
+                     for r in view.rollouts],
         "cancelRequested": view.cancel_requested,
     })
     return document

@@ -59,6 +59,18 @@ class Rollout(_Body):
     total: int = 0
 
 
+class RolloutRecord(_Body):
+    """One rollout as the node agent recorded it (``status.rollouts``): begin, end, the operator's verdict."""
+
+    index: int = 0
+    total: int = 0
+    outcome: str = "unmarked"  # success | failure | unmarked
+    marked_by: Optional[str] = Field(default=None, alias="markedBy")
+    marked_at: Optional[datetime] = Field(default=None, alias="markedAt")
+    started_at: Optional[datetime] = Field(default=None, alias="startedAt")
+    ended_at: Optional[datetime] = Field(default=None, alias="endedAt")
+
+
 class RobotJobResult(_Body):
     exit_code: Optional[int] = Field(default=None, alias="exitCode")
     return_value: Any = Field(default=None, alias="returnValue")
@@ -78,6 +90,7 @@ class RobotJobStatus(_Body):
     finished_at: Optional[datetime] = Field(default=None, alias="finishedAt")
     progress: Optional[str] = None
     rollout: Optional[Rollout] = None
+    rollouts: list[RolloutRecord] = Field(default_factory=list)
     result: Optional[RobotJobResult] = None
     conditions: list[Condition] = Field(default_factory=list)
 

@@ -71,6 +71,26 @@ def test_wide_adds_task_priority_image_and_progress_with_rollout() -> None:
     assert rows[1].endswith("grasp [rollout 3/10]")
 
 
+def test_wide_counts_the_rollouts_the_cell_operator_marked() -> None:
+    marked = [{"index": i, "total": 3, "outcome": o, "startedAt": "2026-03-01T12:00:00.000Z"}
+              for i, o in ((1, "success"), (2, "failure"), (3, "unmarked"))]
+    rows = jobs_table([view_of(job(phase="running", progress="grasp", rollout={"index": 3, "total": 3},
+                                   rollouts=marked))], NOW, wide=True).splitlines()
+
+    assert rows[1].endswith("grasp [rollout 3/3] [marked: 1 success, 1 failure]")
+
+
+def test_the_job_json_lists_the_rollout_history_with_who_marked_each() -> None:
+    body = job(phase="running", rollouts=[{"index": 1, "total": 2, "outcome": "failure", "markedBy": "ana",
+                                           "markedAt": "2026-03-01T12:00:01.500Z",
+                                           "startedAt": "2026-03-01T12:00:00.000Z"}])
+
+    [entry] = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))["rollouts"]
+
+    assert (entry["index"], entry["outcome"], entry["markedBy"], entry["endedAt"]) == (1, "failure", "ana", None)
+    assert entry["markedAt"].startswith("2026-03-01T12:00:01.5")
+
+
 def test_columns_are_aligned() -> None:
     rows = jobs_table([view_of(job()), view_of(RobotJob.model_validate(a_robotjob(name="a-much-longer-name")))],
                       NOW).splitlines()
@@ -84,7 +104,7 @@ def test_the_job_json_shape_is_the_sdk_job_plus_queue_and_progress() -> None:
     document = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))
 
     assert set(document) == {"id", "spec", "status", "created_at", "updated_at", "cell_id", "result",
-                             "namespace", "jobId", "queue", "progress", "rollout", "cancelRequested"}
+                             "namespace", "jobId", "queue", "progress", "rollout", "rollouts", "cancelRequested"}
     assert document["status"] == "queued"
     assert document["queue"] == {"reason": "AllCellsBusy", "position": 1}
     assert document["spec"]["embodiment"] == "lerobot/so-101"

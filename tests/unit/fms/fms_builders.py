@@ -26,10 +26,13 @@ def a_cell(name: str = "so101-a", *, phase: str = "Busy", job: str | None = "tea
 
 
 def a_job(namespace: str = "team-a", name: str = "eval-1", *, phase: str = "running", job_id: str = "job-uid-1",
-          rollout: dict[str, int] | None = None, progress: str = "") -> dict[str, Any]:
+          rollout: dict[str, int] | None = None, progress: str = "",
+          rollouts: list[Any] | None = None) -> dict[str, Any]:
     status: dict[str, Any] = {"phase": phase, "jobId": job_id, "cellName": "so101-a"}
     if rollout is not None:
         status["rollout"] = rollout
+    if rollouts is not None:
+        status["rollouts"] = rollouts
     if progress:
         status["progress"] = progress
     return {"metadata": {"namespace": namespace, "name": name, "uid": job_id},
@@ -38,3 +41,14 @@ def a_job(namespace: str = "team-a", name: str = "eval-1", *, phase: str = "runn
 
 def a_notice(job_id: str = "job-uid-1", at: str = "2027-01-15T07:59:59+00:00") -> dict[str, Any]:
     return {"namespace": "team-a", "job": job_id, "at": at}
+
+
+def a_rollout(index: int, total: int = 2, *, outcome: str = "unmarked", by: str = "", ended: bool = True
+              ) -> dict[str, Any]:
+    """One ``status.rollouts`` entry as the agent writes it."""
+    row: dict[str, Any] = {"index": index, "total": total, "outcome": outcome, "startedAt": "2027-01-15T07:58:00.000Z"}
+    if by:
+        row.update(markedBy=by, markedAt="2027-01-15T07:58:30.000Z")
+    if ended:
+        row["endedAt"] = "2027-01-15T07:59:00.000Z"
+    return row

@@ -8,7 +8,7 @@ import pytest
 from armnet_fms.actions import STOPPED_BY_ANNOTATION, ActionKind, Refused, plan_action
 from armnet_fms.view import build_fleet, pending_from_notice
 
-from tests.unit.fms.fms_builders import NOW, a_cell, a_job, a_notice
+from tests.unit.fms.fms_builders import NOW, a_cell, a_job, a_notice, a_rollout
 
 pytestmark = pytest.mark.unit
 
@@ -87,3 +87,15 @@ def test_a_verdict_drawn_for_an_earlier_rollout_is_refused() -> None:
 def test_a_verdict_for_the_current_rollout_is_sent() -> None:
     plan = plan_action(ActionKind.SUCCESS, row(a_job(rollout={"index": 3, "total": 10})), "maria", NOW, request="3")
     assert [subject for subject, _ in plan.messages] == ["fms.so101-a.outcome"]
+
+
+def test_a_verdict_for_a_rollout_begun_without_outcome_controls_is_refused() -> None:
+    job = a_job(rollout={"index": 1, "total": 1}, rollouts=[{**a_rollout(1, 1, ended=False), "outcomeControls": False}])
+    with pytest.raises(Refused, match="asks for no verdict"):
+        plan_action(ActionKind.SUCCESS, row(job), "maria", NOW, request="1")
+
+
+def test_a_verdict_for_a_rollout_that_has_ended_is_refused() -> None:
+    job = a_job(rollout={"index": 3, "total": 10}, rollouts=[a_rollout(3, 10, ended=True)])
+    with pytest.raises(Refused, match="rollout 3 of job team-a/eval-1 has ended"):
+        plan_action(ActionKind.FAIL, row(job), "maria", NOW, request="3")

@@ -7,7 +7,7 @@ import json
 import pytest
 from armnet_fms.view import build_fleet, pending_from_notice, row_json
 
-from tests.unit.fms.fms_builders import NOW, a_cell, a_job, a_notice
+from tests.unit.fms.fms_builders import NOW, a_cell, a_job, a_notice, a_rollout
 
 pytestmark = pytest.mark.unit
 
@@ -21,7 +21,45 @@ def only_row(cells, jobs=(), pending=None, **kw):
 def test_a_row_names_the_current_job_its_tenant_and_the_rollout_progress() -> None:
     row = row_json(only_row([a_cell()], [a_job(rollout={"index": 2, "total": 5}, progress="picking")]), NOW)
     assert row["job"] == {"namespace": "team-a", "name": "eval-1", "tenant": "team-a", "phase": "running",
-                          "progress": "picking", "rolloutIndex": 2, "rolloutTotal": 5, "active": True}
+                          "progress": "picking", "rolloutIndex": 2, "rolloutTotal": 5, "active": True,
+                          "rolloutActive": True, "outcomeControls": True, "verdicts": []}
+
+
+def test_a_rollout_whose_end_the_agent_recorded_is_not_active() -> None:
+    job = a_job(rollout={"index": 2, "total": 2}, rollouts=[a_rollout(1), a_rollout(2, ended=True)])
+    assert row_json(only_row([a_cell()], [job]), NOW)["job"]["rolloutActive"] is False
+
+
+def test_a_rollout_begun_and_not_ended_is_active() -> None:
+    job = a_job(rollout={"index": 2, "total": 2}, rollouts=[a_rollout(1), a_rollout(2, ended=False)])
+    assert row_json(only_row([a_cell()], [job]), NOW)["job"]["rolloutActive"] is True
+
+
+def test_a_rollout_begun_without_outcome_controls_asks_for_no_verdict() -> None:
+    job = a_job(rollout={"index": 1, "total": 1}, rollouts=[{**a_rollout(1, ended=False), "outcomeControls": False}])
+    assert row_json(only_row([a_cell()], [job]), NOW)["job"]["outcomeControls"] is False
+
+
+def test_a_rollout_of_a_job_that_ended_is_not_active() -> None:
+    job = a_job(phase="succeeded", rollout={"index": 2, "total": 2}, rollouts=[a_rollout(2, ended=False)])
+    assert row_json(only_row([a_cell()], [job]), NOW)["job"]["rolloutActive"] is False
+
+
+def test_the_latest_verdicts_are_listed_newest_first_with_who_marked_them() -> None:
+    history = [a_rollout(i, 9, outcome="success" if i % 2 else "failure", by=f"op{i}") for i in range(1, 8)]
+    job = a_job(rollout={"index": 8, "total": 9}, rollouts=[*history, a_rollout(8, 9, ended=False)])
+    verdicts = row_json(only_row([a_cell()], [job]), NOW)["job"]["verdicts"]
+    assert [(v["index"], v["outcome"], v["by"]) for v in verdicts] == [
+        (7, "success", "op7"), (6, "failure", "op6"), (5, "success", "op5"), (4, "failure", "op4"),
+        (3, "success", "op3")]
+    assert verdicts[0]["at"] == "2027-01-15T07:58:30.000Z" and verdicts[0]["total"] == 9
+
+
+@pytest.mark.parametrize("rows", ["x", [None, "x", {"index": "1", "outcome": "success"},
+                                        {"index": 1, "outcome": "<b>won</b>"}, a_rollout(1)]])
+def test_a_malformed_history_shows_no_verdicts(rows: object) -> None:
+    job = a_job(rollout={"index": 1, "total": 2}, rollouts=rows)  # type: ignore[arg-type]
+    assert row_json(only_row([a_cell()], [job]), NOW)["job"]["verdicts"] == []
 
 
 def test_only_false_conditions_are_listed_with_their_reason() -> None:

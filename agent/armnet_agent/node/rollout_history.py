@@ -1,0 +1,190 @@
+"""A job's rollout history (``status.rollouts``): what it becomes given one event. Pure.
+
+The agent sees three kinds of event about a running job's rollouts: the
+connector recorded a begin or an end (``ctx.cell.rollout_begin`` /
+``rollout_end``), and a cell operator's verdict arrived from the FMS
+(``fms.<cell>.outcome``, naming the operator). :func:`apply` folds one event
+into the history; the agent writes :func:`as_status` of the result as
+``status.rollouts`` (the whole list: a JSON merge patch replaces lists, so
+writing the same history twice changes nothing).
+
+The rules, each so that a replayed or late event cannot rewrite the record:
+
+- a begin appends an entry (unmarked); the same begin seen again (same index,
+  same time) changes nothing; a begin while the previous rollout is still open
+  closes that one at the new begin's time (the job moved on without an end);
+- an end closes the open rollout; with none open it changes nothing;
+- a verdict naming a rollout marks the latest entry of that index, open or
+  just ended (the agent's bridge only lets through a verdict for the rollout
+  active when it arrived; the end may be recorded first); a verdict naming no
+  rollout marks the open one; with no such entry it changes nothing (a job
+  without ``rollout_begin`` has no rollout to record it in). A second verdict
+  on one rollout replaces the first: the job reads the latest too.
+
+At most :data:`MAX_ENTRIES` entries are kept, the newest (a job may run
+thousands of rollouts; the CRD's ``maxItems`` says the same number).
+"""
+
+from __future__ import annotations
+
+import unicodedata
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from enum import StrEnum
+from typing import Any
+
+#: The newest entries kept in ``status.rollouts`` (the CRD's ``maxItems``).
+MAX_ENTRIES = 50
+#: An operator's name as recorded (``markedBy``); the FMS's own names are at most 64 characters.
+OPERATOR_MAX = 128
+COUNT_MAX = 1_000_000_000
+
+
+class Outcome(StrEnum):
+    SUCCESS = "success"
+    FAILURE = "failure"
+    UNMARKED = "unmarked"
+
+
+@dataclass(frozen=True)
+class RolloutEntry:
+    index: int
+    total: int
+    started_at: datetime
+    outcome: Outcome = Outcome.UNMARKED
+    marked_by: str | None = None
+    marked_at: datetime | None = None
+    ended_at: datetime | None = None
+    #: The job asked for the cell operator's Success/Fail buttons (``rollout_begin(outcome_controls=...)``).
+    outcome_controls: bool = True
+
+    @property
+    def open(self) -> bool:
+        return self.ended_at is None
+
+
+@dataclass(frozen=True)
+class Begun:
+    index: int
+    total: int
+    at: datetime
+    outcome_controls: bool = True
+
+
+@dataclass(frozen=True)
+class Ended:
+    at: datetime
+
+
+@dataclass(frozen=True)
+class Marked:
+    success: bool
+    by: str
+    at: datetime
+    #: The rollout the operator judged (the FMS sends the index it showed); None: the open one.
+    rollout: int | None = None
+
+
+RolloutChange = Begun | Ended | Marked
+History = tuple[RolloutEntry, ...]
+
+
+def operator_name(name: str) -> str:
+    """``name`` as it may be recorded: control and format characters removed, at most 128 characters."""
+    cleaned = "".join(c for c in name if unicodedata.category(c)[0] != "C")
+    return cleaned[:OPERATOR_MAX]
+
+
+def apply(history: History, change: RolloutChange, limit: int = MAX_ENTRIES) -> History:
+    """The history after ``change`` (the same tuple when it changes nothing)."""
+    if isinstance(change, Begun):
+        return _begun(history, change, limit)
+    if isinstance(change, Ended):
+        if history and history[-1].open:
+            return (*history[:-1], replace(history[-1], ended_at=change.at))
+        return history
+    return _marked(history, change)
+
+
+def _begun(history: History, change: Begun, limit: int) -> History:
+    last = history[-1] if history else None
+    if last is not None and last.index == change.index and last.started_at == change.at:
+        return history
+    if last is not None and last.open:
+        history = (*history[:-1], replace(last, ended_at=change.at))
+    entry = RolloutEntry(index=_count(change.index), total=_count(change.total), started_at=change.at,
+                         outcome_controls=change.outcome_controls)
+    return (*history, entry)[-limit:] if limit > 0 else ()
+
+
+def _marked(history: History, change: Marked) -> History:
+    for position in range(len(history) - 1, -1, -1):
+        entry = history[position]
+        if change.rollout is None and not entry.open:
+            return history
+        if change.rollout is None or entry.index == change.rollout:
+            marked = replace(entry, outcome=Outcome.SUCCESS if change.success else Outcome.FAILURE,
+                             marked_by=operator_name(change.by), marked_at=change.at)
+            return (*history[:position], marked, *history[position + 1:])
+    return history
+
+
+def _count(value: int) -> int:
+    return min(max(int(value), 0), COUNT_MAX)
+
+
+def timestamp(moment: datetime) -> str:
+    """RFC 3339 in UTC with milliseconds, as the agent's other status times."""
+    return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+def as_status(history: History) -> list[dict[str, Any]]:
+    """``status.rollouts``: one object per entry, oldest first, absent fields left out."""
+    rows = []
+    for entry in history:
+        row: dict[str, Any] = {"index": entry.index, "total": entry.total, "outcome": entry.outcome.value,
+                               "startedAt": timestamp(entry.started_at), "outcomeControls": entry.outcome_controls}
+        if entry.marked_by is not None:
+            row["markedBy"] = entry.marked_by
+        if entry.marked_at is not None:
+            row["markedAt"] = timestamp(entry.marked_at)
+        if entry.ended_at is not None:
+            row["endedAt"] = timestamp(entry.ended_at)
+        rows.append(row)
+    return rows
+
+
+def from_status(value: Any, limit: int = MAX_ENTRIES) -> History:
+    """The history a job's ``status.rollouts`` holds (after an agent restart); malformed entries skipped."""
+    if not isinstance(value, list):
+        return ()
+    entries = [entry for entry in map(_entry, value) if entry is not None]
+    return tuple(entries[-limit:]) if limit > 0 else ()
+
+
+def _entry(row: Any) -> RolloutEntry | None:
+    if not isinstance(row, Mapping):
+        return None
+    index, total, started = row.get("index"), row.get("total"), _time(row.get("startedAt"))
+    if not (type(index) is int and type(total) is int and started is not None):
+        return None
+    outcome = row.get("outcome")
+    by = row.get("markedBy")
+    return RolloutEntry(
+        index=_count(index), total=_count(total), started_at=started,
+        outcome=Outcome(outcome) if outcome in tuple(Outcome) else Outcome.UNMARKED,
+        marked_by=operator_name(by) if isinstance(by, str) else None,
+        marked_at=_time(row.get("markedAt")), ended_at=_time(row.get("endedAt")),
+        outcome_controls=row.get("outcomeControls") is not False,
+    )
+
+
+def _time(value: Any) -> datetime | None:
+    if not isinstance(value, str):
+        return None
+    try:
+        moment = datetime.fromisoformat(value.replace("Z", "+00:00"))
+    except ValueError:
+        return None
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)

@@ -1,0 +1,238 @@
+"""A job's rollout history (``status.rollouts``): what each begin, end and verdict makes of it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+
+import pytest
+from armnet_agent.node.model import parse_job
+from armnet_agent.node.report import progress_patch, terminal_patch
+from armnet_agent.node.rollout_history import (
+    MAX_ENTRIES,
+    Begun,
+    Ended,
+    History,
+    Marked,
+    Outcome,
+    RolloutChange,
+    apply,
+    as_status,
+    from_status,
+)
+from armnet_agent.node.rollout_recorder import RolloutRecorder
+from armnet_core import JobResult, JobStatus
+
+pytestmark = pytest.mark.unit
+
+T0 = datetime(2026, 3, 1, 12, 0, 0, tzinfo=UTC)
+
+
+def at(seconds: float) -> datetime:
+    return T0 + timedelta(seconds=seconds)
+
+
+def fold(*changes: RolloutChange, history: History = ()) -> History:
+    for change in changes:
+        history = apply(history, change)
+    return history
+
+
+def test_a_begin_adds_an_open_unmarked_rollout() -> None:
+    [entry] = fold(Begun(1, 3, at(0)))
+    assert (entry.index, entry.total, entry.outcome, entry.open) == (1, 3, Outcome.UNMARKED, True)
+
+
+def test_an_end_closes_the_open_rollout() -> None:
+    [entry] = fold(Begun(1, 3, at(0)), Ended(at(5)))
+    assert entry.ended_at == at(5) and not entry.open
+
+
+def test_an_end_with_no_open_rollout_changes_nothing() -> None:
+    history = fold(Begun(1, 3, at(0)), Ended(at(5)))
+    assert apply(history, Ended(at(9))) is history
+    assert apply((), Ended(at(9))) == ()
+
+
+def test_the_same_begin_seen_twice_adds_one_rollout() -> None:
+    history = fold(Begun(1, 3, at(0)))
+    assert apply(history, Begun(1, 3, at(0))) is history
+
+
+def test_a_begin_while_a_rollout_is_open_closes_it_at_the_new_begin() -> None:
+    first, second = fold(Begun(1, 3, at(0)), Begun(2, 3, at(4)))
+    assert first.ended_at == at(4) and second.open and second.index == 2
+
+
+def test_a_verdict_marks_the_open_rollout_with_who_marked_it_and_when() -> None:
+    [entry] = fold(Begun(1, 3, at(0)), Marked(False, "ana", at(2), rollout=1))
+    assert (entry.outcome, entry.marked_by, entry.marked_at, entry.open) == (Outcome.FAILURE, "ana", at(2), True)
+
+
+def test_a_verdict_naming_no_rollout_marks_the_open_one() -> None:
+    [entry] = fold(Begun(1, 3, at(0)), Marked(True, "ana", at(2)))
+    assert entry.outcome is Outcome.SUCCESS
+
+
+def test_a_verdict_naming_no_rollout_with_none_open_changes_nothing() -> None:
+    history = fold(Begun(1, 3, at(0)), Ended(at(1)))
+    assert apply(history, Marked(True, "ana", at(2))) is history
+
+
+def test_a_verdict_for_a_rollout_that_just_ended_marks_that_rollout_not_the_next() -> None:
+    first, second = fold(Begun(1, 2, at(0)), Ended(at(1)), Begun(2, 2, at(2)), Marked(True, "ana", at(3), rollout=1))
+    assert first.outcome is Outcome.SUCCESS and second.outcome is Outcome.UNMARKED
+
+
+def test_a_verdict_for_a_rollout_never_begun_changes_nothing() -> None:
+    history = fold(Begun(1, 3, at(0)))
+    assert apply(history, Marked(True, "ana", at(2), rollout=7)) is history
+    assert apply((), Marked(True, "ana", at(2))) == ()
+
+
+def test_a_second_verdict_on_one_rollout_replaces_the_first() -> None:
+    [entry] = fold(Begun(1, 3, at(0)), Marked(True, "ana", at(1), 1), Marked(False, "bo", at(2), 1))
+    assert (entry.outcome, entry.marked_by) == (Outcome.FAILURE, "bo")
+
+
+def test_only_the_newest_rollouts_are_kept() -> None:
+    history = fold(*(Begun(i, 0, at(i)) for i in range(MAX_ENTRIES + 7)))
+    assert len(history) == MAX_ENTRIES
+    assert [e.index for e in history] == list(range(7, MAX_ENTRIES + 7))
+
+
+def test_a_hostile_operator_name_is_recorded_without_control_characters_and_bounded() -> None:
+    [entry] = fold(Begun(1, 1, at(0)), Marked(True, "ana\n\x1b[31m" + "x" * 500, at(1)))
+    assert entry.marked_by is not None
+    assert entry.marked_by.startswith("ana[31m") and len(entry.marked_by) == 128
+
+
+def test_the_status_form_names_every_field_and_leaves_out_the_absent_ones() -> None:
+    history = fold(Begun(1, 2, at(0)), Marked(False, "ana", at(1.5), 1), Ended(at(2)), Begun(2, 2, at(3)))
+    assert as_status(history) == [
+        {"index": 1, "total": 2, "outcome": "failure", "startedAt": "2026-03-01T12:00:00.000Z",
+         "outcomeControls": True, "markedBy": "ana", "markedAt": "2026-03-01T12:00:01.500Z",
+         "endedAt": "2026-03-01T12:00:02.000Z"},
+        {"index": 2, "total": 2, "outcome": "unmarked", "startedAt": "2026-03-01T12:00:03.000Z",
+         "outcomeControls": True},
+    ]
+
+
+def test_the_status_form_reads_back_as_the_same_history() -> None:
+    history = fold(Begun(1, 2, at(0)), Marked(False, "ana", at(1.5), 1), Ended(at(2)), Begun(2, 2, at(3), False))
+    assert from_status(as_status(history)) == history
+
+
+@pytest.mark.parametrize("value", [None, "x", 5, {"index": 1}])
+def test_a_status_that_is_no_list_reads_as_no_history(value: object) -> None:
+    assert from_status(value) == ()
+
+
+def test_malformed_status_entries_are_skipped() -> None:
+    good = {"index": 1, "total": 2, "outcome": "success", "startedAt": "2026-03-01T12:00:00Z"}
+    bad = [None, "x", {"index": True, "total": 1, "startedAt": "2026-03-01T12:00:00Z"},
+           {"index": 1, "total": 1, "startedAt": "yesterday"}, {"index": 1, "startedAt": "2026-03-01T12:00:00Z"}]
+    [entry] = from_status([*bad, good])
+    assert entry.outcome is Outcome.SUCCESS
+
+
+def test_an_unknown_outcome_reads_as_unmarked() -> None:
+    [entry] = from_status([{"index": 1, "total": 2, "outcome": "maybe", "startedAt": "2026-03-01T12:00:00Z"}])
+    assert entry.outcome is Outcome.UNMARKED
+
+
+def test_a_restarted_agent_reads_the_history_from_the_job() -> None:
+    history = fold(Begun(1, 2, at(0)), Marked(True, "ana", at(1), 1))
+    job = parse_job({"metadata": {"namespace": "t", "name": "j", "uid": "u"},
+                     "spec": {"image": "example.com/pick:1", "embodiment": "lerobot/so-101"},
+                     "status": {"phase": "running", "rollouts": as_status(history)}})
+    assert job.rollouts == history
+
+
+def test_the_progress_write_carries_the_whole_history_and_only_when_given() -> None:
+    rows = as_status(fold(Begun(1, 2, at(0))))
+    assert progress_patch("x", {"index": 1, "total": 2}, rows)["status"]["rollouts"] == rows
+    assert "rollouts" not in progress_patch("x", {"index": 1, "total": 2})["status"]
+
+
+def test_the_terminal_write_carries_the_final_history() -> None:
+    rows = as_status(fold(Begun(1, 2, at(0)), Ended(at(1))))
+    result = JobResult(status=JobStatus.SUCCEEDED, exit_code=0, started_at=T0, finished_at=T0)
+    assert terminal_patch("7", result, None, rows)["status"]["rollouts"] == rows
+    assert "rollouts" not in terminal_patch("7", result, None, [])["status"]
+
+
+@dataclass(frozen=True)
+class Event:
+    """Shaped like ``connector.cell.RolloutEvent``."""
+
+    kind: str
+    at: float
+    index: int | None = None
+    total: int | None = None
+    outcome_controls: bool | None = None
+
+
+class Connector:
+    def __init__(self) -> None:
+        self.events: list[Event] = []
+
+    def __call__(self) -> list[Event]:
+        return list(self.events)
+
+
+def test_the_recorder_takes_each_connector_event_once() -> None:
+    connector = Connector()
+    recorder = RolloutRecorder(connector)
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2)]
+    assert recorder.sync() is True
+    assert recorder.sync() is False
+    connector.events += [Event("end", at(1).timestamp()), Event("begin", at(2).timestamp(), 2, 2)]
+    recorder.sync()
+    assert [(e.index, e.open) for e in recorder.history] == [(1, False), (2, True)]
+
+
+def test_a_rollout_begun_without_outcome_controls_is_recorded_so() -> None:
+    connector = Connector()
+    recorder = RolloutRecorder(connector)
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2, outcome_controls=False),
+                         Event("begin", at(1).timestamp(), 2, 2)]  # a connector that did not say: the SDK default
+    recorder.sync()
+    assert [e.outcome_controls for e in recorder.history] == [False, True]
+
+
+def test_a_verdict_catches_up_with_the_connector_before_it_is_recorded() -> None:
+    connector = Connector()
+    recorder = RolloutRecorder(connector, clock=lambda: at(3))
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2), Event("end", at(1).timestamp()),
+                         Event("begin", at(2).timestamp(), 2, 2)]
+    recorder.verdict(True, "ana", 2)  # the once-a-second poll has not run since the job began rollout 2
+    assert [(e.index, e.outcome, e.marked_by) for e in recorder.history] == [
+        (1, Outcome.UNMARKED, None), (2, Outcome.SUCCESS, "ana")]
+
+
+def test_the_recorder_offers_a_history_to_write_until_it_is_written() -> None:
+    connector = Connector()
+    recorder = RolloutRecorder(connector)
+    assert recorder.unwritten() is None
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2)]
+    recorder.sync()
+    history = recorder.unwritten()
+    assert history is not None
+    recorder.written(history)
+    assert recorder.unwritten() is None
+
+
+def test_a_history_read_back_after_a_restart_is_not_written_again_unchanged() -> None:
+    seeded = fold(Begun(1, 2, at(0)))
+    assert RolloutRecorder(Connector(), history=seeded).unwritten() is None
+
+
+def test_events_that_fell_out_of_the_connectors_window_are_found_by_time() -> None:
+    connector = Connector()
+    recorder = RolloutRecorder(connector)
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2)]
+    recorder.sync()
+    connector.events = [Event("end", at(1).timestamp()), Event("begin", at(2).timestamp(), 2, 2)]
+    recorder.sync()
+    assert [(e.index, e.open) for e in recorder.history] == [(1, False), (2, True)]
