@@ -13,13 +13,14 @@ import shutil
 import tempfile
 import time
 from collections.abc import Iterator
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector import Connector, LocalOperatorInputs
+from armnet_agent.connector import Connector, ConnectorConfig, LocalOperatorInputs
 from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.metrics import AgentMetrics
@@ -30,9 +31,30 @@ from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 
-from tests.unit.connector.conftest import calibration_file, so101_calibration, so101_config, so101_motors
-
 pytestmark = pytest.mark.integration
+
+CALIBRATION = Path(str(resources.files("armnet_agent.sim.data").joinpath("so101.json")))
+MOTORS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
+
+
+def cell_config(sim: SimulatedCellProcess) -> ConnectorConfig:
+    return ConnectorConfig.model_validate({
+        "arms": {"arm": {"port": sim.arm.port, "calibrationFile": str(CALIBRATION), "robotId": "sim-so101"}},
+        "cameras": {"front": {"indexOrPath": 0, "fps": 30, "width": 640, "height": 480}},
+        "simulated": True,
+    })
+
+
+def job_bus(endpoint: str) -> RemoteFeetechMotorsBus:
+    """The SO-101 bus a job builds, with the cell's calibration."""
+    import json
+
+    from lerobot.motors import Motor, MotorCalibration, MotorNormMode
+
+    motors = {name: Motor(i + 1, "sts3215", MotorNormMode.DEGREES) for i, name in enumerate(MOTORS)}
+    motors["gripper"] = Motor(6, "sts3215", MotorNormMode.RANGE_0_100)
+    calibration = {name: MotorCalibration(**entry) for name, entry in json.loads(CALIBRATION.read_text()).items()}
+    return RemoteFeetechMotorsBus(port=endpoint, motors=motors, calibration=calibration)
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +78,7 @@ def link(nats_server: str) -> Iterator[NatsLink]:
 @pytest.fixture
 def connector(sim: SimulatedCellProcess, monkeypatch: pytest.MonkeyPatch) -> Iterator[Connector]:
     socket_dir = Path(tempfile.mkdtemp(prefix="ant-", dir="/tmp"))
-    connector = Connector(so101_config(sim), socket_dir, inputs=LocalOperatorInputs()).start()
+    connector = Connector(cell_config(sim), socket_dir, inputs=LocalOperatorInputs()).start()
     monkeypatch.setenv("ARMNET_CELL_SOCKET", connector.robot_endpoint)
     yield connector
     connector.stop()
@@ -96,7 +118,7 @@ def test_during_a_job_frames_and_servo_readings_come_through_its_connector(
 
     from lerobot.cameras.opencv import OpenCVCameraConfig
 
-    bus = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=so101_motors(), calibration=so101_calibration())
+    bus = job_bus(connector.robot_endpoint)
     bus.connect()
     camera = RemoteOpenCVCamera(OpenCVCameraConfig(index_or_path="front", fps=30, width=640, height=480))
     camera.connect(warmup=False)
@@ -152,7 +174,7 @@ def test_an_idle_cell_is_read_by_the_agent_and_a_failing_camera_stops_nothing_el
 
     metrics = AgentMetrics()
     source = IdleSource(
-        {"arm": (sim.arm.port, calibration_file())}, (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),),
+        {"arm": (sim.arm.port, CALIBRATION)}, (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),),
         BusTurns(), lambda: False, None, IdleCameras(),
     )
     telemetry = publisher(source, link, metrics)
@@ -160,7 +182,7 @@ def test_an_idle_cell_is_read_by_the_agent_and_a_failing_camera_stops_nothing_el
 
     reading = json.loads(got["telemetry.cell-1.servos"])
     assert reading["source"] == "idle"
-    assert set(reading["arms"]["arm"]["motors"]) == set(so101_motors())
+    assert set(reading["arms"]["arm"]["motors"]) == set(MOTORS)
     assert all(0 <= v["position"] < 4096 for v in reading["arms"]["arm"]["motors"].values())
     assert counted(metrics, "armnet_agent_telemetry_frames_total", "failed") == 1
     assert counted(metrics, "armnet_agent_telemetry_servo_reads_total", "published") == 1
@@ -174,6 +196,6 @@ def test_an_idle_simulated_cell_shows_its_simulator_drawn_at_the_published_size(
 
 
 def test_nothing_is_read_while_a_job_holds_the_bus(sim: SimulatedCellProcess) -> None:
-    source = IdleSource({"arm": (sim.arm.port, calibration_file())}, (), BusTurns(), lambda: True, None,
+    source = IdleSource({"arm": (sim.arm.port, CALIBRATION)}, (), BusTurns(), lambda: True, None,
                         IdleCameras())
     assert source.servos() is None
