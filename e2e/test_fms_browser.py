@@ -67,8 +67,10 @@ WORKS_UNTIL_STOPPED = """
 def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("fms-e2e")
     bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
-    bed.reset_cell = bed.add_cell("fms-a")  # type: ignore[attr-defined]
-    bed.stop_cell = bed.add_cell("fms-b")  # type: ignore[attr-defined]
+    # A camera on each cell: a cell's page shows the simulator's picture and the servo plots.
+    camera = {"front": {"indexOrPath": 0}}
+    bed.reset_cell = bed.add_cell("fms-a", cameras=camera)  # type: ignore[attr-defined]
+    bed.stop_cell = bed.add_cell("fms-b", cameras=camera)  # type: ignore[attr-defined]
     bed.start_operator()
     bed.start_agent()
     try:
@@ -137,6 +139,11 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
     browser.get(f"{fms.url}/cells/{cell}")
     WebDriverWait(browser, 60).until(visible.visibility_of_element_located((By.ID, "confirm-reset")))
     wait_text(browser, "reset-left", "s left")
+    # Live camera and telemetry: the frame decoded in the browser, and a servo plot drawn with points.
+    WebDriverWait(browser, 60).until(lambda d: d.execute_script(
+        "const img = document.getElementById('camera-front');"
+        "const plot = document.querySelector('svg.plot');"
+        "return !!img && img.naturalWidth > 0 && !!plot && Number(plot.dataset.points) > 0;"))
     screenshot(browser, "fms-cell-reset")
     browser.find_element(By.ID, "confirm-reset").click()
     wait_text(browser, "action-result", "reset confirmed")

@@ -21,7 +21,9 @@ from pathlib import Path
 from typing import Any
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, generate_latest
+from prometheus_client.core import CounterMetricFamily
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
+from prometheus_client.registry import Collector
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import (
@@ -39,6 +41,7 @@ from . import auth
 from .actions import ActionKind, Plan, Refused, plan_action
 from .bus import BusUnavailable, OperatorBus
 from .state import FleetState
+from .telemetry import TelemetryStore
 from .view import build_row, row_json
 
 log = logging.getLogger(__name__)
@@ -78,6 +81,21 @@ class Metrics:
               ).set_function(lambda: 1.0 if bus.connected else 0.0)
 
 
+class TelemetryCollector(Collector):
+    """The telemetry store's counts, read at scrape time (the store stays free of metrics)."""
+
+    def __init__(self, store: TelemetryStore) -> None:
+        self._store = store
+
+    def collect(self) -> Any:
+        family = CounterMetricFamily("armnet_fms_telemetry_messages", "Agents' telemetry messages (frames, "
+                                     "servo readings) kept or refused (bad subject, not JPEG, too large)",
+                                     labels=["result"])
+        family.add_metric(["kept"], self._store.kept)
+        family.add_metric(["refused"], self._store.refused)
+        yield family
+
+
 def _page(name: str, **values: str) -> HTMLResponse:
     text = (STATIC / name).read_text(encoding="utf-8")
     for key, value in values.items():
@@ -87,9 +105,17 @@ def _page(name: str, **values: str) -> HTMLResponse:
 
 def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, *, site: str = "",
               secure_cookies: bool = True, live_interval_s: float = 0.5,
-              clock: Callable[[], float] = time.time) -> Starlette:
-    """The Starlette app; its lifespan starts the NATS subscription and the poller."""
+              clock: Callable[[], float] = time.time, telemetry: TelemetryStore | None = None) -> Starlette:
+    """The Starlette app; its lifespan starts the NATS subscription and the poller.
+
+    ``telemetry`` is filled by the bus (``Bus(on_telemetry=...)``); without one the page shows no
+    camera or servo plots.
+    """
     metrics = Metrics(state, bus)
+    store = telemetry if telemetry is not None else TelemetryStore()
+    metrics.registry.register(TelemetryCollector(store))
+    Gauge("armnet_fms_telemetry_frames_held", "Latest camera frames held (one per cell and camera)",
+          registry=metrics.registry).set_function(lambda: store.frames_held)
 
     def caller(request: Request) -> Caller | None:
         if settings.trusted_header:
@@ -184,6 +210,19 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         return StreamingResponse(events(), media_type="text/event-stream",
                                  headers={**SECURITY_HEADERS, "X-Accel-Buffering": "no"})
 
+    async def camera_frame(request: Request) -> Response:
+        if caller(request) is None:
+            return unauthorized(request)
+        frame = store.frame(request.path_params["name"], request.path_params["camera"])
+        if frame is None:
+            return JSONResponse({"error": "no frame from this camera yet"}, status_code=404, headers=SECURITY_HEADERS)
+        return Response(frame.jpeg, media_type="image/jpeg", headers=SECURITY_HEADERS)
+
+    async def cell_telemetry(request: Request) -> Response:
+        if caller(request) is None:
+            return unauthorized(request)
+        return JSONResponse(store.view(request.path_params["name"], clock()), headers=SECURITY_HEADERS)
+
     async def act(request: Request) -> Response:
         who = caller(request)
         if who is None:
@@ -267,6 +306,8 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         Route("/cells/{name}", cell_page),
         Route("/api/fleet", fleet_json),
         Route("/live", live),
+        Route("/api/cells/{name}/camera/{camera}.jpg", camera_frame, methods=["GET"]),
+        Route("/api/cells/{name}/telemetry", cell_telemetry, methods=["GET"]),
         Route("/api/cells/{name}/{action}", act, methods=["POST"]),
         Route("/metrics", metrics_route),
         Route("/healthz", healthz),

@@ -15,6 +15,7 @@ from typing import Any, Protocol
 log = logging.getLogger(__name__)
 
 RESET_REQUESTED = "fms.*.reset.requested"
+TELEMETRY = "telemetry.>"
 
 
 class OperatorBus(Protocol):
@@ -32,8 +33,11 @@ class BusUnavailable(RuntimeError):
 
 
 class Bus:
-    def __init__(self, url: str) -> None:
+    """``on_telemetry(subject, data)`` hears the agents' ``telemetry.>`` (frames, servo readings) when given."""
+
+    def __init__(self, url: str, on_telemetry: Callable[[str, bytes], object] | None = None) -> None:
         self.url = url
+        self._on_telemetry = on_telemetry
         self._nc: Any = None
 
     async def start(self, on_reset_requested: Callable[[str, dict[str, Any]], None]) -> None:
@@ -53,6 +57,13 @@ class Bus:
         self._nc = await nats.connect(self.url, max_reconnect_attempts=-1, reconnect_time_wait=1,
                                       name="armnet-fms")
         await self._nc.subscribe(RESET_REQUESTED, cb=on_notice)
+        if self._on_telemetry is not None:
+            handler = self._on_telemetry
+
+            async def on_telemetry(msg: Any) -> None:
+                handler(msg.subject, msg.data)
+
+            await self._nc.subscribe(TELEMETRY, cb=on_telemetry)
         await self._nc.flush()
 
     @property

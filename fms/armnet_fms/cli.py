@@ -11,6 +11,7 @@ import logging
 import os
 import secrets
 import sys
+import time
 from pathlib import Path
 
 from .auth import AuthConfigError, AuthSettings, parse_tokens
@@ -57,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from .bus import Bus
     from .kube import KubeGateway
     from .state import FleetState
+    from .telemetry import TelemetryStore
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -66,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"armnet fms: {error}", file=sys.stderr)
         return 2
     state = FleetState(KubeGateway(connection.api_client), poll_s=args.poll_interval)
-    app = build_app(state, Bus(args.nats_url), settings, site=args.site,
-                    secure_cookies=not args.insecure_cookies)
+    telemetry = TelemetryStore()
+    bus = Bus(args.nats_url, on_telemetry=lambda subject, data: telemetry.accept(subject, data, time.time()))
+    app = build_app(state, bus, settings, site=args.site, secure_cookies=not args.insecure_cookies,
+                    telemetry=telemetry)
     uvicorn.run(app, host=args.host, port=args.port, log_level="info", access_log=False)
     return 0

@@ -229,3 +229,30 @@ def test_metrics_count_actions_by_result(bed: Bed) -> None:
     text = httpx.get(f"{bed.fms.url}/metrics").text
     assert 'armnet_fms_actions_total{action="cordon",result="ok"}' in text
     assert 'armnet_fms_actions_total{action="confirm-reset",result="refused"}' in text
+
+
+def test_a_cells_camera_frame_and_servo_readings_reach_only_logged_in_operators(bed: Bed) -> None:
+    import json
+
+    import cv2
+    import numpy as np
+
+    ok, encoded = cv2.imencode(".jpg", np.full((24, 32, 3), 200, np.uint8))
+    jpeg = bytes(encoded)
+    reading = {"t": 0, "source": "job", "arms": {"arm": {"motors": {
+        "gripper": {"position": 2100, "load": 15, "temperature": 33}}}}}
+
+    def served() -> httpx.Response | None:  # core NATS: sent again until the FMS has it
+        bed.link.notify(f"telemetry.{bed.cell}.camera.front", jpeg)
+        bed.link.notify(f"telemetry.{bed.cell}.servos", json.dumps(reading).encode())
+        reply = bed.http.get(f"/api/cells/{bed.cell}/camera/front.jpg")
+        return reply if reply.status_code == 200 else None
+
+    reply = wait_for(served, what="the frame served by the FMS")
+    assert ok and reply.content == jpeg and reply.headers["content-type"] == "image/jpeg"
+    view = wait_for(lambda: (v := bed.http.get(f"/api/cells/{bed.cell}/telemetry").json())["series"] and v,
+                    what="servo readings served by the FMS")
+    assert view["series"][0]["points"][-1][1:] == [2100, 15, 33]
+    with httpx.Client(base_url=bed.fms.url, timeout=10) as anonymous:
+        assert anonymous.get(f"/api/cells/{bed.cell}/camera/front.jpg").status_code == 401
+        assert anonymous.get(f"/api/cells/{bed.cell}/telemetry").status_code == 401

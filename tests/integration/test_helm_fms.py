@@ -309,6 +309,35 @@ def test_fms_user_hears_reset_notices_and_its_confirmation_reaches_the_agent(ser
     run(server, body)
 
 
+def test_fms_user_hears_the_agents_telemetry_and_keeps_it_for_the_page(server: Server) -> None:
+    from armnet_fms.bus import Bus
+    from armnet_fms.telemetry import TelemetryStore
+
+    async def body(server: Server) -> None:
+        store = TelemetryStore()
+        bus = Bus(fms_url(server), on_telemetry=lambda subject, data: store.accept(subject, data, 100.0))
+        await bus.start(lambda cell, notice: None)
+        agent = await connect(server, "agent")
+        reading = {"t": 1.0, "source": "idle", "arms": {"arm": {"motors": {
+            "gripper": {"position": 2048, "load": -12, "temperature": 31}}}}}
+        await agent.publish("telemetry.cell-1.servos", json.dumps(reading).encode())
+        await agent.publish("telemetry.cell-1.camera.front", b"\xff\xd8\xff\xe0 a jpeg")
+        await settle(agent)
+        for _ in range(50):
+            if store.kept == 2:
+                break
+            await asyncio.sleep(0.1)
+        await bus.close()
+        await agent.close()
+
+        assert store.view("cell-1", 100.0)["series"] == [
+            {"arm": "arm", "motor": "gripper", "points": [[0.0, 2048, -12, 31]]}]
+        frame = store.frame("cell-1", "front")
+        assert frame is not None and frame.jpeg == b"\xff\xd8\xff\xe0 a jpeg"
+
+    run(server, body)
+
+
 def test_fms_user_cannot_read_job_logs_or_other_subjects(server: Server) -> None:
     async def body(server: Server) -> None:
         errors: list[str] = []

@@ -166,6 +166,21 @@ def test_tenant_cannot_confirm_a_reset_on_a_cell(server: Server) -> None:
     run(server, body)
 
 
+def test_tenant_can_neither_hear_nor_forge_a_cells_telemetry(server: Server) -> None:
+    async def body(server: Server) -> None:
+        errors: list[str] = []
+        tenant = await connect(server, "tenant-team-a", errors)
+        await tenant.subscribe("telemetry.>")
+        await tenant.publish("telemetry.cell-1.camera.front", b"\xff\xd8\xff forged")
+        await settle(tenant)
+        await tenant.close()
+
+        assert violated(errors, 'Subscription to "telemetry.>"'), errors
+        assert violated(errors, 'Publish to "telemetry.cell-1.camera.front"'), errors
+
+    run(server, body)
+
+
 async def create_consumer(client: Any, name: str, filter_in_subject: str, filter_in_config: str,
                           deliver: str) -> dict[str, Any]:
     request = {"stream_name": "ARMNET_LOGS", "config": {

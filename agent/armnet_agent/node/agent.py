@@ -23,6 +23,7 @@ from armnet_agent.node.model import Cell, Job, parse_cell, parse_job
 from armnet_agent.node.plan import HostPaths
 from armnet_agent.node.publish import Link
 from armnet_agent.node.runner import RunnerDeps
+from armnet_agent.node.telemetry import TelemetrySettings
 from armnet_agent.node.worker import CellWorker, WorkerSettings
 
 log = logging.getLogger(__name__)
@@ -34,6 +35,7 @@ class AgentSettings:
     state_dir: Path
     namespaces: tuple[str, ...] = ()
     heartbeat_period: float = 5.0
+    telemetry: TelemetrySettings = field(default_factory=TelemetrySettings)
     pass_period: float = 2.0
     dev_mounts: tuple[str, ...] = ()
     dev_env: dict[str, str] = field(default_factory=dict)
@@ -79,7 +81,7 @@ class NodeAgent:
             worker = self.workers.get(name)
             if worker is None:
                 worker = self.workers[name] = CellWorker(
-                    cell, self.deps, WorkerSettings(self.settings.heartbeat_period)
+                    cell, self.deps, WorkerSettings(self.settings.heartbeat_period, self.settings.telemetry)
                 ).start()
             worker.update(cell)
         for name in [n for n in self.workers if n not in cells]:

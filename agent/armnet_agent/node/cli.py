@@ -24,6 +24,7 @@ from armnet_agent.node.kube import AgentKube, make_client
 from armnet_agent.node.launchers import ContainerLauncher, JobLauncher, PodLauncher, PodSettings
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.publish import open_link, register_metrics
+from armnet_agent.node.telemetry import TelemetrySettings
 
 ENV = "ARMNET_AGENT_"
 
@@ -48,6 +49,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--engine-url", default=_env("ENGINE_URL"),
                         help="Docker API of the container engine (default: DOCKER_HOST, else Podman's socket)")
     parser.add_argument("--nats-url", default=_env("NATS_URL"), help="publish job output to NATS (default: off)")
+    parser.add_argument("--telemetry-servo-hz", type=float, default=float(_env("TELEMETRY_SERVO_HZ", "4") or 4),
+                        help="servo telemetry reads per second published for the cell operator's page (0: off; "
+                             "needs --nats-url)")
+    parser.add_argument("--telemetry-frame-fps", type=float, default=float(_env("TELEMETRY_FRAME_FPS", "2") or 2),
+                        help="camera frames per second published for the cell operator's page (0: off)")
     parser.add_argument("--metrics-port", type=int, default=int(_env("METRICS_PORT", "9090") or 9090),
                         help="/metrics port (0: off)")
     parser.add_argument("--metrics-address", default=_env("METRICS_ADDRESS", "0.0.0.0"))
@@ -87,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         namespaces=tuple(n for n in args.namespaces.split(",") if n),
         heartbeat_period=args.heartbeat_period,
         pass_period=args.pass_period,
+        telemetry=TelemetrySettings(args.telemetry_servo_hz, args.telemetry_frame_fps),
         dev_mounts=tuple(args.dev_mount),
         dev_env=dev_env,
     )

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 
 from armnet_runtime import env as env_keys
 
+from armnet_agent.connector.cell import CellState
 from armnet_agent.connector.inputs import LocalOperatorInputs
 from armnet_agent.launch.container import ContainerJob
 from armnet_agent.launch.plan import LABEL_JOB_UID, LABEL_MANAGED_BY, MANAGED_BY_AGENT
@@ -84,6 +85,10 @@ class JobSession(Protocol):
         ...
 
     def interlock_trip(self) -> str | None: ...
+
+    def connector_cell(self) -> CellState | None:
+        """The job's connector state when it runs in this process (telemetry reads through it), else None."""
+        ...
 
     def remove(self) -> None: ...
 
@@ -194,6 +199,10 @@ class ContainerSession:
         if self.job is not None and self.job.oom_killed:
             return "the container was killed for exceeding its memory limit (OOM)"
         return None
+
+    def connector_cell(self) -> CellState | None:
+        connector = self.local_cell.connector
+        return connector.cell if connector is not None else None
 
     def interlock_trip(self) -> str | None:
         connector = self.local_cell.connector
@@ -410,6 +419,9 @@ class PodSession:
         if job.oom_killed:
             return "the job container was killed for exceeding its memory limit (OOM)"
         return None
+
+    def connector_cell(self) -> CellState | None:
+        return None  # the connector is in the pod: no telemetry while its job runs (docs/fms.md)
 
     def interlock_trip(self) -> str | None:
         return None  # the connector is in the pod; its trips reach the status through its record

@@ -68,6 +68,17 @@ class AgentMetrics:
             "pod launcher: jobs whose connector sidecar was restarted by the kubelet (the job fails)", registry=r,
         )
 
+        self.telemetry_frames = Counter(
+            "armnet_agent_telemetry_frames_total",
+            "camera frames for the cell operator's page: published (JPEG on NATS) or failed (no frame, not encodable)",
+            ["result"], registry=r,
+        )
+        self.telemetry_reads = Counter(
+            "armnet_agent_telemetry_servo_reads_total",
+            "servo telemetry reads for the cell operator's page: published, or skipped (a launch or a pod job "
+            "holds the bus)", ["result"], registry=r,
+        )
+
     def serve(self, port: int, address: str) -> None:
         if port:
             start_http_server(port, addr=address, registry=self.registry)

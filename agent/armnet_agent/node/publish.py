@@ -81,6 +81,11 @@ def job_output(link: Link, namespace: str, job_uid: str) -> JobOutput:
     return output
 
 
+def telemetry_notifier(link: Link) -> streams.NatsLink | None:
+    """The link's core-NATS notices (telemetry for the cell operator's page), or None without NATS."""
+    return link if isinstance(link, streams.NatsLink) else None
+
+
 def inputs_bridge(link: Link, inputs: OperatorInputs, *, namespace: str, job_uid: str, cell: str,
                   active_rollout: Callable[[], int | None] | None = None,
                   on_verdict: Callable[[bool, str, int | None], None] | None = None) -> Closable:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -30,7 +30,10 @@ from armnet_agent.node.model import (
 )
 from armnet_agent.node.plan import LaunchError, cell_spec_for
 from armnet_agent.node.probes import probe_arm
+from armnet_agent.node.publish import telemetry_notifier
 from armnet_agent.node.runner import JobRunner, RunnerDeps
+from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
+from armnet_agent.node.telemetry_sources import ArmPort, IdleCameras, IdleSource, JobSource
 from armnet_agent.sim.calibration import builtin_calibration, write_calibration
 from armnet_agent.sim.presets import PRESETS, SimulatedCell, build_cell
 
@@ -45,6 +48,7 @@ VANISHED = "the job's container vanished while the node agent was not watching i
 @dataclass(frozen=True)
 class WorkerSettings:
     heartbeat_period: float = 5.0
+    telemetry: TelemetrySettings = field(default_factory=TelemetrySettings)
 
 
 class CellWorker:
@@ -61,6 +65,8 @@ class CellWorker:
         self._bus = BusTurns()
         self._unplugged: frozenset[str] = frozenset()
         self._calibration_files: dict[str, Path] = {}
+        self._idle_cameras = IdleCameras()
+        self._telemetry: CellTelemetry | None = None
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
 
     @property
@@ -71,10 +77,18 @@ class CellWorker:
         if self.cell.simulated:
             self._start_sim()
         self._thread.start()
+        notifier = telemetry_notifier(self.deps.link)
+        if notifier is not None and self.settings.telemetry.enabled:
+            self._telemetry = CellTelemetry(
+                self.cell.name, self.telemetry_source, notifier, self.deps.metrics, self.settings.telemetry
+            ).start()
         return self
 
     def stop(self) -> None:
         self._stop.set()
+        if self._telemetry is not None:
+            self._telemetry.stop()
+        self._idle_cameras.close()
         runner = self.runner
         if runner is not None:
             runner.stop()
@@ -148,6 +162,7 @@ class CellWorker:
         verb = "adopting" if container is not None else "launching"
         log.info("cell %s: %s job %s", self.cell.name, verb, job.key)
         with self._bus.launching():  # a probe under way ends before the job's connector opens the port
+            self._idle_cameras.close()  # the job's connector opens the cameras it is asked for
             self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container).start()
 
     def _vanished(self, job: Job) -> None:
@@ -190,20 +205,39 @@ class CellWorker:
         runner = self.runner
         return runner is not None and not runner.done and self._last_probe is not None
 
-    def _read_hardware(self) -> health.CellProbe:
-        arms = {}
+    def _arm_ports(self) -> dict[str, ArmPort]:
+        """arm -> (serial port, calibration file): the simulator's ptys, else the Cell's arms."""
         if self.sim is not None:
-            for name, port in self.sim.ports().items():
-                arms[name] = probe_arm(port, self._calibration_files.get(name))
-        else:
-            for name, arm in self.cell.arms.items():
-                calibration = (
-                    Path(arm.calibration_dir) / f"{arm.robot_id}.json" if arm.calibration_dir and arm.robot_id else None
-                )
-                arms[name] = probe_arm(arm.port or f"<no port configured for arm {name}>", calibration)
+            return {name: (port, self._calibration_files.get(name)) for name, port in self.sim.ports().items()}
+        ports: dict[str, ArmPort] = {}
+        for name, arm in self.cell.arms.items():
+            calibration = (
+                Path(arm.calibration_dir) / f"{arm.robot_id}.json" if arm.calibration_dir and arm.robot_id else None
+            )
+            ports[name] = (arm.port or f"<no port configured for arm {name}>", calibration)
+        return ports
+
+    def _read_hardware(self) -> health.CellProbe:
+        arms = {name: probe_arm(port, calibration) for name, (port, calibration) in self._arm_ports().items()}
         # Simulated cameras draw the simulator; a real camera probe needs the device (not probed yet).
         cameras: dict[str, str | None] = {camera.name: None for camera in self.cell.cameras}
         return health.CellProbe(arms=arms, cameras=cameras)
+
+    # -- telemetry for the cell operator's page ------------------------------------------
+
+    def telemetry_source(self) -> TelemetrySource | None:
+        """Who reads the cell now: the agent (idle), the job's connector (in this process), or nobody."""
+        runner = self.runner
+        if runner is not None and not runner.done:
+            session = runner.session
+            cell = session.connector_cell() if session is not None else None
+            return JobSource(cell, self.cell.cameras, self.sim) if cell is not None else None
+        return IdleSource(self._arm_ports(), self.cell.cameras, self._bus, self._job_holds_bus, self.sim,
+                          self._idle_cameras)
+
+    def _job_holds_bus(self) -> bool:
+        runner = self.runner
+        return runner is not None and not runner.done
 
     def _heartbeat(self) -> None:
         try:

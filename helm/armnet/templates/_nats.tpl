@@ -18,8 +18,9 @@ accounts {
         user: agent
         password: $NATS_AGENT_PASSWORD
         permissions: {
-          # fms.<cell>.reset.requested: a job's reset waits, for the cell operators' page.
-          publish: ["logs.>", "fms.*.reset.requested", "$JS.API.>", "_INBOX.>"]
+          # fms.<cell>.reset.requested: a job's reset waits, for the cell operators' page;
+          # telemetry.<cell>.>: camera frames and servo readings for that page.
+          publish: ["logs.>", "fms.*.reset.requested", "telemetry.>", "$JS.API.>", "_INBOX.>"]
           subscribe: ["teleop.>", "fms.>", "clients.>", "_INBOX.>"]
         }
       }
@@ -27,10 +28,11 @@ accounts {
         user: fms
         password: $NATS_FMS_PASSWORD
         permissions: {
-          # Operator inputs to jobs (reset.confirm, outcome) and the agents' reset notices;
-          # nothing else: the page shows no logs, and it sends no requests (no inbox).
+          # Operator inputs to jobs (reset.confirm, outcome), the agents' reset notices and
+          # cells' telemetry (frames, servo readings); nothing else: the page shows no logs,
+          # and it sends no requests (no inbox). Tenants never hear telemetry.>.
           publish: ["fms.>"]
-          subscribe: ["fms.*.reset.requested"]
+          subscribe: ["fms.*.reset.requested", "telemetry.>"]
         }
       }
       {{- range $d.auth.tenants }}

@@ -1,0 +1,124 @@
+"""What the agent publishes for the cell operator's page, and when. Pure.
+
+Subjects (core NATS, not stored: a page wants the present, not a replay):
+
+- ``telemetry.<cell>.servos``: one JSON object per read (``servos_payload``),
+  a few times a second;
+- ``telemetry.<cell>.camera.<camera>``: the camera's latest frame as JPEG bytes,
+  about twice a second, scaled to at most ``MAX_FRAME_WIDTH`` pixels wide.
+
+Every size is bounded here, so a cell with hostile names or many motors cannot
+make a message the FMS has to hold large.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+SUBJECT_PREFIX = "telemetry"
+MAX_FRAME_WIDTH = 320
+"""Frames are scaled down to this width: enough to see the workspace on a tablet, ~10-30 KiB as JPEG."""
+JPEG_QUALITY = 70
+MAX_FRAME_BYTES = 256 * 1024
+"""A JPEG over this is not published (counted as failed): the FMS holds one per camera."""
+MAX_ARMS = 8
+MAX_MOTORS = 32
+MAX_CAMERAS = 8
+MAX_TEXT = 200
+_TOKEN = re.compile(r"^[A-Za-z0-9_-]{1,63}$")
+
+
+class ServoSample(Protocol):
+    """One servo's readings (``connector.telemetry.ServoSample``)."""
+
+    @property
+    def position(self) -> int: ...
+    @property
+    def load(self) -> int: ...
+    @property
+    def temperature(self) -> int: ...
+
+
+def subject_token(value: str, what: str) -> str:
+    """``value`` when it is a safe NATS subject token (no dots, wildcards or spaces), else ValueError."""
+    if not _TOKEN.match(value):
+        raise ValueError(f"{what} {value[:64]!r} cannot be a NATS subject token (use letters, digits, '-' or '_')")
+    return value
+
+
+def servos_subject(cell: str) -> str:
+    return f"{SUBJECT_PREFIX}.{subject_token(cell, 'cell')}.servos"
+
+
+def camera_subject(cell: str, camera: str) -> str:
+    return f"{SUBJECT_PREFIX}.{subject_token(cell, 'cell')}.camera.{subject_token(camera, 'camera')}"
+
+
+def servos_payload(
+    at: float,
+    source: str,
+    arms: Mapping[str, Mapping[str, ServoSample | None] | str],
+) -> bytes:
+    """One read as JSON: ``{"t", "source", "arms": {arm: {"motors": {motor: {...} | null}} | {"error"}}}``.
+
+    ``source`` says who read the servos: ``idle`` (the agent, no job) or ``job``
+    (the job's connector). A motor that did not answer is ``null``.
+    """
+    body: dict[str, Any] = {}
+    for arm, reading in list(sorted(arms.items()))[:MAX_ARMS]:
+        if isinstance(reading, str):
+            body[arm[:64]] = {"error": reading[:MAX_TEXT]}
+            continue
+        motors = {
+            motor[:64]: None if sample is None else {
+                "position": sample.position, "load": sample.load, "temperature": sample.temperature,
+            }
+            for motor, sample in list(sorted(reading.items()))[:MAX_MOTORS]
+        }
+        body[arm[:64]] = {"motors": motors}
+    return json.dumps({"t": round(at, 3), "source": source[:16], "arms": body}, separators=(",", ":")).encode()
+
+
+def scaled_size(width: int, height: int, max_width: int = MAX_FRAME_WIDTH) -> tuple[int, int]:
+    """The size a frame is published at: at most ``max_width`` wide, same aspect, never enlarged."""
+    if width <= 0 or height <= 0:
+        raise ValueError(f"a frame has a positive size, got {width}x{height}")
+    if width <= max_width:
+        return width, height
+    return max_width, max(1, round(height * max_width / width))
+
+
+@dataclass
+class Cadence:
+    """Whether a periodic action is due: at most once per ``period_s``, never in bursts after a stall.
+
+    ``period_s`` of 0 (or less) turns the action off.
+    """
+
+    period_s: float
+    next_at: float = 0.0
+
+    @classmethod
+    def per_second(cls, rate: float) -> Cadence:
+        return cls(1.0 / rate if rate > 0 else 0.0)
+
+    @property
+    def enabled(self) -> bool:
+        return self.period_s > 0
+
+    def due(self, now: float) -> bool:
+        """True (and the next time is set) when the action should run at ``now``."""
+        if not self.enabled or now < self.next_at:
+            return False
+        late = now - self.next_at
+        # On time: keep the grid. Late by more than a period (a slow read, a busy host): restart from now.
+        self.next_at = (self.next_at + self.period_s) if late < self.period_s else now + self.period_s
+        return True
+
+    def wait_s(self, now: float) -> float:
+        """Seconds until the next run (0 when due)."""
+        return max(0.0, self.next_at - now)

@@ -1,0 +1,114 @@
+// The cell page's cameras and servo plots: polls /api/cells/<cell>/telemetry (latest frames'
+// ages, each motor's last ~30 s) and refreshes each camera's <img> a few times a second.
+// Plain SVG, names set with textContent only (they come from the agents' messages).
+"use strict";
+(function () {
+  if (document.body.dataset.view !== "cell") return;
+  const cellName = (document.querySelector('meta[name="cell"]') || {}).content || "";
+  const base = `/api/cells/${encodeURIComponent(cellName)}`;
+  const SVG = "http://www.w3.org/2000/svg";
+  const WIDTH = 300, HEIGHT = 110, WINDOW_S = 30, POLL_MS = 400;
+  const COLORS = ["#1450a3", "#b00020", "#1b7f3b", "#a06000", "#6a1b9a", "#00838f", "#5d4037", "#37474f"];
+  const FIELDS = [["position", "Position (ticks)", 1], ["load", "Load (0.1 % torque)", 2], ["temperature", "Temperature (°C)", 3]];
+  const cameras = document.getElementById("cameras");
+  const plots = document.getElementById("plots");
+  const state = document.getElementById("telemetry-state");
+  const images = new Map();
+
+  function svg(tag, attrs) {
+    const node = document.createElementNS(SVG, tag);
+    for (const [k, v] of Object.entries(attrs || {})) node.setAttribute(k, String(v));
+    return node;
+  }
+
+  function cameraImage(name) {
+    let img = images.get(name);
+    if (img) return img;
+    const figure = document.createElement("figure");
+    img = document.createElement("img");
+    img.className = "camera";
+    img.id = `camera-${name}`;
+    img.alt = `camera ${name}`;
+    img.dataset.loading = "";
+    img.addEventListener("load", () => { img.dataset.loading = ""; });
+    img.addEventListener("error", () => { img.dataset.loading = ""; });
+    const caption = document.createElement("figcaption");
+    caption.textContent = name;
+    figure.append(img, caption);
+    cameras.appendChild(figure);
+    images.set(name, img);
+    return img;
+  }
+
+  function renderCameras(list) {
+    for (const cam of list) {
+      const img = cameraImage(cam.name);
+      if (img.dataset.loading) continue; // the previous frame is still on its way: never pile up requests
+      img.dataset.loading = "1";
+      img.src = `${base}/camera/${encodeURIComponent(cam.name)}.jpg?t=${Date.now()}`;
+    }
+  }
+
+  function plot(title, index, series) {
+    const figure = document.createElement("figure");
+    figure.className = "plot";
+    const chart = svg("svg", { viewBox: `0 0 ${WIDTH} ${HEIGHT}`, role: "img", "aria-label": title, class: "plot" });
+    chart.dataset.field = title;
+    let lo = Infinity, hi = -Infinity;
+    for (const s of series) for (const p of s.points) { lo = Math.min(lo, p[index]); hi = Math.max(hi, p[index]); }
+    if (hi - lo < 1) { lo -= 1; hi += 1; }
+    chart.appendChild(svg("rect", { x: 0, y: 0, width: WIDTH, height: HEIGHT, class: "plot-bg" }));
+    let drawn = 0;
+    series.forEach((s, i) => {
+      if (!s.points.length) return;
+      const points = s.points.map((p) => {
+        const x = WIDTH * (1 - Math.min(p[0], WINDOW_S) / WINDOW_S);
+        const y = HEIGHT - 4 - (HEIGHT - 8) * (p[index] - lo) / (hi - lo);
+        return `${x.toFixed(1)},${y.toFixed(1)}`;
+      });
+      const line = svg("polyline", { points: points.join(" "), fill: "none", stroke: COLORS[i % COLORS.length], "stroke-width": 1.5 });
+      line.dataset.motor = `${s.arm}/${s.motor}`;
+      chart.appendChild(line);
+      drawn += s.points.length;
+    });
+    chart.dataset.points = String(drawn);
+    const caption = document.createElement("figcaption");
+    caption.textContent = `${title}: ${Math.round(lo)} … ${Math.round(hi)}`;
+    figure.append(chart, caption);
+    return figure;
+  }
+
+  function legend(series) {
+    const box = document.createElement("p");
+    box.className = "legend";
+    series.forEach((s, i) => {
+      const item = document.createElement("span");
+      item.className = `swatch c${i % COLORS.length}`;
+      item.textContent = `${s.arm}/${s.motor}`;
+      box.appendChild(item);
+    });
+    return box;
+  }
+
+  function render(t) {
+    renderCameras(t.cameras || []);
+    const series = t.series || [];
+    plots.replaceChildren(...FIELDS.map(([, title, index]) => plot(title, index, series)), legend(series));
+    const parts = [];
+    if (t.ageS === null || t.ageS === undefined) parts.push("no servo readings yet");
+    else parts.push(`servos read ${t.ageS < 2 ? "just now" : Math.round(t.ageS) + " s ago"} (${t.source === "job" ? "through the job's connector" : "cell idle"})`);
+    for (const e of t.errors || []) parts.push(`arm ${e.arm}: ${e.error}`);
+    state.textContent = parts.join("; ");
+  }
+
+  async function poll() {
+    try {
+      const response = await fetch(`${base}/telemetry`, { credentials: "same-origin", cache: "no-store" });
+      if (response.ok) render(await response.json());
+    } catch (e) {
+      state.textContent = "telemetry unavailable";
+    }
+    setTimeout(poll, POLL_MS);
+  }
+  poll();
+})();

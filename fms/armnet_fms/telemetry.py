@@ -1,0 +1,200 @@
+"""The latest camera frames and the last ~30 s of servo telemetry per cell, as the agents publish them. Pure.
+
+The agents publish on core NATS (``telemetry.<cell>.servos``: JSON;
+``telemetry.<cell>.camera.<camera>``: JPEG bytes; docs/fms.md). Every message
+is hostile input until checked here: subjects must name a cell and camera with
+plain tokens, frames must be JPEG under ``MAX_FRAME_BYTES``, servo readings are
+re-built from the numbers they hold. Memory stays bounded: at most
+``max_cells`` cells (the least recently heard is forgotten first),
+``MAX_CAMERAS`` frames per cell (one each: only the latest), and
+``MAX_SAMPLES`` servo readings per cell, none older than ``history_s``. Times
+are the FMS's own clock at arrival, so an agent's clock skew moves nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+from typing import Any
+
+MAX_FRAME_BYTES = 256 * 1024
+MAX_SERVOS_BYTES = 64 * 1024
+MAX_CAMERAS = 8
+MAX_ARMS = 8
+MAX_MOTORS = 32
+MAX_SAMPLES = 200
+"""Servo readings kept per cell: 30 s at the agent's default 4 Hz is 120."""
+HISTORY_S = 30.0
+MAX_CELLS = 256
+JPEG_MAGIC = b"\xff\xd8\xff"
+FIELDS = ("position", "load", "temperature")
+_TOKEN = re.compile(r"^[A-Za-z0-9_-]{1,63}$")
+_LIMIT = 1 << 20  # no real servo value comes near; anything past it is not a reading
+
+
+@dataclass(frozen=True)
+class Frame:
+    jpeg: bytes
+    at: float
+
+
+@dataclass(frozen=True)
+class ServoReading:
+    """One read of a cell's servos: (arm, motor) -> (position, load, temperature) or None (silent)."""
+
+    at: float
+    source: str
+    motors: tuple[tuple[str, str, tuple[int, int, int] | None], ...]
+    errors: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass
+class CellTelemetry:
+    frames: dict[str, Frame] = field(default_factory=dict)
+    readings: deque[ServoReading] = field(default_factory=lambda: deque(maxlen=MAX_SAMPLES))
+    heard_at: float = 0.0
+
+
+def parse_subject(subject: str) -> tuple[str, str | None] | None:
+    """(cell, camera) for ``telemetry.<cell>.camera.<camera>``, (cell, None) for ``.servos``; else None."""
+    parts = subject.split(".")
+    if len(parts) == 3 and parts[0] == "telemetry" and parts[2] == "servos" and _TOKEN.match(parts[1]):
+        return parts[1], None
+    if (len(parts) == 4 and parts[0] == "telemetry" and parts[2] == "camera"
+            and _TOKEN.match(parts[1]) and _TOKEN.match(parts[3])):
+        return parts[1], parts[3]
+    return None
+
+
+def _number(value: Any) -> int | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    number = int(value)
+    return number if -_LIMIT < number < _LIMIT else None
+
+
+def parse_servos(data: bytes, at: float) -> ServoReading | None:
+    """The reading in an agent's ``servos`` message, or None when it is not one."""
+    if len(data) > MAX_SERVOS_BYTES:
+        return None
+    try:
+        body = json.loads(data)
+    except ValueError:
+        return None
+    if not isinstance(body, dict) or not isinstance(body.get("arms"), dict):
+        return None
+    source = body.get("source")
+    motors: list[tuple[str, str, tuple[int, int, int] | None]] = []
+    errors: list[tuple[str, str]] = []
+    for arm, entry in list(body["arms"].items())[:MAX_ARMS]:
+        if not isinstance(entry, dict) or not _TOKEN.match(str(arm)):
+            continue
+        if isinstance(entry.get("error"), str):
+            errors.append((arm, entry["error"][:200]))
+            continue
+        table = entry.get("motors")
+        if not isinstance(table, dict):
+            continue
+        for motor, sample in list(table.items())[:MAX_MOTORS]:
+            if not _TOKEN.match(str(motor)):
+                continue
+            values = tuple(_number(sample.get(f)) for f in FIELDS) if isinstance(sample, dict) else None
+            clean = values if values is not None and all(v is not None for v in values) else None
+            motors.append((arm, motor, clean))  # type: ignore[arg-type]  # None checked just above
+    return ServoReading(at, source if source in ("idle", "job") else "unknown", tuple(motors), tuple(errors))
+
+
+class TelemetryStore:
+    """What the page shows of each cell's cameras and servos; ``accept`` every NATS message."""
+
+    def __init__(self, *, history_s: float = HISTORY_S, max_cells: int = MAX_CELLS) -> None:
+        self.history_s = history_s
+        self.max_cells = max_cells
+        self._cells: OrderedDict[str, CellTelemetry] = OrderedDict()
+        #: Messages kept and refused (bad subject, not JPEG, too large, not a reading).
+        self.kept = 0
+        self.refused = 0
+
+    def accept(self, subject: str, data: bytes, now: float) -> bool:
+        """Keep the message if it is a valid frame or reading; False (and counted) when refused."""
+        target = parse_subject(subject)
+        kept = False
+        if target is not None:
+            cell, camera = target
+            if camera is not None:
+                kept = self._keep_frame(cell, camera, data, now)
+            else:
+                reading = parse_servos(data, now)
+                if reading is not None:
+                    entry = self._entry(cell, now)
+                    entry.readings.append(reading)
+                    self._trim(entry, now)
+                    kept = True
+        if kept:
+            self.kept += 1
+        else:
+            self.refused += 1
+        return kept
+
+    def _keep_frame(self, cell: str, camera: str, data: bytes, now: float) -> bool:
+        if len(data) > MAX_FRAME_BYTES or not data.startswith(JPEG_MAGIC):
+            return False
+        entry = self._cells.get(cell)
+        if entry is not None and camera not in entry.frames and len(entry.frames) >= MAX_CAMERAS:
+            return False
+        self._entry(cell, now).frames[camera] = Frame(bytes(data), now)
+        return True
+
+    def _entry(self, cell: str, now: float) -> CellTelemetry:
+        entry = self._cells.get(cell)
+        if entry is None:
+            while len(self._cells) >= self.max_cells:
+                self._cells.popitem(last=False)  # the least recently heard cell
+            entry = self._cells[cell] = CellTelemetry()
+        self._cells.move_to_end(cell)
+        entry.heard_at = now
+        return entry
+
+    def _trim(self, entry: CellTelemetry, now: float) -> None:
+        while entry.readings and entry.readings[0].at < now - self.history_s:
+            entry.readings.popleft()
+
+    def frame(self, cell: str, camera: str) -> Frame | None:
+        entry = self._cells.get(cell)
+        return entry.frames.get(camera) if entry is not None else None
+
+    @property
+    def frames_held(self) -> int:
+        return sum(len(entry.frames) for entry in self._cells.values())
+
+    def view(self, cell: str, now: float) -> dict[str, Any]:
+        """The page's telemetry of ``cell``: cameras with their frame age, and each motor's series.
+
+        ``series`` is ``[{"arm", "motor", "points": [[age_s, position, load, temperature], ...]}]``,
+        oldest first, ``age_s`` in seconds before ``now`` (a silent motor has no point at that read).
+        """
+        entry = self._cells.get(cell)
+        if entry is None:
+            return {"cell": cell, "cameras": [], "series": [], "source": None, "ageS": None, "errors": []}
+        readings = [r for r in entry.readings if r.at >= now - self.history_s]
+        series: dict[tuple[str, str], list[list[float]]] = {}
+        for reading in readings:
+            age = round(now - reading.at, 2)
+            for arm, motor, values in reading.motors:
+                points = series.setdefault((arm, motor), [])
+                if values is not None:
+                    points.append([age, *values])
+        last = readings[-1] if readings else None
+        return {
+            "cell": cell,
+            "cameras": [{"name": name, "ageS": round(now - frame.at, 2)} for name, frame in sorted(entry.frames.items())],
+            "series": [{"arm": arm, "motor": motor, "points": points} for (arm, motor), points in series.items()],
+            "source": last.source if last is not None else None,
+            "ageS": round(now - last.at, 2) if last is not None else None,
+            "errors": [{"arm": arm, "error": error} for arm, error in (last.errors if last is not None else ())],
+        }
