@@ -100,21 +100,3 @@ def test_containers_run_with_runc_and_the_explicit_ulimits(podman: Podman, base_
     assert exit_code == 0
     assert output.split() == ["4096", "16384", "4096", "32768"]
     assert podman.client.info()["DefaultRuntime"] == "runc"
-
-
-def test_build_image_installs_this_repos_wheels_on_the_base_image(
-    podman: Podman, base_image: str,
-) -> None:
-    fixture = Path(__file__).resolve().parents[1] / "testbed" / "fixtures" / "Containerfile.wheels"
-    tag = "localhost/armnet-testbed-wheels:test"
-
-    podman.build_image(fixture, tag)
-    try:
-        exit_code, output = run_to_exit(
-            podman, tag, ["python", "-c", "import armnet_runtime, armnet_core, pydantic; print('ok', pydantic.VERSION)"]
-        )
-    finally:
-        podman.client.images.remove(tag, force=True)
-
-    assert exit_code == 0
-    assert output.startswith("ok 2.")

@@ -7,7 +7,7 @@ missing binary raises :class:`TestbedSetupError` naming ``scripts/setup.sh``.
 """
 
 from tests.testbed.errors import TestbedSetupError
-from tests.testbed.images import BASE_IMAGE, build_image, build_wheels, require_base_image
+from tests.testbed.images import BASE_IMAGE, build_wheels, require_base_image
 from tests.testbed.kube import ControlPlane, KubeUser
 from tests.testbed.natsd import NatsServer
 from tests.testbed.node import Node
@@ -21,7 +21,6 @@ __all__ = [
     "Node",
     "PodmanService",
     "TestbedSetupError",
-    "build_image",
     "build_wheels",
     "require_base_image",
 ]

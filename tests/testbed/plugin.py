@@ -27,7 +27,7 @@ from typing import Any
 import pytest
 
 from tests.testbed.errors import TestbedSetupError
-from tests.testbed.images import BASE_IMAGE, build_image, require_base_image
+from tests.testbed.images import BASE_IMAGE, require_base_image
 from tests.testbed.kube import ControlPlane, KubeUser
 from tests.testbed.natsd import NatsServer
 from tests.testbed.node import Node
@@ -47,9 +47,6 @@ class Podman:
     def ulimits(self) -> list[Any]:
         """Explicit ulimits every container needs on this engine (the API ignores defaults)."""
         return ulimits()
-
-    def build_image(self, containerfile_dir_or_path: str | Path, tag: str, **kwargs: Any) -> Any:
-        return build_image(containerfile_dir_or_path, tag, client=self.client, **kwargs)
 
 
 def _start(what: str, start: Any, request: pytest.FixtureRequest) -> Any:
