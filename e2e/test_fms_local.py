@@ -62,6 +62,9 @@ def test_a_customer_confirms_a_reset_and_marks_rollouts_on_the_local_page(tmp_pa
         log_in(driver, f"http://127.0.0.1:{port}", token)
         driver.get(f"http://127.0.0.1:{port}/cells/local")
         click(driver, "confirm-reset", timeout=300)  # SDK imports and the rest pose: minutes on a loaded machine
+        # A local run has no telemetry feed: no camera/servo section, nothing polled (and no
+        # failed requests once the run ends and its page server with it).
+        assert not driver.find_element(By.ID, "telemetry").is_displayed()
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "1/2"))
         click(driver, "mark-fail")
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "2/2"))

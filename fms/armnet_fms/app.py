@@ -108,8 +108,8 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
               clock: Callable[[], float] = time.time, telemetry: TelemetryStore | None = None) -> Starlette:
     """The Starlette app; its lifespan starts the NATS subscription and the poller.
 
-    ``telemetry`` is filled by the bus (``Bus(on_telemetry=...)``); without one the page shows no
-    camera or servo plots.
+    ``telemetry`` is filled by the bus (``Bus(on_telemetry=...)``); without one (a local run) the
+    cell page has no camera or servo section and polls nothing.
     """
     metrics = Metrics(state, bus)
     store = telemetry if telemetry is not None else TelemetryStore()
@@ -169,7 +169,7 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         if who is None:
             return unauthorized(request)
         return _page("cell.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential),
-                     cell=request.path_params["name"])
+                     cell=request.path_params["name"], telemetry="on" if telemetry is not None else "off")
 
     def snapshot(request: Request) -> dict[str, Any]:
         now = clock()

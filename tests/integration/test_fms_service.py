@@ -253,6 +253,7 @@ def test_a_cells_camera_frame_and_servo_readings_reach_only_logged_in_operators(
     view = wait_for(lambda: (v := bed.http.get(f"/api/cells/{bed.cell}/telemetry").json())["series"] and v,
                     what="servo readings served by the FMS")
     assert view["series"][0]["points"][-1][1:] == [2100, 15, 33]
+    assert '<meta name="telemetry" content="on">' in bed.http.get(f"/cells/{bed.cell}").text
     with httpx.Client(base_url=bed.fms.url, timeout=10) as anonymous:
         assert anonymous.get(f"/api/cells/{bed.cell}/camera/front.jpg").status_code == 401
         assert anonymous.get(f"/api/cells/{bed.cell}/telemetry").status_code == 401

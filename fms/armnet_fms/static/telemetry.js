@@ -4,6 +4,9 @@
 "use strict";
 (function () {
   if (document.body.dataset.view !== "cell") return;
+  // A server without a telemetry feed (armnet run --fms) says so: no section, no polling.
+  if ((document.querySelector('meta[name="telemetry"]') || {}).content !== "on") return;
+  document.getElementById("telemetry").hidden = false;
   const cellName = (document.querySelector('meta[name="cell"]') || {}).content || "";
   const base = `/api/cells/${encodeURIComponent(cellName)}`;
   const SVG = "http://www.w3.org/2000/svg";
@@ -101,14 +104,17 @@
     state.textContent = parts.join("; ");
   }
 
+  let delay = POLL_MS;
   async function poll() {
     try {
       const response = await fetch(`${base}/telemetry`, { credentials: "same-origin", cache: "no-store" });
       if (response.ok) render(await response.json());
+      delay = POLL_MS;
     } catch (e) {
       state.textContent = "telemetry unavailable";
+      delay = Math.min(delay * 2, 5000); // the FMS is away: ask less often until it answers
     }
-    setTimeout(poll, POLL_MS);
+    setTimeout(poll, delay);
   }
   poll();
 })();
