@@ -22,12 +22,16 @@ fi
 
 # The end-to-end scenarios through the node agent spend their minutes waiting (jobs
 # running in containers and pods, timeouts, grace windows, a browser), so they run beside
-# the rest of the suite, in a pytest session of their own (its own control plane, NATS and
-# Podman service). One session beside the main one, not more: on two cores, four sessions
-# at once starved the simulated servos (missed status packets) and failed jobs.
+# the rest of the suite, in pytest sessions of their own (each its own control plane, NATS
+# and Podman service). Everything that needs the test-bed node (a host-wide lock) or builds
+# the shipped images is in one of them: two sessions holding the node would wait for each
+# other, and two building one image would build it twice. The simulator's serving thread
+# runs real-time (agent/armnet_agent/sim/pty_server.py): without it, sessions side by side
+# on two cores starved the simulated servos (missed status packets).
 # One group per line; files separated by spaces; each group is its own session.
 side_groups=(
-  "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_browser.py e2e/test_fms_local.py e2e/test_pod_jobs.py"
+  "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py"
+  "tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py e2e/test_fms_browser.py"
 )
 ignores=()
 side_pids=()
