@@ -12,8 +12,10 @@ from typing import Any
 
 import nats
 import pytest
+from armnet_agent.connector.cell import RolloutEvent
 from armnet_agent.connector.inputs import LocalOperatorInputs
 from armnet_agent.node.inputs_bridge import MAX_INPUT_BYTES, OperatorInputsBridge
+from armnet_agent.node.rollout_recorder import RolloutRecorder
 from armnet_agent.node.streams import NatsLink, StreamSettings
 
 from tests.testbed.natsd import NatsServer
@@ -210,5 +212,33 @@ def test_an_outcome_for_a_rollout_that_is_not_active_never_ends_the_active_one(l
         active[0] = 3
         job.send((f"fms.{cell}.outcome", {"success": True, "by": "ana", "rollout": 3}))
         assert inputs.take_outcome() is True
+    finally:
+        bridge.close()
+
+
+def test_a_verdict_for_a_rollout_begun_without_outcome_controls_never_reaches_the_job(
+    link: NatsLink, nats_server: str
+) -> None:
+    events = [RolloutEvent("begin", time.time(), index=1, total=2, outcome_controls=False)]
+    recorder = RolloutRecorder(lambda: list(events))
+    inputs = LocalOperatorInputs()
+    cell = f"cell-{uuid.uuid4().hex[:6]}"
+    active: list[int | None] = [1]
+    bridge = OperatorInputsBridge(link, inputs, namespace="t-controls", job_uid="uid-3", cell=cell,
+                                  active_rollout=lambda: active[0], on_verdict=recorder.verdict,
+                                  accepts_verdict=recorder.accepts_verdict).start()
+    assert bridge.wait_active(20)
+    try:
+        job = Job(nats_server, bridge, inputs, "t-controls", "uid-3", cell)
+        job.send((f"fms.{cell}.outcome", {"success": True, "by": "ana", "rollout": 1}),
+                 (f"fms.{cell}.outcome", {"success": False, "by": "ana"}))
+        assert inputs.take_outcome() is None  # the job decides rollout 1 itself
+        events.extend([RolloutEvent("end", time.time()),
+                       RolloutEvent("begin", time.time(), index=2, total=2, outcome_controls=True)])
+        active[0] = 2
+        job.send((f"fms.{cell}.outcome", {"success": True, "by": "ana", "rollout": 2}))
+        assert inputs.take_outcome() is True
+        assert [(e.index, e.outcome.value, e.marked_by) for e in recorder.history] == [
+            (1, "unmarked", None), (2, "success", "ana")]
     finally:
         bridge.close()

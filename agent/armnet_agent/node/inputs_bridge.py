@@ -115,8 +115,12 @@ class OperatorInputsBridge:
     def __init__(self, link: NatsLink, inputs: OperatorInputs, *, namespace: str, job_uid: str,
                  cell: str, announce_resets: bool = True,
                  active_rollout: Callable[[], int | None] | None = None,
-                 on_verdict: Callable[[bool, str, int | None], None] | None = None) -> None:
+                 on_verdict: Callable[[bool, str, int | None], None] | None = None,
+                 accepts_verdict: Callable[[int | None], bool] | None = None) -> None:
         """``active_rollout``: the index of the rollout the job is in now (None between rollouts).
+
+        ``accepts_verdict(rollout)`` is False for a rollout the job began without outcome
+        controls: its verdicts are dropped here, whatever the page showed.
 
         ``on_verdict(success, by, rollout)`` is told each verdict passed to the job (the
         runner records it in ``status.rollouts``).
@@ -124,6 +128,7 @@ class OperatorInputsBridge:
         self.link = link
         self._active_rollout = active_rollout
         self._on_verdict = on_verdict
+        self._accepts_verdict = accepts_verdict
         self.inputs = inputs
         self.namespace, self.job_uid = namespace, job_uid
         self.reset_requested_subject = fms_subject(cell, "reset.requested")
@@ -215,6 +220,10 @@ class OperatorInputsBridge:
                 log.warning("episode outcome by %s dropped: it is for rollout %s, the active rollout is %s",
                             message.by, message.rollout, active)
                 return
+        if self._accepts_verdict is not None and not self._accepts_verdict(message.rollout):
+            log.warning("episode outcome by %s dropped: rollout %s began without outcome controls "
+                        "(the job decides its outcome)", message.by, message.rollout)
+            return
         log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
         self.inputs.report_outcome(message.success)
         if self._on_verdict is not None:

@@ -88,11 +88,12 @@ def telemetry_notifier(link: Link) -> streams.NatsLink | None:
 
 def inputs_bridge(link: Link, inputs: OperatorInputs, *, namespace: str, job_uid: str, cell: str,
                   active_rollout: Callable[[], int | None] | None = None,
-                  on_verdict: Callable[[bool, str, int | None], None] | None = None) -> Closable:
+                  on_verdict: Callable[[bool, str, int | None], None] | None = None,
+                  accepts_verdict: Callable[[int | None], bool] | None = None) -> Closable:
     if isinstance(link, NoLink):
         return NoBridge()
     bridge: Closable = streams.OperatorInputsBridge(
         link, inputs, namespace=namespace, job_uid=job_uid, cell=cell, active_rollout=active_rollout,
-        on_verdict=on_verdict,
+        on_verdict=on_verdict, accepts_verdict=accepts_verdict,
     ).start()
     return bridge

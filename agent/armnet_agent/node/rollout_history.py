@@ -118,16 +118,39 @@ def _begun(history: History, change: Begun, limit: int) -> History:
     return (*history, entry)[-limit:] if limit > 0 else ()
 
 
-def _marked(history: History, change: Marked) -> History:
+def _target(history: History, rollout: int | None) -> int | None:
+    """The position of the entry a verdict for ``rollout`` marks (None: no such entry)."""
     for position in range(len(history) - 1, -1, -1):
         entry = history[position]
-        if change.rollout is None and not entry.open:
-            return history
-        if change.rollout is None or entry.index == change.rollout:
-            marked = replace(entry, outcome=Outcome.SUCCESS if change.success else Outcome.FAILURE,
-                             marked_by=operator_name(change.by), marked_at=change.at)
-            return (*history[:position], marked, *history[position + 1:])
-    return history
+        if rollout is None and not entry.open:
+            return None
+        if rollout is None or entry.index == rollout:
+            return position
+    return None
+
+
+def _marked(history: History, change: Marked) -> History:
+    position = _target(history, change.rollout)
+    if position is None:
+        return history
+    marked = replace(history[position], outcome=Outcome.SUCCESS if change.success else Outcome.FAILURE,
+                     marked_by=operator_name(change.by), marked_at=change.at)
+    return (*history[:position], marked, *history[position + 1:])
+
+
+def accepts_verdict(history: History, rollout: int | None) -> bool:
+    """Whether a cell operator's verdict for ``rollout`` may reach the job.
+
+    Refused when the rollout it names began with ``outcome_controls=False``: the job
+    decides that rollout's outcome itself, and the page shows no buttons for it (a
+    forged or stale message must not decide it either). With no history at all (the
+    agent has seen no rollout events, e.g. an older connector) the verdict is let
+    through as before.
+    """
+    if not history:
+        return True
+    position = _target(history, rollout)
+    return position is None or history[position].outcome_controls
 
 
 def _count(value: int) -> int:

@@ -84,6 +84,12 @@ class RolloutRecorder:
         with self._lock:
             self._history = rh.apply(self._history, rh.Marked(success, by, self._clock(), rollout))
 
+    def accepts_verdict(self, rollout: int | None) -> bool:
+        """``rollout_history.accepts_verdict`` on the history caught up with the connector."""
+        self.sync()
+        with self._lock:
+            return rh.accepts_verdict(self._history, rollout)
+
     def unwritten(self) -> rh.History | None:
         """The history if it changed since :meth:`written` was last told, else None."""
         with self._lock:

@@ -92,6 +92,10 @@ class JobRunner:
         self._progress_dirty = threading.Event()
         self._finished = threading.Event()
         self._flush_stop = threading.Event()
+        #: Held for each progress write; once the terminal write begins no progress write follows
+        #: (a late one, without a resourceVersion, would put back an older rollout history).
+        self._status_lock = threading.Lock()
+        self._terminal_begun = False
         #: The terminal status is written: nothing left to stop.
         self.reported = False
         #: Why the agent itself stopped the job (a lost follower), written as the result's error.
@@ -176,7 +180,8 @@ class JobRunner:
                 self.hooks.on_cancel = session.on_cancel
                 bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout,
-                                       on_verdict=self._record_verdict)
+                                       on_verdict=self._record_verdict,
+                                       accepts_verdict=self.rollouts.accepts_verdict)
                 try:
                     launched = session.start()
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
@@ -210,6 +215,8 @@ class JobRunner:
                 record = session.record()
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
+                with self._status_lock:  # waits out a progress write still in flight
+                    self._terminal_begun = True
                 written = self._write_terminal(result, record)
                 self.reported = True
                 if written:
@@ -288,8 +295,12 @@ class JobRunner:
                 self._progress_dirty.set()
             force = self._progress_dirty.is_set()
             self._progress_dirty.clear()  # a progress line arriving during the write sets it again
-            if not write_progress(self.deps.kube, self.job, self._progress, self._rollout, self.rollouts,
-                                  force=force) and force:
+            with self._status_lock:
+                if self._terminal_begun:
+                    return
+                written = write_progress(self.deps.kube, self.job, self._progress, self._rollout,
+                                         self.rollouts, force=force)
+            if not written and force:
                 self._progress_dirty.set()  # the write failed: try again on the next pass
 
     def _latest_rollout(self) -> dict[str, int] | None:

@@ -129,8 +129,18 @@ def status_lines(leader: str, actions: int, last_event: Optional[str], follower:
     sent = f"{leader_label(leader)}: {actions} actions sent, last event {last_event or '-'}"
     if follower.state is None:
         return [sent, "follower: no state yet (the job reports it with ctx.log_rerun_data(observation=...))"]
-    joints = "  ".join(f"{name.removesuffix('.pos')} {value:.1f}" for name, value in follower.state.items())
+    joints = "  ".join(f"{printable(name.removesuffix('.pos'))} {value:.1f}" for name, value in follower.state.items())
     return [sent, f"follower ({follower.age_s:.1f} s ago): {joints}"]
+
+
+def printable(name: str, limit: int = 64) -> str:
+    """A job-chosen name as it may reach the terminal: printable ASCII only, at most ``limit`` characters.
+
+    The names come from the job's packets: control characters would be terminal
+    escapes (cursor moves, title changes), and wide characters would break the
+    redraw's column arithmetic.
+    """
+    return "".join(c if " " <= c <= "~" else "?" for c in name[:limit])
 
 
 def redraw(lines: list[str], drawn_before: int, width: int) -> str:

@@ -92,6 +92,16 @@ def test_the_status_shows_what_was_sent_and_the_followers_joints_with_their_age(
     ]
 
 
+def test_a_jobs_joint_names_reach_the_terminal_without_escapes_or_wide_characters() -> None:
+    follower = FollowerView({"\x1b]0;pwned\x07\x1b[2Jpan.pos": 1.0, "\u5de6\u8155.pos": 2.0, "x" * 500: 3.0})
+
+    line = status_lines("sim", 1, None, follower)[1]
+
+    assert all(" " <= c <= "~" for c in line)
+    assert "?]0;pwned??[2Jpan 1.0" in line and "?? 2.0" in line
+    assert len(line) < 200  # each name cut to 64 characters
+
+
 def test_before_any_state_the_status_says_how_the_job_reports_it() -> None:
     lines = status_lines("/dev/ttyACM1", 0, None, FollowerView())
 

@@ -16,6 +16,7 @@ from armnet_agent.node.rollout_history import (
     Marked,
     Outcome,
     RolloutChange,
+    accepts_verdict,
     apply,
     as_status,
     from_status,
@@ -236,3 +237,18 @@ def test_events_that_fell_out_of_the_connectors_window_are_found_by_time() -> No
     connector.events = [Event("end", at(1).timestamp()), Event("begin", at(2).timestamp(), 2, 2)]
     recorder.sync()
     assert [(e.index, e.open) for e in recorder.history] == [(1, False), (2, True)]
+
+
+def test_a_rollout_begun_without_outcome_controls_accepts_no_verdict_by_index_or_as_the_open_one() -> None:
+    history = fold(Begun(index=1, total=2, at=at(0), outcome_controls=False))
+
+    assert not accepts_verdict(history, 1)
+    assert not accepts_verdict(history, None)
+
+
+def test_a_rollout_with_outcome_controls_accepts_a_verdict_and_so_does_a_job_with_no_history() -> None:
+    history = fold(Begun(index=1, total=2, at=at(0), outcome_controls=False), Ended(at=at(1)),
+                   Begun(index=2, total=2, at=at(2)))
+
+    assert accepts_verdict(history, 2) and accepts_verdict(history, None)
+    assert accepts_verdict((), 1) and accepts_verdict((), None)

@@ -35,13 +35,3 @@ def test_the_serving_thread_runs_real_time_when_permitted_and_still_echoes() -> 
             os.close(port)
     finally:
         server.stop()
-
-
-def test_without_the_boost_the_serving_thread_keeps_the_normal_policy() -> None:
-    server = PtyServer(lambda data, _now: data, name="pty-test", boost_priority=False)
-    server.start()
-    try:
-        time.sleep(0.2)  # long past the point where a boosted thread would have set its policy
-        assert os.sched_getscheduler(serving_thread_id(server)) == os.SCHED_OTHER
-    finally:
-        server.stop()
