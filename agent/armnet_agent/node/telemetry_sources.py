@@ -160,6 +160,11 @@ class IdleCameras:
     def open_count(self) -> int:
         return len(self._open)
 
+    @property
+    def suspended(self) -> bool:
+        """Closed for a launch (or the agent's stop): nothing opens until ``resume``."""
+        return self._closing.is_set()
+
     def close(self, wait_s: float = 2.0) -> bool:
         """Close every camera and open none until ``resume``; False when a read held them past ``wait_s``.
 
@@ -203,6 +208,12 @@ class IdleArms:
         except OSError as exc:
             return str(exc)[:200]
 
+    @property
+    def readers(self) -> list[ArmReader]:
+        """The handles made so far (open until ``close``)."""
+        with self._lock:
+            return list(self._readers.values())
+
     def close(self) -> None:
         with self._lock:
             readers, self._readers = list(self._readers.values()), {}
@@ -244,7 +255,8 @@ class IdleSource:
             return simulated_frames(self._sim, self._cameras)
         # Cameras open again only in the bus's turn with no job (a launch closes them in its turn);
         # the reads themselves run outside it.
-        if self._turns.probe(self._real_cameras.resume, bus_held=self._bus_held) is None:
+        if self._real_cameras.suspended and self._turns.probe(self._real_cameras.resume,
+                                                               bus_held=self._bus_held) is None:
             return {}
         return self._real_cameras.frames(self._cameras)
 
