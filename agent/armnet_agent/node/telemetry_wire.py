@@ -25,8 +25,8 @@ MAX_FRAME_WIDTH = 320
 JPEG_QUALITY = 70
 MAX_FRAME_BYTES = 256 * 1024
 """A JPEG over this is not published (counted as failed): the FMS holds one per camera."""
-MAX_ARMS = 8
-MAX_MOTORS = 32
+MAX_ARMS = 4
+MAX_MOTORS = 16
 MAX_CAMERAS = 8
 MAX_TEXT = 200
 _TOKEN = re.compile(r"^[A-Za-z0-9_-]{1,63}$")
