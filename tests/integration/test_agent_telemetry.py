@@ -10,6 +10,7 @@ what arrives: JPEG of the published size, and servo values the simulated servos 
 from __future__ import annotations
 
 import asyncio
+import json
 import shutil
 import tempfile
 import time
@@ -334,3 +335,34 @@ def test_the_telemetry_thread_ends_on_stop_and_closes_its_devices(
     telemetry.stop()
     assert telemetry.join(5)
     assert not reader.is_open and cameras.suspended
+
+
+def test_a_stopped_cell_worker_ends_its_telemetry_thread(k8s: Any, link: NatsLink, nats_server: str) -> None:
+    """A Cell removed from the node (or the agent stopping) stops its worker: its telemetry ends with it."""
+    import uuid
+
+    from armnet_agent.node.kube import AgentKube
+    from armnet_agent.node.model import parse_cell
+    from armnet_agent.node.plan import HostPaths
+    from armnet_agent.node.runner import RunnerDeps
+    from armnet_agent.node.worker import CellWorker, WorkerSettings
+
+    from kubernetes import client
+
+    from tests.support.fms_objects import G, V, a_cell, apply
+
+    name = f"telemetry-{uuid.uuid4().hex[:8]}"
+    cell = parse_cell(apply(k8s, a_cell(name)))
+    state_dir = Path(tempfile.mkdtemp(prefix="ant-", dir="/tmp"))
+    deps = RunnerDeps(kube=AgentKube(k8s.api_client()), launcher=None,  # type: ignore[arg-type]  # no job here
+                      paths=HostPaths(state_dir), metrics=AgentMetrics(), link=link)
+    worker = CellWorker(cell, deps, WorkerSettings(heartbeat_period=5, telemetry=TelemetrySettings(servo_hz=10)))
+    try:
+        got = heard(nats_server, [f"telemetry.{name}.servos"], worker.start)
+        assert json.loads(got[f"telemetry.{name}.servos"])["source"] == "idle"
+    finally:
+        worker.stop()
+        shutil.rmtree(state_dir, ignore_errors=True)
+        client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object(G, V, "cells", name)
+    telemetry = worker.telemetry
+    assert telemetry is not None and telemetry.join(5)

@@ -81,6 +81,11 @@ class CellWorker:
     def name(self) -> str:
         return self.cell.name
 
+    @property
+    def telemetry(self) -> CellTelemetry | None:
+        """The cell's telemetry thread (None without NATS or with telemetry off)."""
+        return self._telemetry
+
     def start(self) -> CellWorker:
         if self.cell.simulated:
             self._start_sim()
