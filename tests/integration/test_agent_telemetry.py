@@ -346,7 +346,6 @@ def test_a_stopped_cell_worker_ends_its_telemetry_thread(k8s: Any, link: NatsLin
     from armnet_agent.node.plan import HostPaths
     from armnet_agent.node.runner import RunnerDeps
     from armnet_agent.node.worker import CellWorker, WorkerSettings
-
     from kubernetes import client
 
     from tests.support.fms_objects import G, V, a_cell, apply
