@@ -275,6 +275,15 @@ def test_a_failing_camera_is_not_reopened_before_its_backoff() -> None:
     assert isinstance(retried, str) and "retried in" not in retried
 
 
+def test_a_changed_camera_of_the_cell_is_tried_at_once_not_after_the_old_ones_backoff() -> None:
+    cameras = IdleCameras(clock=lambda: 100.0)
+    old = (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),)
+    new = (CameraSpec("front", index_or_path="/dev/armnet-other-camera"),)
+    cameras.frames(old)
+    tried = cameras.frames(new)["front"]
+    assert isinstance(tried, str) and "retried in" not in tried and "armnet-other-camera" in tried
+
+
 def test_camera_reads_take_no_bus_turn(sim: SimulatedCellProcess) -> None:
     import threading
 

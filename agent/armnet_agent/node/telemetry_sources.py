@@ -110,7 +110,9 @@ class IdleCameras:
             if self._closing.is_set():
                 return {}
             for stale in [spec for spec in self._open if spec not in cameras]:
-                self._close(stale)
+                self._close(stale)  # the Cell changed this camera (or dropped it): the old device goes
+            for gone in [spec for spec in self._failures if spec not in cameras]:
+                del self._failures[gone]
             return {spec.name: self._frame(spec) for spec in cameras}
         finally:
             if self._closing.is_set():
