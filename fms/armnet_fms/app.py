@@ -89,10 +89,12 @@ class TelemetryCollector(Collector):
 
     def collect(self) -> Any:
         family = CounterMetricFamily("armnet_fms_telemetry_messages", "Agents' telemetry messages (frames, "
-                                     "servo readings) kept or refused (bad subject, not JPEG, too large)",
+                                     "servo readings) kept, refused (bad subject, unknown cell, not JPEG, too "
+                                     "large) or dropped (the FMS fell behind a flood)",
                                      labels=["result"])
         family.add_metric(["kept"], self._store.kept)
         family.add_metric(["refused"], self._store.refused)
+        family.add_metric(["dropped"], self._store.dropped)
         yield family
 
 
@@ -116,6 +118,8 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
     metrics.registry.register(TelemetryCollector(store))
     Gauge("armnet_fms_telemetry_frames_held", "Latest camera frames held (one per cell and camera)",
           registry=metrics.registry).set_function(lambda: store.frames_held)
+    Gauge("armnet_fms_telemetry_frame_bytes", "Bytes of all latest camera frames held (bounded by the frame budget)",
+          registry=metrics.registry).set_function(lambda: store.frame_bytes)
 
     def caller(request: Request) -> Caller | None:
         if settings.trusted_header:

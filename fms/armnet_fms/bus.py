@@ -16,6 +16,9 @@ log = logging.getLogger(__name__)
 
 RESET_REQUESTED = "fms.*.reset.requested"
 TELEMETRY = "telemetry.>"
+TELEMETRY_PENDING_BYTES = 8 * 1024 * 1024
+"""Telemetry the NATS client holds for the FMS at most: past it, a flood is dropped (and counted), not queued."""
+TELEMETRY_PENDING_MSGS = 2000
 
 
 class OperatorBus(Protocol):
@@ -33,11 +36,20 @@ class BusUnavailable(RuntimeError):
 
 
 class Bus:
-    """``on_telemetry(subject, data)`` hears the agents' ``telemetry.>`` (frames, servo readings) when given."""
+    """``on_telemetry(subject, data)`` hears the agents' ``telemetry.>`` (frames, servo readings) when given.
 
-    def __init__(self, url: str, on_telemetry: Callable[[str, bytes], object] | None = None) -> None:
+    ``on_dropped()`` is called for each telemetry message the NATS client dropped
+    because the FMS fell behind (its pending limit was reached).
+    """
+
+    def __init__(self, url: str, on_telemetry: Callable[[str, bytes], object] | None = None,
+                 on_dropped: Callable[[], object] | None = None,
+                 pending_bytes_limit: int = TELEMETRY_PENDING_BYTES) -> None:
         self.url = url
+        self._pending_bytes_limit = pending_bytes_limit
         self._on_telemetry = on_telemetry
+        self._on_dropped = on_dropped
+        self._telemetry_sub: Any = None
         self._nc: Any = None
 
     async def start(self, on_reset_requested: Callable[[str, dict[str, Any]], None]) -> None:
@@ -55,7 +67,7 @@ class Bus:
                 on_reset_requested(parts[1], notice)
 
         self._nc = await nats.connect(self.url, max_reconnect_attempts=-1, reconnect_time_wait=1,
-                                      name="armnet-fms")
+                                      name="armnet-fms", error_cb=self._on_error)
         await self._nc.subscribe(RESET_REQUESTED, cb=on_notice)
         if self._on_telemetry is not None:
             handler = self._on_telemetry
@@ -63,8 +75,19 @@ class Bus:
             async def on_telemetry(msg: Any) -> None:
                 handler(msg.subject, msg.data)
 
-            await self._nc.subscribe(TELEMETRY, cb=on_telemetry)
+            self._telemetry_sub = await self._nc.subscribe(
+                TELEMETRY, cb=on_telemetry, pending_bytes_limit=self._pending_bytes_limit,
+                pending_msgs_limit=TELEMETRY_PENDING_MSGS)
         await self._nc.flush()
+
+    async def _on_error(self, error: Exception) -> None:
+        from nats.errors import SlowConsumerError
+
+        if isinstance(error, SlowConsumerError):
+            if error.sub is self._telemetry_sub and self._on_dropped is not None:
+                self._on_dropped()  # nats-py reports each message it drops for a full subscriber
+            return
+        log.warning("NATS: %s", str(error)[:200])
 
     @property
     def connected(self) -> bool:

@@ -68,8 +68,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"armnet fms: {error}", file=sys.stderr)
         return 2
     state = FleetState(KubeGateway(connection.api_client), poll_s=args.poll_interval)
-    telemetry = TelemetryStore()
-    bus = Bus(args.nats_url, on_telemetry=lambda subject, data: telemetry.accept(subject, data, time.time()))
+    telemetry = TelemetryStore(known_cells=state.cell_names)
+    bus = Bus(args.nats_url, on_telemetry=lambda subject, data: telemetry.accept(subject, data, time.time()),
+              on_dropped=telemetry.count_dropped)
     app = build_app(state, bus, settings, site=args.site, secure_cookies=not args.insecure_cookies,
                     telemetry=telemetry)
     uvicorn.run(app, host=args.host, port=args.port, log_level="info", access_log=False)

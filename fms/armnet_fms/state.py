@@ -77,6 +77,10 @@ class FleetState:
             del self.pending[cell]
             self.changed.set()
 
+    def cell_names(self) -> set[str]:
+        """The names of the Cells read last (the only cells whose telemetry the FMS keeps)."""
+        return {str(name) for c in self.cells if (name := (c.get("metadata") or {}).get("name"))}
+
     def rows(self, *, site: str = "", query: str = "") -> list[CellRow]:
         return build_fleet(self.cells, self.jobs, self.pending, self.clock(), site=site, query=query)
 

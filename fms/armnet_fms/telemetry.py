@@ -2,13 +2,19 @@
 
 The agents publish on core NATS (``telemetry.<cell>.servos``: JSON;
 ``telemetry.<cell>.camera.<camera>``: JPEG bytes; docs/fms.md). Every message
-is hostile input until checked here: subjects must name a cell and camera with
+is hostile input until checked here: subjects must name a cell the fleet knows
+(``known_cells``: the Cells the FMS reads from Kubernetes) and a camera with
 plain tokens, frames must be JPEG under ``MAX_FRAME_BYTES``, servo readings are
 re-built from the numbers they hold. Memory stays bounded: at most
 ``max_cells`` cells (the least recently heard is forgotten first),
-``MAX_CAMERAS`` frames per cell (one each: only the latest), and
-``MAX_SAMPLES`` servo readings per cell, none older than ``history_s``. Times
-are the FMS's own clock at arrival, so an agent's clock skew moves nothing.
+``MAX_CAMERAS`` frames per cell (one each: only the latest) and at most
+``frame_budget_bytes`` of frames in all (the oldest frame anywhere goes first),
+and ``MAX_SAMPLES`` servo readings per cell of at most ``MAX_ARMS`` arms of
+``MAX_MOTORS`` motors, none older than ``history_s``. Times are the FMS's own
+clock at arrival, so an agent's clock skew moves nothing.
+
+While a job runs, the agent publishes only positions (it reads nothing on the
+job's bus): such a reading's load and temperature are None.
 """
 
 from __future__ import annotations
@@ -17,14 +23,19 @@ import json
 import math
 import re
 from collections import OrderedDict, deque
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
 MAX_FRAME_BYTES = 256 * 1024
 MAX_SERVOS_BYTES = 64 * 1024
 MAX_CAMERAS = 8
-MAX_ARMS = 8
-MAX_MOTORS = 32
+MAX_ARMS = 4
+"""Arms per cell kept in a reading (a bimanual cell has 2)."""
+MAX_MOTORS = 16
+"""Motors per arm kept in a reading (an SO-101 arm has 6)."""
+FRAME_BUDGET_BYTES = 64 * 1024 * 1024
+"""All cells' latest frames together; past it the oldest frame is dropped (a 320-wide JPEG is ~10-30 KiB)."""
 MAX_SAMPLES = 200
 """Servo readings kept per cell: 30 s at the agent's default 4 Hz is 120."""
 HISTORY_S = 30.0
@@ -43,11 +54,14 @@ class Frame:
 
 @dataclass(frozen=True)
 class ServoReading:
-    """One read of a cell's servos: (arm, motor) -> (position, load, temperature) or None (silent)."""
+    """One read of a cell's servos: (arm, motor) -> (position, load, temperature) or None (silent).
+
+    Load and temperature are None when unknown (a job's reads give positions only).
+    """
 
     at: float
     source: str
-    motors: tuple[tuple[str, str, tuple[int, int, int] | None], ...]
+    motors: tuple[tuple[str, str, tuple[int, int | None, int | None] | None], ...]
     errors: tuple[tuple[str, str], ...] = ()
 
 
@@ -78,6 +92,14 @@ def _number(value: Any) -> int | None:
     return number if -_LIMIT < number < _LIMIT else None
 
 
+def _sample(sample: Any) -> tuple[int, int | None, int | None] | None:
+    """(position, load, temperature) of one motor's entry; None when it has no position (silent)."""
+    if not isinstance(sample, dict):
+        return None
+    position, load, temperature = (_number(sample.get(f)) for f in FIELDS)
+    return None if position is None else (position, load, temperature)
+
+
 def parse_servos(data: bytes, at: float) -> ServoReading | None:
     """The reading in an agent's ``servos`` message, or None when it is not one."""
     if len(data) > MAX_SERVOS_BYTES:
@@ -89,7 +111,7 @@ def parse_servos(data: bytes, at: float) -> ServoReading | None:
     if not isinstance(body, dict) or not isinstance(body.get("arms"), dict):
         return None
     source = body.get("source")
-    motors: list[tuple[str, str, tuple[int, int, int] | None]] = []
+    motors: list[tuple[str, str, tuple[int, int | None, int | None] | None]] = []
     errors: list[tuple[str, str]] = []
     for arm, entry in list(body["arms"].items())[:MAX_ARMS]:
         if not isinstance(entry, dict) or not _TOKEN.match(str(arm)):
@@ -103,26 +125,38 @@ def parse_servos(data: bytes, at: float) -> ServoReading | None:
         for motor, sample in list(table.items())[:MAX_MOTORS]:
             if not _TOKEN.match(str(motor)):
                 continue
-            values = tuple(_number(sample.get(f)) for f in FIELDS) if isinstance(sample, dict) else None
-            clean = values if values is not None and all(v is not None for v in values) else None
-            motors.append((arm, motor, clean))  # type: ignore[arg-type]  # None checked just above
+            motors.append((arm, motor, _sample(sample)))
     return ServoReading(at, source if source in ("idle", "job") else "unknown", tuple(motors), tuple(errors))
 
 
 class TelemetryStore:
     """What the page shows of each cell's cameras and servos; ``accept`` every NATS message."""
 
-    def __init__(self, *, history_s: float = HISTORY_S, max_cells: int = MAX_CELLS) -> None:
+    def __init__(self, *, history_s: float = HISTORY_S, max_cells: int = MAX_CELLS,
+                 frame_budget_bytes: int = FRAME_BUDGET_BYTES,
+                 known_cells: Callable[[], Collection[str]] | None = None) -> None:
+        """``known_cells``: the cells whose telemetry is kept (None: any, for a local run's own cell)."""
         self.history_s = history_s
         self.max_cells = max_cells
+        self.frame_budget_bytes = frame_budget_bytes
+        self._known_cells = known_cells
         self._cells: OrderedDict[str, CellTelemetry] = OrderedDict()
-        #: Messages kept and refused (bad subject, not JPEG, too large, not a reading).
+        self._frame_bytes = 0
+        #: Messages kept and refused (bad subject, unknown cell, not JPEG, too large, not a reading),
+        #: and dropped by the NATS client before they reached the store (the FMS fell behind).
         self.kept = 0
         self.refused = 0
+        self.dropped = 0
+
+    def count_dropped(self, count: int = 1) -> None:
+        """Messages NATS dropped for this subscriber (its pending limit was reached)."""
+        self.dropped += count
 
     def accept(self, subject: str, data: bytes, now: float) -> bool:
-        """Keep the message if it is a valid frame or reading; False (and counted) when refused."""
+        """Keep the message if it is a valid frame or reading of a known cell; False (and counted) when refused."""
         target = parse_subject(subject)
+        if target is not None and self._known_cells is not None and target[0] not in self._known_cells():
+            target = None  # not a cell of the fleet: anyone on NATS could name thousands
         kept = False
         if target is not None:
             cell, camera = target
@@ -147,14 +181,30 @@ class TelemetryStore:
         entry = self._cells.get(cell)
         if entry is not None and camera not in entry.frames and len(entry.frames) >= MAX_CAMERAS:
             return False
-        self._entry(cell, now).frames[camera] = Frame(bytes(data), now)
+        frames = self._entry(cell, now).frames
+        old = frames.get(camera)
+        frames[camera] = Frame(bytes(data), now)
+        self._frame_bytes += len(data) - (len(old.jpeg) if old is not None else 0)
+        while self._frame_bytes > self.frame_budget_bytes:
+            self._drop_oldest_frame()
         return True
+
+    def _drop_oldest_frame(self) -> None:
+        cell, camera = min(((c, name) for c, e in self._cells.items() for name in e.frames),
+                           key=lambda key: self._cells[key[0]].frames[key[1]].at)
+        self._frame_bytes -= len(self._cells[cell].frames.pop(camera).jpeg)
+
+    @property
+    def frame_bytes(self) -> int:
+        """Bytes of all frames held."""
+        return self._frame_bytes
 
     def _entry(self, cell: str, now: float) -> CellTelemetry:
         entry = self._cells.get(cell)
         if entry is None:
             while len(self._cells) >= self.max_cells:
-                self._cells.popitem(last=False)  # the least recently heard cell
+                _, gone = self._cells.popitem(last=False)  # the least recently heard cell
+                self._frame_bytes -= sum(len(frame.jpeg) for frame in gone.frames.values())
             entry = self._cells[cell] = CellTelemetry()
         self._cells.move_to_end(cell)
         entry.heard_at = now
@@ -176,13 +226,14 @@ class TelemetryStore:
         """The page's telemetry of ``cell``: cameras with their frame age, and each motor's series.
 
         ``series`` is ``[{"arm", "motor", "points": [[age_s, position, load, temperature], ...]}]``,
-        oldest first, ``age_s`` in seconds before ``now`` (a silent motor has no point at that read).
+        oldest first, ``age_s`` in seconds before ``now`` (a silent motor has no point at that read;
+        load and temperature are null when unknown: a job's reads give positions only).
         """
         entry = self._cells.get(cell)
         if entry is None:
             return {"cell": cell, "cameras": [], "series": [], "source": None, "ageS": None, "errors": []}
         readings = [r for r in entry.readings if r.at >= now - self.history_s]
-        series: dict[tuple[str, str], list[list[float]]] = {}
+        series: dict[tuple[str, str], list[list[float | None]]] = {}
         for reading in readings:
             age = round(now - reading.at, 2)
             for arm, motor, values in reading.motors:

@@ -1,14 +1,16 @@
 """Cell telemetry end to end: the real connector on the simulated SO-101, the agent's NATS link, a real nats-server.
 
-While a job runs, the readings go through the job's connector (its device locks,
-its bus, its camera's latest capture); while the cell is idle the agent reads the
-servos itself. A subscriber on the FMS's side decodes what arrives: JPEG of the
-published size, and servo values the simulated servos hold.
+While a job runs, nothing is sent on the job's bus: the readings are what the
+job's own reads left in its connector (positions only) and its camera's latest
+capture. While the cell is idle the agent reads the servos itself, through one
+port handle per arm that it keeps open. A subscriber on the FMS's side decodes
+what arrives: JPEG of the published size, and servo values the simulated servos hold.
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
 import shutil
 import tempfile
 import time
@@ -26,7 +28,13 @@ from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.streams import NatsLink, StreamSettings
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
-from armnet_agent.node.telemetry_sources import IdleCameras, IdleSource, JobSource
+from armnet_agent.node.telemetry_sources import (
+    ArmPort,
+    IdleArms,
+    IdleCameras,
+    IdleSource,
+    JobSource,
+)
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
@@ -112,8 +120,14 @@ def counted(metrics: AgentMetrics, name: str, result: str) -> float:
     return metrics.registry.get_sample_value(name, {"result": result}) or 0.0
 
 
-def test_during_a_job_frames_and_servo_readings_come_through_its_connector(
-        connector: Connector, link: NatsLink, nats_server: str) -> None:
+def idle_source(sim: SimulatedCellProcess, cameras: tuple[CameraSpec, ...] = (), *, held: bool = False,
+                handles: IdleArms | None = None, motor_model: str | None = "sts3215") -> IdleSource:
+    return IdleSource({"arm": ArmPort(sim.arm.port, CALIBRATION, motor_model)}, cameras, BusTurns(),
+                      lambda: held, None, IdleCameras(), handles or IdleArms())
+
+
+def test_during_a_job_frames_and_the_jobs_own_position_reads_come_through_its_connector(
+        connector: Connector, sim: SimulatedCellProcess, link: NatsLink, nats_server: str) -> None:
     import json
 
     from lerobot.cameras.opencv import OpenCVCameraConfig
@@ -139,33 +153,48 @@ def test_during_a_job_frames_and_servo_readings_come_through_its_connector(
     reading = json.loads(got["telemetry.cell-1.servos"])
     motors = reading["arms"]["arm"]["motors"]
     assert reading["source"] == "job"
-    assert {m: v["position"] for m, v in motors.items()} == pytest.approx(held, abs=3)
-    assert {v["temperature"] for v in motors.values()} == {28}  # the simulated STS3215's temperature
+    assert {m: v["position"] for m, v in motors.items()} == held
     assert counted(metrics, "armnet_agent_telemetry_frames_total", "published") == 1
 
 
-def test_a_job_call_holding_the_device_makes_the_read_skip_instead_of_waiting(connector: Connector) -> None:
-    import threading
-
-    from armnet_agent.connector.telemetry import read_cell_servos
-
-    lock = connector.cell.locks.get(connector.config.arms["arm"].port)
-    held, done = threading.Event(), threading.Event()
-
-    def job_call() -> None:  # another connection's call, on its own thread
-        with lock:
-            held.set()
-            done.wait(10)
-
-    thread = threading.Thread(target=job_call)
-    thread.start()
+def test_during_a_job_telemetry_sends_nothing_on_its_bus_so_load_and_temperature_are_absent(
+        connector: Connector, sim: SimulatedCellProcess) -> None:
+    bus = job_bus(connector.robot_endpoint)
+    bus.connect()
     try:
-        assert held.wait(5)
-        readings = read_cell_servos(connector.cell, lock_wait_s=0.02)
+        held = bus.sync_read("Present_Position", normalize=False)
+        bus.write("Torque_Enable", "gripper", 0, normalize=False)
+        moved = int(held["gripper"]) + 200
+        sim.arm.move_by_hand("gripper", moved)  # the servo moves; the job has not read it since
+        readings = JobSource(connector.cell, (), sim=None).servos()
+        assert sim.arm.positions()["gripper"] == pytest.approx(moved, abs=2)
     finally:
-        done.set()
-        thread.join()
-    assert readings == {"arm": "busy"}
+        bus.disconnect(disable_torque=False)
+    assert readings is not None
+    arm = readings["arm"]
+    assert not isinstance(arm, str)
+    gripper = arm["gripper"]
+    assert gripper is not None
+    assert gripper.position == held["gripper"]  # the job's read, not a fresh one of the bus
+    assert gripper.load is None and gripper.temperature is None
+
+
+def test_a_job_that_has_not_read_positions_yet_shows_why(connector: Connector) -> None:
+    bus = job_bus(connector.robot_endpoint)
+    bus.connect()
+    try:
+        readings = JobSource(connector.cell, (), sim=None).servos()
+    finally:
+        bus.disconnect(disable_torque=False)
+    assert readings == {"arm": "the job has not read Present_Position yet"}
+
+
+def test_a_stopping_connector_shows_nothing(connector: Connector) -> None:
+    connector.cell.stopping.set()
+    try:
+        assert JobSource(connector.cell, (), sim=None).servos() is None
+    finally:
+        connector.cell.stopping.clear()
 
 
 def test_an_idle_cell_is_read_by_the_agent_and_a_failing_camera_stops_nothing_else(
@@ -173,10 +202,7 @@ def test_an_idle_cell_is_read_by_the_agent_and_a_failing_camera_stops_nothing_el
     import json
 
     metrics = AgentMetrics()
-    source = IdleSource(
-        {"arm": (sim.arm.port, CALIBRATION)}, (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),),
-        BusTurns(), lambda: False, None, IdleCameras(),
-    )
+    source = idle_source(sim, (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),))
     telemetry = publisher(source, link, metrics)
     got = heard(nats_server, ["telemetry.cell-1.servos"], lambda: telemetry.tick(time.monotonic()))
 
@@ -184,18 +210,167 @@ def test_an_idle_cell_is_read_by_the_agent_and_a_failing_camera_stops_nothing_el
     assert reading["source"] == "idle"
     assert set(reading["arms"]["arm"]["motors"]) == set(MOTORS)
     assert all(0 <= v["position"] < 4096 for v in reading["arms"]["arm"]["motors"].values())
+    assert {v["temperature"] for v in reading["arms"]["arm"]["motors"].values()} == {28}
     assert counted(metrics, "armnet_agent_telemetry_frames_total", "failed") == 1
     assert counted(metrics, "armnet_agent_telemetry_servo_reads_total", "published") == 1
 
 
+def test_an_idle_arms_port_stays_open_between_reads_and_closes_on_request(sim: SimulatedCellProcess) -> None:
+    handles = IdleArms()
+    source = idle_source(sim, handles=handles)
+    first, second = source.servos(), source.servos()
+    assert first is not None and second is not None
+    assert set(first["arm"]) == set(second["arm"]) == set(MOTORS)
+    reader = handles.readers[0]
+    assert reader.is_open
+    handles.close()
+    assert not reader.is_open
+
+
+def test_the_read_after_a_cut_short_idle_read_answers_with_every_servo(sim: SimulatedCellProcess) -> None:
+    source = idle_source(sim)
+    sim.arm.drop_replies("elbow_flex", 1)  # the sync read stops there; the later servos' replies arrive late
+    try:
+        cut = source.servos()
+        time.sleep(0.05)
+        after = source.servos()
+    finally:
+        sim.arm.clear_faults()
+    assert cut is not None and after is not None
+    cut_arm, after_arm = cut["arm"], after["arm"]
+    assert not isinstance(cut_arm, str) and not isinstance(after_arm, str)
+    assert cut_arm["elbow_flex"] is None
+    positions = sim.arm.positions()
+    assert all(sample is not None for sample in after_arm.values())
+    assert {m: s.position for m, s in after_arm.items() if s is not None} == pytest.approx(positions, abs=3)
+
+
+def test_an_idle_arm_of_a_non_feetech_motor_model_is_not_read_and_says_why(sim: SimulatedCellProcess) -> None:
+    readings = idle_source(sim, motor_model="xl330-m077").servos()
+    assert readings is not None
+    assert "no Feetech servo" in str(readings["arm"])
+
+
 def test_an_idle_simulated_cell_shows_its_simulator_drawn_at_the_published_size(sim: SimulatedCellProcess) -> None:
     source = IdleSource({}, (CameraSpec("front", width=640, height=480),), BusTurns(), lambda: False, sim,
-                        IdleCameras())
+                        IdleCameras(), IdleArms())
     frame = source.frames()["front"]
     assert not isinstance(frame, str) and frame.image.shape == (240, 320, 3)
 
 
 def test_nothing_is_read_while_a_job_holds_the_bus(sim: SimulatedCellProcess) -> None:
-    source = IdleSource({"arm": (sim.arm.port, CALIBRATION)}, (), BusTurns(), lambda: True, None,
-                        IdleCameras())
-    assert source.servos() is None
+    assert idle_source(sim, held=True).servos() is None
+
+
+def test_a_failing_camera_is_not_reopened_before_its_backoff() -> None:
+    now = [100.0]
+    cameras = IdleCameras(clock=lambda: now[0])
+    spec = (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),)
+    first = cameras.frames(spec)["front"]
+    again = cameras.frames(spec)["front"]
+    now[0] += 1.5
+    retried = cameras.frames(spec)["front"]
+    assert isinstance(first, str) and "retried in" not in first
+    assert again == "failed 1 time(s) in a row; retried in 1 s"
+    assert isinstance(retried, str) and "retried in" not in retried
+
+
+def test_a_changed_camera_of_the_cell_is_tried_at_once_not_after_the_old_ones_backoff() -> None:
+    cameras = IdleCameras(clock=lambda: 100.0)
+    old = (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),)
+    new = (CameraSpec("front", index_or_path="/dev/armnet-other-camera"),)
+    cameras.frames(old)
+    tried = cameras.frames(new)["front"]
+    assert isinstance(tried, str) and "retried in" not in tried and "armnet-other-camera" in tried
+
+
+def test_camera_reads_take_no_bus_turn(sim: SimulatedCellProcess) -> None:
+    import threading
+
+    turns = BusTurns()
+    source = IdleSource({}, (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),), turns, lambda: False,
+                        None, IdleCameras(), IdleArms())
+    entered, release = threading.Event(), threading.Event()
+
+    def launch() -> None:
+        with turns.launching():
+            entered.set()
+            release.wait(10)
+
+    thread = threading.Thread(target=launch)
+    thread.start()
+    try:
+        assert entered.wait(5)
+        started = time.monotonic()
+        frames = source.frames()  # a launch holds the bus: the camera is still tried, not queued behind it
+        elapsed = time.monotonic() - started
+    finally:
+        release.set()
+        thread.join()
+    assert isinstance(frames["front"], str) and elapsed < 5
+
+
+def test_a_launch_closing_cameras_waits_only_its_bound_for_a_read_under_way() -> None:
+    import threading
+
+    cameras = IdleCameras()
+    started = time.monotonic()
+    holder = threading.Thread(target=lambda: cameras.frames((), wait_s=0))
+    with cameras._lock:  # a read under way (a hung device)
+        holder.start()
+        closed = cameras.close(wait_s=0.2)
+    holder.join()
+    assert not closed and time.monotonic() - started < 2
+    assert cameras.suspended and cameras.frames((CameraSpec("front", index_or_path=0),)) == {}
+
+
+def test_the_telemetry_thread_ends_on_stop_and_closes_its_devices(
+        sim: SimulatedCellProcess, link: NatsLink) -> None:
+    handles, cameras = IdleArms(), IdleCameras()
+    source = IdleSource({"arm": ArmPort(sim.arm.port, CALIBRATION)}, (), BusTurns(), lambda: False, None,
+                        cameras, handles)
+
+    def close() -> None:
+        cameras.close(wait_s=0)
+        handles.close()
+
+    telemetry = CellTelemetry("cell-1", lambda: source, link, AgentMetrics(), TelemetrySettings(servo_hz=20),
+                              on_exit=close).start()
+    deadline = time.monotonic() + 5
+    while not handles.readers and time.monotonic() < deadline:
+        time.sleep(0.02)
+    reader = handles.readers[0]
+    assert reader.is_open
+    telemetry.stop()
+    assert telemetry.join(5)
+    assert not reader.is_open and cameras.suspended
+
+
+def test_a_stopped_cell_worker_ends_its_telemetry_thread(k8s: Any, link: NatsLink, nats_server: str) -> None:
+    """A Cell removed from the node (or the agent stopping) stops its worker: its telemetry ends with it."""
+    import uuid
+
+    from armnet_agent.node.kube import AgentKube
+    from armnet_agent.node.model import parse_cell
+    from armnet_agent.node.plan import HostPaths
+    from armnet_agent.node.runner import RunnerDeps
+    from armnet_agent.node.worker import CellWorker, WorkerSettings
+    from kubernetes import client
+
+    from tests.support.fms_objects import G, V, a_cell, apply
+
+    name = f"telemetry-{uuid.uuid4().hex[:8]}"
+    cell = parse_cell(apply(k8s, a_cell(name)))
+    state_dir = Path(tempfile.mkdtemp(prefix="ant-", dir="/tmp"))
+    deps = RunnerDeps(kube=AgentKube(k8s.api_client()), launcher=None,  # type: ignore[arg-type]  # no job here
+                      paths=HostPaths(state_dir), metrics=AgentMetrics(), link=link)
+    worker = CellWorker(cell, deps, WorkerSettings(heartbeat_period=5, telemetry=TelemetrySettings(servo_hz=10)))
+    try:
+        got = heard(nats_server, [f"telemetry.{name}.servos"], worker.start)
+        assert json.loads(got[f"telemetry.{name}.servos"])["source"] == "idle"
+    finally:
+        worker.stop()
+        shutil.rmtree(state_dir, ignore_errors=True)
+        client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object(G, V, "cells", name)
+    telemetry = worker.telemetry
+    assert telemetry is not None and telemetry.join(5)

@@ -1,13 +1,17 @@
-"""Servo telemetry and the latest camera frames of a cell, read for the cell operator's page.
+"""Servo telemetry and the latest camera frames of a cell, for the cell operator's page.
 
-Reads only. Servo values come from one ``GroupSyncRead`` of the 8 registers from
-``Present_Position`` (56) to ``Present_Temperature`` (63) on every servo of an arm:
-one request and one short reply per servo, a few milliseconds at 1 Mbaud. While a job
-runs, the read takes the arm's device lock like every job call does, with a short
-wait: when the job's call holds the device, this tick is skipped rather than making
-the job wait, so a job's bus loop waits at most for one such read per tick. The read
-uses the job's own connected bus when it has one (no second handle on the port),
-else a port handle of the connector's own, closed at once.
+Two ways, never mixed:
+
+- an idle cell (no job): ``ArmReader`` is the agent's own handle on an arm's
+  port, kept open between reads (closed before a launch), doing one
+  ``GroupSyncRead`` of the 8 registers from ``Present_Position`` (56) to
+  ``Present_Temperature`` (63) per read;
+- a job runs: nothing is sent on the bus. ``job_servos`` publishes what the
+  connector already recorded of the job's own ``Present_Position`` reads
+  (``Handle.present``), so load and temperature are unknown while a job runs.
+  Why: a telemetry request on the job's port handle can leave reply bytes in its
+  input buffer that the job's next read takes for its answer, and a cut-short
+  reply can leave the handle marked busy forever.
 
 Frames are the job's camera objects' latest captures (the same picture the job
 sees); nothing here opens a camera a job may open.
@@ -16,51 +20,38 @@ sees); nothing here opens a camera a job may open.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+import threading
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
+
+from .telemetry_decode import (
+    TELEMETRY_LENGTH,
+    TELEMETRY_START,
+    ServoSample,
+    decode_block,
+    known_positions,
+)
 
 if TYPE_CHECKING:
     from .cell import CellState
 
 log = logging.getLogger(__name__)
 
-TELEMETRY_START = 56
-"""``Present_Position`` on the STS3215; the block runs through ``Present_Temperature`` (63)."""
-TELEMETRY_LENGTH = 8
 BAUD_RATE = 1_000_000
-LOCK_WAIT_S = 0.02
-"""How long a telemetry read waits for a device a job call holds before skipping this tick."""
-
-
-@dataclass(frozen=True)
-class ServoSample:
-    """One servo's raw readings: position in ticks, load in 0.1 % of the rated torque (signed), °C."""
-
-    position: int
-    load: int
-    temperature: int
-
-
-def _sign_magnitude(value: int, sign_bit: int) -> int:
-    magnitude = value & ((1 << sign_bit) - 1)
-    return -magnitude if value & (1 << sign_bit) else magnitude
-
-
-def decode_block(block: bytes | list[int]) -> ServoSample:
-    """The sample in one servo's 8-byte telemetry block (little-endian, Feetech sign-magnitude). Pure."""
-    data = bytes(block)
-    if len(data) < TELEMETRY_LENGTH:
-        raise ValueError(f"a telemetry block has {TELEMETRY_LENGTH} bytes, got {len(data)}")
-    position = _sign_magnitude(int.from_bytes(data[0:2], "little"), 15)
-    load = _sign_magnitude(int.from_bytes(data[4:6], "little"), 10)
-    return ServoSample(position=position, load=load, temperature=data[7])
 
 
 def read_block(port_handler: Any, packet_handler: Any, ids: Iterable[int]) -> dict[int, ServoSample | None]:
-    """Servo id -> its sample (None: it did not answer), from one sync read on an open port."""
+    """Servo id -> its sample (None: it did not answer), from one sync read on the agent's own open port.
+
+    A cut-short read leaves the port clean for the next one: the handle is marked
+    free again and the unread replies are dropped from the input buffer.
+    """
     from scservo_sdk import GroupSyncRead
 
+    serial_port = getattr(port_handler, "ser", None)
+    if serial_port is not None:
+        serial_port.reset_input_buffer()  # a late reply of the last read is not this read's answer
     wanted = sorted(set(ids))
     group = GroupSyncRead(port_handler, packet_handler, TELEMETRY_START, TELEMETRY_LENGTH)
     for sid in wanted:
@@ -69,6 +60,9 @@ def read_block(port_handler: Any, packet_handler: Any, ids: Iterable[int]) -> di
         group.txRxPacket()  # stops at the first silent servo; those before it still hold their data
     except (IndexError, OSError) as exc:  # scservo_sdk raises IndexError on a cut-short reply
         log.debug("telemetry sync read failed: %s", exc)
+        port_handler.is_using = False  # else every later read is refused as "port busy"
+        if serial_port is not None:
+            serial_port.reset_input_buffer()
     samples: dict[int, ServoSample | None] = {}
     for sid in wanted:
         raw = group.data_dict.get(sid) or []
@@ -76,58 +70,76 @@ def read_block(port_handler: Any, packet_handler: Any, ids: Iterable[int]) -> di
     return samples
 
 
-def read_port(port: str, ids: Iterable[int]) -> dict[int, ServoSample | None]:
-    """One sync read on ``port`` through a handle opened and closed here (no job holds the port)."""
-    from scservo_sdk import PacketHandler, PortHandler
+class ArmReader:
+    """The agent's own handle on an idle arm's port: opened at the first read, kept open until ``close``."""
 
-    handler = PortHandler(port)
-    if not handler.openPort():
-        raise OSError(f"cannot open {port}")
-    try:
+    def __init__(self, port: str, protocol: int) -> None:
+        self.port = port
+        self.protocol = protocol
+        self._lock = threading.Lock()
+        self._handles: tuple[Any, Any] | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._handles is not None
+
+    def read(self, ids: Iterable[int]) -> dict[int, ServoSample | None]:
+        """One sync read; OSError when the port cannot be opened (it is retried next read)."""
+        with self._lock:
+            if self._handles is None:
+                self._handles = self._open()
+            port_handler, packet_handler = self._handles
+            try:
+                return read_block(port_handler, packet_handler, ids)
+            except OSError:
+                self._close()
+                raise
+
+    def _open(self) -> tuple[Any, Any]:
+        from scservo_sdk import PacketHandler, PortHandler
+
+        handler = PortHandler(self.port)
+        if not handler.openPort():
+            raise OSError(f"cannot open {self.port}")
         handler.setBaudRate(BAUD_RATE)
-        return read_block(handler, PacketHandler(0), ids)
-    finally:
-        handler.closePort()
+        return handler, PacketHandler(self.protocol)
+
+    def close(self) -> None:
+        with self._lock:
+            self._close()
+
+    def _close(self) -> None:
+        handles, self._handles = self._handles, None
+        if handles is not None:
+            try:
+                handles[0].closePort()
+            except OSError as exc:
+                log.debug("closing %s: %s", self.port, exc)
 
 
-def name_samples(
-    ids: Mapping[str, int], samples: Mapping[int, ServoSample | None]
-) -> dict[str, ServoSample | None]:
-    """motor -> sample, for the motors of ``ids`` (motor -> servo id). Pure."""
-    return {motor: samples.get(sid) for motor, sid in ids.items()}
+def job_servos(cell: CellState) -> dict[str, dict[str, ServoSample | None] | str] | None:
+    """arm -> (motor -> last position the job read), or why there is none; None once the job is stopping.
 
-
-def read_cell_servos(cell: CellState, lock_wait_s: float = LOCK_WAIT_S) -> dict[str, dict[str, ServoSample | None] | str]:
-    """arm -> (motor -> sample), or why the arm was not read this time (device busy, no calibration, error)."""
+    Reads memory only (no bus traffic, no device lock): what ``Handle.present``
+    holds of the job's own reads.
+    """
+    if cell.stopping.is_set():
+        return None
     result: dict[str, dict[str, ServoSample | None] | str] = {}
-    for arm_name, arm in cell.config.arms.items():
-        ranges = cell.ranges.get(arm_name) or {}
-        if not ranges:
-            result[arm_name] = "no calibration file: its servos' ids are unknown"
+    for arm_name in cell.config.arms:
+        handle = _job_bus(cell, arm_name)
+        if handle is None:
+            result[arm_name] = "the job has not connected this arm's bus"
             continue
-        ids = {motor: r.id for motor, r in ranges.items()}
-        lock = cell.locks.get(arm.port)
-        if not lock.acquire(lock_wait_s):
-            result[arm_name] = "busy"
-            continue
-        try:
-            bus = _job_bus(cell, arm_name)
-            if bus is not None:
-                samples = read_block(bus.port_handler, bus.packet_handler, ids.values())
-            else:
-                samples = read_port(arm.port, ids.values())
-            result[arm_name] = name_samples(ids, samples)
-        except Exception as exc:  # noqa: BLE001 - telemetry is best effort; the job's own calls report the bus
-            result[arm_name] = f"{type(exc).__name__}: {str(exc)[:200]}"
-        finally:
-            lock.release()
-    return result
+        samples = known_positions(dict(handle.present), handle.cell_motors, handle.cell_ranges)
+        result[arm_name] = samples if samples is not None else "the job has not read Present_Position yet"
+    return None if cell.stopping.is_set() else result
 
 
 def _job_bus(cell: CellState, arm_name: str) -> Any:
     for handle in cell.live_handles():
-        if handle.class_name == "FeetechMotorsBus" and handle.arm == arm_name and handle.obj.is_connected:
-            return handle.obj
+        if handle.class_name == "FeetechMotorsBus" and handle.arm == arm_name:
+            return handle
     return None
 
 

@@ -15,6 +15,7 @@ import signal
 import socket
 import tempfile
 import threading
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -24,13 +25,28 @@ from armnet_agent.node.kube import AgentKube, make_client
 from armnet_agent.node.launchers import ContainerLauncher, JobLauncher, PodLauncher, PodSettings
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.publish import open_link, register_metrics
-from armnet_agent.node.telemetry import TelemetrySettings
+from armnet_agent.node.telemetry import MAX_FRAME_FPS, MAX_SERVO_HZ, TelemetrySettings
 
 ENV = "ARMNET_AGENT_"
 
 
 def _env(name: str, default: str | None = None) -> str | None:
     return os.environ.get(ENV + name, default)
+
+
+def _rate(bound: float) -> Callable[[str], float]:
+    """An argparse type: a rate per second in 0..``bound`` (argparse turns the error into a usage error)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not 0 <= value <= bound:
+            raise argparse.ArgumentTypeError(f"{value:g} is outside 0..{bound:g} per second (0 turns it off)")
+        return value
+
+    return parse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,11 +65,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--engine-url", default=_env("ENGINE_URL"),
                         help="Docker API of the container engine (default: DOCKER_HOST, else Podman's socket)")
     parser.add_argument("--nats-url", default=_env("NATS_URL"), help="publish job output to NATS (default: off)")
-    parser.add_argument("--telemetry-servo-hz", type=float, default=float(_env("TELEMETRY_SERVO_HZ", "4") or 4),
-                        help="servo telemetry reads per second published for the cell operator's page (0: off; "
-                             "needs --nats-url)")
-    parser.add_argument("--telemetry-frame-fps", type=float, default=float(_env("TELEMETRY_FRAME_FPS", "2") or 2),
-                        help="camera frames per second published for the cell operator's page (0: off)")
+    parser.add_argument("--telemetry-servo-hz", type=_rate(MAX_SERVO_HZ), default=_env("TELEMETRY_SERVO_HZ", "4"),
+                        help="servo telemetry reads per second published for the cell operator's page "
+                             f"(0: off, at most {MAX_SERVO_HZ:g}; needs --nats-url)")
+    parser.add_argument("--telemetry-frame-fps", type=_rate(MAX_FRAME_FPS), default=_env("TELEMETRY_FRAME_FPS", "2"),
+                        help=f"camera frames per second published for the cell operator's page (0: off, at most "
+                             f"{MAX_FRAME_FPS:g})")
     parser.add_argument("--metrics-port", type=int, default=int(_env("METRICS_PORT", "9090") or 9090),
                         help="/metrics port (0: off)")
     parser.add_argument("--metrics-address", default=_env("METRICS_ADDRESS", "0.0.0.0"))

@@ -7,13 +7,18 @@ the worker for the cell's current source of readings:
   the health probe (``BusTurns``: never beside a launch), and draws a simulated
   cell's cameras from its simulator;
 - a job runs with the connector in this process: the connector's cell
-  (``connector.telemetry``: reads under the device locks, skipped when a job call
-  holds the device; frames are the job's cameras' latest captures);
+  (``connector.telemetry.job_servos``: the positions the job's own reads left
+  in the connector, no traffic on the job's bus, so no load or temperature;
+  frames are the job's cameras' latest captures);
 - a job runs in a pod: the connector is in the pod and nothing is read (the page
   shows no fresh readings).
 
 Everything is best effort: a failing camera or read is counted and logged at
 most once a minute, and never stops the other readings nor the job.
+
+``stop`` only asks the thread to end (the worker's reconcile pass never waits
+on a camera); the thread itself runs ``on_exit`` (closing the agent's idle
+cameras and arm handles) as it leaves, so nothing closes a camera under a read.
 """
 
 from __future__ import annotations
@@ -26,7 +31,8 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from armnet_agent.connector.ratelog import RateLimitedLog
-from armnet_agent.connector.telemetry import CameraFrame, ServoSample
+from armnet_agent.connector.telemetry import CameraFrame
+from armnet_agent.connector.telemetry_decode import ServoSample
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.telemetry_wire import (
     JPEG_QUALITY,
@@ -62,10 +68,24 @@ class Notifier(Protocol):
     def notify(self, subject: str, payload: bytes) -> None: ...
 
 
+MAX_SERVO_HZ = 20.0
+"""Reads per second an idle arm takes at most: each is bus time a probe or a launch waits for."""
+MAX_FRAME_FPS = 10.0
+"""Frames per second per camera at most: each is a JPEG every page viewer's FMS relays."""
+
+
 @dataclass(frozen=True)
 class TelemetrySettings:
     servo_hz: float = 4.0
     frame_fps: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.servo_hz <= MAX_SERVO_HZ:
+            raise ValueError(f"telemetry servo rate {self.servo_hz:g}/s is outside 0..{MAX_SERVO_HZ:g} "
+                             "(0 turns servo telemetry off)")
+        if not 0 <= self.frame_fps <= MAX_FRAME_FPS:
+            raise ValueError(f"telemetry frame rate {self.frame_fps:g}/s is outside 0..{MAX_FRAME_FPS:g} "
+                             "(0 turns camera telemetry off)")
 
     @property
     def enabled(self) -> bool:
@@ -106,8 +126,10 @@ class CellTelemetry:
         metrics: AgentMetrics,
         settings: TelemetrySettings,
         clock: Callable[[], float] = time.time,
+        on_exit: Callable[[], None] | None = None,
     ) -> None:
         self.cell = cell
+        self._on_exit = on_exit
         self._source = source
         self._link = link
         self._metrics = metrics
@@ -123,11 +145,25 @@ class CellTelemetry:
         return self
 
     def stop(self) -> None:
+        """Ask the thread to end; it does after the read under way (never waited for here)."""
         self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(5)
+
+    def join(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for the thread to end; True when it has."""
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
 
     def _loop(self) -> None:
+        try:
+            self._run()
+        finally:
+            if self._on_exit is not None:
+                try:
+                    self._on_exit()
+                except Exception:  # noqa: BLE001 - closing devices at exit is best effort
+                    log.warning("cell %s: closing telemetry devices failed", self.cell, exc_info=True)
+
+    def _run(self) -> None:
         while not self._stop.is_set():
             try:
                 self.tick(time.monotonic())
@@ -140,8 +176,8 @@ class CellTelemetry:
 
     def tick(self, now: float) -> None:
         """Publish what is due at ``now`` (monotonic)."""
-        servos_due = self._servo_cadence.due(now)
-        frames_due = self._frame_cadence.due(now)
+        servos_due, self._servo_cadence = self._servo_cadence.due(now)
+        frames_due, self._frame_cadence = self._frame_cadence.due(now)
         if not (servos_due or frames_due):
             return
         source = self._source()

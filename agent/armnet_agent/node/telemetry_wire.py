@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 SUBJECT_PREFIX = "telemetry"
@@ -25,8 +25,8 @@ MAX_FRAME_WIDTH = 320
 JPEG_QUALITY = 70
 MAX_FRAME_BYTES = 256 * 1024
 """A JPEG over this is not published (counted as failed): the FMS holds one per camera."""
-MAX_ARMS = 8
-MAX_MOTORS = 32
+MAX_ARMS = 4
+MAX_MOTORS = 16
 MAX_CAMERAS = 8
 MAX_TEXT = 200
 _TOKEN = re.compile(r"^[A-Za-z0-9_-]{1,63}$")
@@ -38,9 +38,9 @@ class ServoSample(Protocol):
     @property
     def position(self) -> int: ...
     @property
-    def load(self) -> int: ...
+    def load(self) -> int | None: ...
     @property
-    def temperature(self) -> int: ...
+    def temperature(self) -> int | None: ...
 
 
 def subject_token(value: str, what: str) -> str:
@@ -66,21 +66,25 @@ def servos_payload(
     """One read as JSON: ``{"t", "source", "arms": {arm: {"motors": {motor: {...} | null}} | {"error"}}}``.
 
     ``source`` says who read the servos: ``idle`` (the agent, no job) or ``job``
-    (the job's connector). A motor that did not answer is ``null``.
+    (the job's own reads, as its connector recorded them). A motor that did not
+    answer is ``null``; ``load`` and ``temperature`` are left out when unknown
+    (a job's reads give positions only).
     """
     body: dict[str, Any] = {}
     for arm, reading in list(sorted(arms.items()))[:MAX_ARMS]:
         if isinstance(reading, str):
             body[arm[:64]] = {"error": reading[:MAX_TEXT]}
             continue
-        motors = {
-            motor[:64]: None if sample is None else {
-                "position": sample.position, "load": sample.load, "temperature": sample.temperature,
-            }
-            for motor, sample in list(sorted(reading.items()))[:MAX_MOTORS]
-        }
+        motors = {motor[:64]: _sample(sample) for motor, sample in list(sorted(reading.items()))[:MAX_MOTORS]}
         body[arm[:64]] = {"motors": motors}
     return json.dumps({"t": round(at, 3), "source": source[:16], "arms": body}, separators=(",", ":")).encode()
+
+
+def _sample(sample: ServoSample | None) -> dict[str, int] | None:
+    if sample is None:
+        return None
+    values = {"position": sample.position, "load": sample.load, "temperature": sample.temperature}
+    return {key: value for key, value in values.items() if value is not None}
 
 
 def scaled_size(width: int, height: int, max_width: int = MAX_FRAME_WIDTH) -> tuple[int, int]:
@@ -92,11 +96,12 @@ def scaled_size(width: int, height: int, max_width: int = MAX_FRAME_WIDTH) -> tu
     return max_width, max(1, round(height * max_width / width))
 
 
-@dataclass
+@dataclass(frozen=True)
 class Cadence:
-    """Whether a periodic action is due: at most once per ``period_s``, never in bursts after a stall.
+    """When a periodic action is next due: at most once per ``period_s``, never in bursts after a stall.
 
-    ``period_s`` of 0 (or less) turns the action off.
+    ``period_s`` of 0 (or less) turns the action off. A value: ``due`` returns the
+    cadence to keep using.
     """
 
     period_s: float
@@ -110,14 +115,14 @@ class Cadence:
     def enabled(self) -> bool:
         return self.period_s > 0
 
-    def due(self, now: float) -> bool:
-        """True (and the next time is set) when the action should run at ``now``."""
+    def due(self, now: float) -> tuple[bool, Cadence]:
+        """(whether the action runs at ``now``, the cadence after it)."""
         if not self.enabled or now < self.next_at:
-            return False
+            return False, self
         late = now - self.next_at
         # On time: keep the grid. Late by more than a period (a slow read, a busy host): restart from now.
-        self.next_at = (self.next_at + self.period_s) if late < self.period_s else now + self.period_s
-        return True
+        next_at = (self.next_at + self.period_s) if late < self.period_s else now + self.period_s
+        return True, replace(self, next_at=next_at)
 
     def wait_s(self, now: float) -> float:
         """Seconds until the next run (0 when due)."""

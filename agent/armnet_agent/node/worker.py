@@ -33,7 +33,14 @@ from armnet_agent.node.probes import probe_arm
 from armnet_agent.node.publish import telemetry_notifier
 from armnet_agent.node.runner import JobRunner, RunnerDeps
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
-from armnet_agent.node.telemetry_sources import ArmPort, IdleCameras, IdleSource, JobSource
+from armnet_agent.node.telemetry_sources import (
+    EMBODIMENT_MOTOR_MODEL,
+    ArmPort,
+    IdleArms,
+    IdleCameras,
+    IdleSource,
+    JobSource,
+)
 from armnet_agent.sim.calibration import builtin_calibration, write_calibration
 from armnet_agent.sim.presets import PRESETS, SimulatedCell, build_cell
 
@@ -66,12 +73,18 @@ class CellWorker:
         self._unplugged: frozenset[str] = frozenset()
         self._calibration_files: dict[str, Path] = {}
         self._idle_cameras = IdleCameras()
+        self._idle_arms = IdleArms()
         self._telemetry: CellTelemetry | None = None
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
 
     @property
     def name(self) -> str:
         return self.cell.name
+
+    @property
+    def telemetry(self) -> CellTelemetry | None:
+        """The cell's telemetry thread (None without NATS or with telemetry off)."""
+        return self._telemetry
 
     def start(self) -> CellWorker:
         if self.cell.simulated:
@@ -80,15 +93,15 @@ class CellWorker:
         notifier = telemetry_notifier(self.deps.link)
         if notifier is not None and self.settings.telemetry.enabled:
             self._telemetry = CellTelemetry(
-                self.cell.name, self.telemetry_source, notifier, self.deps.metrics, self.settings.telemetry
+                self.cell.name, self.telemetry_source, notifier, self.deps.metrics, self.settings.telemetry,
+                on_exit=self._close_telemetry_devices,
             ).start()
         return self
 
     def stop(self) -> None:
         self._stop.set()
         if self._telemetry is not None:
-            self._telemetry.stop()
-        self._idle_cameras.close()
+            self._telemetry.stop()  # the thread closes its cameras and port handles as it leaves
         runner = self.runner
         if runner is not None:
             runner.stop()
@@ -162,7 +175,9 @@ class CellWorker:
         verb = "adopting" if container is not None else "launching"
         log.info("cell %s: %s job %s", self.cell.name, verb, job.key)
         with self._bus.launching():  # a probe under way ends before the job's connector opens the port
-            self._idle_cameras.close()  # the job's connector opens the cameras it is asked for
+            self._idle_arms.close()  # the agent's own port handles: the job's connector opens the port
+            # The job's connector opens the cameras it is asked for; a hung camera read delays this at most 2 s.
+            self._idle_cameras.close(wait_s=2.0)
             self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container).start()
 
     def _vanished(self, job: Job) -> None:
@@ -206,19 +221,21 @@ class CellWorker:
         return runner is not None and not runner.done and self._last_probe is not None
 
     def _arm_ports(self) -> dict[str, ArmPort]:
-        """arm -> (serial port, calibration file): the simulator's ptys, else the Cell's arms."""
+        """arm -> (serial port, calibration file, motor model): the simulator's ptys, else the Cell's arms."""
+        model = EMBODIMENT_MOTOR_MODEL.get(self.cell.embodiment)
         if self.sim is not None:
-            return {name: (port, self._calibration_files.get(name)) for name, port in self.sim.ports().items()}
+            return {name: ArmPort(port, self._calibration_files.get(name), model)
+                    for name, port in self.sim.ports().items()}
         ports: dict[str, ArmPort] = {}
         for name, arm in self.cell.arms.items():
             calibration = (
                 Path(arm.calibration_dir) / f"{arm.robot_id}.json" if arm.calibration_dir and arm.robot_id else None
             )
-            ports[name] = (arm.port or f"<no port configured for arm {name}>", calibration)
+            ports[name] = ArmPort(arm.port or f"<no port configured for arm {name}>", calibration, model)
         return ports
 
     def _read_hardware(self) -> health.CellProbe:
-        arms = {name: probe_arm(port, calibration) for name, (port, calibration) in self._arm_ports().items()}
+        arms = {name: probe_arm(arm.port, arm.calibration) for name, arm in self._arm_ports().items()}
         # Simulated cameras draw the simulator; a real camera probe needs the device (not probed yet).
         cameras: dict[str, str | None] = {camera.name: None for camera in self.cell.cameras}
         return health.CellProbe(arms=arms, cameras=cameras)
@@ -233,7 +250,12 @@ class CellWorker:
             cell = session.connector_cell() if session is not None else None
             return JobSource(cell, self.cell.cameras, self.sim) if cell is not None else None
         return IdleSource(self._arm_ports(), self.cell.cameras, self._bus, self._job_holds_bus, self.sim,
-                          self._idle_cameras)
+                          self._idle_cameras, self._idle_arms)
+
+    def _close_telemetry_devices(self) -> None:
+        """Run on the telemetry thread as it ends: no read of it is under way any more."""
+        self._idle_cameras.close(wait_s=0.0)
+        self._idle_arms.close()
 
     def _job_holds_bus(self) -> bool:
         runner = self.runner

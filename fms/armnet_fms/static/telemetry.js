@@ -58,13 +58,20 @@
     const chart = svg("svg", { viewBox: `0 0 ${WIDTH} ${HEIGHT}`, role: "img", "aria-label": title, class: "plot" });
     chart.dataset.field = title;
     let lo = Infinity, hi = -Infinity;
-    for (const s of series) for (const p of s.points) { lo = Math.min(lo, p[index]); hi = Math.max(hi, p[index]); }
+    // null: not known at that read (a job's reads give positions only; the agent reads nothing on its bus)
+    for (const s of series) for (const p of s.points) {
+      if (p[index] === null) continue;
+      lo = Math.min(lo, p[index]); hi = Math.max(hi, p[index]);
+    }
+    const known = hi >= lo;
+    if (!known) { lo = 0; hi = 1; }
     if (hi - lo < 1) { lo -= 1; hi += 1; }
     chart.appendChild(svg("rect", { x: 0, y: 0, width: WIDTH, height: HEIGHT, class: "plot-bg" }));
     let drawn = 0;
     series.forEach((s, i) => {
-      if (!s.points.length) return;
-      const points = s.points.map((p) => {
+      const valued = s.points.filter((p) => p[index] !== null);
+      if (!valued.length) return;
+      const points = valued.map((p) => {
         const x = WIDTH * (1 - Math.min(p[0], WINDOW_S) / WINDOW_S);
         const y = HEIGHT - 4 - (HEIGHT - 8) * (p[index] - lo) / (hi - lo);
         return `${x.toFixed(1)},${y.toFixed(1)}`;
@@ -72,11 +79,12 @@
       const line = svg("polyline", { points: points.join(" "), fill: "none", stroke: COLORS[i % COLORS.length], "stroke-width": 1.5 });
       line.dataset.motor = `${s.arm}/${s.motor}`;
       chart.appendChild(line);
-      drawn += s.points.length;
+      drawn += valued.length;
     });
     chart.dataset.points = String(drawn);
     const caption = document.createElement("figcaption");
-    caption.textContent = `${title}: ${Math.round(lo)} … ${Math.round(hi)}`;
+    caption.textContent = known ? `${title}: ${Math.round(lo)} … ${Math.round(hi)}`
+      : `${title}: not read while a job runs`;
     figure.append(chart, caption);
     return figure;
   }
@@ -99,7 +107,7 @@
     plots.replaceChildren(...FIELDS.map(([, title, index]) => plot(title, index, series)), legend(series));
     const parts = [];
     if (t.ageS === null || t.ageS === undefined) parts.push("no servo readings yet");
-    else parts.push(`servos read ${t.ageS < 2 ? "just now" : Math.round(t.ageS) + " s ago"} (${t.source === "job" ? "through the job's connector" : "cell idle"})`);
+    else parts.push(`servos read ${t.ageS < 2 ? "just now" : Math.round(t.ageS) + " s ago"} (${t.source === "job" ? "positions from the job's own reads; load and temperature are not read while a job runs" : "cell idle"})`);
     for (const e of t.errors || []) parts.push(`arm ${e.arm}: ${e.error}`);
     state.textContent = parts.join("; ");
   }

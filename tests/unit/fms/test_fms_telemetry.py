@@ -7,8 +7,10 @@ from typing import Any
 
 import pytest
 from armnet_fms.telemetry import (
+    MAX_ARMS,
     MAX_CAMERAS,
     MAX_FRAME_BYTES,
+    MAX_MOTORS,
     TelemetryStore,
     parse_servos,
     parse_subject,
@@ -122,3 +124,42 @@ def test_a_value_that_is_not_a_plausible_number_makes_the_motor_silent(bad: Any)
 def test_an_unknown_source_is_not_echoed() -> None:
     parsed = parse_servos(reading(source="<script>"), 1.0)
     assert parsed is not None and parsed.source == "unknown"
+
+
+def test_telemetry_of_a_cell_the_fleet_does_not_know_is_refused() -> None:
+    store = TelemetryStore(known_cells=lambda: {"cell-1"})
+    assert store.accept("telemetry.cell-1.servos", reading(), 1.0)
+    assert not store.accept("telemetry.forged-1.servos", reading(), 1.0)
+    assert not store.accept("telemetry.forged-1.camera.front", JPEG, 1.0)
+    assert store.view("forged-1", 1.0)["series"] == [] and store.frames_held == 0
+    assert store.refused == 2
+
+
+def test_frames_stay_within_the_byte_budget_dropping_the_oldest_anywhere() -> None:
+    store = TelemetryStore(frame_budget_bytes=3 * 1000)
+    for i, cell in enumerate(("a", "b", "c", "d")):
+        store.accept(f"telemetry.{cell}.camera.front", JPEG + b"\x00" * (1000 - len(JPEG)), float(i))
+    assert store.frame_bytes == 3000 and store.frames_held == 3
+    assert store.frame("a", "front") is None and store.frame("d", "front") is not None
+
+
+def test_a_newer_frame_of_a_camera_replaces_its_bytes_in_the_budget() -> None:
+    store = TelemetryStore()
+    store.accept("telemetry.c.camera.front", JPEG + b"\x00" * 100, 1.0)
+    store.accept("telemetry.c.camera.front", JPEG, 2.0)
+    assert store.frame_bytes == len(JPEG)
+
+
+def test_a_reading_keeps_at_most_a_few_arms_of_a_few_motors() -> None:
+    arms = {f"arm{a}": {"motors": {f"m{m}": {"position": 1} for m in range(30)}} for a in range(10)}
+    parsed = parse_servos(json.dumps({"source": "idle", "arms": arms}).encode(), 1.0)
+    assert parsed is not None
+    assert len({arm for arm, _, _ in parsed.motors}) == MAX_ARMS
+    assert len(parsed.motors) == MAX_ARMS * MAX_MOTORS
+
+
+def test_a_jobs_position_only_reading_keeps_the_position_with_no_load_or_temperature() -> None:
+    store = TelemetryStore()
+    body = json.dumps({"source": "job", "arms": {"arm": {"motors": {"gripper": {"position": 2100}}}}}).encode()
+    assert store.accept("telemetry.c.servos", body, 1.0)
+    assert store.view("c", 1.0)["series"] == [{"arm": "arm", "motor": "gripper", "points": [[0.0, 2100, None, None]]}]

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
-from armnet_agent.connector.telemetry import ServoSample, decode_block
+from armnet_agent.connector.telemetry_decode import ServoSample, decode_block
 from armnet_agent.node.telemetry_wire import (
     MAX_MOTORS,
     Cadence,
@@ -55,23 +56,43 @@ def test_a_small_frame_is_never_enlarged() -> None:
     assert scaled_size(160, 120) == (160, 120)
 
 
+def runs(cadence: Cadence, times: tuple[float, ...]) -> tuple[list[bool], Cadence]:
+    """Whether the action ran at each time, and the cadence after the last."""
+    ran = []
+    for t in times:
+        due, cadence = cadence.due(t)
+        ran.append(due)
+    return ran, cadence
+
+
 def test_a_cadence_runs_once_per_period() -> None:
-    cadence = Cadence.per_second(2)
-    assert [cadence.due(t) for t in (0.0, 0.1, 0.49, 0.5, 0.7, 1.0)] == [True, False, False, True, False, True]
+    ran, _ = runs(Cadence.per_second(2), (0.0, 0.1, 0.49, 0.5, 0.7, 1.0))
+    assert ran == [True, False, False, True, False, True]
 
 
 def test_a_cadence_after_a_stall_restarts_from_now_instead_of_bursting() -> None:
-    cadence = Cadence.per_second(4)
-    assert cadence.due(0.0)
-    assert cadence.due(10.0)  # stalled for 40 periods
-    assert not cadence.due(10.1)
+    ran, cadence = runs(Cadence.per_second(4), (0.0, 10.0, 10.1))  # stalled for 40 periods
+    assert ran == [True, True, False]
     assert cadence.wait_s(10.1) == pytest.approx(0.15)
+
+
+def test_a_cadence_is_a_value_that_due_never_changes() -> None:
+    cadence = Cadence.per_second(4)
+    _, after = cadence.due(0.0)
+    assert cadence.next_at == 0.0 and after.next_at == 0.25
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cadence.next_at = 1.0  # type: ignore[misc]
 
 
 def test_a_rate_of_zero_turns_the_action_off() -> None:
     cadence = Cadence.per_second(0)
     assert not cadence.enabled
-    assert not cadence.due(100.0)
+    assert runs(cadence, (100.0,))[0] == [False]
+
+
+def test_positions_only_leave_load_and_temperature_out_of_the_payload() -> None:
+    body = json.loads(servos_payload(0, "job", {"arm": {"gripper": ServoSample(2048)}}))
+    assert body["arms"]["arm"]["motors"]["gripper"] == {"position": 2048}
 
 
 def test_a_telemetry_block_decodes_feetech_sign_magnitude_values() -> None:
