@@ -182,7 +182,7 @@ def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
     except TimeoutException:
         status = bed.job(jobs["stop"]).get("status") or {}
         pytest.fail(f"no Stop button for {jobs['stop']} on {cell}; its status: {json.dumps(status)[:2000]}; "
-                    f"the page: {browser.find_element(By.ID, 'cell-card').text[:1000]}")
+                    f"the page at {browser.current_url}: {browser.page_source[:1500]}")
     wait_text(browser, "stop", "Tap again")
     browser.find_element(By.ID, "stop").click()
     wait_text(browser, "action-result", f"stopped by cell operator {OPERATOR}")

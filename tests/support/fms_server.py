@@ -102,9 +102,14 @@ def console_errors(driver: Any) -> list[str]:
 def log_in(driver: Any, base_url: str, token: str = TOKEN) -> None:
     from selenium.webdriver.common.by import By
 
+    from selenium.webdriver.support.ui import WebDriverWait
+
     driver.get(f"{base_url}/login")
     driver.find_element(By.ID, "token").send_keys(token)
     driver.find_element(By.ID, "login").click()
+    # The session cookie arrives with the redirect to the fleet page: a page asked for before
+    # then is asked for without it (and answered with the login page).
+    WebDriverWait(driver, 60).until(lambda d: d.find_elements(By.ID, "cells"))
 
 
 def screenshot(driver: Any, name: str) -> Path:
