@@ -101,7 +101,6 @@ def console_errors(driver: Any) -> list[str]:
 
 def log_in(driver: Any, base_url: str, token: str = TOKEN) -> None:
     from selenium.webdriver.common.by import By
-
     from selenium.webdriver.support.ui import WebDriverWait
 
     driver.get(f"{base_url}/login")
