@@ -61,6 +61,9 @@ class AgentBed:
         #: Called with each job image's tag once built (the pod beds import it into the node).
         self.on_image: Callable[[str], None] | None = None
         self.image_prefix = "armnet-e2e"
+        #: Publish servo telemetry and camera frames for the cell operator's page. Off unless a
+        #: scenario looks at them: every cell's reads and JPEGs cost CPU the other jobs need.
+        self.telemetry = False
 
     # -- processes -----------------------------------------------------------------
 
@@ -87,6 +90,8 @@ class AgentBed:
             argv += ["--dev-mount", mount]
         if self.nats_url:
             argv += ["--nats-url", self.nats_url]
+        if not self.telemetry:
+            argv += ["--telemetry-servo-hz", "0", "--telemetry-frame-fps", "0"]
         argv += self.agent_args
         log = open(self.log_dir / f"agent-{self._agent_starts}.log", "ab")  # noqa: SIM115
         self.agent = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self._env())

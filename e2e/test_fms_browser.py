@@ -67,6 +67,7 @@ WORKS_UNTIL_STOPPED = """
 def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("fms-e2e")
     bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
+    bed.telemetry = True  # the cell page's camera and servo plots
     # A camera on each cell: a cell's page shows the simulator's picture and the servo plots.
     camera = {"front": {"indexOrPath": 0}}
     bed.reset_cell = bed.add_cell("fms-a", cameras=camera)  # type: ignore[attr-defined]
