@@ -15,7 +15,12 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from selenium.common.exceptions import TimeoutException
+from selenium.common.exceptions import (
+    ElementNotInteractableException,
+    NoSuchElementException,
+    StaleElementReferenceException,
+    TimeoutException,
+)
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as visible
 from selenium.webdriver.support.ui import WebDriverWait
@@ -125,7 +130,17 @@ def wait_text(driver: Any, element_id: str, text: str, timeout: float = 60) -> N
 
 
 def click_when_visible(driver: Any, element_id: str, timeout: float = 60) -> None:
-    WebDriverWait(driver, timeout).until(visible.visibility_of_element_located((By.ID, element_id))).click()
+    """Click once the element shows. The page re-renders from its live feed twice a second, so
+    an element seen visible may be mid-render at the click: such a click is tried again."""
+    def clicked(d: Any) -> bool:
+        try:
+            d.find_element(By.ID, element_id).click()
+            return True
+        except (ElementNotInteractableException, StaleElementReferenceException, NoSuchElementException):
+            return False
+
+    WebDriverWait(driver, timeout).until(visible.visibility_of_element_located((By.ID, element_id)))
+    WebDriverWait(driver, timeout).until(clicked)
 
 
 def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
@@ -146,7 +161,7 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
         "const plot = document.querySelector('svg.plot');"
         "return !!img && img.naturalWidth > 0 && !!plot && Number(plot.dataset.points) > 0;"))
     screenshot(browser, "fms-cell-reset")
-    browser.find_element(By.ID, "confirm-reset").click()
+    click_when_visible(browser, "confirm-reset")
     wait_text(browser, "action-result", "reset confirmed")
     wait_text(browser, "outcome-rollout", "1/2")
     screenshot(browser, "fms-cell")
@@ -185,7 +200,7 @@ def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
         pytest.fail(f"no Stop button for {jobs['stop']} on {cell}; its status: {json.dumps(status)[:2000]}; "
                     f"the page at {browser.current_url}: {browser.page_source[:1500]}")
     wait_text(browser, "stop", "Tap again")
-    browser.find_element(By.ID, "stop").click()
+    click_when_visible(browser, "stop")
     wait_text(browser, "action-result", f"stopped by cell operator {OPERATOR}")
     st = bed.wait_phase(jobs["stop"], timeout=120)["status"]
     assert st["phase"] == "cancelled", json.dumps(st)[:3000]
