@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import threading
+import time
 
 from .errors import PermanentError
 from .settings import ENV_PREFIX, OperatorSettings, load_settings
@@ -40,19 +41,50 @@ def run(args: argparse.Namespace) -> int:
 
     from .handlers import build_registry
 
-    # If the reconcile loop ever ends by itself, stop kopf and exit non-zero: a
-    # process that only watches would sit in the Lease while nothing is scheduled.
-    stop = threading.Event()
-    try:
-        registry, controller = build_registry(settings, on_death=lambda _error: stop.set())
-    except PermanentError as error:  # e.g. the webhook's certificate cannot be loaded
-        logging.getLogger("armnet.operator").error("%s", error)
-        return 2
-    kopf.run(
-        registry=registry,
-        standalone=True,  # leader election is ours (a Lease), not kopf peering
-        clusterwide=not settings.namespaces,
-        namespaces=settings.namespaces,
-        stop_flag=stop,
-    )
-    return 1 if controller.dead else 0
+    log = logging.getLogger("armnet.operator")
+    failures = 0
+    while True:
+        # If the reconcile loop ever ends by itself, stop kopf and exit non-zero: a
+        # process that only watches would sit in the Lease while nothing is scheduled.
+        stop = threading.Event()
+        try:
+            registry, controller = build_registry(settings, on_death=lambda _error, flag=stop: flag.set())
+        except PermanentError as error:  # e.g. the webhook's certificate cannot be loaded
+            log.error("%s", error)
+            return 2
+        try:
+            kopf.run(
+                registry=registry,
+                standalone=True,  # leader election is ours (a Lease), not kopf peering
+                clusterwide=not settings.namespaces,
+                namespaces=settings.namespaces,
+                stop_flag=stop,
+            )
+        except Exception as error:  # noqa: BLE001 - kopf's reactor failed; see restart_after
+            if controller.dead:
+                return 1
+            failures += 1
+            wait = restart_after(failures)
+            if wait is None:
+                log.error("kopf failed %d times in a row (last: %s); exiting so the Deployment restarts "
+                          "the operator", failures, str(error)[:300])
+                return 1
+            log.error("kopf stopped (%s); starting the operator's watches and reconcile loop again in "
+                      "%.0f s", str(error)[:300], wait)
+            time.sleep(wait)
+            continue
+        return 1 if controller.dead else 0
+
+
+MAX_RESTARTS = 5
+
+
+def restart_after(failures: int) -> float | None:
+    """Seconds before the operator runs kopf again after ``failures`` failures in a row (None: give up).
+
+    kopf stops its whole reactor when one watch fails: a RobotJob watch that reconnects
+    between a CRD's deletion and kopf noticing it gets HTTP 404 and ends the operator's
+    loop (kopf's own observer documents this race). The state worth keeping lives in the
+    API server, so a fresh registry and controller in the same process lose nothing.
+    """
+    return None if failures > MAX_RESTARTS else min(2.0 ** (failures - 1), 30.0)

@@ -91,8 +91,9 @@ def test_read_latest_of_a_frame_older_than_max_age_raises_timeout_error(open_cam
 
 
 def test_async_read_waits_for_a_frame_newer_than_the_last_one_returned(open_camera: Callable[..., Any]) -> None:
-    camera = open_camera(fps=SLOW_FPS)
-    camera.async_read(timeout_ms=2000)  # consumes the newest frame
+    camera = open_camera(fps=1)
+    camera.async_read(timeout_ms=3000)  # consumes the newest frame, which may be any age
+    camera.async_read(timeout_ms=3000)  # waits for a new one: the next is a whole period away
     with pytest.raises(TimeoutError, match="Timed out waiting for frame"):
         camera.async_read(timeout_ms=50)
     assert camera.async_read(timeout_ms=2000).shape == (480, 640, 3)
