@@ -75,7 +75,9 @@ def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[Ag
     bed.telemetry = True  # the cell page's camera and servo plots
     # A camera on each cell: a cell's page shows the simulator's picture and the servo plots.
     camera = {"front": {"indexOrPath": 0}}
-    bed.reset_cell = bed.add_cell("fms-a", cameras=camera)  # type: ignore[attr-defined]
+    # The person at the robot gets minutes: a browser on a loaded 2-core host took over 30 s
+    # (the bed's default) from the reset request to the click.
+    bed.reset_cell = bed.add_cell("fms-a", cameras=camera, resetTimeoutSeconds=600)  # type: ignore[attr-defined]
     bed.stop_cell = bed.add_cell("fms-b", cameras=camera)  # type: ignore[attr-defined]
     bed.start_operator()
     bed.start_agent()
