@@ -29,9 +29,12 @@ fi
 # runs real-time (agent/armnet_agent/sim/pty_server.py): without it, sessions side by side
 # on two cores starved the simulated servos (missed status packets).
 # One group per line; files separated by spaces; each group is its own session.
+# Balanced by measurement (2026-11-25, warm): the main session alone ran 6 minutes at half
+# the CPU after the side sessions ended, so the container tier and the local-run e2e moved
+# into them.
 side_groups=(
-  "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py"
-  "tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py e2e/test_fms_browser.py"
+  "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container"
+  "tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
 )
 ignores=()
 side_pids=()
