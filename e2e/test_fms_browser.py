@@ -157,11 +157,6 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
     browser.get(f"{fms.url}/cells/{cell}")
     WebDriverWait(browser, 60).until(visible.visibility_of_element_located((By.ID, "confirm-reset")))
     wait_text(browser, "reset-left", "s left")
-    # Live camera and telemetry: the frame decoded in the browser, and a servo plot drawn with points.
-    WebDriverWait(browser, 60).until(lambda d: d.execute_script(
-        "const img = document.getElementById('camera-front');"
-        "const plot = document.querySelector('svg.plot');"
-        "return !!img && img.naturalWidth > 0 && !!plot && Number(plot.dataset.points) > 0;"))
     screenshot(browser, "fms-cell-reset")
     click_when_visible(browser, "confirm-reset")
     wait_text(browser, "action-result", "reset confirmed")
@@ -186,6 +181,12 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
              and e.get("reportingComponent") == "armnet-fms"]
     assert f"reset confirmed by cell operator {OPERATOR}" in audit
     assert f"rollout 1/2 marked failure by cell operator {OPERATOR}" in audit
+    # The job over, the cell is idle: the agent reads its servos and camera itself, live on the page.
+    WebDriverWait(browser, 120).until(lambda d: d.execute_script(
+        "const img = document.getElementById('camera-front');"
+        "const plot = document.querySelector('svg.plot');"
+        "return !!img && img.naturalWidth > 0 && !!plot && Number(plot.dataset.points) > 0;"))
+    screenshot(browser, "fms-cell-idle")
 
 
 def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
