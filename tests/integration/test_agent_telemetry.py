@@ -336,8 +336,8 @@ def test_the_telemetry_thread_ends_on_stop_and_closes_its_devices(
 
     telemetry = CellTelemetry("cell-1", lambda: source, link, AgentMetrics(), TelemetrySettings(servo_hz=20),
                               on_exit=close).start()
-    deadline = time.monotonic() + 5
-    while not handles.readers and time.monotonic() < deadline:
+    deadline = time.monotonic() + 15  # the reader is listed before its port opens; a loaded host is slow
+    while not (handles.readers and handles.readers[0].is_open) and time.monotonic() < deadline:
         time.sleep(0.02)
     reader = handles.readers[0]
     assert reader.is_open
