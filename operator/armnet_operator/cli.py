@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import logging
-import threading
 import time
 
 from .errors import PermanentError
@@ -46,9 +46,13 @@ def run(args: argparse.Namespace) -> int:
     while True:
         # If the reconcile loop ever ends by itself, stop kopf and exit non-zero: a
         # process that only watches would sit in the Lease while nothing is scheduled.
-        stop = threading.Event()
+        # An asyncio.Event, never a threading.Event: kopf waits for a threading.Event in an
+        # executor thread that nothing wakes when kopf stops for another reason (SIGTERM, a
+        # failed watch), and asyncio.run then waits for that thread forever: the process hung
+        # after its cleanup. The flag is only set from the loop.
+        stop = asyncio.Event()
         try:
-            registry, controller = build_registry(settings, on_death=lambda _error, flag=stop: flag.set())
+            registry, controller = build_registry(settings, stop_flag=stop)
         except PermanentError as error:  # e.g. the webhook's certificate cannot be loaded
             log.error("%s", error)
             return 2

@@ -8,6 +8,7 @@ process. No ``on.field`` chains, no kopf-managed finalizers or annotations.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import sys
 from collections.abc import Callable
@@ -60,9 +61,20 @@ def connection_info(api_client: Any) -> kopf.ConnectionInfo:
 
 
 def build_registry(
-    settings: OperatorSettings, on_death: Callable[[BaseException | None], None] | None = None
+    settings: OperatorSettings, stop_flag: asyncio.Event | None = None
 ) -> tuple[kopf.OperatorRegistry, Controller]:
-    """The kopf registry and its controller; ``on_death`` runs if the reconcile loop ever ends by itself."""
+    """The kopf registry and its controller.
+
+    ``stop_flag`` (kopf.run's) is raised when the reconcile loop ends by itself, so
+    kopf stops and the process exits non-zero, and again at cleanup whatever stopped
+    kopf: kopf waits for its own stop flag in a task that it otherwise gives 5 s to end
+    before cancelling it, which made every SIGTERM take 5 s longer.
+    """
+
+    def on_death(_error: BaseException | None) -> None:
+        if stop_flag is not None:
+            stop_flag.set()
+
     allow_deep_json()
     metrics = Metrics()
     webhook = make_webhook(metrics, settings)  # loads the certificate now: a bad path fails at start
@@ -90,8 +102,7 @@ def build_registry(
                 # (A failed kopf startup activity leaves the process hanging, so stop it ourselves.)
                 log.critical("%s; exiting", error)
                 controller.dead, controller.died = True, error
-                if on_death is not None:
-                    on_death(error)
+                on_death(error)
                 return
         controller.start()
 
@@ -101,6 +112,8 @@ def build_registry(
             await webhook.stop()
         await controller.stop()
         controller.metrics.close()
+        if stop_flag is not None:
+            stop_flag.set()
 
     @kopf.on.event(GROUP, VERSION, "robotjobs", registry=registry)
     async def job_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:

@@ -45,11 +45,6 @@ def wait(what: str, check: Any, proc: subprocess.Popen[str], log: Path, timeout:
     raise AssertionError(f"timed out waiting for {what}:\n{log.read_text()[-4000:]}")
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "known bug, left open: under load a RobotJob watch can reconnect between the CRD's deletion "
-    "and kopf noticing it, get 404, and stop kopf's reactor; the process then hangs after kopf's "
-    "cleanup instead of returning to the operator's restart loop (cli.run). Seen in 2 of 5 full "
-    "runs on the loaded 2-core VM; passes when kopf notices first."))
 def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane: ControlPlane, tmp_path: Path) -> None:
     k8s = own_plane
     ns = k8s.create_namespace("crd")
