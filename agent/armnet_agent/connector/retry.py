@@ -28,8 +28,14 @@ _T = TypeVar("_T")
 #: How long to wait after a lost reply before asking again: longer than LeRobot's
 #: timeout, so a late reply has landed (and is dropped) before the retry is sent.
 RETRY_DELAY_S = 0.06
-#: Retries after the first attempt.
+#: Retries after the first attempt, for a read inside a control loop: a loop that
+#: lost a reply wants to know soon, its next tick reads again anyway.
 MAX_RETRIES = 2
+#: The waits before each retry of the ``connect`` handshake: once per job, before any
+#: motion, so it can afford to be patient. A connector that the host starved of CPU
+#: for a second (a pod's sidecar on a busy node) missed every ping of three quick
+#: attempts and failed a job that a second later would have run.
+CONNECT_RETRY_DELAYS_S = (RETRY_DELAY_S, 0.25, 0.5, 1.0, 1.0)
 
 #: Methods that only read the servos, per allow-listed class.
 READ_METHODS: dict[str, frozenset[str]] = {
@@ -76,6 +82,11 @@ def _close_half_open(bus: Any) -> None:
         port.closePort()
 
 
+def retry_delays(what: str) -> tuple[float, ...]:
+    """The waits before each retry of the read ``what`` (its length is the number of retries)."""
+    return CONNECT_RETRY_DELAYS_S if what == "connect" else (RETRY_DELAY_S,) * MAX_RETRIES
+
+
 def with_read_retry(
     handle: Handle,
     what: str,
@@ -84,7 +95,7 @@ def with_read_retry(
     on_retry: Callable[[], None],
     sleep: Callable[[float], None] = time.sleep,
 ) -> _T:
-    """Run the read ``call``; on a lost reply wait, drop stale input and retry (``MAX_RETRIES`` times).
+    """Run the read ``call``; on a lost reply wait, drop stale input and retry (``retry_delays``).
 
     The caller holds the device lock, so no other request uses the bus between
     attempts. ``on_retry`` is called once per retry (the connector counts them).
@@ -92,17 +103,18 @@ def with_read_retry(
     connecting = what == "connect"
     if connecting and getattr(handle.obj, "is_connected", False):
         return call()  # already connected: LeRobot raises at once, nothing to retry
-    for attempt in range(MAX_RETRIES + 1):
+    delays = retry_delays(what)
+    for attempt in range(len(delays) + 1):
         try:
             return call()
         except Exception as exc:
-            if attempt == MAX_RETRIES or not is_lost_reply(exc, connecting=connecting):
+            if attempt == len(delays) or not is_lost_reply(exc, connecting=connecting):
                 raise
             log.debug("%s.%s lost a reply (%s); retry %d of %d", handle.class_name, what,
                       str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__,
-                      attempt + 1, MAX_RETRIES)
+                      attempt + 1, len(delays))
             on_retry()
-            sleep(RETRY_DELAY_S)
+            sleep(delays[attempt])
             if connecting:
                 _close_half_open(handle.obj)
             else:

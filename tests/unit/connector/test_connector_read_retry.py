@@ -7,7 +7,7 @@ packets, as a loaded machine does when a reply misses LeRobot's ~50 ms timeout.
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.retry import MAX_RETRIES, is_lost_reply, is_read
+from armnet_agent.connector.retry import MAX_RETRIES, is_lost_reply, is_read, retry_delays
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
 
@@ -46,6 +46,22 @@ def test_a_connect_handshake_that_lost_a_ping_reply_succeeds(remote, sim_cell, c
     assert remote.is_connected
     assert connector.counters.bus_retries == 1
     assert set(remote.sync_read("Present_Position")) == set(sim_cell.arm.motors)
+
+
+def test_a_connect_handshake_waits_longer_between_retries_than_a_loops_read() -> None:
+    """A starved connector's handshake gets about 2.8 s to hear its servos; a loop's read 0.12 s."""
+    assert len(retry_delays("connect")) > MAX_RETRIES
+    assert sum(retry_delays("connect")) >= 2.5
+    assert retry_delays("sync_read") == retry_delays("read")
+    assert len(retry_delays("sync_read")) == MAX_RETRIES
+    assert sum(retry_delays("sync_read")) < 0.2
+
+
+def test_a_connect_handshake_that_lost_every_ping_reply_for_a_while_succeeds(remote, sim_cell, connector) -> None:
+    sim_cell.arm.drop_replies("shoulder_pan", MAX_RETRIES + 2)  # more than a loop's read would retry
+    remote.connect()
+    assert remote.is_connected
+    assert connector.counters.bus_retries == MAX_RETRIES + 2
 
 
 def test_a_read_that_keeps_failing_raises_after_the_retries(remote, sim_cell, connector) -> None:
