@@ -84,7 +84,7 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
         self.resource = decide.resource_name(cell)
         self.socket = directory / decide.socket_name(cell)
         self.kubelet_socket = directory / KUBELET_SOCKET
-        self._paths = paths
+        self.paths = paths
         self._metrics = metrics
         self._poll_s = poll_s
         self._server: grpc.Server | None = None
@@ -142,7 +142,7 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
     # -- what the kubelet asks ---------------------------------------------------------------
 
     def facts(self) -> list[decide.DeviceFact]:
-        return [read_fact(path) for path in self._paths()]
+        return [read_fact(path) for path in self.paths()]
 
     def health(self) -> str:
         state = decide.health(self.facts())
@@ -213,6 +213,7 @@ class DevicePlugins:
                 self._plugins.pop(name).close()
             for name, paths in cells.items():
                 if name in self._plugins:
+                    self._plugins[name].paths = paths  # the cell's current worker says where its devices are
                     continue
                 try:
                     plugin = CellPlugin(name, paths, self.metrics, self.directory, self.check_s)
