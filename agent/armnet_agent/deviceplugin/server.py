@@ -90,6 +90,7 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
         self._server: grpc.Server | None = None
         self._served: tuple[int, int] | None = None
         self._registered_with: tuple[int, int] | None = None
+        self._failing = False
         self._stop = threading.Event()
 
     # -- lifecycle (called by DevicePlugins, one thread) ------------------------------------
@@ -108,9 +109,13 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
                     options=api_pb2.DevicePluginOptions()), timeout=REGISTER_TIMEOUT_S)
         except grpc.RpcError as exc:
             self._metrics.device_plugin_registrations.labels(cell=self.cell, result="failed").inc()
-            log.warning("cell %s: registering %s with the kubelet failed (%s); retrying", self.cell, self.resource,
-                        exc.details() if hasattr(exc, "details") else exc)
+            # Once per failing spell (a stopped kubelet leaves its socket behind): retried every check.
+            log.log(logging.DEBUG if self._failing else logging.WARNING,
+                    "cell %s: registering %s with the kubelet failed (%s); retrying", self.cell, self.resource,
+                    exc.details() if hasattr(exc, "details") else exc)
+            self._failing = True
             return
+        self._failing = False
         self._registered_with = kubelet
         self._metrics.device_plugin_registrations.labels(cell=self.cell, result="ok").inc()
         log.info("cell %s: device plugin registered with the kubelet as %s", self.cell, self.resource)
