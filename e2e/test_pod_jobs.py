@@ -3,8 +3,10 @@
 Real kube-apiserver + etcd, the test bed's real node (containerd + kubelet),
 the real ``armnet operator`` and ``armnet agent --launcher pod`` processes. The
 connector runs as the job pod's native sidecar and reaches the cell simulator's
-pty through a device mount of its own; the customer container runs non-root
-and sees no device. Development stand-in for the images: the base image with
+pty through the agent's device plugin (the sidecar requests the cell's
+``armnet.io/cell-<cell>`` resource; the kubelet's allocation bind-mounts the
+pty at ``/dev/armnet/<arm>``); the customer container runs non-root and sees no
+device. Development stand-in for the images: the base image with
 this machine's venv and worktree mounted read-only (``--dev-mount``), like the
 container launcher's e2e.
 
@@ -218,9 +220,12 @@ def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
     assert spec["activeDeadlineSeconds"] >= 300 + 3
     assert pod["metadata"]["ownerReferences"][0]["uid"] == job["metadata"]["uid"]
     volumes = {v["name"]: v for v in spec["volumes"]}
-    devices = {name for name, v in volumes.items() if v.get("hostPath", {}).get("type") == "CharDevice"}
-    assert devices and devices <= {m["name"] for m in connector["volumeMounts"]}
-    assert not devices & {m["name"] for m in customer["volumeMounts"]}
+    # The devices come from the agent's device plugin: the connector requests its cell's resource,
+    # the customer container nothing; no hostPath device volume exists.
+    resource = f"armnet.io/cell-{job['status']['cellName']}"
+    assert connector["resources"]["limits"][resource] == "1"
+    assert not [n for section in customer["resources"].values() for n in section if n.startswith("armnet.io/")]
+    assert not [v for v in volumes.values() if v.get("hostPath", {}).get("type") == "CharDevice"]
     assert volumes["sockets"]["emptyDir"]["medium"] == "Memory"
     assert customer["securityContext"]["runAsNonRoot"] is True
     assert customer["securityContext"]["allowPrivilegeEscalation"] is False
@@ -238,6 +243,19 @@ def test_the_agent_exports_the_pod_start_latency(bed: AgentBed, batch: dict[str,
     text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
     count = [line for line in text.splitlines() if line.startswith("armnet_agent_pod_start_latency_seconds_count")]
     assert count and float(count[0].split()[-1]) >= 1, count
+
+
+def test_the_agent_registered_a_healthy_device_plugin_per_cell_and_the_kubelet_allocated_it(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    bed.wait_phase(batch["failure"], timeout=400)  # launched by this agent process (not restarted yet)
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    for cell in bed.cells:  # type: ignore[attr-defined]
+        assert f'armnet_agent_device_plugin_registrations_total{{cell="{cell}",result="ok"}}' in text, cell
+        assert f'armnet_agent_device_healthy{{cell="{cell}"}} 1.0' in text, cell
+    granted = [line for line in text.splitlines()
+               if line.startswith("armnet_agent_device_plugin_allocations_total") and 'result="granted"' in line]
+    assert sum(float(line.split()[-1]) for line in granted) >= 1, granted
 
 
 def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(

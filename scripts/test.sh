@@ -34,7 +34,7 @@ fi
 # into them.
 side_groups=(
   "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container"
-  "tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
+  "tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
 )
 ignores=()
 side_pids=()

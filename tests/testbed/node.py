@@ -379,6 +379,29 @@ class Node:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def restart_kubelet(self) -> None:
+        """Stop the kubelet and start it again with the same flags (pods keep running).
+
+        Returns once the new kubelet serves its device-plugin registration socket
+        (it removes the directory's other sockets first: plugins must register again).
+        """
+        old = next(p for p in self._procs if p.name == "kubelet")
+        registration = DEVICE_PLUGIN_DIR / "kubelet.sock"
+
+        def identity() -> tuple[int, int] | None:
+            with contextlib.suppress(OSError):
+                st = registration.stat()
+                return st.st_ino, st.st_ctime_ns
+            return None
+
+        before = identity()
+        old.stop()
+        self._procs.remove(old)
+        proc = ManagedProcess("kubelet", old.argv, self.kubelet_log)
+        self._track(proc)
+        wait_until(lambda: identity() not in (None, before), timeout=30,
+                   interval=0.2, what="the restarted kubelet's device-plugin socket", alive=proc.ensure_running)
+
     # ------------------------------------------------------------------ images
     def import_image(self, image: str) -> bool:
         """Make a Podman image available to pods (``imagePullPolicy: Never``), same name.

@@ -10,8 +10,11 @@ of a job on a robot host, so each choice is deliberate:
 - the sockets (and the camera frame areas the connector keeps beside them) live
   in an ``emptyDir`` with ``medium: Memory`` shared by both containers; the
   calibration the connector writes is another ``emptyDir``, read-only for the job;
-- devices (the cell's serial ports) are mounted into the connector only; the
-  customer container sees neither serial devices nor cameras;
+- devices (the cell's serial ports and cameras) reach the connector only: it
+  requests the cell's extended resource (``armnet.io/cell-<cell>``, served by
+  the agent's device plugin, ``deviceplugin``), whose allocation gives them; or,
+  without the plugin, ``hostPath`` CharDevice volumes mounted into it alone. The
+  customer container requests nothing and sees neither serial devices nor cameras;
 - the customer container runs as a non-root user, without privilege
   escalation, capabilities or host namespaces, with a read-only root
   filesystem (``/tmp`` is an ``emptyDir``), and no service-account token;
@@ -105,7 +108,11 @@ class PodInputs:
     job_command: tuple[str, ...] | None = None
     secrets: tuple[SecretRef, ...] = ()
     #: Arm name -> host device path (a serial port or a simulator's pty); the connector's only.
+    #: The hostPath fallback: empty when ``device_resource`` is set.
     devices: Mapping[str, str] = field(default_factory=dict)
+    #: The cell's extended resource (``armnet.io/cell-<cell>``) the connector requests: the kubelet's
+    #: device plugin allocation gives it the devices. None: the ``devices`` hostPath volumes instead.
+    device_resource: str | None = None
     resources: PodResources = PodResources()
     #: Development only: host paths mounted read-only at the same path in both containers.
     dev_mounts: tuple[str, ...] = ()
@@ -181,7 +188,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         {"name": "sockets", "mountPath": inputs.socket_dir},
         {"name": "calibration", "mountPath": inputs.calibration_dir},
         {"name": "connector-tmp", "mountPath": "/tmp"},
-        *({"name": f"device-{i}", "mountPath": device_path(arm)} for i, arm in enumerate(sorted(inputs.devices))),
+        *({"name": f"device-{i}", "mountPath": device_path(arm)} for i, arm in enumerate(_host_devices(inputs))),
         *_dev_mounts(inputs),
     ]
     env = [{"name": SIDECAR_ENV, "value": json.dumps(dict(inputs.sidecar), sort_keys=True)}]
@@ -206,8 +213,17 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         },
         "volumeMounts": mounts,
         # The connector answers bus calls under deadlines: CPU shares above a customer container's.
-        "resources": {"requests": {"cpu": CONNECTOR_CPU_REQUEST, "memory": "256Mi"}, "limits": {"memory": "2Gi"}},
+        "resources": _connector_resources(inputs),
     }
+
+
+def _connector_resources(inputs: PodInputs) -> dict[str, dict[str, str]]:
+    requests = {"cpu": CONNECTOR_CPU_REQUEST, "memory": "256Mi"}
+    limits = {"memory": "2Gi"}
+    if inputs.device_resource is not None:
+        # An extended resource is requested whole, with its limit equal to its request.
+        requests[inputs.device_resource] = limits[inputs.device_resource] = "1"
+    return {"requests": requests, "limits": limits}
 
 
 def _job(inputs: PodInputs) -> dict[str, Any]:
@@ -254,6 +270,11 @@ def _dev_mounts(inputs: PodInputs) -> list[dict[str, Any]]:
     return [{"name": f"dev-{i}", "mountPath": path, "readOnly": True} for i, path in enumerate(inputs.dev_mounts)]
 
 
+def _host_devices(inputs: PodInputs) -> list[str]:
+    """The arms whose device is a hostPath volume: none when the device plugin gives them."""
+    return [] if inputs.device_resource is not None else sorted(inputs.devices)
+
+
 def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
     volumes: list[dict[str, Any]] = [
         {"name": "sockets", "emptyDir": {"medium": "Memory", "sizeLimit": SOCKETS_SIZE}},
@@ -265,7 +286,7 @@ def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
     ]
     volumes += [
         {"name": f"device-{i}", "hostPath": {"path": inputs.devices[arm], "type": "CharDevice"}}
-        for i, arm in enumerate(sorted(inputs.devices))
+        for i, arm in enumerate(_host_devices(inputs))
     ]
     volumes += [
         {"name": f"dev-{i}", "hostPath": {"path": path, "type": "Directory"}} for i, path in enumerate(inputs.dev_mounts)

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from armnet_agent.deviceplugin.server import DevicePlugins
 from armnet_agent.launch.plan import LABEL_CELL, LABEL_NAMESPACE
 from armnet_agent.node.kube import GROUP, VERSION, AgentKube, KubeError
 from armnet_agent.node.launchers import JobLauncher
@@ -43,9 +44,12 @@ class AgentSettings:
 
 class NodeAgent:
     def __init__(
-        self, settings: AgentSettings, kube: AgentKube, launcher: JobLauncher, metrics: AgentMetrics, link: Link
+        self, settings: AgentSettings, kube: AgentKube, launcher: JobLauncher, metrics: AgentMetrics, link: Link,
+        device_plugins: DevicePlugins | None = None,
     ) -> None:
         self.settings = settings
+        #: The kubelet device plugins of the cells (pod launcher), kept in step with the workers each pass.
+        self.device_plugins = device_plugins
         self.kube = kube
         self.launcher = launcher
         self.metrics = metrics
@@ -87,6 +91,9 @@ class NodeAgent:
         for name in [n for n in self.workers if n not in cells]:
             log.info("cell %s is gone or moved to another node; its worker stops", name)
             self.workers.pop(name).stop()
+        if self.device_plugins is not None:
+            # Before any launch: a job pod's connector requests the resource the plugin registers.
+            self.device_plugins.sync({name: worker.device_paths for name, worker in self.workers.items()})
         jobs = self._jobs()
         containers = self._containers()
         for worker in self.workers.values():

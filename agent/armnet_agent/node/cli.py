@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from armnet_agent.deviceplugin.server import DEVICE_PLUGIN_DIR, DevicePlugins
 from armnet_agent.launch.container import EngineUnavailable, connect_engine
 from armnet_agent.node.agent import AgentSettings, NodeAgent
 from armnet_agent.node.kube import AgentKube, make_client
@@ -88,6 +89,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: python3 -m armnet_agent.launch.sidecar)")
     parser.add_argument("--image-pull-policy", default=_env("IMAGE_PULL_POLICY", "IfNotPresent"),
                         choices=("Always", "IfNotPresent", "Never"), help="pod launcher: for both containers")
+    parser.add_argument("--device-plugin", action=argparse.BooleanOptionalAction,
+                        default=(_env("DEVICE_PLUGIN", "true") or "true").lower() not in ("0", "false", "no"),
+                        help="pod launcher: serve the kubelet device-plugin API (one armnet.io/cell-<cell> resource "
+                             "per cell) and have the connector request it; --no-device-plugin mounts the devices "
+                             "as hostPath volumes instead, for kubelets without device plugins (docs/agent.md)")
+    parser.add_argument("--device-plugin-dir", type=Path, default=Path(_env("DEVICE_PLUGIN_DIR") or DEVICE_PLUGIN_DIR),
+                        help="the kubelet's device-plugin directory (its kubelet.sock; default: the kubelet's own)")
     parser.add_argument("--verbose", action="store_true")
 
 
@@ -121,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
     api = make_client(args.kubeconfig)
     kube = AgentKube(api, settings.namespaces)
     launcher: JobLauncher
+    device_plugins: DevicePlugins | None = None
     if args.launcher == "pod":
         from kubernetes import client
 
@@ -130,7 +139,10 @@ def run(args: argparse.Namespace) -> int:
             image_pull_policy=args.image_pull_policy,
             dev_mounts=settings.dev_mounts,
             dev_env=dev_env,
+            device_plugin=args.device_plugin,
         )
+        if args.device_plugin:
+            device_plugins = DevicePlugins(metrics, args.device_plugin_dir).start()
         if args.connector_command:
             pod_settings = replace(pod_settings, connector_command=tuple(args.connector_command.split()))
         launcher = PodLauncher(client.CoreV1Api(api), pod_settings, metrics, settings.namespaces)
@@ -148,9 +160,11 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    agent = NodeAgent(settings, kube, launcher, metrics, link)
+    agent = NodeAgent(settings, kube, launcher, metrics, link, device_plugins)
     try:
         agent.run(stop)
     finally:
+        if device_plugins is not None:
+            device_plugins.stop()
         link.stop()
     return 0

@@ -9,7 +9,8 @@ jobs a previous agent process started (by label).
   connector runs in the agent's process on the cell's simulator (``LocalCell``).
 - ``PodLauncher``: one pod per job on this node (``launch.pod_spec``), the
   connector as its native sidecar; the agent keeps the cell's simulator and
-  hands its ptys to the connector container only.
+  hands its ptys (or a real cell's devices) to the connector container only,
+  through the agent's device plugin (``deviceplugin``) or hostPath volumes.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from armnet_runtime import env as env_keys
 
 from armnet_agent.connector.cell import CellState
 from armnet_agent.connector.inputs import LocalOperatorInputs
+from armnet_agent.deviceplugin.decide import resource_name
 from armnet_agent.launch.container import ContainerJob
 from armnet_agent.launch.plan import LABEL_JOB_UID, LABEL_MANAGED_BY, MANAGED_BY_AGENT
 from armnet_agent.launch.pod import PodExists, PodJob
@@ -272,6 +274,9 @@ class PodSettings:
     job_user: int = JOB_USER
     dev_mounts: tuple[str, ...] = ()
     dev_env: Mapping[str, str] = field(default_factory=dict)
+    #: The connector requests the cell's extended resource (the agent's device plugin gives the
+    #: devices); False: hostPath CharDevice volumes, for kubelets without device plugins.
+    device_plugin: bool = False
 
 
 class PodLauncher:
@@ -350,7 +355,8 @@ class PodLauncher:
             grace_seconds=cell.grace_seconds,
             job_command=plan.container.command,
             secrets=request.secret_refs,
-            devices={arm: devices[arm] for arm in ports if arm in devices},
+            devices={} if s.device_plugin else {arm: devices[arm] for arm in ports if arm in devices},
+            device_resource=resource_name(cell.name) if s.device_plugin else None,
             resources=s.resources,
             dev_mounts=s.dev_mounts,
             connector_env=dict(s.dev_env),

@@ -68,6 +68,22 @@ class AgentMetrics:
             "pod launcher: jobs whose connector sidecar was restarted by the kubelet (the job fails)", registry=r,
         )
 
+        self.device_plugin_registrations = Counter(
+            "armnet_agent_device_plugin_registrations_total",
+            "pod launcher: registrations of a cell's device plugin with the kubelet (again after each kubelet "
+            "restart), ok or failed", ["cell", "result"], registry=r,
+        )
+        self.device_plugin_allocations = Counter(
+            "armnet_agent_device_plugin_allocations_total",
+            "pod launcher: the kubelet's Allocate calls for a cell's devices, granted or refused (a device missing)",
+            ["cell", "result"], registry=r,
+        )
+        self.device_healthy = Gauge(
+            "armnet_agent_device_healthy",
+            "pod launcher: 1 while every device path of the cell exists (its device plugin reports Healthy), else 0",
+            ["cell"], registry=r,
+        )
+
         self.telemetry_frames = Counter(
             "armnet_agent_telemetry_frames_total",
             "camera frames for the cell operator's page: published (JPEG on NATS) or failed (no frame, not encodable)",

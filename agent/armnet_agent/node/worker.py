@@ -17,6 +17,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from armnet_agent.deviceplugin.decide import DevicePath, cell_device_paths
 from armnet_agent.node import health, report
 from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.kube import Conflict, Gone, KubeError
@@ -233,6 +234,14 @@ class CellWorker:
             )
             ports[name] = ArmPort(arm.port or f"<no port configured for arm {name}>", calibration, model)
         return ports
+
+    def device_paths(self) -> tuple[DevicePath, ...]:
+        """The cell's devices for its device plugin: the simulator's ptys, else the Cell's ports and cameras."""
+        if self.sim is not None:
+            return cell_device_paths(self.sim.ports())
+        cameras = tuple(c.index_or_path for c in self.cell.cameras if c.index_or_path is not None)
+        return cell_device_paths({name: arm.port for name, arm in self.cell.arms.items()},
+                                 () if self.cell.simulated else cameras)
 
     def _read_hardware(self) -> health.CellProbe:
         arms = {name: probe_arm(arm.port, arm.calibration) for name, arm in self._arm_ports().items()}

@@ -159,3 +159,19 @@ def test_development_mounts_are_read_only_in_both_containers() -> None:
     pod = build_pod(inputs(dev_mounts=("/opt/venv",)))
     for container in containers(pod):
         assert {"name": "dev-0", "mountPath": "/opt/venv", "readOnly": True} in container["volumeMounts"]
+
+
+def test_with_the_device_plugin_the_connector_requests_the_cells_resource_and_no_device_volume_exists() -> None:
+    pod = build_pod(inputs(device_resource="armnet.io/cell-cell-1"))
+    connector, job = containers(pod)
+    assert connector["resources"]["requests"]["armnet.io/cell-cell-1"] == "1"
+    assert connector["resources"]["limits"]["armnet.io/cell-cell-1"] == "1"
+    assert not [v for v in pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
+    assert not [m for m in connector["volumeMounts"] if m["mountPath"].startswith("/dev")]
+    assert connector["securityContext"]["privileged"] is False
+
+
+def test_with_the_device_plugin_the_customer_container_requests_no_device_resource() -> None:
+    _, job = containers(build_pod(inputs(device_resource="armnet.io/cell-cell-1")))
+    for section in job["resources"].values():
+        assert not [name for name in section if name.startswith("armnet.io/")]

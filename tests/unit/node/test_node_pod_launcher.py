@@ -88,3 +88,17 @@ def test_the_pod_env_names_the_secrets_and_takes_their_values_from_secret_key_re
 def test_the_pod_is_named_after_the_job_uid_in_the_jobs_namespace(sim: SimulatedCell) -> None:
     meta = manifest(sim)["metadata"]
     assert (meta["name"], meta["namespace"]) == ("armnet-uid-1", "team-a")
+
+
+def test_with_the_device_plugin_the_pod_requests_the_cells_resource_instead_of_mounting_the_pty(
+    sim: SimulatedCell,
+) -> None:
+    job, cell = parse_job(job_obj()), parse_cell(CELL)
+    settings = PodSettings(node_name="host-1", connector_image="armnet/connector:1", device_plugin=True)
+    request = SessionRequest(job=job, cell=cell, plan=plan_launch(job, cell, PATHS, {}), sim=sim, adopted=None,
+                             tripped=None, inputs=LocalOperatorInputs(), on_grace_expired=lambda: None)
+    pod = PodLauncher(None, settings, AgentMetrics()).manifest(request)
+    (connector,) = pod["spec"]["initContainers"]
+    assert connector["resources"]["limits"]["armnet.io/cell-cell-1"] == "1"
+    assert not [v for v in pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
+    assert sidecar_config(pod)["connector"]["arms"]["arm"]["port"] == device_path("arm")
