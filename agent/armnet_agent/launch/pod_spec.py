@@ -53,9 +53,6 @@ DEVICE_DIR = "/dev/armnet"
 CONNECTOR_CPU_REQUEST = "250m"
 #: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
 STARTUP_PROBE_S = 300
-CONNECTOR_CPU_REQUEST = "250m"
-#: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
-STARTUP_PROBE_S = 300
 
 
 @dataclass(frozen=True)
