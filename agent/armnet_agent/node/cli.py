@@ -86,6 +86,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connector-command", default=_env("CONNECTOR_COMMAND"),
                         help="pod launcher: the sidecar's command, space-separated "
                              "(default: python3 -m armnet_agent.launch.sidecar)")
+    parser.add_argument("--pod-simulator", choices=("agent", "sidecar"), default=_env("POD_SIMULATOR", "agent"),
+                        help="pod launcher, simulated cells: run the simulator in the agent and hand its ptys to "
+                             "the connector as devices, or in the job pod's sidecar (needed when the agent itself "
+                             "runs in a pod: its ptys are its own container's)")
     parser.add_argument("--image-pull-policy", default=_env("IMAGE_PULL_POLICY", "IfNotPresent"),
                         choices=("Always", "IfNotPresent", "Never"), help="pod launcher: for both containers")
     parser.add_argument("--verbose", action="store_true")
@@ -130,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
             image_pull_policy=args.image_pull_policy,
             dev_mounts=settings.dev_mounts,
             dev_env=dev_env,
+            simulator_in_pod=args.pod_simulator == "sidecar",
         )
         if args.connector_command:
             pod_settings = replace(pod_settings, connector_command=tuple(args.connector_command.split()))

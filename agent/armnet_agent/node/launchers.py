@@ -9,7 +9,9 @@ jobs a previous agent process started (by label).
   connector runs in the agent's process on the cell's simulator (``LocalCell``).
 - ``PodLauncher``: one pod per job on this node (``launch.pod_spec``), the
   connector as its native sidecar; the agent keeps the cell's simulator and
-  hands its ptys to the connector container only.
+  hands its ptys to the connector container only, or, when the agent runs in a
+  pod itself (``simulator_in_pod``: its ptys are its container's own), the
+  sidecar runs the simulator.
 """
 
 from __future__ import annotations
@@ -272,6 +274,8 @@ class PodSettings:
     job_user: int = JOB_USER
     dev_mounts: tuple[str, ...] = ()
     dev_env: Mapping[str, str] = field(default_factory=dict)
+    #: A simulated cell's simulator runs in the job pod's sidecar, not in the agent (an agent in a pod).
+    simulator_in_pod: bool = False
 
 
 class PodLauncher:
@@ -325,8 +329,10 @@ class PodLauncher:
             str(arm.calibration_file): json.loads(dump_calibration(builtin_calibration(shipped[arm.name])))
             for arm in layout.arms
         }
-        sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration)
-        devices = dict(request.sim.ports()) if request.sim is not None else {}
+        in_pod = request.sim is not None and s.simulator_in_pod
+        simulator = {"preset": plan.cell_spec.preset, "latency_ms": plan.cell_spec.latency_ms} if in_pod else None
+        sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration, simulator)
+        devices = dict(request.sim.ports()) if request.sim is not None and not in_pod else {}
         env = dict(plan.container.env)
         if request.secret_refs:
             env[env_keys.SECRETS] = json.dumps(sorted(ref.env for ref in request.secret_refs))
