@@ -6,9 +6,11 @@ and DaemonSet become pods only through them; tests/testbed/controllers.py); the
 operator and agent images built from images/ and imported into the node's containerd.
 
 The agent runs the chart's default, the pod launcher: each job is a pod on the agent's
-node, the customer's image (the example customer image, images/example-job, built on
-the shipped runtime image) as its container and the agent image as its connector
-sidecar, which also runs the simulated cell's simulator (``agent.podSimulator``).
+node, the customer's image as its container and the agent image as its connector
+sidecar, which also runs the simulated cell's simulator (``agent.podSimulator``). The
+customer images: the bus-loop example (LeRobot's own FeetechMotorsBus moving the arm
+through the connector) on the shipped runtime image's LeRobot variant, and the example
+customer image (images/example-job) on the shipped runtime image.
 
 Test-bed choices (docs/helm.md, "The real install on the test bed"): the test bed has
 no kube-proxy and pods get an isolated bridge, so the `kubernetes` Service is not
@@ -73,16 +75,34 @@ def common_tag(podman: Podman, images: list[str]) -> str:
     return tag
 
 
+def build_bus_loop_image(podman: Podman, runtime_lerobot_image: str) -> str:
+    """The bus-loop example as a customer would ship it: on the runtime's LeRobot variant."""
+    examples = CHART.parents[1] / "runtime" / "examples"
+    context = Path(tempfile.mkdtemp(prefix="armnet-bus-loop-"))
+    try:
+        shutil.copy(examples / "bus_loop.py", context / "main.py")
+        shutil.copy(examples / "_so101_moves.py", context / "_so101_moves.py")
+        (context / "Containerfile").write_text("ARG RUNTIME\nFROM ${RUNTIME}\nCOPY main.py _so101_moves.py /app/\n")
+        tag = "localhost/armnet-bus-loop:it"
+        podman.client.images.build(path=str(context), tag=tag, rm=True, dockerfile="Containerfile",
+                                   buildargs={"RUNTIME": runtime_lerobot_image}, network_mode="none")
+        return tag
+    finally:
+        shutil.rmtree(context, ignore_errors=True)
+
+
 @pytest.fixture(scope="module")
 def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: str,
-            agent_image: str, runtime_image: str) -> Iterator[dict[str, Any]]:
+            agent_image: str, runtime_image: str, runtime_lerobot_image: str) -> Iterator[dict[str, Any]]:
     """The chart installed, its pods running on the node; everything removed afterwards."""
     tag = common_tag(podman, [operator_image, agent_image])
     job_image = "localhost/armnet-example-job:it"
     podman.client.images.build(path=str(CHART.parents[1] / "images" / "example-job"), tag=job_image,
                                rm=True, dockerfile="Containerfile", buildargs={"RUNTIME": runtime_image},
                                network_mode="none")
-    for image in (f"{operator_image.rsplit(':', 1)[0]}:{tag}", f"{agent_image.rsplit(':', 1)[0]}:{tag}", job_image):
+    bus_loop_image = build_bus_loop_image(podman, runtime_lerobot_image)
+    for image in (f"{operator_image.rsplit(':', 1)[0]}:{tag}", f"{agent_image.rsplit(':', 1)[0]}:{tag}", job_image,
+                  bus_loop_image):
         k8s_node.import_image(image)
     system = k8s.create_namespace("armnet-system")
     tenant = k8s.create_namespace("tenant")
@@ -94,6 +114,8 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
         "image": {"operatorRepository": operator_image.rsplit(":", 1)[0],
                   "agentRepository": agent_image.rsplit(":", 1)[0], "tag": tag, "pullPolicy": "Never"},
         "jobNamespaces": [{"name": tenant}],
+        # With hostNetwork the operator's ports are host ports: free ones, changed on upgrade (one node).
+        "admissionWebhook": {"port": free_port()},
         "operator": {"replicas": 1, "hostNetwork": True, "metricsPort": free_port(), "extraEnv": to_api,
                      "readinessProbe": {"initialDelaySeconds": 1, "periodSeconds": 2,
                                         "failureThreshold": 3}},
@@ -109,7 +131,7 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
     }
     k8s.kubectl("label", "node", k8s_node.name, f"{ROBOT_HOST_LABEL}=true", "--overwrite")
     controllers = WorkloadControllers(plane=k8s).start()
-    state = {"job_image": job_image, "k8s": k8s, "node": k8s_node, "system": system, "tenant": tenant, "name": name,
+    state = {"job_image": job_image, "bus_loop_image": bus_loop_image, "k8s": k8s, "node": k8s_node, "system": system, "tenant": tenant, "name": name,
              "values": values, "controllers": controllers, "host": host, "connector_image":
              f"{agent_image.rsplit(':', 1)[0]}:{tag}"}
     try:
@@ -170,10 +192,10 @@ def diagnose(state: dict[str, Any]) -> str:
     return "\n".join(parts)
 
 
-def submit(state: dict[str, Any], name: str, args: dict[str, Any], timeout: int = 60) -> None:
+def submit(state: dict[str, Any], name: str, args: dict[str, Any], timeout: int = 60, image: str | None = None) -> None:
     state["k8s"].kubectl("apply", "-n", state["tenant"], "-f", "-", input=yaml.safe_dump({
         "apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name},
-        "spec": {"image": state["job_image"], "args": args, "embodiment": "lerobot/so-101",
+        "spec": {"image": image or state["job_image"], "args": args, "embodiment": "lerobot/so-101",
                  "timeoutSeconds": timeout}}))
 
 
@@ -192,7 +214,7 @@ def wait_finished(state: dict[str, Any], name: str, timeout: float) -> dict[str,
     return done
 
 
-def test_helm_install_runs_a_tenants_job_as_a_pod_of_the_shipped_images_on_a_simulated_cell(
+def test_helm_install_runs_a_tenants_bus_loop_job_as_a_pod_of_the_shipped_images_on_a_simulated_cell(
         release: dict[str, Any]) -> None:
     k8s: ControlPlane = release["k8s"]
     node: Node = release["node"]
@@ -207,15 +229,16 @@ def test_helm_install_runs_a_tenants_job_as_a_pod_of_the_shipped_images_on_a_sim
                  "robot": {"robotId": f"{cell}-arm", "safetyLimit": 10}}}))
     wait_for(f"cell {cell} Ready", lambda: ((get_json(k8s, "cell", cell) or {}).get("status") or {})
              .get("phase") == "Ready", 180, lambda: diagnose(release))
-    submit(release, "hello", {"name": "helm"})
-    job = wait_for("the job bound to the cell", lambda: (j := job_of(release, "hello")) and
+    # Generous: a loaded host takes a minute or more to import LeRobot in the pod.
+    submit(release, "bus-loop", {"degrees": 4}, timeout=240, image=release["bus_loop_image"])
+    job = wait_for("the job bound to the cell", lambda: (j := job_of(release, "bus-loop")) and
                    (j.get("status") or {}).get("cellName") and j, 60, lambda: diagnose(release))
     pod_name = f"armnet-{job['metadata']['uid']}"
     # The agent deletes the job's pod once it has written the result: look at it while it exists.
     job_pod = wait_for(f"the job's pod {pod_name}", lambda: get_json(k8s, "pod", pod_name, "-n", release["tenant"]),
                        120, lambda: diagnose(release))
 
-    done = wait_finished(release, "hello", 240)
+    done = wait_finished(release, "bus-loop", 360)
     (connector,) = job_pod["spec"]["initContainers"]
     (customer,) = job_pod["spec"]["containers"]
     assert operator["spec"]["nodeName"] == agent["spec"]["nodeName"] == job_pod["spec"]["nodeName"] == node.name
@@ -223,14 +246,16 @@ def test_helm_install_runs_a_tenants_job_as_a_pod_of_the_shipped_images_on_a_sim
         f"{release['values']['image']['operatorRepository']}:{release['values']['image']['tag']}"]
     assert operator["spec"]["securityContext"]["runAsUser"] == 65532
     assert job["status"]["cellName"] == cell
-    assert (customer["image"], connector["image"]) == (release["job_image"], release["connector_image"])
+    assert (customer["image"], connector["image"]) == (release["bus_loop_image"], release["connector_image"])
     assert connector["restartPolicy"] == "Always"  # a native sidecar
     assert customer["securityContext"]["runAsUser"] == 65532
     # The simulator runs in the sidecar: no host device reaches the pod.
     assert not [v for v in job_pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
     assert done["status"]["phase"] == "succeeded", json.dumps(done["status"])[:2000]
-    assert done["status"]["result"]["returnValue"] == {"greeting": "hello, helm",
-                                                       "job_id": done["status"]["jobId"]}
+    # The arm moved: LeRobot's bus in the job pod, the connector and the simulator in its sidecar.
+    finals = done["status"]["result"]["returnValue"]["final_positions"]
+    assert set(finals) >= {"shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"}
+    assert done["status"]["result"]["safety"]["policy"] == "clamp"  # the sidecar's record reached the status
 
 
 def test_helm_upgrade_rolls_the_operator_while_a_job_runs_and_the_job_still_succeeds(
@@ -242,8 +267,10 @@ def test_helm_upgrade_rolls_the_operator_while_a_job_runs_and_the_job_still_succ
     wait_for("the job running", lambda: phase(job_of(release, "through-upgrade")) == "running", 180,
              lambda: diagnose(release))
     values = copy.deepcopy(release["values"])
-    # A changed value in the operator's pod template (with hostNetwork the new pod needs its own port anyway).
+    # A changed value in the operator's pod template: its ports (with hostNetwork on one node the new pod,
+    # which starts before the old one stops, needs ports of its own anyway).
     values["operator"]["metricsPort"] = free_port()
+    values["admissionWebhook"]["port"] = free_port()
     helm_on(k8s, "upgrade", release["name"], str(CHART), "-n", release["system"], values=values)
 
     def rolled() -> dict[str, Any] | None:
@@ -271,6 +298,6 @@ def test_helm_uninstall_keeps_the_crds_and_the_tenants_robotjobs(release: dict[s
 
     jobs = (get_json(k8s, "robotjobs", "-n", release["tenant"]) or {"items": []})["items"]
     assert k8s.kubectl("get", "crd", *CRDS, check=False).returncode == 0
-    assert {j["metadata"]["name"]: phase(j) for j in jobs} == {"hello": "succeeded", "through-upgrade": "succeeded"}
-    assert all(j["status"]["result"]["returnValue"]["greeting"] for j in jobs)  # results kept with them
+    assert {j["metadata"]["name"]: phase(j) for j in jobs} == {"bus-loop": "succeeded", "through-upgrade": "succeeded"}
+    assert all(j["status"]["result"]["returnValue"] for j in jobs)  # their results kept with them
     assert get_json(k8s, "deployment", f"{release['name']}-armnet-operator", "-n", release["system"]) is None
