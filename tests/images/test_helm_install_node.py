@@ -292,12 +292,13 @@ def test_helm_upgrade_rolls_the_operator_while_a_job_runs_and_the_job_still_succ
     assert done["status"]["result"]["returnValue"]["greeting"] == "hello, upgrade"
 
 
-def test_helm_uninstall_keeps_the_crds_and_the_tenants_robotjobs(release: dict[str, Any]) -> None:
+def test_helm_uninstall_keeps_the_crds_the_cells_and_the_tenants_robotjobs(release: dict[str, Any]) -> None:
     k8s: ControlPlane = release["k8s"]
     helm_on(k8s, "uninstall", release["name"], "-n", release["system"], "--wait", "--timeout", "90s")
 
     jobs = (get_json(k8s, "robotjobs", "-n", release["tenant"]) or {"items": []})["items"]
     assert k8s.kubectl("get", "crd", *CRDS, check=False).returncode == 0
+    assert get_json(k8s, "cell", f"{release['name']}-sim") is not None  # the platform team's Cells too
     assert {j["metadata"]["name"]: phase(j) for j in jobs} == {"bus-loop": "succeeded", "through-upgrade": "succeeded"}
     assert all(j["status"]["result"]["returnValue"] for j in jobs)  # their results kept with them
     assert get_json(k8s, "deployment", f"{release['name']}-armnet-operator", "-n", release["system"]) is None
