@@ -1,22 +1,32 @@
 """`helm install` of the chart for real: the shipped images as pods on the test-bed node.
 
 What runs: the test bed's apiserver and node (containerd + kubelet), plus
-kube-controller-manager and kube-scheduler for this test alone (the chart's Deployment
+kube-controller-manager and kube-scheduler for this module alone (the chart's Deployment
 and DaemonSet become pods only through them; tests/testbed/controllers.py); the
 operator and agent images built from images/ and imported into the node's containerd.
+
+The agent runs the chart's default, the pod launcher: each job is a pod on the agent's
+node, the customer's image as its container and the agent image as its connector
+sidecar, which also runs the simulated cell's simulator (``agent.podSimulator``). The
+customer images: the bus-loop example (LeRobot's own FeetechMotorsBus moving the arm
+through the connector) on the shipped runtime image's LeRobot variant, and the example
+customer image (images/example-job) on the shipped runtime image.
 
 Test-bed choices (docs/helm.md, "The real install on the test bed"): the test bed has
 no kube-proxy and pods get an isolated bridge, so the `kubernetes` Service is not
 reachable from a pod; the operator and agent run with ``hostNetwork: true`` and
-``KUBERNETES_SERVICE_HOST/PORT`` set to the apiserver's loopback address. The agent
-still launches job containers through a Docker-API engine (the session's Podman
-socket, mounted in); the pod launcher replaces that. The job image is the example
-customer image (images/example-job) built on the shipped runtime image.
+``KUBERNETES_SERVICE_HOST/PORT`` set to the apiserver's loopback address.
+
+One release per module, its tests in order (they share the ~minute of setup): a
+tenant's job runs; an upgrade rolls the operator under a running job; the uninstall
+keeps the CRDs and the jobs.
 """
 
 from __future__ import annotations
 
+import copy
 import json
+import shutil
 import subprocess
 import tempfile
 import time
@@ -30,7 +40,7 @@ import pytest
 import yaml
 
 from tests.integration.test_helm_chart import CHART, helm_binary
-from tests.integration.test_helm_lifecycle import helm_on
+from tests.integration.test_helm_lifecycle import CRDS, adopt_crds, helm_on
 from tests.testbed.controllers import WorkloadControllers
 from tests.testbed.kube import ControlPlane
 from tests.testbed.node import Node
@@ -65,56 +75,77 @@ def common_tag(podman: Podman, images: list[str]) -> str:
     return tag
 
 
-@pytest.fixture
+def build_bus_loop_image(podman: Podman, runtime_lerobot_image: str) -> str:
+    """The bus-loop example as a customer would ship it: on the runtime's LeRobot variant."""
+    examples = CHART.parents[1] / "runtime" / "examples"
+    context = Path(tempfile.mkdtemp(prefix="armnet-bus-loop-"))
+    try:
+        shutil.copy(examples / "bus_loop.py", context / "main.py")
+        shutil.copy(examples / "_so101_moves.py", context / "_so101_moves.py")
+        (context / "Containerfile").write_text("ARG RUNTIME\nFROM ${RUNTIME}\nCOPY main.py _so101_moves.py /app/\n")
+        tag = "localhost/armnet-bus-loop:it"
+        podman.client.images.build(path=str(context), tag=tag, rm=True, dockerfile="Containerfile",
+                                   buildargs={"RUNTIME": runtime_lerobot_image}, network_mode="none")
+        return tag
+    finally:
+        shutil.rmtree(context, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
 def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: str,
-            agent_image: str, runtime_image: str) -> Iterator[dict[str, Any]]:
+            agent_image: str, runtime_image: str, runtime_lerobot_image: str) -> Iterator[dict[str, Any]]:
     """The chart installed, its pods running on the node; everything removed afterwards."""
     tag = common_tag(podman, [operator_image, agent_image])
-    for image in (operator_image, agent_image):
-        k8s_node.import_image(f"{image.rsplit(':', 1)[0]}:{tag}")
+    job_image = "localhost/armnet-example-job:it"
+    podman.client.images.build(path=str(CHART.parents[1] / "images" / "example-job"), tag=job_image,
+                               rm=True, dockerfile="Containerfile", buildargs={"RUNTIME": runtime_image},
+                               network_mode="none")
+    bus_loop_image = build_bus_loop_image(podman, runtime_lerobot_image)
+    for image in (f"{operator_image.rsplit(':', 1)[0]}:{tag}", f"{agent_image.rsplit(':', 1)[0]}:{tag}", job_image,
+                  bus_loop_image):
+        k8s_node.import_image(image)
     system = k8s.create_namespace("armnet-system")
     tenant = k8s.create_namespace("tenant")
     name = f"it-{uuid.uuid4().hex[:6]}"
     api = urlparse(k8s.url)
     to_api = {"KUBERNETES_SERVICE_HOST": api.hostname, "KUBERNETES_SERVICE_PORT": str(api.port)}
     host = Path(tempfile.mkdtemp(prefix="armnet-it-"))
-    engine_dir = str(podman.socket_path.parent)
     values = {
         "image": {"operatorRepository": operator_image.rsplit(":", 1)[0],
                   "agentRepository": agent_image.rsplit(":", 1)[0], "tag": tag, "pullPolicy": "Never"},
         "jobNamespaces": [{"name": tenant}],
-        "crds": {"install": False},  # the test bed applied them (test_helm_lifecycle: adoption)
+        # With hostNetwork the operator's ports are host ports: free ones, changed on upgrade (one node).
+        "admissionWebhook": {"port": free_port()},
         "operator": {"replicas": 1, "hostNetwork": True, "metricsPort": free_port(), "extraEnv": to_api,
                      "readinessProbe": {"initialDelaySeconds": 1, "periodSeconds": 2,
                                         "failureThreshold": 3}},
-        "agent": {"hostNetwork": True, "metricsPort": free_port(),
+        # The defaults otherwise: the pod launcher, the agent image as the connector sidecar.
+        "agent": {"hostNetwork": True, "metricsPort": free_port(), "jobImagePullPolicy": "Never",
+                  "nodeBoundPods": True,
                   "extraArgs": ["--verbose", "--heartbeat-period", "2"],
                   "calibration": {"hostPath": str(host / "calibration"),
                                   "mountPath": str(host / "calibration")},
                   "cache": {"hostPath": str(host / "cache"), "mountPath": str(host / "cache")},
                   "env": {**to_api, "ARMNET_AGENT_STATE_DIR": str(host / "cache"),
-                          "ARMNET_AGENT_CALIBRATION_DIR": str(host / "calibration"),
-                          "ARMNET_AGENT_ENGINE_URL": f"unix://{podman.socket_path}"},
-                  "extraVolumes": [{"name": "engine", "hostPath": {"path": engine_dir, "type": "Directory"}}],
-                  "extraVolumeMounts": [{"name": "engine", "mountPath": engine_dir}]},
+                          "ARMNET_AGENT_CALIBRATION_DIR": str(host / "calibration")}},
     }
     k8s.kubectl("label", "node", k8s_node.name, f"{ROBOT_HOST_LABEL}=true", "--overwrite")
     controllers = WorkloadControllers(plane=k8s).start()
-    job_image = "localhost/armnet-example-job:it"
-    podman.client.images.build(path=str(CHART.parents[1] / "images" / "example-job"), tag=job_image,
-                               rm=True, dockerfile="Containerfile", buildargs={"RUNTIME": runtime_image},
-                               network_mode="none")
-    state = {"job_image": job_image, "k8s": k8s, "node": k8s_node, "system": system, "tenant": tenant, "name": name,
-             "values": values, "controllers": controllers, "host": host}
+    state = {"job_image": job_image, "bus_loop_image": bus_loop_image, "k8s": k8s, "node": k8s_node, "system": system, "tenant": tenant, "name": name,
+             "values": values, "controllers": controllers, "host": host, "connector_image":
+             f"{agent_image.rsplit(':', 1)[0]}:{tag}"}
     try:
+        # The test bed applied the CRDs; the release adopts them as docs/helm.md says (its uninstall must keep them).
+        adopt_crds(k8s, name, system)
         helm_on(k8s, "install", name, str(CHART), "-n", system, values=values)
         yield state
     finally:
         subprocess.run([str(helm_binary()), "uninstall", name, "-n", system, "--wait", "--timeout",
                         "60s", f"--kubeconfig={k8s.kubeconfig}"], capture_output=True, timeout=120,
                        check=False)
-        k8s.kubectl("delete", "pods", "--all", "-n", system, "--grace-period=1", "--wait=false",
-                    check=False)
+        for namespace in (system, tenant):
+            k8s.kubectl("delete", "pods", "--all", "-n", namespace, "--grace-period=1", "--wait=false",
+                        check=False)
         wait_for("the release's pods to go", lambda: not (get_json(k8s, "pods", "-n", system) or
                                                           {"items": []})["items"],
                  60, controllers.log_tail)
@@ -125,6 +156,7 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
                 k8s.kubectl("delete", "cell", cell["metadata"]["name"], "--wait=false", check=False)
         k8s.delete_namespace(tenant)
         k8s.delete_namespace(system)
+        shutil.rmtree(host, ignore_errors=True)
 
 
 def pod_of(state: dict[str, Any], component: str) -> dict[str, Any] | None:
@@ -149,11 +181,40 @@ def diagnose(state: dict[str, Any]) -> str:
             logs = k8s.kubectl("logs", "-n", state["system"], pod["metadata"]["name"], "--tail=40",
                                check=False)
             parts.append(f"--- {component} logs:\n{logs.stdout}{logs.stderr}")
+    for pod in (get_json(k8s, "pods", "-n", state["tenant"]) or {"items": []})["items"]:
+        pod_name = pod["metadata"]["name"]
+        parts.append(f"--- job pod {pod_name} status: {json.dumps(pod.get('status'))[:2000]}")
+        for container in ("connector", "job"):
+            logs = k8s.kubectl("logs", "-n", state["tenant"], pod_name, "-c", container, "--tail=30", check=False)
+            parts.append(f"--- {pod_name} {container} logs:\n{logs.stdout}{logs.stderr}")
     parts.append(k8s.kubectl("get", "events", "-n", state["system"], check=False).stdout[-3000:])
+    parts.append(k8s.kubectl("get", "events", "-n", state["tenant"], check=False).stdout[-3000:])
     return "\n".join(parts)
 
 
-def test_helm_install_runs_a_tenants_job_on_a_simulated_cell_with_the_shipped_images(
+def submit(state: dict[str, Any], name: str, args: dict[str, Any], timeout: int = 60, image: str | None = None) -> None:
+    state["k8s"].kubectl("apply", "-n", state["tenant"], "-f", "-", input=yaml.safe_dump({
+        "apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name},
+        "spec": {"image": image or state["job_image"], "args": args, "embodiment": "lerobot/so-101",
+                 "timeoutSeconds": timeout}}))
+
+
+def job_of(state: dict[str, Any], name: str) -> dict[str, Any] | None:
+    found: dict[str, Any] | None = get_json(state["k8s"], "robotjob", name, "-n", state["tenant"])
+    return found
+
+
+def phase(job: dict[str, Any] | None) -> str | None:
+    return ((job or {}).get("status") or {}).get("phase")
+
+
+def wait_finished(state: dict[str, Any], name: str, timeout: float) -> dict[str, Any]:
+    done: dict[str, Any] = wait_for(f"job {name} to finish", lambda: (j := job_of(state, name)) and phase(j) in
+                                    ("succeeded", "failed", "cancelled") and j, timeout, lambda: diagnose(state))
+    return done
+
+
+def test_helm_install_runs_a_tenants_bus_loop_job_as_a_pod_of_the_shipped_images_on_a_simulated_cell(
         release: dict[str, Any]) -> None:
     k8s: ControlPlane = release["k8s"]
     node: Node = release["node"]
@@ -168,22 +229,76 @@ def test_helm_install_runs_a_tenants_job_on_a_simulated_cell_with_the_shipped_im
                  "robot": {"robotId": f"{cell}-arm", "safetyLimit": 10}}}))
     wait_for(f"cell {cell} Ready", lambda: ((get_json(k8s, "cell", cell) or {}).get("status") or {})
              .get("phase") == "Ready", 180, lambda: diagnose(release))
-    k8s.kubectl("apply", "-n", release["tenant"], "-f", "-", input=yaml.safe_dump({
-        "apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": "hello"},
-        "spec": {"image": release["job_image"], "args": {"name": "helm"}, "embodiment": "lerobot/so-101",
-                 "timeoutSeconds": 60}}))
-    job = wait_for("the job bound to the cell", lambda: (j := get_json(
-        k8s, "robotjob", "hello", "-n", release["tenant"])) and (j.get("status") or {}).get("cellName") and j,
-        60, lambda: diagnose(release))
+    # Generous: a loaded host takes a minute or more to import LeRobot in the pod.
+    submit(release, "bus-loop", {"degrees": 4}, timeout=240, image=release["bus_loop_image"])
+    job = wait_for("the job bound to the cell", lambda: (j := job_of(release, "bus-loop")) and
+                   (j.get("status") or {}).get("cellName") and j, 60, lambda: diagnose(release))
+    pod_name = f"armnet-{job['metadata']['uid']}"
+    # The agent deletes the job's pod once it has written the result: look at it while it exists.
+    job_pod = wait_for(f"the job's pod {pod_name}", lambda: get_json(k8s, "pod", pod_name, "-n", release["tenant"]),
+                       120, lambda: diagnose(release))
 
-    done = wait_for("the job to finish", lambda: (j := get_json(
-        k8s, "robotjob", "hello", "-n", release["tenant"])) and (j.get("status") or {}).get("phase") in
-        ("succeeded", "failed") and j, 180, lambda: diagnose(release))
-    assert operator["spec"]["nodeName"] == agent["spec"]["nodeName"] == node.name
+    done = wait_finished(release, "bus-loop", 360)
+    (connector,) = job_pod["spec"]["initContainers"]
+    (customer,) = job_pod["spec"]["containers"]
+    assert operator["spec"]["nodeName"] == agent["spec"]["nodeName"] == job_pod["spec"]["nodeName"] == node.name
     assert [c["image"] for c in operator["spec"]["containers"]] == [
         f"{release['values']['image']['operatorRepository']}:{release['values']['image']['tag']}"]
     assert operator["spec"]["securityContext"]["runAsUser"] == 65532
     assert job["status"]["cellName"] == cell
-    assert done["status"]["phase"] == "succeeded"
-    assert done["status"]["result"]["returnValue"] == {"greeting": "hello, helm",
-                                                       "job_id": done["status"]["jobId"]}
+    assert (customer["image"], connector["image"]) == (release["bus_loop_image"], release["connector_image"])
+    assert connector["restartPolicy"] == "Always"  # a native sidecar
+    assert customer["securityContext"]["runAsUser"] == 65532
+    # The simulator runs in the sidecar: no host device reaches the pod.
+    assert not [v for v in job_pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
+    assert done["status"]["phase"] == "succeeded", json.dumps(done["status"])[:2000]
+    # The arm moved: LeRobot's bus in the job pod, the connector and the simulator in its sidecar.
+    finals = done["status"]["result"]["returnValue"]["final_positions"]
+    assert set(finals) >= {"shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"}
+    assert done["status"]["result"]["safety"]["policy"] == "clamp"  # the sidecar's record reached the status
+
+
+def test_helm_upgrade_rolls_the_operator_while_a_job_runs_and_the_job_still_succeeds(
+        release: dict[str, Any]) -> None:
+    k8s: ControlPlane = release["k8s"]
+    before = pod_of(release, "operator")
+    assert before is not None and ready(before), "the install test leaves a Ready operator"
+    submit(release, "through-upgrade", {"name": "upgrade", "seconds": 50}, timeout=180)
+    wait_for("the job running", lambda: phase(job_of(release, "through-upgrade")) == "running", 180,
+             lambda: diagnose(release))
+    values = copy.deepcopy(release["values"])
+    # A changed value in the operator's pod template: its ports (with hostNetwork on one node the new pod,
+    # which starts before the old one stops, needs ports of its own anyway).
+    values["operator"]["metricsPort"] = free_port()
+    values["admissionWebhook"]["port"] = free_port()
+    helm_on(k8s, "upgrade", release["name"], str(CHART), "-n", release["system"], values=values)
+
+    def rolled() -> dict[str, Any] | None:
+        listed = get_json(k8s, "pods", "-n", release["system"], "-l",
+                          f"app.kubernetes.io/component=operator,app.kubernetes.io/instance={release['name']}")
+        pods = (listed or {"items": []})["items"]
+        if len(pods) == 1 and pods[0]["metadata"]["uid"] != before["metadata"]["uid"] and ready(pods[0]):
+            return dict(pods[0])
+        return None
+
+    after = wait_for("the operator rolled (a new pod Ready, the old one gone)", rolled, 180, lambda: diagnose(release))
+    during = phase(job_of(release, "through-upgrade"))
+    done = wait_finished(release, "through-upgrade", 180)
+
+    assert [p["containerPort"] for p in after["spec"]["containers"][0]["ports"] if p["name"] == "metrics"] == [
+        values["operator"]["metricsPort"]]
+    assert during == "running", f"the job was {during} when the roll ended: the roll did not overlap the job"
+    assert done["status"]["phase"] == "succeeded", json.dumps(done["status"])[:2000]
+    assert done["status"]["result"]["returnValue"]["greeting"] == "hello, upgrade"
+
+
+def test_helm_uninstall_keeps_the_crds_the_cells_and_the_tenants_robotjobs(release: dict[str, Any]) -> None:
+    k8s: ControlPlane = release["k8s"]
+    helm_on(k8s, "uninstall", release["name"], "-n", release["system"], "--wait", "--timeout", "90s")
+
+    jobs = (get_json(k8s, "robotjobs", "-n", release["tenant"]) or {"items": []})["items"]
+    assert k8s.kubectl("get", "crd", *CRDS, check=False).returncode == 0
+    assert get_json(k8s, "cell", f"{release['name']}-sim") is not None  # the platform team's Cells too
+    assert {j["metadata"]["name"]: phase(j) for j in jobs} == {"bus-loop": "succeeded", "through-upgrade": "succeeded"}
+    assert all(j["status"]["result"]["returnValue"] for j in jobs)  # their results kept with them
+    assert get_json(k8s, "deployment", f"{release['name']}-armnet-operator", "-n", release["system"]) is None

@@ -145,6 +145,7 @@ def test_every_option_on_renders_every_kind_the_chart_knows() -> None:
     ({"agent": {"enabled": "yes"}}, "agent.enabled"),
     ({"agent": {"robotHostLabel": "armnet.io/robot-host"}}, "agent.robotHostLabel"),
     ({"agent": {"args": "agent --node-name x"}}, "agent.args"),
+    ({"agent": {"launcher": "podman"}}, "agent.launcher"),
     ({"jobNamespaces": ["team-a"]}, "jobNamespaces.0"),
     ({"jobNamespaces": [{"name": "Team_A"}]}, "jobNamespaces.0.name"),
     ({"nats": {"deploy": {"enabled": 1}}}, "nats.deploy.enabled"),
@@ -283,6 +284,27 @@ def test_agent_runs_only_on_nodes_with_the_configured_robot_host_label() -> None
     pod = find(render(values=values), "DaemonSet")["spec"]["template"]["spec"]
 
     assert pod["nodeSelector"] == {"example.com/robot": "so101"}
+
+
+def test_agent_runs_jobs_as_pods_with_the_simulator_in_their_sidecar_by_default() -> None:
+    env = env_of(find(render(), "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
+
+    assert (env["ARMNET_AGENT_LAUNCHER"], env["ARMNET_AGENT_POD_SIMULATOR"]) == ("pod", "sidecar")
+    assert env["ARMNET_AGENT_IMAGE_PULL_POLICY"] == "IfNotPresent"
+
+
+def test_agent_may_run_jobs_through_a_container_engine_instead() -> None:
+    env = env_of(find(render(values={"agent": {"launcher": "container"}}), "DaemonSet")
+                 ["spec"]["template"]["spec"]["containers"][0])
+
+    assert env["ARMNET_AGENT_LAUNCHER"] == "container"
+
+
+def test_agent_holds_no_capability_but_chown_for_the_job_pods_host_dirs() -> None:
+    container = find(render(), "DaemonSet")["spec"]["template"]["spec"]["containers"][0]
+
+    assert container["securityContext"]["capabilities"] == {"drop": ["ALL"], "add": ["CHOWN"]}
+    assert container["securityContext"]["privileged"] is False
 
 
 def test_agent_gets_its_node_name_from_the_downward_api() -> None:

@@ -180,6 +180,7 @@ def test_agent_account_manages_pods_only_in_job_namespaces(release: Release) -> 
     for ns in (release.team_a, release.team_b):
         assert release.can(release.agent, "create", "pods", ns)
         assert release.can(release.agent, "delete", "pods", ns)
+        assert release.can(release.agent, "patch", "pods", ns)  # stopping a job lowers its pod's deadline
         assert release.can(release.agent, "get", "pods", ns, subresource="log")
     assert not release.can(release.agent, "create", "pods", release.namespace)
     assert not release.can(release.agent, "create", "pods", "kube-system")
@@ -198,7 +199,7 @@ def pod(name: str, node: str, **spec: Any) -> str:
         "nodeName": node, "containers": [{"name": "main", "image": "localhost/job:dev"}], **spec}})
 
 
-def test_agent_creates_pods_only_on_the_node_it_runs_on(release: Release, tmp_path: Path) -> None:
+def test_agent_creates_stops_and_deletes_pods_only_on_the_node_it_runs_on(release: Release, tmp_path: Path) -> None:
     node = f"robot-host-{uuid.uuid4().hex[:6]}"
     plane = release.plane
     plane.kubectl("create", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "Node",
@@ -219,10 +220,22 @@ def test_agent_creates_pods_only_on_the_node_it_runs_on(release: Release, tmp_pa
         elsewhere = release.as_(agent, "create", "-n", release.team_a, "-f", "-",
                                 input=pod("job-elsewhere", "another-host"))
         here = release.as_(agent, "create", "-n", release.team_a, "-f", "-", input=pod("job-here", node))
+        # Another host's job pod (made here by the admin): the agent may neither stop nor delete it.
+        plane.kubectl("create", "-n", release.team_a, "-f", "-", input=pod("job-there", "another-host"))
+        stop = '{"spec": {"activeDeadlineSeconds": 1}}'
+        stop_there = release.as_(agent, "patch", "pod", "job-there", "-n", release.team_a, "-p", stop)
+        delete_there = release.as_(agent, "delete", "pod", "job-there", "-n", release.team_a, "--wait=false")
+        stop_here = release.as_(agent, "patch", "pod", "job-here", "-n", release.team_a, "-p", stop)
+        delete_here = release.as_(agent, "delete", "pod", "job-here", "-n", release.team_a, "--wait=false")
 
         assert elsewhere.returncode != 0
         assert "only on the node it runs on" in elsewhere.stderr, elsewhere.stderr
         assert here.returncode == 0, here.stderr
+        assert stop_there.returncode != 0 and "only on the node it runs on" in stop_there.stderr, stop_there.stderr
+        assert delete_there.returncode != 0 and "only on the node it runs on" in delete_there.stderr, \
+            delete_there.stderr
+        assert stop_here.returncode == 0, stop_here.stderr
+        assert delete_here.returncode == 0, delete_here.stderr
     finally:
         plane.kubectl("delete", "node", node, "--wait=false", check=False)
 

@@ -15,6 +15,12 @@ Two facts of native sidecars shape this module:
   silently; the agent also sees the restart count and fails the job;
 - the agent reads the connector's account of the job from this container's
   log: at stop the sidecar prints one ``RECORD_MARKER`` line with it.
+
+A simulated cell's simulator normally runs in the agent, which hands its ptys to
+this container as devices. An agent that runs in a pod itself (the Helm chart)
+cannot: its ptys live in its own container's ``/dev/pts``, which no other
+container can mount. Then the config names the preset (``simulator``) and this
+sidecar runs the simulator next to the connector, on ptys of its own.
 """
 
 from __future__ import annotations
@@ -46,13 +52,20 @@ class SidecarConfig:
     socket_dir: str
     #: Calibration file path -> its JSON content.
     calibration: Mapping[str, Any]
+    #: A simulated cell whose simulator this sidecar runs: ``{"preset": ..., "latency_ms": ...}``, else None.
+    simulator: Mapping[str, Any] | None = None
 
     def as_data(self) -> dict[str, Any]:
-        return {"connector": dict(self.connector), "socket_dir": self.socket_dir, "calibration": dict(self.calibration)}
+        data: dict[str, Any] = {"connector": dict(self.connector), "socket_dir": self.socket_dir,
+                                "calibration": dict(self.calibration)}
+        if self.simulator is not None:
+            data["simulator"] = dict(self.simulator)
+        return data
 
     @classmethod
     def from_data(cls, data: Mapping[str, Any]) -> SidecarConfig:
-        return cls(connector=data["connector"], socket_dir=data["socket_dir"], calibration=data.get("calibration", {}))
+        return cls(connector=data["connector"], socket_dir=data["socket_dir"], calibration=data.get("calibration", {}),
+                   simulator=data.get("simulator"))
 
 
 def record_line(record: Mapping[str, Any]) -> str:
@@ -98,7 +111,17 @@ def main() -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    connector = Connector(ConnectorConfig.model_validate(dict(config.connector)), socket_dir)
+    connector_config = ConnectorConfig.model_validate(dict(config.connector))
+    sim = _start_simulator(config.simulator, connector_config) if config.simulator is not None else None
+    if sim is not None:
+        from armnet_agent.connector.hardware import simulated_camera_factory
+
+        ports = sim.ports()
+        arms = {name: arm.model_copy(update={"port": ports[name]}) for name, arm in connector_config.arms.items()}
+        connector = Connector(connector_config.model_copy(update={"arms": arms}), socket_dir,
+                              camera_factory=simulated_camera_factory(source=sim))
+    else:
+        connector = Connector(connector_config, socket_dir)
     if restarted:
         connector.interlock.trip(TripReason.AGENT_RESTARTED, RESTARTED_MESSAGE)
     connector.start()
@@ -113,7 +136,20 @@ def main() -> int:
         record["safety"] = connector.safety_report().as_status()
         record["restarted"] = restarted
         print(record_line(record), flush=True)
+        if sim is not None:
+            sim.stop()
     return 0
+
+
+def _start_simulator(simulator: Mapping[str, Any], connector_config: Any) -> Any:
+    """The cell's simulator on this container's own ptys, seeded with the calibration the connector reads."""
+    from armnet_agent.sim.calibration import load_calibration
+    from armnet_agent.sim.presets import build_cell
+
+    calibrations = {name: load_calibration(arm.calibration_file) for name, arm in connector_config.arms.items()
+                    if arm.calibration_file is not None}
+    return build_cell(str(simulator["preset"]), calibrations=calibrations,
+                      latency_ms=float(simulator.get("latency_ms", 0.0))).start()
 
 
 def _record(connector: Any) -> dict[str, Any]:

@@ -18,7 +18,7 @@ from typing import Any
 from armnet_agent.deviceplugin.server import DevicePlugins
 from armnet_agent.launch.plan import LABEL_CELL, LABEL_NAMESPACE
 from armnet_agent.node.kube import GROUP, VERSION, AgentKube, KubeError
-from armnet_agent.node.launchers import JobLauncher
+from armnet_agent.node.launchers import JobLauncher, PodLauncher
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import Cell, Job, parse_cell, parse_job
 from armnet_agent.node.plan import HostPaths
@@ -79,6 +79,11 @@ class NodeAgent:
         for worker in self.workers.values():
             worker.stop()
 
+    def _devices_through_plugin(self, worker: CellWorker) -> bool:
+        if not isinstance(self.launcher, PodLauncher):
+            return True
+        return self.launcher.settings.devices_through_plugin(simulated=worker.sim is not None)
+
     def pass_once(self) -> None:
         cells = self._my_cells()
         for name, cell in cells.items():
@@ -93,7 +98,8 @@ class NodeAgent:
             self.workers.pop(name).stop()
         if self.device_plugins is not None:
             # Before any launch: a job pod's connector requests the resource the plugin registers.
-            self.device_plugins.sync({name: worker.device_paths for name, worker in self.workers.items()})
+            self.device_plugins.sync({name: worker.device_paths for name, worker in self.workers.items()
+                                      if self._devices_through_plugin(worker)})
         jobs = self._jobs()
         containers = self._containers()
         for worker in self.workers.values():

@@ -87,6 +87,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connector-command", default=_env("CONNECTOR_COMMAND"),
                         help="pod launcher: the sidecar's command, space-separated "
                              "(default: python3 -m armnet_agent.launch.sidecar)")
+    parser.add_argument("--pod-simulator", choices=("agent", "sidecar"), default=_env("POD_SIMULATOR", "agent"),
+                        help="pod launcher, simulated cells: run the simulator in the agent and hand its ptys to "
+                             "the connector as devices, or in the job pod's sidecar (needed when the agent itself "
+                             "runs in a pod: its ptys are its own container's)")
     parser.add_argument("--image-pull-policy", default=_env("IMAGE_PULL_POLICY", "IfNotPresent"),
                         choices=("Always", "IfNotPresent", "Never"), help="pod launcher: for both containers")
     parser.add_argument("--device-plugin", action=argparse.BooleanOptionalAction,
@@ -140,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
             dev_mounts=settings.dev_mounts,
             dev_env=dev_env,
             device_plugin=args.device_plugin,
+            simulator_in_pod=args.pod_simulator == "sidecar",
         )
         if args.device_plugin:
             device_plugins = DevicePlugins(metrics, args.device_plugin_dir).start()

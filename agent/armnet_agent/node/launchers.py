@@ -10,7 +10,10 @@ jobs a previous agent process started (by label).
 - ``PodLauncher``: one pod per job on this node (``launch.pod_spec``), the
   connector as its native sidecar; the agent keeps the cell's simulator and
   hands its ptys (or a real cell's devices) to the connector container only,
-  through the agent's device plugin (``deviceplugin``) or hostPath volumes.
+  through the agent's device plugin (``deviceplugin``) or hostPath volumes;
+  or, when the agent runs in a pod itself (``simulator_in_pod``: its ptys are
+  its container's own), the sidecar runs a simulated cell's simulator and no
+  device reaches the pod.
 """
 
 from __future__ import annotations
@@ -277,6 +280,16 @@ class PodSettings:
     #: The connector requests the cell's extended resource (the agent's device plugin gives the
     #: devices); False: hostPath CharDevice volumes, for kubelets without device plugins.
     device_plugin: bool = False
+    #: A simulated cell's simulator runs in the job pod's sidecar, not in the agent (an agent in a pod).
+    simulator_in_pod: bool = False
+
+    def devices_through_plugin(self, *, simulated: bool) -> bool:
+        """Whether a job pod on such a cell gets the cell's devices through the agent's device plugin.
+
+        Not when its simulator runs in the sidecar: the agent's ptys are then its own
+        container's, and a bind mount of that path on the host is another terminal or none.
+        """
+        return self.device_plugin and not (simulated and self.simulator_in_pod)
 
 
 class PodLauncher:
@@ -330,8 +343,10 @@ class PodLauncher:
             str(arm.calibration_file): json.loads(dump_calibration(builtin_calibration(shipped[arm.name])))
             for arm in layout.arms
         }
-        sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration)
-        devices = dict(request.sim.ports()) if request.sim is not None else {}
+        in_pod = request.sim is not None and s.simulator_in_pod
+        simulator = {"preset": plan.cell_spec.preset, "latency_ms": plan.cell_spec.latency_ms} if in_pod else None
+        sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration, simulator)
+        devices = dict(request.sim.ports()) if request.sim is not None and not in_pod else {}
         env = dict(plan.container.env)
         if request.secret_refs:
             env[env_keys.SECRETS] = json.dumps(sorted(ref.env for ref in request.secret_refs))
@@ -356,7 +371,8 @@ class PodLauncher:
             job_command=plan.container.command,
             secrets=request.secret_refs,
             devices={} if s.device_plugin else {arm: devices[arm] for arm in ports if arm in devices},
-            device_resource=resource_name(cell.name) if s.device_plugin else None,
+            device_resource=(resource_name(cell.name)
+                             if s.devices_through_plugin(simulated=request.sim is not None) else None),
             resources=s.resources,
             dev_mounts=s.dev_mounts,
             connector_env=dict(s.dev_env),

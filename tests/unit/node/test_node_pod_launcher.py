@@ -43,10 +43,13 @@ def sim() -> Iterator[SimulatedCell]:
         cell.stop()
 
 
-def manifest(sim: SimulatedCell, refs: tuple[SecretRef, ...] = (), **spec: Any) -> dict[str, Any]:
+def manifest(sim: SimulatedCell, refs: tuple[SecretRef, ...] = (), simulator_in_pod: bool = False,
+             device_plugin: bool = False, **spec: Any) -> dict[str, Any]:
     job, cell = parse_job(job_obj(**spec)), parse_cell(CELL)
     plan = plan_launch(job, cell, PATHS, {})
-    launcher = PodLauncher(None, PodSettings(node_name="host-1", connector_image="armnet/connector:1"), AgentMetrics())
+    settings = PodSettings(node_name="host-1", connector_image="armnet/connector:1", simulator_in_pod=simulator_in_pod,
+                           device_plugin=device_plugin)
+    launcher = PodLauncher(None, settings, AgentMetrics())
     request = SessionRequest(job=job, cell=cell, plan=plan, sim=sim, adopted=None, tripped=None,
                              inputs=LocalOperatorInputs(), on_grace_expired=lambda: None, secret_refs=refs)
     return launcher.manifest(request)
@@ -64,6 +67,28 @@ def test_the_connector_reaches_the_simulators_pty_at_its_own_device_path(sim: Si
     assert config["connector"]["arms"]["arm"]["port"] == device_path("arm")
     devices = [v["hostPath"]["path"] for v in pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
     assert devices == [sim.ports()["arm"]]
+
+
+def char_devices(pod: dict[str, Any]) -> list[str]:
+    return [v["hostPath"]["path"] for v in pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
+
+
+def test_an_agent_in_a_pod_has_the_sidecar_run_the_simulator_and_mounts_no_device(sim: SimulatedCell) -> None:
+    pod = manifest(sim, simulator_in_pod=True)
+    assert sidecar_config(pod)["simulator"] == {"preset": "so101", "latency_ms": 0.0}
+    assert char_devices(pod) == []
+
+
+def test_with_the_simulator_in_the_sidecar_the_connector_requests_no_device_from_the_plugin(sim: SimulatedCell) -> None:
+    """The agent's ptys are its own container's then: a bind mount of that path on the host is another terminal."""
+    (connector,) = manifest(sim, simulator_in_pod=True, device_plugin=True)["spec"]["initContainers"]
+    assert not [name for name in connector["resources"].get("limits", {}) if name.startswith("armnet.io/")]
+    assert PodSettings(node_name="h", connector_image="c", device_plugin=True,
+                       simulator_in_pod=True).devices_through_plugin(simulated=False)
+
+
+def test_with_the_simulator_in_the_agent_the_sidecar_config_names_no_simulator(sim: SimulatedCell) -> None:
+    assert "simulator" not in sidecar_config(manifest(sim))
 
 
 def test_the_connector_runs_the_jobs_deadline_itself(sim: SimulatedCell) -> None:
