@@ -33,6 +33,7 @@ from armnet_agent.node.telemetry_sources import (
     IdleArms,
     IdleCameras,
     IdleSource,
+    InProcessView,
     JobSource,
 )
 from armnet_agent.sim import SimulatedCellProcess
@@ -140,7 +141,7 @@ def test_during_a_job_frames_and_the_jobs_own_position_reads_come_through_its_co
         camera.async_read(timeout_ms=2000)
         held = bus.sync_read("Present_Position", normalize=False)  # what the job itself reads
         metrics = AgentMetrics()
-        source = JobSource(connector.cell, (CameraSpec("front"),), sim=None)
+        source = JobSource(InProcessView(connector.cell), (CameraSpec("front"),), sim=None)
         telemetry = publisher(source, link, metrics)
         got = heard(nats_server, ["telemetry.cell-1.servos", "telemetry.cell-1.camera.front"],
                     lambda: telemetry.tick(time.monotonic()))
@@ -166,7 +167,7 @@ def test_during_a_job_telemetry_sends_nothing_on_its_bus_so_load_and_temperature
         bus.write("Torque_Enable", "gripper", 0, normalize=False)
         moved = int(held["gripper"]) + 200
         sim.arm.move_by_hand("gripper", moved)  # the servo moves; the job has not read it since
-        readings = JobSource(connector.cell, (), sim=None).servos()
+        readings = JobSource(InProcessView(connector.cell), (), sim=None).servos()
         assert sim.arm.positions()["gripper"] == pytest.approx(moved, abs=2)
     finally:
         bus.disconnect(disable_torque=False)
@@ -183,7 +184,7 @@ def test_a_job_that_has_not_read_positions_yet_shows_why(connector: Connector) -
     bus = job_bus(connector.robot_endpoint)
     bus.connect()
     try:
-        readings = JobSource(connector.cell, (), sim=None).servos()
+        readings = JobSource(InProcessView(connector.cell), (), sim=None).servos()
     finally:
         bus.disconnect(disable_torque=False)
     assert readings == {"arm": "the job has not read Present_Position yet"}
@@ -192,7 +193,7 @@ def test_a_job_that_has_not_read_positions_yet_shows_why(connector: Connector) -
 def test_a_stopping_connector_shows_nothing(connector: Connector) -> None:
     connector.cell.stopping.set()
     try:
-        assert JobSource(connector.cell, (), sim=None).servos() is None
+        assert JobSource(InProcessView(connector.cell), (), sim=None).servos() is None
     finally:
         connector.cell.stopping.clear()
 

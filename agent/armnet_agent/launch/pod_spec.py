@@ -45,6 +45,12 @@ CONNECTOR_STOP_S = 10
 #: The customer's user: any non-root id; 65532 is the distroless "nonroot" convention.
 JOB_USER = 65532
 SOCKETS_SIZE = "256Mi"
+#: The connector's observer socket for the agent: an emptyDir mounted into the connector ONLY (the
+#: tenant shares the sockets volume and the network namespace, never this); the agent reaches it on the
+#: host under ``<kubelet root>/pods/<pod uid>/volumes/kubernetes.io~empty-dir/observer/``.
+OBSERVER_VOLUME = "observer"
+#: Where the connector container mounts it.
+OBSERVER_DIR = "/run/armnet-observer"
 TMP_SIZE = "256Mi"
 DEVICE_DIR = "/dev/armnet"
 CONNECTOR_CPU_REQUEST = "250m"
@@ -113,6 +119,8 @@ class PodInputs:
     image_pull_policy: str = "IfNotPresent"
     job_read_only_root: bool = True
     job_user: int = JOB_USER
+    #: Where the connector serves its read-only observer socket for the agent (``OBSERVER_VOLUME``), or None.
+    observer_dir: str | None = None
 
 
 def device_path(arm: str) -> str:
@@ -183,6 +191,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         {"name": "connector-tmp", "mountPath": "/tmp"},
         *({"name": f"device-{i}", "mountPath": device_path(arm)} for i, arm in enumerate(sorted(inputs.devices))),
         *_dev_mounts(inputs),
+        *([{"name": OBSERVER_VOLUME, "mountPath": inputs.observer_dir}] if inputs.observer_dir else []),
     ]
     env = [{"name": SIDECAR_ENV, "value": json.dumps(dict(inputs.sidecar), sort_keys=True)}]
     env += [{"name": k, "value": v} for k, v in sorted(_with_home(inputs.connector_env).items())]
@@ -263,6 +272,8 @@ def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
         {"name": "cache", "hostPath": {"path": inputs.cache_dir, "type": "DirectoryOrCreate"}},
         {"name": "volume", "hostPath": {"path": inputs.volume_dir, "type": "DirectoryOrCreate"}},
     ]
+    if inputs.observer_dir:
+        volumes.append({"name": OBSERVER_VOLUME, "emptyDir": {"medium": "Memory", "sizeLimit": "1Mi"}})
     volumes += [
         {"name": f"device-{i}", "hostPath": {"path": inputs.devices[arm], "type": "CharDevice"}}
         for i, arm in enumerate(sorted(inputs.devices))

@@ -15,6 +15,10 @@ Two facts of native sidecars shape this module:
   silently; the agent also sees the restart count and fails the job;
 - the agent reads the connector's account of the job from this container's
   log: at stop the sidecar prints one ``RECORD_MARKER`` line with it.
+
+While the job runs, the agent reads the telemetry and rollout events of the
+connector through ``observer.sock`` (``connector.observer``), served in a volume
+only this container mounts; a restarted sidecar serves it anew in the same place.
 """
 
 from __future__ import annotations
@@ -38,6 +42,10 @@ RESTARTED_MESSAGE = (
     "the job"
 )
 SIGNAL_POLL_S = 0.1
+#: The last rollout events in the record: the agent's polls of the observer socket may miss the final
+#: ones (the job ends a rollout and exits; the kubelet stops this sidecar a second later). One log line
+#: stays under the runtime's 16 KiB line split.
+RECORD_ROLLOUT_EVENTS = 64
 
 
 @dataclass(frozen=True)
@@ -46,13 +54,17 @@ class SidecarConfig:
     socket_dir: str
     #: Calibration file path -> its JSON content.
     calibration: Mapping[str, Any]
+    #: Where the read-only observer socket is served for the agent (a volume of this container only), or None.
+    observer_dir: str | None = None
 
     def as_data(self) -> dict[str, Any]:
-        return {"connector": dict(self.connector), "socket_dir": self.socket_dir, "calibration": dict(self.calibration)}
+        return {"connector": dict(self.connector), "socket_dir": self.socket_dir, "calibration": dict(self.calibration),
+                "observer_dir": self.observer_dir}
 
     @classmethod
     def from_data(cls, data: Mapping[str, Any]) -> SidecarConfig:
-        return cls(connector=data["connector"], socket_dir=data["socket_dir"], calibration=data.get("calibration", {}))
+        return cls(connector=data["connector"], socket_dir=data["socket_dir"], calibration=data.get("calibration", {}),
+                   observer_dir=data.get("observer_dir"))
 
 
 def record_line(record: Mapping[str, Any]) -> str:
@@ -98,7 +110,8 @@ def main() -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    connector = Connector(ConnectorConfig.model_validate(dict(config.connector)), socket_dir)
+    connector = Connector(ConnectorConfig.model_validate(dict(config.connector)), socket_dir,
+                          observer_dir=config.observer_dir)
     if restarted:
         connector.interlock.trip(TripReason.AGENT_RESTARTED, RESTARTED_MESSAGE)
     connector.start()
@@ -124,7 +137,10 @@ def _record(connector: Any) -> dict[str, Any]:
         if event.kind == "begin" and event.index is not None:
             rollout = event
             break
+    events = list(connector.cell.rollouts)[-RECORD_ROLLOUT_EVENTS:]
     return {
+        "rollouts": [{"kind": e.kind, "at": e.at, "index": e.index, "total": e.total,
+                      "outcome_controls": e.outcome_controls} for e in events],
         "trip_reason": trip.reason.value if trip is not None else None,
         "trip_message": trip.message if trip is not None else None,
         "safety_violations": connector.counters.safety_violations,

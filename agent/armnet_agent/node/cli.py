@@ -88,6 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: python3 -m armnet_agent.launch.sidecar)")
     parser.add_argument("--image-pull-policy", default=_env("IMAGE_PULL_POLICY", "IfNotPresent"),
                         choices=("Always", "IfNotPresent", "Never"), help="pod launcher: for both containers")
+    parser.add_argument("--kubelet-root-dir", type=Path, default=Path(_env("KUBELET_ROOT_DIR", "/var/lib/kubelet")),
+                        help="pod launcher: the kubelet's --root-dir as this agent sees it; a job pod's connector "
+                             "serves its telemetry and rollout events under <dir>/pods/<pod uid>/volumes/ "
+                             "(in the DaemonSet: mounted read-only with HostToContainer propagation)")
     parser.add_argument("--verbose", action="store_true")
 
 
@@ -130,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
             image_pull_policy=args.image_pull_policy,
             dev_mounts=settings.dev_mounts,
             dev_env=dev_env,
+            kubelet_root=args.kubelet_root_dir,
         )
         if args.connector_command:
             pod_settings = replace(pod_settings, connector_command=tuple(args.connector_command.split()))
