@@ -24,7 +24,7 @@ from typing import Any
 
 import pytest
 
-from e2e.agent_bed import EXAMPLES, AgentBed
+from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, AgentBed
 
 pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
 
@@ -89,21 +89,71 @@ LOOKS_AROUND = """
                 "root_writable": os.access("/", os.W_OK)}
 """
 
+# Reads positions, keeps a camera open and runs two rollouts with the operator's buttons, long enough
+# for the agent to publish the pod's telemetry; then says which unix sockets it could find anywhere.
+OBSERVED = """
+    import os
+    import stat
+    import time
+    from _so101_moves import open_bus
+    from armnet_runtime import Context, main
+    from lerobot.cameras.opencv import OpenCVCamera
+
+    def sockets(skip):
+        found = []
+        for top, dirs, files in os.walk("/"):
+            if top.startswith(("/proc", "/sys", *skip)):
+                dirs[:] = []
+                continue
+            for name in files:
+                try:
+                    if stat.S_ISSOCK(os.lstat(os.path.join(top, name)).st_mode):
+                        found.append(os.path.join(top, name))
+                except OSError:
+                    pass
+        return sorted(found)
+
+    @main
+    def run(ctx: Context):
+        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
+        camera = OpenCVCamera(ctx.camera_configs["front"])
+        camera.connect()
+        try:
+            for index in range(2):
+                ctx.cell.rollout_begin(index=index, total=2, outcome_controls=True)
+                ctx.report_progress(f"rollout {index}")
+                end = time.monotonic() + ctx.args.get("rollout_s", 6)
+                while time.monotonic() < end:
+                    bus.sync_read("Present_Position")
+                    camera.async_read(timeout_ms=1000)
+                    time.sleep(0.1)
+                ctx.cell.rollout_end()
+        finally:
+            camera.disconnect()
+            bus.disconnect(disable_torque=False)
+        return {"sockets": sockets(tuple(ctx.args.get("skip", ())))}
+"""
+
 SECRET_VALUE = "s3cr3t-pod-value-42"
 
 
 @pytest.fixture(scope="module")
-def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str) -> Iterator[AgentBed]:
+def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("pod-e2e")
-    bed = AgentBed(k8s, podman, base_image, namespace)
+    bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
     bed.node = k8s_node.name
     bed.image_prefix = "armnet-pod-e2e"
     # The non-root job user must reach the venv mounted under /root (development stand-in only).
     bed.image_lines = ["RUN chmod 0755 /root"]
     bed.on_image = k8s_node.import_image
     bed.agent_args = ["--launcher", "pod", "--connector-image", base_image, "--image-pull-policy", "Never",
-                      "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar"]
-    bed.cells = [bed.add_cell(f"pod-{c}") for c in "abc"]  # type: ignore[attr-defined]
+                      "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
+                      # The pods' observer sockets, under the test node's own kubelet root.
+                      "--kubelet-root-dir", str(k8s_node.workdir / "kubelet"),
+                      "--telemetry-servo-hz", "2", "--telemetry-frame-fps", "1"]
+    bed.telemetry = True
+    camera = {"front": {"indexOrPath": 0}}
+    bed.cells = [bed.add_cell(f"pod-{c}", cameras=camera) for c in "abc"]  # type: ignore[attr-defined]
     bed.start_operator()
     bed.start_agent()
     try:
@@ -132,6 +182,8 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
                             secrets={"API_TOKEN": "api-token"}),
         "timeout": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
+        "observed": bed.submit("observed", bed.image("observed", OBSERVED, (EXAMPLES / "_so101_moves.py",)),
+                               timeout=300, args={"skip": list(DEV_MOUNTS)}),  # the venv: large, no sockets
     }
 
 
@@ -282,3 +334,58 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     assert "connector sidecar restarted" in st["result"]["error"]
     # The restarted connector's own record: it came back with the interlock tripped.
     assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]
+
+
+def telemetry_of(nats_url: str, cell: str, seconds: float) -> dict[str, list[bytes]]:
+    """Every telemetry message of ``cell`` heard for ``seconds``, by subject."""
+    import asyncio
+
+    async def body() -> dict[str, list[bytes]]:
+        import nats
+
+        client = await nats.connect(nats_url)
+        got: dict[str, list[bytes]] = {}
+
+        async def keep(msg: Any) -> None:
+            got.setdefault(msg.subject, []).append(msg.data)
+
+        await client.subscribe(f"telemetry.{cell}.>", cb=keep)
+        await asyncio.sleep(seconds)
+        await client.close()
+        return got
+
+    return asyncio.run(body())
+
+
+def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_reach_its_status(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    import cv2
+    import numpy as np
+
+    job = bed.wait(lambda: (lambda j: j if (status(j).get("progress") or "").startswith("rollout")
+                            else None)(bed.job(batch["observed"])), 300, "the observed job's first rollout")
+    cell = status(job)["cellName"]
+    assert bed.nats_url is not None
+    heard = telemetry_of(bed.nats_url, cell, 3.0)
+    readings = [json.loads(m) for m in heard.get(f"telemetry.{cell}.servos", [])]
+    from_job = [r for r in readings if r["source"] == "job" and isinstance(r["arms"]["arm"].get("motors"), dict)]
+    assert from_job, readings[-3:]
+    motors = from_job[-1]["arms"]["arm"]["motors"]
+    assert all(0 <= m["position"] < 4096 and "load" not in m for m in motors.values()), motors
+    frames = heard.get(f"telemetry.{cell}.camera.front", [])
+    assert frames and cv2.imdecode(np.frombuffer(frames[-1], np.uint8), cv2.IMREAD_COLOR) is not None
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    ok = [line for line in text.splitlines()
+          if line.startswith('armnet_agent_sidecar_observer_requests_total{result="ok"}')]
+    assert ok and float(ok[0].split()[-1]) > 0, ok
+
+    st = status(bed.wait_phase(batch["observed"], timeout=300))
+    assert st["phase"] == "succeeded", explain(st)
+    history = st["rollouts"]
+    assert [(r["index"], r["total"], r["outcomeControls"], r["outcome"]) for r in history] == [
+        (0, 2, True, "unmarked"), (1, 2, True, "unmarked")]
+    assert all("endedAt" in r for r in history), history
+    # The tenant's container finds the job's own sockets and nothing of the observer's.
+    found = st["result"]["returnValue"]["sockets"]
+    assert found and all(path.rsplit("/", 1)[-1] in ("robot.sock", "operator.sock") for path in found), found

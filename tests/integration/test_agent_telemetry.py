@@ -9,20 +9,18 @@ what arrives: JPEG of the published size, and servo values the simulated servos 
 
 from __future__ import annotations
 
-import asyncio
 import json
 import shutil
 import tempfile
 import time
 from collections.abc import Iterator
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector import Connector, ConnectorConfig, LocalOperatorInputs
+from armnet_agent.connector import Connector, LocalOperatorInputs
 from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.metrics import AgentMetrics
@@ -38,33 +36,10 @@ from armnet_agent.node.telemetry_sources import (
 )
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
-from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+
+from tests.support.sim_connector import CALIBRATION, MOTORS, cell_config, heard, job_bus
 
 pytestmark = pytest.mark.integration
-
-CALIBRATION = Path(str(resources.files("armnet_agent.sim.data").joinpath("so101.json")))
-MOTORS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
-
-
-def cell_config(sim: SimulatedCellProcess) -> ConnectorConfig:
-    return ConnectorConfig.model_validate({
-        "arms": {"arm": {"port": sim.arm.port, "calibrationFile": str(CALIBRATION), "robotId": "sim-so101"}},
-        "cameras": {"front": {"indexOrPath": 0, "fps": 30, "width": 640, "height": 480}},
-        "simulated": True,
-    })
-
-
-def job_bus(endpoint: str) -> RemoteFeetechMotorsBus:
-    """The SO-101 bus a job builds, with the cell's calibration."""
-    import json
-
-    from lerobot.motors import Motor, MotorCalibration, MotorNormMode
-
-    motors = {name: Motor(i + 1, "sts3215", MotorNormMode.DEGREES) for i, name in enumerate(MOTORS)}
-    motors["gripper"] = Motor(6, "sts3215", MotorNormMode.RANGE_0_100)
-    calibration = {name: MotorCalibration(**entry) for name, entry in json.loads(CALIBRATION.read_text()).items()}
-    return RemoteFeetechMotorsBus(port=endpoint, motors=motors, calibration=calibration)
-
 
 @pytest.fixture(scope="module")
 def sim() -> Iterator[SimulatedCellProcess]:
@@ -92,25 +67,6 @@ def connector(sim: SimulatedCellProcess, monkeypatch: pytest.MonkeyPatch) -> Ite
     yield connector
     connector.stop()
     shutil.rmtree(socket_dir, ignore_errors=True)
-
-
-def heard(nats_url: str, subjects: list[str], publish: Any) -> dict[str, bytes]:
-    """The first message on each subject after ``publish()`` ran (subscribed before it)."""
-
-    async def body() -> dict[str, bytes]:
-        import nats
-
-        client = await nats.connect(nats_url)
-        got: dict[str, bytes] = {}
-        subs = [await client.subscribe(s) for s in subjects]
-        await client.flush()
-        await asyncio.to_thread(publish)
-        for subject, sub in zip(subjects, subs, strict=True):
-            got[subject] = (await sub.next_msg(timeout=10)).data
-        await client.close()
-        return got
-
-    return asyncio.run(asyncio.wait_for(body(), 30))
 
 
 def publisher(source: TelemetrySource, link: NatsLink, metrics: AgentMetrics) -> CellTelemetry:

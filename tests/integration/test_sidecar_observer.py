@@ -32,15 +32,33 @@ from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.rollout_history import Outcome, as_status, from_status
 from armnet_agent.node.rollout_recorder import RolloutRecorder
 from armnet_agent.node.sidecar_observer import SidecarObserver
-from armnet_agent.node.streams import NatsLink
+from armnet_agent.node.streams import NatsLink, StreamSettings
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings
 from armnet_agent.node.telemetry_sources import JobSource
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 
-from tests.integration.test_agent_telemetry import cell_config, heard, job_bus, link, sim  # noqa: F401 - fixtures
+from tests.support.sim_connector import cell_config, heard, job_bus
 
 pytestmark = pytest.mark.integration
+
+
+@pytest.fixture(scope="module")
+def sim() -> Iterator[SimulatedCellProcess]:
+    cell = SimulatedCellProcess("so101").start()
+    yield cell
+    cell.stop()
+
+
+@pytest.fixture(scope="module")
+def link(nats_server: str) -> Iterator[NatsLink]:
+    link = NatsLink(StreamSettings(url=nats_server)).start()
+    deadline = time.monotonic() + 20
+    while not link.connected and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert link.connected, "the agent's NATS link did not connect"
+    yield link
+    link.stop()
 
 
 class Pod:
@@ -69,7 +87,7 @@ class Pod:
 
 
 @pytest.fixture
-def pod(sim: SimulatedCellProcess, monkeypatch: pytest.MonkeyPatch) -> Iterator[Pod]:  # noqa: F811
+def pod(sim: SimulatedCellProcess, monkeypatch: pytest.MonkeyPatch) -> Iterator[Pod]:
     pod = Pod(sim)
     monkeypatch.setenv("ARMNET_CELL_SOCKET", pod.connector.robot_endpoint)
     yield pod
@@ -98,7 +116,7 @@ def operator_op(pod: Pod, op: str, **fields: Any) -> dict[str, Any]:
 
 
 def test_a_pod_jobs_reads_and_camera_reach_nats_through_the_observer_socket(
-        pod: Pod, link: NatsLink, nats_server: str) -> None:  # noqa: F811
+        pod: Pod, link: NatsLink, nats_server: str) -> None:
     from lerobot.cameras.opencv import OpenCVCameraConfig
 
     bus = job_bus(pod.connector.robot_endpoint)
@@ -161,7 +179,7 @@ def test_a_restarted_agent_does_not_record_the_sidecars_earlier_rollouts_twice(p
     assert [(e.index, e.open) for e in after.history] == [(0, False), (1, True)]
 
 
-def test_the_observer_finds_a_restarted_sidecars_socket_again(pod: Pod, sim: SimulatedCellProcess) -> None:  # noqa: F811
+def test_the_observer_finds_a_restarted_sidecars_socket_again(pod: Pod, sim: SimulatedCellProcess) -> None:
     metrics = AgentMetrics()
     observer = SidecarObserver(lambda: pod.observer_path, metrics, retry_s=0.0)
     try:
