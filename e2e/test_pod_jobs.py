@@ -370,7 +370,10 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
     heard = telemetry_of(bed.nats_url, cell, 3.0)
     readings = [json.loads(m) for m in heard.get(f"telemetry.{cell}.servos", [])]
     from_job = [r for r in readings if r["source"] == "job" and isinstance(r["arms"]["arm"].get("motors"), dict)]
-    assert from_job, readings[-3:]
+    if not from_job:
+        observer = [line for line in bed.logs().splitlines() if "observer" in line]
+        pytest.fail(f"no servo reading of the job on {cell}: {readings[-3:]}; the agent on its observer socket: "
+                    f"{observer[-5:]}")
     motors = from_job[-1]["arms"]["arm"]["motors"]
     assert all(0 <= m["position"] < 4096 and "load" not in m for m in motors.values()), motors
     frames = heard.get(f"telemetry.{cell}.camera.front", [])

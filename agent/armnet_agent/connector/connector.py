@@ -90,7 +90,7 @@ class Connector:
             # The agent's read-only view from outside the pod: its own small cap, never the job's.
             self._servers.append(UnixServer(
                 Path(observer_dir) / OBSERVER_SOCKET, lambda: ObserverSession(self.cell), self.cell.counters,
-                limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS), mode=0o600,
+                limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS),
             ))
         self._started = False
 
@@ -100,7 +100,7 @@ class Connector:
         start_warm_imports()  # LeRobot's device modules, off the first request's path (warm_imports.py)
         self.socket_dir.mkdir(parents=True, exist_ok=True)
         for server in self._servers[2:]:
-            server.path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+            server.path.parent.mkdir(parents=True, exist_ok=True)
         started: list[UnixServer] = []
         try:
             for server in self._servers:

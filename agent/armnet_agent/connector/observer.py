@@ -17,7 +17,11 @@ shares the pod's network namespace and the sockets volume, so anything served
 there could be read or imitated by the tenant. The observer socket lives in a
 volume mounted into the connector container only; the agent reaches it on the
 host through the kubelet's directory of the pod's volumes. It is read-only by
-construction (no op changes anything) and the socket file is ``0600``.
+construction (no op changes anything). The socket file is ``0666`` like the
+others: the connector runs as a non-root user and the agent as root without
+capabilities (no ``CAP_DAC_OVERRIDE``), so a stricter mode would lock the agent
+out; the isolation is the volume (in the pod: the sidecar's only; on the host:
+under the kubelet's root-only ``pods`` directory).
 """
 
 from __future__ import annotations

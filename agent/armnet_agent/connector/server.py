@@ -188,11 +188,8 @@ class UnixServer:
         *,
         limits: ServerLimits | None = None,
         budget: BufferBudget | None = None,
-        mode: int = 0o666,
     ) -> None:
-        """``mode``: the socket file's permissions (0o666: the job container may run as another uid)."""
         self.path = Path(path)
-        self._mode = mode
         self._session_factory = session_factory
         self._counters = counters
         self._limits = limits if limits is not None else ServerLimits()
@@ -210,7 +207,7 @@ class UnixServer:
             self.path.unlink()
         listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         listener.bind(str(self.path))
-        os.chmod(self.path, self._mode)
+        os.chmod(self.path, 0o666)  # the job container may run as another uid
         listener.listen(64)
         listener.settimeout(_ACCEPT_POLL_S)
         self._listener = listener
