@@ -10,6 +10,9 @@ of a job on a robot host, so each choice is deliberate:
 - the sockets (and the camera frame areas the connector keeps beside them) live
   in an ``emptyDir`` with ``medium: Memory`` shared by both containers; the
   calibration the connector writes is another ``emptyDir``, read-only for the job;
+- the connector's read-only observer socket (telemetry and rollout events for the
+  agent, which reaches it on the host) is in an ``emptyDir`` of the connector only:
+  the tenant shares the sockets volume and the network namespace, never this;
 - devices (the cell's serial ports) are mounted into the connector only; the
   customer container sees neither serial devices nor cameras;
 - the customer container runs as a non-root user, without privilege
