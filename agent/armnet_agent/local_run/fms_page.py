@@ -63,7 +63,7 @@ class LocalPage:
         """The run's connector while the job runs (the same ``JobSource`` as a node agent's), else nothing."""
         cell = self.cell
         connector = cell.connector if cell is not None else None
-        if connector is None or self.fleet.phase != "running":
+        if cell is None or connector is None or self.fleet.phase != "running":
             return None
         return JobSource(InProcessView(connector.cell), cell.spec.cameras, cell.sim)
 

@@ -88,7 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: python3 -m armnet_agent.launch.sidecar)")
     parser.add_argument("--image-pull-policy", default=_env("IMAGE_PULL_POLICY", "IfNotPresent"),
                         choices=("Always", "IfNotPresent", "Never"), help="pod launcher: for both containers")
-    parser.add_argument("--kubelet-root-dir", type=Path, default=Path(_env("KUBELET_ROOT_DIR", "/var/lib/kubelet")),
+    parser.add_argument("--kubelet-root-dir", type=Path, default=Path(_env("KUBELET_ROOT_DIR") or "/var/lib/kubelet"),
                         help="pod launcher: the kubelet's --root-dir as this agent sees it; a job pod's connector "
                              "serves its telemetry and rollout events under <dir>/pods/<pod uid>/volumes/ "
                              "(in the DaemonSet: mounted read-only with HostToContainer propagation)")
