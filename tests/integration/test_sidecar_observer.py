@@ -29,7 +29,7 @@ from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.rollout_history import Outcome, as_status, from_status
 from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_agent.node.sidecar_observer import SidecarObserver
+from armnet_agent.node.sidecar_observer import SidecarObserver, connect_long
 from armnet_agent.node.streams import NatsLink, StreamSettings
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings
 from armnet_agent.node.telemetry_sources import JobSource
@@ -71,7 +71,16 @@ class Pod:
 
     @property
     def observer_path(self) -> Path:
-        return self.observer_dir / OBSERVER_SOCKET
+        """The socket as the agent finds it on the host: through the kubelet's long volume path."""
+        host = self.top / "kubelet" / "pods" / "0f2b7c1e-8d4a-4f3e-9b6a-1c2d3e4f5a6b" / "volumes"
+        host.mkdir(parents=True, exist_ok=True)
+        volume = host / "kubernetes.io~empty-dir"
+        if not volume.exists():
+            volume.mkdir()
+            (volume / "observer").symlink_to(self.observer_dir)
+        path = volume / "observer" / OBSERVER_SOCKET
+        assert len(str(path).encode()) > 108  # longer than a unix socket address holds
+        return path
 
     def restart(self, sim: SimulatedCellProcess) -> None:
         """The kubelet restarts the sidecar: a new connector serves the same volumes."""
@@ -96,7 +105,7 @@ def request(path: Path, message: dict[str, Any]) -> dict[str, Any]:
     """One request line on a unix socket, as anyone who can reach the socket could send it."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as conn:
         conn.settimeout(5)
-        conn.connect(str(path))
+        connect_long(conn, path)
         conn.sendall(json.dumps(message).encode() + b"\n")
         data = b""
         while not data.endswith(b"\n"):

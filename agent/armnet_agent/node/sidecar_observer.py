@@ -27,6 +27,7 @@ from __future__ import annotations
 import base64
 import json
 import logging
+import os
 import re
 import socket
 import threading
@@ -63,6 +64,21 @@ def observer_socket(kubelet_root: Path, pod_uid: str) -> Path | None:
     if not _POD_UID.match(pod_uid):
         return None
     return kubelet_root / "pods" / pod_uid / "volumes" / "kubernetes.io~empty-dir" / OBSERVER_VOLUME / OBSERVER_SOCKET
+
+
+def connect_long(sock: socket.socket, path: Path) -> None:
+    """``sock.connect(path)`` for a path longer than a unix socket address holds (108 bytes).
+
+    The kubelet's path of a pod's volume is longer than that (113 bytes with the
+    default root). The directory is opened (``O_PATH``) and the socket reached
+    through the short ``/proc/self/fd/<fd>/<name>``, which is safe from other
+    threads (unlike a ``chdir``).
+    """
+    directory = os.open(path.parent, os.O_PATH | os.O_DIRECTORY)
+    try:
+        sock.connect(f"/proc/self/fd/{directory}/{path.name}")
+    finally:
+        os.close(directory)
 
 
 def parse_servos(data: Any) -> dict[str, Mapping[str, ServoSample | None] | str] | None:
@@ -234,7 +250,7 @@ class SidecarObserver:
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         sock.settimeout(self._timeout_s)
         try:
-            sock.connect(str(path))
+            connect_long(sock, path)
         except OSError as exc:
             sock.close()
             self._retry_at = time.monotonic() + self._retry_s
