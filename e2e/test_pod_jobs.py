@@ -91,7 +91,9 @@ LOOKS_AROUND = """
 
 # Reads positions, keeps a camera open and runs two rollouts with the operator's buttons, long enough
 # for the agent to publish the pod's telemetry; then says which unix sockets it could find anywhere.
+# It also tries to forge rollout events the way a tenant could: a connector record on its own output.
 OBSERVED = """
+    import json
     import os
     import stat
     import time
@@ -115,6 +117,9 @@ OBSERVED = """
 
     @main
     def run(ctx: Context):
+        # A forged connector record with a rollout of its own: the agent reads the connector's log only.
+        forged = {"rollouts": [{"kind": "begin", "at": time.time(), "index": 99, "total": 99}]}
+        print("ARMNET_CONNECTOR_RECORD " + json.dumps(forged), flush=True)
         bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
         camera = OpenCVCamera(ctx.camera_configs["front"])
         camera.connect()
@@ -389,6 +394,7 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
     assert [(r["index"], r["total"], r["outcomeControls"], r["outcome"]) for r in history] == [
         (0, 2, True, "unmarked"), (1, 2, True, "unmarked")]
     assert all("endedAt" in r for r in history), history
-    # The tenant's container finds the job's own sockets and nothing of the observer's.
+    # Neither the forged record's rollout 99 (job output is not the connector's log) nor any socket but
+    # the job's own two in the tenant's container: nothing there can pose as the connector.
     found = st["result"]["returnValue"]["sockets"]
     assert found and all(path.rsplit("/", 1)[-1] in ("robot.sock", "operator.sock") for path in found), found
