@@ -24,7 +24,7 @@ from armnet_agent.connector import Connector, LocalOperatorInputs
 from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.streams import NatsLink, StreamSettings
+from armnet_agent.node.streams import NatsLink
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
 from armnet_agent.node.telemetry_sources import (
     ArmPort,
@@ -37,26 +37,28 @@ from armnet_agent.node.telemetry_sources import (
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 
-from tests.support.sim_connector import CALIBRATION, MOTORS, cell_config, heard, job_bus
+from tests.support.sim_connector import (
+    CALIBRATION,
+    MOTORS,
+    cell_config,
+    connected_link,
+    heard,
+    job_bus,
+    simulated_so101,
+)
 
 pytestmark = pytest.mark.integration
 
 @pytest.fixture(scope="module")
 def sim() -> Iterator[SimulatedCellProcess]:
-    cell = SimulatedCellProcess("so101").start()
-    yield cell
-    cell.stop()
+    with simulated_so101() as cell:
+        yield cell
 
 
 @pytest.fixture(scope="module")
 def link(nats_server: str) -> Iterator[NatsLink]:
-    link = NatsLink(StreamSettings(url=nats_server)).start()
-    deadline = time.monotonic() + 20
-    while not link.connected and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert link.connected, "the agent's NATS link did not connect"
-    yield link
-    link.stop()
+    with connected_link(nats_server) as connected:
+        yield connected
 
 
 @pytest.fixture

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from armnet_agent.connector import ConnectorConfig
+from armnet_agent.node.streams import NatsLink, StreamSettings
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 
@@ -54,3 +58,26 @@ def heard(nats_url: str, subjects: list[str], publish: Any) -> dict[str, bytes]:
     return asyncio.run(asyncio.wait_for(body(), 30))
 
 
+
+
+@contextmanager
+def simulated_so101() -> Iterator[SimulatedCellProcess]:
+    cell = SimulatedCellProcess("so101").start()
+    try:
+        yield cell
+    finally:
+        cell.stop()
+
+
+@contextmanager
+def connected_link(nats_url: str) -> Iterator[NatsLink]:
+    """The agent's NATS link, connected (within 20 s) before it is handed out."""
+    link = NatsLink(StreamSettings(url=nats_url)).start()
+    try:
+        deadline = time.monotonic() + 20
+        while not link.connected and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert link.connected, "the agent's NATS link did not connect"
+        yield link
+    finally:
+        link.stop()
