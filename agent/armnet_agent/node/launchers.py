@@ -436,7 +436,16 @@ class PodSession:
         return None
 
     def job_view(self) -> JobView | None:
-        return self.observer
+        return self.observer if self._job_running() else None
+
+    def _job_running(self) -> bool:
+        """The job's container runs: the sidecar serves (it is ready first) and has not been stopped yet.
+
+        Outside that window the observer socket is not asked (it is not there yet, or gone after the job's
+        exit), so a connection failure counted by the observer means something an operator should see.
+        """
+        job = self.job
+        return job is not None and job.wait_started(0) and job.wait(0) is None
 
     def interlock_trip(self) -> str | None:
         return None  # the connector is in the pod; its trips reach the status through its record
@@ -455,8 +464,10 @@ class PodSession:
         observer = self.observer
         if observer is None:
             return []
-        if self._record is not None:
-            return observer.take_events(())  # the sidecar has stopped: its socket is gone
+        if self._record is not None or not self._job_running():
+            # Not yet started, or the job has exited (the kubelet stops the sidecar next): its record
+            # carries the last events.
+            return observer.take_events(())
         return observer.rollout_events()
 
     def record(self) -> report.ConnectorRecord:
