@@ -19,7 +19,7 @@ import re
 import sys
 import urllib.request
 from collections.abc import Iterator
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 import pytest
@@ -174,8 +174,63 @@ def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str)
         k8s.delete_namespace(namespace)
 
 
+class TelemetryHeard:
+    """Every ``telemetry.>`` message on the bed's NATS from the batch's submission on, with when it arrived."""
+
+    def __init__(self, nats_url: str) -> None:
+        import asyncio
+        import threading
+
+        self._messages: list[tuple[datetime, str, bytes]] = []
+        self._lock = threading.Lock()
+        self._loop = asyncio.new_event_loop()
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._loop.run_until_complete, args=(self._listen(nats_url),),
+                                        daemon=True)
+        self._thread.start()
+        assert self._ready.wait(30), "the telemetry listener did not connect to NATS"
+
+    async def _listen(self, nats_url: str) -> None:
+        import asyncio
+
+        import nats
+
+        client = await nats.connect(nats_url)
+
+        async def keep(msg: Any) -> None:
+            with self._lock:
+                self._messages.append((datetime.now(UTC), msg.subject, msg.data))
+
+        await client.subscribe("telemetry.>", cb=keep)
+        await client.flush()
+        self._ready.set()
+        self._stop = asyncio.Event()
+        await self._stop.wait()
+        await client.close()
+
+    def of(self, subject: str) -> list[tuple[datetime, bytes]]:
+        with self._lock:
+            return [(at, data) for at, s, data in self._messages if s == subject]
+
+    def close(self) -> None:
+        self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(10)
+
+
 @pytest.fixture(scope="module")
-def batch(bed: AgentBed) -> dict[str, str]:
+def telemetry(bed: AgentBed) -> Iterator[TelemetryHeard]:
+    assert bed.nats_url is not None
+    heard = TelemetryHeard(bed.nats_url)
+    yield heard
+    heard.close()
+
+
+def parse_time(value: str) -> datetime:
+    return datetime.fromisoformat(value.replace("Z", "+00:00"))
+
+
+@pytest.fixture(scope="module")
+def batch(bed: AgentBed, telemetry: TelemetryHeard) -> dict[str, str]:
     """The independent scenarios' jobs, submitted together so they run side by side."""
     bed.k8s.kubectl("create", "secret", "generic", "api-token", "-n", bed.namespace,
                     f"--from-literal=API_TOKEN={SECRET_VALUE}")
@@ -341,39 +396,18 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]
 
 
-def telemetry_of(nats_url: str, cell: str, seconds: float) -> dict[str, list[bytes]]:
-    """Every telemetry message of ``cell`` heard for ``seconds``, by subject."""
-    import asyncio
-
-    async def body() -> dict[str, list[bytes]]:
-        import nats
-
-        client = await nats.connect(nats_url)
-        got: dict[str, list[bytes]] = {}
-
-        async def keep(msg: Any) -> None:
-            got.setdefault(msg.subject, []).append(msg.data)
-
-        await client.subscribe(f"telemetry.{cell}.>", cb=keep)
-        await asyncio.sleep(seconds)
-        await client.close()
-        return got
-
-    return asyncio.run(body())
-
-
 def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_reach_its_status(
-    bed: AgentBed, batch: dict[str, str]
+    bed: AgentBed, batch: dict[str, str], telemetry: TelemetryHeard
 ) -> None:
     import cv2
     import numpy as np
 
-    job = bed.wait(lambda: (lambda j: j if (status(j).get("progress") or "").startswith("rollout")
-                            else None)(bed.job(batch["observed"])), 300, "the observed job's first rollout")
-    cell = status(job)["cellName"]
-    assert bed.nats_url is not None
-    heard = telemetry_of(bed.nats_url, cell, 3.0)
-    readings = [json.loads(m) for m in heard.get(f"telemetry.{cell}.servos", [])]
+    st = status(bed.wait_phase(batch["observed"], timeout=400))
+    assert st["phase"] == "succeeded", explain(st)
+    cell = st["cellName"]
+    # While it ran (between its two rollouts' begin and end): its reads and its camera, from the pod.
+    begun, ended = (parse_time(st["rollouts"][0]["startedAt"]), parse_time(st["rollouts"][-1]["endedAt"]))
+    readings = [json.loads(data) for at, data in telemetry.of(f"telemetry.{cell}.servos") if begun <= at <= ended]
     from_job = [r for r in readings if r["source"] == "job" and isinstance(r["arms"]["arm"].get("motors"), dict)]
     if not from_job:
         observer = [line for line in bed.logs().splitlines() if "observer" in line]
@@ -381,15 +415,13 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
                     f"{observer[-5:]}")
     motors = from_job[-1]["arms"]["arm"]["motors"]
     assert all(0 <= m["position"] < 4096 and "load" not in m for m in motors.values()), motors
-    frames = heard.get(f"telemetry.{cell}.camera.front", [])
+    frames = [data for at, data in telemetry.of(f"telemetry.{cell}.camera.front") if begun <= at <= ended]
     assert frames and cv2.imdecode(np.frombuffer(frames[-1], np.uint8), cv2.IMREAD_COLOR) is not None
     text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
     ok = [line for line in text.splitlines()
           if line.startswith('armnet_agent_sidecar_observer_requests_total{result="ok"}')]
     assert ok and float(ok[0].split()[-1]) > 0, ok
 
-    st = status(bed.wait_phase(batch["observed"], timeout=300))
-    assert st["phase"] == "succeeded", explain(st)
     history = st["rollouts"]
     assert [(r["index"], r["total"], r["outcomeControls"], r["outcome"]) for r in history] == [
         (0, 2, True, "unmarked"), (1, 2, True, "unmarked")]
