@@ -98,9 +98,8 @@ class Connector:
 
     def start(self) -> Connector:
         start_warm_imports()  # LeRobot's device modules, off the first request's path (warm_imports.py)
-        self.socket_dir.mkdir(parents=True, exist_ok=True)
-        for server in self._servers[2:]:
-            server.path.parent.mkdir(parents=True, exist_ok=True)
+        for server in self._servers:
+            server.path.parent.mkdir(parents=True, exist_ok=True)  # the observer's may be elsewhere
         started: list[UnixServer] = []
         try:
             for server in self._servers:
