@@ -2,13 +2,15 @@
 
 The job runs on the local simulated cell exactly as ``armnet run`` runs it
 (``run_local_job``, in a thread); headless Chromium logs in with the run's
-token, confirms the job's reset and marks its two rollouts.
+token, confirms the job's reset, sees the camera and servo plots of what the
+job reads, and marks its two rollouts.
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import shutil
 import textwrap
 import threading
 from pathlib import Path
@@ -22,24 +24,37 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as visible
 from selenium.webdriver.support.ui import WebDriverWait
 
+from e2e.agent_bed import EXAMPLES
 from tests.support.fms_server import chromium, console_errors, free_port, log_in
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
 
+# Reads the arm and its camera while it waits for the operator: the page plots and shows those.
 JOB = """
     import time
+    from _so101_moves import open_bus
     from armnet_runtime import Context, main
+    from lerobot.cameras.opencv import OpenCVCamera
 
     @main
     def run(ctx: Context):
         ctx.cell.reset()
+        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
+        camera = OpenCVCamera(ctx.camera_configs["front"])
+        camera.connect()
         outcomes = []
-        for index in (1, 2):
-            ctx.cell.rollout_begin(index=index, total=2)
-            while not (status := ctx.cell.is_complete()).complete:
-                time.sleep(0.1)
-            outcomes.append(status.success)
-            ctx.cell.rollout_end()
+        try:
+            for index in (1, 2):
+                ctx.cell.rollout_begin(index=index, total=2)
+                while not (status := ctx.cell.is_complete()).complete:
+                    bus.sync_read("Present_Position")
+                    camera.async_read(timeout_ms=1000)
+                    time.sleep(0.1)
+                outcomes.append(status.success)
+                ctx.cell.rollout_end()
+        finally:
+            camera.disconnect()
+            bus.disconnect(disable_torque=False)
         return {"outcomes": outcomes}
 """
 
@@ -47,6 +62,7 @@ JOB = """
 def test_a_customer_confirms_a_reset_and_marks_rollouts_on_the_local_page(tmp_path: Path) -> None:
     script = tmp_path / "job.py"
     script.write_text(textwrap.dedent(JOB))
+    shutil.copy(EXAMPLES / "_so101_moves.py", tmp_path)
     port = free_port()
     parser = argparse.ArgumentParser()
     add_arguments(parser)
@@ -62,15 +78,21 @@ def test_a_customer_confirms_a_reset_and_marks_rollouts_on_the_local_page(tmp_pa
         log_in(driver, f"http://127.0.0.1:{port}", token)
         driver.get(f"http://127.0.0.1:{port}/cells/local")
         click(driver, "confirm-reset", timeout=300)  # SDK imports and the rest pose: minutes on a loaded machine
-        # A local run has no telemetry feed: no camera/servo section, nothing polled (and no
-        # failed requests once the run ends and its page server with it).
-        assert not driver.find_element(By.ID, "telemetry").is_displayed()
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "1/2"))
+        # The camera the job opened and the positions of its own reads, through the agent's telemetry code.
+        WebDriverWait(driver, 60).until(lambda d: d.execute_script(
+            "const img = document.getElementById('camera-front');"
+            "const plot = document.querySelector('svg.plot');"
+            "return !!img && img.naturalWidth > 0 && !!plot && Number(plot.dataset.points) > 0;"))
+        WebDriverWait(driver, 30).until(visible.text_to_be_present_in_element((By.ID, "telemetry-state"),
+                                                                               "job's own reads"))
         click(driver, "mark-fail")
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "2/2"))
+        # Checked before the last click: the run ends with it, and its page server with it (the page's
+        # next telemetry poll then fails, as it should).
+        assert console_errors(driver) == []
         click(driver, "mark-success")
         runner.join(120)
-        assert console_errors(driver) == []
     finally:
         driver.quit()
     (result,) = results

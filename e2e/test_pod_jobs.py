@@ -21,12 +21,12 @@ import re
 import sys
 import urllib.request
 from collections.abc import Iterator
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 import pytest
 
-from e2e.agent_bed import EXAMPLES, AgentBed
+from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, AgentBed
 
 pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
 
@@ -91,21 +91,76 @@ LOOKS_AROUND = """
                 "root_writable": os.access("/", os.W_OK)}
 """
 
+# Reads positions, keeps a camera open and runs two rollouts with the operator's buttons, long enough
+# for the agent to publish the pod's telemetry; then says which unix sockets it could find anywhere.
+# It also tries to forge rollout events the way a tenant could: a connector record on its own output.
+OBSERVED = """
+    import json
+    import os
+    import stat
+    import time
+    from _so101_moves import open_bus
+    from armnet_runtime import Context, main
+    from lerobot.cameras.opencv import OpenCVCamera
+
+    def sockets(skip):
+        found = []
+        for top, dirs, files in os.walk("/"):
+            if top.startswith(("/proc", "/sys", *skip)):
+                dirs[:] = []
+                continue
+            for name in files:
+                try:
+                    if stat.S_ISSOCK(os.lstat(os.path.join(top, name)).st_mode):
+                        found.append(os.path.join(top, name))
+                except OSError:
+                    pass
+        return sorted(found)
+
+    @main
+    def run(ctx: Context):
+        # A forged connector record with a rollout of its own: the agent reads the connector's log only.
+        forged = {"rollouts": [{"kind": "begin", "at": time.time(), "index": 99, "total": 99}]}
+        print("ARMNET_CONNECTOR_RECORD " + json.dumps(forged), flush=True)
+        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
+        camera = OpenCVCamera(ctx.camera_configs["front"])
+        camera.connect()
+        try:
+            for index in range(2):
+                ctx.cell.rollout_begin(index=index, total=2, outcome_controls=True)
+                ctx.report_progress(f"rollout {index}")
+                end = time.monotonic() + ctx.args.get("rollout_s", 6)
+                while time.monotonic() < end:
+                    bus.sync_read("Present_Position")
+                    camera.async_read(timeout_ms=1000)
+                    time.sleep(0.1)
+                ctx.cell.rollout_end()
+        finally:
+            camera.disconnect()
+            bus.disconnect(disable_torque=False)
+        return {"sockets": sockets(tuple(ctx.args.get("skip", ())))}
+"""
+
 SECRET_VALUE = "s3cr3t-pod-value-42"
 
 
 @pytest.fixture(scope="module")
-def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str) -> Iterator[AgentBed]:
+def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("pod-e2e")
-    bed = AgentBed(k8s, podman, base_image, namespace)
+    bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
     bed.node = k8s_node.name
     bed.image_prefix = "armnet-pod-e2e"
     # The non-root job user must reach the venv mounted under /root (development stand-in only).
     bed.image_lines = ["RUN chmod 0755 /root"]
     bed.on_image = k8s_node.import_image
     bed.agent_args = ["--launcher", "pod", "--connector-image", base_image, "--image-pull-policy", "Never",
-                      "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar"]
-    bed.cells = [bed.add_cell(f"pod-{c}") for c in "abc"]  # type: ignore[attr-defined]
+                      "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
+                      # The pods' observer sockets, under the test node's own kubelet root.
+                      "--kubelet-root-dir", str(k8s_node.workdir / "kubelet"),
+                      "--telemetry-servo-hz", "2", "--telemetry-frame-fps", "1"]
+    bed.telemetry = True
+    camera = {"front": {"indexOrPath": 0}}
+    bed.cells = [bed.add_cell(f"pod-{c}", cameras=camera) for c in "abc"]  # type: ignore[attr-defined]
     bed.start_operator()
     bed.start_agent()
     try:
@@ -121,8 +176,63 @@ def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str) -> Iterator[Agent
         k8s.delete_namespace(namespace)
 
 
+class TelemetryHeard:
+    """Every ``telemetry.>`` message on the bed's NATS from the batch's submission on, with when it arrived."""
+
+    def __init__(self, nats_url: str) -> None:
+        import asyncio
+        import threading
+
+        self._messages: list[tuple[datetime, str, bytes]] = []
+        self._lock = threading.Lock()
+        self._loop = asyncio.new_event_loop()
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._loop.run_until_complete, args=(self._listen(nats_url),),
+                                        daemon=True)
+        self._thread.start()
+        assert self._ready.wait(30), "the telemetry listener did not connect to NATS"
+
+    async def _listen(self, nats_url: str) -> None:
+        import asyncio
+
+        import nats
+
+        client = await nats.connect(nats_url)
+
+        async def keep(msg: Any) -> None:
+            with self._lock:
+                self._messages.append((datetime.now(UTC), msg.subject, msg.data))
+
+        await client.subscribe("telemetry.>", cb=keep)
+        await client.flush()
+        self._ready.set()
+        self._stop = asyncio.Event()
+        await self._stop.wait()
+        await client.close()
+
+    def of(self, subject: str) -> list[tuple[datetime, bytes]]:
+        with self._lock:
+            return [(at, data) for at, s, data in self._messages if s == subject]
+
+    def close(self) -> None:
+        self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(10)
+
+
 @pytest.fixture(scope="module")
-def batch(bed: AgentBed) -> dict[str, str]:
+def telemetry(bed: AgentBed) -> Iterator[TelemetryHeard]:
+    assert bed.nats_url is not None
+    heard = TelemetryHeard(bed.nats_url)
+    yield heard
+    heard.close()
+
+
+def parse_time(value: str) -> datetime:
+    return datetime.fromisoformat(value.replace("Z", "+00:00"))
+
+
+@pytest.fixture(scope="module")
+def batch(bed: AgentBed, telemetry: TelemetryHeard) -> dict[str, str]:
     """The independent scenarios' jobs, submitted together so they run side by side."""
     bed.k8s.kubectl("create", "secret", "generic", "api-token", "-n", bed.namespace,
                     f"--from-literal=API_TOKEN={SECRET_VALUE}")
@@ -134,6 +244,8 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
                             secrets={"API_TOKEN": "api-token"}),
         "timeout": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
+        "observed": bed.submit("observed", bed.image("observed", OBSERVED, (EXAMPLES / "_so101_moves.py",)),
+                               timeout=300, args={"skip": list(DEV_MOUNTS)}),  # the venv: large, no sockets
     }
 
 
@@ -300,3 +412,39 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     assert "connector sidecar restarted" in st["result"]["error"]
     # The restarted connector's own record: it came back with the interlock tripped.
     assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]
+
+
+def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_reach_its_status(
+    bed: AgentBed, batch: dict[str, str], telemetry: TelemetryHeard
+) -> None:
+    import cv2
+    import numpy as np
+
+    st = status(bed.wait_phase(batch["observed"], timeout=400))
+    assert st["phase"] == "succeeded", explain(st)
+    cell = st["cellName"]
+    # While it ran (between its two rollouts' begin and end): its reads and its camera, from the pod.
+    begun, ended = (parse_time(st["rollouts"][0]["startedAt"]), parse_time(st["rollouts"][-1]["endedAt"]))
+    readings = [json.loads(data) for at, data in telemetry.of(f"telemetry.{cell}.servos") if begun <= at <= ended]
+    from_job = [r for r in readings if r["source"] == "job" and isinstance(r["arms"]["arm"].get("motors"), dict)]
+    if not from_job:
+        observer = [line for line in bed.logs().splitlines() if "observer" in line]
+        pytest.fail(f"no servo reading of the job on {cell}: {readings[-3:]}; the agent on its observer socket: "
+                    f"{observer[-5:]}")
+    motors = from_job[-1]["arms"]["arm"]["motors"]
+    assert all(0 <= m["position"] < 4096 and "load" not in m for m in motors.values()), motors
+    frames = [data for at, data in telemetry.of(f"telemetry.{cell}.camera.front") if begun <= at <= ended]
+    assert frames and cv2.imdecode(np.frombuffer(frames[-1], np.uint8), cv2.IMREAD_COLOR) is not None
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    ok = [line for line in text.splitlines()
+          if line.startswith('armnet_agent_sidecar_observer_requests_total{result="ok"}')]
+    assert ok and float(ok[0].split()[-1]) > 0, ok
+
+    history = st["rollouts"]
+    assert [(r["index"], r["total"], r["outcomeControls"], r["outcome"]) for r in history] == [
+        (0, 2, True, "unmarked"), (1, 2, True, "unmarked")]
+    assert all("endedAt" in r for r in history), history
+    # Neither the forged record's rollout 99 (job output is not the connector's log) nor any socket but
+    # the job's own two in the tenant's container: nothing there can pose as the connector.
+    found = st["result"]["returnValue"]["sockets"]
+    assert found and all(path.rsplit("/", 1)[-1] in ("robot.sock", "operator.sock") for path in found), found

@@ -2,7 +2,8 @@
 
 ``LocalFleet`` shows the local run's cell and job as Cell/RobotJob-shaped
 dicts, so ``view`` and ``actions`` work unchanged; ``LocalBus`` hands the
-operator's inputs to the run (a callback) and its reset announcements to the
+operator's inputs to the run (a callback), and its reset announcements and
+telemetry messages (the agent's own ``telemetry.<cell>.*`` payloads) to the
 page. ``LocalServer`` serves it on localhost in a thread. Nothing here imports
 the agent: the local run passes callables in.
 """
@@ -21,6 +22,7 @@ from typing import Any
 
 from .actions import AuditEvent
 from .auth import AuthSettings
+from .telemetry import TelemetryStore
 
 log = logging.getLogger(__name__)
 
@@ -85,10 +87,17 @@ class LocalFleet:
 
 
 class LocalBus:
-    """``deliver(kind, message)`` applies an input to the run; ``announce_reset()`` may be called from any thread."""
+    """``deliver(kind, message)`` applies an input to the run; ``announce_reset()`` may be called from any thread.
 
-    def __init__(self, cell: str, job_id: str, deliver: Callable[[str, dict[str, Any]], None]) -> None:
+    ``notify(subject, data)`` is the run's telemetry publisher (the agent's ``telemetry.<cell>.*``
+    messages, exactly as on NATS), handed to ``telemetry`` on the page's own loop: the store is
+    read there, so it is written there too. Called from any thread; dropped before the page starts.
+    """
+
+    def __init__(self, cell: str, job_id: str, deliver: Callable[[str, dict[str, Any]], None],
+                 telemetry: TelemetryStore | None = None) -> None:
         self.cell, self.job_id, self._deliver = cell, job_id, deliver
+        self.telemetry = telemetry
         self._loop: asyncio.AbstractEventLoop | None = None
         self._on_reset: Callable[[str, dict[str, Any]], None] | None = None
 
@@ -105,6 +114,11 @@ class LocalBus:
 
     async def close(self) -> None:
         self._loop = None
+
+    def notify(self, subject: str, data: bytes) -> None:
+        loop, store = self._loop, self.telemetry
+        if loop is not None and store is not None:
+            loop.call_soon_threadsafe(store.accept, subject, data, time.time())
 
     def announce_reset(self, *_: Any) -> None:
         at = datetime.now(UTC).isoformat()
@@ -127,7 +141,7 @@ class LocalServer:
         self.url = f"http://127.0.0.1:{port}"
         settings = AuthSettings(secret_key=secrets.token_bytes(32), tokens={self.token: LOCAL_OPERATOR})
         self.state = FleetState(fleet, poll_s=0.5)
-        app = build_app(self.state, bus, settings, secure_cookies=False)
+        app = build_app(self.state, bus, settings, secure_cookies=False, telemetry=bus.telemetry)
         self._server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning",
                                                      access_log=False))
         self._thread = threading.Thread(target=self._server.run, name="armnet-fms", daemon=True)

@@ -126,6 +126,8 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
                   "calibration": {"hostPath": str(host / "calibration"),
                                   "mountPath": str(host / "calibration")},
                   "cache": {"hostPath": str(host / "cache"), "mountPath": str(host / "cache")},
+                  # The test node's kubelet keeps its pods under its own --root-dir.
+                  "kubeletRootDir": str(k8s_node.workdir / "kubelet"),
                   "env": {**to_api, "ARMNET_AGENT_STATE_DIR": str(host / "cache"),
                           "ARMNET_AGENT_CALIBRATION_DIR": str(host / "calibration")}},
     }

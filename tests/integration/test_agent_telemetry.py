@@ -9,78 +9,56 @@ what arrives: JPEG of the published size, and servo values the simulated servos 
 
 from __future__ import annotations
 
-import asyncio
 import json
 import shutil
 import tempfile
 import time
 from collections.abc import Iterator
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector import Connector, ConnectorConfig, LocalOperatorInputs
+from armnet_agent.connector import Connector, LocalOperatorInputs
 from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.streams import NatsLink, StreamSettings
+from armnet_agent.node.streams import NatsLink
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
 from armnet_agent.node.telemetry_sources import (
     ArmPort,
     IdleArms,
     IdleCameras,
     IdleSource,
+    InProcessView,
     JobSource,
 )
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
-from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+
+from tests.support.sim_connector import (
+    CALIBRATION,
+    MOTORS,
+    cell_config,
+    connected_link,
+    heard,
+    job_bus,
+    simulated_so101,
+)
 
 pytestmark = pytest.mark.integration
 
-CALIBRATION = Path(str(resources.files("armnet_agent.sim.data").joinpath("so101.json")))
-MOTORS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
-
-
-def cell_config(sim: SimulatedCellProcess) -> ConnectorConfig:
-    return ConnectorConfig.model_validate({
-        "arms": {"arm": {"port": sim.arm.port, "calibrationFile": str(CALIBRATION), "robotId": "sim-so101"}},
-        "cameras": {"front": {"indexOrPath": 0, "fps": 30, "width": 640, "height": 480}},
-        "simulated": True,
-    })
-
-
-def job_bus(endpoint: str) -> RemoteFeetechMotorsBus:
-    """The SO-101 bus a job builds, with the cell's calibration."""
-    import json
-
-    from lerobot.motors import Motor, MotorCalibration, MotorNormMode
-
-    motors = {name: Motor(i + 1, "sts3215", MotorNormMode.DEGREES) for i, name in enumerate(MOTORS)}
-    motors["gripper"] = Motor(6, "sts3215", MotorNormMode.RANGE_0_100)
-    calibration = {name: MotorCalibration(**entry) for name, entry in json.loads(CALIBRATION.read_text()).items()}
-    return RemoteFeetechMotorsBus(port=endpoint, motors=motors, calibration=calibration)
-
-
 @pytest.fixture(scope="module")
 def sim() -> Iterator[SimulatedCellProcess]:
-    cell = SimulatedCellProcess("so101").start()
-    yield cell
-    cell.stop()
+    with simulated_so101() as cell:
+        yield cell
 
 
 @pytest.fixture(scope="module")
 def link(nats_server: str) -> Iterator[NatsLink]:
-    link = NatsLink(StreamSettings(url=nats_server)).start()
-    deadline = time.monotonic() + 20
-    while not link.connected and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert link.connected, "the agent's NATS link did not connect"
-    yield link
-    link.stop()
+    with connected_link(nats_server) as connected:
+        yield connected
 
 
 @pytest.fixture
@@ -91,25 +69,6 @@ def connector(sim: SimulatedCellProcess, monkeypatch: pytest.MonkeyPatch) -> Ite
     yield connector
     connector.stop()
     shutil.rmtree(socket_dir, ignore_errors=True)
-
-
-def heard(nats_url: str, subjects: list[str], publish: Any) -> dict[str, bytes]:
-    """The first message on each subject after ``publish()`` ran (subscribed before it)."""
-
-    async def body() -> dict[str, bytes]:
-        import nats
-
-        client = await nats.connect(nats_url)
-        got: dict[str, bytes] = {}
-        subs = [await client.subscribe(s) for s in subjects]
-        await client.flush()
-        await asyncio.to_thread(publish)
-        for subject, sub in zip(subjects, subs, strict=True):
-            got[subject] = (await sub.next_msg(timeout=10)).data
-        await client.close()
-        return got
-
-    return asyncio.run(asyncio.wait_for(body(), 30))
 
 
 def publisher(source: TelemetrySource, link: NatsLink, metrics: AgentMetrics) -> CellTelemetry:
@@ -140,7 +99,7 @@ def test_during_a_job_frames_and_the_jobs_own_position_reads_come_through_its_co
         camera.async_read(timeout_ms=2000)
         held = bus.sync_read("Present_Position", normalize=False)  # what the job itself reads
         metrics = AgentMetrics()
-        source = JobSource(connector.cell, (CameraSpec("front"),), sim=None)
+        source = JobSource(InProcessView(connector.cell), (CameraSpec("front"),), sim=None)
         telemetry = publisher(source, link, metrics)
         got = heard(nats_server, ["telemetry.cell-1.servos", "telemetry.cell-1.camera.front"],
                     lambda: telemetry.tick(time.monotonic()))
@@ -166,7 +125,7 @@ def test_during_a_job_telemetry_sends_nothing_on_its_bus_so_load_and_temperature
         bus.write("Torque_Enable", "gripper", 0, normalize=False)
         moved = int(held["gripper"]) + 200
         sim.arm.move_by_hand("gripper", moved)  # the servo moves; the job has not read it since
-        readings = JobSource(connector.cell, (), sim=None).servos()
+        readings = JobSource(InProcessView(connector.cell), (), sim=None).servos()
         assert sim.arm.positions()["gripper"] == pytest.approx(moved, abs=2)
     finally:
         bus.disconnect(disable_torque=False)
@@ -183,7 +142,7 @@ def test_a_job_that_has_not_read_positions_yet_shows_why(connector: Connector) -
     bus = job_bus(connector.robot_endpoint)
     bus.connect()
     try:
-        readings = JobSource(connector.cell, (), sim=None).servos()
+        readings = JobSource(InProcessView(connector.cell), (), sim=None).servos()
     finally:
         bus.disconnect(disable_torque=False)
     assert readings == {"arm": "the job has not read Present_Position yet"}
@@ -192,7 +151,7 @@ def test_a_job_that_has_not_read_positions_yet_shows_why(connector: Connector) -
 def test_a_stopping_connector_shows_nothing(connector: Connector) -> None:
     connector.cell.stopping.set()
     try:
-        assert JobSource(connector.cell, (), sim=None).servos() is None
+        assert JobSource(InProcessView(connector.cell), (), sim=None).servos() is None
     finally:
         connector.cell.stopping.clear()
 

@@ -320,10 +320,23 @@ def test_agent_mounts_calibration_cache_and_the_device_plugin_dir() -> None:
     mounts = {m["name"]: m for m in pod["containers"][0]["volumeMounts"]}
 
     assert host_paths == {"calibration": "/var/lib/armnet/calibration", "cache": "/var/lib/armnet/cache",
-                          "device-plugins": "/var/lib/kubelet/device-plugins"}
+                          "device-plugins": "/var/lib/kubelet/device-plugins",
+                          "kubelet-pods": "/var/lib/kubelet/pods"}
     assert mounts["device-plugins"]["mountPath"] == "/var/lib/kubelet/device-plugins"
     assert mounts["calibration"]["readOnly"] is True
     assert not pod["containers"][0]["securityContext"].get("privileged")
+
+
+def test_agent_reads_job_pods_observer_sockets_through_a_read_only_propagated_kubelet_pods_mount() -> None:
+    pod = find(render(values={"agent": {"kubeletRootDir": "/srv/kubelet"}}), "DaemonSet")["spec"]["template"]["spec"]
+    host_paths = {v["name"]: v["hostPath"] for v in pod["volumes"] if "hostPath" in v}
+    container = pod["containers"][0]
+    mount = {m["name"]: m for m in container["volumeMounts"]}["kubelet-pods"]
+
+    assert host_paths["kubelet-pods"] == {"path": "/srv/kubelet/pods", "type": "Directory"}
+    assert mount == {"name": "kubelet-pods", "mountPath": "/srv/kubelet/pods", "readOnly": True,
+                     "mountPropagation": "HostToContainer"}
+    assert env_of(container)["ARMNET_AGENT_KUBELET_ROOT_DIR"] == "/srv/kubelet"
 
 
 def test_agent_nats_url_comes_from_a_value_or_a_secret() -> None:

@@ -21,6 +21,7 @@ from .frames import FrameAreas
 from .hardware import CameraFactory
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
+from .observer import OBSERVER_SOCKET, ObserverSession
 from .record import ConnectorRecord
 from .report import SafetyReport
 from .server import BufferBudget, ServerLimits, UnixServer
@@ -31,6 +32,8 @@ log = logging.getLogger(__name__)
 
 ROBOT_SOCKET = "robot.sock"
 OPERATOR_SOCKET = "operator.sock"
+OBSERVER_MAX_CONNECTIONS = 4
+"""The agent keeps one connection; a restarted agent may open another before the old one closes."""
 STOP_THREADS_WAIT_S = 1.0
 """How long ``stop`` waits for connection threads before releasing the devices: a call
 in flight may finish; a hung one does not hold back torque off."""
@@ -56,7 +59,9 @@ class Connector:
         completion: CompletionMonitor | None = None,
         camera_factory: CameraFactory | None = None,
         on_grace_expired: Callable[[], None] | None = None,
+        observer_dir: str | Path | None = None,
     ) -> None:
+        """``observer_dir``: where to serve the read-only ``observer.sock`` (observer.py), None: nowhere."""
         self.config = config
         self.socket_dir = Path(socket_dir)
         self.cell = CellState(
@@ -81,13 +86,20 @@ class Connector:
                 limits=limits, budget=budget,
             ),
         ]
+        if observer_dir is not None:
+            # The agent's read-only view from outside the pod: its own small cap, never the job's.
+            self._servers.append(UnixServer(
+                Path(observer_dir) / OBSERVER_SOCKET, lambda: ObserverSession(self.cell), self.cell.counters,
+                limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS),
+            ))
         self._started = False
 
     # -- lifetime ------------------------------------------------------------------
 
     def start(self) -> Connector:
         start_warm_imports()  # LeRobot's device modules, off the first request's path (warm_imports.py)
-        self.socket_dir.mkdir(parents=True, exist_ok=True)
+        for server in self._servers:
+            server.path.parent.mkdir(parents=True, exist_ok=True)  # the observer's may be elsewhere
         started: list[UnixServer] = []
         try:
             for server in self._servers:

@@ -10,6 +10,9 @@ of a job on a robot host, so each choice is deliberate:
 - the sockets (and the camera frame areas the connector keeps beside them) live
   in an ``emptyDir`` with ``medium: Memory`` shared by both containers; the
   calibration the connector writes is another ``emptyDir``, read-only for the job;
+- the connector's read-only observer socket (telemetry and rollout events for the
+  agent, which reaches it on the host) is in an ``emptyDir`` of the connector only:
+  the tenant shares the sockets volume and the network namespace, never this;
 - devices (the cell's serial ports and cameras) reach the connector only: it
   requests the cell's extended resource (``armnet.io/cell-<cell>``, served by
   the agent's device plugin, ``deviceplugin``), whose allocation gives them; or,
@@ -48,6 +51,12 @@ CONNECTOR_STOP_S = 10
 #: The customer's user: any non-root id; 65532 is the distroless "nonroot" convention.
 JOB_USER = 65532
 SOCKETS_SIZE = "256Mi"
+#: The connector's observer socket for the agent: an emptyDir mounted into the connector ONLY (the
+#: tenant shares the sockets volume and the network namespace, never this); the agent reaches it on the
+#: host under ``<kubelet root>/pods/<pod uid>/volumes/kubernetes.io~empty-dir/observer/``.
+OBSERVER_VOLUME = "observer"
+#: Where the connector container mounts it.
+OBSERVER_DIR = "/run/armnet-observer"
 TMP_SIZE = "256Mi"
 DEVICE_DIR = "/dev/armnet"
 CONNECTOR_CPU_REQUEST = "250m"
@@ -117,6 +126,8 @@ class PodInputs:
     image_pull_policy: str = "IfNotPresent"
     job_read_only_root: bool = True
     job_user: int = JOB_USER
+    #: Where the connector serves its read-only observer socket for the agent (``OBSERVER_VOLUME``), or None.
+    observer_dir: str | None = None
 
 
 def device_path(arm: str) -> str:
@@ -187,6 +198,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         {"name": "connector-tmp", "mountPath": "/tmp"},
         *({"name": f"device-{i}", "mountPath": device_path(arm)} for i, arm in enumerate(_host_devices(inputs))),
         *_dev_mounts(inputs),
+        *([{"name": OBSERVER_VOLUME, "mountPath": inputs.observer_dir}] if inputs.observer_dir else []),
     ]
     env = [{"name": SIDECAR_ENV, "value": json.dumps(dict(inputs.sidecar), sort_keys=True)}]
     env += [{"name": k, "value": v} for k, v in sorted(_with_home(inputs.connector_env).items())]
@@ -281,6 +293,8 @@ def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
         {"name": "cache", "hostPath": {"path": inputs.cache_dir, "type": "DirectoryOrCreate"}},
         {"name": "volume", "hostPath": {"path": inputs.volume_dir, "type": "DirectoryOrCreate"}},
     ]
+    if inputs.observer_dir:
+        volumes.append({"name": OBSERVER_VOLUME, "emptyDir": {"medium": "Memory", "sizeLimit": "1Mi"}})
     volumes += [
         {"name": f"device-{i}", "hostPath": {"path": inputs.devices[arm], "type": "CharDevice"}}
         for i, arm in enumerate(_host_devices(inputs))

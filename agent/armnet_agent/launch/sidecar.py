@@ -21,6 +21,10 @@ this container as devices. An agent that runs in a pod itself (the Helm chart)
 cannot: its ptys live in its own container's ``/dev/pts``, which no other
 container can mount. Then the config names the preset (``simulator``) and this
 sidecar runs the simulator next to the connector, on ptys of its own.
+
+While the job runs, the agent reads the telemetry and rollout events of the
+connector through ``observer.sock`` (``connector.observer``), served in a volume
+only this container mounts; a restarted sidecar serves it anew in the same place.
 """
 
 from __future__ import annotations
@@ -44,6 +48,10 @@ RESTARTED_MESSAGE = (
     "the job"
 )
 SIGNAL_POLL_S = 0.1
+#: The last rollout events in the record: the agent's polls of the observer socket may miss the final
+#: ones (the job ends a rollout and exits; the kubelet stops this sidecar a second later). One log line
+#: stays under the runtime's 16 KiB line split.
+RECORD_ROLLOUT_EVENTS = 64
 
 
 @dataclass(frozen=True)
@@ -54,10 +62,12 @@ class SidecarConfig:
     calibration: Mapping[str, Any]
     #: A simulated cell whose simulator this sidecar runs: ``{"preset": ..., "latency_ms": ...}``, else None.
     simulator: Mapping[str, Any] | None = None
+    #: Where the read-only observer socket is served for the agent (a volume of this container only), or None.
+    observer_dir: str | None = None
 
     def as_data(self) -> dict[str, Any]:
         data: dict[str, Any] = {"connector": dict(self.connector), "socket_dir": self.socket_dir,
-                                "calibration": dict(self.calibration)}
+                                "calibration": dict(self.calibration), "observer_dir": self.observer_dir}
         if self.simulator is not None:
             data["simulator"] = dict(self.simulator)
         return data
@@ -65,7 +75,7 @@ class SidecarConfig:
     @classmethod
     def from_data(cls, data: Mapping[str, Any]) -> SidecarConfig:
         return cls(connector=data["connector"], socket_dir=data["socket_dir"], calibration=data.get("calibration", {}),
-                   simulator=data.get("simulator"))
+                   simulator=data.get("simulator"), observer_dir=data.get("observer_dir"))
 
 
 def record_line(record: Mapping[str, Any]) -> str:
@@ -119,9 +129,9 @@ def main() -> int:
         ports = sim.ports()
         arms = {name: arm.model_copy(update={"port": ports[name]}) for name, arm in connector_config.arms.items()}
         connector = Connector(connector_config.model_copy(update={"arms": arms}), socket_dir,
-                              camera_factory=simulated_camera_factory(source=sim))
+                              camera_factory=simulated_camera_factory(source=sim), observer_dir=config.observer_dir)
     else:
-        connector = Connector(connector_config, socket_dir)
+        connector = Connector(connector_config, socket_dir, observer_dir=config.observer_dir)
     if restarted:
         connector.interlock.trip(TripReason.AGENT_RESTARTED, RESTARTED_MESSAGE)
     connector.start()
@@ -160,7 +170,10 @@ def _record(connector: Any) -> dict[str, Any]:
         if event.kind == "begin" and event.index is not None:
             rollout = event
             break
+    events = list(connector.cell.rollouts)[-RECORD_ROLLOUT_EVENTS:]
     return {
+        "rollouts": [{"kind": e.kind, "at": e.at, "index": e.index, "total": e.total,
+                      "outcome_controls": e.outcome_controls} for e in events],
         "trip_reason": trip.reason.value if trip is not None else None,
         "trip_message": trip.message if trip is not None else None,
         "safety_violations": connector.counters.safety_violations,

@@ -6,6 +6,12 @@ reset waits of the job's connector become Confirm buttons, Success/Fail reach
 window) like a cluster job. So a customer can click through a reset and
 outcome flow on their laptop. Served on 127.0.0.1 only, behind a token printed
 for this run.
+
+The cameras and servo plots come from the agent's own telemetry code: a
+``CellTelemetry`` thread over a ``JobSource`` of the run's connector (the
+positions of the job's reads, the frames of the cameras it opened, the
+simulator's picture for the others), publishing the same ``telemetry.local.*``
+messages an agent puts on NATS, straight into the page's store.
 """
 
 from __future__ import annotations
@@ -13,6 +19,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from armnet_agent.connector.inputs import LocalOperatorInputs
+from armnet_agent.node.metrics import AgentMetrics
+from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
+from armnet_agent.node.telemetry_sources import InProcessView, JobSource
 from armnet_agent.supervise import JobHooks
 from armnet_agent.supervise.observe import EventKind, OutputEvent
 
@@ -23,11 +32,17 @@ LOCAL_CELL = "local"
 
 
 class LocalPage:
-    def __init__(self, port: int, job_id: str, reset_timeout_s: float, hooks: JobHooks) -> None:
+    def __init__(self, port: int, job_id: str, reset_timeout_s: float, hooks: JobHooks,
+                 telemetry: TelemetrySettings | None = None) -> None:
         from armnet_fms.local import LocalBus, LocalFleet, LocalServer
+        from armnet_fms.telemetry import TelemetryStore
 
         self.inputs = LocalOperatorInputs()
-        self.bus = LocalBus(LOCAL_CELL, job_id, self._deliver)
+        self.bus = LocalBus(LOCAL_CELL, job_id, self._deliver, telemetry=TelemetryStore())
+        #: The agent's telemetry counters for this run (published / failed), as an agent exports them.
+        self.metrics = AgentMetrics()
+        self.telemetry = CellTelemetry(LOCAL_CELL, self._telemetry_source, self.bus, self.metrics,
+                                       telemetry or TelemetrySettings())
         self.inputs.on_reset_requested = self.bus.announce_reset
         self.cell: LocalCell | None = None
         self.fleet = LocalFleet(LOCAL_CELL, job_id, reset_timeout_s=reset_timeout_s, rollout=self._rollout,
@@ -36,10 +51,21 @@ class LocalPage:
 
     def start(self) -> LocalPage:
         self.server.start()
+        self.telemetry.start()
         return self
 
     def stop(self) -> None:
+        self.telemetry.stop()
+        self.telemetry.join(2.0)
         self.server.stop()
+
+    def _telemetry_source(self) -> TelemetrySource | None:
+        """The run's connector while the job runs (the same ``JobSource`` as a node agent's), else nothing."""
+        cell = self.cell
+        connector = cell.connector if cell is not None else None
+        if cell is None or connector is None or self.fleet.phase != "running":
+            return None
+        return JobSource(InProcessView(connector.cell), cell.spec.cameras, cell.sim)
 
     def observe(self, event: OutputEvent) -> None:
         if event.kind is EventKind.PROGRESS:

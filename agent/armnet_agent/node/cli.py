@@ -100,6 +100,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "as hostPath volumes instead, for kubelets without device plugins (docs/agent.md)")
     parser.add_argument("--device-plugin-dir", type=Path, default=Path(_env("DEVICE_PLUGIN_DIR") or DEVICE_PLUGIN_DIR),
                         help="the kubelet's device-plugin directory (its kubelet.sock; default: the kubelet's own)")
+    parser.add_argument("--kubelet-root-dir", type=Path, default=Path(_env("KUBELET_ROOT_DIR") or "/var/lib/kubelet"),
+                        help="pod launcher: the kubelet's --root-dir as this agent sees it; a job pod's connector "
+                             "serves its telemetry and rollout events under <dir>/pods/<pod uid>/volumes/ "
+                             "(in the DaemonSet: mounted read-only with HostToContainer propagation)")
     parser.add_argument("--verbose", action="store_true")
 
 
@@ -145,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
             dev_env=dev_env,
             device_plugin=args.device_plugin,
             simulator_in_pod=args.pod_simulator == "sidecar",
+            kubelet_root=args.kubelet_root_dir,
         )
         if args.device_plugin:
             device_plugins = DevicePlugins(metrics, args.device_plugin_dir).start()

@@ -24,11 +24,11 @@ import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 from armnet_runtime import env as env_keys
 
-from armnet_agent.connector.cell import CellState
 from armnet_agent.connector.inputs import LocalOperatorInputs
 from armnet_agent.deviceplugin.decide import resource_name
 from armnet_agent.launch.container import ContainerJob
@@ -36,6 +36,7 @@ from armnet_agent.launch.plan import LABEL_JOB_UID, LABEL_MANAGED_BY, MANAGED_BY
 from armnet_agent.launch.pod import PodExists, PodJob
 from armnet_agent.launch.pod_spec import (
     JOB_USER,
+    OBSERVER_DIR,
     PodInputs,
     PodResources,
     SecretRef,
@@ -48,6 +49,13 @@ from armnet_agent.node import report
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import Cell, Job
 from armnet_agent.node.plan import LaunchPlan, container_name
+from armnet_agent.node.sidecar_observer import (
+    DEFAULT_KUBELET_ROOT,
+    SidecarObserver,
+    observer_socket,
+    parse_event,
+)
+from armnet_agent.node.telemetry_sources import InProcessView, JobView
 from armnet_agent.sim.calibration import builtin_calibration, dump_calibration
 from armnet_agent.sim.presets import PRESETS, SimulatedCell
 from armnet_agent.supervise import LaunchedJob
@@ -91,8 +99,8 @@ class JobSession(Protocol):
 
     def interlock_trip(self) -> str | None: ...
 
-    def connector_cell(self) -> CellState | None:
-        """The job's connector state when it runs in this process (telemetry reads through it), else None."""
+    def job_view(self) -> JobView | None:
+        """What the job's connector knows, for telemetry (in this process, or a pod sidecar's observer socket)."""
         ...
 
     def remove(self) -> None: ...
@@ -205,9 +213,9 @@ class ContainerSession:
             return "the container was killed for exceeding its memory limit (OOM)"
         return None
 
-    def connector_cell(self) -> CellState | None:
+    def job_view(self) -> JobView | None:
         connector = self.local_cell.connector
-        return connector.cell if connector is not None else None
+        return InProcessView(connector.cell) if connector is not None else None
 
     def interlock_trip(self) -> str | None:
         connector = self.local_cell.connector
@@ -290,6 +298,8 @@ class PodSettings:
         container's, and a bind mount of that path on the host is another terminal or none.
         """
         return self.device_plugin and not (simulated and self.simulator_in_pod)
+    #: The kubelet's ``--root-dir`` as this agent sees it: pods' observer sockets are found under it.
+    kubelet_root: Path = DEFAULT_KUBELET_ROOT
 
 
 class PodLauncher:
@@ -345,7 +355,8 @@ class PodLauncher:
         }
         in_pod = request.sim is not None and s.simulator_in_pod
         simulator = {"preset": plan.cell_spec.preset, "latency_ms": plan.cell_spec.latency_ms} if in_pod else None
-        sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration, simulator)
+        sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration, simulator,
+                                observer_dir=OBSERVER_DIR)
         devices = dict(request.sim.ports()) if request.sim is not None and not in_pod else {}
         env = dict(plan.container.env)
         if request.secret_refs:
@@ -379,6 +390,7 @@ class PodLauncher:
             image_pull_policy=s.image_pull_policy,
             job_read_only_root=s.job_read_only_root,
             job_user=s.job_user,
+            observer_dir=OBSERVER_DIR,
         )
         return build_pod(inputs)
 
@@ -388,6 +400,8 @@ class PodSession:
         self.launcher = launcher
         self.request = request
         self.job: PodJob | None = None
+        #: The sidecar connector's observer socket (telemetry, rollout events), once the pod exists.
+        self.observer: SidecarObserver | None = None
         self._record: report.ConnectorRecord | None = None
 
     def start(self) -> LaunchedJob:
@@ -403,6 +417,7 @@ class PodSession:
         if job is None:
             job = PodJob.adopt(core, request.job.namespace, container_name(request.job.uid))
         self.job = job
+        self.observer = SidecarObserver(self._observer_path, metrics)
         # "running" means the job's code runs: wait for its container (the sidecar is ready first).
         if not job.wait_started(POD_START_TIMEOUT_S):
             log.warning("job %s: its pod's container has not started after %d s", request.job.key, POD_START_TIMEOUT_S)
@@ -442,31 +457,70 @@ class PodSession:
             return "the job container was killed for exceeding its memory limit (OOM)"
         return None
 
-    def connector_cell(self) -> CellState | None:
-        return None  # the connector is in the pod: no telemetry while its job runs (docs/fms.md)
+    def job_view(self) -> JobView | None:
+        return self.observer if self._job_running() else None
+
+    def _job_running(self) -> bool:
+        """The job's container runs: the sidecar serves (it is ready first) and has not been stopped yet.
+
+        Outside that window the observer socket is not asked (it is not there yet, or gone after the job's
+        exit), so a connection failure counted by the observer means something an operator should see.
+        """
+        job = self.job
+        return job is not None and job.wait_started(0) and job.wait(0) is None
 
     def interlock_trip(self) -> str | None:
         return None  # the connector is in the pod; its trips reach the status through its record
 
     def rollout(self) -> dict[str, int] | None:
+        # Not written while the job runs: N/M brings up the page's Success/Fail buttons, and operator
+        # inputs do not reach a sidecar yet (docs/agent.md, the pod launcher). The record has it at the end.
         return None
 
     def active_rollout(self) -> int | None:
-        # Operator inputs do not reach a sidecar yet (docs/agent.md, the pod launcher).
+        # Operator inputs do not reach a sidecar yet: the bridge drops every verdict for a pod job.
         return None
 
     def rollout_events(self) -> Sequence[Any]:
-        return []  # the sidecar's rollouts reach the agent only in its final record
+        """The sidecar's events through its observer socket; once it has stopped, with its record's last ones."""
+        observer = self.observer
+        if observer is None:
+            return []
+        if self._record is not None or not self._job_running():
+            # Not yet started, or the job has exited (the kubelet stops the sidecar next): its record
+            # carries the last events.
+            return observer.take_events(())
+        return observer.rollout_events()
 
     def record(self) -> report.ConnectorRecord:
         if self._record is None:
             data = self.job.connector_record() if self.job is not None else None
             self._record = _connector_record(data)
+            if self.observer is not None and data:
+                self.observer.take_events(_record_events(data))
         return self._record
 
+    def _observer_path(self) -> Path | None:
+        pod = self.job.last_pod if self.job is not None else {}
+        uid = (pod.get("metadata") or {}).get("uid")
+        return observer_socket(self.launcher.settings.kubelet_root, uid) if isinstance(uid, str) else None
+
     def remove(self) -> None:
+        if self.observer is not None:
+            self.observer.close()
         if self.job is not None:
             self.job.remove()
+
+
+def _record_events(data: Mapping[str, Any]) -> list[Any]:
+    """The rollout events in a sidecar's record (its last ones: the observer may have missed the final end)."""
+    events = []
+    for item in data.get("rollouts") or []:
+        try:
+            events.append(parse_event(item))
+        except ValueError:
+            log.warning("a malformed rollout event in the connector sidecar's record was skipped")
+    return events
 
 
 def _reason_label(failure: str) -> str:

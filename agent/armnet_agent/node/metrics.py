@@ -91,8 +91,15 @@ class AgentMetrics:
         )
         self.telemetry_reads = Counter(
             "armnet_agent_telemetry_servo_reads_total",
-            "servo telemetry reads for the cell operator's page: published, or skipped (a launch or a pod job "
-            "holds the bus)", ["result"], registry=r,
+            "servo telemetry reads for the cell operator's page: published, or skipped (a launch holds the bus, "
+            "a job is stopping, or a pod job's observer socket did not answer)", ["result"], registry=r,
+        )
+        self.observer_requests = Counter(
+            "armnet_agent_sidecar_observer_requests_total",
+            "pod launcher: requests to a job's connector observer socket (telemetry, rollout events): ok, "
+            "unreachable (the socket cannot be connected: the DaemonSet's kubelet mount or --kubelet-root-dir), "
+            "failed (the connection broke or the connector refused), invalid (a reply of the wrong shape)",
+            ["result"], registry=r,
         )
 
     def serve(self, port: int, address: str) -> None:

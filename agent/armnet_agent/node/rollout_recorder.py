@@ -7,7 +7,9 @@ history itself is decided by the pure ``rollout_history.apply``. A verdict
 first catches up with the connector's events, so it lands on the rollout the
 bridge saw active even if the once-a-second poll has not seen its begin yet.
 The runner writes :meth:`unwritten` with its progress patch and the final
-history with the terminal status.
+history with the terminal status. A recorder made from a history read back
+after an agent restart takes only events later than that history's latest
+begin or end: a pod's sidecar gives all its events again.
 """
 
 from __future__ import annotations
@@ -61,6 +63,9 @@ class RolloutRecorder:
         self._history = history
         self._written = history
         self._last_seen: Any = None
+        #: The latest begin or end the history already holds (read back after an agent restart): a pod's
+        #: sidecar outlives the agent and gives its events again from the first; those are not new.
+        self._watermark = _latest(history)
 
     @property
     def history(self) -> rh.History:
@@ -106,8 +111,20 @@ class RolloutRecorder:
         last = self._last_seen
         self._last_seen = events[-1]
         if last is None:
-            return events
+            mark = self._watermark
+            return events if mark is None else [e for e in events if _millis(e.at) > mark]
         for position in range(len(events) - 1, -1, -1):
             if events[position] is last:
                 return events[position + 1:]
         return [event for event in events if event.at > last.at]
+
+
+def _millis(at: float) -> datetime:
+    """A connector time as ``status.rollouts`` keeps it (UTC, whole milliseconds)."""
+    moment = datetime.fromtimestamp(at, UTC)
+    return moment.replace(microsecond=moment.microsecond // 1000 * 1000)
+
+
+def _latest(history: rh.History) -> datetime | None:
+    times = [t for entry in history for t in (entry.started_at, entry.ended_at) if t is not None]
+    return max(times) if times else None

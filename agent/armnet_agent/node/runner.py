@@ -213,6 +213,7 @@ class JobRunner:
                     result = result.model_copy(update={"error": self._stop_reason})
                 self.rollouts.sync()  # the last begins and ends, before the connector stops
                 record = session.record()
+                self.rollouts.sync()  # a pod's sidecar may stop before the sync above: its record has the last
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
                 with self._status_lock:  # waits out a progress write still in flight

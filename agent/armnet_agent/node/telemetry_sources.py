@@ -9,8 +9,10 @@ device is opened); a real cell's cameras are opened by the agent while idle
 (``IdleCameras``), never under the bus turn: a slow or hung camera delays no
 launch nor heartbeat. A launch closes them with a bounded wait.
 
-``JobSource`` publishes what the job's connector (in this process) already
-knows: the positions of the job's own reads, and its cameras' latest frames.
+``JobSource`` publishes what the job's connector already knows (a ``JobView``):
+the positions of the job's own reads, and its cameras' latest frames. The view
+is ``InProcessView`` for a connector in this process and the pod sidecar's
+observer socket (``node.sidecar_observer``) for a pod job: one path for both.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from armnet_core import BIMANUAL_SO101_EMBODIMENT, SO101_EMBODIMENT
 
@@ -33,6 +35,9 @@ from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.probes import SO101_MOTOR_NAMES
 from armnet_agent.node.telemetry_wire import scaled_size
 from armnet_agent.sim.presets import SimulatedCell
+
+if TYPE_CHECKING:
+    from armnet_agent.connector.cell import CellState
 
 log = logging.getLogger(__name__)
 
@@ -263,21 +268,46 @@ class IdleSource:
         return self._real_cameras.frames(self._cameras)
 
 
-class JobSource:
-    """What the running job's connector (in this process) already knows: no traffic on the job's bus."""
+class JobView(Protocol):
+    """What a running job's connector knows, wherever it runs: this process, or a pod's sidecar."""
 
-    name = "job"
+    def servos(self) -> Mapping[str, Mapping[str, ServoSample | None] | str] | None:
+        """arm -> motor -> the position of the job's last read (or why none); None once the job is stopping."""
+        ...
 
-    def __init__(self, cell: Any, cameras: tuple[CameraSpec, ...], sim: SimulatedCell | None) -> None:
+    def frames(self) -> Mapping[str, CameraFrame]:
+        """camera -> the latest frame of each camera the job opened."""
+        ...
+
+
+class InProcessView:
+    """A connector in this process (the container launcher, ``armnet run``): read from its memory."""
+
+    def __init__(self, cell: CellState) -> None:
         self._cell = cell
-        self._cameras = cameras
-        self._sim = sim
 
     def servos(self) -> Mapping[str, Mapping[str, ServoSample | None] | str] | None:
         return job_servos(self._cell)
 
+    def frames(self) -> Mapping[str, CameraFrame]:
+        return latest_frames(self._cell)
+
+
+class JobSource:
+    """What the running job's connector already knows (``JobView``): no traffic on the job's bus."""
+
+    name = "job"
+
+    def __init__(self, view: JobView, cameras: tuple[CameraSpec, ...], sim: SimulatedCell | None) -> None:
+        self._view = view
+        self._cameras = cameras
+        self._sim = sim
+
+    def servos(self) -> Mapping[str, Mapping[str, ServoSample | None] | str] | None:
+        return self._view.servos()
+
     def frames(self) -> Mapping[str, CameraFrame | str]:
-        frames: dict[str, CameraFrame | str] = dict(latest_frames(self._cell))
+        frames: dict[str, CameraFrame | str] = dict(self._view.frames())
         missing = tuple(c for c in self._cameras if c.name not in frames)
         if missing and self._sim is not None:
             frames.update(simulated_frames(self._sim, missing))  # the simulator is no device: draw it

@@ -256,8 +256,8 @@ class CellWorker:
         runner = self.runner
         if runner is not None and not runner.done:
             session = runner.session
-            cell = session.connector_cell() if session is not None else None
-            return JobSource(cell, self.cell.cameras, self.sim) if cell is not None else None
+            view = session.job_view() if session is not None else None
+            return JobSource(view, self.cell.cameras, self.sim) if view is not None else None
         return IdleSource(self._arm_ports(), self.cell.cameras, self._bus, self._job_holds_bus, self.sim,
                           self._idle_cameras, self._idle_arms)
 

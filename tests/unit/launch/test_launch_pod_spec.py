@@ -80,6 +80,19 @@ def test_the_device_is_mounted_into_the_connector_only() -> None:
     assert not [m for m in job["volumeMounts"] if m["mountPath"].startswith("/dev")]
 
 
+def test_the_observer_socket_volume_is_mounted_into_the_connector_only() -> None:
+    pod = build_pod(inputs(observer_dir="/run/armnet-observer"))
+    connector, job = containers(pod)
+    volumes = {v["name"]: v for v in pod["spec"]["volumes"]}
+    assert volumes["observer"]["emptyDir"]["medium"] == "Memory"
+    assert {"name": "observer", "mountPath": "/run/armnet-observer"} in connector["volumeMounts"]
+    assert "observer" not in {m["name"] for m in job["volumeMounts"]}
+
+
+def test_without_an_observer_directory_there_is_no_observer_volume() -> None:
+    assert "observer" not in {v["name"] for v in build_pod(inputs())["spec"]["volumes"]}
+
+
 def test_the_customer_container_is_non_root_without_privileges_and_with_a_read_only_root() -> None:
     _, job = containers(build_pod(inputs()))
     context = job["securityContext"]
