@@ -486,3 +486,4 @@ def test_an_editor_may_delete_its_job_pod(job_pod_policy: Release, running_job_p
                                 "--wait=false")
 
     assert result.returncode == 0, result.stderr
+
