@@ -487,3 +487,23 @@ def test_an_editor_may_delete_its_job_pod(job_pod_policy: Release, running_job_p
 
     assert result.returncode == 0, result.stderr
 
+
+
+def test_an_editor_cannot_proxy_to_a_job_pods_port(job_pod_policy: Release, running_job_pod: str) -> None:
+    path = f"/api/v1/namespaces/{job_pod_policy.team_a}/pods/{running_job_pod}:8080/proxy/"
+
+    result = job_pod_policy.as_(job_pod_policy.editor, "get", "--raw", path)
+
+    assert forbidden(result), result.stderr
+    assert "nobody may exec, attach, port-forward or proxy into an armnet job pod" in result.stderr
+
+
+def test_nobody_adds_a_debug_container_beside_a_job_pods_connector(job_pod_policy: Release,
+                                                                     running_job_pod: str) -> None:
+    # Even the cluster admin: an ephemeral container targeting the connector shares its processes.
+    result = job_pod_policy.plane.kubectl("debug", running_job_pod, "-n", job_pod_policy.team_a,
+                                          "--image=localhost/job:dev", "--target=connector", "--", "true",
+                                          check=False)
+
+    assert result.returncode != 0
+    assert "only the armnet agent may change an armnet job pod" in result.stderr, result.stderr
