@@ -311,6 +311,16 @@ def test_tenant_reads_cells_but_cannot_edit_them(release: Release) -> None:
     assert not release.can(release.tenant_a, "patch", "cells", subresource="status")
 
 
+def test_the_chart_tenant_role_grants_no_pods_so_no_way_into_a_job_pod(release: Release) -> None:
+    # docs/helm.md binds tenants this role (not edit) in job namespaces: the admission
+    # policy aside, they cannot make, change or enter the pods that hold the devices.
+    for verb in ("create", "patch", "update"):
+        assert not release.can(release.tenant_a, verb, "pods", release.team_a)
+    for subresource in ("exec", "attach", "portforward", "proxy"):
+        assert not release.can(release.tenant_a, "create", "pods", release.team_a, subresource=subresource)
+    assert not release.can(release.tenant_a, "get", "pods", release.team_a, subresource="proxy")
+
+
 def test_tenant_cannot_read_secrets_through_the_chart_roles(release: Release) -> None:
     assert forbidden(release.as_(release.tenant_a, "get", "secret", JOB_SECRET, "-n", release.team_a))
 
