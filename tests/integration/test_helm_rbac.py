@@ -429,6 +429,17 @@ def test_an_editor_still_creates_an_ordinary_pod(job_pod_policy: Release) -> Non
     assert result.returncode == 0, result.stderr
 
 
+def test_an_editor_still_creates_a_pod_with_a_generated_name(job_pod_policy: Release) -> None:
+    # A Deployment's pods are named by generateName: the policy must not trip on a missing name.
+    manifest = json.loads(plain_pod("unused"))
+    manifest["metadata"] = {"generateName": "worker-"}
+
+    result = job_pod_policy.as_(job_pod_policy.editor, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                input=json.dumps(manifest))
+
+    assert result.returncode == 0, result.stderr
+
+
 def test_the_agent_creates_and_stops_the_job_pod_its_launcher_builds(job_pod_policy: Release,
                                                                        robot_host: RobotHost) -> None:
     manifest = job_pod(robot_host.node, str(uuid.uuid4()), job_pod_policy.team_a)
