@@ -152,6 +152,7 @@ def test_every_option_on_renders_every_kind_the_chart_knows() -> None:
     ({"nats": {"url": "http://nats:4222"}}, "nats.url"),
     ({"metrics": {"serviceMonitor": {"interval": 30}}}, "metrics.serviceMonitor.interval"),
     ({"rbac": {"tenants": {"cellReaderGroups": "armnet:tenants"}}}, "rbac.tenants.cellReaderGroups"),
+    ({"rbac": {"jobPodPolicy": "on"}}, "rbac.jobPodPolicy"),
     ({"operatr": {"replicas": 2}}, "operatr"),
 ])
 def test_schema_rejects_wrong_types_and_unknown_keys(values: dict[str, Any], path: str) -> None:
@@ -411,6 +412,21 @@ def test_tenant_roles_aggregate_into_edit_admin_and_view() -> None:
     assert view["metadata"]["labels"]["rbac.authorization.k8s.io/aggregate-to-view"] == "true"
     assert edit["rules"] == [{"apiGroups": ["armnet.io"], "resources": ["robotjobs"],
                               "verbs": ["create", "get", "list", "watch", "patch", "delete"]}]
+
+
+def test_job_pod_policy_is_on_by_default_and_exempts_only_the_agent_account() -> None:
+    policy = find(render("robots", "ops"), "ValidatingAdmissionPolicy", "-job-pods")
+    is_agent = next(v for v in policy["spec"]["variables"] if v["name"] == "isAgent")
+
+    assert is_agent["expression"] == "request.userInfo.username == 'system:serviceaccount:ops:robots-armnet-agent'"
+    assert find(render("robots", "ops"), "ValidatingAdmissionPolicyBinding", "-job-pods")["spec"][
+        "validationActions"] == ["Deny"]
+
+
+def test_job_pod_policy_can_be_turned_off() -> None:
+    objects = render("robots", "ops", values={"rbac": {"jobPodPolicy": False}})
+
+    assert not [o for o in objects if o["metadata"]["name"].endswith("-job-pods")]
 
 
 # ---------------------------------------------------------------------------- monitoring

@@ -21,6 +21,16 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_agent.launch.plan import (
+    LABEL_CELL,
+    LABEL_JOB_UID,
+    LABEL_MANAGED_BY,
+    LABEL_NAME,
+    LABEL_NAMESPACE,
+    MANAGED_BY_AGENT,
+)
+from armnet_agent.launch.pod_spec import PodInputs, build_pod
+from armnet_agent.node.plan import container_name
 
 from tests.integration.test_helm_chart import render
 from tests.testbed.kube import ControlPlane, KubeUser
@@ -44,6 +54,7 @@ class Release:
     operator: Path  # kubeconfig with the operator account's token
     agent: Path
     tenant_a: KubeUser  # edit in team_a, cell reader cluster-wide
+    editor: KubeUser  # the built-in edit role's own rules (pods, exec, ...) in team_a
 
     def as_(self, who: Path | KubeUser, *args: str, input: str | None = None) -> subprocess.CompletedProcess[str]:
         """kubectl as ``who``; never raises, the caller asserts on the outcome."""
@@ -113,12 +124,18 @@ def release(k8s: ControlPlane, tmp_path_factory: pytest.TempPathFactory) -> Iter
         # What the platform team does with `edit` (aggregation needs the controller-manager).
         k8s.kubectl("create", "rolebinding", "tenant-edit", "-n", team_a,
                     f"--clusterrole={fullname}-tenant-edit", f"--user={tenant_a.name}")
+        # The built-in edit role is an aggregation; its rules (pods, exec, secrets, and read
+        # rights from view) are in the roles the apiserver bootstraps: bind those, like edit.
+        editor = k8s.user(f"editor-{suffix}", groups=(tenants,))
+        for role in ("system:aggregate-to-edit", "system:aggregate-to-view", f"{fullname}-tenant-edit"):
+            k8s.kubectl("create", "rolebinding", f"editor-{role.replace(':', '-')}", "-n", team_a,
+                        f"--clusterrole={role}", f"--user={editor.name}")
         tokens = tmp_path_factory.mktemp("helm-rbac")
         yield Release(
             plane=k8s, fullname=fullname, namespace=namespace, team_a=team_a, team_b=team_b,
             operator=token_kubeconfig(k8s, f"{fullname}-operator", namespace, tokens / "operator"),
             agent=token_kubeconfig(k8s, f"{fullname}-agent", namespace, tokens / "agent"),
-            tenant_a=tenant_a,
+            tenant_a=tenant_a, editor=editor,
         )
     finally:
         k8s.kubectl("delete", "--ignore-not-found", "--wait=false", *cluster_objects, check=False)
@@ -294,5 +311,220 @@ def test_tenant_reads_cells_but_cannot_edit_them(release: Release) -> None:
     assert not release.can(release.tenant_a, "patch", "cells", subresource="status")
 
 
+def test_the_chart_tenant_role_grants_no_pods_so_no_way_into_a_job_pod(release: Release) -> None:
+    # docs/helm.md binds tenants this role (not edit) in job namespaces: the admission
+    # policy aside, they cannot make, change or enter the pods that hold the devices.
+    for verb in ("create", "patch", "update"):
+        assert not release.can(release.tenant_a, verb, "pods", release.team_a)
+    for subresource in ("exec", "attach", "portforward", "proxy"):
+        assert not release.can(release.tenant_a, "create", "pods", release.team_a, subresource=subresource)
+    assert not release.can(release.tenant_a, "get", "pods", release.team_a, subresource="proxy")
+
+
 def test_tenant_cannot_read_secrets_through_the_chart_roles(release: Release) -> None:
     assert forbidden(release.as_(release.tenant_a, "get", "secret", JOB_SECRET, "-n", release.team_a))
+
+
+# ---------------------------------------------------------------------------- job pods
+# The job-pod policy (templates/job-pod-policy.yaml): job pods hold the robot's devices, so
+# a user with `edit` in a job namespace can neither ask the kubelet for a cell's device nor
+# make, change or enter a job pod; the agent still creates the pod its launcher builds.
+CELL_RESOURCE = "armnet.io/cell-x"
+
+
+@dataclass(frozen=True)
+class RobotHost:
+    node: str
+    agent: Path  # the agent's token bound to its pod on ``node`` (the node-bound policy is on)
+
+
+def job_pod(node: str, uid: str, namespace: str, *, device_resource: str | None = CELL_RESOURCE) -> dict[str, Any]:
+    """The pod the agent's pod launcher builds for a job (the real builder, launch.pod_spec)."""
+    labels = {LABEL_MANAGED_BY: MANAGED_BY_AGENT, LABEL_CELL: "x", LABEL_JOB_UID: uid,
+              LABEL_NAMESPACE: namespace, LABEL_NAME: "job"}
+    return build_pod(PodInputs(
+        name=container_name(uid), namespace=namespace, node_name=node, job_name="job", job_uid=uid,
+        labels=labels, job_image="localhost/job:dev", job_env={}, connector_image="localhost/armnet-agent:dev",
+        connector_command=("armnet", "sidecar"), sidecar={}, socket_dir="/run/armnet",
+        calibration_dir="/run/armnet-calibration", cache_dir="/var/lib/armnet/cache/x",
+        volume_dir="/var/lib/armnet/volumes/ns", timeout_seconds=60, grace_seconds=5.0,
+        device_resource=device_resource, observer_dir="/run/armnet-observer"))
+
+
+def plain_pod(name: str, *, labels: dict[str, str] | None = None, resources: dict[str, Any] | None = None) -> str:
+    container: dict[str, Any] = {"name": "main", "image": "localhost/job:dev"}
+    if resources is not None:
+        container["resources"] = resources
+    return json.dumps({"apiVersion": "v1", "kind": "Pod", "metadata": {"name": name, "labels": labels or {}},
+                       "spec": {"containers": [container]}})
+
+
+@pytest.fixture(scope="module")
+def job_pod_policy(release: Release) -> Release:
+    """The release once the API server enforces the job-pod policy (its informer loads a new
+    policy in about a second): dry runs run admission and store nothing."""
+    probe = plain_pod("probe", resources={"limits": {CELL_RESOURCE: "1"}})
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline and release.as_(
+            release.editor, "create", "--dry-run=server", "-n", release.team_a, "-f", "-", input=probe).returncode == 0:
+        time.sleep(0.3)
+    return release
+
+
+@pytest.fixture(scope="module")
+def robot_host(job_pod_policy: Release, tmp_path_factory: pytest.TempPathFactory) -> Iterator[RobotHost]:
+    release = job_pod_policy
+    node = f"robot-host-{uuid.uuid4().hex[:6]}"
+    release.plane.kubectl("create", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "Node",
+                                                                 "metadata": {"name": node}}))
+    try:
+        release.plane.kubectl("create", "-n", release.namespace, "-f", "-", input=pod(
+            f"agent-{node}", node, serviceAccountName=f"{release.fullname}-agent"))
+        yield RobotHost(node, token_kubeconfig(release.plane, f"{release.fullname}-agent", release.namespace,
+                                               tmp_path_factory.mktemp("robot-host") / "agent",
+                                               bound_pod=f"agent-{node}"))
+    finally:
+        release.plane.kubectl("delete", "node", node, "--wait=false", check=False)
+
+
+@pytest.fixture()
+def running_job_pod(job_pod_policy: Release, robot_host: RobotHost) -> str:
+    """A job pod as the agent creates it (by the agent's own account); its name."""
+    manifest = job_pod(robot_host.node, str(uuid.uuid4()), job_pod_policy.team_a)
+    created = job_pod_policy.as_(robot_host.agent, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                 input=json.dumps(manifest))
+    assert created.returncode == 0, created.stderr
+    return str(manifest["metadata"]["name"])
+
+
+def test_an_editor_cannot_create_a_pod_requesting_a_cell_device(job_pod_policy: Release) -> None:
+    result = job_pod_policy.as_(job_pod_policy.editor, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                input=plain_pod("grab", resources={"limits": {CELL_RESOURCE: "1"}}))
+
+    assert forbidden(result), result.stderr
+    assert "only the armnet agent may request armnet.io/cell-* resources" in result.stderr
+
+
+def test_an_editor_cannot_create_a_pod_with_the_job_pod_labels(job_pod_policy: Release) -> None:
+    result = job_pod_policy.as_(job_pod_policy.editor, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                input=plain_pod("fake", labels={"armnet.io/managed-by": "armnet-agent"}))
+
+    assert forbidden(result), result.stderr
+    assert "only the armnet agent may create armnet job pods" in result.stderr
+
+
+def test_an_editor_cannot_precreate_the_pod_the_agent_would_adopt(job_pod_policy: Release) -> None:
+    name = f"armnet-{uuid.uuid4()}"
+
+    result = job_pod_policy.as_(job_pod_policy.editor, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                input=plain_pod(name))
+
+    assert forbidden(result), result.stderr
+
+
+def test_an_editor_still_creates_an_ordinary_pod(job_pod_policy: Release) -> None:
+    result = job_pod_policy.as_(job_pod_policy.editor, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                input=plain_pod(f"ordinary-{uuid.uuid4().hex[:6]}"))
+
+    assert result.returncode == 0, result.stderr
+
+
+def test_an_editor_still_creates_a_pod_with_a_generated_name(job_pod_policy: Release) -> None:
+    # A Deployment's pods are named by generateName: the policy must not trip on a missing name.
+    manifest = json.loads(plain_pod("unused"))
+    manifest["metadata"] = {"generateName": "worker-"}
+
+    result = job_pod_policy.as_(job_pod_policy.editor, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                input=json.dumps(manifest))
+
+    assert result.returncode == 0, result.stderr
+
+
+def test_the_agent_creates_and_stops_the_job_pod_its_launcher_builds(job_pod_policy: Release,
+                                                                       robot_host: RobotHost) -> None:
+    manifest = job_pod(robot_host.node, str(uuid.uuid4()), job_pod_policy.team_a)
+    name = manifest["metadata"]["name"]
+
+    created = job_pod_policy.as_(robot_host.agent, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                 input=json.dumps(manifest))
+    stopped = job_pod_policy.as_(robot_host.agent, "patch", "pod", name, "-n", job_pod_policy.team_a,
+                                 "-p", '{"spec": {"activeDeadlineSeconds": 1}}')
+
+    assert created.returncode == 0, created.stderr
+    assert stopped.returncode == 0, stopped.stderr
+
+
+def test_the_agent_cannot_give_a_cell_device_to_the_customer_container(job_pod_policy: Release,
+                                                                        robot_host: RobotHost) -> None:
+    manifest = job_pod(robot_host.node, str(uuid.uuid4()), job_pod_policy.team_a)
+    manifest["spec"]["containers"][0]["resources"]["limits"][CELL_RESOURCE] = "1"
+
+    result = job_pod_policy.as_(robot_host.agent, "create", "-n", job_pod_policy.team_a, "-f", "-",
+                                input=json.dumps(manifest))
+
+    assert forbidden(result), result.stderr
+    assert "only for the init container named connector" in result.stderr
+
+
+def test_an_editor_cannot_exec_into_a_job_pods_connector(job_pod_policy: Release, running_job_pod: str) -> None:
+    # Admission refuses before the API server would dial the kubelet (this bed has none).
+    result = job_pod_policy.as_(job_pod_policy.editor, "exec", running_job_pod, "-n", job_pod_policy.team_a,
+                                "-c", "connector", "--", "true")
+
+    assert forbidden(result), result.stderr
+    assert "nobody may exec, attach, port-forward or proxy into an armnet job pod" in result.stderr
+
+
+def test_an_editor_cannot_change_a_job_pods_connector_image(job_pod_policy: Release, running_job_pod: str) -> None:
+    patch = json.dumps({"spec": {"initContainers": [{"name": "connector", "image": "evil/connector:1"}]}})
+
+    result = job_pod_policy.as_(job_pod_policy.editor, "patch", "pod", running_job_pod, "-n", job_pod_policy.team_a,
+                                "-p", patch)
+
+    assert forbidden(result), result.stderr
+    assert "only the armnet agent may change an armnet job pod" in result.stderr
+
+
+def test_an_editor_cannot_relabel_a_job_pod(job_pod_policy: Release, running_job_pod: str) -> None:
+    result = job_pod_policy.as_(job_pod_policy.editor, "label", "pod", running_job_pod, "-n", job_pod_policy.team_a,
+                                "armnet.io/managed-by-")
+
+    assert forbidden(result), result.stderr
+
+
+def test_the_garbage_collectors_owner_reference_edit_of_a_job_pod_passes(job_pod_policy: Release,
+                                                                         running_job_pod: str) -> None:
+    # Orphaning (deleting the RobotJob with --cascade=orphan) removes only the owner reference.
+    result = job_pod_policy.plane.kubectl("patch", "pod", running_job_pod, "-n", job_pod_policy.team_a,
+                                          "--type=json", "-p", '[{"op": "remove", "path": "/metadata/ownerReferences"}]',
+                                          check=False)
+
+    assert result.returncode == 0, result.stderr
+
+
+def test_an_editor_may_delete_its_job_pod(job_pod_policy: Release, running_job_pod: str) -> None:
+    result = job_pod_policy.as_(job_pod_policy.editor, "delete", "pod", running_job_pod, "-n", job_pod_policy.team_a,
+                                "--wait=false")
+
+    assert result.returncode == 0, result.stderr
+
+
+
+def test_an_editor_cannot_proxy_to_a_job_pods_port(job_pod_policy: Release, running_job_pod: str) -> None:
+    path = f"/api/v1/namespaces/{job_pod_policy.team_a}/pods/{running_job_pod}:8080/proxy/"
+
+    result = job_pod_policy.as_(job_pod_policy.editor, "get", "--raw", path)
+
+    assert forbidden(result), result.stderr
+    assert "nobody may exec, attach, port-forward or proxy into an armnet job pod" in result.stderr
+
+
+def test_nobody_adds_a_debug_container_beside_a_job_pods_connector(job_pod_policy: Release,
+                                                                     running_job_pod: str) -> None:
+    # Even the cluster admin: an ephemeral container targeting the connector shares its processes.
+    result = job_pod_policy.plane.kubectl("debug", running_job_pod, "-n", job_pod_policy.team_a,
+                                          "--image=localhost/job:dev", "--target=connector", "--", "true",
+                                          check=False)
+
+    assert result.returncode != 0
+    assert "only the armnet agent may change an armnet job pod" in result.stderr, result.stderr
