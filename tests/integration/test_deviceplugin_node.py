@@ -136,15 +136,17 @@ def test_the_kubelet_advertises_one_device_of_the_cells_resource_after_registrat
 
 def test_a_pod_requesting_the_cell_opens_its_pty_at_the_connector_path_and_a_second_pod_is_refused(bed: Bed) -> None:
     os.write(bed.master, b"ping\n")
-    bed.pod("holder", hold=30)
-    bed.wait_pod("holder", ("Running",))
-    assert bed.answer_from_the_arm() == b"pong ping\n"
-    bed.pod("second")
-    refused = bed.wait_pod("second", ("Failed", "Running", "Succeeded"))
-    assert refused["status"]["phase"] == "Failed", refused["status"]
-    assert "armnet.io/cell-dp-node" in refused["status"].get("message", ""), refused["status"]
-    bed.delete_pod("holder")
-    bed.delete_pod("second")
+    try:
+        bed.pod("holder", hold=30)
+        bed.wait_pod("holder", ("Running",))
+        assert bed.answer_from_the_arm() == b"pong ping\n"
+        bed.pod("second")
+        refused = bed.wait_pod("second", ("Failed", "Running", "Succeeded"))
+        assert refused["status"]["phase"] == "Failed", refused["status"]
+        assert "armnet.io/cell-dp-node" in refused["status"].get("message", ""), refused["status"]
+    finally:  # the later tests need the cell's one device free
+        bed.delete_pod("holder")
+        bed.delete_pod("second")
 
 
 def test_a_vanished_device_path_turns_the_device_unhealthy_and_back(bed: Bed) -> None:
