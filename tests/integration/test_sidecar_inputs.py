@@ -287,3 +287,31 @@ def test_the_observer_socket_stays_read_only(pod: Pod) -> None:
 def test_a_malformed_agent_input_is_refused(pod: Pod, op: dict[str, Any]) -> None:
     reply = request(pod.agent_path, op)
     assert reply["ok"] is False and reply["error_type"] == "ProtocolError"
+
+
+def test_a_verdict_the_sidecar_drops_is_not_recorded_in_the_history(pod: Pod, link: NatsLink, nats_server: str) -> None:
+    recorded: list[tuple[bool, str, int | None]] = []
+    metrics = AgentMetrics()
+    inputs = SidecarInputs(lambda: pod.agent_path, metrics, active_rollout=lambda: 0)  # the agent's view lags
+    bridge = OperatorInputsBridge(link, inputs, namespace="ns", job_uid="uid-1", cell="cell-d",
+                                  on_verdict=lambda *verdict: recorded.append(verdict)).start()
+    assert bridge.wait_active(20)
+    operator_op(pod, "rollout_begin", index=0, total=2, outcome_controls=True)
+    operator_op(pod, "rollout_end")
+    operator_op(pod, "rollout_begin", index=1, total=2, outcome_controls=True)
+
+    async def click() -> None:
+        nc = await nats.connect(nats_server)
+        await nc.publish("fms.cell-d.outcome", json.dumps({"success": True, "by": "ana"}).encode())
+        await nc.flush()
+        await nc.close()
+
+    try:
+        asyncio.run(click())
+        wait_for(lambda: metrics.registry.get_sample_value(
+            "armnet_agent_sidecar_inputs_total", {"op": "outcome", "result": "dropped"}) == 1,
+            what="the sidecar to drop the verdict")
+    finally:
+        bridge.close()
+    assert recorded == []
+    assert pod.job_cell().is_complete().complete is False

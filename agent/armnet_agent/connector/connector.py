@@ -96,6 +96,7 @@ class Connector:
                 limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS),
             ))
             # The agent's inputs (a separate socket: the observer stays read-only), in the same agent-only volume.
+            # Inputs that already have a reset prompt (not a sidecar's) keep it; their waits stay unnumbered (0).
             waits = install_reset_waits(self.cell.inputs) or ResetWaits()
             self._servers.append(UnixServer(
                 Path(observer_dir) / AGENT_SOCKET, lambda: AgentSession(self.cell, waits), self.cell.counters,

@@ -230,8 +230,11 @@ class OperatorInputsBridge:
             log.warning("episode outcome by %s dropped: rollout %s began without outcome controls "
                         "(the job decides its outcome)", message.by, message.rollout)
             return
+        if self.inputs.report_outcome(message.success) is False:  # type: ignore[func-returns-value]
+            # A pod job's connector checked it again and dropped it (the rollout ended meanwhile): not recorded.
+            log.warning("episode outcome by %s dropped by the job's connector", message.by)
+            return
         log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
-        self.inputs.report_outcome(message.success)
         if self._on_verdict is not None:
             self._on_verdict(message.success, message.by, message.rollout)
 

@@ -73,9 +73,10 @@ class SidecarInputs:
     def push_teleop_event(self, event: str) -> None:
         self._send("teleop_event", {"event": event})
 
-    def report_outcome(self, success: bool) -> None:
+    def report_outcome(self, success: bool) -> bool:
+        """False when the connector dropped it (another rollout is active now): the bridge does not record it."""
         rollout = self._active_rollout() if self._active_rollout is not None else None
-        self._send("outcome", {"success": success, "rollout": rollout})
+        return self._send("outcome", {"success": success, "rollout": rollout})
 
     def request_stop(self) -> None:
         self._send("stop", {})
