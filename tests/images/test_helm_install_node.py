@@ -30,6 +30,7 @@ import shutil
 import subprocess
 import tempfile
 import time
+import urllib.request
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -258,6 +259,16 @@ def test_helm_install_runs_a_tenants_bus_loop_job_as_a_pod_of_the_shipped_images
     finals = done["status"]["result"]["returnValue"]["final_positions"]
     assert set(finals) >= {"shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"}
     assert done["status"]["result"]["safety"]["policy"] == "clamp"  # the sidecar's record reached the status
+    # The DaemonSet's agent reached the pod's observer socket through its read-only kubelet mount.
+    port = release["values"]["agent"]["metricsPort"]
+    metrics = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10).read().decode()
+    assert observer_requests(metrics, "ok") > 0, metrics[-3000:]
+    assert observer_requests(metrics, "unreachable") == 0
+
+
+def observer_requests(metrics: str, result: str) -> float:
+    prefix = f'armnet_agent_sidecar_observer_requests_total{{result="{result}"}} '
+    return sum(float(line[len(prefix):]) for line in metrics.splitlines() if line.startswith(prefix))
 
 
 def test_helm_upgrade_rolls_the_operator_while_a_job_runs_and_the_job_still_succeeds(

@@ -339,6 +339,13 @@ def test_agent_reads_job_pods_observer_sockets_through_a_read_only_propagated_ku
     assert env_of(container)["ARMNET_AGENT_KUBELET_ROOT_DIR"] == "/srv/kubelet"
 
 
+def test_with_the_container_launcher_the_agent_does_not_mount_the_kubelets_pods() -> None:
+    """That directory holds every pod's volumes (tokens, Secrets): mounted only when the pod launcher needs it."""
+    pod = find(render(values={"agent": {"launcher": "container"}}), "DaemonSet")["spec"]["template"]["spec"]
+    assert "kubelet-pods" not in {v["name"] for v in pod["volumes"]}
+    assert "kubelet-pods" not in {m["name"] for m in pod["containers"][0]["volumeMounts"]}
+
+
 def test_agent_nats_url_comes_from_a_value_or_a_secret() -> None:
     from_value = env_of(find(render(values={"nats": {"url": "nats://nats.example:4222"}}),
                              "DaemonSet")["spec"]["template"]["spec"]["containers"][0])

@@ -114,7 +114,17 @@ def lock_dir(lock: str, own_wheels: Sequence[Path]) -> Path:
         f"{requirement(wheel)}\n" for wheel in sorted(house.glob("*.whl"))))
     stamp.touch()
     progress(f"{lock} lock ready in {time.monotonic() - started:.0f} s")
+    _drop_older_locks(house)
     return house
+
+
+def _drop_older_locks(current: Path) -> None:
+    """Remove this lock's folders for other dependency sets (a LeRobot lock is ~3 GB; a
+    dependency change left the old one behind and the disk filled up across sessions)."""
+    prefix = current.name.rsplit("-", 1)[0] + "-"
+    for older in current.parent.glob(prefix + "*"):
+        if older != current and older.is_dir():
+            shutil.rmtree(older, ignore_errors=True)
 
 
 def requirement(wheel: Path) -> str:

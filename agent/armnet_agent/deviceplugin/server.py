@@ -95,8 +95,14 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
 
     # -- lifecycle (called by DevicePlugins, one thread) ------------------------------------
 
+    @property
+    def closed(self) -> bool:
+        return self._stop.is_set()
+
     def ensure(self) -> None:
         """Serve if our socket is gone; register if the kubelet's socket is new since our registration."""
+        if self.closed:
+            return
         if self._server is None or _file_id(self.socket) != self._served:
             self._serve()
         kubelet = _file_id(self.kubelet_socket)
@@ -199,7 +205,13 @@ class DevicePlugins:
         self.directory = directory
         self.check_s = check_s
         self._plugins: dict[str, CellPlugin] = {}
+        #: Guards ``_plugins``; held briefly, never across a call to the kubelet.
         self._lock = threading.Lock()
+        #: One ``ensure`` at a time (a plugin's lifecycle is single-threaded): the check loop's, or a
+        #: new cell's in ``sync``. A kubelet that accepts but never answers costs a new cell's pass
+        #: a few seconds, never every pass of every cell (the agent's heartbeats run in those passes).
+        self._ensure_lock = threading.Lock()
+        self._refused: set[str] = set()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="armnet-device-plugins", daemon=True)
 
@@ -211,11 +223,13 @@ class DevicePlugins:
         return decide.resource_name(cell)
 
     def sync(self, cells: Mapping[str, Paths]) -> None:
-        """One plugin per cell in ``cells`` (served and registered now), none for the others."""
+        """One plugin per cell in ``cells`` (a new one served and registered now), none for the others."""
+        added: list[CellPlugin] = []
+        removed: list[CellPlugin] = []
         with self._lock:
             for name in [n for n in self._plugins if n not in cells]:
                 log.info("cell %s: its device plugin stops", name)
-                self._plugins.pop(name).close()
+                removed.append(self._plugins.pop(name))
             for name, paths in cells.items():
                 if name in self._plugins:
                     self._plugins[name].paths = paths  # the cell's current worker says where its devices are
@@ -223,9 +237,16 @@ class DevicePlugins:
                 try:
                     plugin = CellPlugin(name, paths, self.metrics, self.directory, self.check_s)
                 except ValueError as exc:
-                    log.error("%s", exc)
+                    if name not in self._refused:  # said once, not on every pass
+                        self._refused.add(name)
+                        log.error("%s", exc)
                     continue
                 self._plugins[name] = plugin
+                added.append(plugin)
+        with self._ensure_lock:
+            for plugin in removed:
+                plugin.close()
+            for plugin in added:  # before any launch: a job pod's connector requests the resource
                 self._ensure(plugin)
 
     def _ensure(self, plugin: CellPlugin) -> None:
@@ -237,12 +258,17 @@ class DevicePlugins:
     def _loop(self) -> None:
         while not self._stop.wait(self.check_s):
             with self._lock:
-                for plugin in self._plugins.values():
-                    self._ensure(plugin)
+                plugins = list(self._plugins.values())
+            with self._ensure_lock:
+                for plugin in plugins:
+                    if not plugin.closed:
+                        self._ensure(plugin)
 
     def stop(self) -> None:
         self._stop.set()
         with self._lock:
-            for plugin in self._plugins.values():
-                plugin.close()
+            plugins = list(self._plugins.values())
             self._plugins.clear()
+        with self._ensure_lock:
+            for plugin in plugins:
+                plugin.close()

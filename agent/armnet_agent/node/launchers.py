@@ -345,7 +345,11 @@ class PodLauncher:
 
     @contextmanager
     def session(self, request: SessionRequest) -> Iterator[PodSession]:
-        yield PodSession(self, request)
+        session = PodSession(self, request)
+        try:
+            yield session
+        finally:
+            session.close_observer()  # also when the run failed before removing the pod
 
     def manifest(self, request: SessionRequest) -> dict[str, Any]:
         """The job's pod (pure given the request: ``launch.pod_spec`` decides its shape)."""
@@ -527,10 +531,14 @@ class PodSession:
         uid = (pod.get("metadata") or {}).get("uid")
         return observer_socket(self.launcher.settings.kubelet_root, uid) if isinstance(uid, str) else None
 
-    def remove(self) -> None:
+    def close_observer(self) -> None:
+        """Stop the sidecar channels: the reset-wait poll of ``agent.sock`` and the observer's connection."""
         self.inputs.close()
         if self.observer is not None:
             self.observer.close()
+
+    def remove(self) -> None:
+        self.close_observer()
         if self.job is not None:
             self.job.remove()
 

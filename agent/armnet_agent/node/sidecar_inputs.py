@@ -23,6 +23,7 @@ import json
 import logging
 import socket
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -148,6 +149,7 @@ class SidecarInputs:
         if path is None:
             self._problems.warning("the sidecar connector's %s is not known yet (no pod uid)", AGENT_SOCKET)
             return None
+        deadline = time.monotonic() + self._timeout_s
         try:
             with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
                 sock.settimeout(self._timeout_s)
@@ -155,6 +157,11 @@ class SidecarInputs:
                 sock.sendall(json.dumps(request).encode() + b"\n")
                 data = b""
                 while not data.endswith(b"\n"):
+                    # The whole reply by the deadline: a peer trickling a byte at a time holds nothing.
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        raise TimeoutError("the reply did not arrive in time")
+                    sock.settimeout(left)
                     chunk = sock.recv(1 << 14)
                     if not chunk:
                         raise ConnectionError("the connector closed the connection")
@@ -162,7 +169,7 @@ class SidecarInputs:
                     if len(data) > MAX_REPLY_BYTES:
                         raise ValueError(f"a reply over {MAX_REPLY_BYTES} bytes")
             reply = json.loads(data)
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
             self._problems.warning("the sidecar connector's %s: %s: %s", AGENT_SOCKET, type(exc).__name__, exc)
             return None
         if not isinstance(reply, dict) or reply.get("ok") is not True:

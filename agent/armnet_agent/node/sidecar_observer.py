@@ -30,6 +30,7 @@ import logging
 import os
 import re
 import socket
+import stat
 import threading
 import time
 from collections import deque
@@ -73,12 +74,21 @@ def connect_long(sock: socket.socket, path: Path) -> None:
     default root). The directory is opened (``O_PATH``) and the socket reached
     through the short ``/proc/self/fd/<fd>/<name>``, which is safe from other
     threads (unlike a ``chdir``).
+    The socket itself is opened ``O_NOFOLLOW`` and must be a socket: a symlink put in
+    its place (by whoever could write into the volume) would otherwise lead the agent
+    to another pod's observer under the same mounted directory, or the kubelet's.
     """
     directory = os.open(path.parent, os.O_PATH | os.O_DIRECTORY)
     try:
-        sock.connect(f"/proc/self/fd/{directory}/{path.name}")
+        target = os.open(path.name, os.O_PATH | os.O_NOFOLLOW, dir_fd=directory)
     finally:
         os.close(directory)
+    try:
+        if not stat.S_ISSOCK(os.fstat(target).st_mode):
+            raise ConnectionRefusedError(f"{path} is not a socket (a symlink or a file put in its place?)")
+        sock.connect(f"/proc/self/fd/{target}")
+    finally:
+        os.close(target)
 
 
 def parse_servos(data: Any) -> dict[str, Mapping[str, ServoSample | None] | str] | None:
@@ -189,21 +199,28 @@ class SidecarObserver:
     # -- rollout events -----------------------------------------------------------------------
 
     def rollout_events(self) -> list[RolloutEvent]:
-        """The connector's events so far (the observer's new ones appended), oldest first."""
-        with self._events_lock:
-            for _ in range(MAX_EVENT_PAGES):
+        """The connector's events so far (the observer's new ones appended), oldest first.
+
+        The socket is asked without holding the events' lock: ``take_events`` (the
+        job's end) never waits for a slow or stalling peer.
+        """
+        for _ in range(MAX_EVENT_PAGES):
+            with self._events_lock:
                 after = self._events[-1].at if self._events else None
-                reply = self._call({"op": "rollouts", "after": after})
-                if reply is None or not isinstance(reply.get("events"), list):
-                    break
-                try:
-                    fresh = [parse_event(e) for e in reply["events"]]
-                except ValueError as exc:
-                    self._count("invalid", f"rollouts: {exc}")
-                    break
-                self._events.extend(e for e in fresh if after is None or e.at > after)
-                if reply.get("more") is not True or not fresh:
-                    break
+            reply = self._call({"op": "rollouts", "after": after})
+            if reply is None or not isinstance(reply.get("events"), list):
+                break
+            try:
+                fresh = [parse_event(e) for e in reply["events"]]
+            except ValueError as exc:
+                self._count("invalid", f"rollouts: {exc}")
+                break
+            with self._events_lock:
+                last = self._events[-1].at if self._events else None
+                self._events.extend(e for e in fresh if last is None or e.at > last)
+            if reply.get("more") is not True or not fresh:
+                break
+        with self._events_lock:
             return list(self._events)
 
     def take_events(self, events: Sequence[RolloutEvent]) -> list[RolloutEvent]:
@@ -226,8 +243,8 @@ class SidecarObserver:
                 return None
             try:
                 sock.sendall(json.dumps(request).encode() + b"\n")
-                reply = json.loads(self._read_line(sock))
-            except (OSError, ValueError) as exc:
+                reply = json.loads(self._read_line(sock, time.monotonic() + self._timeout_s))
+            except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
                 self._drop()
                 self._retry_at = time.monotonic() + self._retry_s
                 self._count("failed", f"{type(exc).__name__}: {exc}")
@@ -266,10 +283,15 @@ class SidecarObserver:
             sock.close()
 
     @staticmethod
-    def _read_line(sock: socket.socket) -> bytes:
+    def _read_line(sock: socket.socket, deadline: float) -> bytes:
+        """One reply line, by ``deadline`` as a whole: a peer trickling a byte at a time holds nothing."""
         chunks: list[bytes] = []
         size = 0
         while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError("the observer's reply did not arrive in time")
+            sock.settimeout(left)
             chunk = sock.recv(1 << 16)
             if not chunk:
                 raise ConnectionError("the connector closed the observer connection")
