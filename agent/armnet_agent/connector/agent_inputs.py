@@ -16,9 +16,8 @@ reach either; see ``connector.observer``).
 The checks are those of the in-process path, applied here where the facts are:
 
 - a confirmation names the reset wait it answers (``wait``: the number
-  ``reset_pending`` gave when the agent announced the wait); one for an earlier
-  wait, or with none waiting, is dropped (``LocalOperatorInputs`` drops one with
-  none waiting too);
+  ``reset_pending`` gave when the agent announced the wait; ``LocalOperatorInputs``
+  numbers its waits); one for an earlier wait, or with none waiting, is dropped;
 - a verdict names the rollout it judges (``rollout``, or null: whichever is
   active); one for another rollout, or for a rollout begun without outcome
   controls, is dropped.
@@ -30,7 +29,6 @@ agent counts and logs it; it is not an error of the connection.
 from __future__ import annotations
 
 import math
-import threading
 from typing import Any
 
 from .cell import CellState
@@ -43,44 +41,13 @@ MAX_ACTION_MOTORS = 64
 TELEOP_EVENTS = ("next_episode", "rerecord_episode", "stop_recording")
 
 
-class ResetWaits:
-    """Numbers each reset wait of one connector, so a confirmation can name the wait it answers.
-
-    Installed as the sidecar inputs' ``on_reset_requested``: called each time a
-    reset starts to wait (``LocalOperatorInputs.wait_reset_confirmation``).
-    """
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._number = 0
-
-    def __call__(self, inputs: LocalOperatorInputs) -> None:
-        with self._lock:
-            self._number += 1
-
-    @property
-    def number(self) -> int:
-        with self._lock:
-            return self._number
-
-
-def install(inputs: Any) -> ResetWaits | None:
-    """A ``ResetWaits`` hooked into ``inputs`` (a ``LocalOperatorInputs`` without a prompt), else None."""
-    if not isinstance(inputs, LocalOperatorInputs) or inputs.on_reset_requested is not None:
-        return None
-    waits = ResetWaits()
-    inputs.on_reset_requested = waits
-    return waits
-
-
 class AgentSession(Session):
     """One agent connection on ``agent.sock``: operator inputs and the cancel, each checked as in-process."""
 
     socket_name = "agent"
 
-    def __init__(self, cell: CellState, waits: ResetWaits) -> None:
+    def __init__(self, cell: CellState) -> None:
         super().__init__(cell)
-        self.waits = waits
         self.ops.update(
             reset_pending=self.op_reset_pending, confirm_reset=self.op_confirm_reset, outcome=self.op_outcome,
             teleop_action=self.op_teleop_action, teleop_event=self.op_teleop_event, stop=self.op_stop,
@@ -98,18 +65,26 @@ class AgentSession(Session):
         except Exception as exc:  # noqa: BLE001 - every failure becomes a reply
             return failure_reply(exc)
 
+    def _numbered(self) -> LocalOperatorInputs:
+        inputs = self.cell.inputs
+        if not isinstance(inputs, LocalOperatorInputs):
+            raise RequestError("Unsupported", "this connector's operator inputs do not number reset waits")
+        return inputs
+
     def op_reset_pending(self, request: dict[str, Any]) -> Reply:
-        """Whether a reset waits for a confirmation now, and the number of the last wait begun."""
-        return {"ok": True, "pending": self.cell.inputs.wait_reset_pending(0), "wait": self.waits.number}
+        """The number of the reset wait that waits for a confirmation now (null: none waits)."""
+        wait = self._numbered().pending_reset_wait()
+        return {"ok": True, "pending": wait is not None, "wait": wait}
 
     def op_confirm_reset(self, request: dict[str, Any]) -> Reply:
         wait = request.get("wait")
         if type(wait) is not int:
             raise protocol_error("request field 'wait' must be an integer (the reset wait confirmed)")
-        if wait != self.waits.number:
-            return _dropped(f"it confirms reset wait {wait}, the last wait is {self.waits.number}")
-        if not self.cell.inputs.confirm_reset():
-            return _dropped("no reset is waiting for a confirmation")
+        inputs = self._numbered()
+        if not inputs.confirm_reset_wait(wait):
+            waiting = inputs.pending_reset_wait()
+            return _dropped(f"it confirms reset wait {wait}; " + (
+                f"reset wait {waiting} waits now" if waiting is not None else "no reset waits for a confirmation"))
         return {"ok": True, "applied": True}
 
     def op_outcome(self, request: dict[str, Any]) -> Reply:

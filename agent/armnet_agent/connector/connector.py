@@ -15,8 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType, TracebackType
 
-from .agent_inputs import AGENT_SOCKET, AgentSession, ResetWaits
-from .agent_inputs import install as install_reset_waits
+from .agent_inputs import AGENT_SOCKET, AgentSession
 from .cell import CellState, Counters
 from .config import ConnectorConfig
 from .frames import FrameAreas
@@ -96,10 +95,8 @@ class Connector:
                 limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS),
             ))
             # The agent's inputs (a separate socket: the observer stays read-only), in the same agent-only volume.
-            # Inputs that already have a reset prompt (not a sidecar's) keep it; their waits stay unnumbered (0).
-            waits = install_reset_waits(self.cell.inputs) or ResetWaits()
             self._servers.append(UnixServer(
-                Path(observer_dir) / AGENT_SOCKET, lambda: AgentSession(self.cell, waits), self.cell.counters,
+                Path(observer_dir) / AGENT_SOCKET, lambda: AgentSession(self.cell), self.cell.counters,
                 limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS),
             ))
         self._started = False
