@@ -169,8 +169,10 @@ def test_the_pages_confirm_ends_a_pod_jobs_reset(pod: Pod, link: NatsLink, nats_
         bridge.close()
     assert result == [None]  # ctx.cell.reset() returned
     assert notice["job"] == "uid-1"
-    assert metrics.registry.get_sample_value("armnet_agent_sidecar_inputs_total",
-                                             {"op": "confirm_reset", "result": "applied"}) == 1
+    # Counted once the connector's reply is back (the job's reset may return first).
+    wait_for(lambda: metrics.registry.get_sample_value(
+        "armnet_agent_sidecar_inputs_total", {"op": "confirm_reset", "result": "applied"}) == 1,
+        what="the applied confirmation counted")
 
 
 def test_a_confirmation_for_an_earlier_reset_wait_never_confirms_the_waiting_one(pod: Pod) -> None:
