@@ -64,6 +64,18 @@ COUNTS_SLOWLY = """
         return {"lines": ctx.args.get("lines", 30)}
 """
 
+HONOURS_SHUTDOWN = """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        ctx.report_progress("watching for shutdown")
+        while not ctx.cell.is_shutting_down():
+            time.sleep(0.1)
+        return {"stopped_cleanly": True}
+"""
+
 # What the customer container sees, checked from inside it: the socket was there at its
 # first instruction (the sidecar's startup probe gated it), no serial device, no root.
 LOOKS_AROUND = """
@@ -348,6 +360,24 @@ def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
     st = status(bed.wait_phase("to-cancel", timeout=60))
     assert st["phase"] == "cancelled", explain(st)
     bed.wait(lambda: pod_of(bed, job) is None, 30, "the cancelled job's pod removed")
+
+
+def test_a_cancelled_job_pod_that_honours_shutdown_ends_cancelled_with_its_return_value_within_grace(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    bed.submit("honours-cancel", bed.image("honours", HONOURS_SHUTDOWN), timeout=300)
+    bed.wait(lambda: status(bed.job("honours-cancel")).get("progress") == "watching for shutdown", 300,
+             "the job pod watching for shutdown")
+    bed.k8s.kubectl("patch", "rj", "honours-cancel", "-n", bed.namespace, "--type=merge", "-p",
+                    '{"spec":{"cancel":true}}')
+    st = status(bed.wait_phase("honours-cancel", timeout=60))
+    assert st["phase"] == "cancelled", explain(st)
+    # Told through the sidecar's agent.sock (its grace window opened at once), the job returned by itself:
+    # a job killed at the end of the 3 s window (the container launcher's path before) has no return value.
+    assert st["result"].get("returnValue") == {"stopped_cleanly": True}, explain(st)
+    assert st["result"]["exitCode"] == 0, explain(st)
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    assert 'armnet_agent_sidecar_inputs_total{op="cancel",result="applied"}' in text
 
 
 def test_the_agent_exports_the_pod_start_latency(bed: AgentBed, batch: dict[str, str]) -> None:

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType, TracebackType
 
+from .agent_inputs import AGENT_SOCKET, AgentSession
 from .cell import CellState, Counters
 from .config import ConnectorConfig
 from .frames import FrameAreas
@@ -61,7 +62,8 @@ class Connector:
         on_grace_expired: Callable[[], None] | None = None,
         observer_dir: str | Path | None = None,
     ) -> None:
-        """``observer_dir``: where to serve the read-only ``observer.sock`` (observer.py), None: nowhere."""
+        """``observer_dir``: where to serve the read-only ``observer.sock`` (observer.py) and the agent's
+        ``agent.sock`` (agent_inputs.py: operator inputs and the cancel of a pod job), None: nowhere."""
         self.config = config
         self.socket_dir = Path(socket_dir)
         self.cell = CellState(
@@ -90,6 +92,11 @@ class Connector:
             # The agent's read-only view from outside the pod: its own small cap, never the job's.
             self._servers.append(UnixServer(
                 Path(observer_dir) / OBSERVER_SOCKET, lambda: ObserverSession(self.cell), self.cell.counters,
+                limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS),
+            ))
+            # The agent's inputs (a separate socket: the observer stays read-only), in the same agent-only volume.
+            self._servers.append(UnixServer(
+                Path(observer_dir) / AGENT_SOCKET, lambda: AgentSession(self.cell), self.cell.counters,
                 limits=ServerLimits(max_connections=OBSERVER_MAX_CONNECTIONS),
             ))
         self._started = False

@@ -30,6 +30,28 @@ class OperatorInputs(Protocol):
     def request_stop(self) -> None: ...
     def confirm_reset(self) -> bool: ...
 
+    def pending_reset_wait(self) -> int | None:
+        """The number of the reset wait that waits for a confirmation now, else None.
+
+        Read together with the wait's state (one lock), so a number is never that of
+        an earlier wait while a new one already waits.
+        """
+        with self._cond:
+            return self._wait_number if self._waiting > self._confirmations else None
+
+    def confirm_reset_wait(self, number: int) -> bool:
+        """Confirm reset wait ``number`` only if it is the one waiting now; else dropped (False), as ``confirm_reset``."""
+        with self._cond:
+            dropped = number != self._wait_number or self._confirmations >= self._waiting
+            if dropped:
+                self.ignored_confirmations += 1
+            else:
+                self._confirmations += 1
+                self._cond.notify_all()
+        if dropped:
+            log.warning("ignored a reset confirmation for reset wait %d: it is not the reset waiting now", number)
+        return not dropped
+
     def latest_teleop_action(self) -> dict[str, Any] | None: ...
     def next_teleop_event(self) -> str | None: ...
     def take_outcome(self) -> bool | None: ...
@@ -85,6 +107,7 @@ class LocalOperatorInputs:
         self._stop = False
         self._waiting = 0  # resets waiting for a confirmation (the connector runs one at a time)
         self._confirmations = 0  # confirmations given to those resets, not yet taken
+        self._wait_number = 0  # each reset wait numbered from 1, when it begins (a pod's agent names the one it confirms)
         self.ignored_confirmations = 0
 
     def set_teleop_action(self, action: dict[str, Any] | None) -> None:
@@ -117,6 +140,28 @@ class LocalOperatorInputs:
             log.warning("ignored a reset confirmation: no reset is waiting for one")
         return not dropped
 
+    def pending_reset_wait(self) -> int | None:
+        """The number of the reset wait that waits for a confirmation now, else None.
+
+        Read together with the wait's state (one lock), so a number is never that of
+        an earlier wait while a new one already waits.
+        """
+        with self._cond:
+            return self._wait_number if self._waiting > self._confirmations else None
+
+    def confirm_reset_wait(self, number: int) -> bool:
+        """Confirm reset wait ``number`` only if it is the one waiting now; else dropped (False), as ``confirm_reset``."""
+        with self._cond:
+            dropped = number != self._wait_number or self._confirmations >= self._waiting
+            if dropped:
+                self.ignored_confirmations += 1
+            else:
+                self._confirmations += 1
+                self._cond.notify_all()
+        if dropped:
+            log.warning("ignored a reset confirmation for reset wait %d: it is not the reset waiting now", number)
+        return not dropped
+
     def latest_teleop_action(self) -> dict[str, Any] | None:
         with self._cond:
             return self._action
@@ -139,6 +184,7 @@ class LocalOperatorInputs:
             return True
         with self._cond:
             self._waiting += 1
+            self._wait_number += 1
             self._cond.notify_all()
         try:
             if self.on_reset_requested is not None:

@@ -23,8 +23,10 @@ container can mount. Then the config names the preset (``simulator``) and this
 sidecar runs the simulator next to the connector, on ptys of its own.
 
 While the job runs, the agent reads the telemetry and rollout events of the
-connector through ``observer.sock`` (``connector.observer``), served in a volume
-only this container mounts; a restarted sidecar serves it anew in the same place.
+connector through ``observer.sock`` (``connector.observer``), and sends the cell
+operator's inputs and the cancel notice through ``agent.sock``
+(``connector.agent_inputs``), both served in a volume only this container
+mounts; a restarted sidecar serves them anew in the same place.
 """
 
 from __future__ import annotations

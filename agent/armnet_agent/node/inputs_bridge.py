@@ -27,6 +27,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 from armnet_agent.connector.inputs import LocalOperatorInputs, OperatorInputs
 from armnet_agent.connector.ratelog import RateLimitedLog
 
+from .sidecar_inputs import SidecarInputs
 from .streams import NatsLink, Subscription, fms_subject, teleop_subject
 
 log = logging.getLogger(__name__)
@@ -112,7 +113,7 @@ def parse_input(model: type[_Input], data: bytes) -> _Input:
 class OperatorInputsBridge:
     """Subscribes one job's teleop subjects and its cell's FMS subjects while the job runs."""
 
-    def __init__(self, link: NatsLink, inputs: OperatorInputs, *, namespace: str, job_uid: str,
+    def __init__(self, link: NatsLink, inputs: OperatorInputs | SidecarInputs, *, namespace: str, job_uid: str,
                  cell: str, announce_resets: bool = True,
                  active_rollout: Callable[[], int | None] | None = None,
                  on_verdict: Callable[[bool, str, int | None], None] | None = None,
@@ -152,14 +153,18 @@ class OperatorInputsBridge:
         return list(self._routes)
 
     def start(self) -> OperatorInputsBridge:
-        """Subscribe; with ``announce_resets``, a ``LocalOperatorInputs`` without a reset prompt gets one."""
+        """Subscribe; with ``announce_resets``, inputs without a reset prompt get one.
+
+        Inputs that say when a reset waits (``on_reset_requested``): a ``LocalOperatorInputs``
+        in this process, or a pod job's ``SidecarInputs`` (``node.sidecar_inputs``).
+        """
         self._subscriptions = [self.link.subscribe(subject, self._on_message) for subject in self._routes]
-        if (self._announce_resets and isinstance(self.inputs, LocalOperatorInputs)
+        if (self._announce_resets and isinstance(self.inputs, LocalOperatorInputs | SidecarInputs)
                 and self.inputs.on_reset_requested is None):
             self.inputs.on_reset_requested = self.announce_reset_waiting
         return self
 
-    def announce_reset_waiting(self, inputs: LocalOperatorInputs | None = None) -> None:
+    def announce_reset_waiting(self, inputs: object = None) -> None:
         """Tell the cell's operator that the job's reset waits for a confirmation (core NATS, best effort)."""
         at = datetime.now(UTC).isoformat()
         self._reset_request = reset_request_id(self.job_uid, at)
@@ -174,7 +179,8 @@ class OperatorInputsBridge:
         for subscription in self._subscriptions:
             subscription.close()
         self._subscriptions = []
-        if isinstance(self.inputs, LocalOperatorInputs) and self.inputs.on_reset_requested == self.announce_reset_waiting:
+        if (isinstance(self.inputs, LocalOperatorInputs | SidecarInputs)
+                and self.inputs.on_reset_requested == self.announce_reset_waiting):
             self.inputs.on_reset_requested = None
 
     def _on_message(self, subject: str, data: bytes) -> None:
@@ -224,8 +230,11 @@ class OperatorInputsBridge:
             log.warning("episode outcome by %s dropped: rollout %s began without outcome controls "
                         "(the job decides its outcome)", message.by, message.rollout)
             return
+        if self.inputs.report_outcome(message.success) is False:  # type: ignore[func-returns-value]
+            # A pod job's connector checked it again and dropped it (the rollout ended meanwhile): not recorded.
+            log.warning("episode outcome by %s dropped by the job's connector", message.by)
+            return
         log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
-        self.inputs.report_outcome(message.success)
         if self._on_verdict is not None:
             self._on_verdict(message.success, message.by, message.rollout)
 

@@ -29,7 +29,7 @@ from typing import Any, Protocol
 
 from armnet_runtime import env as env_keys
 
-from armnet_agent.connector.inputs import LocalOperatorInputs
+from armnet_agent.connector.inputs import LocalOperatorInputs, OperatorInputs
 from armnet_agent.deviceplugin.decide import resource_name
 from armnet_agent.launch.container import ContainerJob
 from armnet_agent.launch.plan import LABEL_JOB_UID, LABEL_MANAGED_BY, MANAGED_BY_AGENT
@@ -49,6 +49,7 @@ from armnet_agent.node import report
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import Cell, Job
 from armnet_agent.node.plan import LaunchPlan, container_name
+from armnet_agent.node.sidecar_inputs import SidecarInputs, agent_socket
 from armnet_agent.node.sidecar_observer import (
     DEFAULT_KUBELET_ROOT,
     SidecarObserver,
@@ -101,6 +102,10 @@ class JobSession(Protocol):
 
     def job_view(self) -> JobView | None:
         """What the job's connector knows, for telemetry (in this process, or a pod sidecar's observer socket)."""
+        ...
+
+    def operator_inputs(self) -> OperatorInputs | SidecarInputs:
+        """Where the cell operator's inputs go (the inputs bridge): the connector in this process, or a pod's sidecar."""
         ...
 
     def remove(self) -> None: ...
@@ -216,6 +221,9 @@ class ContainerSession:
     def job_view(self) -> JobView | None:
         connector = self.local_cell.connector
         return InProcessView(connector.cell) if connector is not None else None
+
+    def operator_inputs(self) -> OperatorInputs | SidecarInputs:
+        return self.request.inputs
 
     def interlock_trip(self) -> str | None:
         connector = self.local_cell.connector
@@ -407,6 +415,9 @@ class PodSession:
         #: The sidecar connector's observer socket (telemetry, rollout events), once the pod exists.
         self.observer: SidecarObserver | None = None
         self._record: report.ConnectorRecord | None = None
+        #: The sidecar connector's ``agent.sock``: the operator's inputs and the cancel notice.
+        self.inputs = SidecarInputs(lambda: agent_socket(self._observer_path()), launcher.metrics,
+                                    active_rollout=self.active_rollout)
 
     def start(self) -> LaunchedJob:
         core, metrics = self.launcher.core, self.launcher.metrics
@@ -422,6 +433,7 @@ class PodSession:
             job = PodJob.adopt(core, request.job.namespace, container_name(request.job.uid))
         self.job = job
         self.observer = SidecarObserver(self._observer_path, metrics)
+        self.inputs.watch(self._job_running)  # reset waits, announced to the cell's operator
         # "running" means the job's code runs: wait for its container (the sidecar is ready first).
         if not job.wait_started(POD_START_TIMEOUT_S):
             log.warning("job %s: its pod's container has not started after %d s", request.job.key, POD_START_TIMEOUT_S)
@@ -442,7 +454,10 @@ class PodSession:
         """Nothing to call: the sidecar runs the job's deadline itself; the supervisor kills after grace."""
 
     def on_cancel(self) -> None:
-        """Nothing to call, as at the deadline: the supervisor kills after grace."""
+        """Open the sidecar connector's grace window (``agent.sock``); the supervisor still kills after grace."""
+        if not self.inputs.cancel():
+            log.warning("job %s: the cancel did not reach its connector sidecar; the job is killed when the grace "
+                        "window ends without having been told it is shutting down", self.request.job.key)
 
     def failure(self) -> str | None:
         job = self.job
@@ -464,6 +479,9 @@ class PodSession:
     def job_view(self) -> JobView | None:
         return self.observer if self._job_running() else None
 
+    def operator_inputs(self) -> OperatorInputs | SidecarInputs:
+        return self.inputs
+
     def _job_running(self) -> bool:
         """The job's container runs: the sidecar serves (it is ready first) and has not been stopped yet.
 
@@ -477,13 +495,17 @@ class PodSession:
         return None  # the connector is in the pod; its trips reach the status through its record
 
     def rollout(self) -> dict[str, int] | None:
-        # Not written while the job runs: N/M brings up the page's Success/Fail buttons, and operator
-        # inputs do not reach a sidecar yet (docs/agent.md, the pod launcher). The record has it at the end.
+        """The last rollout begun, from the events the recorder last read (no request of its own)."""
+        observer = self.observer
+        for event in reversed(observer.take_events(()) if observer is not None else []):
+            if event.kind == "begin" and event.index is not None:
+                return {"index": event.index, "total": event.total or 0}
         return None
 
     def active_rollout(self) -> int | None:
-        # Operator inputs do not reach a sidecar yet: the bridge drops every verdict for a pod job.
-        return None
+        """Asked when a verdict arrives: the sidecar's events now (its last is a begin), else None."""
+        events = list(self.rollout_events())
+        return events[-1].index if events and events[-1].kind == "begin" else None
 
     def rollout_events(self) -> Sequence[Any]:
         """The sidecar's events through its observer socket; once it has stopped, with its record's last ones."""
@@ -510,6 +532,8 @@ class PodSession:
         return observer_socket(self.launcher.settings.kubelet_root, uid) if isinstance(uid, str) else None
 
     def close_observer(self) -> None:
+        """Stop the sidecar channels: the reset-wait poll of ``agent.sock`` and the observer's connection."""
+        self.inputs.close()
         if self.observer is not None:
             self.observer.close()
 

@@ -101,6 +101,12 @@ class AgentMetrics:
             "failed (the connection broke or the connector refused), invalid (a reply of the wrong shape)",
             ["result"], registry=r,
         )
+        self.sidecar_inputs = Counter(
+            "armnet_agent_sidecar_inputs_total",
+            "pod launcher: operator inputs and cancels sent to a job's connector sidecar (agent.sock), by op: "
+            "applied, dropped (the connector refused it as stale: no reset waiting, another rollout), failed "
+            "(the socket did not answer or refused the request)", ["op", "result"], registry=r,
+        )
 
     def serve(self, port: int, address: str) -> None:
         if port:

@@ -17,6 +17,7 @@ from prometheus_client import CollectorRegistry
 
 from armnet_agent.connector.inputs import OperatorInputs
 from armnet_agent.node import streams
+from armnet_agent.node.sidecar_inputs import SidecarInputs
 from armnet_agent.node.stream_metrics import StreamsCollector
 
 log = logging.getLogger(__name__)
@@ -86,7 +87,7 @@ def telemetry_notifier(link: Link) -> streams.NatsLink | None:
     return link if isinstance(link, streams.NatsLink) else None
 
 
-def inputs_bridge(link: Link, inputs: OperatorInputs, *, namespace: str, job_uid: str, cell: str,
+def inputs_bridge(link: Link, inputs: OperatorInputs | SidecarInputs, *, namespace: str, job_uid: str, cell: str,
                   active_rollout: Callable[[], int | None] | None = None,
                   on_verdict: Callable[[bool, str, int | None], None] | None = None,
                   accepts_verdict: Callable[[int | None], bool] | None = None) -> Closable:

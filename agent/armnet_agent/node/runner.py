@@ -178,7 +178,7 @@ class JobRunner:
                 self.session = session
                 self.hooks.on_deadline = session.on_deadline
                 self.hooks.on_cancel = session.on_cancel
-                bridge = inputs_bridge(self.deps.link, inputs, namespace=job.namespace, job_uid=job.uid,
+                bridge = inputs_bridge(self.deps.link, session.operator_inputs(), namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout,
                                        on_verdict=self._record_verdict,
                                        accepts_verdict=self.rollouts.accepts_verdict)

@@ -79,3 +79,44 @@ def test_a_scripted_confirmation_waits_for_the_next_reset_then_confirms_it() -> 
     assert inputs.wait_reset_confirmation(10) is True
     feeder.join(10)
     assert inputs.take_outcome() is True
+
+
+def waiting_reset(inputs: LocalOperatorInputs, timeout_s: float) -> tuple[threading.Thread, list[bool]]:
+    """A reset waiting in another thread (as the connector's ``reset`` op waits); its result lands in the list."""
+    result: list[bool] = []
+    thread = threading.Thread(target=lambda: result.append(inputs.wait_reset_confirmation(timeout_s)), daemon=True)
+    thread.start()
+    assert inputs.wait_reset_pending(10)
+    return thread, result
+
+
+def test_each_reset_wait_has_a_number_of_its_own_while_it_waits() -> None:
+    inputs = LocalOperatorInputs()
+    assert inputs.pending_reset_wait() is None
+    first, _ = waiting_reset(inputs, 0.05)
+    first.join(10)
+    assert inputs.pending_reset_wait() is None  # timed out: nothing waits
+    second, _ = waiting_reset(inputs, 10)
+    assert inputs.pending_reset_wait() == 2
+    inputs.confirm_reset_wait(2)
+    second.join(10)
+
+
+def test_a_confirmation_naming_the_waiting_reset_confirms_it() -> None:
+    inputs = LocalOperatorInputs()
+    thread, result = waiting_reset(inputs, 10)
+    assert inputs.confirm_reset_wait(1) is True
+    thread.join(10)
+    assert result == [True]
+
+
+def test_a_confirmation_naming_an_earlier_reset_wait_is_dropped_and_the_reset_keeps_waiting() -> None:
+    inputs = LocalOperatorInputs()
+    first, _ = waiting_reset(inputs, 0.05)
+    first.join(10)
+    second, result = waiting_reset(inputs, 10)
+    assert inputs.confirm_reset_wait(1) is False
+    assert inputs.ignored_confirmations == 1 and inputs.pending_reset_wait() == 2
+    inputs.confirm_reset_wait(2)
+    second.join(10)
+    assert result == [True]
