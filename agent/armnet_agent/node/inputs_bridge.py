@@ -194,8 +194,10 @@ class OperatorInputsBridge:
             self.rejected += 1
             self._rejections.warning("dropped an operator input on %s: %s", subject, exc)
             return
-        self.accepted += 1
-        apply(message)
+        try:
+            apply(message)
+        finally:
+            self.accepted += 1  # counted once applied: a caller waiting on the count sees its effect
 
     def _teleop_action(self, message: _Input) -> None:
         assert isinstance(message, TeleopAction)
