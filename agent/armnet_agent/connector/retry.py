@@ -5,8 +5,13 @@ reply now and then comes too late ("There is no status packet!", or "Missing
 motor IDs" from the ``connect`` handshake). A read changes nothing on the servos,
 so the connector may simply ask again: it waits for the late reply to land,
 drops it from the port's input buffer (else the next transaction would take it
-as its own answer) and repeats the call. Writes are never retried here: one
-that was applied must not be applied twice.
+as its own answer) and repeats the call. Writes are not retried, with one
+exception: switching torque on or off (``enable_torque`` / ``disable_torque``)
+writes the same absolute values to every motor however often it runs, so a lost
+acknowledgement is asked again like a read (a starved sidecar failed a job on
+"Failed to write 'Torque_Enable' ... no status packet", and a release that gives
+up early would leave torque on). Any other write stays once: the connector does
+not judge which register writes are safe to repeat.
 
 This module owns which calls count as reads, which failures count as a lost
 reply (pure functions), and the retry loop. It never decides what a job may call.
@@ -43,6 +48,11 @@ READ_METHODS: dict[str, frozenset[str]] = {
         {"sync_read", "read", "ping", "broadcast_ping", "read_calibration", "connect"}
     ),
 }
+#: Calls that write, but the same absolute values every time (torque on / off and the EEPROM
+#: lock with it): running one again after a lost acknowledgement changes nothing more.
+IDEMPOTENT_CALLS: dict[str, frozenset[str]] = {
+    "FeetechMotorsBus": frozenset({"enable_torque", "disable_torque"}),
+}
 #: Properties that read the servos when they are read.
 READ_PROPERTIES: dict[str, frozenset[str]] = {
     "FeetechMotorsBus": frozenset({"is_calibrated"}),
@@ -57,6 +67,12 @@ def is_read(class_name: str, name: str, *, kind: str) -> bool:
     """Whether calling (``kind="call"``) or reading (``"get"``) ``name`` only reads the servos."""
     table = READ_METHODS if kind == "call" else READ_PROPERTIES
     return name in table.get(class_name, frozenset())
+
+
+def is_retried(class_name: str, method: str) -> bool:
+    """Whether a call of ``method`` that lost a servo reply is asked again: a read, or a torque switch."""
+    return (is_read(class_name, method, kind="call")
+            or method in IDEMPOTENT_CALLS.get(class_name, frozenset()))
 
 
 def is_lost_reply(exc: BaseException, *, connecting: bool = False) -> bool:

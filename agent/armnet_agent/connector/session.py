@@ -23,7 +23,7 @@ from .errors import RequestError, bounded, failure_reply, not_allowed, protocol_
 from .frames import FrameAreas, FramePublisher
 from .hardware import Handle, create_arx5, create_camera, create_feetech
 from .introspection import answer as answer_outside_allowlist
-from .retry import is_read, with_read_retry
+from .retry import is_read, is_retried, with_read_retry
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +128,8 @@ class _CallPlan:
     """The per-(object, method) facts of ``call`` that never change (see ``RobotSession._call_plan``)."""
 
     handle: Handle
-    reads: bool
+    #: A lost servo reply is asked again (``retry.is_retried``: reads and torque switches).
+    retried: bool
     camera: bool
     frame_read: bool
     #: The method's parameter names when some are capped (``buscaps``), else ``()``.
@@ -260,7 +261,7 @@ class RobotSession(Session):
         camera = handle.class_name == "OpenCVCamera"
         capped = capped_parameters(handle.class_name, getattr(handle.obj, method, None))
         plan = _CallPlan(
-            handle, is_read(handle.class_name, method, kind="call"), camera, camera and method in FRAME_READS,
+            handle, is_retried(handle.class_name, method), camera, camera and method in FRAME_READS,
             capped, first_capped(handle.class_name, capped),
         )
         if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
@@ -284,7 +285,7 @@ class RobotSession(Session):
             if method == "torque_disabled":
                 return self._torque_disabled(handle, args, kwargs)
             bound = getattr(handle.obj, method)
-            if plan.reads:
+            if plan.retried:
                 result = with_read_retry(handle, method, lambda: bound(*args, **kwargs), on_retry=self._count_retry)
             else:
                 result = bound(*args, **kwargs)

@@ -7,7 +7,13 @@ packets, as a loaded machine does when a reply misses LeRobot's ~50 ms timeout.
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.retry import MAX_RETRIES, is_lost_reply, is_read, retry_delays
+from armnet_agent.connector.retry import (
+    MAX_RETRIES,
+    is_lost_reply,
+    is_read,
+    is_retried,
+    retry_delays,
+)
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
 
@@ -84,7 +90,23 @@ def test_a_write_that_lost_its_reply_is_not_repeated(remote, sim_cell, connector
     assert sim_cell.arm.register("wrist_roll", "Torque_Enable") == 1  # it was applied, once
 
 
+def test_a_torque_switch_that_lost_an_acknowledgement_is_asked_again_and_torque_ends_on(
+        remote, sim_cell, connector) -> None:
+    """Torque on writes the same values however often it runs: a lost reply must not fail the job."""
+    remote.connect()
+    remote.disable_torque()
+    sim_cell.arm.drop_replies("elbow_flex", 1)
+    remote.enable_torque()
+    assert connector.counters.bus_retries == 1
+    assert all(sim_cell.arm.register(m, "Torque_Enable") == 1 for m in sim_cell.arm.motors)
+
+
 def test_which_calls_and_failures_are_retried() -> None:
+    assert is_retried("FeetechMotorsBus", "enable_torque")
+    assert is_retried("FeetechMotorsBus", "disable_torque")
+    assert is_retried("FeetechMotorsBus", "sync_read")
+    assert not is_retried("FeetechMotorsBus", "write")
+    assert not is_retried("FeetechMotorsBus", "sync_write")
     assert is_read("FeetechMotorsBus", "sync_read", kind="call")
     assert is_read("FeetechMotorsBus", "is_calibrated", kind="get")
     assert not is_read("FeetechMotorsBus", "sync_write", kind="call")
