@@ -5,13 +5,16 @@ reply now and then comes too late ("There is no status packet!", or "Missing
 motor IDs" from the ``connect`` handshake). A read changes nothing on the servos,
 so the connector may simply ask again: it waits for the late reply to land,
 drops it from the port's input buffer (else the next transaction would take it
-as its own answer) and repeats the call. Writes are not retried, with one
-exception: switching torque on or off (``enable_torque`` / ``disable_torque``)
-writes the same absolute values to every motor however often it runs, so a lost
-acknowledgement is asked again like a read (a starved sidecar failed a job on
-"Failed to write 'Torque_Enable' ... no status packet", and a release that gives
-up early would leave torque on). Any other write stays once: the connector does
-not judge which register writes are safe to repeat.
+as its own answer) and repeats the call.
+
+Register writes that wait for an acknowledgement are asked again too: ``write``
+(one register of one motor) and the torque switches (``enable_torque`` /
+``disable_torque``) set absolute values, so a write applied twice leaves the servo
+exactly as applied once, and the device lock keeps every other request off the bus
+between the attempts. The write's policy check ran once, before the first attempt,
+on the same arguments. Loaded hosts failed jobs on "Failed to write 'Torque_Enable'
+/ 'Return_Delay_Time' ... no status packet", and a release that gives up early would
+leave torque on. ``sync_write`` gets no acknowledgement, so it cannot lose one.
 
 This module owns which calls count as reads, which failures count as a lost
 reply (pure functions), and the retry loop. It never decides what a job may call.
@@ -48,10 +51,10 @@ READ_METHODS: dict[str, frozenset[str]] = {
         {"sync_read", "read", "ping", "broadcast_ping", "read_calibration", "connect"}
     ),
 }
-#: Calls that write, but the same absolute values every time (torque on / off and the EEPROM
-#: lock with it): running one again after a lost acknowledgement changes nothing more.
+#: Calls that write absolute register values and wait for the servo's acknowledgement:
+#: running one again after a lost acknowledgement leaves the servo as running it once.
 IDEMPOTENT_CALLS: dict[str, frozenset[str]] = {
-    "FeetechMotorsBus": frozenset({"enable_torque", "disable_torque"}),
+    "FeetechMotorsBus": frozenset({"write", "enable_torque", "disable_torque"}),
 }
 #: Properties that read the servos when they are read.
 READ_PROPERTIES: dict[str, frozenset[str]] = {
@@ -70,7 +73,7 @@ def is_read(class_name: str, name: str, *, kind: str) -> bool:
 
 
 def is_retried(class_name: str, method: str) -> bool:
-    """Whether a call of ``method`` that lost a servo reply is asked again: a read, or a torque switch."""
+    """Whether a call of ``method`` that lost a servo reply is asked again: a read, or an absolute write."""
     return (is_read(class_name, method, kind="call")
             or method in IDEMPOTENT_CALLS.get(class_name, frozenset()))
 

@@ -128,7 +128,7 @@ class _CallPlan:
     """The per-(object, method) facts of ``call`` that never change (see ``RobotSession._call_plan``)."""
 
     handle: Handle
-    #: A lost servo reply is asked again (``retry.is_retried``: reads and torque switches).
+    #: A lost servo reply is asked again (``retry.is_retried``: reads and acknowledged absolute writes).
     retried: bool
     camera: bool
     frame_read: bool

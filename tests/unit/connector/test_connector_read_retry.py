@@ -80,14 +80,24 @@ def test_a_read_that_keeps_failing_raises_after_the_retries(remote, sim_cell, co
     assert "gripper" in remote.sync_read("Present_Position")
 
 
-def test_a_write_that_lost_its_reply_is_not_repeated(remote, sim_cell, connector) -> None:
+def test_a_register_write_that_lost_its_acknowledgement_is_sent_again_and_applied(
+        remote, sim_cell, connector) -> None:
+    """An absolute register write applied twice leaves the servo as applied once."""
     remote.connect()
     assert remote.read("Response_Status_Level", "wrist_roll") == 1  # the servo acknowledges writes
+    remote.write("Torque_Enable", "wrist_roll", 0)
     sim_cell.arm.drop_replies("wrist_roll", 1)
+    remote.write("Torque_Enable", "wrist_roll", 1)
+    assert connector.counters.bus_retries == 1
+    assert sim_cell.arm.register("wrist_roll", "Torque_Enable") == 1
+
+
+def test_a_write_that_keeps_losing_its_acknowledgement_raises_after_the_retries(remote, sim_cell, connector) -> None:
+    remote.connect()
+    sim_cell.arm.drop_replies("wrist_roll", MAX_RETRIES + 5)
     with pytest.raises(ConnectionError, match="status packet"):
         remote.write("Torque_Enable", "wrist_roll", 1)
-    assert connector.counters.bus_retries == 0
-    assert sim_cell.arm.register("wrist_roll", "Torque_Enable") == 1  # it was applied, once
+    assert connector.counters.bus_retries == MAX_RETRIES
 
 
 def test_a_torque_switch_that_lost_an_acknowledgement_is_asked_again_and_torque_ends_on(
@@ -105,7 +115,7 @@ def test_which_calls_and_failures_are_retried() -> None:
     assert is_retried("FeetechMotorsBus", "enable_torque")
     assert is_retried("FeetechMotorsBus", "disable_torque")
     assert is_retried("FeetechMotorsBus", "sync_read")
-    assert not is_retried("FeetechMotorsBus", "write")
+    assert is_retried("FeetechMotorsBus", "write")
     assert not is_retried("FeetechMotorsBus", "sync_write")
     assert is_read("FeetechMotorsBus", "sync_read", kind="call")
     assert is_read("FeetechMotorsBus", "is_calibrated", kind="get")
