@@ -30,28 +30,8 @@ class OperatorInputs(Protocol):
     def request_stop(self) -> None: ...
     def confirm_reset(self) -> bool: ...
 
-    def pending_reset_wait(self) -> int | None:
-        """The number of the reset wait that waits for a confirmation now, else None.
-
-        Read together with the wait's state (one lock), so a number is never that of
-        an earlier wait while a new one already waits.
-        """
-        with self._cond:
-            return self._wait_number if self._waiting > self._confirmations else None
-
-    def confirm_reset_wait(self, number: int) -> bool:
-        """Confirm reset wait ``number`` only if it is the one waiting now; else dropped (False), as ``confirm_reset``."""
-        with self._cond:
-            dropped = number != self._wait_number or self._confirmations >= self._waiting
-            if dropped:
-                self.ignored_confirmations += 1
-            else:
-                self._confirmations += 1
-                self._cond.notify_all()
-        if dropped:
-            log.warning("ignored a reset confirmation for reset wait %d: it is not the reset waiting now", number)
-        return not dropped
-
+    def pending_reset_wait(self) -> int | None: ...
+    def confirm_reset_wait(self, number: int) -> bool: ...
     def latest_teleop_action(self) -> dict[str, Any] | None: ...
     def next_teleop_event(self) -> str | None: ...
     def take_outcome(self) -> bool | None: ...
