@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import json
 import shutil
-import socket
 import tempfile
 import threading
 import time
@@ -29,12 +28,12 @@ from armnet_agent.connector.observer import OBSERVER_SOCKET
 from armnet_agent.node.inputs_bridge import OperatorInputsBridge
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.sidecar_inputs import SidecarInputs
-from armnet_agent.node.sidecar_observer import SidecarObserver, connect_long
+from armnet_agent.node.sidecar_observer import SidecarObserver
 from armnet_agent.node.streams import NatsLink
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.context import Cell
 
-from tests.support.sim_connector import cell_config, connected_link, simulated_so101
+from tests.support.sim_connector import cell_config, connected_link, request, simulated_so101
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
@@ -85,22 +84,6 @@ def pod(sim: SimulatedCellProcess) -> Iterator[Pod]:
     pod = Pod(sim)
     yield pod
     pod.close()
-
-
-def request(path: Path, message: dict[str, Any]) -> dict[str, Any]:
-    """One request line on a unix socket, as anyone who can reach the socket could send it."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as conn:
-        conn.settimeout(5)
-        connect_long(conn, path)
-        conn.sendall(json.dumps(message).encode() + b"\n")
-        data = b""
-        while not data.endswith(b"\n"):
-            chunk = conn.recv(1 << 16)
-            if not chunk:
-                break
-            data += chunk
-    reply: dict[str, Any] = json.loads(data)
-    return reply
 
 
 def operator_op(pod: Pod, op: str, **fields: Any) -> dict[str, Any]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
 import tempfile
 import time
 from collections.abc import Iterator
@@ -29,14 +28,21 @@ from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.rollout_history import Outcome, as_status, from_status
 from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_agent.node.sidecar_observer import SidecarObserver, connect_long
+from armnet_agent.node.sidecar_observer import SidecarObserver
 from armnet_agent.node.streams import NatsLink
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings
 from armnet_agent.node.telemetry_sources import JobSource
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 
-from tests.support.sim_connector import cell_config, connected_link, heard, job_bus, simulated_so101
+from tests.support.sim_connector import (
+    cell_config,
+    connected_link,
+    heard,
+    job_bus,
+    request,
+    simulated_so101,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -93,22 +99,6 @@ def pod(sim: SimulatedCellProcess, monkeypatch: pytest.MonkeyPatch) -> Iterator[
     monkeypatch.setenv("ARMNET_CELL_SOCKET", pod.connector.robot_endpoint)
     yield pod
     pod.close()
-
-
-def request(path: Path, message: dict[str, Any]) -> dict[str, Any]:
-    """One request line on a unix socket, as anyone who can reach the socket could send it."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as conn:
-        conn.settimeout(5)
-        connect_long(conn, path)
-        conn.sendall(json.dumps(message).encode() + b"\n")
-        data = b""
-        while not data.endswith(b"\n"):
-            chunk = conn.recv(1 << 16)
-            if not chunk:
-                break
-            data += chunk
-    reply: dict[str, Any] = json.loads(data)
-    return reply
 
 
 def operator_op(pod: Pod, op: str, **fields: Any) -> dict[str, Any]:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import json
+import socket
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -11,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_agent.connector import ConnectorConfig
+from armnet_agent.node.sidecar_observer import connect_long
 from armnet_agent.node.streams import NatsLink, StreamSettings
 from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
@@ -81,3 +84,19 @@ def connected_link(nats_url: str) -> Iterator[NatsLink]:
         yield link
     finally:
         link.stop()
+
+
+def request(path: Path, message: dict[str, Any]) -> dict[str, Any]:
+    """One request line on a unix socket, as anyone who can reach the socket could send it."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as conn:
+        conn.settimeout(5)
+        connect_long(conn, path)
+        conn.sendall(json.dumps(message).encode() + b"\n")
+        data = b""
+        while not data.endswith(b"\n"):
+            chunk = conn.recv(1 << 16)
+            if not chunk:
+                break
+            data += chunk
+    reply: dict[str, Any] = json.loads(data)
+    return reply
