@@ -196,14 +196,18 @@ class CellState:
             log.error("arm %s: torque off was not confirmed by its servos", arm_name)
         return confirmed
 
-    def shut_down(self, lock_wait_s: float) -> None:
-        """The job's end: release every device, rest every arm and torque it off (each if configured)."""
+    def shut_down(self, lock_wait_s: float, rest_deadline: float | None = None) -> None:
+        """The job's end: release every device, rest every arm and torque it off (each if configured).
+
+        A rest still walking at ``rest_deadline`` (``time.monotonic()``) stops there and
+        is reported as missed: torque off comes after it and must fit in the grace window.
+        """
         for handle in self.live_handles():
             self.release(handle, lock_wait_s=lock_wait_s, torque_off=False)
         if self.config.rest_on_shutdown:
             for arm_name in self.config.arms:
                 try:
-                    self._rest_arm(arm_name, lock_wait_s=lock_wait_s)
+                    self._rest_arm(arm_name, lock_wait_s=lock_wait_s, deadline=rest_deadline)
                 except RequestError as exc:  # the device is still busy: torque off below goes beside it
                     log.warning("arm %s: no rest at shutdown: %s", arm_name, exc.message)
         if self.config.disable_torque_on_shutdown:
@@ -222,7 +226,7 @@ class CellState:
         if missed:
             raise RequestError("RestNotReached", "; ".join(r.message() for r in missed))
 
-    def _rest_arm(self, name: str, *, lock_wait_s: float | None = None) -> RestReport:
+    def _rest_arm(self, name: str, *, lock_wait_s: float | None = None, deadline: float | None = None) -> RestReport:
         arm = self.config.arms[name]
         ranges = self.ranges.get(name) or {}
         if not ranges:
@@ -234,7 +238,8 @@ class CellState:
                 raise RequestError("DeviceBusy", f"arm {name!r} is still busy with another call; no rest was made")
             try:
                 with cell_bus(arm, ranges) as bus:
-                    report = move_to_rest(bus, name, rest_pose(arm, ranges), self.config.rest_speed_ticks_per_second)
+                    report = move_to_rest(bus, name, rest_pose(arm, ranges), self.config.rest_speed_ticks_per_second,
+                                          deadline=deadline)
             except Exception as exc:  # noqa: BLE001 — reported, with the bus's own words
                 report = RestReport(name, False, failure=f"{type(exc).__name__}: {bounded(str(exc), 300)}")
             finally:

@@ -17,7 +17,7 @@ import time
 from types import FrameType
 
 from .config import load_config
-from .connector import Connector
+from .connector import Connector, stop_budget_s
 from .inputs import InputFeeder, LocalOperatorInputs, terminal_prompt
 
 
@@ -70,12 +70,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 SIGNAL_POLL_S = 0.1
-
-
-def stop_budget_s(grace_period_seconds: float) -> float:
-    """How long a clean stop may take before the process exits anyway: within the grace
-    window the host gives the connector (never less than a few seconds to release torque)."""
-    return max(5.0, grace_period_seconds - 1.0)
 
 
 def _exit_if_stop_hangs(budget_s: float) -> threading.Event:

@@ -40,6 +40,15 @@ STOP_THREADS_WAIT_S = 1.0
 in flight may finish; a hung one does not hold back torque off."""
 STOP_LOCK_WAIT_S = 1.0
 """How long ``stop`` waits for each device a call still holds; then torque goes off beside it."""
+TORQUE_OFF_RESERVE_S = 1.5
+"""What ``stop`` keeps of its budget for torque off after the rest walk: a few writes and
+read-backs per arm, with room for a loaded host."""
+
+
+def stop_budget_s(grace_period_seconds: float) -> float:
+    """How long a clean stop may take before the process exits anyway: within the grace
+    window the host gives the connector (never less than a few seconds to release torque)."""
+    return max(5.0, grace_period_seconds - 1.0)
 
 
 class Connector:
@@ -132,10 +141,11 @@ class Connector:
         for server in self._servers:
             server.shut()
         log.info("connector stopping: connections cut")
-        threads_deadline = time.monotonic() + STOP_THREADS_WAIT_S
+        started = time.monotonic()
         for server in self._servers:
-            server.join(threads_deadline)
-        self.cell.shut_down(STOP_LOCK_WAIT_S)
+            server.join(started + STOP_THREADS_WAIT_S)
+        rest_deadline = started + stop_budget_s(self.config.grace_period_seconds) - TORQUE_OFF_RESERVE_S
+        self.cell.shut_down(STOP_LOCK_WAIT_S, rest_deadline=rest_deadline)
         log.info("connector stopped")
 
     def __enter__(self) -> Connector:

@@ -5,8 +5,8 @@ from the cell's description alone (the arm's device, the motor names and ids of
 the cell's calibration file, the arm's motor model), never from a job's bus
 object, names or calibration. A job that named its motors differently, or gave
 them other ids, cannot make the rest pose or torque off land on other servos.
-It also owns the execution of the rest plan (raw ticks; the plan comes from
-the pure ``safety.plan_rest_steps``) and its outcome, read back from the servos.
+It also owns the execution of the rest walk (raw ticks; the walk is the pure
+``safety.RestWalk``) and its outcome, read back from the servos.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .config import ArmConfig, MotorRange
-from .safety import plan_rest_steps
+from .safety import RestWalk
 
 log = logging.getLogger(__name__)
 
@@ -113,8 +113,15 @@ def torque_off(bus: Any) -> bool:
     return False
 
 
-def move_to_rest(bus: Any, arm_name: str, target: dict[str, int], speed_ticks_per_s: float) -> RestReport:
-    """Walk the cell's ``bus`` to ``target`` (raw ticks) at ``speed_ticks_per_s``, then read back where it ended."""
+def move_to_rest(
+    bus: Any, arm_name: str, target: dict[str, int], speed_ticks_per_s: float, *, deadline: float | None = None
+) -> RestReport:
+    """Walk the cell's ``bus`` to ``target`` (raw ticks) at ``speed_ticks_per_s``, then read back where it ended.
+
+    ``deadline`` (``time.monotonic()``) ends the walk and the settling early: at a
+    job's end the grace window is the hard limit and torque off must still fit in
+    it, so a walk cut short is reported as not reached, never waited out.
+    """
     motors = [m for m in target if m in bus.motors]
     if not motors:
         return RestReport(arm_name, True)
@@ -122,17 +129,26 @@ def move_to_rest(bus: Any, arm_name: str, target: dict[str, int], speed_ticks_pe
     # Hold where we are before torque comes on, so a stale goal cannot make the arm jump.
     bus.sync_write("Goal_Position", present, normalize=False, num_retry=RETRIES)
     bus.enable_torque(motors, num_retry=RETRIES)
-    goal = {m: target[m] for m in motors}
-    for step in plan_rest_steps(present, goal, speed_ticks_per_s * TICK_S):
-        bus.sync_write("Goal_Position", step, normalize=False, num_retry=RETRIES)
-        time.sleep(TICK_S)
+    walk = RestWalk(present, {m: target[m] for m in motors}, speed_ticks_per_s)
+    started = time.monotonic()
+    done = 0.0
+    while done < 1.0 and not _past(deadline):
+        done = walk.progress(done, time.monotonic() - started)
+        bus.sync_write("Goal_Position", walk.at(done), normalize=False, num_retry=RETRIES)
+        if done < 1.0:
+            time.sleep(TICK_S)
     settle_deadline = time.monotonic() + SETTLE_WAIT_S
-    errors: dict[str, int] = {}
+    if deadline is not None:
+        settle_deadline = min(settle_deadline, deadline)
     while True:
         now = bus.sync_read("Present_Position", motors, normalize=False, num_retry=RETRIES)
-        errors = {m: goal[m] - int(now[m]) for m in motors}
+        errors = {m: walk.goal[m] - int(now[m]) for m in motors}
         if all(abs(e) <= SETTLE_TOLERANCE_TICKS for e in errors.values()):
             return RestReport(arm_name, True, errors)
         if time.monotonic() >= settle_deadline:
             return RestReport(arm_name, False, errors)
         time.sleep(TICK_S)
+
+
+def _past(deadline: float | None) -> bool:
+    return deadline is not None and time.monotonic() >= deadline

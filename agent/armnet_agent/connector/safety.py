@@ -262,17 +262,42 @@ def decide_goal_write(
     return decide_goals(goals, present, limits, normalize=normalize, clamp=clamp)
 
 
-def plan_rest_steps(
-    present: Mapping[str, int], target: Mapping[str, int], max_step: float
-) -> list[dict[str, int]]:
-    """Goal dicts (raw ticks) that walk every motor from ``present`` to ``target``, each step ≤ ``max_step``."""
-    motors = [m for m in target if m in present]
-    if not motors:
-        return []
-    distance = max(abs(target[m] - present[m]) for m in motors)
-    count = max(1, math.ceil(distance / max_step)) if max_step > 0 else 1
-    steps = []
-    for i in range(1, count + 1):
-        frac = i / count
-        steps.append({m: int(round(present[m] + (target[m] - present[m]) * frac)) for m in motors})
-    return steps
+@dataclass(frozen=True)
+class RestWalk:
+    """A straight walk of every motor from ``start`` to ``goal`` (raw ticks) at a speed limit.
+
+    It is sampled on the wall clock, not counted in steps: on a loaded host a
+    tick runs late, and a walk of N fixed steps then lasts N late ticks, long
+    enough to outlast a job's grace window (the connector was seen killed by its
+    own stop watchdog, torque still on, mid-walk). Sampled by elapsed time it
+    lasts ``seconds`` however late its ticks are, never moving faster than the
+    speed limit on average, and no tick jumps more than ``max_catch_up_s`` of
+    motion after a stall.
+    """
+
+    start: Mapping[str, int]
+    goal: Mapping[str, int]
+    speed_ticks_per_s: float
+    max_catch_up_s: float = 0.1
+
+    @property
+    def seconds(self) -> float:
+        motors = [m for m in self.goal if m in self.start]
+        if not motors or self.speed_ticks_per_s <= 0:
+            return 0.0
+        return max(abs(self.goal[m] - self.start[m]) for m in motors) / self.speed_ticks_per_s
+
+    def progress(self, done: float, elapsed_s: float) -> float:
+        """The fraction of the walk due ``elapsed_s`` after it began, at most ``max_catch_up_s`` past ``done``."""
+        seconds = self.seconds
+        if seconds <= 0:
+            return 1.0
+        return min(1.0, elapsed_s / seconds, done + self.max_catch_up_s / seconds)
+
+    def at(self, fraction: float) -> dict[str, int]:
+        """Goal per motor (raw ticks) once ``fraction`` of the walk is done."""
+        fraction = min(1.0, max(0.0, fraction))
+        return {
+            m: int(round(self.start[m] + (self.goal[m] - self.start[m]) * fraction))
+            for m in self.goal if m in self.start
+        }

@@ -234,6 +234,29 @@ def test_stop_after_a_hostile_retry_count_turns_torque_off_within_the_grace_wind
     assert not sim_cell.arm.torque_enabled()["elbow_flex"]
 
 
+def test_a_rest_too_slow_for_the_grace_window_is_cut_short_and_torque_still_goes_off_in_time(
+    sim_cell, make_connector, cell_config, client_for
+) -> None:
+    """The grace window bounds the rest walk: at 40 ticks/s the walk would take half a
+    minute; the stop ends it early, reports it missed, and turns torque off within grace."""
+    config = rest_config(cell_config, sim_cell, gracePeriodSeconds=5, restOnShutdown=True,
+                         restSpeedTicksPerSecond=40)
+    connector = make_connector(config)
+    client = client_for(connector.robot_endpoint)
+    bus = open_bus(client, connector.robot_endpoint, raw_motors({"elbow_flex": 3}))
+    assert client.call(bus, "enable_torque")["ok"]
+    far = {m: abs(sim_cell.arm.positions()[m] - goal) for m, goal in REST.items()}
+    assert max(far.values()) > 400, f"the arm starts too near its rest pose for this test: {far}"
+    started = time.monotonic()
+    connector.stop()
+    took = time.monotonic() - started
+    assert took < 5, f"stop took {took:.1f} s, over the 5 s grace window"
+    assert not any(sim_cell.arm.torque_enabled().values())
+    record = connector.record()
+    assert record.torque_off_confirmed == {"arm": True}
+    assert [r.reached for r in record.rests] == [False]
+
+
 # -- item 6: one handle's close does not drop the arm under another ---------------------------
 
 

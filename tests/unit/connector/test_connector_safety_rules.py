@@ -9,10 +9,10 @@ from armnet_agent.connector.safety import (
     RANGE_0_100,
     RANGE_M100_100,
     MotorFacts,
+    RestWalk,
     check_goal_write,
     is_release_write,
     limit_for,
-    plan_rest_steps,
     to_raw,
 )
 
@@ -93,14 +93,33 @@ def test_only_torque_off_is_a_release_write() -> None:
     assert not is_release_write("Goal_Position", {"a": 0})
 
 
-def test_rest_steps_never_exceed_the_step_and_end_at_the_target() -> None:
-    steps = plan_rest_steps({"a": 1000, "b": 2000}, {"a": 2000, "b": 1990}, 100)
-    assert steps[-1] == {"a": 2000, "b": 1990}
-    previous = {"a": 1000, "b": 2000}
-    for step in steps:
-        assert all(abs(step[m] - previous[m]) <= 100 for m in step)
-        previous = step
+def test_a_rest_walk_lasts_its_distance_over_its_speed_and_ends_at_the_goal() -> None:
+    walk = RestWalk({"a": 1000, "b": 2000}, {"a": 2000, "b": 1990}, 500)
+    assert walk.seconds == 2.0
+    assert walk.at(0.0) == {"a": 1000, "b": 2000}
+    assert walk.at(0.5) == {"a": 1500, "b": 1995}
+    assert walk.at(1.0) == walk.at(7.0) == {"a": 2000, "b": 1990}
 
 
-def test_rest_steps_from_the_target_is_one_hold_step() -> None:
-    assert plan_rest_steps({"a": 5}, {"a": 5}, 10) == [{"a": 5}]
+def test_a_rest_walk_keeps_to_the_wall_clock_when_its_ticks_run_late() -> None:
+    """Sampled by elapsed time: late ticks do not stretch the walk, and it never runs ahead of its speed."""
+    walk = RestWalk({"a": 0}, {"a": 1000}, 1000, max_catch_up_s=0.1)
+    done, elapsed = 0.0, 0.0
+    for _ in range(40):  # every tick 50 ms late (70 ms instead of 20)
+        elapsed += 0.07
+        advanced = walk.progress(done, elapsed)
+        assert advanced <= elapsed / walk.seconds + 1e-9  # never faster than the speed limit
+        done = advanced
+        if done >= 1.0:
+            break
+    assert done == 1.0 and elapsed <= walk.seconds + 0.07
+
+
+def test_a_rest_walk_after_a_stall_moves_at_most_its_catch_up() -> None:
+    walk = RestWalk({"a": 0}, {"a": 1000}, 1000, max_catch_up_s=0.1)
+    assert walk.progress(0.2, elapsed_s=0.9) == pytest.approx(0.3)  # a 700 ms stall: 100 ms of motion, not 700
+
+
+def test_a_rest_walk_from_the_goal_is_done_at_once() -> None:
+    walk = RestWalk({"a": 5}, {"a": 5}, 10)
+    assert walk.seconds == 0.0 and walk.progress(0.0, 0.0) == 1.0 and walk.at(1.0) == {"a": 5}
