@@ -77,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
                       "%.0f s", str(error)[:300], wait)
             time.sleep(wait)
             continue
+        if controller.restart_requested:
+            failures = 0
+            log.info("starting the operator's watches and reconcile loop again")
+            continue
         return 1 if controller.dead else 0
 
 

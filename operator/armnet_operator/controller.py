@@ -123,6 +123,7 @@ class Controller:
         metrics: Metrics,
         clock: Callable[[], datetime] = lambda: datetime.now(UTC),
         on_death: Callable[[BaseException | None], None] | None = None,
+        on_resources_back: Callable[[], None] | None = None,
     ) -> None:
         self.settings = settings
         self.api = api
@@ -140,8 +141,11 @@ class Controller:
         self._stopping = False
         self._more = False
         self.on_death = on_death
+        self.on_resources_back = on_resources_back
         self.died: BaseException | None = None
         self.dead = False
+        self.restart_requested = False
+        """The loop ended to have kopf's watches started afresh (see ``on_resources_back``)."""
 
     def start(self) -> None:
         self.cache.changed = asyncio.Event()  # bind to the running loop
@@ -161,7 +165,7 @@ class Controller:
         and its process, so nothing restarts it and (until the Lease expires) no
         other replica takes over. ``on_death`` ends the process non-zero.
         """
-        if self._stopping:
+        if self._stopping or self.restart_requested:
             return
         self.dead = True
         self.died = None if task.cancelled() else task.exception()
@@ -201,8 +205,16 @@ class Controller:
                 log.exception("reconcile pass failed, retrying")
                 await asyncio.sleep(min(1.0, period))
             if backoff:
-                log.info("the RobotJob and Cell resources are back; reconciling again")
                 backoff = 0.0
+                if self.on_resources_back is not None:
+                    # kopf looks for served resources again only when a CRD changes; the last
+                    # change (Established) can come before discovery serves the resource, and
+                    # then kopf never watches it again: the cache would stay empty for good.
+                    log.info("the RobotJob and Cell resources are back; restarting the watches")
+                    self.restart_requested = True
+                    self.on_resources_back()
+                    return
+                log.info("the RobotJob and Cell resources are back; reconciling again")
 
     def _cells_in_scope(self, cells: list[Cell]) -> list[Cell]:
         """A namespaced operator leaves alone cells held by jobs it cannot see.

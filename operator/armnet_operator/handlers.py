@@ -75,12 +75,16 @@ def build_registry(
         if stop_flag is not None:
             stop_flag.set()
 
+    def on_resources_back() -> None:
+        if stop_flag is not None:
+            stop_flag.set()
+
     allow_deep_json()
     metrics = Metrics()
     webhook = make_webhook(metrics, settings)  # loads the certificate now: a bad path fails at start
     api_client = make_client(settings.kubeconfig)
     controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), metrics,
-                            on_death=on_death)
+                            on_death=on_death, on_resources_back=on_resources_back)
     registry = kopf.OperatorRegistry()
 
     @kopf.on.login(registry=registry)
