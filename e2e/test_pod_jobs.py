@@ -143,8 +143,11 @@ OBSERVED = """
                 ctx.report_progress(f"rollout {index}")
                 end = time.monotonic() + ctx.args.get("rollout_s", 6)
                 while time.monotonic() < end:
-                    bus.sync_read("Present_Position")
-                    camera.async_read(timeout_ms=1000)
+                    # A loaded host (CI runs three suites on two cores) starves the sidecar: the
+                    # job retries its reads as a LeRobot loop on a busy bus would, and gives a
+                    # frame 5 s. What this test checks is telemetry, not latency.
+                    bus.sync_read("Present_Position", num_retry=5)
+                    camera.async_read(timeout_ms=5000)
                     time.sleep(0.1)
                 ctx.cell.rollout_end()
         finally:
