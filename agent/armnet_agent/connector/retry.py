@@ -36,9 +36,14 @@ _T = TypeVar("_T")
 #: How long to wait after a lost reply before asking again: longer than LeRobot's
 #: timeout, so a late reply has landed (and is dropped) before the retry is sent.
 RETRY_DELAY_S = 0.06
-#: Retries after the first attempt, for a read inside a control loop: a loop that
-#: lost a reply wants to know soon, its next tick reads again anyway.
-MAX_RETRIES = 2
+#: The waits before each retry of a read inside a control loop: the first soon (a loop
+#: that lost one reply wants its answer), the later ones longer, so a host that starved
+#: the connector or the bus for a few hundred milliseconds costs the loop one slow tick,
+#: not an exception (seen with three test sessions on two cores: all of two quick
+#: retries lost). At most ~0.5 s of waiting in all.
+LOOP_RETRY_DELAYS_S = (RETRY_DELAY_S, 0.15, 0.3)
+#: Retries after the first attempt, for a read inside a control loop.
+MAX_RETRIES = len(LOOP_RETRY_DELAYS_S)
 #: The waits before each retry of the ``connect`` handshake: once per job, before any
 #: motion, so it can afford to be patient. A connector that the host starved of CPU
 #: for a second (a pod's sidecar on a busy node) missed every ping of three quick
@@ -103,7 +108,7 @@ def _close_half_open(bus: Any) -> None:
 
 def retry_delays(what: str) -> tuple[float, ...]:
     """The waits before each retry of the read ``what`` (its length is the number of retries)."""
-    return CONNECT_RETRY_DELAYS_S if what == "connect" else (RETRY_DELAY_S,) * MAX_RETRIES
+    return CONNECT_RETRY_DELAYS_S if what == "connect" else LOOP_RETRY_DELAYS_S
 
 
 def with_read_retry(
