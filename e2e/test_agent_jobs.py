@@ -10,7 +10,8 @@ side on the bed's cells) and each test then checks its own job's status.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+import os
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from typing import Any
 
@@ -365,6 +366,48 @@ def test_an_unplugged_servo_makes_the_cell_not_ready_with_a_reason_and_no_job_is
     queued = bed.wait_phase("for-sick-cell", ("queued",), timeout=30)
     assert status(queued).get("queuedReason") == "AllCellsUnavailable"
     assert not (bed.cell(cell).get("status") or {}).get("currentJob")
+    bed.k8s.kubectl("delete", "cell", cell, "--wait=false")
+
+
+def hardware_ready(bed: AgentBed, cell: str, wanted: str) -> Callable[[], dict[str, Any] | None]:
+    def check() -> dict[str, Any] | None:
+        conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
+        hw = conditions.get("HardwareReady", {})
+        return hw if hw.get("status") == wanted else None
+    return check
+
+
+def test_a_vanished_device_fails_the_running_job_with_device_lost_and_the_cell_recovers_when_it_returns(
+    bed: AgentBed,
+) -> None:
+    import urllib.request
+
+    task = f"unplug-{bed.node}"
+    cell = bed.add_cell("unplug", task=task)
+    bed.wait_ready(cell, timeout=60)
+    # The simulated arm's device path: the agent's symlink to the simulator's pty (as udev's
+    # /dev/serial/by-id link to a USB adapter); removing it is pulling the arm's cable.
+    link = bed.state_dir / "cells" / cell / "dev" / "arm"
+    pty = os.readlink(link)
+    bed.submit("loses-device", bed.image("counts", COUNTS_SLOWLY), task=task, args={"lines": 1000, "pause": 0.2},
+               timeout=300)
+    bed.wait(lambda: status(bed.job("loses-device")).get("progress"), 300, "the job's code running")
+    link.unlink()
+    unplugged = datetime.now(UTC)
+    try:
+        hw = bed.wait(hardware_ready(bed, cell, "False"), 20, "HardwareReady False")
+        st = status(bed.wait_phase("loses-device", timeout=60))
+    finally:
+        link.symlink_to(pty)
+    assert hw["reason"] == "DeviceLost" and f"arm arm's serial port: {link} does not exist" in hw["message"]
+    assert st["phase"] == "failed", json.dumps(st)[:3000]
+    assert st["result"]["error"] == f"device lost: arm arm's serial port: {link} does not exist"
+    # Debounce 1.5 s + a 0.5 s read + the cell's 3 s grace (the job ignores shutdown: killed at its
+    # end), not the job's 300 s timeout; the rest is slack for the loaded 2-core VM.
+    assert seconds_between(report_time(unplugged), st["finishedAt"]) <= 1.5 + 0.5 + 3 + 5, st
+    bed.wait(hardware_ready(bed, cell, "True"), 20, "HardwareReady True again with the device back")
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    assert "armnet_agent_jobs_device_lost_total 1.0" in text
     bed.k8s.kubectl("delete", "cell", cell, "--wait=false")
 
 

@@ -179,9 +179,12 @@ class Connector:
         """Open the grace window now: the job ran out of time."""
         self.cell.deadline.pass_deadline()
 
-    def cancel(self) -> None:
-        """Open the grace window now: the job was cancelled (the interlock's reason says so)."""
-        self.cell.deadline.cancel()
+    def cancel(self, why: str | None = None) -> None:
+        """Open the grace window now: the job was cancelled, or stopped for ``why`` (the interlock says so)."""
+        if why is None:
+            self.cell.deadline.cancel()
+        else:
+            self.cell.deadline.cancel(why)
 
     @property
     def interlock(self) -> Interlock:

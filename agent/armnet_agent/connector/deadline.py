@@ -72,14 +72,14 @@ class Deadline:
         """Enter the grace window now because the job ran out of time (the timer does this)."""
         self._enter_grace(f"the job exceeded its timeout of {self.timeout_s} s")
 
-    def cancel(self) -> None:
-        """Enter the grace window now because the job was cancelled.
+    def cancel(self, why: str = CANCELLED_MESSAGE) -> None:
+        """Enter the grace window now because the job was stopped (``why``: cancelled, its device lost).
 
         The same window as a timeout (the job gets ``grace_s`` to save its data),
-        but the interlock's reason names the cancel: a job without a timeout was
+        but the interlock's reason names the stop: a job without a timeout was
         otherwise told it "exceeded its timeout of None s".
         """
-        self._enter_grace(CANCELLED_MESSAGE)
+        self._enter_grace(why)
 
     def _enter_grace(self, why: str) -> None:
         if self._passed_at is not None:

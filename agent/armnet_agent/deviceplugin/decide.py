@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from armnet_agent.launch.pod_spec import device_path
 
@@ -46,6 +46,13 @@ class DevicePath:
 
     container_path: str
     host_path: str
+    #: What the person at the cell calls it ("arm left's serial port", "camera /dev/video0"): named in
+    #: the Cell's HardwareReady and a lost job's error. Not part of the device's identity.
+    name: str = field(default="", compare=False)
+
+    @property
+    def label(self) -> str:
+        return self.name or self.container_path
 
 
 @dataclass(frozen=True)
@@ -106,10 +113,10 @@ def cell_device_paths(arms: Mapping[str, str | None], cameras: Sequence[int | st
     inside the container, so the connector's camera configuration holds as it is.
     An arm without a port is a device that can never be healthy (the Cell says no port).
     """
-    paths = [DevicePath(device_path(arm), port or "") for arm, port in sorted(arms.items())]
+    paths = [DevicePath(device_path(arm), port or "", f"arm {arm}'s serial port") for arm, port in sorted(arms.items())]
     for camera in cameras:
         path = f"/dev/video{camera}" if isinstance(camera, int) else camera
-        paths.append(DevicePath(path, path))
+        paths.append(DevicePath(path, path, f"camera {camera}"))
     return tuple(paths)
 
 

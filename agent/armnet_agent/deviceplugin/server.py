@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import stat
 import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent import futures
@@ -30,6 +29,7 @@ from typing import Any
 import grpc
 
 from armnet_agent.deviceplugin import decide
+from armnet_agent.deviceplugin.facts import read_fact
 from armnet_agent.deviceplugin.v1beta1 import api_pb2, api_pb2_grpc
 from armnet_agent.node.metrics import AgentMetrics
 
@@ -43,18 +43,8 @@ POLL_S = 1.0
 REGISTER_TIMEOUT_S = 5.0
 
 Paths = Callable[[], Sequence[decide.DevicePath]]
-
-
-def read_fact(path: decide.DevicePath) -> decide.DeviceFact:
-    """What the host shows for one device path now (a symlink resolved)."""
-    if not path.host_path:
-        return decide.DeviceFact(path, None, False)
-    try:
-        resolved = os.path.realpath(path.host_path, strict=True)
-        mode = os.stat(resolved).st_mode
-    except OSError:
-        return decide.DeviceFact(path, None, False)
-    return decide.DeviceFact(path, resolved, stat.S_ISCHR(mode))
+#: ``Healthy`` / ``Unhealthy`` from the agent's device watch of the cell (``node.device_watch``).
+Health = Callable[[], str]
 
 
 def _file_id(path: Path) -> tuple[int, int] | None:
@@ -79,8 +69,11 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
     """The device plugin of one cell: its gRPC server, its registration, its answers."""
 
     def __init__(self, cell: str, paths: Paths, metrics: AgentMetrics, directory: Path = DEVICE_PLUGIN_DIR,
-                 poll_s: float = POLL_S) -> None:
+                 poll_s: float = POLL_S, health_source: Health | None = None) -> None:
         self.cell = cell
+        #: The agent's verdict for the cell (the same one its ``HardwareReady`` and a running job's
+        #: "device lost" follow); None: this plugin reads the paths itself (a plugin run alone).
+        self.health_source = health_source
         self.resource = decide.resource_name(cell)
         self.socket = directory / decide.socket_name(cell)
         self.kubelet_socket = directory / KUBELET_SOCKET
@@ -147,8 +140,9 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
         self._shutdown_server()
         if _file_id(self.socket) == self._served:
             self.socket.unlink(missing_ok=True)
-        with contextlib.suppress(KeyError):  # never reported: no series to remove
-            self._metrics.device_healthy.remove(self.cell)
+        if self.health_source is None:  # else the device watch owns the series
+            with contextlib.suppress(KeyError):  # never reported: no series to remove
+                self._metrics.device_healthy.remove(self.cell)
 
     # -- what the kubelet asks ---------------------------------------------------------------
 
@@ -156,6 +150,13 @@ class CellPlugin(api_pb2_grpc.DevicePluginServicer):
         return [read_fact(path) for path in self.paths()]
 
     def health(self) -> str:
+        """The device's health for the kubelet: the agent's verdict for the cell when it has one.
+
+        Why not the plugin's own read: the Cell's ``HardwareReady`` and the running job
+        follow the agent's debounced verdict, and the kubelet must not be told otherwise.
+        """
+        if self.health_source is not None:
+            return self.health_source()
         state = decide.health(self.facts())
         self._metrics.device_healthy.labels(cell=self.cell).set(1 if state == decide.HEALTHY else 0)
         return state
@@ -222,8 +223,12 @@ class DevicePlugins:
     def resource(self, cell: str) -> str:
         return decide.resource_name(cell)
 
-    def sync(self, cells: Mapping[str, Paths]) -> None:
-        """One plugin per cell in ``cells`` (a new one served and registered now), none for the others."""
+    def sync(self, cells: Mapping[str, Paths], health: Mapping[str, Health] | None = None) -> None:
+        """One plugin per cell in ``cells`` (a new one served and registered now), none for the others.
+
+        ``health``: the agent's device verdict per cell, which the plugin then reports as it is.
+        """
+        health = health or {}
         added: list[CellPlugin] = []
         removed: list[CellPlugin] = []
         with self._lock:
@@ -233,9 +238,10 @@ class DevicePlugins:
             for name, paths in cells.items():
                 if name in self._plugins:
                     self._plugins[name].paths = paths  # the cell's current worker says where its devices are
+                    self._plugins[name].health_source = health.get(name)
                     continue
                 try:
-                    plugin = CellPlugin(name, paths, self.metrics, self.directory, self.check_s)
+                    plugin = CellPlugin(name, paths, self.metrics, self.directory, self.check_s, health.get(name))
                 except ValueError as exc:
                     if name not in self._refused:  # said once, not on every pass
                         self._refused.add(name)

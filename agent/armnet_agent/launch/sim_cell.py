@@ -145,10 +145,10 @@ class LocalCell:
         if self.connector is not None:
             self.connector.pass_deadline()
 
-    def cancel(self) -> None:
-        """The job was cancelled: trip the interlock (naming the cancel) and open the grace window."""
+    def cancel(self, why: str | None = None) -> None:
+        """The job was cancelled (or stopped for ``why``): trip the interlock, naming it, and open the grace window."""
         if self.connector is not None:
-            self.connector.cancel()
+            self.connector.cancel(why)
 
     def stop_connector(self) -> None:
         """Stop the connector: it lets go of every arm (torque off, read back) and stays readable.

@@ -98,8 +98,11 @@ class NodeAgent:
             self.workers.pop(name).stop()
         if self.device_plugins is not None:
             # Before any launch: a job pod's connector requests the resource the plugin registers.
-            self.device_plugins.sync({name: worker.device_paths for name, worker in self.workers.items()
-                                      if self._devices_through_plugin(worker)})
+            # The plugin reports each cell's device watch verdict: the kubelet, the Cell's
+            # HardwareReady and the running job see one health.
+            served = {name: worker for name, worker in self.workers.items() if self._devices_through_plugin(worker)}
+            self.device_plugins.sync({name: worker.device_paths for name, worker in served.items()},
+                                     {name: worker.devices.plugin_health for name, worker in served.items()})
         jobs = self._jobs()
         containers = self._containers()
         for worker in self.workers.values():

@@ -4,7 +4,9 @@ The operator binds only to cells with no health condition ``False``; each
 false condition says what is wrong and what the person at the cell should do.
 The probes (``node.probes``) gather the facts; while a job holds the bus they
 do not touch it, and the hardware facts come from the last idle probe and the
-connector (interlock) instead.
+connector (interlock) instead. Whether the cell's devices are there at all is
+the device watch's verdict (``node.device_health``), the one the device plugin
+reports to the kubelet too: it comes first in ``HardwareReady``, job or not.
 """
 
 from __future__ import annotations
@@ -24,10 +26,9 @@ HEALTH_CONDITIONS = (AGENT_CONNECTED, HARDWARE_READY, CALIBRATION_PRESENT, CAMER
 
 @dataclass(frozen=True)
 class ArmProbe:
-    """One arm's bus: whether its port exists and what each expected servo answered."""
+    """One arm's bus: what each expected servo answered on its port (its presence is the device watch's)."""
 
     port: str
-    port_exists: bool
     #: motor name -> (servo id, model number it answered with, or None if silent)
     answers: Mapping[str, tuple[int, int | None]] = field(default_factory=dict)
     expected_model: int = 777
@@ -51,6 +52,8 @@ class CellProbe:
     interlock_trip: str | None = None
     #: a job holds the bus: the hardware facts are the last idle probe's
     bus_held_by_job: bool = False
+    #: (reason, message) when the device watch finds the cell's devices lost (``device_health``)
+    devices_lost: tuple[str, str] | None = None
 
 
 @dataclass(frozen=True)
@@ -81,13 +84,9 @@ def cell_health(probe: CellProbe) -> tuple[Condition, ...]:
 
 
 def hardware_condition(probe: CellProbe) -> Condition:
+    if probe.devices_lost is not None:
+        return _bad(HARDWARE_READY, *probe.devices_lost)
     for name, arm in sorted(probe.arms.items()):
-        if not arm.port_exists:
-            return _bad(
-                HARDWARE_READY, "PortMissing",
-                f"arm {name}: serial port {arm.port} does not exist; plug the arm's USB cable in "
-                "or fix spec.robot.port / spec.arms.<arm>.port",
-            )
         silent = [f"{motor} (id {sid})" for motor, (sid, model) in sorted(arm.answers.items()) if model is None]
         if silent:
             return _bad(

@@ -78,8 +78,8 @@ class JobSession(Protocol):
 
     def on_deadline(self) -> None: ...
 
-    def on_cancel(self) -> None:
-        """Open the grace window of a graceful cancel (the interlock's reason names the cancel)."""
+    def on_cancel(self, why: str | None = None) -> None:
+        """Open the grace window of a graceful stop (the interlock's reason names the cancel, or ``why``)."""
         ...
 
     def failure(self) -> str | None:
@@ -210,8 +210,8 @@ class ContainerSession:
     def on_deadline(self) -> None:
         self.local_cell.pass_deadline()
 
-    def on_cancel(self) -> None:
-        self.local_cell.cancel()
+    def on_cancel(self, why: str | None = None) -> None:
+        self.local_cell.cancel(why)
 
     def failure(self) -> str | None:
         if self.job is not None and self.job.oom_killed:
@@ -453,8 +453,12 @@ class PodSession:
     def on_deadline(self) -> None:
         """Nothing to call: the sidecar runs the job's deadline itself; the supervisor kills after grace."""
 
-    def on_cancel(self) -> None:
-        """Open the sidecar connector's grace window (``agent.sock``); the supervisor still kills after grace."""
+    def on_cancel(self, why: str | None = None) -> None:
+        """Open the sidecar connector's grace window (``agent.sock``); the supervisor still kills after grace.
+
+        ``why`` does not reach the sidecar (its ``cancel`` takes no reason): its interlock says
+        "cancelled"; the job's status says why (a lost device) all the same.
+        """
         if not self.inputs.cancel():
             log.warning("job %s: the cancel did not reach its connector sidecar; the job is killed when the grace "
                         "window ends without having been told it is shutting down", self.request.job.key)

@@ -80,8 +80,13 @@ class AgentMetrics:
         )
         self.device_healthy = Gauge(
             "armnet_agent_device_healthy",
-            "pod launcher: 1 while every device path of the cell exists (its device plugin reports Healthy), else 0",
+            "0 while the cell's devices are lost (a serial port or camera path missing or no character device "
+            "for the debounce: HardwareReady DeviceLost, the device plugin reports Unhealthy), else 1",
             ["cell"], registry=r,
+        )
+        self.device_lost_jobs = Counter(
+            "armnet_agent_jobs_device_lost_total",
+            "running jobs ended failed with \"device lost\" because a device of their cell vanished", registry=r,
         )
 
         self.telemetry_frames = Counter(

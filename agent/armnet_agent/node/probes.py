@@ -5,13 +5,13 @@ on a pty exactly as servos answer on a USB adapter); the calibration file is
 read and checked against the arm's motors. While a job runs the connector owns
 the bus: the worker does not call :func:`probe_arm` then, and asks the
 connector for its interlock instead (``node.health`` turns the facts into
-conditions).
+conditions). Nor does it probe while the device watch finds a device missing
+(``node.device_watch``): whether a port exists is the watch's to say.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -43,13 +43,11 @@ def probe_arm(port: str, calibration_file: Path | None, motors: Iterable[str] = 
             error = str(exc)
     if not ids:
         ids = {motor: index + 1 for index, motor in enumerate(motors)}  # the SO-101's factory ids
-    exists = os.path.exists(port)
-    answers = ping_servos(port, ids) if exists else {}
+    answers = ping_servos(port, ids)
     everyone_answered = bool(answers) and all(model == STS3215_MODEL for _id, model in answers.values())
     mismatches = eeprom_mismatches(port, ranges) if everyone_answered and ranges and not missing else ()
     return ArmProbe(
         port=port,
-        port_exists=exists,
         answers=answers,
         expected_model=STS3215_MODEL,
         calibration_file=str(calibration_file) if calibration_file is not None else None,

@@ -22,7 +22,7 @@ import logging
 import shutil
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -32,6 +32,7 @@ from armnet_core import JobResult, JobStatus
 from armnet_agent.connector.inputs import LocalOperatorInputs
 from armnet_agent.launch.pod_spec import SecretRef
 from armnet_agent.node import report
+from armnet_agent.node.device_health import LOST_PREFIX, lost_job_error
 from armnet_agent.node.follower import guard_follower
 from armnet_agent.node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
 from armnet_agent.node.launchers import JobLauncher, JobSession, SessionRequest
@@ -76,7 +77,9 @@ class JobRunner:
         *,
         container: Any = None,
         on_done: Callable[[JobRunner], None] | None = None,
+        device_problems: Callable[[], Sequence[str]] | None = None,
     ) -> None:
+        """``device_problems``: what is wrong with the cell's devices now (the worker's device watch)."""
         self.job = job
         self.cell = cell
         self.sim = sim
@@ -100,6 +103,9 @@ class JobRunner:
         self.reported = False
         #: Why the agent itself stopped the job (a lost follower), written as the result's error.
         self._stop_reason: str | None = None
+        #: The cell's device was lost while the job ran (``stop_device_lost``): the job ends failed with this.
+        self._device_lost: str | None = None
+        self._device_problems = device_problems or (lambda: ())
         self._seen_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
 
@@ -127,6 +133,17 @@ class JobRunner:
             self._stop_reason = message
             self.deps.metrics.follower_cancels.inc()
         self.stop()
+
+    def stop_device_lost(self, message: str) -> None:
+        """A device of the cell is lost (``node.device_watch``): stop like a timeout; the job ends failed.
+
+        The same path as a cancel (the interlock trips naming ``message``, the grace window
+        runs, then the kill), so a job that honours ``is_shutting_down`` can save its data.
+        """
+        if self._device_lost is None and not self.done:
+            self._device_lost = message
+            log.warning("job %s: stopping it: %s", self.job.key, message)
+        self.hooks.cancel_gracefully.set()
 
     def interlock_trip(self) -> str | None:
         session = self.session
@@ -177,7 +194,7 @@ class JobRunner:
             with launcher.session(request) as session:
                 self.session = session
                 self.hooks.on_deadline = session.on_deadline
-                self.hooks.on_cancel = session.on_cancel
+                self.hooks.on_cancel = lambda: session.on_cancel(self._device_lost)
                 bridge = inputs_bridge(self.deps.link, session.operator_inputs(), namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout,
                                        on_verdict=self._record_verdict,
@@ -211,6 +228,9 @@ class JobRunner:
                     result = infra_failure(failure, limits)
                 elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
                     result = result.model_copy(update={"error": self._stop_reason})
+                lost = lost_job_error(result.status, self._device_lost, tuple(self._device_problems()))
+                if lost is not None:
+                    result = result.model_copy(update={"status": JobStatus.FAILED, "error": lost})
                 self.rollouts.sync()  # the last begins and ends, before the connector stops
                 record = session.record()
                 self.rollouts.sync()  # a pod's sidecar may stop before the sync above: its record has the last
@@ -366,6 +386,8 @@ class JobRunner:
     def _count(self, result: JobResult, record: report.ConnectorRecord, started_at: datetime) -> None:
         metrics = self.deps.metrics
         metrics.jobs_finished.labels(outcome=result.status.value).inc()
+        if result.status is JobStatus.FAILED and (result.error or "").startswith(LOST_PREFIX):
+            metrics.device_lost_jobs.inc()
         metrics.job_duration.observe(max((datetime.now(UTC) - started_at).total_seconds(), 0.0))
         if result.status is JobStatus.TIMEOUT:
             metrics.timeouts.inc()

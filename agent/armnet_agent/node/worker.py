@@ -4,12 +4,22 @@ The agent's pass hands each worker the latest Cell and the jobs bound to it;
 the worker decides (``observe``) whether to launch, adopt, stop or fail a job
 and keeps at most one runner at a time (the operator's binding says which).
 Its heartbeat thread renews ``status.lastHeartbeatTime`` and the health
-conditions every ``heartbeat_period`` seconds.
+conditions every ``heartbeat_period`` seconds, and at once when the cell's
+device watch (``node.device_watch``) changes its verdict; a lost device also
+stops the running job (it ends ``failed``, "device lost").
+
+A simulated cell's arm ports are reached through symlinks the worker makes to
+the simulator's ptys, ``<state-dir>/cells/<cell>/dev/<arm>`` (as udev makes
+``/dev/serial/by-id/...`` for a USB adapter): these are the cell's device
+paths, so removing one is unplugging that arm (fault injection; put the link
+back to plug it in again).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -18,8 +28,9 @@ from pathlib import Path
 from typing import Any
 
 from armnet_agent.deviceplugin.decide import DevicePath, cell_device_paths
-from armnet_agent.node import health, report
+from armnet_agent.node import device_health, health, report
 from armnet_agent.node.bus_turns import BusTurns
+from armnet_agent.node.device_watch import DeviceWatch
 from armnet_agent.node.kube import Conflict, Gone, KubeError
 from armnet_agent.node.model import (
     ACTIVE_PHASES,
@@ -69,6 +80,10 @@ class CellWorker:
         self._finished_uids: set[str] = set()
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        #: Wakes the heartbeat before its period (the device verdict changed, or the worker stops).
+        self._wake = threading.Event()
+        self._sim_links: dict[str, Path] = {}
+        self.devices = DeviceWatch(cell.name, self.device_paths, self._devices_changed, deps.metrics)
         self._last_probe: health.CellProbe | None = None
         self._bus = BusTurns()
         self._unplugged: frozenset[str] = frozenset()
@@ -90,6 +105,7 @@ class CellWorker:
     def start(self) -> CellWorker:
         if self.cell.simulated:
             self._start_sim()
+        self.devices.start()
         self._thread.start()
         notifier = telemetry_notifier(self.deps.link)
         if notifier is not None and self.settings.telemetry.enabled:
@@ -101,6 +117,8 @@ class CellWorker:
 
     def stop(self) -> None:
         self._stop.set()
+        self._wake.set()
+        self.devices.stop()
         if self._telemetry is not None:
             self._telemetry.stop()  # the thread closes its cameras and port handles as it leaves
         runner = self.runner
@@ -109,6 +127,9 @@ class CellWorker:
         self._thread.join(5)
         if self.sim is not None:
             self.sim.stop()
+        for link in self._sim_links.values():
+            with contextlib.suppress(OSError):
+                link.unlink()
 
     def _start_sim(self) -> None:
         try:
@@ -124,7 +145,19 @@ class CellWorker:
             robot_id = spec.robot_id if spec.preset == "so101" else f"{spec.robot_id}_{preset.name}"
             self._calibration_files[preset.name] = write_calibration(directory / f"{robot_id}.json", calibration)
         self.sim = build_cell(spec.preset, calibrations=calibrations).start()
+        self._link_sim_ports(self.sim.ports())
         log.info("cell %s: simulator started (%s)", self.cell.name, self.sim.ports())
+
+    def _link_sim_ports(self, ports: dict[str, str]) -> None:
+        """``<state-dir>/cells/<cell>/dev/<arm>`` -> the arm's pty: the simulated cell's device paths."""
+        directory = self.deps.paths.state_dir / "cells" / self.cell.name / "dev"
+        directory.mkdir(parents=True, exist_ok=True)
+        for arm, pty in ports.items():
+            link = directory / arm
+            with contextlib.suppress(FileNotFoundError):
+                link.unlink()  # a previous agent's link to a pty that is no longer ours
+            os.symlink(pty, link)
+            self._sim_links[arm] = link
 
     # -- the pass ------------------------------------------------------------------
 
@@ -144,6 +177,7 @@ class CellWorker:
                 job = mine.get(runner.uid)
                 if not runner.reported and (job is None or job.stopping or job.phase in TERMINAL_PHASES):
                     runner.stop()
+                self._stop_if_device_lost(runner)
                 return
             for job in sorted(mine.values(), key=lambda j: j.key):
                 row = containers.get(job.uid)
@@ -179,7 +213,23 @@ class CellWorker:
             self._idle_arms.close()  # the agent's own port handles: the job's connector opens the port
             # The job's connector opens the cameras it is asked for; a hung camera read delays this at most 2 s.
             self._idle_cameras.close(wait_s=2.0)
-            self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container).start()
+            self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container,
+                                    device_problems=lambda: self.devices.state.problems).start()
+            self._stop_if_device_lost(self.runner)  # launched onto a lost device: stopped at once, failed
+
+    # -- the cell's devices ----------------------------------------------------------
+
+    def _devices_changed(self, state: device_health.DeviceState) -> None:
+        """On the watch thread: the heartbeat writes HardwareReady now; a lost device stops the job."""
+        self._wake.set()
+        runner = self.runner
+        if runner is not None:
+            self._stop_if_device_lost(runner)
+
+    def _stop_if_device_lost(self, runner: JobRunner) -> None:
+        message = device_health.stop_message(self.devices.state)
+        if message is not None and not runner.done and not runner.reported:
+            runner.stop_device_lost(message)
 
     def _vanished(self, job: Job) -> None:
         log.warning("job %s: %s", job.key, VANISHED)
@@ -202,19 +252,32 @@ class CellWorker:
             except Exception:  # noqa: BLE001 - a failed heartbeat is retried next period
                 log.warning("cell %s: heartbeat failed", self.cell.name, exc_info=True)
             self.deps.metrics.heartbeat_age.labels(cell=self.cell.name).set(time.monotonic() - last_ok)
-            self._stop.wait(self.settings.heartbeat_period)
+            self._wake.wait(self.settings.heartbeat_period)
+            self._wake.clear()
 
     def probe(self) -> health.CellProbe:
-        """The cell's health facts: read from the hardware when idle, else the last idle probe's."""
+        """The cell's health facts: read from the hardware when idle, else the last idle probe's.
+
+        The devices' presence is the device watch's verdict, job or not. While a device is
+        missing the bus is not read (a port that is not there answers nothing worth keeping):
+        the last idle probe's facts stand, as while a job holds the bus.
+        """
+        devices = self.devices.state
+        lost = device_health.hardware_problem(devices)
+        runner = self.runner
+        trip = runner.interlock_trip() if runner is not None else None
+        if devices.problems:
+            kept = self._last_probe or health.CellProbe(arms={})
+            return health.CellProbe(arms=kept.arms, cameras=kept.cameras, interlock_trip=trip,
+                                    bus_held_by_job=self._job_holds_bus(), devices_lost=lost)
         fresh = self._bus.probe(self._read_hardware, bus_held=self._bus_held_with_facts)
         if fresh is not None:
             self._last_probe = fresh
             return fresh
-        runner, last = self.runner, self._last_probe
+        last = self._last_probe
         assert last is not None  # no fresh probe only when a job holds the bus and an idle probe exists
         return health.CellProbe(
-            arms=last.arms, cameras=last.cameras, interlock_trip=runner.interlock_trip() if runner else None,
-            bus_held_by_job=True,
+            arms=last.arms, cameras=last.cameras, interlock_trip=trip, bus_held_by_job=True,
         )
 
     def _bus_held_with_facts(self) -> bool:
@@ -238,7 +301,8 @@ class CellWorker:
     def device_paths(self) -> tuple[DevicePath, ...]:
         """The cell's devices for its device plugin: the simulator's ptys, else the Cell's ports and cameras."""
         if self.sim is not None:
-            return cell_device_paths(self.sim.ports())
+            ports = self.sim.ports()
+            return cell_device_paths({arm: str(self._sim_links.get(arm, pty)) for arm, pty in ports.items()})
         cameras = tuple(c.index_or_path for c in self.cell.cameras if c.index_or_path is not None)
         return cell_device_paths({name: arm.port for name, arm in self.cell.arms.items()},
                                  () if self.cell.simulated else cameras)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 from armnet_agent.deviceplugin.decide import DevicePath, MountGrant, allocate
-from armnet_agent.deviceplugin.server import read_fact
+from armnet_agent.deviceplugin.facts import read_fact
 
 pytestmark = pytest.mark.unit
 

@@ -13,7 +13,7 @@ ALL_ANSWER = {"shoulder_pan": (1, 777), "gripper": (6, 777)}
 
 
 def arm(**overrides: object) -> ArmProbe:
-    base: dict[str, object] = {"port": "/dev/ttyACM0", "port_exists": True, "answers": ALL_ANSWER,
+    base: dict[str, object] = {"port": "/dev/ttyACM0", "answers": ALL_ANSWER,
                                "calibration_file": "/cal/f.json", "calibration_exists": True}
     base.update(overrides)
     return ArmProbe(**base)  # type: ignore[arg-type]
@@ -29,10 +29,13 @@ def test_a_healthy_cell_has_all_five_conditions_true() -> None:
     assert {status for status, _, _ in found.values()} == {"True"}
 
 
-def test_a_missing_port_is_named_with_the_fix() -> None:
-    status, reason, message = conditions(CellProbe(arms={"arm": arm(port_exists=False)}))["HardwareReady"]
-    assert (status, reason) == ("False", "PortMissing")
-    assert "/dev/ttyACM0" in message and "plug" in message
+LOST = ("DeviceLost", "arm arm's serial port: /dev/ttyACM0 does not exist (it was present and vanished); plug it back")
+
+
+def test_lost_devices_make_hardware_not_ready_with_the_watchs_reason_before_any_servo_fact() -> None:
+    silent = arm(answers={"shoulder_pan": (1, None)})
+    status, reason, message = conditions(CellProbe(arms={"arm": silent}, devices_lost=LOST))["HardwareReady"]
+    assert (status, reason, message) == ("False", *LOST)
 
 
 def test_a_silent_servo_is_named_by_motor_and_id() -> None:
@@ -82,7 +85,7 @@ def test_a_transition_time_moves_only_when_the_status_changes() -> None:
     merged = merge_conditions([], healthy, first)
     again = merge_conditions(merged, healthy, later)
     assert {c["lastTransitionTime"] for c in again} == {"2026-01-01T00:00:00Z"}
-    broken = cell_health(CellProbe(arms={"arm": arm(port_exists=False)}))
+    broken = cell_health(CellProbe(arms={"arm": arm()}, devices_lost=LOST))
     changed = {c["type"]: c["lastTransitionTime"] for c in merge_conditions(again, broken, later)}
     assert changed["HardwareReady"] == "2026-01-02T00:00:00Z"
     assert changed["AgentConnected"] == "2026-01-01T00:00:00Z"

@@ -1,0 +1,117 @@
+"""The cell's one device verdict: debounced loss, named devices, HardwareReady, the plugin's health, a job's end."""
+
+from __future__ import annotations
+
+import pytest
+from armnet_agent.deviceplugin.decide import (
+    HEALTHY,
+    UNHEALTHY,
+    DeviceFact,
+    DevicePath,
+    cell_device_paths,
+)
+from armnet_agent.node.device_health import (
+    DEBOUNCE_S,
+    DEVICE_LOST,
+    DEVICE_MISSING,
+    DeviceState,
+    hardware_problem,
+    lost_job_error,
+    observe,
+    stop_message,
+)
+from armnet_core import JobStatus
+
+pytestmark = pytest.mark.unit
+
+ARM, CAMERA = cell_device_paths({"follower": "/dev/serial/by-id/usb-arm"}, (0,))
+
+
+def present(path: DevicePath) -> DeviceFact:
+    return DeviceFact(path, "/dev/ttyACM0" if path is ARM else "/dev/video0", True)
+
+
+def gone(path: DevicePath) -> DeviceFact:
+    return DeviceFact(path, None, False)
+
+
+def healthy_at(t: float) -> DeviceState:
+    return observe(DeviceState(), [present(ARM), present(CAMERA)], t)
+
+
+def vanished(previous: DeviceState, t: float) -> DeviceState:
+    return observe(previous, [gone(ARM), present(CAMERA)], t)
+
+
+def test_every_device_present_is_a_healthy_verdict() -> None:
+    state = healthy_at(0.0)
+    assert (state.lost, state.problems, state.seen_ok) == (False, (), True)
+    assert state.plugin_health == HEALTHY and hardware_problem(state) is None and stop_message(state) is None
+
+
+def test_a_vanished_device_is_not_lost_before_the_debounce() -> None:
+    state = vanished(vanished(healthy_at(0.0), 1.0), 1.0 + DEBOUNCE_S - 0.1)
+    assert state.problems and not state.lost
+    assert state.plugin_health == HEALTHY and hardware_problem(state) is None and stop_message(state) is None
+
+
+def test_a_device_missing_for_the_debounce_is_lost_naming_the_arm_and_its_path() -> None:
+    state = vanished(vanished(healthy_at(0.0), 1.0), 1.0 + DEBOUNCE_S)
+    assert state.lost and state.plugin_health == UNHEALTHY
+    reason, message = hardware_problem(state) or ("", "")
+    assert reason == DEVICE_LOST
+    assert "arm follower's serial port" in message and "/dev/serial/by-id/usb-arm does not exist" in message
+
+
+def test_a_blink_shorter_than_the_debounce_is_forgotten_and_the_next_spell_starts_its_own_clock() -> None:
+    blinked = observe(vanished(healthy_at(0.0), 1.0), [present(ARM), present(CAMERA)], 1.5)
+    assert blinked == DeviceState(seen_ok=True)
+    again = vanished(blinked, 2.0 + DEBOUNCE_S - 0.5)
+    assert again.problems and not again.lost
+
+
+def test_a_device_missing_from_the_first_read_is_missing_at_once_without_a_debounce() -> None:
+    state = observe(DeviceState(), [gone(ARM)], 0.0)
+    assert state.lost and not state.seen_ok
+    reason, message = hardware_problem(state) or ("", "")
+    assert reason == DEVICE_MISSING and "spec.robot.port" in message
+
+
+def test_a_path_that_is_no_character_device_is_named_as_such() -> None:
+    state = observe(healthy_at(0.0), [DeviceFact(CAMERA, "/tmp/video0", False), present(ARM)], 10.0)
+    assert state.problems == ("camera 0: /dev/video0 (/tmp/video0) is not a character device",)
+
+
+def test_a_cell_without_devices_is_never_healthy() -> None:
+    state = observe(DeviceState(), [], 0.0)
+    assert state.lost and state.plugin_health == UNHEALTHY
+
+
+def test_a_lost_device_that_returns_is_present_at_once() -> None:
+    lost = vanished(vanished(healthy_at(0.0), 1.0), 1.0 + DEBOUNCE_S)
+    back = observe(lost, [present(ARM), present(CAMERA)], 3.0)
+    assert back == DeviceState(seen_ok=True) and hardware_problem(back) is None
+
+
+def test_the_stop_message_says_device_lost_and_names_the_device() -> None:
+    lost = vanished(vanished(healthy_at(0.0), 1.0), 1.0 + DEBOUNCE_S)
+    assert stop_message(lost) == "device lost: arm follower's serial port: /dev/serial/by-id/usb-arm does not exist"
+
+
+@pytest.mark.parametrize("own", list(JobStatus))
+def test_a_job_stopped_for_a_lost_device_ends_with_that_error_whatever_it_did_in_grace(own: JobStatus) -> None:
+    assert lost_job_error(own, "device lost: arm x", ()) == "device lost: arm x"
+
+
+def test_a_job_that_failed_on_its_own_while_a_device_is_missing_is_failed_for_the_device() -> None:
+    assert lost_job_error(JobStatus.FAILED, None, ("arm x: /dev/a does not exist",)) == \
+        "device lost: arm x: /dev/a does not exist"
+
+
+@pytest.mark.parametrize("own", [JobStatus.SUCCEEDED, JobStatus.TIMEOUT, JobStatus.CANCELLED])
+def test_a_job_that_ended_otherwise_during_a_blink_keeps_its_result(own: JobStatus) -> None:
+    assert lost_job_error(own, None, ("arm x: /dev/a does not exist",)) is None
+
+
+def test_a_failure_with_every_device_present_keeps_its_own_error() -> None:
+    assert lost_job_error(JobStatus.FAILED, None, ()) is None
