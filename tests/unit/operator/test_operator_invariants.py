@@ -162,7 +162,7 @@ class Cluster(RuleBasedStateMachine):
 
 TestClusterInvariants = Cluster.TestCase
 TestClusterInvariants.settings = settings(
-    max_examples=500, stateful_step_count=40, deadline=None,
+    max_examples=250, stateful_step_count=40, deadline=None,
     suppress_health_check=[HealthCheck.too_slow],
 )
 
