@@ -234,6 +234,13 @@ def test_the_cancel_notice_opens_the_grace_window_the_job_sees(pod: Pod) -> None
     assert "cancel" in (pod.connector.interlock.trip_info.message or "")
 
 
+def test_a_cancel_for_a_lost_device_names_the_loss_in_the_interlock(pod: Pod) -> None:
+    why = "device lost: arm 'arm''s serial port: /dev/serial/by-id/x does not exist"
+    assert SidecarInputs(lambda: pod.agent_path, AgentMetrics()).cancel(why) is True
+    assert pod.job_cell().is_shutting_down() is True
+    assert pod.connector.interlock.trip_info.message == why
+
+
 def test_teleop_and_stop_reach_a_pod_jobs_connector(pod: Pod) -> None:
     inputs = SidecarInputs(lambda: pod.agent_path, AgentMetrics())
     inputs.set_teleop_action({"shoulder_pan.pos": 12.5})
@@ -268,6 +275,7 @@ def test_the_observer_socket_stays_read_only(pod: Pod) -> None:
 @pytest.mark.parametrize("op", [
     {"op": "confirm_reset", "wait": "1"}, {"op": "outcome", "success": "yes"},
     {"op": "teleop_action", "action": {"m": float("nan")}}, {"op": "teleop_event", "event": "launch"},
+    {"op": "cancel", "why": 7}, {"op": "cancel", "why": "x" * 501},
 ])
 def test_a_malformed_agent_input_is_refused(pod: Pod, op: dict[str, Any]) -> None:
     reply = request(pod.agent_path, op)

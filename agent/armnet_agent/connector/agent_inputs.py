@@ -39,6 +39,8 @@ from .session import Reply, Session
 AGENT_SOCKET = "agent.sock"
 MAX_ACTION_MOTORS = 64
 TELEOP_EVENTS = ("next_episode", "rerecord_episode", "stop_recording")
+MAX_CANCEL_WHY = 500
+"""Characters of a cancel's reason: it lands in the interlock's message and the job's record."""
 
 
 class AgentSession(Session):
@@ -126,8 +128,15 @@ class AgentSession(Session):
         return {"ok": True, "applied": True}
 
     def op_cancel(self, request: dict[str, Any]) -> Reply:
-        """The job was cancelled: open the grace window now (the job's ``is_shutting_down`` turns true)."""
-        self.cell.deadline.cancel()
+        """The job was cancelled, or stopped for ``why`` (a lost device): trip the interlock naming it and
+        open the grace window now (the job's ``is_shutting_down`` turns true)."""
+        why = request.get("why")
+        if why is not None and not (isinstance(why, str) and 0 < len(why) <= MAX_CANCEL_WHY):
+            raise protocol_error(f"request field 'why' must be null or a string of 1 to {MAX_CANCEL_WHY} characters")
+        if why is None:
+            self.cell.deadline.cancel()
+        else:
+            self.cell.deadline.cancel(why)
         return {"ok": True, "applied": True}
 
 

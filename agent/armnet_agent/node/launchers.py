@@ -454,12 +454,9 @@ class PodSession:
         """Nothing to call: the sidecar runs the job's deadline itself; the supervisor kills after grace."""
 
     def on_cancel(self, why: str | None = None) -> None:
-        """Open the sidecar connector's grace window (``agent.sock``); the supervisor still kills after grace.
-
-        ``why`` does not reach the sidecar (its ``cancel`` takes no reason): its interlock says
-        "cancelled"; the job's status says why (a lost device) all the same.
-        """
-        if not self.inputs.cancel():
+        """Open the sidecar connector's grace window (``agent.sock``), its interlock naming ``why`` (a lost
+        device; default: cancelled); the supervisor still kills after grace."""
+        if not self.inputs.cancel(why):
             log.warning("job %s: the cancel did not reach its connector sidecar; the job is killed when the grace "
                         "window ends without having been told it is shutting down", self.request.job.key)
 

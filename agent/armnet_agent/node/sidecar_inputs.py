@@ -28,7 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from armnet_agent.connector.agent_inputs import AGENT_SOCKET
+from armnet_agent.connector.agent_inputs import AGENT_SOCKET, MAX_CANCEL_WHY
 from armnet_agent.connector.ratelog import RateLimitedLog
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.sidecar_observer import connect_long
@@ -93,9 +93,10 @@ class SidecarInputs:
 
     # -- what the pod session calls -----------------------------------------------------
 
-    def cancel(self) -> bool:
-        """Open the connector's grace window now (the job's ``is_shutting_down`` turns true)."""
-        return self._send("cancel", {})
+    def cancel(self, why: str | None = None) -> bool:
+        """Open the connector's grace window now (the job's ``is_shutting_down`` turns true), its
+        interlock naming ``why`` (default: cancelled)."""
+        return self._send("cancel", {} if why is None else {"why": why[:MAX_CANCEL_WHY]})
 
     def watch(self, running: Callable[[], bool]) -> None:
         """Poll for reset waits in a daemon thread while ``running()`` (the job's container runs), until ``close``."""
