@@ -18,7 +18,7 @@ import pytest
 from armnet_agent.connector.config import MotorRange
 from armnet_agent.connector.errors import RequestError
 from armnet_agent.connector.hardware import DeviceLock, Handle
-from armnet_agent.connector.motion import _bound_arguments, _motor_facts
+from armnet_agent.connector.motion import _bound_arguments, _goal_limits, _motor_facts
 from armnet_agent.connector.safety import (
     DEGREES,
     RANGE_0_100,
@@ -149,3 +149,22 @@ def test_raw_goal_checks_with_and_without_the_proven_interval_decide_alike() -> 
         assert decide_goals(goals, {}, fast, normalize=False, clamp=False) == decide_goals(
             goals, {}, slow, normalize=False, clamp=False
         )
+
+
+def test_compiled_goal_rules_follow_a_recalibration_of_the_bus(motors: dict[str, Any], calibration: dict[str, Any]) -> None:
+    # A calibration job's write_calibration replaces bus.calibration: the proven interval
+    # converting its goals must be rebuilt from the new calibration, never kept.
+    bus = FeetechMotorsBus(port="/dev/null-armnet-test", motors=motors, calibration=calibration)
+    cell = {m: MotorRange(c.id, c.range_min, c.range_max, c.drive_mode) for m, c in calibration.items()}
+    handle = Handle("FeetechMotorsBus", bus, DeviceLock("test"), cell_ranges=cell)
+    first = _goal_limits(handle, ["elbow_flex"], 10.0, True)["elbow_flex"]
+    assert first.inside is not None
+    shifted = {m: dataclasses.replace(c, range_min=c.range_min + 300, range_max=c.range_max + 300)
+               for m, c in bus.calibration.items()}
+    bus.calibration = shifted
+    after = _goal_limits(handle, ["elbow_flex"], 10.0, True)["elbow_flex"]
+    assert after.to_raw_range is not None and after.to_raw_range.range_min == shifted["elbow_flex"].range_min
+    assert after.inside is not None and after.inside != first.inside
+    low, high = after.inside
+    for goal in (low, high):
+        assert cell["elbow_flex"].range_min <= to_raw(goal, after.norm_mode, after.to_raw_range) <= cell["elbow_flex"].range_max
