@@ -18,6 +18,11 @@ loop and on the same pty:
   (for ``sync_write``; a ``sync_read``'s CPU time includes LeRobot polling the port
   for the servos' reply, so it follows the simulator's speed).
 
+``--hot`` adds each piece of armnet's own work timed alone in a tight loop (warm
+caches, no bus I/O, the minimum of 7 batches): the CPU floor of each piece, stable
+enough on a loaded machine to compare two versions of one piece. A paced control
+loop pays several times these (its caches are cold at every call).
+
 ``--profile`` adds a cProfile of the connector's handling (cumulative time,
 the functions that cost the most). The simulated servos live in their own
 process, as in ``proxy_overhead.py``.
@@ -91,12 +96,68 @@ def instrument_stages(current: dict[str, float]) -> None:
         wrap(FeetechMotorsBus, method, "LeRobot call (incl. register policy)")
 
 
+HOT_BATCHES = 7
+
+
+def hot_cpu_us(call: Callable[[], Any], calls: int) -> float:
+    """CPU microseconds per call of ``call`` in a tight loop: the minimum over ``HOT_BATCHES`` batches."""
+    call()
+    best = math.inf
+    for _ in range(HOT_BATCHES):
+        began = time.thread_time()
+        for _ in range(calls):
+            call()
+        best = min(best, (time.thread_time() - began) / calls)
+    return best * 1e6
+
+
+def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: dict[str, float],
+               calls: int) -> dict[str, float]:
+    """The connector's and the proxy's own pieces of one ``sync_read`` / ``sync_write``, each alone."""
+    from armnet_agent.connector.server import encode_reply, parse_request
+    from armnet_agent.connector.session import _arguments
+    from armnet_runtime.lerobot.remote_object import encode_args
+    from armnet_runtime.wire import decode, dumps_line, encode, loads_json
+
+    handle = session.objects[object_id]
+    guard = session.cell.guard
+    # The goal check reuses the positions of this tick's read (presentPositionMaxAgeMs): keep them fresh.
+    handle.present[True] = (math.inf, dict(present))
+    write_args: list[Any] = ["Goal_Position", goals]
+    write_line = dumps_line({"op": "call", "method": "sync_write", "args": encode_args(("Goal_Position", goals)),
+                             "kwargs": encode({}), "object_id": object_id})
+    read_reply = {"ok": True, "value": encode(present)}
+    read_reply_line = encode_reply(read_reply)
+    request = parse_request(write_line)
+    pieces = {
+        "proxy: encode a sync_write request line": lambda: dumps_line(
+            {"op": "call", "method": "sync_write", "args": encode_args(("Goal_Position", goals)),
+             "kwargs": encode({}), "object_id": object_id}),
+        "proxy: decode a sync_read reply line": lambda: decode(loads_json(read_reply_line).get("value")),
+        "connector: parse a sync_write request line": lambda: parse_request(write_line),
+        "connector: decode its arguments": lambda: _arguments(request),
+        "connector: motion guard, sync_write (6 goals)": lambda: guard.check(handle, "sync_write", write_args, {}),
+        "connector: motion guard, sync_read": lambda: guard.check(handle, "sync_read", ["Present_Position"], {}),
+        "connector: keep a sync_read's positions": lambda: guard.remember_present(
+            handle, ["Present_Position"], {}, present),
+        "connector: encode a sync_read reply line": lambda: encode_reply({"ok": True, "value": encode(present)}),
+        "connector: encode a sync_write reply line": lambda: encode_reply({"ok": True, "value": None}),
+    }
+    try:
+        return {name: hot_cpu_us(call, calls) for name, call in pieces.items()}
+    finally:
+        handle.present.clear()
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--calls", type=int, default=2000, help="ticks (one sync_read + one sync_write each)")
     parser.add_argument("--profile", action="store_true", help="cProfile the connector's handling")
     parser.add_argument("--sort", default="tottime", help="cProfile sort key (tottime, cumulative, ...)")
     parser.add_argument("--top", type=int, default=30, help="functions listed")
+    parser.add_argument("--hot", action="store_true",
+                        help="each piece of armnet's own work alone in a tight loop (warm caches, no bus I/O)")
+    parser.add_argument("--hot-calls", type=int, default=3000, help="calls per batch of --hot")
     parser.add_argument("--stages", action="store_true",
                         help="CPU time of each stage of the connector's handling (wrappers add ~1 us each)")
     args = parser.parse_args()
@@ -203,6 +264,7 @@ def main() -> int:
                         proxied("write", "sync_write", ("Goal_Position", goals))
                     except (ConnectionError, RuntimeError):
                         lost += 1  # a starved simulator misses a reply now and then: count it, go on
+                hot = hot_pieces(session, object_id, goals, start, args.hot_calls) if args.hot else {}
                 direct.disconnect(disable_torque=False)
                 session.close()
 
@@ -222,6 +284,10 @@ def main() -> int:
         print("CPU time per stage of the connector's handling, p50 (microseconds):")
         for stage, values in stage_cpu.items():
             print(f"  {stage:<55} {percentile(values, 50) * 1e6:7.1f}")
+    if hot:
+        print(f"CPU time of each piece alone, tight loop, min of {HOT_BATCHES} batches (microseconds):")
+        for piece, spent in hot.items():
+            print(f"  {piece:<55} {spent:7.2f}")
     if profiler is not None:
         stats = pstats.Stats(profiler)
         stats.sort_stats(args.sort).print_stats(args.top)
