@@ -18,7 +18,13 @@ import pytest
 from armnet_agent.connector.config import MotorRange
 from armnet_agent.connector.errors import RequestError
 from armnet_agent.connector.hardware import DeviceLock, Handle
-from armnet_agent.connector.motion import _bound_arguments, _goal_limits, _motor_facts
+from armnet_agent.connector.motion import (
+    BadMotorValue,
+    _bound_arguments,
+    _goal_limits,
+    _motor_facts,
+    write_arguments,
+)
 from armnet_agent.connector.safety import (
     DEGREES,
     RANGE_0_100,
@@ -168,3 +174,29 @@ def test_compiled_goal_rules_follow_a_recalibration_of_the_bus(motors: dict[str,
     low, high = after.inside
     for goal in (low, high):
         assert cell["elbow_flex"].range_min <= to_raw(goal, after.norm_mode, after.to_raw_range) <= cell["elbow_flex"].range_max
+
+
+# -- goal values taken as they are (motion._plain_goals) -----------------------------
+
+
+@pytest.mark.parametrize(
+    ("raw", "expected"),
+    [
+        ({"gripper": 1.5, "elbow_flex": -2.0}, {"gripper": 1.5, "elbow_flex": -2.0}),
+        ({"gripper": 1e308, "elbow_flex": 1e308}, {"gripper": 1e308, "elbow_flex": 1e308}),  # the sum overflows
+        ({"gripper": 3, "elbow_flex": True}, {"gripper": 3.0, "elbow_flex": 1.0}),
+        ({}, {}),
+    ],
+)
+def test_goal_values_are_the_floats_the_job_sent(raw: dict[str, Any], expected: dict[str, float], motors: dict[str, Any]) -> None:
+    handle = Handle("FeetechMotorsBus", FeetechMotorsBus(port="/dev/null-armnet-test", motors=motors), DeviceLock("test"))
+    _name, values, _normalize = write_arguments(handle, "sync_write", ["Goal_Position", raw], {})
+    assert values == expected and all(type(v) is float for v in values.values())
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_goal_among_floats_is_refused(bad: float, motors: dict[str, Any]) -> None:
+    handle = Handle("FeetechMotorsBus", FeetechMotorsBus(port="/dev/null-armnet-test", motors=motors), DeviceLock("test"))
+    with pytest.raises(BadMotorValue) as refused:
+        write_arguments(handle, "sync_write", ["Goal_Position", {"gripper": 1.0, "elbow_flex": bad}], {})
+    assert refused.value.kind == "non_finite"
