@@ -21,7 +21,9 @@ loop and on the same pty:
 ``--hot`` adds each piece of armnet's own work timed alone in a tight loop (warm
 caches, no bus I/O, the minimum of 7 batches): the CPU floor of each piece, stable
 enough on a loaded machine to compare two versions of one piece. A paced control
-loop pays several times these (its caches are cold at every call).
+loop pays several times these (its caches are cold at every call). It also counts
+the Python calls and bytecodes one ``sync_write`` / ``sync_read`` executes in the
+connector (``sys.settrace``), armnet's code apart from LeRobot's: deterministic.
 
 ``--profile`` adds a cProfile of the connector's handling (cumulative time,
 the functions that cost the most). The simulated servos live in their own
@@ -111,8 +113,37 @@ def hot_cpu_us(call: Callable[[], Any], calls: int) -> float:
     return best * 1e6
 
 
+def traced_work(call: Callable[[], Any]) -> dict[str, tuple[int, int]]:
+    """Python calls and bytecodes one ``call`` executes, armnet's code apart from the rest (LeRobot, serial).
+
+    Deterministic: the same request on the same code executes the same bytecodes
+    whatever the machine's load (a read's polling loop in LeRobot excepted), so a
+    change to the hot path can be measured where the wall clock cannot resolve it.
+    """
+    counts = {"armnet": [0, 0], "LeRobot and below": [0, 0]}
+
+    def kind(frame: Any) -> list[int]:
+        name = frame.f_code.co_filename
+        return counts["armnet" if "/armnet_agent/" in name or "/armnet_runtime/" in name else "LeRobot and below"]
+
+    def trace(frame: Any, event: str, _arg: Any) -> Any:
+        if event == "call":
+            frame.f_trace_opcodes = True
+            kind(frame)[0] += 1
+        elif event == "opcode":
+            kind(frame)[1] += 1
+        return trace
+
+    sys.settrace(trace)
+    try:
+        call()
+    finally:
+        sys.settrace(None)
+    return {name: (calls, opcodes) for name, (calls, opcodes) in counts.items()}
+
+
 def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: dict[str, float],
-               calls: int) -> dict[str, float]:
+               calls: int) -> dict[str, Any]:
     """The connector's and the proxy's own pieces of one ``sync_read`` / ``sync_write``, each alone."""
     from armnet_agent.connector.server import encode_reply, parse_request
     from armnet_agent.connector.session import _arguments
@@ -143,8 +174,16 @@ def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: d
         "connector: encode a sync_read reply line": lambda: encode_reply({"ok": True, "value": encode(present)}),
         "connector: encode a sync_write reply line": lambda: encode_reply({"ok": True, "value": None}),
     }
+    read_line = dumps_line({"op": "call", "method": "sync_read", "args": encode_args(("Present_Position",)),
+                            "kwargs": encode({}), "object_id": object_id})
     try:
-        return {name: hot_cpu_us(call, calls) for name, call in pieces.items()}
+        timed = {name: hot_cpu_us(call, calls) for name, call in pieces.items()}
+        for method, line in (("sync_write", write_line), ("sync_read", read_line)):
+            time.sleep(PAUSE_S)
+            work = traced_work(lambda line=line: encode_reply(session.handle(parse_request(line))))
+            for part, (n_calls, opcodes) in work.items():
+                timed[f"work: {method}, {part} (Python calls / bytecodes)"] = (n_calls, opcodes)
+        return timed
     finally:
         handle.present.clear()
 
@@ -287,7 +326,10 @@ def main() -> int:
     if hot:
         print(f"CPU time of each piece alone, tight loop, min of {HOT_BATCHES} batches (microseconds):")
         for piece, spent in hot.items():
-            print(f"  {piece:<55} {spent:7.2f}")
+            if isinstance(spent, tuple):
+                print(f"  {piece:<70} {spent[0]:5d} / {spent[1]:6d}")
+            else:
+                print(f"  {piece:<70} {spent:7.2f}")
     if profiler is not None:
         stats = pstats.Stats(profiler)
         stats.sort_stats(args.sort).print_stats(args.top)
