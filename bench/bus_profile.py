@@ -70,16 +70,22 @@ def _timed(bucket: list[float], cpu: list[float], call: Callable[[], Any]) -> An
 TOP_STAGES = ("decode arguments", "motion guard", "LeRobot call (incl. register policy)")
 
 
-def instrument_stages(current: dict[str, float]) -> None:
-    """Wrap the connector's stages so each adds its CPU time to ``current`` (signatures kept)."""
+def instrument_stages(current: dict[str, float]) -> Callable[[], None]:
+    """Wrap the connector's stages so each adds its CPU time to ``current`` (signatures kept).
+
+    Returns the undo: ``--hot`` times the pieces unwrapped (a wrapper costs ~1-2 us a call).
+    """
     import functools
 
     from armnet_agent.connector import motion, session
     from armnet_agent.connector.policed_bus import BusPolicy
     from lerobot.motors.feetech import FeetechMotorsBus
 
+    originals: list[tuple[Any, str, Any]] = []
+
     def wrap(owner: Any, name: str, stage: str) -> None:
         original = getattr(owner, name)
+        originals.append((owner, name, original))
 
         @functools.wraps(original)
         def timed(*args: Any, **kwargs: Any) -> Any:
@@ -96,6 +102,12 @@ def instrument_stages(current: dict[str, float]) -> None:
     wrap(BusPolicy, "check_all", "register policy (inside the LeRobot call)")
     for method in ("sync_write", "sync_read"):
         wrap(FeetechMotorsBus, method, "LeRobot call (incl. register policy)")
+
+    def undo() -> None:
+        for owner, name, original in reversed(originals):
+            setattr(owner, name, original)
+
+    return undo
 
 
 HOT_BATCHES = 7
@@ -253,8 +265,7 @@ def main() -> int:
                 lost = 0
                 stage_cpu: dict[str, list[float]] = {}
                 current: dict[str, float] = {}
-                if args.stages:
-                    instrument_stages(current)
+                undo_stages = instrument_stages(current) if args.stages else None
 
                 def proxied(call: str, method: str, call_args: tuple[Any, ...]) -> None:
                     began = time.perf_counter()
@@ -303,6 +314,8 @@ def main() -> int:
                         proxied("write", "sync_write", ("Goal_Position", goals))
                     except (ConnectionError, RuntimeError):
                         lost += 1  # a starved simulator misses a reply now and then: count it, go on
+                if undo_stages is not None:
+                    undo_stages()
                 hot = hot_pieces(session, object_id, goals, start, args.hot_calls) if args.hot else {}
                 direct.disconnect(disable_torque=False)
                 session.close()
