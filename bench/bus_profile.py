@@ -18,6 +18,13 @@ loop and on the same pty:
   (for ``sync_write``; a ``sync_read``'s CPU time includes LeRobot polling the port
   for the servos' reply, so it follows the simulator's speed).
 
+``--hot`` adds each piece of armnet's own work timed alone in a tight loop (warm
+caches, no bus I/O, the minimum of 7 batches): the CPU floor of each piece, stable
+enough on a loaded machine to compare two versions of one piece. A paced control
+loop pays several times these (its caches are cold at every call). It also counts
+the Python calls and bytecodes one ``sync_write`` / ``sync_read`` executes in the
+connector (``sys.settrace``), armnet's code apart from LeRobot's: deterministic.
+
 ``--profile`` adds a cProfile of the connector's handling (cumulative time,
 the functions that cost the most). The simulated servos live in their own
 process, as in ``proxy_overhead.py``.
@@ -63,16 +70,22 @@ def _timed(bucket: list[float], cpu: list[float], call: Callable[[], Any]) -> An
 TOP_STAGES = ("decode arguments", "motion guard", "LeRobot call (incl. register policy)")
 
 
-def instrument_stages(current: dict[str, float]) -> None:
-    """Wrap the connector's stages so each adds its CPU time to ``current`` (signatures kept)."""
+def instrument_stages(current: dict[str, float]) -> Callable[[], None]:
+    """Wrap the connector's stages so each adds its CPU time to ``current`` (signatures kept).
+
+    Returns the undo: ``--hot`` times the pieces unwrapped (a wrapper costs ~1-2 us a call).
+    """
     import functools
 
     from armnet_agent.connector import motion, session
     from armnet_agent.connector.policed_bus import BusPolicy
     from lerobot.motors.feetech import FeetechMotorsBus
 
+    originals: list[tuple[Any, str, Any]] = []
+
     def wrap(owner: Any, name: str, stage: str) -> None:
         original = getattr(owner, name)
+        originals.append((owner, name, original))
 
         @functools.wraps(original)
         def timed(*args: Any, **kwargs: Any) -> Any:
@@ -90,6 +103,102 @@ def instrument_stages(current: dict[str, float]) -> None:
     for method in ("sync_write", "sync_read"):
         wrap(FeetechMotorsBus, method, "LeRobot call (incl. register policy)")
 
+    def undo() -> None:
+        for owner, name, original in reversed(originals):
+            setattr(owner, name, original)
+
+    return undo
+
+
+HOT_BATCHES = 7
+
+
+def hot_cpu_us(call: Callable[[], Any], calls: int) -> float:
+    """CPU microseconds per call of ``call`` in a tight loop: the minimum over ``HOT_BATCHES`` batches."""
+    call()
+    best = math.inf
+    for _ in range(HOT_BATCHES):
+        began = time.thread_time()
+        for _ in range(calls):
+            call()
+        best = min(best, (time.thread_time() - began) / calls)
+    return best * 1e6
+
+
+def traced_work(call: Callable[[], Any]) -> dict[str, tuple[int, int]]:
+    """Python calls and bytecodes one ``call`` executes, armnet's code apart from the rest (LeRobot, serial).
+
+    Deterministic: the same request on the same code executes the same bytecodes
+    whatever the machine's load (a read's polling loop in LeRobot excepted), so a
+    change to the hot path can be measured where the wall clock cannot resolve it.
+    """
+    counts = {"armnet": [0, 0], "LeRobot and below": [0, 0]}
+
+    def kind(frame: Any) -> list[int]:
+        name = frame.f_code.co_filename
+        return counts["armnet" if "/armnet_agent/" in name or "/armnet_runtime/" in name else "LeRobot and below"]
+
+    def trace(frame: Any, event: str, _arg: Any) -> Any:
+        if event == "call":
+            frame.f_trace_opcodes = True
+            kind(frame)[0] += 1
+        elif event == "opcode":
+            kind(frame)[1] += 1
+        return trace
+
+    sys.settrace(trace)
+    try:
+        call()
+    finally:
+        sys.settrace(None)
+    return {name: (calls, opcodes) for name, (calls, opcodes) in counts.items()}
+
+
+def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: dict[str, float],
+               calls: int) -> dict[str, Any]:
+    """The connector's and the proxy's own pieces of one ``sync_read`` / ``sync_write``, each alone."""
+    from armnet_agent.connector.server import encode_reply, parse_request
+    from armnet_agent.connector.session import _arguments
+    from armnet_runtime.lerobot.remote_object import encode_args
+    from armnet_runtime.wire import decode, dumps_line, encode, loads_json
+
+    handle = session.objects[object_id]
+    guard = session.cell.guard
+    # The goal check reuses the positions of this tick's read (presentPositionMaxAgeMs): keep them fresh.
+    handle.present[True] = (math.inf, dict(present))
+    write_args: list[Any] = ["Goal_Position", goals]
+    write_line = dumps_line({"op": "call", "method": "sync_write", "args": encode_args(("Goal_Position", goals)),
+                             "kwargs": encode({}), "object_id": object_id})
+    read_reply = {"ok": True, "value": encode(present)}
+    read_reply_line = encode_reply(read_reply)
+    request = parse_request(write_line)
+    pieces = {
+        "proxy: encode a sync_write request line": lambda: dumps_line(
+            {"op": "call", "method": "sync_write", "args": encode_args(("Goal_Position", goals)),
+             "kwargs": encode({}), "object_id": object_id}),
+        "proxy: decode a sync_read reply line": lambda: decode(loads_json(read_reply_line).get("value")),
+        "connector: parse a sync_write request line": lambda: parse_request(write_line),
+        "connector: decode its arguments": lambda: _arguments(request),
+        "connector: motion guard, sync_write (6 goals)": lambda: guard.check(handle, "sync_write", write_args, {}),
+        "connector: motion guard, sync_read": lambda: guard.check(handle, "sync_read", ["Present_Position"], {}),
+        "connector: keep a sync_read's positions": lambda: guard.remember_present(
+            handle, ["Present_Position"], {}, present),
+        "connector: encode a sync_read reply line": lambda: encode_reply({"ok": True, "value": encode(present)}),
+        "connector: encode a sync_write reply line": lambda: encode_reply({"ok": True, "value": None}),
+    }
+    read_line = dumps_line({"op": "call", "method": "sync_read", "args": encode_args(("Present_Position",)),
+                            "kwargs": encode({}), "object_id": object_id})
+    try:
+        timed = {name: hot_cpu_us(call, calls) for name, call in pieces.items()}
+        for method, line in (("sync_write", write_line), ("sync_read", read_line)):
+            time.sleep(PAUSE_S)
+            work = traced_work(lambda line=line: encode_reply(session.handle(parse_request(line))))
+            for part, (n_calls, opcodes) in work.items():
+                timed[f"work: {method}, {part} (Python calls / bytecodes)"] = (n_calls, opcodes)
+        return timed
+    finally:
+        handle.present.clear()
+
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -97,6 +206,9 @@ def main() -> int:
     parser.add_argument("--profile", action="store_true", help="cProfile the connector's handling")
     parser.add_argument("--sort", default="tottime", help="cProfile sort key (tottime, cumulative, ...)")
     parser.add_argument("--top", type=int, default=30, help="functions listed")
+    parser.add_argument("--hot", action="store_true",
+                        help="each piece of armnet's own work alone in a tight loop (warm caches, no bus I/O)")
+    parser.add_argument("--hot-calls", type=int, default=3000, help="calls per batch of --hot")
     parser.add_argument("--stages", action="store_true",
                         help="CPU time of each stage of the connector's handling (wrappers add ~1 us each)")
     args = parser.parse_args()
@@ -153,8 +265,7 @@ def main() -> int:
                 lost = 0
                 stage_cpu: dict[str, list[float]] = {}
                 current: dict[str, float] = {}
-                if args.stages:
-                    instrument_stages(current)
+                undo_stages = instrument_stages(current) if args.stages else None
 
                 def proxied(call: str, method: str, call_args: tuple[Any, ...]) -> None:
                     began = time.perf_counter()
@@ -203,6 +314,9 @@ def main() -> int:
                         proxied("write", "sync_write", ("Goal_Position", goals))
                     except (ConnectionError, RuntimeError):
                         lost += 1  # a starved simulator misses a reply now and then: count it, go on
+                if undo_stages is not None:
+                    undo_stages()
+                hot = hot_pieces(session, object_id, goals, start, args.hot_calls) if args.hot else {}
                 direct.disconnect(disable_torque=False)
                 session.close()
 
@@ -222,6 +336,13 @@ def main() -> int:
         print("CPU time per stage of the connector's handling, p50 (microseconds):")
         for stage, values in stage_cpu.items():
             print(f"  {stage:<55} {percentile(values, 50) * 1e6:7.1f}")
+    if hot:
+        print(f"CPU time of each piece alone, tight loop, min of {HOT_BATCHES} batches (microseconds):")
+        for piece, spent in hot.items():
+            if isinstance(spent, tuple):
+                print(f"  {piece:<70} {spent[0]:5d} / {spent[1]:6d}")
+            else:
+                print(f"  {piece:<70} {spent:7.2f}")
     if profiler is not None:
         stats = pstats.Stats(profiler)
         stats.sort_stats(args.sort).print_stats(args.top)

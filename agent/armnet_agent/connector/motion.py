@@ -43,7 +43,7 @@ _signatures: dict[tuple[type, str], inspect.Signature] = {}
 #: Per (class, method): (positional parameter names after ``self``, all parameter names,
 #: required names), or ``None`` when the signature has ``*args``, ``**kwargs`` or
 #: positional-only parameters.
-_Shape = tuple[tuple[str, ...], frozenset[str], tuple[str, ...]]
+_Shape = tuple[tuple[str, ...], frozenset[str], frozenset[str]]
 _simple_shapes: dict[tuple[type, str], _Shape | None] = {}
 
 
@@ -63,7 +63,7 @@ def _simple_shape(obj: Any, method: str) -> _Shape | None:
         _simple_shapes[key] = (
             tuple(p.name for p in params if p.kind is p.POSITIONAL_OR_KEYWORD),
             frozenset(p.name for p in params),
-            tuple(p.name for p in params if p.default is p.empty),
+            frozenset(p.name for p in params if p.default is p.empty),
         ) if simple else None
     return _simple_shapes[key]
 
@@ -81,9 +81,9 @@ def _bound_arguments(obj: Any, method: str, args: list[Any], kwargs: dict[str, A
         positional, names, required = shape
         if len(args) <= len(positional):
             bound = dict(zip(positional, args, strict=False))
-            if all(k in names and k not in bound for k in kwargs):
+            if not kwargs or all(k in names and k not in bound for k in kwargs):
                 bound.update(kwargs)
-                if all(p in bound for p in required):
+                if bound.keys() >= required:
                     return bound
     try:
         return dict(_signature(obj, method).bind(obj, *args, **kwargs).arguments)
@@ -129,7 +129,9 @@ def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tup
         values = {str(motor): _number(str(motor), arguments.get("value"))}
     else:
         raw = arguments.get("values")
-        if isinstance(raw, dict):
+        if type(raw) is dict and _plain_goals(raw):
+            values = dict(raw)
+        elif isinstance(raw, dict):
             values = {}
             for m, v in raw.items():
                 name = m if type(m) is str else str(m)
@@ -138,6 +140,24 @@ def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tup
         else:
             values = {m: _number(m, raw) for m in handle.obj.motors}
     return str(data_name), values, normalize
+
+
+_FLOAT_ONLY = frozenset({float})
+_STR_ONLY = frozenset({str})
+
+
+def _plain_goals(raw: dict[Any, Any]) -> bool:
+    """True when every key is a ``str`` and every value a finite ``float``: the goals are taken as they are.
+
+    Why: a control loop's goals always are; checking them in C loops costs less than
+    converting them one by one. The sum of finite floats is finite unless it
+    overflows to ``inf`` (then the goals take the per-motor path, which decides exactly), and
+    any ``nan`` or ``inf`` among them makes it non-finite.
+    """
+    return (
+        set(map(type, raw.values())) <= _FLOAT_ONLY and set(map(type, raw)) <= _STR_ONLY
+        and math.isfinite(sum(raw.values()))
+    )
 
 
 def _motor_range(calibration: Any, motor: str) -> MotorRange | None:

@@ -137,6 +137,52 @@ class MotorLimit:
     cell_bounds: tuple[int, int] | None
     #: The cell's relative limit in the write's units; None: no relative limit.
     relative: float | None
+    #: Goals in this closed interval (the write's units) are proven inside ``cell_bounds``
+    #: (``proven_inside``): the absolute rule needs no conversion for them. None: always convert.
+    inside: tuple[float, float] | None = None
+
+
+def _linear_to_raw(value: float, norm_mode: str, motor_range: MotorRange) -> float:
+    """``to_raw`` without its clamp and its truncation: the straight line the conversion follows."""
+    low, high = motor_range.range_min, motor_range.range_max
+    if norm_mode == DEGREES:
+        return value * _MAX_RES / 360 + (low + high) / 2
+    drive = bool(motor_range.drive_mode)
+    if norm_mode == RANGE_0_100:
+        return ((100 - value if drive else value) / 100) * (high - low) + low
+    return (((-value if drive else value) + 100) / 200) * (high - low) + low
+
+
+def proven_inside(
+    norm_mode: str, to_raw_range: MotorRange | None, bounds: tuple[int, int]
+) -> tuple[float, float] | None:
+    """An interval of goals (the write's units) whose raw ticks are all inside ``bounds``, or None.
+
+    Why: converting each goal to raw ticks is most of the absolute rule's cost at
+    100 Hz, and a control loop's goals sit well inside the range. ``to_raw`` is
+    monotone in the goal for every mode (a line, a clamp and a truncation, each
+    monotone in one direction; IEEE arithmetic rounds monotonically), so an
+    interval whose two ends convert inside ``bounds`` holds only goals that
+    convert inside too. The ends are found one tick inside each bound through the
+    line's inverse, then checked with ``to_raw`` itself: a float error can only
+    make the interval smaller (or absent), never admit a goal ``to_raw`` refuses.
+    """
+    low, high = bounds
+    if to_raw_range is None:  # a raw goal is truncated to int: monotone, and the bounds are whole ticks
+        return (float(low), float(high))
+    if high - low < 2:
+        return None
+    at_zero = _linear_to_raw(0.0, norm_mode, to_raw_range)
+    slope = _linear_to_raw(1.0, norm_mode, to_raw_range) - at_zero
+    if not math.isfinite(slope) or slope == 0:
+        return None
+    ends = sorted(((low + 1 - at_zero) / slope, (high - 1 - at_zero) / slope))
+    if not all(math.isfinite(end) for end in ends):
+        return None
+    for end in ends:
+        if not low <= to_raw(end, norm_mode, to_raw_range) <= high:
+            return None
+    return (ends[0], ends[1])
 
 
 def compile_limits(
@@ -153,7 +199,8 @@ def compile_limits(
         relative = limit_for(limit, motor)
         if relative is not None:
             relative = limit_in_write_units(relative, fact, normalize=normalize)
-        compiled[motor] = MotorLimit(fact.norm_mode, to_raw_range, bounds, relative)
+        inside = None if bounds is None else proven_inside(fact.norm_mode, to_raw_range, bounds)
+        compiled[motor] = MotorLimit(fact.norm_mode, to_raw_range, bounds, relative, inside)
     return compiled
 
 
@@ -199,7 +246,8 @@ def decide_goals(
         if rules is None:
             continue
         bounds = rules.cell_bounds
-        if bounds is not None:
+        inside = rules.inside
+        if bounds is not None and (inside is None or not inside[0] <= goal <= inside[1]):
             raw = to_raw(goal, rules.norm_mode, rules.to_raw_range) if rules.to_raw_range is not None else int(goal)
             if not bounds[0] <= raw <= bounds[1]:
                 return _refused(goals, present, steps, _absolute_violation(motor, raw, bounds))

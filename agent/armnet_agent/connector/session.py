@@ -65,7 +65,7 @@ def _decoded(value: Any, what: str) -> Any:
 def _arguments(request: dict[str, Any]) -> tuple[list[Any], dict[str, Any]]:
     args = _decoded(_field(request, "args", list, default=[]), "args")
     kwargs = _decoded(_field(request, "kwargs", dict, default={}), "kwargs")
-    if not isinstance(args, list) or not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
+    if type(args) is not list or type(kwargs) is not dict or (kwargs and not all(type(k) is str for k in kwargs)):
         raise protocol_error("args must be a list and kwargs an object with string keys")
     return args, kwargs
 

@@ -87,6 +87,9 @@ _NON_FINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
 _PLAIN_SCALARS = (str, int, bool, type(None))
 _PLAIN_NO_INT = (str, bool, type(None))
 _PLAIN_VALUES = frozenset((str, int, float, bool, type(None)))
+_PLAIN_NO_INT_TYPES = frozenset(_PLAIN_NO_INT)
+_STR_TYPE = frozenset((str,))
+_FLOAT_TYPE = frozenset((float,))
 _allowed_type_cache: dict[str, type | None] = {}
 
 
@@ -107,15 +110,30 @@ def encode(value: Any) -> Any:
     if kind is float:
         return value if math.isfinite(value) else _encode_non_finite(value)
     if kind is dict:
+        if set(map(type, value)) <= _STR_TYPE and TAG not in value and _finite_floats(value.values()):
+            return dict(value)  # a goal or position dict: no per-item step
         for key in value:
             if type(key) is not str or key == TAG:
                 return {TAG: "dict", "items": [[encode(k), encode(v)] for k, v in value.items()]}
         return {key: item if _is_plain(item) else encode(item) for key, item in value.items()}
     if kind is list:
+        if set(map(type, value)) <= _PLAIN_NO_INT_TYPES:
+            return list(value)
         return [item if _is_plain(item) else encode(item) for item in value]
     if kind is tuple:
         return {TAG: "tuple", "items": [encode(item) for item in value]}
     return _encode_other(value, kind)
+
+
+def _finite_floats(values: Any) -> bool:
+    """True when every one of ``values`` (a collection, read twice) is a finite ``float``, checked in C loops.
+
+    Why: the dicts of a control loop (goals, positions) are all floats, and a
+    per-item Python check was most of their encoding. A sum of finite floats is
+    finite unless it overflows to ``inf`` (then the per-item path decides); a
+    ``nan`` or an ``inf`` among them makes it non-finite.
+    """
+    return set(map(type, values)) <= _FLOAT_TYPE and math.isfinite(sum(values))
 
 
 def _is_plain(value: Any) -> bool:
@@ -216,6 +234,8 @@ def decode(obj: Any) -> Any:
         tag = obj.get(TAG)
         if tag is None:
             # Plain values stand for themselves: only containers recurse (a goal dict is all floats).
+            if set(map(type, obj.values())) <= _PLAIN_VALUES:
+                return dict(obj)
             return {key: item if type(item) in _PLAIN_VALUES else decode(item) for key, item in obj.items()}
         decoder = _DECODERS.get(tag) if type(tag) is str else None
         if decoder is None:
@@ -227,6 +247,8 @@ def decode(obj: Any) -> Any:
         except (KeyError, TypeError, ValueError, binascii.Error) as exc:
             raise ProtocolError(f"malformed tagged {tag!r} value: {exc!r}") from exc
     if kind is list:
+        if set(map(type, obj)) <= _PLAIN_VALUES:
+            return list(obj)
         return [item if type(item) in _PLAIN_VALUES else decode(item) for item in obj]
     raise ProtocolError(f"not a tagged-JSON value: {kind.__qualname__}")
 

@@ -303,3 +303,33 @@ def test_without_orjson_the_standard_library_writes_the_same_lines(monkeypatch: 
     assert wire.loads_json(fast_line[:-1]) == payload
     with pytest.raises(ValueError):
         wire.loads_json(b"{not json")
+
+
+# -- the all-plain containers of a control loop, checked in C loops ----------------------
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_float_among_a_goal_dicts_floats_still_travels_tagged(bad: float) -> None:
+    goals = {"shoulder_pan": 1.5, "elbow_flex": bad, "gripper": 30.0}
+    assert encode(goals)["elbow_flex"] == {TAG: "float", "value": str(bad)}
+    assert same(through_json(goals), goals)
+
+
+def test_floats_whose_sum_overflows_are_still_plain_json() -> None:
+    positions = {"shoulder_pan": 1e308, "elbow_flex": 1e308}
+    assert encode(positions) == positions
+    assert same(through_json(positions), positions)
+
+
+def test_a_decoded_plain_container_is_a_new_object() -> None:
+    wire_dict: dict[str, Any] = {"shoulder_pan": 1.0, "name": "arm", "on": True, "none": None, "ticks": 3}
+    wire_list: list[Any] = ["Present_Position", 1.0, 2, None]
+    decoded_dict, decoded_list = decode(wire_dict), decode(wire_list)
+    assert decoded_dict == wire_dict and decoded_dict is not wire_dict
+    assert decoded_list == wire_list and decoded_list is not wire_list
+
+
+def test_an_encoded_plain_container_is_a_new_object() -> None:
+    goals, names = {"shoulder_pan": 1.0}, ["shoulder_pan", "gripper"]
+    assert encode(goals) == goals and encode(goals) is not goals
+    assert encode(names) == names and encode(names) is not names
