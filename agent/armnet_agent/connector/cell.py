@@ -234,7 +234,10 @@ class CellState:
                                 "its rest pose")
         else:
             lock = self.locks.get(arm.port)
-            if not lock.acquire(lock.wait_s if lock_wait_s is None else lock_wait_s):
+            wait_s = lock.wait_s if lock_wait_s is None else lock_wait_s
+            if deadline is not None:  # the stop's budget: waiting for the device must not eat torque off's time
+                wait_s = max(0.0, min(wait_s, deadline - time.monotonic()))
+            if not lock.acquire(wait_s):
                 raise RequestError("DeviceBusy", f"arm {name!r} is still busy with another call; no rest was made")
             try:
                 with cell_bus(arm, ranges) as bus:

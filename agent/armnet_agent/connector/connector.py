@@ -41,8 +41,8 @@ in flight may finish; a hung one does not hold back torque off."""
 STOP_LOCK_WAIT_S = 1.0
 """How long ``stop`` waits for each device a call still holds; then torque goes off beside it."""
 TORQUE_OFF_RESERVE_S = 1.5
-"""What ``stop`` keeps of its budget for torque off after the rest walk: a few writes and
-read-backs per arm, with room for a loaded host."""
+"""What ``stop`` keeps of its budget, per arm, for torque off after the rest walk: a
+device-lock wait and a few writes and read-backs, with room for a loaded host."""
 
 
 def stop_budget_s(grace_period_seconds: float) -> float:
@@ -144,7 +144,8 @@ class Connector:
         started = time.monotonic()
         for server in self._servers:
             server.join(started + STOP_THREADS_WAIT_S)
-        rest_deadline = started + stop_budget_s(self.config.grace_period_seconds) - TORQUE_OFF_RESERVE_S
+        reserve_s = TORQUE_OFF_RESERVE_S * max(1, len(self.config.arms))
+        rest_deadline = started + stop_budget_s(self.config.grace_period_seconds) - reserve_s
         self.cell.shut_down(STOP_LOCK_WAIT_S, rest_deadline=rest_deadline)
         log.info("connector stopped")
 

@@ -125,18 +125,21 @@ def move_to_rest(
     motors = [m for m in target if m in bus.motors]
     if not motors:
         return RestReport(arm_name, True)
+    if _past(deadline):  # torque is not even switched on for a walk that cannot take a step
+        return RestReport(arm_name, False, failure="the stop's time for a rest ran out before it began")
     present = {m: int(v) for m, v in bus.sync_read("Present_Position", motors, normalize=False, num_retry=RETRIES).items()}
     # Hold where we are before torque comes on, so a stale goal cannot make the arm jump.
     bus.sync_write("Goal_Position", present, normalize=False, num_retry=RETRIES)
     bus.enable_torque(motors, num_retry=RETRIES)
     walk = RestWalk(present, {m: target[m] for m in motors}, speed_ticks_per_s)
-    started = time.monotonic()
+    last_tick = time.monotonic()
     done = 0.0
     while done < 1.0 and not _past(deadline):
-        done = walk.progress(done, time.monotonic() - started)
+        time.sleep(TICK_S)
+        now = time.monotonic()
+        done = walk.advance(done, now - last_tick)
+        last_tick = now
         bus.sync_write("Goal_Position", walk.at(done), normalize=False, num_retry=RETRIES)
-        if done < 1.0:
-            time.sleep(TICK_S)
     settle_deadline = time.monotonic() + SETTLE_WAIT_S
     if deadline is not None:
         settle_deadline = min(settle_deadline, deadline)

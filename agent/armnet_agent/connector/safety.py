@@ -314,33 +314,36 @@ def decide_goal_write(
 class RestWalk:
     """A straight walk of every motor from ``start`` to ``goal`` (raw ticks) at a speed limit.
 
-    It is sampled on the wall clock, not counted in steps: on a loaded host a
-    tick runs late, and a walk of N fixed steps then lasts N late ticks, long
-    enough to outlast a job's grace window (the connector was seen killed by its
-    own stop watchdog, torque still on, mid-walk). Sampled by elapsed time it
-    lasts ``seconds`` however late its ticks are, never moving faster than the
-    speed limit on average, and no tick jumps more than ``max_catch_up_s`` of
-    motion after a stall.
+    It advances by the time that really passed since its previous tick, not by a
+    fixed step per tick: on a loaded host ticks run late, and a walk of N fixed
+    steps then lasts N late ticks, long enough to outlast a job's grace window
+    (the connector was seen killed by its own stop watchdog, torque still on,
+    mid-walk). It never makes up lost time: a tick advances at most
+    ``max_step_s`` of motion however long the host stalled, so over any stretch
+    of ticks the arm moves no faster than the speed limit (a stall costs time,
+    never speed). The stop's deadline bounds how long that may take.
     """
 
     start: Mapping[str, int]
     goal: Mapping[str, int]
     speed_ticks_per_s: float
-    max_catch_up_s: float = 0.1
+    max_step_s: float = 0.1
 
     @property
     def seconds(self) -> float:
+        """How long the walk lasts when its ticks are on time."""
         motors = [m for m in self.goal if m in self.start]
         if not motors or self.speed_ticks_per_s <= 0:
             return 0.0
         return max(abs(self.goal[m] - self.start[m]) for m in motors) / self.speed_ticks_per_s
 
-    def progress(self, done: float, elapsed_s: float) -> float:
-        """The fraction of the walk due ``elapsed_s`` after it began, at most ``max_catch_up_s`` past ``done``."""
+    def advance(self, done: float, since_last_tick_s: float) -> float:
+        """The fraction done after a tick ``since_last_tick_s`` after the previous one (``done`` then)."""
         seconds = self.seconds
         if seconds <= 0:
             return 1.0
-        return min(1.0, elapsed_s / seconds, done + self.max_catch_up_s / seconds)
+        step_s = min(max(since_last_tick_s, 0.0), self.max_step_s)
+        return min(1.0, done + step_s / seconds)
 
     def at(self, fraction: float) -> dict[str, int]:
         """Goal per motor (raw ticks) once ``fraction`` of the walk is done."""

@@ -101,25 +101,36 @@ def test_a_rest_walk_lasts_its_distance_over_its_speed_and_ends_at_the_goal() ->
     assert walk.at(1.0) == walk.at(7.0) == {"a": 2000, "b": 1990}
 
 
-def test_a_rest_walk_keeps_to_the_wall_clock_when_its_ticks_run_late() -> None:
-    """Sampled by elapsed time: late ticks do not stretch the walk, and it never runs ahead of its speed."""
-    walk = RestWalk({"a": 0}, {"a": 1000}, 1000, max_catch_up_s=0.1)
-    done, elapsed = 0.0, 0.0
-    for _ in range(40):  # every tick 50 ms late (70 ms instead of 20)
-        elapsed += 0.07
-        advanced = walk.progress(done, elapsed)
-        assert advanced <= elapsed / walk.seconds + 1e-9  # never faster than the speed limit
-        done = advanced
-        if done >= 1.0:
-            break
-    assert done == 1.0 and elapsed <= walk.seconds + 0.07
+def _ticks(walk: RestWalk, gaps: list[float]) -> list[tuple[float, float]]:
+    """(time, fraction done) after each tick, ticks ``gaps`` seconds apart."""
+    at, done, seen = 0.0, 0.0, [(0.0, 0.0)]
+    for gap in gaps:
+        at += gap
+        done = walk.advance(done, gap)
+        seen.append((at, done))
+    return seen
 
 
-def test_a_rest_walk_after_a_stall_moves_at_most_its_catch_up() -> None:
-    walk = RestWalk({"a": 0}, {"a": 1000}, 1000, max_catch_up_s=0.1)
-    assert walk.progress(0.2, elapsed_s=0.9) == pytest.approx(0.3)  # a 700 ms stall: 100 ms of motion, not 700
+def test_late_ticks_do_not_stretch_a_rest_walk() -> None:
+    """Each tick advances by the time that really passed: 70 ms ticks end the walk on time."""
+    walk = RestWalk({"a": 0}, {"a": 1000}, 1000)
+    seen = _ticks(walk, [0.07] * 20)
+    finished = next(at for at, done in seen if done >= 1.0)
+    assert finished <= walk.seconds + 0.07
+
+
+def test_after_a_stall_a_rest_walk_never_moves_faster_than_its_speed_limit() -> None:
+    """A stall costs time, never speed: over any stretch of ticks, at most the limit plus one step."""
+    walk = RestWalk({"a": 0}, {"a": 1000}, 1000, max_step_s=0.1)
+    gaps = [0.02] * 10 + [3.0] + [0.02] * 60  # the host froze for 3 s mid-walk
+    seen = _ticks(walk, gaps)
+    for i, (t0, d0) in enumerate(seen):
+        for t1, d1 in seen[i + 1:]:
+            moved_ticks = (d1 - d0) * 1000
+            assert moved_ticks <= 1000 * (t1 - t0) + 1000 * walk.max_step_s + 1e-6
+    assert seen[11][1] - seen[10][1] == pytest.approx(0.1)  # the stall's tick: one step, not 3 s of motion
 
 
 def test_a_rest_walk_from_the_goal_is_done_at_once() -> None:
     walk = RestWalk({"a": 5}, {"a": 5}, 10)
-    assert walk.seconds == 0.0 and walk.progress(0.0, 0.0) == 1.0 and walk.at(1.0) == {"a": 5}
+    assert walk.seconds == 0.0 and walk.advance(0.0, 0.0) == 1.0 and walk.at(1.0) == {"a": 5}
