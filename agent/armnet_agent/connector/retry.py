@@ -117,12 +117,16 @@ def with_read_retry(
     call: Callable[[], _T],
     *,
     on_retry: Callable[[], None],
+    before_retry: Callable[[], None] | None = None,
     sleep: Callable[[float], None] = time.sleep,
 ) -> _T:
     """Run the read ``call``; on a lost reply wait, drop stale input and retry (``retry_delays``).
 
     The caller holds the device lock, so no other request uses the bus between
     attempts. ``on_retry`` is called once per retry (the connector counts them).
+    ``before_retry`` runs right before each retry and may raise to end it: the
+    connector checks the call again there, so an interlock tripped during the
+    wait (a deadline, a cancel, a lost device) holds for a write's retry too.
     """
     connecting = what == "connect"
     if connecting and getattr(handle.obj, "is_connected", False):
@@ -143,4 +147,6 @@ def with_read_retry(
                 _close_half_open(handle.obj)
             else:
                 drop_pending_input(handle.obj)
+            if before_retry is not None:
+                before_retry()
     raise AssertionError("unreachable")

@@ -286,7 +286,10 @@ class RobotSession(Session):
                 return self._torque_disabled(handle, args, kwargs)
             bound = getattr(handle.obj, method)
             if plan.retried:
-                result = with_read_retry(handle, method, lambda: bound(*args, **kwargs), on_retry=self._count_retry)
+                result = with_read_retry(
+                    handle, method, lambda: bound(*args, **kwargs), on_retry=self._count_retry,
+                    before_retry=lambda: self.cell.guard.check(handle, method, args, kwargs),
+                )
             else:
                 result = bound(*args, **kwargs)
             if method == "sync_read":

@@ -132,3 +132,28 @@ def test_which_calls_and_failures_are_retried() -> None:
     assert not is_lost_reply(RuntimeError("[RxPacketError] Overload error!"))
     assert not is_lost_reply(RuntimeError("motor check failed:\nMissing motor IDs:\n - 2"))
     assert is_lost_reply(RuntimeError("motor check failed:\nMissing motor IDs:\n - 2"), connecting=True)
+
+
+def test_a_write_retry_is_checked_again_and_an_interlock_tripped_meanwhile_ends_it() -> None:
+    """The guard ran before the first attempt; a trip during the wait must hold for the retry too."""
+    from armnet_agent.connector.errors import RequestError
+    from armnet_agent.connector.hardware import DeviceLock, Handle
+    from armnet_agent.connector.retry import with_read_retry
+
+    attempts: list[int] = []
+    tripped: list[bool] = []
+
+    class Bus:
+        def write(self) -> None:
+            attempts.append(1)
+            raise ConnectionError("Failed to write 'Goal_Position': There is no status packet!")
+
+    def check_again() -> None:
+        if tripped:
+            raise RequestError("SafetyLimitExceeded", "the interlock is tripped")
+
+    handle = Handle("FeetechMotorsBus", Bus(), DeviceLock("test"))
+    with pytest.raises(RequestError, match="interlock"):
+        with_read_retry(handle, "write", handle.obj.write, on_retry=lambda: None, before_retry=check_again,
+                        sleep=lambda _s: tripped.append(True))  # the interlock trips while the retry waits
+    assert len(attempts) == 1
