@@ -15,7 +15,7 @@ from collections.abc import Callable, Mapping
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from .errors import PermanentError, ResourceMissing
+from .errors import PermanentError, ResourceMissing, ResourcesReplaced
 from .kube import WRITERS, KubeApi
 from .metrics import Metrics
 from .model import Cell, Job
@@ -145,6 +145,9 @@ class Controller:
         self.died: BaseException | None = None
         self.dead = False
         self.restart_requested = False
+        self._crd_uids: dict[str, str] | None = None
+        self._crds_checked_at: datetime | None = None
+        self._crds_replaced = False
         """The loop ended to have kopf's watches started afresh (see ``on_resources_back``)."""
 
     def start(self) -> None:
@@ -190,6 +193,13 @@ class Controller:
                 await asyncio.to_thread(self.reconcile)
                 if self._more:  # writes left for the next pass: run it at once (Event: loop thread only)
                     self.cache.changed.set()
+            except ResourcesReplaced as error:
+                if self.on_resources_back is not None:
+                    log.info("%s; restarting the watches", error)
+                    self.restart_requested = True
+                    self.on_resources_back()
+                    return
+                self._crds_replaced = False
             except ResourceMissing as error:
                 self.metrics.errors.inc()
                 backoff = min(MAX_BACKOFF_SECONDS, max(1.0, backoff * 2))
@@ -227,10 +237,35 @@ class Controller:
         watched = set(self.settings.namespaces)
         return [c for c in cells if not c.current_job or c.current_job.split("/")[0] in watched]
 
+    def _watch_crds(self, now: datetime, every: timedelta) -> None:
+        """Every replica, leader or not, notices its CRDs deleted or replaced (at most every ``every``).
+
+        kopf may miss a CRD's return (see ``on_resources_back``); a standby that missed it
+        would lead with an empty cache, and a delete and create between two looks (a new
+        uid) is a return all the same. Raises ResourceMissing while a CRD is gone and
+        ResourcesReplaced once they are all back and served.
+        """
+        if self._crds_checked_at is not None and now - self._crds_checked_at < every:
+            return
+        uids = self.api.crd_uids()
+        self._crds_checked_at = now
+        if len(uids) < 2 or (self._crd_uids is not None and uids != self._crd_uids):
+            self._crds_replaced = True
+        if len(uids) < 2:
+            self._crds_checked_at = None  # look again on the next pass
+            self.api.check_resources()  # raises ResourceMissing, naming what is not served
+            raise ResourceMissing("the RobotJob or Cell CRD is missing (kubectl apply -f crds/)")
+        self._crd_uids = uids
+        if self._crds_replaced:
+            self._crds_checked_at = None
+            self.api.check_resources()  # created again, but served yet? (ResourceMissing until it is)
+            raise ResourcesReplaced("the RobotJob/Cell CRDs were created again")
+
     def reconcile(self) -> None:
         """One pass (runs in a worker thread: the client is blocking)."""
         now = self.clock()
         duration = timedelta(seconds=self.settings.lease_duration)
+        self._watch_crds(now, duration / 3)
         # Renew at a third of the lease duration, not on every pass: passes come in bursts.
         if self.leading and self._renewed_at and now - self._renewed_at < duration / 3:
             leading = True

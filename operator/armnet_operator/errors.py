@@ -29,3 +29,7 @@ class NotFound(TransientError):
 
 class ResourceMissing(OperatorError):
     """A CRD the operator needs is not installed (deleted, or not yet applied): back off, retry."""
+
+
+class ResourcesReplaced(OperatorError):
+    """The CRDs were deleted and created again: kopf's watches must be started afresh."""

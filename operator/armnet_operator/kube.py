@@ -85,6 +85,7 @@ class KubeApi:
         self.custom = client.CustomObjectsApi(api_client)
         self.core = client.CoreV1Api(api_client)
         self.leases = client.CoordinationV1Api(api_client)
+        self.extensions = client.ApiextensionsV1Api(api_client)
         self.component = component
         self.identity = identity
         self._events: queue.SimpleQueue[tuple[Job | Cell, str, str, str, datetime]] = queue.SimpleQueue()
@@ -211,6 +212,24 @@ class KubeApi:
                 f"the CRD(s) {', '.join(missing)} are not served by the API server (deleted or not yet "
                 "applied: kubectl apply -f crds/); the operator holds its writes until they are back"
             )
+
+    def crd_uids(self) -> dict[str, str]:
+        """The uid of each CRD the operator serves (``robotjobs.armnet.io``: uid); one left out is missing.
+
+        A uid that changed is a CRD deleted and created again, however fast (``kubectl
+        replace --force``, a GitOps sync): kopf's watches may have missed it.
+        """
+        uids: dict[str, str] = {}
+        for plural in ("robotjobs", "cells"):
+            name = f"{plural}.{GROUP}"
+            try:
+                crd = self.extensions.read_custom_resource_definition(name)
+            except ApiException as error:
+                if error.status != 404:
+                    raise _translate(error, f"CRD {name}") from error
+                continue
+            uids[name] = str(crd.metadata.uid)
+        return uids
 
     # -------------------------------------------------------------- leader Lease
     def hold_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:

@@ -92,8 +92,27 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
         wait("a new job bound after the CRD came back", lambda: phase("after") == "dispatched", proc, log)
         # kopf may miss the CRD's return (it rescans discovery on CRD events only, and the last
         # one can precede discovery); the operator restarts its watches rather than trust it.
-        assert "resources are back; restarting the watches" in log.read_text()
+        assert "restarting the watches" in log.read_text()
         assert "starting the operator's watches and reconcile loop again" in log.read_text()
+
+        # Deleted and created again between two looks (kubectl replace --force, a GitOps sync):
+        # a new uid is a return all the same.
+        k8s.kubectl("patch", "rj", "after", "-n", ns, "--subresource=status", "--type=merge",
+                    "-p", '{"status":{"phase":"succeeded","finishedAt":"2026-01-01T00:00:00Z"}}')
+        wait("the cell released again", lambda: not k8s.kubectl(
+            "get", "cell", "c1", "-o", "jsonpath={.status.currentJob}").stdout, proc, log)
+        restarts = log.read_text().count("reconcile loop again")
+        k8s.kubectl("replace", "--force", "-f", str(CRD))
+        k8s.kubectl("wait", "--for=condition=Established", "--timeout=60s", "crd/robotjobs.armnet.io")
+        wait("the CRD served once more", lambda: k8s.kubectl("get", "rj", "-n", ns, check=False).returncode == 0,
+             proc, log)
+        wait("the watches restarted for the replaced CRD",
+             lambda: log.read_text().count("reconcile loop again") > restarts, proc, log)
+        beat()
+        job("replaced")
+        wait("a new job bound after the CRD was replaced", lambda: phase("replaced") == "dispatched", proc, log)
+        proc.terminate()  # restarted twice, it still ends cleanly at SIGTERM
+        assert proc.wait(timeout=20) == 0, log.read_text()[-3000:]
     finally:
         proc.terminate()
         try:
