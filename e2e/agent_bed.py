@@ -28,6 +28,8 @@ import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "runtime" / "examples"
+#: The job scripts the e2e beds share (each becomes /job/main.py of a job image: ``AgentBed.image``).
+JOBS = REPO / "e2e" / "jobs"
 PYTHONPATH = ":".join(str(REPO / p) for p in ("runtime/src", "agent", "operator", "cli")) + f":{REPO}"
 DEV_MOUNTS = sorted({sys.prefix, sys.base_prefix, str(REPO)})
 TERMINAL = ("succeeded", "failed", "timeout", "cancelled")

@@ -26,43 +26,11 @@ from typing import Any
 
 import pytest
 
-from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, AgentBed
+from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, AgentBed
 
 pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
 
 JOB_TIMEOUT = 25
-
-RAISES = """
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        print("about to fail", flush=True)
-        raise ValueError("the gripper saw no cube")
-"""
-
-IGNORES_SHUTDOWN = """
-    import time
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        while True:
-            time.sleep(0.1)
-"""
-
-COUNTS_SLOWLY = """
-    import time
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        for i in range(ctx.args.get("lines", 30)):
-            print(f"line {i:03d}", flush=True)
-            ctx.report_progress(f"line {i}")
-            time.sleep(ctx.args.get("pause", 0.25))
-        return {"lines": ctx.args.get("lines", 30)}
-"""
 
 HONOURS_SHUTDOWN = """
     import time
@@ -255,10 +223,10 @@ def batch(bed: AgentBed, telemetry: TelemetryHeard) -> dict[str, str]:
     return {
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
         # Generous timeouts: on a loaded host a pod's Python takes a minute or more to import the SDK.
-        "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=300),
+        "failure": bed.submit("raises", bed.image("raises", JOBS / "raises.py"), timeout=300),
         "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
                             secrets={"API_TOKEN": "api-token"}),
-        "timeout": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
+        "timeout": bed.submit("ignores", bed.image("ignores", JOBS / "ignores_shutdown.py"), timeout=JOB_TIMEOUT),
         "observed": bed.submit("observed", bed.image("observed", OBSERVED, (EXAMPLES / "_so101_moves.py",)),
                                timeout=300, args={"skip": list(DEV_MOUNTS)}),  # the venv: large, no sockets
     }
@@ -335,7 +303,7 @@ def test_a_job_pod_ignoring_shutdown_is_killed_after_grace_and_ends_timeout(
 def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("to-cancel", image, args={"lines": 1000, "pause": 0.2}, timeout=300)
     job = bed.wait_phase("to-cancel", ("running",), timeout=300)
     pod = bed.wait(lambda: pod_of(bed, job), 30, "the job's pod")
@@ -406,7 +374,7 @@ def test_the_agent_registered_a_healthy_device_plugin_per_cell_and_the_kubelet_a
 def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("survives", image, args={"lines": 40, "pause": 0.25}, timeout=200)
     bed.wait_phase("survives", ("running",), timeout=300)
 
@@ -428,7 +396,7 @@ def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
 def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails_with_the_reason(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("loses-connector", image, args={"lines": 40, "pause": 0.25}, timeout=200)
     job = bed.wait_phase("loses-connector", ("running",), timeout=300)
 
