@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -196,3 +197,50 @@ class AgentBed:
             ok = status.get("phase") == "Ready" and len(conditions) >= 5 and set(conditions.values()) == {"True"}
             return obj if ok else None
         return self.wait(ready, timeout, f"cell {cell} Ready with all health conditions True")
+
+
+class JobWatch:
+    """Every RobotJob status the API server reports in one namespace, in order (a watch: no gap between polls).
+
+    What a test cannot read from a job's final status: the phases it went through
+    (``queued`` with its reason, before it was dispatched).
+    """
+
+    def __init__(self, k8s: Any, namespace: str) -> None:
+        from kubernetes import client
+
+        self._api = client.CustomObjectsApi(k8s.api_client())
+        self._namespace = namespace
+        self._seen: list[tuple[str, dict[str, Any]]] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="e2e-job-watch", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from kubernetes import watch
+
+        while not self._stop.is_set():
+            stream = watch.Watch()
+            try:
+                for event in stream.stream(self._api.list_namespaced_custom_object, "armnet.io", "v1alpha1",
+                                           self._namespace, "robotjobs", timeout_seconds=20):
+                    obj = event["object"]
+                    if event["type"] in ("ADDED", "MODIFIED", "DELETED") and isinstance(obj, dict):
+                        with self._lock:
+                            self._seen.append((obj["metadata"]["name"], obj.get("status") or {}))
+                    if self._stop.is_set():
+                        break
+            except Exception:  # noqa: BLE001 - a cut watch: list and watch again (duplicates are harmless)
+                self._stop.wait(0.5)
+            finally:
+                stream.stop()
+
+    def statuses(self, name: str) -> list[dict[str, Any]]:
+        """The statuses of job ``name`` in the order the API server reported them."""
+        with self._lock:
+            return [status for seen, status in self._seen if seen == name]
+
+    def close(self) -> None:
+        """Stop at the end of the current watch call (no join: that may take its 20 s)."""
+        self._stop.set()

@@ -11,7 +11,9 @@ this machine's venv and worktree mounted read-only (``--dev-mount``), like the
 container launcher's e2e.
 
 One bed per module: the independent jobs are submitted together and run side
-by side on three cells; each test checks its own job.
+by side on three SO-101 cells and a bimanual one (more jobs than cells: some
+wait ``queued``); each test checks its own job. The scenarios that stop the
+agent (the kubelet's deadline, the garbage collector) come last.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from typing import Any
 
 import pytest
 
-from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, AgentBed
+from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, AgentBed, JobWatch
 
 pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
 
@@ -144,10 +146,11 @@ def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str)
     bed.telemetry = True
     camera = {"front": {"indexOrPath": 0}}
     bed.cells = [bed.add_cell(f"pod-{c}", cameras=camera) for c in "abc"]  # type: ignore[attr-defined]
+    bed.bimanual = bed.add_cell("pod-bimanual", bimanual=True)  # type: ignore[attr-defined]
     bed.start_operator()
     bed.start_agent()
     try:
-        for cell in bed.cells:  # type: ignore[attr-defined]
+        for cell in [*bed.cells, bed.bimanual]:  # type: ignore[attr-defined]
             try:
                 bed.wait_ready(cell, timeout=180)
             except AssertionError as exc:
@@ -215,19 +218,39 @@ def parse_time(value: str) -> datetime:
 
 
 @pytest.fixture(scope="module")
-def batch(bed: AgentBed, telemetry: TelemetryHeard) -> dict[str, str]:
-    """The independent scenarios' jobs, submitted together so they run side by side."""
+def job_watch(bed: AgentBed) -> Iterator[JobWatch]:
+    """The phases every job of the bed went through (started before the batch is submitted)."""
+    watch = JobWatch(bed.k8s, bed.namespace)
+    yield watch
+    watch.close()
+
+
+@pytest.fixture(scope="module")
+def batch(bed: AgentBed, telemetry: TelemetryHeard, job_watch: JobWatch) -> dict[str, str]:
+    """The independent scenarios' jobs, submitted together so they run side by side.
+
+    Six pods for the three SO-101 cells (the last, ``observed``, waits ``queued`` behind
+    three of them) and one for the bimanual cell. The missing secret's job goes first: it
+    ends before any pod, so it costs the batch nothing.
+    """
     bed.k8s.kubectl("create", "secret", "generic", "api-token", "-n", bed.namespace,
                     f"--from-literal=API_TOKEN={SECRET_VALUE}")
-    bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", (EXAMPLES / "_so101_moves.py",))
+    moves = (EXAMPLES / "_so101_moves.py",)
+    raises = bed.image("raises", JOBS / "raises.py")
+    bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", moves)
     return {
+        # No pod is ever made for it: any image will do.
+        "missing-secret": bed.submit("no-secret", raises, secrets={"API_TOKEN": "absent"}),
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
         # Generous timeouts: on a loaded host a pod's Python takes a minute or more to import the SDK.
-        "failure": bed.submit("raises", bed.image("raises", JOBS / "raises.py"), timeout=300),
+        "failure": bed.submit("raises", raises, timeout=300),
         "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
                             secrets={"API_TOKEN": "api-token"}),
+        "safety": bed.submit("unsafe", bed.image("unsafe", JOBS / "unsafe.py", moves), timeout=300),
+        "bimanual": bed.submit("bimanual", bed.image("bimanual", EXAMPLES / "bimanual.py", moves),
+                               embodiment="lerobot/bimanual_so101", timeout=300),
         "timeout": bed.submit("ignores", bed.image("ignores", JOBS / "ignores_shutdown.py"), timeout=JOB_TIMEOUT),
-        "observed": bed.submit("observed", bed.image("observed", OBSERVED, (EXAMPLES / "_so101_moves.py",)),
+        "observed": bed.submit("observed", bed.image("observed", OBSERVED, moves),
                                timeout=300, args={"skip": list(DEV_MOUNTS)}),  # the venv: large, no sockets
     }
 
@@ -270,6 +293,38 @@ def test_a_job_pod_that_raises_fails_with_its_traceback(bed: AgentBed, batch: di
     assert st["phase"] == "failed", explain(st)
     assert "ValueError: the gripper saw no cube" in st["result"]["traceback"]
     assert "about to fail" in st["result"]["stdoutTail"]
+
+
+def test_a_missing_secret_fails_the_job_before_it_starts_naming_the_secret_and_no_pod_is_made(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    job = bed.wait_phase(batch["missing-secret"], timeout=300)
+    st = status(job)
+    assert st["phase"] == "failed", explain(st)
+    assert "'absent'" in st["result"]["error"] and bed.namespace in st["result"]["error"]
+    assert "startedAt" not in st
+    assert pod_of(bed, job) is None
+
+
+def test_a_safety_violation_in_a_pod_fails_the_job_with_the_sidecars_record_and_the_interlock_clears(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["safety"], timeout=400))
+    assert st["phase"] == "failed", explain(st)
+    assert "SafetyViolation" in st["result"]["traceback"]
+    # The interlock's reason comes from the sidecar connector's record (its log), not from the exit code.
+    assert "safety violation (connector record)" in st["result"]["error"]
+    assert "shoulder_pan" in st["result"]["error"]
+    safety = st["result"]["safety"]
+    assert safety["policy"] == "clamp" and safety["interlockTrips"] >= 1
+    assert any(r["motor"] == "shoulder_pan" for r in safety["refusals"]), safety
+    cell = st["cellName"]
+
+    def interlock_clear() -> bool:
+        conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
+        return conditions.get("InterlockClear", {}).get("status") == "True"
+
+    bed.wait(interlock_clear, 30, f"InterlockClear on {cell} after the job")
 
 
 def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_and_sees_no_device(
@@ -363,12 +418,28 @@ def test_the_agent_registered_a_healthy_device_plugin_per_cell_and_the_kubelet_a
 ) -> None:
     bed.wait_phase(batch["failure"], timeout=400)  # launched by this agent process (not restarted yet)
     text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
-    for cell in bed.cells:  # type: ignore[attr-defined]
+    for cell in [*bed.cells, bed.bimanual]:  # type: ignore[attr-defined]
         assert f'armnet_agent_device_plugin_registrations_total{{cell="{cell}",result="ok"}}' in text, cell
         assert f'armnet_agent_device_healthy{{cell="{cell}"}} 1.0' in text, cell
     granted = [line for line in text.splitlines()
                if line.startswith("armnet_agent_device_plugin_allocations_total") and 'result="granted"' in line]
     assert sum(float(line.split()[-1]) for line in granted) >= 1, granted
+
+
+def test_a_bimanual_job_pod_drives_both_arms_through_its_cells_device_plugin(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["bimanual"], timeout=400))
+    assert st["phase"] == "succeeded", explain(st)
+    assert st["cellName"] == bed.bimanual  # type: ignore[attr-defined]
+    finals = st["result"]["returnValue"]["final_positions"]
+    assert set(finals) == {"left", "right"} and all(finals.values()), finals
+    # Both arms' ptys reached the sidecar through the one allocation of the cell's resource (the
+    # connector has no other way to them: no hostPath device volume with the plugin on).
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    granted = f'armnet_agent_device_plugin_allocations_total{{cell="{st["cellName"]}",result="granted"}}'
+    line = [x for x in text.splitlines() if x.startswith(granted)]
+    assert line and float(line[0].split()[-1]) >= 1, line
 
 
 def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
@@ -415,6 +486,32 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]
 
 
+def test_a_job_beyond_the_free_cells_waits_queued_and_runs_once_a_cell_is_free_never_sharing_one(
+    bed: AgentBed, batch: dict[str, str], job_watch: JobWatch
+) -> None:
+    last = batch["observed"]  # the batch's sixth pod for three SO-101 cells
+    so101 = [name for key, name in batch.items() if key != "bimanual"]
+    finals = {name: status(bed.wait_phase(name, timeout=600)) for name in so101}
+    seen = job_watch.statuses(last)
+    phases = [s.get("phase") for s in seen]
+    assert "queued" in phases and "running" in phases, phases
+    assert phases.index("queued") < phases.index("running"), phases
+    assert {s.get("queuedReason") for s in seen if s.get("phase") == "queued"} == {"AllCellsBusy"}, seen
+    # On each cell one job at a time: a job starts only once the one before it there has finished.
+    by_cell: dict[str, list[tuple[datetime, datetime, str]]] = {}
+    for name, st in finals.items():
+        if "startedAt" in st:  # the missing secret's job never started
+            by_cell.setdefault(st["cellName"], []).append(
+                (parse_time(st["startedAt"]), parse_time(st["finishedAt"]), name))
+    for cell, runs in by_cell.items():
+        runs.sort()
+        for before, after in zip(runs, runs[1:], strict=False):
+            assert before[1] <= after[0], f"{after[2]} started on {cell} before {before[2]} finished: {runs}"
+    started = parse_time(finals[last]["startedAt"])
+    ahead = [name for _, finished, name in by_cell[finals[last]["cellName"]] if name != last and finished <= started]
+    assert ahead, by_cell
+
+
 def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_reach_its_status(
     bed: AgentBed, batch: dict[str, str], telemetry: TelemetryHeard
 ) -> None:
@@ -449,3 +546,4 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
     # the job's own two in the tenant's container: nothing there can pose as the connector.
     found = st["result"]["returnValue"]["sockets"]
     assert found and all(path.rsplit("/", 1)[-1] in ("robot.sock", "operator.sock") for path in found), found
+
