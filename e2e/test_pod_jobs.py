@@ -547,3 +547,52 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
     found = st["result"]["returnValue"]["sockets"]
     assert found and all(path.rsplit("/", 1)[-1] in ("robot.sock", "operator.sock") for path in found), found
 
+
+#: The timeout of the job the kubelet ends: the agent is stopped as soon as the job runs, long before this.
+OUTLIVES_TIMEOUT = 10
+
+
+@pytest.fixture(scope="module")
+def outage_jobs(bed: AgentBed, batch: dict[str, str]) -> dict[str, str]:
+    """The jobs of the two scenarios with the agent stopped, submitted together (their pods start side by side)."""
+    return {
+        "deadline": bed.submit("outlives", bed.image("ignores", JOBS / "ignores_shutdown.py"),
+                               timeout=OUTLIVES_TIMEOUT),
+        "collected": bed.submit("collected", bed.image("counts", JOBS / "counts_slowly.py"),
+                                args={"lines": 2000, "pause": 0.2}, timeout=300),
+    }
+
+
+def test_the_kubelet_ends_a_job_pod_at_its_active_deadline_with_the_agent_stopped(
+    bed: AgentBed, outage_jobs: dict[str, str]
+) -> None:
+    from armnet_agent.launch.pod_spec import DEADLINE_MARGIN_S
+
+    name = outage_jobs["deadline"]
+    job = bed.wait_phase(name, ("running",), timeout=300)
+    bed.kill_agent()  # nothing of armnet's watches the job from here on: only the pod's own deadline
+    try:
+        pod = pod_of(bed, job)
+        assert pod is not None, "the job's pod"
+        # timeout + the cell's grace (3 s) + the margin: the agent's own kill comes first while it runs.
+        deadline = pod["spec"]["activeDeadlineSeconds"]
+        assert deadline == OUTLIVES_TIMEOUT + 3 + DEADLINE_MARGIN_S, deadline
+
+        def ended() -> dict[str, Any] | None:
+            current = pod_of(bed, job)
+            return current if current and (current.get("status") or {}).get("phase") == "Failed" else None
+
+        ended_pod = bed.wait(ended, deadline + 90, "the kubelet to end the pod at its deadline", every=1.0)
+        assert ended_pod["status"].get("reason") == "DeadlineExceeded", ended_pod["status"]
+        job_state = {c["name"]: c["state"] for c in ended_pod["status"].get("containerStatuses") or []}["job"]
+        assert "terminated" in job_state, job_state
+        assert status(bed.job(name))["phase"] == "running"  # nobody else ended it: the agent was down
+    finally:
+        bed.start_agent()
+    # Re-adopted from the pod: the job's clock (from startedAt) ran out long ago, so the agent reports it
+    # as a timeout whose job was killed, whatever ended the pod.
+    st = status(bed.wait_phase(name, timeout=180))
+    assert st["phase"] == "timeout", explain(st)
+    assert f"job exceeded its timeout of {OUTLIVES_TIMEOUT} s" in st["result"]["error"], explain(st)
+    bed.wait(lambda: pod_of(bed, job) is None, 60, "the agent to remove the ended pod")
+
