@@ -596,3 +596,41 @@ def test_the_kubelet_ends_a_job_pod_at_its_active_deadline_with_the_agent_stoppe
     assert f"job exceeded its timeout of {OUTLIVES_TIMEOUT} s" in st["result"]["error"], explain(st)
     bed.wait(lambda: pod_of(bed, job) is None, 60, "the agent to remove the ended pod")
 
+
+def test_a_deleted_robotjobs_pod_is_collected_by_the_garbage_collector_through_its_owner_reference(
+    bed: AgentBed, outage_jobs: dict[str, str]
+) -> None:
+    """The real garbage collector (kube-controller-manager with only that controller: the test bed runs none).
+
+    The agent is stopped first: running, it stops a deleted job's pod itself. The deletion is a
+    foreground one: the operator's finalizer keeps the RobotJob while its agent is away (until the
+    cancel is forced), and a background deletion would collect the pod only once the RobotJob is
+    gone; a foreground one has the collector delete the dependents at once. One collector worker:
+    the pod is handled before the RobotJob's foreground finalizer (with ``blockOwnerDeletion``
+    false, several workers may drop that finalizer first and then find the owner no longer waiting).
+    """
+    from tests.testbed.controllers import WorkloadControllers
+
+    name = outage_jobs["collected"]
+    controllers = WorkloadControllers(plane=bed.k8s, controllers=("garbage-collector-controller",),
+                                      scheduler=False, extra_args=("--concurrent-gc-syncs=1",)).start()
+    try:
+        job = bed.wait_phase(name, ("running",), timeout=300)
+        pod = pod_of(bed, job)
+        assert pod is not None, "the job's pod"
+        owner, = pod["metadata"]["ownerReferences"]
+        assert owner == {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "name": name,
+                         "uid": job["metadata"]["uid"], "controller": True, "blockOwnerDeletion": False}, owner
+        bed.wait(lambda: "Proceeding to collect garbage" in controllers.log_tail(100_000), 120,
+                 "the garbage collector to sync its caches", every=1.0)
+        bed.kill_agent()
+        try:
+            bed.k8s.kubectl("delete", "rj", name, "-n", bed.namespace, "--cascade=foreground", "--wait=false")
+            bed.wait(lambda: pod_of(bed, job) is None, 120, "the garbage collector to delete the pod", every=1.0)
+        finally:
+            bed.start_agent()
+    finally:
+        controllers.stop()
+    # Back, the agent finds the job's pod gone: the job ends and the operator lets the RobotJob go.
+    bed.wait(lambda: bed.k8s.kubectl("get", "rj", name, "-n", bed.namespace, check=False).returncode != 0,
+             120, "the RobotJob to finish deleting")
