@@ -68,6 +68,21 @@ class AgentBed:
         #: scenario looks at them: every cell's reads and JPEGs cost CPU the other jobs need.
         self.telemetry = False
 
+    def use_pod_launcher(self, node: Any) -> None:
+        """Run the jobs as pods on the test bed's node (``armnet agent --launcher pod``), not Podman containers.
+
+        The connector sidecar is the base image with this machine's venv (``--dev-mount``); each
+        job image is imported into the node's containerd once built; the cells are the node's.
+        """
+        self.node = node.name
+        # The non-root job user must reach the venv mounted under /root (development stand-in only).
+        self.image_lines = ["RUN chmod 0755 /root"]
+        self.on_image = node.import_image
+        self.agent_args = ["--launcher", "pod", "--connector-image", self.base_image, "--image-pull-policy", "Never",
+                           "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
+                           # The pods' observer sockets, under the test node's own kubelet root.
+                           "--kubelet-root-dir", str(node.workdir / "kubelet")]
+
     # -- processes -----------------------------------------------------------------
 
     def _env(self) -> dict[str, str]:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import re
-import sys
 import urllib.request
 from collections.abc import Iterator
 from datetime import UTC, datetime
@@ -133,16 +132,9 @@ SECRET_VALUE = "s3cr3t-pod-value-42"
 def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("pod-e2e")
     bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
-    bed.node = k8s_node.name
+    bed.use_pod_launcher(k8s_node)
     bed.image_prefix = "armnet-pod-e2e"
-    # The non-root job user must reach the venv mounted under /root (development stand-in only).
-    bed.image_lines = ["RUN chmod 0755 /root"]
-    bed.on_image = k8s_node.import_image
-    bed.agent_args = ["--launcher", "pod", "--connector-image", base_image, "--image-pull-policy", "Never",
-                      "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
-                      # The pods' observer sockets, under the test node's own kubelet root.
-                      "--kubelet-root-dir", str(k8s_node.workdir / "kubelet"),
-                      "--telemetry-servo-hz", "2", "--telemetry-frame-fps", "1"]
+    bed.agent_args += ["--telemetry-servo-hz", "2", "--telemetry-frame-fps", "1"]
     bed.telemetry = True
     camera = {"front": {"indexOrPath": 0}}
     bed.cells = [bed.add_cell(f"pod-{c}", cameras=camera) for c in "abc"]  # type: ignore[attr-defined]
