@@ -22,6 +22,7 @@ import json
 import re
 import urllib.request
 from collections.abc import Iterator
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
@@ -548,86 +549,120 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
 OUTLIVES_TIMEOUT = 20
 
 
+@dataclass
+class AgentOutage:
+    """The agent SIGKILLed while two jobs run, one for the kubelet's deadline and one for the garbage collector.
+
+    The two scenarios share one outage: the collector's (seconds) fits in the deadline's wait.
+    ``restart()`` ends the outage (the last scenario checks what the agent then decides).
+    """
+
+    bed: AgentBed
+    jobs: dict[str, dict[str, Any]]
+    pods: dict[str, dict[str, Any]]
+    collector: Any
+    restarted: bool = False
+
+    def restart(self) -> None:
+        if not self.restarted:
+            self.restarted = True
+            self.bed.start_agent()
+
+
 @pytest.fixture(scope="module")
-def outage_jobs(bed: AgentBed, batch: dict[str, str]) -> dict[str, str]:
-    """The jobs of the two scenarios with the agent stopped, submitted together (their pods start side by side)."""
-    return {
+def outage(bed: AgentBed) -> Iterator[AgentOutage]:
+    """Both jobs running (their pods start side by side), a garbage collector synced, then the agent killed.
+
+    The collector is the real one: kube-controller-manager with only that controller (the test
+    bed runs none). One worker: with ``blockOwnerDeletion`` false, several could drop a
+    foreground-deleted RobotJob's finalizer before handling its pod, and then find the owner no
+    longer waiting for its dependents.
+    """
+    from tests.testbed.controllers import WorkloadControllers
+
+    names = {
         "deadline": bed.submit("outlives", bed.image("ignores", JOBS / "ignores_shutdown.py"),
                                timeout=OUTLIVES_TIMEOUT),
         "collected": bed.submit("collected", bed.image("counts", JOBS / "counts_slowly.py"),
                                 args={"lines": 2000, "pause": 0.2}, timeout=300),
     }
-
-
-def test_the_kubelet_ends_a_job_pod_at_its_active_deadline_with_the_agent_stopped(
-    bed: AgentBed, outage_jobs: dict[str, str]
-) -> None:
-    from armnet_agent.launch.pod_spec import DEADLINE_MARGIN_S
-
-    name = outage_jobs["deadline"]
-    job = bed.wait_phase(name, ("running", *TERMINAL), timeout=300)
-    assert status(job)["phase"] == "running", explain(status(job))  # else the pod took its whole window to start
-    bed.kill_agent()  # nothing of armnet's watches the job from here on: only the pod's own deadline
+    collector = WorkloadControllers(plane=bed.k8s, controllers=("garbage-collector-controller",),
+                                    scheduler=False, extra_args=("--concurrent-gc-syncs=1",)).start()
+    state = None
     try:
-        pod = pod_of(bed, job)
-        assert pod is not None, "the job's pod"
-        # timeout + the cell's grace (3 s) + the margin: the agent's own kill comes first while it runs.
-        deadline = pod["spec"]["activeDeadlineSeconds"]
-        assert deadline == OUTLIVES_TIMEOUT + 3 + DEADLINE_MARGIN_S, deadline
-
-        def ended() -> dict[str, Any] | None:
-            current = pod_of(bed, job)
-            return current if current and (current.get("status") or {}).get("phase") == "Failed" else None
-
-        ended_pod = bed.wait(ended, deadline + 90, "the kubelet to end the pod at its deadline", every=1.0)
-        assert ended_pod["status"].get("reason") == "DeadlineExceeded", ended_pod["status"]
-        job_state = {c["name"]: c["state"] for c in ended_pod["status"].get("containerStatuses") or []}["job"]
-        assert "terminated" in job_state, job_state
-        assert status(bed.job(name))["phase"] == "running"  # nobody else ended it: the agent was down
+        # The agent is killed as soon as the deadline's job runs (its own kill would come 23 s later):
+        # the other job needs its pod only.
+        deadline_job = bed.wait_phase(names["deadline"], ("running", *TERMINAL), timeout=300)
+        assert status(deadline_job)["phase"] == "running", explain(status(deadline_job))  # else: no start in its window
+        collected_job = bed.job(names["collected"])
+        collected_pod = bed.wait(lambda: pod_of(bed, collected_job), 60, "the collected job's pod")
+        bed.kill_agent()  # nothing of armnet's watches the jobs from here on
+        state = AgentOutage(bed, {"deadline": deadline_job, "collected": collected_job},
+                            {"deadline": pod_of(bed, deadline_job), "collected": collected_pod}, collector)
+        bed.wait(lambda: "Proceeding to collect garbage" in collector.log_tail(100_000), 120,
+                 "the garbage collector to sync its caches", every=1.0)
+        yield state
     finally:
-        bed.start_agent()
-    # Re-adopted from the pod: the job's clock (from startedAt) ran out long ago, so the agent reports it
-    # as a timeout whose job was killed, whatever ended the pod.
-    st = status(bed.wait_phase(name, timeout=180))
-    assert st["phase"] == "timeout", explain(st)
-    assert f"job exceeded its timeout of {OUTLIVES_TIMEOUT} s" in st["result"]["error"], explain(st)
-    bed.wait(lambda: pod_of(bed, job) is None, 60, "the agent to remove the ended pod")
+        collector.stop()
+        if state is not None:
+            state.restart()
 
 
 def test_a_deleted_robotjobs_pod_is_collected_by_the_garbage_collector_through_its_owner_reference(
-    bed: AgentBed, outage_jobs: dict[str, str]
+    bed: AgentBed, outage: AgentOutage
 ) -> None:
-    """The real garbage collector (kube-controller-manager with only that controller: the test bed runs none).
+    """With the agent down (running, it stops a deleted job's pod itself), only the owner reference acts.
 
-    The agent is stopped first: running, it stops a deleted job's pod itself. The deletion is a
-    foreground one: the operator's finalizer keeps the RobotJob while its agent is away (until the
-    cancel is forced), and a background deletion would collect the pod only once the RobotJob is
-    gone; a foreground one has the collector delete the dependents at once. One collector worker:
-    the pod is handled before the RobotJob's foreground finalizer (with ``blockOwnerDeletion``
-    false, several workers may drop that finalizer first and then find the owner no longer waiting).
+    A foreground deletion: the operator's finalizer keeps a running RobotJob while its agent is
+    away (until the cancel is forced); a background one would collect the pod only once the
+    RobotJob is gone. In the foreground the collector deletes the dependents at once.
     """
-    from tests.testbed.controllers import WorkloadControllers
+    job, pod = outage.jobs["collected"], outage.pods["collected"]
+    assert pod is not None, "the job's pod"
+    owner, = pod["metadata"]["ownerReferences"]
+    assert owner == {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "name": job["metadata"]["name"],
+                     "uid": job["metadata"]["uid"], "controller": True, "blockOwnerDeletion": False}, owner
+    bed.k8s.kubectl("delete", "rj", job["metadata"]["name"], "-n", bed.namespace, "--cascade=foreground",
+                    "--wait=false")
+    bed.wait(lambda: pod_of(bed, job) is None, 120, "the garbage collector to delete the pod", every=1.0)
 
-    name = outage_jobs["collected"]
-    controllers = WorkloadControllers(plane=bed.k8s, controllers=("garbage-collector-controller",),
-                                      scheduler=False, extra_args=("--concurrent-gc-syncs=1",)).start()
-    try:
-        job = bed.wait_phase(name, ("running",), timeout=300)
-        pod = pod_of(bed, job)
-        assert pod is not None, "the job's pod"
-        owner, = pod["metadata"]["ownerReferences"]
-        assert owner == {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "name": name,
-                         "uid": job["metadata"]["uid"], "controller": True, "blockOwnerDeletion": False}, owner
-        bed.wait(lambda: "Proceeding to collect garbage" in controllers.log_tail(100_000), 120,
-                 "the garbage collector to sync its caches", every=1.0)
-        bed.kill_agent()
-        try:
-            bed.k8s.kubectl("delete", "rj", name, "-n", bed.namespace, "--cascade=foreground", "--wait=false")
-            bed.wait(lambda: pod_of(bed, job) is None, 120, "the garbage collector to delete the pod", every=1.0)
-        finally:
-            bed.start_agent()
-    finally:
-        controllers.stop()
-    # Back, the agent finds the job's pod gone: the job ends and the operator lets the RobotJob go.
-    bed.wait(lambda: bed.k8s.kubectl("get", "rj", name, "-n", bed.namespace, check=False).returncode != 0,
-             120, "the RobotJob to finish deleting")
+
+def test_the_kubelet_ends_a_job_pod_at_its_active_deadline_with_the_agent_stopped(
+    bed: AgentBed, outage: AgentOutage
+) -> None:
+    from armnet_agent.launch.pod_spec import DEADLINE_MARGIN_S
+
+    job, pod = outage.jobs["deadline"], outage.pods["deadline"]
+    assert pod is not None, "the job's pod"
+    # timeout + the cell's grace (3 s) + the margin: the agent's own kill comes first while it runs.
+    deadline = pod["spec"]["activeDeadlineSeconds"]
+    assert deadline == OUTLIVES_TIMEOUT + 3 + DEADLINE_MARGIN_S, deadline
+
+    def ended() -> dict[str, Any] | None:
+        current = pod_of(bed, job)
+        return current if current and (current.get("status") or {}).get("phase") == "Failed" else None
+
+    ended_pod = bed.wait(ended, deadline + 90, "the kubelet to end the pod at its deadline", every=1.0)
+    assert ended_pod["status"].get("reason") == "DeadlineExceeded", ended_pod["status"]
+    job_state = {c["name"]: c["state"] for c in ended_pod["status"].get("containerStatuses") or []}["job"]
+    assert "terminated" in job_state, job_state
+    # Its own deadline, not the agent's kill (which lowers it to 1 s), and nobody else ended the job.
+    assert ended_pod["spec"]["activeDeadlineSeconds"] == deadline, ended_pod["spec"]["activeDeadlineSeconds"]
+    assert status(bed.job(job["metadata"]["name"]))["phase"] == "running"
+
+
+def test_the_restarted_agent_reports_the_deadline_ended_job_as_a_timeout_and_the_deleted_job_goes(
+    bed: AgentBed, outage: AgentOutage
+) -> None:
+    outage.restart()
+    # Re-adopted from the ended pod: the job's clock (from startedAt) ran out long ago, so the agent
+    # reports a timeout whose job was killed, whatever ended the pod; then it removes the pod.
+    ended = outage.jobs["deadline"]
+    st = status(bed.wait_phase(ended["metadata"]["name"], timeout=180))
+    assert st["phase"] == "timeout", explain(st)
+    assert f"job exceeded its timeout of {OUTLIVES_TIMEOUT} s" in st["result"]["error"], explain(st)
+    bed.wait(lambda: pod_of(bed, ended) is None, 60, "the agent to remove the ended pod")
+    # The deleted job's pod is gone: the agent fails the job, and the operator lets the RobotJob go.
+    deleted = outage.jobs["collected"]["metadata"]["name"]
+    bed.wait(lambda: bed.k8s.kubectl("get", "rj", deleted, "-n", bed.namespace, check=False).returncode != 0,
+             120, "the deleted RobotJob to finish deleting")
