@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -28,6 +29,8 @@ import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "runtime" / "examples"
+#: The job scripts the e2e beds share (each becomes /job/main.py of a job image: ``AgentBed.image``).
+JOBS = REPO / "e2e" / "jobs"
 PYTHONPATH = ":".join(str(REPO / p) for p in ("runtime/src", "agent", "operator", "cli")) + f":{REPO}"
 DEV_MOUNTS = sorted({sys.prefix, sys.base_prefix, str(REPO)})
 TERMINAL = ("succeeded", "failed", "timeout", "cancelled")
@@ -64,6 +67,21 @@ class AgentBed:
         #: Publish servo telemetry and camera frames for the cell operator's page. Off unless a
         #: scenario looks at them: every cell's reads and JPEGs cost CPU the other jobs need.
         self.telemetry = False
+
+    def use_pod_launcher(self, node: Any) -> None:
+        """Run the jobs as pods on the test bed's node (``armnet agent --launcher pod``), not Podman containers.
+
+        The connector sidecar is the base image with this machine's venv (``--dev-mount``); each
+        job image is imported into the node's containerd once built; the cells are the node's.
+        """
+        self.node = node.name
+        # The non-root job user must reach the venv mounted under /root (development stand-in only).
+        self.image_lines = ["RUN chmod 0755 /root"]
+        self.on_image = node.import_image
+        self.agent_args = ["--launcher", "pod", "--connector-image", self.base_image, "--image-pull-policy", "Never",
+                           "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
+                           # The pods' observer sockets, under the test node's own kubelet root.
+                           "--kubelet-root-dir", str(node.workdir / "kubelet")]
 
     # -- processes -----------------------------------------------------------------
 
@@ -194,3 +212,50 @@ class AgentBed:
             ok = status.get("phase") == "Ready" and len(conditions) >= 5 and set(conditions.values()) == {"True"}
             return obj if ok else None
         return self.wait(ready, timeout, f"cell {cell} Ready with all health conditions True")
+
+
+class JobWatch:
+    """Every RobotJob status the API server reports in one namespace, in order (a watch: no gap between polls).
+
+    What a test cannot read from a job's final status: the phases it went through
+    (``queued`` with its reason, before it was dispatched).
+    """
+
+    def __init__(self, k8s: Any, namespace: str) -> None:
+        from kubernetes import client
+
+        self._api = client.CustomObjectsApi(k8s.api_client())
+        self._namespace = namespace
+        self._seen: list[tuple[str, dict[str, Any]]] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="e2e-job-watch", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from kubernetes import watch
+
+        while not self._stop.is_set():
+            stream = watch.Watch()
+            try:
+                for event in stream.stream(self._api.list_namespaced_custom_object, "armnet.io", "v1alpha1",
+                                           self._namespace, "robotjobs", timeout_seconds=20):
+                    obj = event["object"]
+                    if event["type"] in ("ADDED", "MODIFIED", "DELETED") and isinstance(obj, dict):
+                        with self._lock:
+                            self._seen.append((obj["metadata"]["name"], obj.get("status") or {}))
+                    if self._stop.is_set():
+                        break
+            except Exception:  # noqa: BLE001 - a cut watch: list and watch again (duplicates are harmless)
+                self._stop.wait(0.5)
+            finally:
+                stream.stop()
+
+    def statuses(self, name: str) -> list[dict[str, Any]]:
+        """The statuses of job ``name`` in the order the API server reported them."""
+        with self._lock:
+            return [status for seen, status in self._seen if seen == name]
+
+    def close(self) -> None:
+        """Stop at the end of the current watch call (no join: that may take its 20 s)."""
+        self._stop.set()

@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from e2e.agent_bed import EXAMPLES, AgentBed
+from e2e.agent_bed import EXAMPLES, JOBS, AgentBed
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
 
@@ -26,25 +26,6 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
 JOB_TIMEOUT = 60
 #: How long the agent may take to see a cancel (watch event, then its pass) on the loaded 2-core VM.
 CANCEL_SEEN_S = 1.5
-
-RAISES = """
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        print("about to fail", flush=True)
-        raise ValueError("the gripper saw no cube")
-"""
-
-IGNORES_SHUTDOWN = """
-    import time
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        while True:
-            time.sleep(0.1)
-"""
 
 HONOURS_SHUTDOWN = """
     import time
@@ -58,44 +39,6 @@ HONOURS_SHUTDOWN = """
             rounds += 1
             time.sleep(0.1)
         return {"stopped_cleanly": True}
-"""
-
-ECHO = """
-    import os
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        ctx.report_progress("echoing")
-        return {"args": ctx.args, "secret_length": len(ctx.secrets.get("API_TOKEN", "")),
-                "job_id": os.environ["ARMNET_JOB_ID"]}
-"""
-
-UNSAFE = """
-    from _so101_moves import open_bus
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
-        present = float(bus.sync_read("Present_Position")["shoulder_pan"])
-        # Far outside the calibrated range: refused under either safety policy (a step that is
-        # only beyond the relative limit would be clamped, as LeRobot does, under the default).
-        bus.sync_write("Goal_Position", {"shoulder_pan": present + 1000.0})
-        return "unreachable"
-"""
-
-COUNTS_SLOWLY = """
-    import time
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        for i in range(ctx.args.get("lines", 30)):
-            print(f"line {i:03d}", flush=True)
-            ctx.report_progress(f"line {i}")
-            time.sleep(ctx.args.get("pause", 0.25))
-        return {"lines": ctx.args.get("lines", 30)}
 """
 
 RESETS = """
@@ -157,13 +100,13 @@ def batch(bed: AgentBed) -> dict[str, str]:
                     "--from-literal=API_TOKEN=s3cr3t-value-123")
     jobs = {
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
-        "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=120),
-        "missing-secret": bed.submit("no-secret", bed.image("echo", ECHO), secrets={"API_TOKEN": "absent"}),
-        "secret": bed.submit("with-secret", bed.image("echo", ECHO), args={"size": "x" * 60_000},
+        "failure": bed.submit("raises", bed.image("raises", JOBS / "raises.py"), timeout=120),
+        "missing-secret": bed.submit("no-secret", bed.image("echo", JOBS / "echo.py"), secrets={"API_TOKEN": "absent"}),
+        "secret": bed.submit("with-secret", bed.image("echo", JOBS / "echo.py"), args={"size": "x" * 60_000},
                              secrets={"API_TOKEN": "api-token"}),
-        "timeout-ignored": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
+        "timeout-ignored": bed.submit("ignores", bed.image("ignores", JOBS / "ignores_shutdown.py"), timeout=JOB_TIMEOUT),
         "timeout-honoured": bed.submit("honours", bed.image("honours", HONOURS_SHUTDOWN), timeout=JOB_TIMEOUT),
-        "safety": bed.submit("unsafe", bed.image("unsafe", UNSAFE, (EXAMPLES / "_so101_moves.py",)), timeout=180),
+        "safety": bed.submit("unsafe", bed.image("unsafe", JOBS / "unsafe.py", (EXAMPLES / "_so101_moves.py",)), timeout=180),
         "bimanual": bed.submit("bimanual", bed.image("bimanual", EXAMPLES / "bimanual.py",
                                                      (EXAMPLES / "_so101_moves.py",)),
                                embodiment="lerobot/bimanual_so101", timeout=240),
@@ -272,7 +215,7 @@ def test_a_bimanual_job_runs_on_the_bimanual_cell(bed: AgentBed, batch: dict[str
 def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next_job(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("to-cancel", image, args={"lines": 1000, "pause": 0.2}, timeout=300)
     running = bed.wait_phase("to-cancel", ("running",), timeout=300)
     cell = status(running)["cellName"]
@@ -296,7 +239,7 @@ def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next
 def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, batch: dict[str, str]) -> None:
     for name in batch.values():
         bed.wait_phase(name, timeout=400)  # the batch is done: the two so101 cells are free
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     # Created in this order (one apply after the other), one priority: FIFO is this order.
     names = [bed.submit(f"queued-{i}", image, args={"lines": 4, "pause": 0.2}, timeout=120) for i in range(6)]
 
@@ -327,7 +270,7 @@ def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, 
 def test_an_agent_killed_mid_job_readopts_it_and_reports_every_line_once(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("survives", image, args={"lines": 60, "pause": 0.25}, timeout=200)
     bed.wait_phase("survives", ("running",), timeout=300)
 
@@ -362,7 +305,7 @@ def test_an_unplugged_servo_makes_the_cell_not_ready_with_a_reason_and_no_job_is
     hw = bed.wait(hardware_down, 30, "HardwareReady False")
     assert hw["reason"] == "ServoNotResponding" and "elbow_flex" in hw["message"]
     bed.wait(lambda: (bed.cell(cell).get("status") or {}).get("phase") == "Faulted", 15, "cell Faulted")
-    bed.submit("for-sick-cell", bed.image("counts", COUNTS_SLOWLY), task=task, args={"lines": 1})
+    bed.submit("for-sick-cell", bed.image("counts", JOBS / "counts_slowly.py"), task=task, args={"lines": 1})
     queued = bed.wait_phase("for-sick-cell", ("queued",), timeout=30)
     assert status(queued).get("queuedReason") == "AllCellsUnavailable"
     assert not (bed.cell(cell).get("status") or {}).get("currentJob")
@@ -427,7 +370,7 @@ def test_the_agent_exports_job_and_heartbeat_metrics(bed: AgentBed, batch: dict[
 def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a_clear_error(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("vanishes", image, args={"lines": 400, "pause": 0.25}, timeout=200)
     job = bed.wait_phase("vanishes", ("running",), timeout=300)
     bed.kill_agent()
@@ -444,7 +387,7 @@ def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a
 def test_a_nats_outage_mid_job_loses_no_line_and_the_result_still_lands_in_status(
     bed: AgentBed, nats_service: Any
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     job = bed.submit("through-outage", image, args={"lines": 30, "pause": 0.25}, timeout=200)
     uid = bed.job(job)["metadata"]["uid"]
     bed.wait_phase(job, ("running",), timeout=300)
@@ -518,7 +461,7 @@ def test_a_reset_confirmation_and_an_outcome_on_the_cells_fms_subjects_reach_the
 
 
 def line_number(progress: str | None) -> int:
-    """``line 7`` -> 7: how far a COUNTS_SLOWLY job is (-1 before its first line)."""
+    """``line 7`` -> 7: how far a ``jobs/counts_slowly.py`` job is (-1 before its first line)."""
     if not progress or not progress.startswith("line "):
         return -1
     return int(progress.split()[1])

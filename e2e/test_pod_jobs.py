@@ -11,58 +11,28 @@ this machine's venv and worktree mounted read-only (``--dev-mount``), like the
 container launcher's e2e.
 
 One bed per module: the independent jobs are submitted together and run side
-by side on three cells; each test checks its own job.
+by side on three SO-101 cells and a bimanual one (more jobs than cells: some
+wait ``queued``); each test checks its own job. The scenarios that stop the
+agent (the kubelet's deadline, the garbage collector) come last.
 """
 
 from __future__ import annotations
 
 import json
 import re
-import sys
 import urllib.request
 from collections.abc import Iterator
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
 import pytest
 
-from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, AgentBed
+from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, TERMINAL, AgentBed, JobWatch
 
 pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
 
 JOB_TIMEOUT = 25
-
-RAISES = """
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        print("about to fail", flush=True)
-        raise ValueError("the gripper saw no cube")
-"""
-
-IGNORES_SHUTDOWN = """
-    import time
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        while True:
-            time.sleep(0.1)
-"""
-
-COUNTS_SLOWLY = """
-    import time
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        for i in range(ctx.args.get("lines", 30)):
-            print(f"line {i:03d}", flush=True)
-            ctx.report_progress(f"line {i}")
-            time.sleep(ctx.args.get("pause", 0.25))
-        return {"lines": ctx.args.get("lines", 30)}
-"""
 
 HONOURS_SHUTDOWN = """
     import time
@@ -163,23 +133,17 @@ SECRET_VALUE = "s3cr3t-pod-value-42"
 def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("pod-e2e")
     bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
-    bed.node = k8s_node.name
+    bed.use_pod_launcher(k8s_node)
     bed.image_prefix = "armnet-pod-e2e"
-    # The non-root job user must reach the venv mounted under /root (development stand-in only).
-    bed.image_lines = ["RUN chmod 0755 /root"]
-    bed.on_image = k8s_node.import_image
-    bed.agent_args = ["--launcher", "pod", "--connector-image", base_image, "--image-pull-policy", "Never",
-                      "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
-                      # The pods' observer sockets, under the test node's own kubelet root.
-                      "--kubelet-root-dir", str(k8s_node.workdir / "kubelet"),
-                      "--telemetry-servo-hz", "2", "--telemetry-frame-fps", "1"]
+    bed.agent_args += ["--telemetry-servo-hz", "2", "--telemetry-frame-fps", "1"]
     bed.telemetry = True
     camera = {"front": {"indexOrPath": 0}}
     bed.cells = [bed.add_cell(f"pod-{c}", cameras=camera) for c in "abc"]  # type: ignore[attr-defined]
+    bed.bimanual = bed.add_cell("pod-bimanual", bimanual=True)  # type: ignore[attr-defined]
     bed.start_operator()
     bed.start_agent()
     try:
-        for cell in bed.cells:  # type: ignore[attr-defined]
+        for cell in [*bed.cells, bed.bimanual]:  # type: ignore[attr-defined]
             try:
                 bed.wait_ready(cell, timeout=180)
             except AssertionError as exc:
@@ -247,19 +211,39 @@ def parse_time(value: str) -> datetime:
 
 
 @pytest.fixture(scope="module")
-def batch(bed: AgentBed, telemetry: TelemetryHeard) -> dict[str, str]:
-    """The independent scenarios' jobs, submitted together so they run side by side."""
+def job_watch(bed: AgentBed) -> Iterator[JobWatch]:
+    """The phases every job of the bed went through (started before the batch is submitted)."""
+    watch = JobWatch(bed.k8s, bed.namespace)
+    yield watch
+    watch.close()
+
+
+@pytest.fixture(scope="module")
+def batch(bed: AgentBed, telemetry: TelemetryHeard, job_watch: JobWatch) -> dict[str, str]:
+    """The independent scenarios' jobs, submitted together so they run side by side.
+
+    Six pods for the three SO-101 cells (the last, ``observed``, waits ``queued`` behind
+    three of them) and one for the bimanual cell. The missing secret's job goes first: it
+    ends before any pod, so it costs the batch nothing.
+    """
     bed.k8s.kubectl("create", "secret", "generic", "api-token", "-n", bed.namespace,
                     f"--from-literal=API_TOKEN={SECRET_VALUE}")
-    bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", (EXAMPLES / "_so101_moves.py",))
+    moves = (EXAMPLES / "_so101_moves.py",)
+    raises = bed.image("raises", JOBS / "raises.py")
+    bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", moves)
     return {
+        # No pod is ever made for it: any image will do.
+        "missing-secret": bed.submit("no-secret", raises, secrets={"API_TOKEN": "absent"}),
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
         # Generous timeouts: on a loaded host a pod's Python takes a minute or more to import the SDK.
-        "failure": bed.submit("raises", bed.image("raises", RAISES), timeout=300),
+        "failure": bed.submit("raises", raises, timeout=300),
         "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
                             secrets={"API_TOKEN": "api-token"}),
-        "timeout": bed.submit("ignores", bed.image("ignores", IGNORES_SHUTDOWN), timeout=JOB_TIMEOUT),
-        "observed": bed.submit("observed", bed.image("observed", OBSERVED, (EXAMPLES / "_so101_moves.py",)),
+        "safety": bed.submit("unsafe", bed.image("unsafe", JOBS / "unsafe.py", moves), timeout=300),
+        "bimanual": bed.submit("bimanual", bed.image("both-arms", JOBS / "drives_both_arms.py", moves),
+                               embodiment="lerobot/bimanual_so101", timeout=300),
+        "timeout": bed.submit("ignores", bed.image("ignores", JOBS / "ignores_shutdown.py"), timeout=JOB_TIMEOUT),
+        "observed": bed.submit("observed", bed.image("observed", OBSERVED, moves),
                                timeout=300, args={"skip": list(DEV_MOUNTS)}),  # the venv: large, no sockets
     }
 
@@ -304,6 +288,38 @@ def test_a_job_pod_that_raises_fails_with_its_traceback(bed: AgentBed, batch: di
     assert "about to fail" in st["result"]["stdoutTail"]
 
 
+def test_a_missing_secret_fails_the_job_before_it_starts_naming_the_secret_and_no_pod_is_made(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    job = bed.wait_phase(batch["missing-secret"], timeout=300)
+    st = status(job)
+    assert st["phase"] == "failed", explain(st)
+    assert "'absent'" in st["result"]["error"] and bed.namespace in st["result"]["error"]
+    assert "startedAt" not in st
+    assert pod_of(bed, job) is None
+
+
+def test_a_safety_violation_in_a_pod_fails_the_job_with_the_sidecars_record_and_the_interlock_clears(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["safety"], timeout=400))
+    assert st["phase"] == "failed", explain(st)
+    assert "SafetyViolation" in st["result"]["traceback"]
+    # The interlock's reason comes from the sidecar connector's record (its log), not from the exit code.
+    assert "safety violation (connector record)" in st["result"]["error"]
+    assert "shoulder_pan" in st["result"]["error"]
+    safety = st["result"]["safety"]
+    assert safety["policy"] == "clamp" and safety["interlockTrips"] >= 1
+    assert any(r["motor"] == "shoulder_pan" for r in safety["refusals"]), safety
+    cell = st["cellName"]
+
+    def interlock_clear() -> bool:
+        conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
+        return conditions.get("InterlockClear", {}).get("status") == "True"
+
+    bed.wait(interlock_clear, 30, f"InterlockClear on {cell} after the job")
+
+
 def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_and_sees_no_device(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
@@ -335,7 +351,7 @@ def test_a_job_pod_ignoring_shutdown_is_killed_after_grace_and_ends_timeout(
 def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("to-cancel", image, args={"lines": 1000, "pause": 0.2}, timeout=300)
     job = bed.wait_phase("to-cancel", ("running",), timeout=300)
     pod = bed.wait(lambda: pod_of(bed, job), 30, "the job's pod")
@@ -395,7 +411,7 @@ def test_the_agent_registered_a_healthy_device_plugin_per_cell_and_the_kubelet_a
 ) -> None:
     bed.wait_phase(batch["failure"], timeout=400)  # launched by this agent process (not restarted yet)
     text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
-    for cell in bed.cells:  # type: ignore[attr-defined]
+    for cell in [*bed.cells, bed.bimanual]:  # type: ignore[attr-defined]
         assert f'armnet_agent_device_plugin_registrations_total{{cell="{cell}",result="ok"}}' in text, cell
         assert f'armnet_agent_device_healthy{{cell="{cell}"}} 1.0' in text, cell
     granted = [line for line in text.splitlines()
@@ -403,10 +419,28 @@ def test_the_agent_registered_a_healthy_device_plugin_per_cell_and_the_kubelet_a
     assert sum(float(line.split()[-1]) for line in granted) >= 1, granted
 
 
+def test_a_bimanual_job_pod_drives_both_arms_through_its_cells_device_plugin(
+    bed: AgentBed, batch: dict[str, str]
+) -> None:
+    st = status(bed.wait_phase(batch["bimanual"], timeout=400))
+    assert st["phase"] == "succeeded", explain(st)
+    assert st["cellName"] == bed.bimanual  # type: ignore[attr-defined]
+    moved = st["result"]["returnValue"]["moved"]
+    assert set(moved) == {"left", "right"}, moved
+    for arm in moved.values():  # each arm went about 2 degrees out, then back
+        assert abs(arm["reached"] - arm["start"]) >= 1.0 and abs(arm["back"] - arm["start"]) <= 1.0, moved
+    # Both arms' ptys reached the sidecar through the one allocation of the cell's resource (the
+    # connector has no other way to them: no hostPath device volume with the plugin on).
+    text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
+    granted = f'armnet_agent_device_plugin_allocations_total{{cell="{st["cellName"]}",result="granted"}}'
+    line = [x for x in text.splitlines() if x.startswith(granted)]
+    assert line and float(line[0].split()[-1]) >= 1, line
+
+
 def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("survives", image, args={"lines": 40, "pause": 0.25}, timeout=200)
     bed.wait_phase("survives", ("running",), timeout=300)
 
@@ -428,7 +462,7 @@ def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
 def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails_with_the_reason(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     bed.submit("loses-connector", image, args={"lines": 40, "pause": 0.25}, timeout=200)
     job = bed.wait_phase("loses-connector", ("running",), timeout=300)
 
@@ -445,6 +479,32 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     assert "connector sidecar restarted" in st["result"]["error"]
     # The restarted connector's own record: it came back with the interlock tripped.
     assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]
+
+
+def test_a_job_beyond_the_free_cells_waits_queued_and_runs_once_a_cell_is_free_never_sharing_one(
+    bed: AgentBed, batch: dict[str, str], job_watch: JobWatch
+) -> None:
+    last = batch["observed"]  # the batch's sixth pod for three SO-101 cells
+    so101 = [name for key, name in batch.items() if key != "bimanual"]
+    finals = {name: status(bed.wait_phase(name, timeout=600)) for name in so101}
+    seen = job_watch.statuses(last)
+    phases = [s.get("phase") for s in seen]
+    assert "queued" in phases and "running" in phases, phases
+    assert phases.index("queued") < phases.index("running"), phases
+    assert {s.get("queuedReason") for s in seen if s.get("phase") == "queued"} == {"AllCellsBusy"}, seen
+    # On each cell one job at a time: a job starts only once the one before it there has finished.
+    by_cell: dict[str, list[tuple[datetime, datetime, str]]] = {}
+    for name, st in finals.items():
+        if "startedAt" in st:  # the missing secret's job never started
+            by_cell.setdefault(st["cellName"], []).append(
+                (parse_time(st["startedAt"]), parse_time(st["finishedAt"]), name))
+    for cell, runs in by_cell.items():
+        runs.sort()
+        for before, after in zip(runs, runs[1:], strict=False):
+            assert before[1] <= after[0], f"{after[2]} started on {cell} before {before[2]} finished: {runs}"
+    started = parse_time(finals[last]["startedAt"])
+    ahead = [name for _, finished, name in by_cell[finals[last]["cellName"]] if name != last and finished <= started]
+    assert ahead, by_cell
 
 
 def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_reach_its_status(
@@ -481,3 +541,128 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
     # the job's own two in the tenant's container: nothing there can pose as the connector.
     found = st["result"]["returnValue"]["sockets"]
     assert found and all(path.rsplit("/", 1)[-1] in ("robot.sock", "operator.sock") for path in found), found
+
+
+#: The timeout of the job the kubelet ends: the agent is stopped as soon as the job runs, long before this.
+#: The pod's deadline (this + grace + margin) counts from the pod's start, so it also has to cover the
+#: sidecar's start-up before the job runs, slow on a loaded host.
+OUTLIVES_TIMEOUT = 20
+
+
+@dataclass
+class AgentOutage:
+    """The agent SIGKILLed while two jobs run, one for the kubelet's deadline and one for the garbage collector.
+
+    The two scenarios share one outage: the collector's (seconds) fits in the deadline's wait.
+    ``restart()`` ends the outage (the last scenario checks what the agent then decides).
+    """
+
+    bed: AgentBed
+    jobs: dict[str, dict[str, Any]]
+    pods: dict[str, dict[str, Any]]
+    collector: Any
+    restarted: bool = False
+
+    def restart(self) -> None:
+        if not self.restarted:
+            self.restarted = True
+            self.bed.start_agent()
+
+
+@pytest.fixture(scope="module")
+def outage(bed: AgentBed) -> Iterator[AgentOutage]:
+    """Both jobs running (their pods start side by side), a garbage collector synced, then the agent killed.
+
+    The collector is the real one: kube-controller-manager with only that controller (the test
+    bed runs none). One worker: with ``blockOwnerDeletion`` false, several could drop a
+    foreground-deleted RobotJob's finalizer before handling its pod, and then find the owner no
+    longer waiting for its dependents.
+    """
+    from tests.testbed.controllers import WorkloadControllers
+
+    names = {
+        "deadline": bed.submit("outlives", bed.image("ignores", JOBS / "ignores_shutdown.py"),
+                               timeout=OUTLIVES_TIMEOUT),
+        "collected": bed.submit("collected", bed.image("counts", JOBS / "counts_slowly.py"),
+                                args={"lines": 2000, "pause": 0.2}, timeout=300),
+    }
+    collector = WorkloadControllers(plane=bed.k8s, controllers=("garbage-collector-controller",),
+                                    scheduler=False, extra_args=("--concurrent-gc-syncs=1",)).start()
+    state = None
+    try:
+        # The agent is killed as soon as the deadline's job runs (its own kill would come 23 s later):
+        # the other job needs its pod only.
+        deadline_job = bed.wait_phase(names["deadline"], ("running", *TERMINAL), timeout=300)
+        assert status(deadline_job)["phase"] == "running", explain(status(deadline_job))  # else: no start in its window
+        collected_job = bed.job(names["collected"])
+        collected_pod = bed.wait(lambda: pod_of(bed, collected_job), 60, "the collected job's pod")
+        bed.kill_agent()  # nothing of armnet's watches the jobs from here on
+        state = AgentOutage(bed, {"deadline": deadline_job, "collected": collected_job},
+                            {"deadline": pod_of(bed, deadline_job), "collected": collected_pod}, collector)
+        bed.wait(lambda: "Proceeding to collect garbage" in collector.log_tail(100_000), 120,
+                 "the garbage collector to sync its caches", every=1.0)
+        yield state
+    finally:
+        collector.stop()
+        if state is not None:
+            state.restart()
+
+
+def test_a_deleted_robotjobs_pod_is_collected_by_the_garbage_collector_through_its_owner_reference(
+    bed: AgentBed, outage: AgentOutage
+) -> None:
+    """With the agent down (running, it stops a deleted job's pod itself), only the owner reference acts.
+
+    A foreground deletion: the operator's finalizer keeps a running RobotJob while its agent is
+    away (until the cancel is forced); a background one would collect the pod only once the
+    RobotJob is gone. In the foreground the collector deletes the dependents at once.
+    """
+    job, pod = outage.jobs["collected"], outage.pods["collected"]
+    assert pod is not None, "the job's pod"
+    owner, = pod["metadata"]["ownerReferences"]
+    assert owner == {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "name": job["metadata"]["name"],
+                     "uid": job["metadata"]["uid"], "controller": True, "blockOwnerDeletion": False}, owner
+    bed.k8s.kubectl("delete", "rj", job["metadata"]["name"], "-n", bed.namespace, "--cascade=foreground",
+                    "--wait=false")
+    bed.wait(lambda: pod_of(bed, job) is None, 120, "the garbage collector to delete the pod", every=1.0)
+
+
+def test_the_kubelet_ends_a_job_pod_at_its_active_deadline_with_the_agent_stopped(
+    bed: AgentBed, outage: AgentOutage
+) -> None:
+    from armnet_agent.launch.pod_spec import DEADLINE_MARGIN_S
+
+    job, pod = outage.jobs["deadline"], outage.pods["deadline"]
+    assert pod is not None, "the job's pod"
+    # timeout + the cell's grace (3 s) + the margin: the agent's own kill comes first while it runs.
+    deadline = pod["spec"]["activeDeadlineSeconds"]
+    assert deadline == OUTLIVES_TIMEOUT + 3 + DEADLINE_MARGIN_S, deadline
+
+    def ended() -> dict[str, Any] | None:
+        current = pod_of(bed, job)
+        return current if current and (current.get("status") or {}).get("phase") == "Failed" else None
+
+    ended_pod = bed.wait(ended, deadline + 90, "the kubelet to end the pod at its deadline", every=1.0)
+    assert ended_pod["status"].get("reason") == "DeadlineExceeded", ended_pod["status"]
+    job_state = {c["name"]: c["state"] for c in ended_pod["status"].get("containerStatuses") or []}["job"]
+    assert "terminated" in job_state, job_state
+    # Its own deadline, not the agent's kill (which lowers it to 1 s), and nobody else ended the job.
+    assert ended_pod["spec"]["activeDeadlineSeconds"] == deadline, ended_pod["spec"]["activeDeadlineSeconds"]
+    assert status(bed.job(job["metadata"]["name"]))["phase"] == "running"
+
+
+def test_the_restarted_agent_reports_the_deadline_ended_job_as_a_timeout_and_the_deleted_job_goes(
+    bed: AgentBed, outage: AgentOutage
+) -> None:
+    outage.restart()
+    # Re-adopted from the ended pod: the job's clock (from startedAt) ran out long ago, so the agent
+    # reports a timeout whose job was killed, whatever ended the pod; then it removes the pod.
+    ended = outage.jobs["deadline"]
+    st = status(bed.wait_phase(ended["metadata"]["name"], timeout=180))
+    assert st["phase"] == "timeout", explain(st)
+    assert f"job exceeded its timeout of {OUTLIVES_TIMEOUT} s" in st["result"]["error"], explain(st)
+    bed.wait(lambda: pod_of(bed, ended) is None, 60, "the agent to remove the ended pod")
+    # The deleted job's pod is gone: the agent fails the job, and the operator lets the RobotJob go.
+    deleted = outage.jobs["collected"]["metadata"]["name"]
+    bed.wait(lambda: bed.k8s.kubectl("get", "rj", deleted, "-n", bed.namespace, check=False).returncode != 0,
+             120, "the deleted RobotJob to finish deleting")

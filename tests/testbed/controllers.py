@@ -33,6 +33,11 @@ class WorkloadControllers:
     """``kube-controller-manager`` (the controllers above) + ``kube-scheduler`` on ``plane``."""
 
     plane: ControlPlane
+    #: The controller-manager's controllers (a test of the garbage collector alone runs only that one).
+    controllers: tuple[str, ...] = CONTROLLERS
+    scheduler: bool = True
+    #: More controller-manager flags (e.g. ``--concurrent-gc-syncs=1``).
+    extra_args: tuple[str, ...] = ()
     _procs: list[ManagedProcess] = field(default_factory=list)
     _workdir: Path | None = None
 
@@ -40,21 +45,23 @@ class WorkloadControllers:
         started = time.monotonic()
         bins = k8s_bin_dir()
         manager = require_tool("kube-controller-manager", bins / "kube-controller-manager")
-        scheduler = require_tool("kube-scheduler", bins / "kube-scheduler")
+        scheduler = require_tool("kube-scheduler", bins / "kube-scheduler") if self.scheduler else None
         assert self.plane.pki is not None
         self._workdir = Path(tempfile.mkdtemp(prefix="armnet-controllers-"))
         kubeconfig = str(self.plane.kubeconfig)
         try:
             self._procs.append(ManagedProcess("kube-controller-manager", [
                 manager, f"--kubeconfig={kubeconfig}", "--leader-elect=false",
-                f"--controllers={','.join(CONTROLLERS)}", "--secure-port=0",
+                f"--controllers={','.join(self.controllers)}", "--secure-port=0",
                 f"--root-ca-file={self.plane.pki.ca_cert}", "--concurrent-deployment-syncs=2",
                 "--concurrent-replicaset-syncs=2", "--concurrent-daemonset-syncs=2", "--v=1",
+                *self.extra_args,
             ], self._workdir / "kube-controller-manager.log"))
-            self._procs.append(ManagedProcess("kube-scheduler", [
-                scheduler, f"--kubeconfig={kubeconfig}", "--leader-elect=false",
-                "--secure-port=0", "--v=1",
-            ], self._workdir / "kube-scheduler.log"))
+            if scheduler is not None:
+                self._procs.append(ManagedProcess("kube-scheduler", [
+                    scheduler, f"--kubeconfig={kubeconfig}", "--leader-elect=false",
+                    "--secure-port=0", "--v=1",
+                ], self._workdir / "kube-scheduler.log"))
             time.sleep(1)
             for proc in self._procs:
                 proc.ensure_running()
