@@ -332,7 +332,7 @@ def test_a_vanished_device_fails_the_running_job_with_device_lost_and_the_cell_r
     # /dev/serial/by-id link to a USB adapter); removing it is pulling the arm's cable.
     link = bed.state_dir / "cells" / cell / "dev" / "arm"
     pty = os.readlink(link)
-    bed.submit("loses-device", bed.image("counts", COUNTS_SLOWLY), task=task, args={"lines": 1000, "pause": 0.2},
+    bed.submit("loses-device", bed.image("counts", JOBS / "counts_slowly.py"), task=task, args={"lines": 1000, "pause": 0.2},
                timeout=300)
     bed.wait(lambda: status(bed.job("loses-device")).get("progress"), 300, "the job's code running")
     link.unlink()
