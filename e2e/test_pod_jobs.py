@@ -630,13 +630,18 @@ def test_a_deleted_robotjobs_pod_is_collected_by_the_garbage_collector_through_i
 def test_the_kubelet_ends_a_job_pod_at_its_active_deadline_with_the_agent_stopped(
     bed: AgentBed, outage: AgentOutage
 ) -> None:
-    from armnet_agent.launch.pod_spec import DEADLINE_MARGIN_S
+    from armnet_agent.launch.pod import job_start_delay_s
+    from armnet_agent.launch.pod_spec import DEADLINE_MARGIN_S, active_deadline_seconds
 
     job, pod = outage.jobs["deadline"], outage.pods["deadline"]
     assert pod is not None, "the job's pod"
-    # timeout + the cell's grace (3 s) + the margin: the agent's own kill comes first while it runs.
+    # Created with room to start (image pulls), lowered once the job ran to timeout + the cell's
+    # grace (3 s) + the margin from the job container's own start: the agent's kill comes first while it runs.
     deadline = pod["spec"]["activeDeadlineSeconds"]
-    assert deadline == OUTLIVES_TIMEOUT + 3 + DEADLINE_MARGIN_S, deadline
+    delay = job_start_delay_s(pod)
+    assert delay is not None, pod.get("status")
+    assert deadline < active_deadline_seconds(OUTLIVES_TIMEOUT, 3), deadline
+    assert deadline == int(delay + 0.999) + OUTLIVES_TIMEOUT + 3 + DEADLINE_MARGIN_S, (deadline, delay)
 
     def ended() -> dict[str, Any] | None:
         current = pod_of(bed, job)

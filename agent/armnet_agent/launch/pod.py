@@ -24,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 from .log_recovery import DeliveredLines, missed_output
@@ -68,6 +69,32 @@ def container_state(pod: dict[str, Any], name: str) -> ContainerState:
     return ContainerState(False, None, 0)
 
 
+def job_start_delay_s(pod: dict[str, Any], name: str = JOB_CONTAINER) -> float | None:
+    """Pure: seconds from the pod's ``startTime`` to container ``name``'s ``startedAt`` (kubelet times), or None."""
+    status = pod.get("status") or {}
+    started_pod = _timestamp(status.get("startTime"))
+    for entry in status.get("containerStatuses") or []:
+        if entry.get("name") != name:
+            continue
+        state = entry.get("state") or {}
+        running = state.get("running") or state.get("terminated") or {}
+        started_job = _timestamp(running.get("startedAt"))
+        if started_pod is not None and started_job is not None:
+            return max(0.0, (started_job - started_pod).total_seconds())
+    return None
+
+
+def _timestamp(value: Any) -> datetime | None:
+    if isinstance(value, datetime):
+        return value
+    if not isinstance(value, str) or not value:
+        return None
+    try:
+        return datetime.fromisoformat(value.replace("Z", "+00:00"))
+    except ValueError:
+        return None
+
+
 def pod_failed_reason(pod: dict[str, Any]) -> str | None:
     """Why a pod ended without its job container running (image missing, deadline, eviction), or None."""
     status = pod.get("status") or {}
@@ -84,8 +111,15 @@ class PodJob:
     """One job pod; implements the supervisor's ``LaunchedJob``."""
 
     def __init__(self, core: Any, namespace: str, name: str, *, poll_s: float = POLL_S,
-                 on_started: Callable[[float], None] | None = None, follow: bool = True) -> None:
-        """``follow`` False: a handle for deleting only (no thread polling the pod)."""
+                 on_started: Callable[[float], None] | None = None, follow: bool = True,
+                 running_deadline: Callable[[float], int] | None = None) -> None:
+        """``follow`` False: a handle for deleting only (no thread polling the pod).
+
+        ``running_deadline`` maps the job container's start delay (seconds after the
+        pod's start) to the pod's ``activeDeadlineSeconds`` from then on: the backstop is
+        lowered to it once the job runs (``pod_spec.running_deadline_seconds``).
+        """
+        self._running_deadline = running_deadline
         self._core = core
         self.namespace = namespace
         self.name = name
@@ -150,6 +184,7 @@ class PodJob:
             self.last_pod = pod
             state = container_state(pod, JOB_CONTAINER)
             if state.started and not self._started.is_set():
+                self._tighten_deadline(pod)  # before "started": the agent may go right after
                 self._started.set()
                 if self._on_started is not None:
                     self._on_started(time.monotonic() - self._created_at)
@@ -162,6 +197,21 @@ class PodJob:
                 self._finish(-1)
                 return
             time.sleep(self._poll_s)
+
+    def _tighten_deadline(self, pod: dict[str, Any]) -> None:
+        """Lower the kubelet's backstop to the job's own run window, counted from its container's start."""
+        delay = job_start_delay_s(pod)
+        if self._running_deadline is None or delay is None:
+            return
+        deadline = self._running_deadline(delay)
+        current = (pod.get("spec") or {}).get("activeDeadlineSeconds")
+        if isinstance(current, int) and current <= deadline:
+            return
+        try:
+            self._core.patch_namespaced_pod(self.name, self.namespace, {"spec": {"activeDeadlineSeconds": deadline}})
+        except Exception:  # noqa: BLE001 - the start allowance stays the backstop; the supervisor still times out
+            log.warning("lowering the deadline of pod %s to %d s failed; it keeps its start allowance",
+                        self.name, deadline, exc_info=True)
 
     def _finish(self, code: int) -> None:
         self._exit_code = code

@@ -23,8 +23,12 @@ of a job on a robot host, so each choice is deliberate:
   filesystem (``/tmp`` is an ``emptyDir``), and no service-account token;
 - Secrets reach it as ``secretKeyRef`` env vars: the agent never copies a
   value into the spec;
-- ``activeDeadlineSeconds`` (timeout + grace + margin) is the backstop that
-  ends the pod even if the agent is gone; ``restartPolicy: Never``;
+- ``activeDeadlineSeconds`` is the backstop that ends the pod even if the
+  agent is gone: the kubelet counts it from the pod's start, image pulls
+  included, so it starts with room for a slow start (``START_ALLOWANCE_S``)
+  and the agent lowers it to timeout + grace + margin from the job
+  container's own start once that runs (``running_deadline_seconds``; the
+  API lets the field only decrease); ``restartPolicy: Never``;
 - an owner reference to the RobotJob, so deleting the job collects the pod.
 """
 
@@ -46,6 +50,10 @@ ANNOTATION_CELL = "armnet.io/cell"
 ANNOTATION_TIMEOUT = "armnet.io/timeout-seconds"
 #: Seconds beyond timeout + grace before the kubelet's own deadline ends the pod.
 DEADLINE_MARGIN_S = 30
+#: Seconds a pod may take to start its job container (pulling a multi-GB runtime image over a
+#: slow link, the connector's start) before the backstop counts against the job: the kubelet
+#: counts ``activeDeadlineSeconds`` from the pod's start, the job's timeout from its own.
+START_ALLOWANCE_S = 900
 #: Seconds the connector gets on SIGTERM to turn torque off and report, beyond the job's grace.
 CONNECTOR_STOP_S = 10
 #: The customer's user: any non-root id; 65532 is the distroless "nonroot" convention.
@@ -135,9 +143,27 @@ def device_path(arm: str) -> str:
     return f"{DEVICE_DIR}/{arm}"
 
 
-def active_deadline_seconds(timeout_seconds: int, grace_seconds: float) -> int:
-    """The kubelet's backstop: the supervisor ends the job first unless the agent is gone."""
+def run_window_seconds(timeout_seconds: int, grace_seconds: float) -> int:
+    """The job's own time, counted from its container's start: timeout + grace + margin."""
     return int(timeout_seconds + grace_seconds + 0.999) + DEADLINE_MARGIN_S
+
+
+def active_deadline_seconds(timeout_seconds: int, grace_seconds: float) -> int:
+    """The kubelet's backstop as the pod is created: the run window plus room to start.
+
+    The supervisor ends the job first unless the agent is gone.
+    """
+    return run_window_seconds(timeout_seconds, grace_seconds) + START_ALLOWANCE_S
+
+
+def running_deadline_seconds(timeout_seconds: int, grace_seconds: float, job_started_after_s: float) -> int:
+    """The backstop once the job container runs, ``job_started_after_s`` after the pod started.
+
+    Both times are the kubelet's (the pod's ``startTime``, the container's
+    ``startedAt``), so no clock of the agent's enters; never later than the first.
+    """
+    tight = int(max(job_started_after_s, 0.0) + 0.999) + run_window_seconds(timeout_seconds, grace_seconds)
+    return min(tight, active_deadline_seconds(timeout_seconds, grace_seconds))
 
 
 def build_pod(inputs: PodInputs) -> dict[str, Any]:

@@ -42,6 +42,7 @@ from armnet_agent.launch.pod_spec import (
     SecretRef,
     build_pod,
     device_path,
+    running_deadline_seconds,
 )
 from armnet_agent.launch.sidecar import SidecarConfig
 from armnet_agent.launch.sim_cell import LocalCell, build_connector_config
@@ -423,14 +424,21 @@ class PodSession:
         core, metrics = self.launcher.core, self.launcher.metrics
         request = self.request
         job: PodJob | None = None
+        timeout, grace = request.job.timeout_seconds, request.cell.grace_seconds
+
+        def running_deadline(started_after_s: float) -> int:
+            return running_deadline_seconds(timeout, grace, started_after_s)
+
         if request.adopted is None:
             self._own_host_dirs()
             try:
-                job = PodJob.launch(core, self.launcher.manifest(request), on_started=metrics.pod_start_latency.observe)
+                job = PodJob.launch(core, self.launcher.manifest(request), on_started=metrics.pod_start_latency.observe,
+                                    running_deadline=running_deadline)
             except PodExists:
                 pass  # this job's pod from an agent that died before it wrote running: adopt it
         if job is None:
-            job = PodJob.adopt(core, request.job.namespace, container_name(request.job.uid))
+            job = PodJob.adopt(core, request.job.namespace, container_name(request.job.uid),
+                               running_deadline=running_deadline)
         self.job = job
         self.observer = SidecarObserver(self._observer_path, metrics)
         self.inputs.watch(self._job_running)  # reset waits, announced to the cell's operator

@@ -14,11 +14,13 @@ from armnet_agent.launch.pod_spec import (
     DEADLINE_MARGIN_S,
     JOB_CONTAINER,
     SIDECAR_ENV,
+    START_ALLOWANCE_S,
     PodInputs,
     SecretRef,
     active_deadline_seconds,
     build_pod,
     device_path,
+    running_deadline_seconds,
 )
 
 pytestmark = pytest.mark.unit
@@ -122,9 +124,20 @@ def test_the_pod_never_restarts_and_runs_on_the_agents_own_node() -> None:
     assert spec["nodeName"] == "robot-host-1"
 
 
-def test_the_active_deadline_is_timeout_plus_grace_plus_a_margin() -> None:
-    assert build_pod(inputs())["spec"]["activeDeadlineSeconds"] == 600 + 10 + DEADLINE_MARGIN_S
-    assert active_deadline_seconds(60, 2.5) == 60 + 3 + DEADLINE_MARGIN_S
+def test_a_new_pods_deadline_is_its_run_window_plus_room_to_start() -> None:
+    """The kubelet counts from the pod's start, image pulls included: a slow pull must not end a healthy job."""
+    assert build_pod(inputs())["spec"]["activeDeadlineSeconds"] == 600 + 10 + DEADLINE_MARGIN_S + START_ALLOWANCE_S
+    assert active_deadline_seconds(60, 2.5) == 60 + 3 + DEADLINE_MARGIN_S + START_ALLOWANCE_S
+
+
+def test_once_the_job_runs_its_deadline_is_timeout_plus_grace_plus_a_margin_from_its_own_start() -> None:
+    assert running_deadline_seconds(60, 2.5, job_started_after_s=41.2) == 42 + 60 + 3 + DEADLINE_MARGIN_S
+    assert running_deadline_seconds(60, 2.5, job_started_after_s=0.0) == 60 + 3 + DEADLINE_MARGIN_S
+
+
+def test_a_running_deadline_never_extends_the_first() -> None:
+    """The API lets activeDeadlineSeconds only decrease: a start slower than the allowance keeps the first."""
+    assert running_deadline_seconds(60, 2.5, job_started_after_s=5000) == active_deadline_seconds(60, 2.5)
 
 
 def test_the_robotjob_owns_the_pod() -> None:

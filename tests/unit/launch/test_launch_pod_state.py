@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from armnet_agent.launch.pod import container_state, pod_failed_reason
+from armnet_agent.launch.pod import container_state, job_start_delay_s, pod_failed_reason
 from armnet_agent.launch.sidecar import parse_record, record_line
 
 pytestmark = pytest.mark.unit
@@ -34,6 +34,20 @@ def test_a_waiting_job_container_has_no_exit_code_yet() -> None:
 def test_the_connectors_restart_count_is_read_from_the_init_container_statuses() -> None:
     state = container_state(pod(connector={"state": {"running": {}}, "restartCount": 2}), "connector")
     assert state.started and state.restarts == 2
+
+
+def test_the_job_start_delay_is_read_from_the_kubelets_own_times() -> None:
+    running = pod(startTime="2026-11-25T06:00:00Z",
+                  job={"state": {"running": {"startedAt": "2026-11-25T06:00:41Z"}}})
+    assert job_start_delay_s(running) == 41.0
+    ended = pod(startTime="2026-11-25T06:00:00Z",
+                job={"state": {"terminated": {"exitCode": 0, "startedAt": "2026-11-25T06:00:02Z"}}})
+    assert job_start_delay_s(ended) == 2.0
+
+
+def test_no_job_start_delay_before_the_job_container_runs() -> None:
+    assert job_start_delay_s(pod(startTime="2026-11-25T06:00:00Z")) is None
+    assert job_start_delay_s(pod(job={"state": {"running": {"startedAt": "garbage"}}})) is None
 
 
 def test_a_missing_image_is_a_pod_failure_naming_the_reason() -> None:
