@@ -85,8 +85,11 @@ class DeviceWatch:
             log.warning("cell %s: device lost: %s", self.cell, "; ".join(state.problems))
         elif state.problems and not previous.problems:
             log.info("cell %s: %s (lost if it lasts %.1f s)", self.cell, "; ".join(state.problems), self._debounce_s)
+        elif previous.lost and not state.lost:
+            log.info("cell %s: every device stayed present for %.1f s: no longer lost", self.cell, self._debounce_s)
         elif not state.problems and previous.problems:
-            log.info("cell %s: every device is present%s", self.cell, " again" if previous.lost else "")
+            log.info("cell %s: every device is present%s", self.cell,
+                     f" again (healthy once it stays so for {self._debounce_s:.1f} s)" if state.lost else "")
 
     def _loop(self) -> None:
         while not self._stop.wait(self._poll_s):

@@ -50,7 +50,7 @@ def test_a_removed_symlink_is_lost_after_the_debounce_and_reported_once(tmp_path
     assert str(link) in watch.state.problems[0]
 
 
-def test_the_link_put_back_is_present_at_the_next_read(tmp_path: Path) -> None:
+def test_the_link_put_back_is_present_at_the_next_read_and_healthy_once_it_stayed(tmp_path: Path) -> None:
     watch, link, clock, changes, metrics = watched(tmp_path)
     watch.poll()
     link.unlink()
@@ -59,7 +59,10 @@ def test_the_link_put_back_is_present_at_the_next_read(tmp_path: Path) -> None:
     link.symlink_to("/dev/null")
     clock.now = 3.0
     watch.poll()
-    assert watch.state == DeviceState(seen_ok=True) and gauge(metrics) == 1.0 and not changes[-1].problems
+    assert not watch.state.problems and watch.state.lost and gauge(metrics) == 0.0
+    clock.now = 3.0 + DEBOUNCE_S
+    watch.poll()
+    assert watch.state == DeviceState(seen_ok=True) and gauge(metrics) == 1.0 and not changes[-1].lost
 
 
 def test_a_plain_file_behind_the_link_is_not_a_device(tmp_path: Path) -> None:
