@@ -125,6 +125,15 @@ def stop_message(state: DeviceState) -> str | None:
     return f"{LOST_PREFIX}: {'; '.join(state.lost_problems)}"
 
 
+def launch_refusal(state: DeviceState) -> str | None:
+    """Why a job must not launch on the cell now (it fails before anything starts), or None.
+
+    The lost verdict, the same message a running job is stopped with: a launch onto a lost
+    device would only run into its grace window and fail there.
+    """
+    return stop_message(state)
+
+
 def lost_job_error(own_status: JobStatus, stopped_for: str | None, problems_now: Sequence[str]) -> str | None:
     """The error of a job whose device went away, or None when its own result stands.
 

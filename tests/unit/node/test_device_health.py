@@ -16,6 +16,7 @@ from armnet_agent.node.device_health import (
     DEVICE_MISSING,
     DeviceState,
     hardware_problem,
+    launch_refusal,
     lost_job_error,
     observe,
     stop_message,
@@ -157,3 +158,12 @@ def test_a_job_that_ended_otherwise_during_a_blink_keeps_its_result(own: JobStat
 
 def test_a_failure_with_every_device_present_keeps_its_own_error() -> None:
     assert lost_job_error(JobStatus.FAILED, None, ()) is None
+
+
+def test_a_launch_onto_a_lost_device_is_refused_with_the_device_lost_message() -> None:
+    assert launch_refusal(lost_at(2.5)) == stop_message(lost_at(2.5))
+    assert (launch_refusal(everything_back(lost_at(2.5), 3.0)) or "").startswith("device lost: arm follower")
+
+
+def test_a_launch_during_a_blink_is_not_refused() -> None:
+    assert launch_refusal(vanished(healthy_at(0.0), 1.0)) is None
