@@ -22,7 +22,7 @@ import logging
 import os
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -234,7 +234,8 @@ class CellWorker:
             refuse = device_health.launch_refusal(self.devices.state) if container is None else None
             self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container,
                                     device_problems=lambda: self.devices.state.problems).start(refuse=refuse)
-            self._stop_if_device_lost(self.runner)
+            if refuse is None:
+                self._stop_if_device_lost(self.runner)
 
     # -- the cell's devices ----------------------------------------------------------
 
@@ -296,14 +297,15 @@ class CellWorker:
             kept = self._last_probe or health.CellProbe(arms={})
             return health.CellProbe(arms=kept.arms, cameras=kept.cameras, interlock_trip=trip,
                                     bus_held_by_job=self._job_holds_bus(), devices_lost=lost)
+        # Every device present: the bus is read, though a lost verdict may still hold (its way back).
         fresh = self._bus.probe(self._read_hardware, bus_held=self._bus_held_with_facts)
         if fresh is not None:
             self._last_probe = fresh
-            return fresh
+            return replace(fresh, devices_lost=lost)
         last = self._last_probe
         assert last is not None  # no fresh probe only when a job holds the bus and an idle probe exists
         return health.CellProbe(
-            arms=last.arms, cameras=last.cameras, interlock_trip=trip, bus_held_by_job=True,
+            arms=last.arms, cameras=last.cameras, interlock_trip=trip, bus_held_by_job=True, devices_lost=lost,
         )
 
     def _bus_held_with_facts(self) -> bool:

@@ -7,7 +7,8 @@ from typing import Any
 
 import pytest
 from armnet_agent.deviceplugin.decide import DeviceFact, cell_device_paths
-from armnet_agent.node.device_health import DEBOUNCE_S, DeviceState, observe
+from armnet_agent.node.device_health import DEBOUNCE_S, DEVICE_LOST, DeviceState, observe
+from armnet_agent.node.health import hardware_condition
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import parse_cell
 from armnet_agent.node.plan import HostPaths
@@ -60,3 +61,12 @@ def test_a_lost_verdict_wakes_the_heartbeat_once(tmp_path: Path) -> None:
     cell._wake.clear()
     cell._devices_changed(read(state, False, 5.0))  # still lost, the same devices: nothing new to write
     assert not cell._wake.is_set()
+
+
+def test_hardware_ready_stays_false_while_a_lost_device_is_back_but_not_yet_for_the_debounce(tmp_path: Path) -> None:
+    cell = worker(tmp_path)
+    lost = read(read(read(DeviceState(), True, 0.0), False, 0.5), False, 0.5 + DEBOUNCE_S)
+    cell.devices._state = read(lost, True, 2.5)  # back, the verdict holding: the bus is probed again
+    assert cell.devices.state.problems == () and cell.devices.state.lost
+    condition = hardware_condition(cell.probe())
+    assert (condition.status, condition.reason) == ("False", DEVICE_LOST)
