@@ -11,8 +11,10 @@ stops the running job (it ends ``failed``, "device lost").
 A simulated cell's arm ports are reached through symlinks the worker makes to
 the simulator's ptys, ``<state-dir>/cells/<cell>/dev/<arm>`` (as udev makes
 ``/dev/serial/by-id/...`` for a USB adapter): these are the cell's device
-paths, so removing one is unplugging that arm (fault injection; put the link
-back to plug it in again).
+paths, so removing one is what the device watch sees of a pulled cable (fault
+injection; put the link back to plug it in again). The running job's bus keeps
+working on the pty: only the verdict sees the removal, and the worker then
+stops the job.
 """
 
 from __future__ import annotations
