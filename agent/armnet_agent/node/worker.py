@@ -116,17 +116,20 @@ class CellWorker:
                 self._start_sim()
             self.devices.start()
             self._thread.start()
+            notifier = telemetry_notifier(self.deps.link)
+            if notifier is not None and self.settings.telemetry.enabled:
+                self._telemetry = CellTelemetry(
+                    self.cell.name, self.telemetry_source, notifier, self.deps.metrics, self.settings.telemetry,
+                    on_exit=self._close_telemetry_devices,
+                ).start()
         except BaseException:
             self._stop.set()
+            self._wake.set()
             self.devices.stop()
+            if self._thread.is_alive():
+                self._thread.join(5)
             self._release_sim()
             raise
-        notifier = telemetry_notifier(self.deps.link)
-        if notifier is not None and self.settings.telemetry.enabled:
-            self._telemetry = CellTelemetry(
-                self.cell.name, self.telemetry_source, notifier, self.deps.metrics, self.settings.telemetry,
-                on_exit=self._close_telemetry_devices,
-            ).start()
         return self
 
     def stop(self) -> None:
