@@ -121,7 +121,7 @@ def test_cells_lists_phase_job_failing_conditions_and_heartbeat(k8s: Any, tenant
     api.patch_cluster_custom_object_status(G, V, "cells", name, {"status": {
         "phase": "Faulted", "lastHeartbeatTime": "2026-11-24T10:00:00Z", "conditions": [
             {"type": "AgentConnected", "status": "True", "reason": "Heartbeat"},
-            {"type": "HardwareReady", "status": "False", "reason": "PortMissing"}]}})
+            {"type": "HardwareReady", "status": "False", "reason": "DeviceLost"}]}})
     try:
         cells = {c.name: c for c in tenant.client().cells()}
     finally:

@@ -23,6 +23,6 @@ def read_fact(path: DevicePath) -> DeviceFact:
     try:
         resolved = os.path.realpath(path.host_path, strict=True)
         mode = os.stat(resolved).st_mode
-    except OSError:
+    except (OSError, ValueError):  # ValueError: a path the OS cannot take (a NUL byte in a Cell's port)
         return DeviceFact(path, None, False)
     return DeviceFact(path, resolved, stat.S_ISCHR(mode))

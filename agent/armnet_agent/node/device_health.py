@@ -8,17 +8,26 @@ there: the Cell's ``HardwareReady`` condition, the kubelet device plugin's
 
 **The debounce.** A device that was present and is missing (or is no longer a
 character device) is *lost* only once it has stayed so for ``DEBOUNCE_S``
-(1.5 s: three reads in a row at the 0.5 s poll). Why: udev re-creates a USB
-adapter's ``/dev/serial/by-id`` symlink on a re-enumeration (a USB reset, a
-hub's brown-out) and a read may fall between the remove and the add; the job's
-open port either survived (the symlink was all that blinked) or the job's own
-bus calls fail and say so. Killing a job for a sub-second blink would cost a
-whole episode for nothing. Longer than ~2 s is not a blink: a pulled cable
-stays pulled, and the job must not wait its whole timeout for it; the stop that
-follows honours the grace window as a timeout does. A device missing since the
-agent first looked (a wrong path, an arm never plugged in) needs no debounce.
-A device that comes back is present again at once (its servos are probed again
-on the next heartbeat).
+(1.5 s). At the 0.5 s poll that is four reads in a row: the first read that
+finds it missing starts its clock (``since``), and the read at ``since + 1.5 s``
+is the first that finds the debounce run out. Each device has its own clock:
+arm A missing for 0.5 s and arm B for 1 s a little later are two blinks, not
+one loss. Why a debounce: udev re-creates a USB adapter's ``/dev/serial/by-id``
+symlink on a re-enumeration (a USB reset, a hub's brown-out) and a read may
+fall between the remove and the add; the job's open port either survived (the
+symlink was all that blinked) or the job's own bus calls fail and say so.
+Killing a job for a sub-second blink would cost a whole episode for nothing.
+Longer than ~2 s is not a blink: a pulled cable stays pulled, and the job must
+not wait its whole timeout for it; the stop that follows honours the grace
+window as a timeout does. A device missing since the agent first looked (a
+wrong path, an arm never plugged in) needs no debounce.
+
+**The way back.** A lost verdict clears only once every device has stayed
+present for ``DEBOUNCE_S`` (the same four reads): a flaky cable that comes and
+goes must not turn ``HardwareReady`` True between two drops, or the operator
+binds a job that the next drop fails. While the devices are back but the
+verdict holds, ``problems`` is empty (the bus may be probed again) and the
+verdict keeps naming what was lost (``lost_problems``).
 """
 
 from __future__ import annotations
@@ -48,12 +57,18 @@ class DeviceState:
 
     #: What is wrong now, one line per device, naming it and its path (empty: all present).
     problems: tuple[str, ...] = ()
-    #: When (monotonic seconds) the current spell of problems began; None without problems.
-    since: float | None = None
-    #: The verdict: the problems held for the debounce (or were there from the first read).
+    #: Each missing device (its container path; ``""``: no device configured) and when
+    #: (monotonic seconds) its current spell began: every device has its own debounce.
+    missing_since: tuple[tuple[str, float], ...] = ()
+    #: The verdict: a device's problem held for the debounce (or was there from the first read),
+    #: and the devices have not yet stayed present for the debounce since.
     lost: bool = False
-    #: Every device was present at some read since the watch began.
+    #: Every device was present at some read since the watch began (a missing verdict: once it cleared).
     seen_ok: bool = False
+    #: What the lost verdict names: the problems when it was last seen with any (kept while they are back).
+    lost_problems: tuple[str, ...] = ()
+    #: While lost with every device present: when (monotonic seconds) they all came back.
+    back_since: float | None = None
 
     @property
     def plugin_health(self) -> str:
@@ -61,31 +76,44 @@ class DeviceState:
         return UNHEALTHY if self.lost else HEALTHY
 
 
+def _problems_by_device(facts: Sequence[DeviceFact]) -> dict[str, str]:
+    """Device (its container path) -> what is wrong with it now, for the devices with a problem."""
+    if not facts:
+        return {"": NO_DEVICE}
+    return {fact.path.container_path: f"{fact.path.label}: {reason}"
+            for fact in facts if (reason := problem(fact)) is not None}
+
+
 def describe(facts: Sequence[DeviceFact]) -> tuple[str, ...]:
     """What is wrong with the cell's devices now, each line naming the device and its path."""
-    if not facts:
-        return (NO_DEVICE,)
-    return tuple(f"{fact.path.label}: {reason}" for fact in facts if (reason := problem(fact)) is not None)
+    return tuple(_problems_by_device(facts).values())
 
 
 def observe(previous: DeviceState, facts: Sequence[DeviceFact], now: float, debounce_s: float = DEBOUNCE_S) -> DeviceState:
     """The verdict after one more read of the cell's devices (``now``: monotonic seconds)."""
-    problems = describe(facts)
-    if not problems:
-        return DeviceState(seen_ok=True)
-    since = previous.since if previous.problems and previous.since is not None else now
-    lost = previous.lost or not previous.seen_ok or now - since >= debounce_s
-    return DeviceState(problems, since, lost, previous.seen_ok)
+    wrong = _problems_by_device(facts)
+    if not wrong:
+        if not previous.lost:
+            return DeviceState(seen_ok=True)
+        back = previous.back_since if previous.back_since is not None else now
+        if now - back >= debounce_s:
+            return DeviceState(seen_ok=True)
+        return DeviceState(lost=True, seen_ok=previous.seen_ok, lost_problems=previous.lost_problems, back_since=back)
+    problems = tuple(wrong.values())
+    earlier = dict(previous.missing_since)
+    since = tuple((device, earlier.get(device, now)) for device in wrong)
+    lost = previous.lost or not previous.seen_ok or any(now - began >= debounce_s for _, began in since)
+    return DeviceState(problems, since, lost, previous.seen_ok, problems if lost else ())
 
 
 def hardware_problem(state: DeviceState) -> tuple[str, str] | None:
     """``(reason, message)`` of a False ``HardwareReady`` for the devices, or None while they are fine."""
     if not state.lost:
         return None
-    listed = "; ".join(state.problems)
+    listed = "; ".join(state.lost_problems)
     if state.seen_ok:
         return DEVICE_LOST, (f"{listed} (it was present and vanished); plug the device back in (its USB cable, "
-                             "its power); HardwareReady turns True when it returns")
+                             f"its power); HardwareReady turns True once it has stayed back for {DEBOUNCE_S:g} s")
     return DEVICE_MISSING, (f"{listed}; plug the device in, or fix the Cell's port (spec.robot.port / "
                             "spec.arms.<arm>.port) or camera path")
 
@@ -94,7 +122,16 @@ def stop_message(state: DeviceState) -> str | None:
     """Why a running job on the cell must stop now, or None while its devices hold."""
     if not state.lost:
         return None
-    return f"{LOST_PREFIX}: {'; '.join(state.problems)}"
+    return f"{LOST_PREFIX}: {'; '.join(state.lost_problems)}"
+
+
+def launch_refusal(state: DeviceState) -> str | None:
+    """Why a job must not launch on the cell now (it fails before anything starts), or None.
+
+    The lost verdict, the same message a running job is stopped with: a launch onto a lost
+    device would only run into its grace window and fail there.
+    """
+    return stop_message(state)
 
 
 def lost_job_error(own_status: JobStatus, stopped_for: str | None, problems_now: Sequence[str]) -> str | None:

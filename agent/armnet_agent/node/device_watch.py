@@ -23,6 +23,9 @@ from armnet_agent.node.metrics import AgentMetrics
 
 log = logging.getLogger(__name__)
 
+#: A read that keeps failing (a bug behind ``paths``) logs its traceback at most this often (seconds).
+FAILURE_LOG_EVERY_S = 60.0
+
 
 class DeviceWatch:
     """One cell's device reads and verdict; ``on_change`` runs on the watch thread when the verdict changes."""
@@ -44,6 +47,9 @@ class DeviceWatch:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name=f"armnet-devices-{cell}", daemon=True)
+        #: When (``clock``) a failed read last logged its traceback; None: never, or read fine since.
+        self._failure_logged_at: float | None = None
+        self._failures_unlogged = 0
 
     @property
     def state(self) -> DeviceState:
@@ -54,7 +60,7 @@ class DeviceWatch:
         return self._state.plugin_health
 
     def start(self) -> DeviceWatch:
-        self.poll()  # the verdict exists before the first heartbeat and the first device-plugin answer
+        self.tick()  # the verdict exists before the first heartbeat and the first device-plugin answer
         self._thread.start()
         return self
 
@@ -85,12 +91,27 @@ class DeviceWatch:
             log.warning("cell %s: device lost: %s", self.cell, "; ".join(state.problems))
         elif state.problems and not previous.problems:
             log.info("cell %s: %s (lost if it lasts %.1f s)", self.cell, "; ".join(state.problems), self._debounce_s)
+        elif previous.lost and not state.lost:
+            log.info("cell %s: every device stayed present for %.1f s: no longer lost", self.cell, self._debounce_s)
         elif not state.problems and previous.problems:
-            log.info("cell %s: every device is present%s", self.cell, " again" if previous.lost else "")
+            log.info("cell %s: every device is present%s", self.cell,
+                     f" again (healthy once it stays so for {self._debounce_s:.1f} s)" if state.lost else "")
+
+    def tick(self) -> None:
+        """One read of the loop: a failure is retried at the next, its traceback logged at most once a minute."""
+        try:
+            self.poll()
+        except Exception:  # noqa: BLE001 - a bad read (a path callable's bug) is retried next poll
+            now = self._clock()
+            if self._failure_logged_at is not None and now - self._failure_logged_at < FAILURE_LOG_EVERY_S:
+                self._failures_unlogged += 1
+                return
+            log.warning("cell %s: reading its devices failed (%d more failures since the last report; "
+                        "the verdict stays as it was)", self.cell, self._failures_unlogged, exc_info=True)
+            self._failure_logged_at, self._failures_unlogged = now, 0
+        else:
+            self._failure_logged_at, self._failures_unlogged = None, 0
 
     def _loop(self) -> None:
         while not self._stop.wait(self._poll_s):
-            try:
-                self.poll()
-            except Exception:  # noqa: BLE001 - a bad read (a path callable's bug) is retried next poll
-                log.warning("cell %s: reading its devices failed", self.cell, exc_info=True)
+            self.tick()

@@ -82,10 +82,17 @@ def eeprom_mismatches(port: str, ranges: Mapping[str, MotorRange]) -> tuple[str,
 def ping_servos(port: str, ids: dict[str, int]) -> dict[str, tuple[int, int | None]]:
     """motor -> (id, model number or None when the servo stays silent)."""
     from scservo_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+    from serial import SerialException
 
     handler = PortHandler(port)
-    if not handler.openPort():
-        return {motor: (sid, None) for motor, sid in ids.items()}
+    silent: dict[str, tuple[int, int | None]] = {motor: (sid, None) for motor, sid in ids.items()}
+    try:
+        opened = handler.openPort()
+    except (SerialException, OSError) as exc:  # the device vanished since the device watch's read
+        log.debug("opening %s failed: %s", port, exc)
+        return silent
+    if not opened:
+        return silent
     try:
         handler.setBaudRate(BAUD_RATE)
         packets = PacketHandler(0)

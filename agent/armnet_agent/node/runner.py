@@ -105,9 +105,16 @@ class JobRunner:
         self._stop_reason: str | None = None
         #: The cell's device was lost while the job ran (``stop_device_lost``): the job ends failed with this.
         self._device_lost: str | None = None
+        #: The job's result is its own from here (a cancel's or timeout's grace window opened, or it
+        #: ended): a device lost later is not recorded. Guarded by ``_loss_lock`` with ``_device_lost``.
+        self._loss_closed = False
+        self._loss_lock = threading.Lock()
+        #: A launch refused before anything starts (``start(refuse=...)``): the job's error.
+        self._refused: str | None = None
         self._device_problems = device_problems or (lambda: ())
         self._seen_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
+        self.hooks.on_deadline = self._deadline_reached
 
     @property
     def uid(self) -> str:
@@ -117,12 +124,23 @@ class JobRunner:
     def done(self) -> bool:
         return self._finished.is_set()
 
-    def start(self) -> JobRunner:
+    @property
+    def device_lost(self) -> str | None:
+        """The device loss this job ends ``failed`` for, or None (its own result stands)."""
+        return self._device_lost
+
+    def start(self, *, refuse: str | None = None) -> JobRunner:
+        """Run the job; with ``refuse``, a launch still ours ends ``failed`` with that error before anything starts."""
+        self._refused = refuse
         self._thread.start()
         return self
 
     def stop(self) -> None:
-        """Stop like a timeout (interlock, grace window, kill), ending ``cancelled``."""
+        """Stop like a timeout (interlock, grace window, kill), ending ``cancelled``.
+
+        A cancel that begins before any device loss keeps its result: a loss after it is not recorded.
+        """
+        self._close_device_loss()
         if not self.hooks.cancel_gracefully.is_set():
             log.info("stopping job %s (cancel, deletion or gone)", self.job.key)
         self.hooks.cancel_gracefully.set()
@@ -139,11 +157,31 @@ class JobRunner:
 
         The same path as a cancel (the interlock trips naming ``message``, the grace window
         runs, then the kill), so a job that honours ``is_shutting_down`` can save its data.
+        Not recorded once the job's own end is under way (a cancel's or a timeout's grace
+        window opened, or the job ended): that job ends cancelled, timeout or as it exited.
         """
-        if self._device_lost is None and not self.done:
+        with self._loss_lock:
+            if self._loss_closed or self._device_lost is not None:
+                return
             self._device_lost = message
-            log.warning("job %s: stopping it: %s", self.job.key, message)
+        log.warning("job %s: stopping it: %s", self.job.key, message)
         self.hooks.cancel_gracefully.set()
+
+    def settle_device_loss(self) -> str | None:
+        """The job ended (``supervise`` returned): no loss is recorded from now; the one recorded before, if any."""
+        return self._close_device_loss()
+
+    def _close_device_loss(self) -> str | None:
+        with self._loss_lock:
+            self._loss_closed = True
+            return self._device_lost
+
+    def _deadline_reached(self) -> None:
+        """The job's timeout opened its grace window: it ends ``timeout``; then the connector trips."""
+        self._close_device_loss()
+        session = self.session
+        if session is not None:
+            session.on_deadline()
 
     def interlock_trip(self) -> str | None:
         session = self.session
@@ -167,6 +205,9 @@ class JobRunner:
         job, cell = self.job, self.cell
         adopted = self.adopted_container is not None
         if not adopted and not self._still_dispatched():
+            return
+        if not adopted and self._refused is not None:
+            self._fail_before_start(self._refused)
             return
         launcher = self.deps.launcher
         try:
@@ -193,7 +234,6 @@ class JobRunner:
         try:
             with launcher.session(request) as session:
                 self.session = session
-                self.hooks.on_deadline = session.on_deadline
                 self.hooks.on_cancel = lambda: session.on_cancel(self._device_lost)
                 bridge = inputs_bridge(self.deps.link, session.operator_inputs(), namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout,
@@ -223,12 +263,13 @@ class JobRunner:
                 flusher = threading.Thread(target=self._flush_progress, daemon=True)
                 flusher.start()
                 result = supervise(launched, limits, self.hooks)
+                device_lost = self.settle_device_loss()  # a loss recorded after this does not change the result
                 failure = session.failure()
                 if failure is not None and result.status not in (JobStatus.TIMEOUT, JobStatus.CANCELLED):
                     result = infra_failure(failure, limits)
                 elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
                     result = result.model_copy(update={"error": self._stop_reason})
-                lost = lost_job_error(result.status, self._device_lost, tuple(self._device_problems()))
+                lost = lost_job_error(result.status, device_lost, tuple(self._device_problems()))
                 if lost is not None:
                     result = result.model_copy(update={"status": JobStatus.FAILED, "error": lost})
                 self.rollouts.sync()  # the last begins and ends, before the connector stops

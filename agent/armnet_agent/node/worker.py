@@ -11,8 +11,10 @@ stops the running job (it ends ``failed``, "device lost").
 A simulated cell's arm ports are reached through symlinks the worker makes to
 the simulator's ptys, ``<state-dir>/cells/<cell>/dev/<arm>`` (as udev makes
 ``/dev/serial/by-id/...`` for a USB adapter): these are the cell's device
-paths, so removing one is unplugging that arm (fault injection; put the link
-back to plug it in again).
+paths, so removing one is what the device watch sees of a pulled cable (fault
+injection; put the link back to plug it in again). The running job's bus keeps
+working on the pty: only the verdict sees the removal, and the worker then
+stops the job.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import logging
 import os
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -84,6 +86,8 @@ class CellWorker:
         self._wake = threading.Event()
         self._sim_links: dict[str, Path] = {}
         self.devices = DeviceWatch(cell.name, self.device_paths, self._devices_changed, deps.metrics)
+        #: The devices' HardwareReady problem the heartbeat was last woken for (``_devices_changed``).
+        self._hardware_problem: tuple[str, str] | None = None
         self._last_probe: health.CellProbe | None = None
         self._bus = BusTurns()
         self._unplugged: frozenset[str] = frozenset()
@@ -103,16 +107,29 @@ class CellWorker:
         return self._telemetry
 
     def start(self) -> CellWorker:
-        if self.cell.simulated:
-            self._start_sim()
-        self.devices.start()
-        self._thread.start()
-        notifier = telemetry_notifier(self.deps.link)
-        if notifier is not None and self.settings.telemetry.enabled:
-            self._telemetry = CellTelemetry(
-                self.cell.name, self.telemetry_source, notifier, self.deps.metrics, self.settings.telemetry,
-                on_exit=self._close_telemetry_devices,
-            ).start()
+        """Start the cell's simulator, device watch and heartbeat; on a failure, stop what started, then raise.
+
+        The agent's next pass makes a new worker: nothing of this one (a simulator, its links) is left behind.
+        """
+        try:
+            if self.cell.simulated:
+                self._start_sim()
+            self.devices.start()
+            self._thread.start()
+            notifier = telemetry_notifier(self.deps.link)
+            if notifier is not None and self.settings.telemetry.enabled:
+                self._telemetry = CellTelemetry(
+                    self.cell.name, self.telemetry_source, notifier, self.deps.metrics, self.settings.telemetry,
+                    on_exit=self._close_telemetry_devices,
+                ).start()
+        except BaseException:
+            self._stop.set()
+            self._wake.set()
+            self.devices.stop()
+            if self._thread.is_alive():
+                self._thread.join(5)
+            self._release_sim()
+            raise
         return self
 
     def stop(self) -> None:
@@ -125,11 +142,16 @@ class CellWorker:
         if runner is not None:
             runner.stop()
         self._thread.join(5)
+        self._release_sim()
+
+    def _release_sim(self) -> None:
+        """Stop the simulator and remove the links to its ptys (no-op for a real cell)."""
         if self.sim is not None:
             self.sim.stop()
         for link in self._sim_links.values():
             with contextlib.suppress(OSError):
                 link.unlink()
+        self._sim_links.clear()
 
     def _start_sim(self) -> None:
         try:
@@ -213,15 +235,25 @@ class CellWorker:
             self._idle_arms.close()  # the agent's own port handles: the job's connector opens the port
             # The job's connector opens the cameras it is asked for; a hung camera read delays this at most 2 s.
             self._idle_cameras.close(wait_s=2.0)
+            # A launch onto a lost device fails before anything starts; an adopted job is stopped, failed.
+            refuse = device_health.launch_refusal(self.devices.state) if container is None else None
             self.runner = JobRunner(job, self.cell, self.sim, self.deps, container=container,
-                                    device_problems=lambda: self.devices.state.problems).start()
-            self._stop_if_device_lost(self.runner)  # launched onto a lost device: stopped at once, failed
+                                    device_problems=lambda: self.devices.state.problems).start(refuse=refuse)
+            if refuse is None:
+                self._stop_if_device_lost(self.runner)
 
     # -- the cell's devices ----------------------------------------------------------
 
     def _devices_changed(self, state: device_health.DeviceState) -> None:
-        """On the watch thread: the heartbeat writes HardwareReady now; a lost device stops the job."""
-        self._wake.set()
+        """On the watch thread: a lost device stops the job; a new HardwareReady is written now.
+
+        Only a change of the condition wakes the heartbeat: a device blinking within the
+        debounce changes the problem list at every read, not the Cell's status.
+        """
+        problem = device_health.hardware_problem(state)
+        if problem != self._hardware_problem:
+            self._hardware_problem = problem
+            self._wake.set()
         runner = self.runner
         if runner is not None:
             self._stop_if_device_lost(runner)
@@ -270,14 +302,15 @@ class CellWorker:
             kept = self._last_probe or health.CellProbe(arms={})
             return health.CellProbe(arms=kept.arms, cameras=kept.cameras, interlock_trip=trip,
                                     bus_held_by_job=self._job_holds_bus(), devices_lost=lost)
+        # Every device present: the bus is read, though a lost verdict may still hold (its way back).
         fresh = self._bus.probe(self._read_hardware, bus_held=self._bus_held_with_facts)
         if fresh is not None:
             self._last_probe = fresh
-            return fresh
+            return replace(fresh, devices_lost=lost)
         last = self._last_probe
         assert last is not None  # no fresh probe only when a job holds the bus and an idle probe exists
         return health.CellProbe(
-            arms=last.arms, cameras=last.cameras, interlock_trip=trip, bus_held_by_job=True,
+            arms=last.arms, cameras=last.cameras, interlock_trip=trip, bus_held_by_job=True, devices_lost=lost,
         )
 
     def _bus_held_with_facts(self) -> bool:

@@ -153,13 +153,13 @@ def test_a_cell_view_lists_only_the_false_health_conditions() -> None:
     cell = Cell.model_validate(a_cell(phase="Faulted", currentJob="team-a/pick-1",
                                       lastHeartbeatTime="2026-11-24T10:00:00Z", conditions=[
         {"type": "AgentConnected", "status": "True"},
-        {"type": "HardwareReady", "status": "False", "reason": "PortMissing", "message": "/dev/ttyACM0"},
+        {"type": "HardwareReady", "status": "False", "reason": "DeviceLost", "message": "/dev/ttyACM0"},
         {"type": "CamerasReady", "status": "Unknown"}]))
 
     view = cell_view_of(cell)
 
     assert view.phase == "Faulted" and view.current_job == "team-a/pick-1"
-    assert [(c.type, c.reason) for c in view.false_conditions] == [("HardwareReady", "PortMissing")]
+    assert [(c.type, c.reason) for c in view.false_conditions] == [("HardwareReady", "DeviceLost")]
 
 
 def test_a_cell_the_operator_never_saw_is_unknown() -> None:

@@ -127,14 +127,14 @@ def test_an_unfinished_result_json_says_so() -> None:
 def test_the_cells_table_shows_failing_conditions_and_heartbeat_age() -> None:
     cell = cell_view_of(Cell.model_validate(a_cell(
         phase="Faulted", currentJob="team-a/pick-1", lastHeartbeatTime="2026-11-24T10:04:30Z",
-        conditions=[{"type": "HardwareReady", "status": "False", "reason": "PortMissing"}])))
+        conditions=[{"type": "HardwareReady", "status": "False", "reason": "DeviceLost"}])))
 
     rows = cells_table([cell], NOW).splitlines()
 
     assert rows[1].split() == ["cell-1", "Faulted", "lerobot/so-101", "<any>", "team-a/pick-1",
-                               "HardwareReady(PortMissing)", "30s", "ago"]
+                               "HardwareReady(DeviceLost)", "30s", "ago"]
     assert cell_document(cell)["failingConditions"] == [
-        {"type": "HardwareReady", "reason": "PortMissing", "message": None}]
+        {"type": "HardwareReady", "reason": "DeviceLost", "message": None}]
 
 
 def line(kind: str, text: str, data: object = None) -> LogLine:

@@ -42,3 +42,8 @@ def test_a_regular_file_is_no_character_device(tmp_path: Path) -> None:
     path.write_text("")
     fact = read_fact(DevicePath("/dev/armnet/arm", str(path)))
     assert fact.resolved == os.path.realpath(path) and not fact.is_char_device
+
+
+def test_a_path_with_a_nul_byte_reads_as_missing_rather_than_raising() -> None:
+    fact = read_fact(DevicePath("/dev/armnet/arm", "/dev/ttyACM0\x00evil"))
+    assert fact.resolved is None and not fact.is_char_device

@@ -16,6 +16,7 @@ from armnet_agent.node.device_health import (
     DEVICE_MISSING,
     DeviceState,
     hardware_problem,
+    launch_refusal,
     lost_job_error,
     observe,
     stop_message,
@@ -87,10 +88,52 @@ def test_a_cell_without_devices_is_never_healthy() -> None:
     assert state.lost and state.plugin_health == UNHEALTHY
 
 
-def test_a_lost_device_that_returns_is_present_at_once() -> None:
-    lost = vanished(vanished(healthy_at(0.0), 1.0), 1.0 + DEBOUNCE_S)
-    back = observe(lost, [present(ARM), present(CAMERA)], 3.0)
-    assert back == DeviceState(seen_ok=True) and hardware_problem(back) is None
+def everything_back(previous: DeviceState, t: float) -> DeviceState:
+    return observe(previous, [present(ARM), present(CAMERA)], t)
+
+
+def lost_at(t: float) -> DeviceState:
+    return vanished(vanished(healthy_at(0.0), t - DEBOUNCE_S), t)
+
+
+def test_a_lost_device_that_returns_is_present_at_once_but_the_verdict_holds_until_it_stays() -> None:
+    back = everything_back(lost_at(2.5), 3.0)
+    assert back.problems == () and back.lost and back.plugin_health == UNHEALTHY
+    reason, message = hardware_problem(back) or ("", "")
+    assert reason == DEVICE_LOST and "/dev/serial/by-id/usb-arm does not exist" in message
+
+
+def test_a_lost_verdict_clears_after_the_devices_stayed_present_for_the_debounce() -> None:
+    held = everything_back(everything_back(lost_at(2.5), 3.0), 3.0 + DEBOUNCE_S - 0.1)
+    assert held.lost
+    cleared = everything_back(held, 3.0 + DEBOUNCE_S)
+    assert cleared == DeviceState(seen_ok=True) and hardware_problem(cleared) is None
+
+
+def test_a_flapping_device_keeps_the_lost_verdict_and_its_way_back_starts_over() -> None:
+    state = lost_at(2.5)
+    for t in (3.0, 4.0, 4.5, 5.5):  # back 1 s, gone, back 1 s, gone: never the debounce present
+        state = everything_back(state, t) if t in (3.0, 4.5) else vanished(state, t)
+        assert state.lost and hardware_problem(state) is not None
+    state = everything_back(state, 6.0)
+    assert everything_back(state, 6.0 + DEBOUNCE_S - 0.1).lost
+    assert not everything_back(state, 6.0 + DEBOUNCE_S).lost
+
+
+def test_a_missing_verdict_stays_missing_while_its_device_comes_back() -> None:
+    back = everything_back(observe(DeviceState(), [gone(ARM), present(CAMERA)], 0.0), 0.5)
+    assert back.lost and (hardware_problem(back) or ("", ""))[0] == DEVICE_MISSING
+
+
+def test_each_device_has_its_own_debounce_two_short_blinks_of_two_devices_are_no_loss() -> None:
+    a, b = cell_device_paths({"a": "/dev/serial/by-id/usb-a", "b": "/dev/serial/by-id/usb-b"})
+    up = {a: DeviceFact(a, "/dev/ttyACM0", True), b: DeviceFact(b, "/dev/ttyACM1", True)}
+    state = observe(DeviceState(), list(up.values()), 0.0)
+    reads = [(0.5, [gone(a), up[b]]), (1.0, [gone(a), gone(b)]), (1.5, [up[a], gone(b)]), (2.0, [up[a], gone(b)])]
+    for t, facts in reads:  # a missing 0.5-1.0 s, b missing 1.0-2.0 s: each shorter than the debounce
+        state = observe(state, facts, t)
+    assert state.problems and not state.lost
+    assert observe(state, [up[a], gone(b)], 1.0 + DEBOUNCE_S).lost  # b's own spell ran out
 
 
 def test_the_stop_message_says_device_lost_and_names_the_device() -> None:
@@ -115,3 +158,12 @@ def test_a_job_that_ended_otherwise_during_a_blink_keeps_its_result(own: JobStat
 
 def test_a_failure_with_every_device_present_keeps_its_own_error() -> None:
     assert lost_job_error(JobStatus.FAILED, None, ()) is None
+
+
+def test_a_launch_onto_a_lost_device_is_refused_with_the_device_lost_message() -> None:
+    assert launch_refusal(lost_at(2.5)) == stop_message(lost_at(2.5))
+    assert (launch_refusal(everything_back(lost_at(2.5), 3.0)) or "").startswith("device lost: arm follower")
+
+
+def test_a_launch_during_a_blink_is_not_refused() -> None:
+    assert launch_refusal(vanished(healthy_at(0.0), 1.0)) is None

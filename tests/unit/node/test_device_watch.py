@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import pytest
-from armnet_agent.deviceplugin.decide import HEALTHY, UNHEALTHY, cell_device_paths
+from armnet_agent.deviceplugin.decide import HEALTHY, UNHEALTHY, DevicePath, cell_device_paths
 from armnet_agent.deviceplugin.server import CellPlugin
 from armnet_agent.node.device_health import DEBOUNCE_S, DeviceState
-from armnet_agent.node.device_watch import DeviceWatch
+from armnet_agent.node.device_watch import FAILURE_LOG_EVERY_S, DeviceWatch
 from armnet_agent.node.metrics import AgentMetrics
 
 pytestmark = pytest.mark.unit
@@ -50,7 +51,7 @@ def test_a_removed_symlink_is_lost_after_the_debounce_and_reported_once(tmp_path
     assert str(link) in watch.state.problems[0]
 
 
-def test_the_link_put_back_is_present_at_the_next_read(tmp_path: Path) -> None:
+def test_the_link_put_back_is_present_at_the_next_read_and_healthy_once_it_stayed(tmp_path: Path) -> None:
     watch, link, clock, changes, metrics = watched(tmp_path)
     watch.poll()
     link.unlink()
@@ -59,7 +60,10 @@ def test_the_link_put_back_is_present_at_the_next_read(tmp_path: Path) -> None:
     link.symlink_to("/dev/null")
     clock.now = 3.0
     watch.poll()
-    assert watch.state == DeviceState(seen_ok=True) and gauge(metrics) == 1.0 and not changes[-1].problems
+    assert not watch.state.problems and watch.state.lost and gauge(metrics) == 0.0
+    clock.now = 3.0 + DEBOUNCE_S
+    watch.poll()
+    assert watch.state == DeviceState(seen_ok=True) and gauge(metrics) == 1.0 and not changes[-1].lost
 
 
 def test_a_plain_file_behind_the_link_is_not_a_device(tmp_path: Path) -> None:
@@ -92,3 +96,30 @@ def test_stopping_the_watch_removes_its_cells_series(tmp_path: Path) -> None:
     watch.start()
     watch.stop()
     assert gauge(metrics) is None
+
+
+def failing_watch(clock: Clock) -> DeviceWatch:
+    def paths() -> tuple[DevicePath, ...]:
+        raise RuntimeError("a bug behind the cell's paths")
+
+    return DeviceWatch("cell-a", paths, lambda _state: None, AgentMetrics(), clock=clock)
+
+
+def test_a_read_that_keeps_failing_logs_its_traceback_at_most_once_a_minute(caplog: pytest.LogCaptureFixture) -> None:
+    clock = Clock()
+    watch = failing_watch(clock)
+    with caplog.at_level(logging.WARNING, logger="armnet_agent.node.device_watch"):
+        for clock.now in (0.0, 0.5, 1.0, 59.5):
+            watch.tick()
+        assert len(caplog.records) == 1 and caplog.records[0].exc_info is not None
+        clock.now = FAILURE_LOG_EVERY_S
+        watch.tick()
+    assert len(caplog.records) == 2 and "3 more failures" in caplog.records[1].getMessage()
+
+
+def test_starting_a_watch_whose_read_fails_does_not_raise() -> None:
+    watch = failing_watch(Clock())
+    try:
+        assert watch.start().state == DeviceState()
+    finally:
+        watch.stop()

@@ -40,3 +40,8 @@ def test_a_servo_whose_homing_offset_was_changed_outside_armnet_is_named(sim_cel
     probe = probe_arm(sim_cell.arm.port, path)
     assert len(probe.calibration_mismatches) == 1
     assert probe.calibration_mismatches[0].startswith("wrist_roll Homing_Offset holds ")
+
+
+def test_a_port_that_vanished_before_the_probe_reports_every_servo_silent(tmp_path) -> None:
+    probe = probe_arm(str(tmp_path / "unplugged"), None)
+    assert probe.answers and all(model is None for _id, model in probe.answers.values())
