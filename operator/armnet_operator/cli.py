@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
                       "%.0f s", str(error)[:300], wait)
             time.sleep(wait)
             continue
-        if controller.restart_requested:
+        if controller.restart_requested and not controller.terminated:
             failures = 0
             log.info("starting the operator's watches and reconcile loop again")
             continue

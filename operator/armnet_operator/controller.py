@@ -145,6 +145,8 @@ class Controller:
         self.died: BaseException | None = None
         self.dead = False
         self.restart_requested = False
+        #: A SIGTERM/SIGINT arrived while kopf stopped for that restart: exit instead.
+        self.terminated = False
         self._crd_uids: dict[str, str] | None = None
         self._crds_checked_at: datetime | None = None
         self._crds_replaced = False

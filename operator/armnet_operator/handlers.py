@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import signal
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -76,6 +77,7 @@ def build_registry(
             stop_flag.set()
 
     def on_resources_back() -> None:
+        _note_termination_during_restart(controller)
         if stop_flag is not None:
             stop_flag.set()
 
@@ -128,6 +130,24 @@ def build_registry(
         _store(controller, "Cell", body, lambda: controller.cache.on_cell(event.get("type"), body))
 
     return registry, controller
+
+
+def _note_termination_during_restart(controller: Controller) -> None:
+    """A SIGTERM while kopf stops for a restart must end the process, not start kopf again.
+
+    kopf's own handler resolves a future nobody awaits once its stop flag is raised;
+    ours (installed on the same loop, replacing kopf's) marks the controller, and the
+    CLI exits instead of restarting. Outside the main thread there are no signals to take.
+    """
+    def terminated() -> None:
+        controller.terminated = True
+
+    try:
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(signum, terminated)
+    except (RuntimeError, ValueError, NotImplementedError):
+        return
 
 
 def _store(controller: Controller, kind: str, body: Any, store: Callable[[], None]) -> None:

@@ -228,7 +228,7 @@ class KubeApi:
                 if error.status != 404:
                     raise _translate(error, f"CRD {name}") from error
                 continue
-            uids[name] = str(crd.metadata.uid)
+            uids[name] = str(crd.metadata.uid if crd.metadata is not None else "")
         return uids
 
     # -------------------------------------------------------------- leader Lease
