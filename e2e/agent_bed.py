@@ -59,6 +59,7 @@ class AgentBed:
         self._agent_starts = 0
         #: Extra ``armnet agent`` arguments (the pod launcher's beds pass ``--launcher pod`` ...).
         self.agent_args: list[str] = []
+        self.operator_args: list[str] = []
         #: Extra Containerfile lines for job images (before the COPY).
         self.image_lines: list[str] = []
         #: Called with each job image's tag once built (the pod beds import it into the node).
@@ -92,7 +93,7 @@ class AgentBed:
     def start_operator(self) -> None:
         argv = [sys.executable, "-m", "armnet_cli.main", "operator", "--kubeconfig", str(self.k8s.kubeconfig),
                 "--namespaces", self.namespace, "--lease-namespace", self.namespace, "--metrics-port", "0",
-                "--reconcile-period", "0.5", "--heartbeat-timeout", "15", "--claim-grace", "5"]
+                "--reconcile-period", "0.5", "--heartbeat-timeout", "15", "--claim-grace", "5", *self.operator_args]
         log = open(self.log_dir / "operator.log", "ab")  # noqa: SIM115 - kept open for the process
         self.operator = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self._env())
 

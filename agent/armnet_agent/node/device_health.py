@@ -137,13 +137,15 @@ def launch_refusal(state: DeviceState) -> str | None:
 def lost_job_error(own_status: JobStatus, stopped_for: str | None, problems_now: Sequence[str]) -> str | None:
     """The error of a job whose device went away, or None when its own result stands.
 
-    - stopped for a lost device: ``failed`` with that message, whatever the job did in its
-      grace window (its return value and output are kept beside the error);
+    - stopped for a lost device and the stop took effect (the job ended cancelled, or failed):
+      ``failed`` with that message, whatever the job did in its grace window (its return value
+      and output are kept beside the error); a job that exited on its own first (succeeded, or
+      timed out) keeps its result, even if the loss was recorded while its output drained;
     - it failed on its own while a device is missing, before the debounce ran out (a real
       unplug makes the job's bus calls fail at once): the missing device is the cause, said so;
     - anything else (a success, a timeout or cancel with every device present) keeps its result.
     """
-    if stopped_for is not None:
+    if stopped_for is not None and own_status in (JobStatus.CANCELLED, JobStatus.FAILED):
         return stopped_for
     if own_status is JobStatus.FAILED and problems_now:
         return f"{LOST_PREFIX}: {'; '.join(problems_now)}"

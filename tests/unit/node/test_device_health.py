@@ -141,9 +141,15 @@ def test_the_stop_message_says_device_lost_and_names_the_device() -> None:
     assert stop_message(lost) == "device lost: arm follower's serial port: /dev/serial/by-id/usb-arm does not exist"
 
 
-@pytest.mark.parametrize("own", list(JobStatus))
+@pytest.mark.parametrize("own", [JobStatus.CANCELLED, JobStatus.FAILED])
 def test_a_job_stopped_for_a_lost_device_ends_with_that_error_whatever_it_did_in_grace(own: JobStatus) -> None:
     assert lost_job_error(own, "device lost: arm x", ()) == "device lost: arm x"
+
+
+@pytest.mark.parametrize("own", [JobStatus.SUCCEEDED, JobStatus.TIMEOUT])
+def test_a_job_that_ended_on_its_own_before_the_stop_took_effect_keeps_its_result(own: JobStatus) -> None:
+    """Exit 0 (or its timeout) first, the loss recorded while its output drained: the result was earned."""
+    assert lost_job_error(own, "device lost: arm x", ()) is None
 
 
 def test_a_job_that_failed_on_its_own_while_a_device_is_missing_is_failed_for_the_device() -> None:
