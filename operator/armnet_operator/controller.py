@@ -145,12 +145,13 @@ class Controller:
         self.died: BaseException | None = None
         self.dead = False
         self.restart_requested = False
+        """The loop ended to have kopf's watches started afresh (see ``on_resources_back``)."""
         #: A SIGTERM/SIGINT arrived while kopf stopped for that restart: exit instead.
         self.terminated = False
         self._crd_uids: dict[str, str] | None = None
         self._crds_checked_at: datetime | None = None
         self._crds_replaced = False
-        """The loop ended to have kopf's watches started afresh (see ``on_resources_back``)."""
+        self._crd_check_off = False
 
     def start(self) -> None:
         self.cache.changed = asyncio.Event()  # bind to the running loop
@@ -247,9 +248,14 @@ class Controller:
         uid) is a return all the same. Raises ResourceMissing while a CRD is gone and
         ResourcesReplaced once they are all back and served.
         """
-        if self._crds_checked_at is not None and now - self._crds_checked_at < every:
+        if self._crd_check_off or (self._crds_checked_at is not None and now - self._crds_checked_at < every):
             return
-        uids = self.api.crd_uids()
+        try:
+            uids = self.api.crd_uids()
+        except PermanentError as error:  # RBAC without `get` on CRDs (kopf alone needs list/watch): warn, go on
+            log.warning("%s; this replica does not watch its CRDs for a re-creation (kopf may miss one)", error)
+            self._crd_check_off = True
+            return
         self._crds_checked_at = now
         if len(uids) < 2 or (self._crd_uids is not None and uids != self._crd_uids):
             self._crds_replaced = True

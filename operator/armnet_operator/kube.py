@@ -64,7 +64,8 @@ def _translate(error: ApiException, what: str) -> Exception:
     if error.status in (401, 403):
         return PermanentError(
             f"{what}: forbidden ({error.reason}); grant the operator's ServiceAccount the RBAC "
-            "rules in helm/armnet (robotjobs, robotjobs/status, cells/status, events, leases)"
+            "rules in helm/armnet (robotjobs, robotjobs/status, cells/status, events, leases, "
+            "customresourcedefinitions get)"
         )
     if error.status == 422:
         return PermanentError(f"{what}: rejected by the API server: {error.body}")

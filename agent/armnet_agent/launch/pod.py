@@ -120,6 +120,7 @@ class PodJob:
         lowered to it once the job runs (``pod_spec.running_deadline_seconds``).
         """
         self._running_deadline = running_deadline
+        self._tightened = running_deadline is None
         self._core = core
         self.namespace = namespace
         self.name = name
@@ -183,8 +184,9 @@ class PodJob:
                 return
             self.last_pod = pod
             state = container_state(pod, JOB_CONTAINER)
+            if state.started and not self._tightened:
+                self._tightened = self._tighten_deadline(pod)  # before "started": the agent may go right after
             if state.started and not self._started.is_set():
-                self._tighten_deadline(pod)  # before "started": the agent may go right after
                 self._started.set()
                 if self._on_started is not None:
                     self._on_started(time.monotonic() - self._created_at)
@@ -198,20 +200,28 @@ class PodJob:
                 return
             time.sleep(self._poll_s)
 
-    def _tighten_deadline(self, pod: dict[str, Any]) -> None:
-        """Lower the kubelet's backstop to the job's own run window, counted from its container's start."""
+    def _tighten_deadline(self, pod: dict[str, Any]) -> bool:
+        """Lower the kubelet's backstop to the job's own run window, counted from its container's start.
+
+        True once done (or nothing to do); False to try again on the next poll: a busy API
+        server must not leave the pod with its start allowance for the whole job.
+        """
         delay = job_start_delay_s(pod)
-        if self._running_deadline is None or delay is None:
-            return
+        if self._running_deadline is None:
+            return True
+        if delay is None:
+            return False
         deadline = self._running_deadline(delay)
         current = (pod.get("spec") or {}).get("activeDeadlineSeconds")
         if isinstance(current, int) and current <= deadline:
-            return
+            return True  # lowered already (by us before a restart, or by kill())
         try:
             self._core.patch_namespaced_pod(self.name, self.namespace, {"spec": {"activeDeadlineSeconds": deadline}})
-        except Exception:  # noqa: BLE001 - the start allowance stays the backstop; the supervisor still times out
-            log.warning("lowering the deadline of pod %s to %d s failed; it keeps its start allowance",
-                        self.name, deadline, exc_info=True)
+        except Exception:  # noqa: BLE001 - tried again on the next poll; the supervisor still times out
+            log.warning("lowering the deadline of pod %s to %d s failed; trying again", self.name, deadline,
+                        exc_info=True)
+            return False
+        return True
 
     def _finish(self, code: int) -> None:
         self._exit_code = code
