@@ -23,6 +23,9 @@ from armnet_agent.node.health import ArmProbe
 log = logging.getLogger(__name__)
 
 BAUD_RATE = 1_000_000
+#: Pings per servo before it counts as silent: a loaded host misses a reply now and then (the
+#: calibration read retries each register five times for the same reason).
+PING_TRIES = 3
 STS3215_MODEL = 777
 SO101_MOTOR_NAMES = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
 
@@ -98,9 +101,11 @@ def ping_servos(port: str, ids: dict[str, int]) -> dict[str, tuple[int, int | No
         packets = PacketHandler(0)
         answers: dict[str, tuple[int, int | None]] = {}
         for motor, sid in sorted(ids.items(), key=lambda item: item[1]):
-            model = _ping(packets, handler, sid, COMM_SUCCESS)
-            if model is None:  # one retry: a loaded machine can miss a reply
+            model = None
+            for _ in range(PING_TRIES):
                 model = _ping(packets, handler, sid, COMM_SUCCESS)
+                if model is not None:
+                    break
             answers[motor] = (sid, model)
         return answers
     finally:
