@@ -32,7 +32,7 @@ from armnet_client.logstream import FollowSettings, follow_events
 from armnet_client.logwire import LogLine
 from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
 
-from e2e.agent_bed import EXAMPLES, PYTHONPATH, TERMINAL, AgentBed
+from e2e.agent_bed import EXAMPLES, JOBS, PYTHONPATH, TERMINAL, AgentBed
 from tests.testbed.natsd import NatsServer
 from tests.testbed.procs import ManagedProcess, free_port, require_tool, wait_until
 
@@ -60,19 +60,6 @@ PRINTS_LINES = """
             if i % 50 == 49:
                 time.sleep(float(ctx.args.get("pause", 0.04)))
         return {"lines": lines}
-"""
-
-COUNTS_SLOWLY = """
-    import time
-    from armnet_runtime import Context, main
-
-    @main
-    def run(ctx: Context):
-        for i in range(ctx.args.get("lines", 30)):
-            print(f"line {i:03d}", flush=True)
-            ctx.report_progress(f"line {i}")
-            time.sleep(ctx.args.get("pause", 0.25))
-        return {"lines": ctx.args.get("lines", 30)}
 """
 
 #: A LeRobot follower driven by the teleop channel until the operator stops recording.
@@ -251,7 +238,7 @@ def test_logs_follow_gets_ten_thousand_lines_once_and_in_order_across_a_nats_res
 def test_a_followed_job_is_cancelled_when_its_client_is_killed_and_a_detached_one_keeps_running(
     bed: AgentBed,
 ) -> None:
-    image = bed.image("counts", COUNTS_SLOWLY)
+    image = bed.image("counts", JOBS / "counts_slowly.py")
     window = 5
     logs = {name: open(bed.log_dir / f"client-{name}.log", "wb") for name in ("followed", "watcher")}  # noqa: SIM115
     followed = armnet(bed, "submit", "--image", image, "--embodiment", "lerobot/so-101", "--task", bed.node,
