@@ -205,6 +205,21 @@ class AgentBed:
             return job if (job.get("status") or {}).get("phase") in phases else None
         return self.wait(reached, timeout, f"job {name} to reach {phases}")
 
+    def assert_safety_violation_then_interlock_clears(self, st: dict[str, Any], motor: str = "shoulder_pan") -> None:
+        """A job failed by the connector's clamp on ``motor`` (its own record, not the exit code), and
+        the cell's InterlockClear comes back once the job is over (a tripped interlock holds for its job only)."""
+        assert "safety violation (connector record)" in st["result"]["error"]
+        assert motor in st["result"]["error"]
+        safety = st["result"]["safety"]
+        assert safety["policy"] == "clamp" and safety["interlockTrips"] >= 1
+        assert any(r["motor"] == motor for r in safety["refusals"]), safety
+
+        def interlock_clear() -> bool:
+            conditions = {c["type"]: c for c in (self.cell(st["cellName"]).get("status") or {}).get("conditions", [])}
+            return conditions.get("InterlockClear", {}).get("status") == "True"
+
+        self.wait(interlock_clear, 30, f"InterlockClear on {st['cellName']} after the job")
+
     def wait_ready(self, cell: str, timeout: float = 60) -> dict[str, Any]:
         def ready() -> dict[str, Any] | None:
             obj = self.cell(cell)

@@ -192,18 +192,7 @@ def test_a_safety_violation_fails_the_job_with_the_connectors_record_and_the_int
     st = status(job)
     assert st["phase"] == "failed"
     assert "SafetyViolation" in st["result"]["traceback"]
-    assert "safety violation (connector record)" in st["result"]["error"]
-    assert "shoulder_pan" in st["result"]["error"]
-    safety = st["result"]["safety"]  # the connector's own report, not guessed from the exit code
-    assert safety["policy"] == "clamp" and safety["interlockTrips"] >= 1
-    assert any(r["motor"] == "shoulder_pan" for r in safety["refusals"]), safety
-    cell = st["cellName"]
-
-    def interlock_clear() -> bool:
-        conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
-        return conditions.get("InterlockClear", {}).get("status") == "True"
-
-    bed.wait(interlock_clear, 30, f"InterlockClear on {cell} after the job")
+    bed.assert_safety_violation_then_interlock_clears(st)
 
 
 def test_a_bimanual_job_runs_on_the_bimanual_cell(bed: AgentBed, batch: dict[str, str]) -> None:

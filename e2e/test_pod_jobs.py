@@ -310,18 +310,7 @@ def test_a_safety_violation_in_a_pod_fails_the_job_with_the_sidecars_record_and_
     assert st["phase"] == "failed", explain(st)
     assert "SafetyViolation" in st["result"]["traceback"]
     # The interlock's reason comes from the sidecar connector's record (its log), not from the exit code.
-    assert "safety violation (connector record)" in st["result"]["error"]
-    assert "shoulder_pan" in st["result"]["error"]
-    safety = st["result"]["safety"]
-    assert safety["policy"] == "clamp" and safety["interlockTrips"] >= 1
-    assert any(r["motor"] == "shoulder_pan" for r in safety["refusals"]), safety
-    cell = st["cellName"]
-
-    def interlock_clear() -> bool:
-        conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
-        return conditions.get("InterlockClear", {}).get("status") == "True"
-
-    bed.wait(interlock_clear, 30, f"InterlockClear on {cell} after the job")
+    bed.assert_safety_violation_then_interlock_clears(st)
 
 
 def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_and_sees_no_device(
