@@ -124,8 +124,13 @@ CONTAINER_PATH = "kubectl apply (agent)"
 POD_PATH = "kubectl apply (agent, pod)"
 
 
-class PhaseWatch:
-    """When this process first saw each RobotJob of a namespace in each phase (a watch, as a client)."""
+class _FirstSeen:
+    """When this process first saw each (job name, stage) pair in a namespace, from a watch it keeps open.
+
+    A subclass says what it watches (``_events``) and which stages one object shows (``_stages``).
+    """
+
+    thread_name = "bench-watch"
 
     def __init__(self, api_client: Any, namespace: str) -> None:
         self._api_client = api_client
@@ -133,25 +138,46 @@ class PhaseWatch:
         self.seen: dict[tuple[str, str], float] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        threading.Thread(target=self._run, name="bench-watch", daemon=True).start()
+        threading.Thread(target=self._run, name=self.thread_name, daemon=True).start()
+
+    def _events(self) -> Iterator[Any]:
+        raise NotImplementedError
+
+    def _stages(self, obj: Any) -> tuple[str, list[str]]:
+        """The job's name and the stages this object shows it has reached."""
+        raise NotImplementedError
 
     def _run(self) -> None:
-        from kubernetes import client, watch
-
-        api = client.CustomObjectsApi(self._api_client)
         while not self._stop.is_set():
             try:
-                for event in watch.Watch().stream(api.list_namespaced_custom_object, "armnet.io", "v1alpha1",
-                                                  self.namespace, "robotjobs", timeout_seconds=30):
-                    obj = event["object"]
-                    phase = (obj.get("status") or {}).get("phase")
-                    if phase:
-                        with self._lock:
-                            self.seen.setdefault((obj["metadata"]["name"], phase), time.monotonic())
+                for event in self._events():
+                    now = time.monotonic()
+                    name, stages = self._stages(event["object"])
+                    with self._lock:
+                        for stage in stages:
+                            self.seen.setdefault((name, stage), now)
                     if self._stop.is_set():
                         return
             except Exception:  # noqa: BLE001 - a dropped watch is re-opened; the bench only reads times
                 time.sleep(0.2)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+class PhaseWatch(_FirstSeen):
+    """When this process first saw each RobotJob of a namespace in each phase (a watch, as a client)."""
+
+    def _events(self) -> Iterator[Any]:
+        from kubernetes import client, watch
+
+        api = client.CustomObjectsApi(self._api_client)
+        return watch.Watch().stream(api.list_namespaced_custom_object, "armnet.io", "v1alpha1",
+                                    self.namespace, "robotjobs", timeout_seconds=30)
+
+    def _stages(self, obj: Any) -> tuple[str, list[str]]:
+        phase = (obj.get("status") or {}).get("phase")
+        return obj["metadata"]["name"], [phase] if phase else []
 
     def wait(self, name: str, phases: tuple[str, ...], timeout: float) -> tuple[str, float]:
         deadline = time.monotonic() + timeout
@@ -164,11 +190,8 @@ class PhaseWatch:
             time.sleep(0.01)
         raise TimeoutError(f"job {name} did not reach {phases} in {timeout} s")
 
-    def stop(self) -> None:
-        self._stop.set()
 
-
-class PodStages:
+class PodStages(_FirstSeen):
     """When this process first saw each job pod of a namespace reach each start-up stage (a pod watch).
 
     Where the pod launcher's submit -> running goes: the pod created by the agent, the
@@ -177,16 +200,16 @@ class PodStages:
     """
 
     STAGES = ("pod created", "connector running", "connector serves", "job container running")
+    thread_name = "bench-pod-watch"
 
-    def __init__(self, api_client: Any, namespace: str) -> None:
-        self._api_client = api_client
-        self.namespace = namespace
-        self.seen: dict[tuple[str, str], float] = {}
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        threading.Thread(target=self._run, name="bench-pod-watch", daemon=True).start()
+    def _events(self) -> Iterator[Any]:
+        from kubernetes import client, watch
 
-    def _stages(self, pod: Any) -> list[str]:
+        core = client.CoreV1Api(self._api_client)
+        return watch.Watch().stream(core.list_namespaced_pod, self.namespace, timeout_seconds=30)
+
+    def _stages(self, pod: Any) -> tuple[str, list[str]]:
+        job = (pod.metadata.annotations or {}).get("armnet.io/job", "").rpartition("/")[2]
         reached = ["pod created"]
         status = pod.status
         for entry in (status.init_container_statuses if status else None) or []:
@@ -197,32 +220,11 @@ class PodStages:
         for entry in (status.container_statuses if status else None) or []:
             if entry.name == "job" and entry.state and (entry.state.running or entry.state.terminated):
                 reached.append("job container running")
-        return reached
-
-    def _run(self) -> None:
-        from kubernetes import client, watch
-
-        core = client.CoreV1Api(self._api_client)
-        while not self._stop.is_set():
-            try:
-                for event in watch.Watch().stream(core.list_namespaced_pod, self.namespace, timeout_seconds=30):
-                    now = time.monotonic()
-                    pod = event["object"]
-                    job = (pod.metadata.annotations or {}).get("armnet.io/job", "").rpartition("/")[2]
-                    with self._lock:
-                        for stage in self._stages(pod):
-                            self.seen.setdefault((job, stage), now)
-                    if self._stop.is_set():
-                        return
-            except Exception:  # noqa: BLE001 - a dropped watch is re-opened; the bench only reads times
-                time.sleep(0.2)
+        return job, reached
 
     def of(self, name: str, submitted: float) -> dict[str, float]:
         with self._lock:
             return {stage: self.seen[(name, stage)] - submitted for stage in self.STAGES if (name, stage) in self.seen}
-
-    def stop(self) -> None:
-        self._stop.set()
 
 
 def platform_round(bed: Any, api: Any, watch: PhaseWatch, image: str, round_name: str,
