@@ -36,6 +36,7 @@ side_groups=(
   "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container"
   "tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
 )
+# Each session prints its slowest tests (--durations): where the suite's time budget goes.
 ignores=()
 side_pids=()
 side_logs=()
@@ -43,13 +44,13 @@ for group in "${side_groups[@]}"; do
   read -r -a files <<<"$group"
   log="$(mktemp /tmp/armnet-test-side.XXXXXX)"
   side_logs+=("$log")
-  "$venv/bin/python" -m pytest "${files[@]}" >"$log" 2>&1 &
+  "$venv/bin/python" -m pytest --durations=15 "${files[@]}" >"$log" 2>&1 &
   side_pids+=("$!")
   for f in "${files[@]}"; do ignores+=("--ignore=$f"); done
 done
 trap 'rm -f "${side_logs[@]}"' EXIT
 main_rc=0
-"$venv/bin/python" -m pytest "${ignores[@]}" || main_rc=$?
+"$venv/bin/python" -m pytest --durations=25 "${ignores[@]}" || main_rc=$?
 failed=()
 for i in "${!side_groups[@]}"; do
   rc=0
