@@ -76,6 +76,29 @@ def common_tag(podman: Podman, images: list[str]) -> str:
     return tag
 
 
+def forget_earlier_tags(podman: Podman, node: Node, images: list[str], tag: str) -> None:
+    """Untag earlier runs' ``it-<hashes>`` tags of these repositories, in Podman and in the node's containerd.
+
+    Each holds its own build (the agent image is ~6 GB) after the content-hash builds
+    it came from were replaced: without this every source change left one on the disk.
+    """
+    repositories = {image.rsplit(":", 1)[0] for image in images}
+    keep = {f"{repository}:{tag}" for repository in repositories}
+
+    def stale(name: str) -> bool:
+        repository, _, its_tag = name.rpartition(":")
+        return repository in repositories and its_tag.startswith("it-") and name not in keep
+
+    for image in podman.client.images.list():
+        for name in filter(stale, image.tags):
+            try:
+                podman.client.images.remove(name)
+            except Exception as exc:  # noqa: BLE001 - in use by a container: the next run tries again
+                print(f"[helm-install] could not untag {name}: {exc}")
+    for name in filter(stale, node.ctr("images", "ls", "-q").stdout.split()):
+        node.ctr("images", "rm", name, check=False)
+
+
 def build_bus_loop_image(podman: Podman, runtime_lerobot_image: str) -> str:
     """The bus-loop example as a customer would ship it: on the runtime's LeRobot variant."""
     examples = CHART.parents[1] / "runtime" / "examples"
@@ -97,6 +120,7 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
             agent_image: str, runtime_image: str, runtime_lerobot_image: str) -> Iterator[dict[str, Any]]:
     """The chart installed, its pods running on the node; everything removed afterwards."""
     tag = common_tag(podman, [operator_image, agent_image])
+    forget_earlier_tags(podman, k8s_node, [operator_image, agent_image], tag)
     job_image = "localhost/armnet-example-job:it"
     podman.client.images.build(path=str(CHART.parents[1] / "images" / "example-job"), tag=job_image,
                                rm=True, dockerfile="Containerfile", buildargs={"RUNTIME": runtime_image},
