@@ -180,6 +180,9 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
         return tag
     except docker.errors.ImageNotFound:
         pass
+    # The earlier builds are stale now: free their space before this build needs it (a
+    # ~6 GB agent image and its ~9 GB build stage commit through /var/tmp).
+    _drop_older_builds(client, spec.repository, keep="")
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix=f"armnet-{spec.name}-") as tmp:
         context = Path(tmp) / "context"
