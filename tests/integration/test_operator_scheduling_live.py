@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -154,13 +154,23 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
                     violations.append(f"watch broke, states were missed: {error!r}")
         return run
 
-    def watch_jobs() -> None:
+    def every_event(list_call: Callable[..., Any], *args: Any) -> Iterator[dict[str, Any]]:
+        """Each object a watch reports until the test stops, the watch re-opened from its last
+        resourceVersion whenever the server ends it (a loaded run outlasts one watch's timeout:
+        a watch that just ended left the simulated agent below blind and the jobs stuck)."""
         w = watch.Watch()
-        for event in w.stream(bed.api.list_namespaced_custom_object, G, V, bed.ns, "robotjobs", timeout_seconds=120):
-            if stop.is_set():
-                w.stop()
-                return
-            obj = event["object"]
+        version: str | None = None
+        while not stop.is_set():
+            since = {"resource_version": version} if version else {}
+            for event in w.stream(list_call, *args, timeout_seconds=60, **since):
+                if stop.is_set():
+                    w.stop()
+                    return
+                yield event["object"]
+            version = w.resource_version
+
+    def watch_jobs() -> None:
+        for obj in every_event(bed.api.list_namespaced_custom_object, G, V, bed.ns, "robotjobs"):
             name, status = obj["metadata"]["name"], obj.get("status", {})
             seen_jobs[name] = status
             active = [s.get("cellName") for s in seen_jobs.values() if s.get("phase") in ("dispatched", "running")]
@@ -173,12 +183,7 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
                 bound_to.pop(name, None)
 
     def watch_cells() -> None:
-        w = watch.Watch()
-        for event in w.stream(bed.api.list_cluster_custom_object, G, V, "cells", timeout_seconds=120):
-            if stop.is_set():
-                w.stop()
-                return
-            obj = event["object"]
+        for obj in every_event(bed.api.list_cluster_custom_object, G, V, "cells"):
             if obj["metadata"]["name"] in bed.cells:
                 seen_claims[obj["metadata"]["name"]] = obj.get("status", {}).get("currentJob") or ""
 
