@@ -8,6 +8,7 @@ cluster-scoped Cells from other tests never match its jobs.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import threading
@@ -208,8 +209,16 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
         docs = [{"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": f"j{i:02d}", "namespace": bed.ns},
                  "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}} for i in range(50)]
         bed.k8s.kubectl("apply", "-f", "-", input="\n---\n".join(json.dumps(d) for d in docs))
-        bed.wait("all 50 jobs succeeded", lambda: sum(
-            1 for s in seen_jobs.values() if s.get("phase") == "succeeded") == 50, timeout=180)
+        def all_succeeded() -> bool:
+            assert violations == [], violations  # a broken watch leaves the simulated agent blind: say so now
+            return sum(1 for s in seen_jobs.values() if s.get("phase") == "succeeded") == 50
+
+        try:
+            bed.wait("all 50 jobs succeeded", all_succeeded, timeout=180)
+        except AssertionError as error:
+            census = collections.Counter(str(s.get("phase")) for s in seen_jobs.values())
+            raise AssertionError(f"{error}\njobs by phase as watched: {dict(census)}; cell claims: {seen_claims}; "
+                                 f"binds {[r.metrics.binds._value.get() for r in (a, b)]}") from None
         bed.wait("every cell released", lambda: not any(seen_claims.values()))
     stop.set()
     binds = [r.metrics.binds._value.get() for r in (a, b)]
