@@ -52,6 +52,7 @@ import sys
 import threading
 import time
 import uuid
+from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from typing import Any
@@ -124,7 +125,7 @@ CONTAINER_PATH = "kubectl apply (agent)"
 POD_PATH = "kubectl apply (agent, pod)"
 
 
-class _FirstSeen:
+class _FirstSeen(ABC):
     """When this process first saw each (job name, stage) pair in a namespace, from a watch it keeps open.
 
     A subclass says what it watches (``_events``) and which stages one object shows (``_stages``).
@@ -140,12 +141,13 @@ class _FirstSeen:
         self._stop = threading.Event()
         threading.Thread(target=self._run, name=self.thread_name, daemon=True).start()
 
+    @abstractmethod
     def _events(self) -> Iterator[Any]:
-        raise NotImplementedError
+        """The watch's events (it ends when the server ends the watch; ``_run`` opens another)."""
 
+    @abstractmethod
     def _stages(self, obj: Any) -> tuple[str, list[str]]:
         """The job's name and the stages this object shows it has reached."""
-        raise NotImplementedError
 
     def _run(self) -> None:
         while not self._stop.is_set():
