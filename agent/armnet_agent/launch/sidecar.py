@@ -156,12 +156,12 @@ def main() -> int:
 def _start_simulator(simulator: Mapping[str, Any], connector_config: Any) -> Any:
     """The cell's simulator on this container's own ptys, seeded with the calibration the connector reads."""
     from armnet_agent.sim.calibration import load_calibration
-    from armnet_agent.sim.presets import build_cell
+    from armnet_agent.sim.process import SimulatedCellProcess
 
     calibrations = {name: load_calibration(arm.calibration_file) for name, arm in connector_config.arms.items()
                     if arm.calibration_file is not None}
-    return build_cell(str(simulator["preset"]), calibrations=calibrations,
-                      latency_ms=float(simulator.get("latency_ms", 0.0))).start()
+    return SimulatedCellProcess(str(simulator["preset"]), calibrations=calibrations,
+                                latency_ms=float(simulator.get("latency_ms", 0.0))).start()
 
 
 def _record(connector: Any) -> dict[str, Any]:

@@ -6,7 +6,8 @@ starting and stopping them together on a run directory laid out by
 cache and the namespace's volume elsewhere, and a simulator it keeps running
 between jobs): it writes the calibration files (the same
 ones that seed the simulated servos, so LeRobot's ``connect()`` finds them
-calibrated), starts one simulated bus per arm, and serves the real connector on
+calibrated), starts the simulator (one simulated bus per arm, in a child process:
+``sim/process.py`` says why), and serves the real connector on
 ``<run_dir>/sockets``. The job deadline clock stays with the supervisor; the
 connector is only told when the deadline passes (``pass_deadline``).
 """
@@ -30,7 +31,8 @@ from armnet_agent.connector.inputs import (
 from armnet_agent.connector.interlock import TripReason
 from armnet_agent.launch.cell_spec import CellLayout, LocalCellSpec, plan_layout
 from armnet_agent.sim.calibration import builtin_calibration, load_calibration, write_calibration
-from armnet_agent.sim.presets import PRESETS, SimulatedCell, build_cell
+from armnet_agent.sim.presets import PRESETS, CellSimulator
+from armnet_agent.sim.process import SimulatedCellProcess
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +81,7 @@ class LocalCell:
         inputs_source: str | None = None,
         on_grace_expired: Callable[[], None] | None = None,
         layout: CellLayout | None = None,
-        sim: SimulatedCell | None = None,
+        sim: CellSimulator | None = None,
         inputs: OperatorInputs | None = None,
         tripped: str | None = None,
     ) -> None:
@@ -97,7 +99,7 @@ class LocalCell:
         self._inputs_source = inputs_source
         self._on_grace_expired = on_grace_expired
         self._owns_sim = sim is None
-        self.sim: SimulatedCell | None = sim
+        self.sim: CellSimulator | None = sim
         self._tripped = tripped
         self.connector: Connector | None = None
 
@@ -126,7 +128,8 @@ class LocalCell:
             write_calibration(arm.calibration_file, calibration)
             calibrations[arm.name] = calibration
         if self.sim is None:
-            self.sim = build_cell(self.spec.preset, calibrations=calibrations, latency_ms=self.spec.latency_ms).start()
+            self.sim = SimulatedCellProcess(self.spec.preset, calibrations=calibrations,
+                                            latency_ms=self.spec.latency_ms).start()
         config = build_connector_config(self.spec, layout, self.sim.ports())
         self.connector = Connector(
             config,

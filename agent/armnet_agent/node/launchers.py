@@ -59,7 +59,7 @@ from armnet_agent.node.sidecar_observer import (
 )
 from armnet_agent.node.telemetry_sources import InProcessView, JobView
 from armnet_agent.sim.calibration import builtin_calibration, dump_calibration
-from armnet_agent.sim.presets import PRESETS, SimulatedCell
+from armnet_agent.sim.presets import PRESETS, CellSimulator
 from armnet_agent.supervise import LaunchedJob
 
 log = logging.getLogger(__name__)
@@ -117,7 +117,7 @@ class SessionRequest:
     job: Job
     cell: Cell
     plan: LaunchPlan
-    sim: SimulatedCell | None
+    sim: CellSimulator | None
     #: The launcher's handle of a job a previous agent started (re-adoption), else None.
     adopted: Any
     tripped: str | None

@@ -42,7 +42,7 @@ from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
 from armnet_agent.node.publish import Link, inputs_bridge, job_output
 from armnet_agent.node.rollout_history import as_status
 from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_agent.sim.presets import SimulatedCell
+from armnet_agent.sim.presets import CellSimulator
 from armnet_agent.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
 from armnet_agent.supervise.observe import EventKind, OutputEvent
 
@@ -72,7 +72,7 @@ class JobRunner:
         self,
         job: Job,
         cell: Cell,
-        sim: SimulatedCell | None,
+        sim: CellSimulator | None,
         deps: RunnerDeps,
         *,
         container: Any = None,

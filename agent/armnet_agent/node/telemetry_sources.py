@@ -34,7 +34,7 @@ from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node.bus_turns import BusTurns
 from armnet_agent.node.probes import SO101_MOTOR_NAMES
 from armnet_agent.node.telemetry_wire import scaled_size
-from armnet_agent.sim.presets import SimulatedCell
+from armnet_agent.sim.presets import CellSimulator
 
 if TYPE_CHECKING:
     from armnet_agent.connector.cell import CellState
@@ -69,7 +69,7 @@ def servo_ids(calibration_file: Path | None) -> dict[str, int]:
     return {motor: index + 1 for index, motor in enumerate(SO101_MOTOR_NAMES)}
 
 
-def simulated_frames(sim: SimulatedCell, cameras: tuple[CameraSpec, ...]) -> dict[str, CameraFrame | str]:
+def simulated_frames(sim: CellSimulator, cameras: tuple[CameraSpec, ...]) -> dict[str, CameraFrame | str]:
     """Each camera's picture drawn from the simulator's joints (the simulated cell's camera stand-in)."""
     from armnet_agent.sim.render import render_arms
 
@@ -239,7 +239,7 @@ class IdleSource:
         cameras: tuple[CameraSpec, ...],
         turns: BusTurns,
         bus_held: Callable[[], bool],
-        sim: SimulatedCell | None,
+        sim: CellSimulator | None,
         real_cameras: IdleCameras,
         handles: IdleArms,
     ) -> None:
@@ -298,7 +298,7 @@ class JobSource:
 
     name = "job"
 
-    def __init__(self, view: JobView, cameras: tuple[CameraSpec, ...], sim: SimulatedCell | None) -> None:
+    def __init__(self, view: JobView, cameras: tuple[CameraSpec, ...], sim: CellSimulator | None) -> None:
         self._view = view
         self._cameras = cameras
         self._sim = sim

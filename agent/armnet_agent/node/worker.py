@@ -56,7 +56,8 @@ from armnet_agent.node.telemetry_sources import (
     JobSource,
 )
 from armnet_agent.sim.calibration import builtin_calibration, write_calibration
-from armnet_agent.sim.presets import PRESETS, SimulatedCell, build_cell
+from armnet_agent.sim.presets import PRESETS, CellSimulator
+from armnet_agent.sim.process import SimulatedCellProcess
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +78,7 @@ class CellWorker:
         self.cell = cell
         self.deps = deps
         self.settings = settings
-        self.sim: SimulatedCell | None = None
+        self.sim: CellSimulator | None = None
         self.runner: JobRunner | None = None
         self._finished_uids: set[str] = set()
         self._lock = threading.Lock()
@@ -166,7 +167,11 @@ class CellWorker:
             calibrations[preset.name] = calibration
             robot_id = spec.robot_id if spec.preset == "so101" else f"{spec.robot_id}_{preset.name}"
             self._calibration_files[preset.name] = write_calibration(directory / f"{robot_id}.json", calibration)
-        self.sim = build_cell(spec.preset, calibrations=calibrations).start()
+        # In a child process, not in the agent's: the simulated servos' serving threads would
+        # otherwise share the agent's GIL with its watches, log streams and telemetry, and a
+        # GIL holder the host preempts delays every reply of every cell on the node (replies
+        # missed LeRobot's ~34 ms packet timeout with four job pods starting beside a loop).
+        self.sim = SimulatedCellProcess(spec.preset, calibrations=calibrations).start()
         self._link_sim_ports(self.sim.ports())
         log.info("cell %s: simulator started (%s)", self.cell.name, self.sim.ports())
 

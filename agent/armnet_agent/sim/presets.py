@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 from .arm import SO101_MOTORS, MotorSpec, SimulatedArm
 from .calibration import Calibration, builtin_calibration
@@ -31,6 +32,24 @@ PRESETS: dict[str, tuple[ArmPreset, ...]] = {
         ArmPreset("right", SO101_MOTORS, "so101_right"),
     ),
 }
+
+
+class CellSimulator(Protocol):
+    """What the agent and the launchers use of a running simulated cell.
+
+    ``SimulatedCell`` (its pty threads in this process) and ``SimulatedCellProcess``
+    (the same cell in a child process) both offer it; ``arms`` maps arm name to an
+    object with the arm's read-back and fault methods.
+    """
+
+    preset: str
+    arms: dict[str, Any]
+
+    def ports(self) -> dict[str, str]: ...
+
+    def joint_angles(self) -> dict[str, dict[str, float]]: ...
+
+    def stop(self) -> None: ...
 
 
 class SimulatedCell(StartStop):
