@@ -97,6 +97,7 @@ def forget_earlier_tags(podman: Podman, node: Node, images: list[str], tag: str)
                 print(f"[helm-install] could not untag {name}: {exc}")
     for name in filter(stale, node.ctr("images", "ls", "-q").stdout.split()):
         node.ctr("images", "rm", name, check=False)
+    node.drop_unnamed_images()
 
 
 def build_bus_loop_image(podman: Podman, runtime_lerobot_image: str) -> str:

@@ -180,6 +180,14 @@ def kubelet_config(*, socket: Path, node_ip: str, port: int, healthz_port: int,
     }
 
 
+# ---------------------------------------------------------------------- images
+def orphan_image_ids(listing: str) -> list[str]:
+    """The ``sha256:<id>`` references in a ``ctr images ls`` listing whose target no named image has."""
+    rows = [line.split() for line in listing.splitlines()[1:] if line.strip()]
+    named_targets = {row[2] for row in rows if len(row) > 2 and not row[0].startswith("sha256:")}
+    return [row[0] for row in rows if len(row) > 2 and row[0].startswith("sha256:") and row[2] not in named_targets]
+
+
 # ---------------------------------------------------------------------- host state
 def read_sysctls() -> dict[str, str]:
     return {name: (Path("/proc/sys") / name).read_text().strip() for name in KUBELET_SYSCTLS}
@@ -429,7 +437,20 @@ class Node:
         finally:
             archive.unlink(missing_ok=True)
         self.ctr("images", "label", image, f"{SOURCE_LABEL}={image_id}")
+        self.drop_unnamed_images()  # the name's earlier image, if this import replaced one
         return True
+
+    def drop_unnamed_images(self) -> list[str]:
+        """Remove the CRI's image-id references that no named image shares any more; return them.
+
+        The CRI names every image it sees by its id too (``sha256:<id>``). Re-importing or
+        untagging a name leaves that reference holding the old image's content and snapshots
+        for good: 12 GB per superseded agent image, until a build ran out of disk.
+        """
+        orphans = orphan_image_ids(self.ctr("images", "ls").stdout)
+        for ref in orphans:
+            self.ctr("images", "rm", ref, check=False)
+        return orphans
 
     def ctr(self, *args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
         """``ctr`` against this node's containerd, namespace ``k8s.io`` (the CRI's)."""
