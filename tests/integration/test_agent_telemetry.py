@@ -163,15 +163,20 @@ def test_an_idle_cell_is_read_by_the_agent_and_a_failing_camera_stops_nothing_el
     metrics = AgentMetrics()
     source = idle_source(sim, (CameraSpec("front", index_or_path="/dev/armnet-no-camera"),))
     telemetry = publisher(source, link, metrics)
-    got = heard(nats_server, ["telemetry.cell-1.servos"], lambda: telemetry.tick(time.monotonic()))
-
-    reading = json.loads(got["telemetry.cell-1.servos"])
-    assert reading["source"] == "idle"
-    assert set(reading["arms"]["arm"]["motors"]) == set(MOTORS)
+    # A servo whose reply the loaded host lost shows as no sample (the page shows a gap); the
+    # next tick reads it again. What is checked is a full reading and the failing camera beside it.
+    ticks, complete = 0, False
+    while not complete and ticks < 5:
+        ticks += 1
+        got = heard(nats_server, ["telemetry.cell-1.servos"], lambda: telemetry.tick(time.monotonic()))
+        reading = json.loads(got["telemetry.cell-1.servos"])
+        assert reading["source"] == "idle"
+        assert set(reading["arms"]["arm"]["motors"]) == set(MOTORS)
+        complete = all(v is not None for v in reading["arms"]["arm"]["motors"].values())
     assert all(0 <= v["position"] < 4096 for v in reading["arms"]["arm"]["motors"].values())
     assert {v["temperature"] for v in reading["arms"]["arm"]["motors"].values()} == {28}
-    assert counted(metrics, "armnet_agent_telemetry_frames_total", "failed") == 1
-    assert counted(metrics, "armnet_agent_telemetry_servo_reads_total", "published") == 1
+    assert counted(metrics, "armnet_agent_telemetry_frames_total", "failed") == ticks
+    assert counted(metrics, "armnet_agent_telemetry_servo_reads_total", "published") == ticks
 
 
 def test_an_idle_arms_port_stays_open_between_reads_and_closes_on_request(sim: SimulatedCellProcess) -> None:

@@ -23,9 +23,10 @@ def change_homing_outside_armnet(port: str, motors: dict[str, Any], motor: str, 
 
     bare = FeetechMotorsBus(port=port, motors=motors)
     bare.connect(handshake=False)
-    bare.write("Lock", motor, 0, normalize=False)
-    bare.write("Homing_Offset", motor, value, normalize=False)
-    bare.write("Lock", motor, 1, normalize=False)
+    # Asked again if a loaded host lost the acknowledgement (each write sets an absolute value).
+    bare.write("Lock", motor, 0, normalize=False, num_retry=3)
+    bare.write("Homing_Offset", motor, value, normalize=False, num_retry=3)
+    bare.write("Lock", motor, 1, normalize=False, num_retry=3)
     bare.disconnect(disable_torque=False)
 
 
