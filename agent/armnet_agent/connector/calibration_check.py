@@ -10,7 +10,8 @@ agent's health probe calls when no job holds the bus (docs/connector.md,
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import time
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -61,6 +62,10 @@ BAUD_RATE = 1_000_000
 #: Extra tries per register: a loaded machine can miss a reply (LeRobot's reads use 2; the idle
 #: probe can afford more, and a read that never answers says nothing about calibration).
 READ_RETRIES = 5
+#: How long a failed read waits before asking again: past the reply window (50 ms), so a late
+#: reply has landed and is dropped rather than taken as the answer to the next request (a
+#: status packet names the servo, not the register: a stale one reads as another register's value).
+LATE_REPLY_WAIT_S = 0.06
 
 
 def _sign_magnitude(value: int, sign_bit: int) -> int:
@@ -94,12 +99,16 @@ def read_calibration(
         packets = PacketHandler(0)
         held: dict[int, tuple[int, int, int] | None] = {}
         for motor_id in sorted(set(motor_ids)):
-            values = [_read_word(packets, handler, motor_id, CALIBRATION_ADDRESSES[r], COMM_SUCCESS)
-                      for r in CALIBRATION_REGISTERS]
-            homing, low, high = values
-            if homing is None or low is None or high is None:  # a servo that does not answer is a mismatch
+            values: list[int] = []
+            for register in CALIBRATION_REGISTERS:
+                value = _read_word(packets, handler, motor_id, CALIBRATION_ADDRESSES[register], COMM_SUCCESS)
+                if value is None:  # a servo that does not answer is a mismatch; its other registers too
+                    break
+                values.append(value)
+            if len(values) < len(CALIBRATION_REGISTERS):
                 held[motor_id] = None
                 continue
+            homing, low, high = values
             held[motor_id] = (_sign_magnitude(homing, HOMING_OFFSET_SIGN_BIT), low, high)
         return held
     finally:
@@ -121,12 +130,20 @@ def _reply_window_as_lerobot(handler: Any) -> None:
     handler.setPacketTimeout = set_packet_timeout
 
 
-def _read_word(packets: Any, handler: Any, motor_id: int, address: int, success: int) -> int | None:
+def _read_word(
+    packets: Any, handler: Any, motor_id: int, address: int, success: int,
+    *, sleep: Callable[[float], None] = time.sleep,
+) -> int | None:
     """A two-byte register, or None when the servo stays silent, reports an error or cuts its reply short.
 
-    ``scservo_sdk`` raises IndexError on a truncated reply instead of reporting it.
+    ``scservo_sdk`` raises IndexError on a truncated reply instead of reporting it. A failed
+    attempt's reply may still come: wait it out and drop it before asking again, else every
+    later read of the pass is shifted by one reply (a false calibration mismatch, seen under load).
     """
-    for _attempt in range(1 + READ_RETRIES):
+    for attempt in range(1 + READ_RETRIES):
+        if attempt:
+            sleep(LATE_REPLY_WAIT_S)
+        handler.ser.reset_input_buffer()  # a reply that came after its request gave up is no answer
         try:
             value, result, error = packets.read2ByteTxRx(handler, motor_id, address)
         except (IndexError, OSError):
