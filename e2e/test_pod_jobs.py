@@ -269,9 +269,7 @@ def seconds_between(start: str, end: str) -> float:
 
 
 def pod_of(bed: AgentBed, job: dict[str, Any]) -> dict[str, Any] | None:
-    out = bed.k8s.kubectl("get", "pod", f"armnet-{job['metadata']['uid']}", "-n", bed.namespace, "-o", "json",
-                          check=False)
-    return json.loads(out.stdout) if out.returncode == 0 else None
+    return bed.pod(f"armnet-{job['metadata']['uid']}")
 
 
 def test_a_bus_loop_job_in_a_pod_moves_the_arm_through_the_sidecar_and_succeeds(
@@ -661,5 +659,4 @@ def test_the_restarted_agent_reports_the_deadline_ended_job_as_a_timeout_and_the
     bed.wait(lambda: pod_of(bed, ended) is None, 60, "the agent to remove the ended pod")
     # The deleted job's pod is gone: the agent fails the job, and the operator lets the RobotJob go.
     deleted = outage.jobs["collected"]["metadata"]["name"]
-    bed.wait(lambda: bed.k8s.kubectl("get", "rj", deleted, "-n", bed.namespace, check=False).returncode != 0,
-             120, "the deleted RobotJob to finish deleting")
+    bed.wait(lambda: not bed.job_exists(deleted), 120, "the deleted RobotJob to finish deleting")
