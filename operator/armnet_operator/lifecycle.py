@@ -47,10 +47,16 @@ class RequeueJob:
 
 @dataclass(frozen=True)
 class FinishJob:
+    """End the job. ``recheck_cell`` is set when the verdict rests on this replica's view of
+    the job's cell (its claim, its heartbeat, its existence), which a lagging watch can make
+    stale: the writer then reads the cell from the server and asks ``plan_active_job`` again.
+    """
+
     job: Job
     phase: JobPhase
     reason: str
     error: str | None = None
+    recheck_cell: bool = False
 
 
 @dataclass(frozen=True)
@@ -168,7 +174,7 @@ def _plan_job(
     if job.cancel or job.deleting:
         actions.extend(_plan_cancel(job, cell, now, timing))
     elif job.active:
-        actions.extend(_plan_active(job, cell, now, timing))
+        actions.extend(plan_active_job(job, cell, now, timing))
     elif job.spec_problem is not None:
         actions.append(FinishJob(job, JobPhase.FAILED, "InvalidSpec", job.spec_problem))
     return actions
@@ -189,12 +195,13 @@ def _plan_cancel(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> 
     return []
 
 
-def _plan_active(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> list[Action]:
+def plan_active_job(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> list[Action]:
+    """What a dispatched or running job needs, given its cell as far as the caller knows (None: gone)."""
     name = job.cell_name
     if cell is None:
         if job.phase is JobPhase.DISPATCHED:
             return [RequeueJob(job, f"cell {name} was deleted before the job started")]
-        return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost (deleted)")]
+        return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost (deleted)", recheck_cell=True)]
     bound_for = now - job.bound_at if job.bound_at else timedelta.max
     if job.phase is JobPhase.DISPATCHED:
         if cell.current_job != job.key and bound_for >= timing.claim_grace:
@@ -209,9 +216,9 @@ def _plan_active(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> 
         holder = cell.current_job or "no job"
         return [FinishJob(job, JobPhase.FAILED, "ClaimNotHeld",
                           f"cell {name} does not hold this job's claim (it holds {holder}); "
-                          "a job runs only on the cell that claims it")]
+                          "a job runs only on the cell that claims it", recheck_cell=True)]
     if heartbeat_lost_for(cell, now, timing.heartbeat_timeout) >= timing.lost_grace:
-        return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost")]
+        return [FinishJob(job, JobPhase.FAILED, "CellLost", f"cell {name} lost", recheck_cell=True)]
     return []
 
 

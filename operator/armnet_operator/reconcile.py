@@ -42,6 +42,7 @@ from .lifecycle import (
     RequestCancel,
     RequeueJob,
     SetCellPhase,
+    plan_active_job,
     plan_lifecycle,
     release_reason,
 )
@@ -399,7 +400,12 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
                 outcome.requeued += 1
                 _event(api, job, "Warning", "Requeued", message)
             return written
-        case FinishJob(job=job, phase=phase, reason=reason, error=error):
+        case FinishJob(job=job, phase=phase, reason=reason, error=error, recheck_cell=recheck_cell):
+            if recheck_cell:
+                verdict = _recheck_finish(job, now, timing, api, outcome)
+                if verdict is None:
+                    return None
+                phase, reason, error = verdict.phase, verdict.reason, verdict.error
             written = _write(api, patches.finish_job(job, phase, reason, error, now), outcome)
             if written is not None:
                 kind = "Normal" if phase is JobPhase.CANCELLED and error is None else "Warning"
@@ -450,6 +456,24 @@ def _recheck_release(cell: Cell, now: datetime, timing: Timing, api: Api, outcom
         _count(error, outcome)
         return None
     return release_reason(cell, job, now, timing)
+
+
+def _recheck_finish(job: Job, now: datetime, timing: Timing, api: Api, outcome: Outcome) -> FinishJob | None:
+    """Decide an active job's failure again on its cell as the server has it now.
+
+    This replica's cell watch may lag its job watch: a cell claimed for this job a
+    moment ago, or heartbeating all along, can still look unclaimed or silent here,
+    and failing the job on that view ends a healthy job (seen with two replicas on a
+    loaded host). One read, only on this rare path, settles it; None: no failure.
+    """
+    try:
+        cell: Cell | None = parse_cell(api.read_cell(job.cell_name)) if job.cell_name else None
+    except NotFound:
+        cell = None
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    return next((a for a in plan_active_job(job, cell, now, timing) if isinstance(a, FinishJob)), None)
 
 
 def _claim(

@@ -217,7 +217,9 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
             bed.wait("all 50 jobs succeeded", all_succeeded, timeout=180)
         except AssertionError as error:
             census = collections.Counter(str(s.get("phase")) for s in seen_jobs.values())
-            raise AssertionError(f"{error}\njobs by phase as watched: {dict(census)}; cell claims: {seen_claims}; "
+            failed = {n: (s.get("result") or {}).get("error") for n, s in seen_jobs.items() if s.get("phase") == "failed"}
+            raise AssertionError(f"{error}\njobs by phase as watched: {dict(census)}; failed: {failed}; "
+                                 f"cell claims: {seen_claims}; "
                                  f"binds {[r.metrics.binds._value.get() for r in (a, b)]}") from None
         bed.wait("every cell released", lambda: not any(seen_claims.values()))
     stop.set()

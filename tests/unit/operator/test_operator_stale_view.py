@@ -143,3 +143,51 @@ def test_a_stale_replica_adding_the_finalizer_does_not_requeue_a_job_that_starte
     assert world.jobs["t/j"]["status"]["phase"] == "running"
     assert world.jobs["t/j"]["status"]["cellName"] == "c0"
     assert outcome.requeued == 0 and ("t/j", "Requeued") not in world.events
+
+
+def running_job_on_c0() -> tuple[World, list, list]:
+    """j running on c0 (claimed, heartbeating) past the claim grace; the fresh view of both."""
+    world = bound_without_finalizer()
+    world.agent_set_phase("t/j", "running")
+    world.tick(TIMING.claim_grace.total_seconds() + 1)
+    world.heartbeat("c0")
+    jobs, cells = world.snapshot()
+    return world, jobs, cells
+
+
+def test_a_running_job_is_not_failed_on_a_cell_view_that_lags_behind_its_claim() -> None:
+    """The job watch is current, the cell watch lags: here c0 holds no claim; the server's c0 holds j's."""
+    world, jobs, cells = running_job_on_c0()
+    unclaimed = [replace(c, current_job=None, claimed_at=None) for c in cells]
+    lagging_pass(world, jobs, unclaimed)
+    assert world.jobs["t/j"]["status"]["phase"] == "running"
+    assert ("t/j", "ClaimNotHeld") not in world.events
+
+
+def test_a_running_job_is_not_failed_on_a_heartbeat_this_view_has_not_seen() -> None:
+    world, jobs, stale_cells = running_job_on_c0()
+    world.tick((TIMING.heartbeat_timeout + TIMING.lost_grace).total_seconds() + 1)
+    world.heartbeat("c0")  # the agent kept beating; this replica's view stopped at the earlier beat
+    lagging_pass(world, jobs, stale_cells)
+    assert world.jobs["t/j"]["status"]["phase"] == "running"
+
+
+def test_a_running_job_whose_cell_lost_the_claim_on_the_server_fails_with_the_reason() -> None:
+    world, _, _ = running_job_on_c0()
+    world.cells["c0"]["status"]["currentJob"] = None
+    world.cells["c0"]["metadata"]["resourceVersion"] = "999"
+    jobs, cells = world.snapshot()
+    lagging_pass(world, jobs, cells)
+    status = world.jobs["t/j"]["status"]
+    assert status["phase"] == "failed"
+    assert "does not hold this job's claim" in status["result"]["error"]
+    assert ("t/j", "ClaimNotHeld") in world.events
+
+
+def test_a_running_job_whose_cell_stopped_beating_on_the_server_fails_as_lost() -> None:
+    world, _, _ = running_job_on_c0()
+    world.tick((TIMING.heartbeat_timeout + TIMING.lost_grace).total_seconds() + 1)
+    jobs, cells = world.snapshot()
+    lagging_pass(world, jobs, cells)
+    assert world.jobs["t/j"]["status"]["phase"] == "failed"
+    assert ("t/j", "CellLost") in world.events
