@@ -15,6 +15,7 @@ from typing import Any, TypeVar
 
 import pytest
 from armnet_agent.connector.calibration_check import CALIBRATION_REGISTERS, read_calibration
+from armnet_agent.connector.retry import RETRY_DELAY_S, drop_pending_input
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 
 pytestmark = pytest.mark.unit
@@ -35,8 +36,8 @@ def asked_until_answered(bare: Any, call: Callable[[], _T], tries: int = 5) -> _
         except ConnectionError:
             if attempt == tries - 1:
                 raise
-            time.sleep(0.06)  # past the 50 ms reply window
-            bare.port_handler.ser.reset_input_buffer()
+            time.sleep(RETRY_DELAY_S)  # past the reply window, as the connector's own retries wait
+            drop_pending_input(bare)
     raise AssertionError("unreachable")
 
 
@@ -124,7 +125,7 @@ def test_read_calibration_reports_a_servo_that_does_not_answer_as_none(sim_cell)
 def test_read_calibration_never_loads_lerobot() -> None:
     code = (
         "import sys\n"
-        "from armnet_agent.connector.calibration_check import CALIBRATION_REGISTERS, read_calibration\n"
+        "from armnet_agent.connector.calibration_check import read_calibration\n"
         "try:\n"
         "    read_calibration('/dev/null-armnet-no-such-port', [1])\n"
         "except ConnectionError:\n"
