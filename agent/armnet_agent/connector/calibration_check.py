@@ -11,9 +11,11 @@ agent's health probe calls when no job holds the bus (docs/connector.md,
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
+
+from .reply_window import LATE_REPLY_WAIT_S, LEROBOT_REPLY_WINDOW_MS
 
 #: The EEPROM registers that hold a servo's calibration, in tuple order.
 CALIBRATION_REGISTERS = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
@@ -62,10 +64,6 @@ BAUD_RATE = 1_000_000
 #: Extra tries per register: a loaded machine can miss a reply (LeRobot's reads use 2; the idle
 #: probe can afford more, and a read that never answers says nothing about calibration).
 READ_RETRIES = 5
-#: How long a failed read waits before asking again: past the reply window (50 ms), so a late
-#: reply has landed and is dropped rather than taken as the answer to the next request (a
-#: status packet names the servo, not the register: a stale one reads as another register's value).
-LATE_REPLY_WAIT_S = 0.06
 
 
 def _sign_magnitude(value: int, sign_bit: int) -> int:
@@ -125,15 +123,12 @@ def _reply_window_as_lerobot(handler: Any) -> None:
 
     def set_packet_timeout(packet_length: int) -> None:
         handler.packet_start_time = handler.getCurrentTime()
-        handler.packet_timeout = handler.tx_time_per_byte * (packet_length + 3.0) + 50
+        handler.packet_timeout = handler.tx_time_per_byte * (packet_length + 3.0) + LEROBOT_REPLY_WINDOW_MS
 
     handler.setPacketTimeout = set_packet_timeout
 
 
-def _read_word(
-    packets: Any, handler: Any, motor_id: int, address: int, success: int,
-    *, sleep: Callable[[float], None] = time.sleep,
-) -> int | None:
+def _read_word(packets: Any, handler: Any, motor_id: int, address: int, success: int) -> int | None:
     """A two-byte register, or None when the servo stays silent, reports an error or cuts its reply short.
 
     ``scservo_sdk`` raises IndexError on a truncated reply instead of reporting it. A failed
@@ -142,7 +137,7 @@ def _read_word(
     """
     for attempt in range(1 + READ_RETRIES):
         if attempt:
-            sleep(LATE_REPLY_WAIT_S)
+            time.sleep(LATE_REPLY_WAIT_S)
         handler.ser.reset_input_buffer()  # a reply that came after its request gave up is no answer
         try:
             value, result, error = packets.read2ByteTxRx(handler, motor_id, address)

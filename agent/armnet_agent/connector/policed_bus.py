@@ -26,12 +26,11 @@ from .errors import RequestError
 from .identity import CellMotor
 from .interlock import Interlock
 from .registers import is_goal_register, needs_current_value, write_refusal
+from .reply_window import LATE_REPLY_WAIT_S
 from .report import SafetyRecorder
 
 log = logging.getLogger(__name__)
 
-#: How long a late servo reply may take to land (longer than LeRobot's ~50 ms timeout).
-LATE_REPLY_WAIT_S = 0.06
 #: The calibration registers, in the order of ``BusPolicy.calibration``'s tuples.
 CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
 #: How long ``record_ranges_of_motion`` waits at most for the operator to end it.

@@ -28,14 +28,14 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from .hardware import Handle
+from .reply_window import LATE_REPLY_WAIT_S
 
 log = logging.getLogger(__name__)
 
 _T = TypeVar("_T")
 
-#: How long to wait after a lost reply before asking again: longer than LeRobot's
-#: timeout, so a late reply has landed (and is dropped) before the retry is sent.
-RETRY_DELAY_S = 0.06
+#: How long to wait after a lost reply before asking again (``reply_window``).
+RETRY_DELAY_S = LATE_REPLY_WAIT_S
 #: The waits before each retry of a read inside a control loop: the first soon (a loop
 #: that lost one reply wants its answer), the later ones longer, so a host that starved
 #: the connector or the bus for a few hundred milliseconds costs the loop one slow tick,

@@ -170,7 +170,7 @@ class CellWorker:
         # In a child process, not in the agent's: the simulated servos' serving threads would
         # otherwise share the agent's GIL with its watches, log streams and telemetry, and a
         # GIL holder the host preempts delays every reply of every cell on the node (replies
-        # missed LeRobot's ~34 ms packet timeout with four job pods starting beside a loop).
+        # missed LeRobot's 50 ms reply window with four job pods starting beside a loop).
         self.sim = SimulatedCellProcess(spec.preset, calibrations=calibrations).start()
         self._link_sim_ports(self.sim.ports())
         log.info("cell %s: simulator started (%s)", self.cell.name, self.sim.ports())
