@@ -47,7 +47,7 @@ HONOURS_SHUTDOWN = """
 """
 
 # What the customer container sees, checked from inside it: the socket was there at its
-# first instruction (the sidecar's startup probe gated it), no serial device, no root.
+# first instruction (the sidecar's postStart gate held it back), no serial device, no root.
 LOOKS_AROUND = """
     import os
     import stat
@@ -349,7 +349,7 @@ def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
     spec = pod["spec"]
     connector, = spec["initContainers"]
     customer, = spec["containers"]
-    assert connector["restartPolicy"] == "Always" and "startupProbe" in connector
+    assert connector["restartPolicy"] == "Always" and "postStart" in connector["lifecycle"]
     assert spec["restartPolicy"] == "Never" and spec["automountServiceAccountToken"] is False
     assert spec["activeDeadlineSeconds"] >= 300 + 3
     assert pod["metadata"]["ownerReferences"][0]["uid"] == job["metadata"]["uid"]

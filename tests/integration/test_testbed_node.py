@@ -1,4 +1,5 @@
-"""The test bed's node is a real one: pods run, native sidecars gate the main container,
+"""The test bed's node is a real one: pods run, native sidecars gate the main container
+(with a startup probe, or with the ``postStart`` gate the pod launcher uses),
 memory-backed volumes are shared, deadlines kill, and logs come through the apiserver.
 
 All pods of this module are created at once (``pods`` fixture) and run side by side
@@ -13,6 +14,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from armnet_agent.launch.pod_spec import serving_gate
 
 from tests.testbed.images import BASE_IMAGE
 from tests.testbed.kube import ControlPlane
@@ -93,6 +95,14 @@ def unprobed_sidecar_pod(node: Node) -> dict[str, Any]:
     return pod
 
 
+def gated_sidecar_pod(node: Node) -> dict[str, Any]:
+    """The sidecar pod gated as the pod launcher gates the connector: a ``postStart`` hook, no probe."""
+    pod = unprobed_sidecar_pod(node)
+    pod["metadata"]["name"] = "gated"
+    pod["spec"]["initContainers"][0]["lifecycle"] = {"postStart": {"exec": {"command": serving_gate(SOCKET, 60)}}}
+    return pod
+
+
 def shared_memory_pod(node: Node) -> dict[str, Any]:
     mount = [{"name": "shm", "mountPath": "/shm"}]
     return node.pod_yaml(
@@ -113,7 +123,7 @@ def overdue_pod(node: Node) -> dict[str, Any]:
 def pods(k8s_node: Node, k8s: ControlPlane) -> Iterator[str]:
     """Creates every pod of this module at once; yields their namespace."""
     namespace = k8s.create_namespace("node")
-    manifests = [sidecar_pod(k8s_node), unprobed_sidecar_pod(k8s_node),
+    manifests = [sidecar_pod(k8s_node), unprobed_sidecar_pod(k8s_node), gated_sidecar_pod(k8s_node),
                  shared_memory_pod(k8s_node), overdue_pod(k8s_node)]
     k8s.kubectl("apply", "-n", namespace, "-f", "-",
                 input=json.dumps({"apiVersion": "v1", "kind": "List", "items": manifests}))
@@ -145,6 +155,14 @@ def test_node_registers_and_is_ready(k8s_node: Node) -> None:
 def test_main_container_starts_only_after_the_native_sidecar_serves_its_socket(
         k8s_node: Node, pods: str) -> None:
     pod = k8s_node.wait_for_pod(pods, "sidecar")
+
+    assert pod["status"]["phase"] == "Succeeded", pod["status"]
+    assert exit_code(pod, "main") == 0
+
+
+def test_main_container_starts_only_after_the_native_sidecars_post_start_gate_saw_its_socket(
+        k8s_node: Node, pods: str) -> None:
+    pod = k8s_node.wait_for_pod(pods, "gated")
 
     assert pod["status"]["phase"] == "Succeeded", pod["status"]
     assert exit_code(pod, "main") == 0

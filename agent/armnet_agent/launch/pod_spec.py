@@ -5,8 +5,9 @@ creates it; nothing here talks to the API. The shape is the security contract
 of a job on a robot host, so each choice is deliberate:
 
 - the connector is an init container with ``restartPolicy: Always`` (a native
-  sidecar) and a startup probe on its ``robot.sock``: the kubelet starts the
-  customer container only once the connector serves;
+  sidecar) whose ``postStart`` hook returns only once its ``robot.sock`` serves:
+  the kubelet runs the hook inside the sync that starts the sidecar and starts
+  the customer container only after it (``serving_gate``);
 - the sockets (and the camera frame areas the connector keeps beside them) live
   in an ``emptyDir`` with ``medium: Memory`` shared by both containers; the
   calibration the connector writes is another ``emptyDir``, read-only for the job;
@@ -68,8 +69,12 @@ OBSERVER_DIR = "/run/armnet-observer"
 TMP_SIZE = "256Mi"
 DEVICE_DIR = "/dev/armnet"
 CONNECTOR_CPU_REQUEST = "250m"
-#: Seconds the connector may take to serve before the kubelet gives up on it (probe every second).
-STARTUP_PROBE_S = 300
+#: Seconds the connector may take to serve before its start counts as failed (the kubelet then
+#: restarts it, and a restarted connector fails the job): a loaded host can take a minute or more
+#: to import it.
+SERVING_WAIT_S = 300
+#: How often the start gate looks for the socket: a fraction of the connector's own start.
+SERVING_POLL_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -216,6 +221,26 @@ def _probe(socket_path: str, period: int, failures: int) -> dict[str, Any]:
             "failureThreshold": failures, "timeoutSeconds": 2}
 
 
+def serving_gate(socket_path: str, wait_s: int = SERVING_WAIT_S, poll_s: float = SERVING_POLL_S) -> list[str]:
+    """The sidecar's ``postStart`` command: return once ``socket_path`` serves, fail after ``wait_s``.
+
+    Why a hook and not a startup probe: the kubelet runs a ``postStart`` hook inside the
+    sync that starts the container and starts the next container only after the hook
+    returned, so the customer container follows the connector's first serving moment
+    by one kubelet sync. A startup probe is sampled once per ``periodSeconds`` (one
+    second at least) and only after the kubelet's next relist has reported the
+    sidecar running: ~1.5 s more on every job start (``bench/dispatch.py``). The
+    connector binds ``robot.sock`` only once it serves, so the socket's existence is
+    the same readiness a probe checks. A gate that fails makes the kubelet restart the
+    connector, which fails the job (a restarted connector never resumes motion).
+    """
+    tries = max(1, round(wait_s / poll_s))
+    script = (f'i=0; until test -S "$1"; do i=$((i+1)); '
+              f'if [ "$i" -ge {tries} ]; then echo "the connector did not serve $1 within {wait_s} s" >&2; exit 1; fi; '
+              f'sleep {poll_s}; done')
+    return ["sh", "-c", script, "serving-gate", socket_path]
+
+
 def _connector(inputs: PodInputs) -> dict[str, Any]:
     robot_sock = f"{inputs.socket_dir}/robot.sock"
     mounts = [
@@ -235,10 +260,8 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         "command": list(inputs.connector_command),
         "restartPolicy": "Always",
         "env": env,
-        # The customer container starts only once robot.sock exists. A failed startup probe makes
-        # the kubelet restart the sidecar (and that fails the job), so the window is generous: a
-        # loaded host can take a minute or more to import the connector.
-        "startupProbe": _probe(robot_sock, 1, STARTUP_PROBE_S),
+        # The customer container starts only once robot.sock exists (see serving_gate).
+        "lifecycle": {"postStart": {"exec": {"command": serving_gate(robot_sock)}}},
         "readinessProbe": _probe(robot_sock, 5, 3),
         "securityContext": {
             "allowPrivilegeEscalation": False,

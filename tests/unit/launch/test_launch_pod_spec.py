@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import json
+import socket
+import subprocess
+import threading
+import time
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -21,6 +26,7 @@ from armnet_agent.launch.pod_spec import (
     build_pod,
     device_path,
     running_deadline_seconds,
+    serving_gate,
 )
 
 pytestmark = pytest.mark.unit
@@ -56,12 +62,36 @@ def mounted_volumes(container: dict[str, Any], pod: dict[str, Any]) -> list[dict
     return [v for v in pod["spec"]["volumes"] if v["name"] in names]
 
 
-def test_the_connector_is_a_native_sidecar_whose_startup_probe_waits_for_its_socket() -> None:
+def test_the_connector_is_a_native_sidecar_whose_post_start_gate_waits_for_its_socket() -> None:
     connector, _ = containers(build_pod(inputs()))
     assert connector["name"] == CONNECTOR_CONTAINER
     assert connector["restartPolicy"] == "Always"
-    assert connector["startupProbe"]["exec"]["command"] == ["test", "-S", f"{SOCKETS}/robot.sock"]
+    assert connector["lifecycle"]["postStart"]["exec"]["command"] == serving_gate(f"{SOCKETS}/robot.sock")
+    assert "startupProbe" not in connector  # sampled once a second: the gate alone orders the start
     assert connector["readinessProbe"]["exec"]["command"] == ["test", "-S", f"{SOCKETS}/robot.sock"]
+
+
+def test_the_serving_gate_returns_once_the_socket_is_bound(tmp_path: Path) -> None:
+    path = tmp_path / "robot.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    binder = threading.Timer(0.3, listener.bind, (str(path),))
+    started = time.monotonic()
+    binder.start()
+    try:
+        done = subprocess.run(serving_gate(str(path), wait_s=10), capture_output=True, text=True, timeout=20)
+    finally:
+        binder.join()
+        listener.close()
+    assert done.returncode == 0, done.stderr
+    assert 0.3 <= time.monotonic() - started < 5
+
+
+def test_the_serving_gate_fails_with_a_reason_when_the_connector_never_serves(tmp_path: Path) -> None:
+    (tmp_path / "robot.sock").write_text("")  # a plain file is not a socket
+    done = subprocess.run(serving_gate(str(tmp_path / "robot.sock"), wait_s=1, poll_s=0.1),
+                          capture_output=True, text=True, timeout=20)
+    assert done.returncode == 1
+    assert f"the connector did not serve {tmp_path}/robot.sock within 1 s" in done.stderr
 
 
 def test_both_containers_share_the_sockets_in_a_memory_backed_empty_dir() -> None:
