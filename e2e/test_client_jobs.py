@@ -344,7 +344,7 @@ def test_teleop_with_the_simulated_leader_moves_the_follower_and_keys_reach_the_
 @pytest.fixture(scope="module")
 def chart_nats(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A nats-server running the chart's rendered nats.conf (tenants team-a and team-b); its host:port."""
-    from tests.integration.test_helm_chart import find, render
+    from tests.support.helm import find, render
 
     values = {"nats": {"deploy": {"enabled": True, "auth": {
         "enabled": True, "existingSecret": "nats-users", "tenants": ["team-a", "team-b"]}}}}

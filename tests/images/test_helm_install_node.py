@@ -40,8 +40,7 @@ from urllib.parse import urlparse
 import pytest
 import yaml
 
-from tests.integration.test_helm_chart import CHART, helm_binary
-from tests.integration.test_helm_lifecycle import CRDS, adopt_crds, helm_on
+from tests.support.helm import CHART, CRDS, adopt_crds, helm_binary, helm_on
 from tests.testbed.controllers import WorkloadControllers
 from tests.testbed.kube import ControlPlane
 from tests.testbed.node import Node

@@ -6,81 +6,19 @@ real kube-apiserver. RBAC behaviour with real identities: test_helm_rbac.py.
 
 from __future__ import annotations
 
-import functools
-import os
 import re
-import subprocess
-from collections.abc import Iterable
-from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
 
+from tests.support.helm import ALL_OPTIONS, CHART, REPO_ROOT, env_of, find, helm, render
 from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-CHART = REPO_ROOT / "helm" / "armnet"
-ALL_OPTIONS = CHART / "ci" / "all-options-values.yaml"
-HELM_CACHE = Path.home() / ".cache" / "armnet" / "helm"
-
 
 # ---------------------------------------------------------------------------- helpers
-def helm_binary() -> Path:
-    """The helm built by setup (ARMNET_HELM overrides); a missing one fails, saying what to run."""
-    override = os.environ.get("ARMNET_HELM")
-    if override:
-        return Path(override)
-    current = HELM_CACHE / "current"
-    path = HELM_CACHE / f"v{current.read_text().strip()}" / "bin" / "helm" if current.is_file() else None
-    if path is None or not path.is_file():
-        pytest.fail(f"helm is not built ({current} missing): run scripts/setup.sh "
-                    "(step scripts/setup.d/35-helm.sh)", pytrace=False)
-    return path
-
-
-def helm(*args: str, input: str | None = None, check: bool = True) -> subprocess.CompletedProcess[str]:
-    result = subprocess.run([str(helm_binary()), *args], input=input, capture_output=True, text=True,
-                            timeout=120, check=False)
-    if check and result.returncode != 0:
-        raise AssertionError(f"helm {' '.join(args)} failed ({result.returncode}):\n{result.stderr}")
-    return result
-
-
-def render(release: str = "armnet", namespace: str = "armnet-system", *,
-           values_files: Iterable[Path] = (), values: dict[str, Any] | None = None) -> list[dict[str, Any]]:
-    """`helm template` into a list of objects; ``values`` (given last) win over the files.
-
-    Renders are cached per arguments (a helm run costs ~0.5 s here); callers must not
-    mutate what they get.
-    """
-    extra = yaml.safe_dump(values) if values is not None else None
-    return _render(release, namespace, tuple(str(p) for p in values_files), extra)
-
-
-@functools.lru_cache(maxsize=64)
-def _render(release: str, namespace: str, values_files: tuple[str, ...], extra: str | None) -> list[dict[str, Any]]:
-    args = ["template", release, str(CHART), "--namespace", namespace]
-    for path in values_files:
-        args += ["--values", path]
-    if extra is not None:
-        args += ["--values", "-"]
-    out = helm(*args, input=extra).stdout
-    return [doc for doc in yaml.safe_load_all(out) if doc]
-
-
-def find(objects: list[dict[str, Any]], kind: str, name_suffix: str = "") -> dict[str, Any]:
-    matches = [o for o in objects if o["kind"] == kind and o["metadata"]["name"].endswith(name_suffix)]
-    assert len(matches) == 1, f"expected one {kind} named *{name_suffix}, got {[m['metadata']['name'] for m in matches]}"
-    return matches[0]
-
-
-def env_of(container: dict[str, Any]) -> dict[str, Any]:
-    return {e["name"]: e.get("value", e.get("valueFrom")) for e in container.get("env", [])}
-
-
 def repo_crds() -> dict[str, dict[str, Any]]:
     return {doc["metadata"]["name"]: doc for path in sorted((REPO_ROOT / "crds").glob("*.yaml"))
             for doc in yaml.safe_load_all(path.read_text()) if doc}

@@ -18,17 +18,17 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.integration import test_helm_nats
-from tests.integration.test_helm_chart import ALL_OPTIONS, CHART, find, helm, render
-from tests.integration.test_helm_nats import Server, connect, run, settle, violated
+from tests.support import helm_nats
 from tests.support.fms_objects import FMS_RULES
+from tests.support.helm import ALL_OPTIONS, CHART, find, helm, helm_on, render
+from tests.support.helm_nats import Server, connect, run, settle, violated
 from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 
 TOKENS = [{"name": "maria", "token": "maria-token-0123456789"}, {"name": "lee@lab-1", "token": "lee-token-0123456789ab"}]
 #: The chart's nats.conf (auth on) in a real nats-server: the fixture test_helm_nats.py uses.
-server = test_helm_nats.server
+server = helm_nats.server
 
 ENABLED = {"fms": {"enabled": True, "operators": TOKENS}}
 
@@ -373,8 +373,6 @@ def test_fms_user_cannot_publish_job_output_or_teleop_input(server: Server) -> N
 # ---------------------------------------------------------------------------- upgrades
 def test_an_upgrade_keeps_the_generated_session_key_and_takes_the_new_operators(
         k8s: ControlPlane, namespace: str) -> None:
-    from tests.integration.test_helm_lifecycle import helm_on
-
     release = "fms-keep"
     only_fms = {"crds": {"install": False}, "operator": {"enabled": False}, "agent": {"enabled": False},
                 "admissionWebhook": {"enabled": False}, "fms": ENABLED["fms"]}

@@ -11,37 +11,14 @@ and the tenants' RobotJobs.
 from __future__ import annotations
 
 import json
-import subprocess
 import uuid
-from typing import Any
 
 import pytest
-import yaml
 
-from tests.integration.test_helm_chart import CHART, helm_binary
+from tests.support.helm import CHART, CRDS, adopt_crds, helm_on
 from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
-
-CRDS = ("cells.armnet.io", "robotjobs.armnet.io")
-
-
-def helm_on(k8s: ControlPlane, *args: str, values: dict[str, Any] | None = None) -> subprocess.CompletedProcess[str]:
-    argv = [str(helm_binary()), *args, f"--kubeconfig={k8s.kubeconfig}"]
-    if values is not None:
-        argv += ["--values", "-"]
-    result = subprocess.run(argv, input=yaml.safe_dump(values) if values is not None else None,
-                            capture_output=True, text=True, timeout=180, check=False)
-    assert result.returncode == 0, f"helm {' '.join(args)} failed:\n{result.stderr}"
-    return result
-
-
-def adopt_crds(k8s: ControlPlane, release: str, namespace: str) -> None:
-    """docs/helm.md: how a new release takes over CRDs an earlier one left behind."""
-    for crd in CRDS:
-        k8s.kubectl("label", "crd", crd, "app.kubernetes.io/managed-by=Helm", "--overwrite")
-        k8s.kubectl("annotate", "crd", crd, f"meta.helm.sh/release-name={release}",
-                    f"meta.helm.sh/release-namespace={namespace}", "--overwrite")
 
 
 def test_install_upgrade_uninstall_keeps_crds_and_robotjobs(k8s: ControlPlane, namespace: str) -> None:

@@ -32,7 +32,7 @@ from armnet_agent.launch.plan import (
 from armnet_agent.launch.pod_spec import PodInputs, build_pod
 from armnet_agent.node.plan import container_name
 
-from tests.integration.test_helm_chart import render
+from tests.support.helm import render
 from tests.testbed.kube import ControlPlane, KubeUser
 
 pytestmark = pytest.mark.integration

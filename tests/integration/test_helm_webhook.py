@@ -21,7 +21,7 @@ from armnet_operator.admission import WEBHOOK_PATH
 from armnet_operator.metrics import Metrics
 from armnet_operator.webhook import AdmissionWebhook
 
-from tests.integration.test_helm_chart import CHART, env_of, find, helm, render
+from tests.support.helm import CHART, env_of, find, helm, render
 from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
