@@ -16,7 +16,6 @@ import os
 import pty
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -34,7 +33,6 @@ from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
 
 from e2e.agent_bed import EXAMPLES, JOBS, PYTHONPATH, TERMINAL, AgentBed
 from tests.testbed.natsd import NatsServer
-from tests.testbed.procs import ManagedProcess, free_port, require_tool, wait_until
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
 
@@ -344,30 +342,10 @@ def test_teleop_with_the_simulated_leader_moves_the_follower_and_keys_reach_the_
 @pytest.fixture(scope="module")
 def chart_nats(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A nats-server running the chart's rendered nats.conf (tenants team-a and team-b); its host:port."""
-    from tests.support.helm import find, render
+    from tests.support.helm_nats import chart_nats_server
 
-    values = {"nats": {"deploy": {"enabled": True, "auth": {
-        "enabled": True, "existingSecret": "nats-users", "tenants": ["team-a", "team-b"]}}}}
-    config = find(render(values=values), "ConfigMap", "-nats")["data"]["nats.conf"]
-    workdir = tmp_path_factory.mktemp("chart-nats")
-    port = free_port()
-    config = re.sub(r"(?m)^port: 4222$", f"host: 127.0.0.1\nport: {port}", config)
-    config = re.sub(r"(?m)^http_port: .*$", "", config).replace("/data/jetstream", str(workdir / "js"))
-    (workdir / "nats.conf").write_text(config)
-    env = {**os.environ, "NATS_AGENT_PASSWORD": "agent-pw", "NATS_FMS_PASSWORD": "fms-pw",
-           "NATS_TENANT_TEAM_A_PASSWORD": "a-pw", "NATS_TENANT_TEAM_B_PASSWORD": "b-pw"}
-    proc = ManagedProcess("nats-server", [require_tool("nats-server"), "-c", str(workdir / "nats.conf")],
-                          workdir / "nats.log", env=env)
-
-    def accepts() -> bool:
-        with socket.create_connection(("127.0.0.1", port), timeout=1) as sock:
-            return sock.recv(4).startswith(b"INFO")
-
-    try:
-        wait_until(accepts, timeout=20, what="nats-server with the chart's config", alive=proc.ensure_running)
+    with chart_nats_server(tmp_path_factory.mktemp("chart-nats")) as port:
         yield f"127.0.0.1:{port}"
-    finally:
-        proc.stop()
 
 
 @pytest.fixture(scope="module")

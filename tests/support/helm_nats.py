@@ -15,7 +15,9 @@ import os
 import re
 import socket
 from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import nats
@@ -35,12 +37,12 @@ class Server:
     url: str
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+@contextmanager
+def chart_nats_server(workdir: Path) -> Iterator[int]:
+    """A nats-server running the chart's rendered nats.conf (tenants team-a and team-b) in ``workdir``; its port."""
     values = {"nats": {"deploy": {"enabled": True, "auth": {
         "enabled": True, "existingSecret": "nats-users", "tenants": ["team-a", "team-b"]}}}}
     config = find(render(values=values), "ConfigMap", "-nats")["data"]["nats.conf"]
-    workdir = tmp_path_factory.mktemp("helm-nats")
     port = free_port()
     config = re.sub(r"(?m)^port: 4222$", f"host: 127.0.0.1\nport: {port}", config)
     config = re.sub(r"(?m)^http_port: .*$", "", config)
@@ -55,9 +57,15 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
 
     try:
         wait_until(accepts, timeout=20, what="nats-server with the chart's config", alive=proc.ensure_running)
-        yield Server(url=f"nats://127.0.0.1:{port}")
+        yield port
     finally:
         proc.stop()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    with chart_nats_server(tmp_path_factory.mktemp("helm-nats")) as port:
+        yield Server(url=f"nats://127.0.0.1:{port}")
 
 
 def run(server: Server, body: Callable[..., Awaitable[None]]) -> None:
