@@ -58,6 +58,25 @@ class Instruction:
         return HEADER + body + bytes([checksum(body)])
 
 
+def is_lone_sync_write(data: bytes) -> bool:
+    """True when ``data`` is exactly one well-formed SYNC_WRITE frame to the broadcast id.
+
+    No servo answers such a frame, and ``FrameParser`` (with nothing buffered)
+    would return it whole: the simulator may apply it later, with its arrival
+    time, as long as nothing else reaches the servos first.
+    """
+    return (
+        len(data) >= 6
+        and data[0] == 0xFF
+        and data[1] == 0xFF
+        and data[2] == BROADCAST_ID
+        and data[3] <= MAX_LENGTH_FIELD
+        and data[3] + 4 == len(data)
+        and data[4] == Instr.SYNC_WRITE
+        and checksum(data[2:-1]) == data[-1]
+    )
+
+
 def encode_status(servo_id: int, error: int, data: bytes = b"", *, corrupt: bool = False) -> bytes:
     """A status packet; ``corrupt`` flips the checksum to simulate line noise."""
     body = bytes([servo_id, len(data) + 2, error & 0xFF]) + data
@@ -86,6 +105,11 @@ class FrameParser:
         self._last_feed: float | None = None
         self._stale_after_s = stale_after_s
         self.dropped_frames = 0
+
+    @property
+    def idle(self) -> bool:
+        """Nothing buffered: the next chunk starts a frame of its own."""
+        return not self._buf
 
     def feed(self, data: bytes, now: float = 0.0) -> list[Instruction]:
         """Add bytes received at time ``now``; return every frame now complete."""

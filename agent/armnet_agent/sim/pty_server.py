@@ -17,7 +17,15 @@ from running the real SDK against a pty (reference §9, §10):
   test host a nice value alone still let replies miss LeRobot's ~16 ms packet
   timeout. The thread sleeps in ``select`` between requests, so the boost costs
   the machine nothing, and the kernel's real-time throttling bounds it if it
-  ever spun.
+  ever spun;
+- work that nobody waits for is done once the line is quiet: the handler may
+  keep a request that gets no reply for later, and ``on_quiet`` runs when no
+  byte has come for ``quiet_after_s`` after such a request. Why: a real servo
+  applies a write on its own CPU, while this thread, woken at real-time
+  priority on the CPU where the host is still finishing its write call, would
+  preempt the host for the whole handling (~250-350 us of Python per 6-servo
+  SYNC_WRITE on a 2-core host; the connector's reply waited behind it in half
+  of the proxied goal writes).
 """
 
 from __future__ import annotations
@@ -39,6 +47,9 @@ log = logging.getLogger(__name__)
 
 #: How long a reply may wait for room in the pty buffer before it is dropped.
 WRITE_DEADLINE_S = 0.05
+#: How long the line must stay quiet, after a request that got no reply, before ``on_quiet`` runs:
+#: longer than the host takes to finish its write call (direct or through the connector).
+QUIET_AFTER_S = 0.001
 #: ``SCHED_FIFO`` priority requested for the serving thread (the lowest real-time one).
 REALTIME_PRIORITY = 1
 #: Nice value requested for the serving thread when real-time scheduling is refused.
@@ -61,8 +72,12 @@ class PtyServer:
         name: str = "armnet-sim",
         clock: Callable[[], float] = time.monotonic,
         boost_priority: bool = True,
+        on_quiet: Callable[[], None] | None = None,
+        quiet_after_s: float = QUIET_AFTER_S,
     ) -> None:
         self._handler = handler
+        self._on_quiet = on_quiet
+        self._quiet_after_s = quiet_after_s
         self._boost_priority = boost_priority
         self._link = Path(link_path) if link_path is not None else None
         self.latency_s = latency_s
@@ -149,10 +164,15 @@ class PtyServer:
             _boost_this_thread()
         master, wake = self._master, self._wake_r
         assert master is not None and wake is not None
+        quiet_due = False  # a request got no reply: ``on_quiet`` runs once the line is quiet
         while not self._stopping.is_set():
-            readable, _, _ = select.select([master, wake], [], [])
+            readable, _, _ = select.select([master, wake], [], [], self._quiet_after_s if quiet_due else None)
             if wake in readable:
                 return
+            if not readable:
+                quiet_due = False
+                self._run_on_quiet()
+                continue
             try:
                 data = os.read(master, 4096)
             except BlockingIOError:
@@ -169,10 +189,18 @@ class PtyServer:
             except Exception:  # noqa: BLE001 - a bad frame must never kill the bus thread
                 log.exception("%s: handler failed; request dropped", self._name)
                 continue
+            quiet_due = self._on_quiet is not None and not reply
             if reply:
                 if self.latency_s > 0:
                     time.sleep(self.latency_s)
                 self._write(master, reply)
+
+    def _run_on_quiet(self) -> None:
+        assert self._on_quiet is not None
+        try:
+            self._on_quiet()
+        except Exception:  # noqa: BLE001 - as a bad frame: never kill the bus thread
+            log.exception("%s: quiet-line work failed", self._name)
 
     def _write(self, master: int, reply: bytes) -> None:
         deadline = time.monotonic() + WRITE_DEADLINE_S

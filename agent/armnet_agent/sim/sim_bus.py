@@ -3,6 +3,13 @@
 It glues the pure pieces (frame parser, servo bus) to the ``PtyServer`` thread
 and guards them with one lock, so a test can read positions or inject a fault
 while the real SDK talks to the bus from another thread.
+
+A lone broadcast SYNC_WRITE (the goal write of every control tick, which no
+servo answers) is kept and applied with its arrival time once the line is
+quiet, before the next request, or before anyone inspects the servos, so
+every observer sees the same servo state as if it had been applied at once.
+Why: real servos apply a write on their own CPU; applied at once here, it held
+the host's CPU (see ``pty_server``) while the host was still in its write call.
 """
 
 from __future__ import annotations
@@ -15,7 +22,7 @@ from typing import TypeVar
 
 from .bus_model import ServoBus
 from .lifecycle import StartStop
-from .protocol import FrameParser
+from .protocol import FrameParser, is_lone_sync_write
 from .pty_server import PtyServer
 from .servo import Servo, ServoFaults
 
@@ -38,12 +45,15 @@ class SimulatedBus(StartStop):
         self._lock = threading.Lock()
         self._model = ServoBus(servos)
         self._parser = FrameParser()
+        #: Received writes not applied yet: (bytes, arrival time, the line speed then), in order.
+        self._deferred: list[tuple[bytes, float, int | None]] = []
         self._server = PtyServer(
             self._on_bytes,
             link_path=link_path,
             latency_s=latency_ms / 1000.0,
             name=name,
             clock=clock,
+            on_quiet=self._on_quiet,
         )
 
     # -- lifecycle ----------------------------------------------------------------------
@@ -83,6 +93,7 @@ class SimulatedBus(StartStop):
     def inspect(self, fn: Callable[[ServoBus, float], T]) -> T:
         """Run ``fn(bus_model, now)`` under the bus lock: the one way to touch servo state."""
         with self._lock:
+            self._apply_deferred()
             return fn(self._model, self._clock())
 
     def set_faults(self, servo_id: int, faults: ServoFaults) -> None:
@@ -99,9 +110,27 @@ class SimulatedBus(StartStop):
 
     def _on_bytes(self, data: bytes, now: float) -> bytes:
         with self._lock:
-            self._model.line_baud = self._server.line_speed()
-            frames = self._parser.feed(data, now)
-            return b"".join(self._model.handle(frame, now) for frame in frames)
+            line_baud = self._server.line_speed()
+            if self._parser.idle and is_lone_sync_write(data):
+                self._deferred.append((data, now, line_baud))
+                return b""
+            self._apply_deferred()
+            return self._handle(data, now, line_baud)
+
+    def _on_quiet(self) -> None:
+        with self._lock:
+            self._apply_deferred()
+
+    def _apply_deferred(self) -> None:
+        """Apply the kept writes in arrival order, each at its own time; caller holds the lock."""
+        deferred, self._deferred = self._deferred, []
+        for data, now, line_baud in deferred:
+            self._handle(data, now, line_baud)
+
+    def _handle(self, data: bytes, now: float, line_baud: int | None) -> bytes:
+        self._model.line_baud = line_baud
+        frames = self._parser.feed(data, now)
+        return b"".join(self._model.handle(frame, now) for frame in frames)
 
 
 def _require(bus: ServoBus, servo_id: int) -> Servo:
