@@ -29,6 +29,8 @@ OVERLAY_SECONDS = 10.0
 MAX_BACKOFF_SECONDS = 30.0
 QUEUE_SECONDS_PER_PASS = 0.5
 """Queue writes a pass starts within this budget; the rest go next pass, so a burst never holds a bind long."""
+STOP_GRACE_SECONDS = 5.0
+"""At a stop, the pass in flight gets this long to end; then the operator stops without it (``KubeApi.close``)."""
 
 
 class Cache:
@@ -138,6 +140,7 @@ class Controller:
         self.leading = False
         self._renewed_at: datetime | None = None
         self._task: asyncio.Task[None] | None = None
+        self._pass: asyncio.Future[None] | None = None
         self._stopping = False
         self._more = False
         self.on_death = on_death
@@ -158,8 +161,20 @@ class Controller:
         self._task = asyncio.get_running_loop().create_task(self._run(), name="armnet-reconcile")
         self._task.add_done_callback(self._ended)
 
-    async def stop(self) -> None:
+    async def stop(self, grace: float = STOP_GRACE_SECONDS) -> None:
+        """Start no pass any more, let the one in flight end (``grace`` at most), then end the loop.
+
+        Cancelling the loop's task does not stop the thread a pass runs in: the pass
+        went on writing after kopf's cleanup, and its Events were queued after the
+        cleanup had returned (for what that did to the exit, see ``KubeApi.close``).
+        Waiting here makes the pass the last thing before the caller closes the API.
+        """
         self._stopping = True
+        running = self._pass
+        if running is not None and not running.done():
+            await asyncio.wait({running}, timeout=grace)
+            if not running.done():
+                log.warning("the reconcile pass is still running %.0f s after the stop; stopping without it", grace)
         if self._task is not None:
             self._task.cancel()
             await asyncio.gather(self._task, return_exceptions=True)
@@ -191,9 +206,13 @@ class Controller:
             except TimeoutError:
                 pass
             self.cache.changed.clear()
+            if self._stopping:  # stop() is waiting for the last pass to end: no new one
+                return
             try:
                 self._more = False
-                await asyncio.to_thread(self.reconcile)
+                # Shielded: a cancelled loop leaves the pass's thread running anyway; stop() awaits it instead.
+                self._pass = asyncio.ensure_future(asyncio.to_thread(self.reconcile))
+                await asyncio.shield(self._pass)
                 if self._more:  # writes left for the next pass: run it at once (Event: loop thread only)
                     self.cache.changed.set()
             except ResourcesReplaced as error:

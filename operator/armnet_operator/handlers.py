@@ -85,8 +85,8 @@ def build_registry(
     metrics = Metrics()
     webhook = make_webhook(metrics, settings)  # loads the certificate now: a bad path fails at start
     api_client = make_client(settings.kubeconfig)
-    controller = Controller(settings, KubeApi(api_client, COMPONENT, settings.identity), metrics,
-                            on_death=on_death, on_resources_back=on_resources_back)
+    api = KubeApi(api_client, COMPONENT, settings.identity)
+    controller = Controller(settings, api, metrics, on_death=on_death, on_resources_back=on_resources_back)
     registry = kopf.OperatorRegistry()
 
     @kopf.on.login(registry=registry)
@@ -116,7 +116,8 @@ def build_registry(
     async def stop(**_: Any) -> None:
         if webhook is not None:
             await webhook.stop()
-        await controller.stop()
+        await controller.stop()  # the pass in flight ends first: it may still queue Events
+        await asyncio.to_thread(api.close)  # its Events out (bounded), the poster joined: no thread in a request at exit
         controller.metrics.close()
         if stop_flag is not None:
             stop_flag.set()

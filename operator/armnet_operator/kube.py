@@ -11,6 +11,8 @@ import json
 import logging
 import queue
 import threading
+import time
+from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any, cast
 
@@ -25,6 +27,14 @@ from .patches import Patch, Target
 
 log = logging.getLogger(__name__)
 EVENT_MAX_DELAY = 5.0
+EVENT_FLUSH_SECONDS = 3.0
+"""At shutdown, the Events still queued are posted for at most this long; the rest are dropped (and counted)."""
+EVENT_REQUEST_TIMEOUT = (2.0, 3.0)
+"""Connect and read timeout of one Event post: a best-effort write, and what bounds the poster's join."""
+REQUEST_TIMEOUT = (5.0, 30.0)
+"""Connect and read timeout of every other request: a pass stuck on a dead connection cannot hold a stop forever."""
+CONNECT_RETRIES = 3
+"""urllib3's default: a request whose connection fails is tried this many times more."""
 WRITERS = 16  # concurrent writes within a pass (objects are disjoint; preconditions keep them safe)
 CONNECTIONS = WRITERS + 4  # + the Event poster, the Lease, headroom
 
@@ -89,10 +99,49 @@ class KubeApi:
         self.extensions = client.ApiextensionsV1Api(api_client)
         self.component = component
         self.identity = identity
-        self._events: queue.SimpleQueue[tuple[Job | Cell, str, str, str, datetime]] = queue.SimpleQueue()
+        self._events: queue.SimpleQueue[tuple[Job | Cell, str, str, str, datetime] | None] = queue.SimpleQueue()
         self._quiet = threading.Event()
         self._quiet.set()
-        threading.Thread(target=self._post_events, name="armnet-events", daemon=True).start()
+        self._closed = False
+        self._flush_until = 0.0
+        self._dropped = 0
+        # A daemon, so that a KubeApi nobody closes (a test's, a script's) never keeps a process alive; the
+        # operator closes its own (``close``) before it exits.
+        self._poster = threading.Thread(target=self._post_events, name="armnet-events", daemon=True)
+        self._poster.start()
+
+    def close(self, flush_seconds: float = EVENT_FLUSH_SECONDS) -> None:
+        """Send no request any more; post the queued Events for at most ``flush_seconds``, drop the rest; join the poster.
+
+        Call it after the last pass. The poster must not be inside a request when the
+        interpreter exits: CPython ends a daemon thread that takes the GIL back during
+        finalization with ``pthread_exit``, and from inside an HTTPS call (``_ssl``'s
+        write) that unwind aborts the process. A pass still running at SIGTERM queued
+        its Events after kopf's cleanup, the poster was posting them as ``armnet
+        operator`` returned 0, and the process died of SIGABRT (exit -6) instead.
+
+        A pass still running after ``Controller.stop`` gave up on it fails fast from
+        here on (``TransientError`` on every request), so it ends once its requests in
+        flight do (each bounded by ``REQUEST_TIMEOUT``); what it did not write, the next
+        leader's pass does.
+        """
+        if self._closed:
+            return
+        self._flush_until = time.monotonic() + flush_seconds
+        self._closed = True
+        self._quiet.set()  # no pass writes any more: nothing to wait for
+        self._events.put(None)  # after every Event queued so far
+        self._poster.join(flush_seconds + sum(EVENT_REQUEST_TIMEOUT) * (1 + CONNECT_RETRIES) + 1.0)
+        if self._poster.is_alive():
+            log.warning("the Event poster is still inside a request; exiting without it")
+        if self._dropped:
+            log.warning("%d Event(s) not posted: the operator stopped before they went out", self._dropped)
+
+    def _send(self, call: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """Every request but the Events' goes out here: bounded in time, and none after ``close``."""
+        if self._closed:
+            raise TransientError("the operator is stopping; request not sent")
+        return call(*args, _request_timeout=REQUEST_TIMEOUT, **kwargs)
 
     def writing(self, busy: bool) -> None:
         """While a pass writes, Events wait (until ``EVENT_MAX_DELAY`` after they happened): binds first.
@@ -101,7 +150,7 @@ class KubeApi:
         claims and binds of a burst; posting them in the gaps between passes
         keeps submit->bound short and loses nothing.
         """
-        if busy:
+        if busy and not self._closed:  # once closed the poster flushes: never make it wait
             self._quiet.clear()
         else:
             self._quiet.set()
@@ -111,19 +160,19 @@ class KubeApi:
         what = f"{patch.target} {patch.namespace + '/' if patch.namespace else ''}{patch.name}"
         try:
             if patch.target is Target.CELL_STATUS:
-                return cast(dict[str, Any], self.custom.patch_cluster_custom_object_status(
+                return cast(dict[str, Any], self._send(self.custom.patch_cluster_custom_object_status,
                     GROUP, VERSION, "cells", patch.name, patch.body
                 ))
             if patch.target is Target.JOB_STATUS:
-                return cast(dict[str, Any], self.custom.patch_namespaced_custom_object_status(
+                return cast(dict[str, Any], self._send(self.custom.patch_namespaced_custom_object_status,
                     GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
                 ))
             if patch.operations:
-                return cast(dict[str, Any], self.custom.patch_namespaced_custom_object(
+                return cast(dict[str, Any], self._send(self.custom.patch_namespaced_custom_object,
                     GROUP, VERSION, patch.namespace, "robotjobs", patch.name, list(patch.operations),
                     _content_type="application/json-patch+json",
                 ))
-            return cast(dict[str, Any], self.custom.patch_namespaced_custom_object(
+            return cast(dict[str, Any], self._send(self.custom.patch_namespaced_custom_object,
                 GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
             ))
         except ApiException as error:
@@ -135,7 +184,7 @@ class KubeApi:
 
     def read_job(self, namespace: str, name: str) -> dict[str, Any]:
         try:
-            return cast(dict[str, Any], self.custom.get_namespaced_custom_object(
+            return cast(dict[str, Any], self._send(self.custom.get_namespaced_custom_object,
                 GROUP, VERSION, namespace, "robotjobs", name
             ))
         except ApiException as error:
@@ -143,14 +192,14 @@ class KubeApi:
 
     def read_cell(self, name: str) -> dict[str, Any]:
         try:
-            return cast(dict[str, Any], self.custom.get_cluster_custom_object(GROUP, VERSION, "cells", name))
+            return cast(dict[str, Any], self._send(self.custom.get_cluster_custom_object, GROUP, VERSION, "cells", name))
         except ApiException as error:
             raise _translate(error, f"cell {name}") from error
 
     def delete_job(self, namespace: str, name: str, uid: str) -> None:
         body = client.V1DeleteOptions(preconditions=client.V1Preconditions(uid=uid or None))
         try:
-            self.custom.delete_namespaced_custom_object(
+            self._send(self.custom.delete_namespaced_custom_object,
                 GROUP, VERSION, namespace, "robotjobs", name, body=body
             )
         except ApiException as error:
@@ -158,11 +207,20 @@ class KubeApi:
 
     def post_event(self, subject: Job | Cell, type_: str, reason: str, message: str) -> None:
         """Queue the Event: a slow Events write must never delay a binding."""
+        if self._closed:
+            self._dropped += 1
+            return
         self._events.put((subject, type_, reason, message, datetime.now(UTC)))
 
     def _post_events(self) -> None:
         while True:
-            job, type_, reason, message, when = self._events.get()
+            item = self._events.get()
+            if item is None:  # closed, and everything queued before was posted or dropped
+                return
+            job, type_, reason, message, when = item
+            if self._closed and time.monotonic() > self._flush_until:
+                self._dropped += 1
+                continue
             lag = (datetime.now(UTC) - when).total_seconds()
             self._quiet.wait(max(0.0, EVENT_MAX_DELAY - lag))
             try:
@@ -188,7 +246,7 @@ class KubeApi:
         }
         try:
             # A plain dict: building the client's model objects costs more CPU than the request.
-            self.core.create_namespaced_event(namespace, cast(Any, body))
+            self.core.create_namespaced_event(namespace, cast(Any, body), _request_timeout=EVENT_REQUEST_TIMEOUT)
         except ApiException as error:
             raise _translate(error, f"event for {subject.name}") from error
 
@@ -201,7 +259,7 @@ class KubeApi:
         (and hold its writes) until the CRD is back.
         """
         try:
-            found = self.custom.get_api_resources(GROUP, VERSION)
+            found = self._send(self.custom.get_api_resources, GROUP, VERSION)
             served = {r.name for r in (found.resources or [])}
         except ApiException as error:
             if error.status != 404:
@@ -224,7 +282,7 @@ class KubeApi:
         for plural in ("robotjobs", "cells"):
             name = f"{plural}.{GROUP}"
             try:
-                crd = self.extensions.read_custom_resource_definition(name)
+                crd = self._send(self.extensions.read_custom_resource_definition, name)
             except ApiException as error:
                 if error.status != 404:
                     raise _translate(error, f"CRD {name}") from error
@@ -236,7 +294,7 @@ class KubeApi:
     def hold_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:
         """Acquire or renew the Lease; True while this replica leads."""
         try:
-            lease = self.leases.read_namespaced_lease(name, namespace)
+            lease = self._send(self.leases.read_namespaced_lease, name, namespace)
         except ApiException as error:
             if error.status != 404:
                 raise _translate(error, f"lease {namespace}/{name}") from error
@@ -262,7 +320,7 @@ class KubeApi:
             patch["spec"].update(acquireTime=stamp, leaseTransitions=view.transitions + 1)
             log.info("acquiring leadership (lease %s/%s) from %s", namespace, name, view.holder)
         try:
-            self.leases.patch_namespaced_lease(name, namespace, patch)
+            self._send(self.leases.patch_namespaced_lease, name, namespace, patch)
         except ApiException as error:
             if error.status == 409:
                 return False
@@ -277,7 +335,7 @@ class KubeApi:
                      "leaseDurationSeconds": int(duration.total_seconds()), "leaseTransitions": 0},
         }
         try:
-            self.leases.create_namespaced_lease(namespace, cast(client.V1Lease, client.V1Lease.from_dict(body)))
+            self._send(self.leases.create_namespaced_lease, namespace, cast(client.V1Lease, client.V1Lease.from_dict(body)))
         except ApiException as error:
             if error.status == 409:
                 return False

@@ -296,3 +296,24 @@ def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_abs
         for name in ("bare", "stale", "raced"):
             with contextlib.suppress(Exception):
                 bed.api.patch_namespaced_custom_object(G, V, bed.ns, "robotjobs", name, {"metadata": {"finalizers": None}})
+
+
+def test_closing_the_api_posts_the_queued_events_joins_the_poster_and_sends_nothing_more(bed: Bed) -> None:
+    """``KubeApi.close``: no thread of ours may be inside a request when the process exits (it aborted, -6)."""
+    from armnet_operator.errors import TransientError
+    from armnet_operator.kube import KubeApi, make_client
+    from armnet_operator.parsing import parse_job
+
+    api = KubeApi(make_client(str(bed.k8s.kubeconfig)), "armnet-test", "test")
+    bed.job("told")
+    job = parse_job(bed.wait("the job", lambda: bed.get_job("told")))
+    api.writing(True)  # a pass is writing: Events wait for it...
+    for i in range(30):
+        api.post_event(job, "Normal", f"Queued{i}", "queued before the stop")
+    api.close()  # ...but not past the stop: they go out now, then the poster ends
+    assert not api._poster.is_alive()
+    assert {f"Queued{i}" for i in range(30)} <= set(bed.events("told"))
+    api.post_event(job, "Normal", "TooLate", "after the stop")  # dropped, never sent
+    with pytest.raises(TransientError):
+        api.read_job(bed.ns, "told")
+    assert "TooLate" not in bed.events("told")
