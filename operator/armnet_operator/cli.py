@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import time
 
 from .errors import PermanentError
 from .settings import ENV_PREFIX, OperatorSettings, load_settings
+from .termination import Termination
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,14 +43,19 @@ def run(args: argparse.Namespace) -> int:
 
     log = logging.getLogger("armnet.operator")
     failures = 0
+    termination = Termination().install()
+    terminated = termination.requested
     while True:
+        if terminated.is_set():
+            log.info("terminated between two runs of the operator's watches; exiting")
+            return 0
         # If the reconcile loop ever ends by itself, stop kopf and exit non-zero: a
         # process that only watches would sit in the Lease while nothing is scheduled.
         # An asyncio.Event, never a threading.Event: kopf waits for a threading.Event in an
         # executor thread that nothing wakes when kopf stops for another reason (SIGTERM, a
         # failed watch), and asyncio.run then waits for that thread forever: the process hung
         # after its cleanup. The flag is only set from the loop.
-        stop = asyncio.Event()
+        stop = termination.stop_flag = asyncio.Event()
         try:
             registry, controller = build_registry(settings, stop_flag=stop)
         except PermanentError as error:  # e.g. the webhook's certificate cannot be loaded
@@ -65,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
                 stop_flag=stop,
             )
         except Exception as error:  # noqa: BLE001 - kopf's reactor failed; see restart_after
+            termination.install()
             if controller.dead:
                 return 1
             failures += 1
@@ -75,8 +81,9 @@ def run(args: argparse.Namespace) -> int:
                 return 1
             log.error("kopf stopped (%s); starting the operator's watches and reconcile loop again in "
                       "%.0f s", str(error)[:300], wait)
-            time.sleep(wait)
+            terminated.wait(wait)  # a SIGTERM meanwhile ends the wait and the process
             continue
+        termination.install()
         if controller.restart_requested and not controller.terminated:
             failures = 0
             log.info("starting the operator's watches and reconcile loop again")
@@ -85,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 MAX_RESTARTS = 5
+
+
 
 
 def restart_after(failures: int) -> float | None:
