@@ -26,6 +26,10 @@ from .protocol import FrameParser, is_lone_sync_write
 from .pty_server import PtyServer
 from .servo import Servo, ServoFaults
 
+#: Writes kept for a quiet line at most: a sender that never pauses (a flood) has each one
+#: applied at once past this, so it cannot grow the simulator's memory.
+MAX_DEFERRED_WRITES = 64
+
 T = TypeVar("T")
 
 
@@ -111,7 +115,7 @@ class SimulatedBus(StartStop):
     def _on_bytes(self, data: bytes, now: float) -> bytes:
         with self._lock:
             line_baud = self._server.line_speed()
-            if self._parser.idle and is_lone_sync_write(data):
+            if self._parser.idle and len(self._deferred) < MAX_DEFERRED_WRITES and is_lone_sync_write(data):
                 self._deferred.append((data, now, line_baud))
                 return b""
             self._apply_deferred()

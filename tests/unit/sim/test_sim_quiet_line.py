@@ -16,7 +16,7 @@ from armnet_agent.sim.bus_model import ServoBus
 from armnet_agent.sim.protocol import BROADCAST_ID, Instr, Instruction, is_lone_sync_write
 from armnet_agent.sim.pty_server import PtyServer
 from armnet_agent.sim.servo import Servo
-from armnet_agent.sim.sim_bus import SimulatedBus
+from armnet_agent.sim.sim_bus import MAX_DEFERRED_WRITES, SimulatedBus
 
 pytestmark = pytest.mark.unit
 
@@ -130,3 +130,13 @@ def test_the_pty_server_runs_on_quiet_after_an_unanswered_request_only() -> None
             os.close(port)
     finally:
         server.stop()
+
+
+def test_a_sender_that_never_pauses_keeps_at_most_a_bounded_number_of_writes() -> None:
+    bus = SimulatedBus([Servo(1), Servo(2)], clock=Clock())  # not started: no quiet line ever comes
+    on_bytes = bus._on_bytes  # noqa: SLF001 - what the pty thread calls with each chunk
+    on_bytes(torque_on_frame(), 0.0)
+    for tick in range(10 * MAX_DEFERRED_WRITES):
+        on_bytes(goals_frame({1: 2048 + tick % 100, 2: 2048}), tick * 0.001)
+    assert len(bus._deferred) <= MAX_DEFERRED_WRITES  # noqa: SLF001 - the bound is the point
+    assert bus.inspect(lambda model, _now: model.servo(1).get("Goal_Position")) == 2048 + (10 * MAX_DEFERRED_WRITES - 1) % 100
