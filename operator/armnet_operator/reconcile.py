@@ -387,9 +387,10 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
     match action:
         case ReleaseCell(cell=cell, phase=phase, reason=reason, recheck=recheck):
             if recheck:
-                reason = _recheck_release(cell, now, timing, api, outcome)
-                if reason is None:
+                rechecked = _recheck_release(cell, now, timing, api, outcome)
+                if rechecked is None:
                     return None
+                reason = rechecked
             log.info("releasing cell %s: %s", cell.name, reason)
             return _write(api, patches.release_cell(cell, phase), outcome)
         case SetCellPhase(cell=cell, phase=phase):

@@ -49,7 +49,7 @@ MAX_ROLLOUTS = 1_000_000
 
 def _rollout_count(request: dict[str, Any], name: str) -> int | None:
     """A rollout index or total: a count a person can read (0..MAX_ROLLOUTS), or absent."""
-    value = _field(request, name, int, default=None)
+    value: int | None = _field(request, name, int, default=None)
     if value is not None and not 0 <= value <= MAX_ROLLOUTS:
         raise protocol_error(f"rollout {name} must be between 0 and {MAX_ROLLOUTS:,}, got {str(value)[:32]}")
     return value
