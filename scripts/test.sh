@@ -10,7 +10,7 @@ bash scripts/setup.sh
 
 echo "== ruff =="
 "$venv/bin/ruff" check .
-echo "== mypy (strict, runtime SDK) =="
+echo "== mypy (strict, every package) =="
 "$venv/bin/mypy"
 echo "== import-linter (checked layers, .importlinter) =="
 "$venv/bin/lint-imports" --no-cache --no-logo

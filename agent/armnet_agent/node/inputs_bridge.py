@@ -232,7 +232,7 @@ class OperatorInputsBridge:
             log.warning("episode outcome by %s dropped: rollout %s began without outcome controls "
                         "(the job decides its outcome)", message.by, message.rollout)
             return
-        if self.inputs.report_outcome(message.success) is False:  # type: ignore[func-returns-value]
+        if self.inputs.report_outcome(message.success) is False:
             # A pod job's connector checked it again and dropped it (the rollout ended meanwhile): not recorded.
             log.warning("episode outcome by %s dropped by the job's connector", message.by)
             return

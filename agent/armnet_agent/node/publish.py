@@ -76,7 +76,7 @@ def register_metrics(link: Link, registry: CollectorRegistry) -> None:
 
 
 def job_output(link: Link, namespace: str, job_uid: str) -> JobOutput:
-    if isinstance(link, NoLink):
+    if not isinstance(link, streams.NatsLink):  # NoLink: NATS is off
         return NoOutput()
     output: JobOutput = streams.JobStream(link, namespace, job_uid)
     return output
