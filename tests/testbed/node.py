@@ -27,6 +27,17 @@ Host changes and how they are undone (``stop()``; also after a crashed run):
 
 Only one test-bed node can run on a host at a time (kubepods cgroups, sysctls and
 ``/var/log/containers`` are host-wide): a second one waits for the first.
+
+Two optional overrides, for experiments (unset: the behaviour above):
+
+- ``ARMNET_TESTBED_CONTAINERD``: path of another containerd binary. A containerd 2
+  (``containerd --version``) gets a schema-3 config of the same settings, the
+  ``containerd-shim-runc-v2`` next to the binary if there is one, and by default a
+  root of its own, ``<root>-v2`` (it migrates the metadata database to a version
+  containerd 1.6 does not read); ``ARMNET_NODE_CONTAINERD_ROOT`` still wins.
+- ``ARMNET_TESTBED_KUBELET_FEATURE_GATES``: ``--feature-gates`` syntax (e.g.
+  ``EventedPLEG=true``, which needs containerd 2's CRI events), written to the
+  kubelet config's ``featureGates`` (the flag is deprecated).
 """
 
 from __future__ import annotations
@@ -44,6 +55,7 @@ import subprocess
 import tempfile
 import time
 import urllib.request
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -64,6 +76,9 @@ POD_BRIDGE = "armnet-node0"
 POD_SUBNET = "198.18.128.0/24"
 CONTAINERD_ROOT = Path(os.environ.get("ARMNET_NODE_CONTAINERD_ROOT",
                                      Path.home() / ".cache/armnet/node/containerd"))
+# Experiment overrides (module docstring); unset by default.
+CONTAINERD_ENV = "ARMNET_TESTBED_CONTAINERD"
+FEATURE_GATES_ENV = "ARMNET_TESTBED_KUBELET_FEATURE_GATES"
 # Label on an imported image: the Podman image id it came from (re-import on change).
 SOURCE_LABEL = "armnet.io/podman-image-id"
 LOCK_PATH = Path("/run/lock/armnet-testbed-node.lock")
@@ -85,8 +100,34 @@ DEVICE_PLUGIN_DIR = KUBELET_HOST_DIR / "device-plugins"
 
 
 # ---------------------------------------------------------------------- config files
-def containerd_config(workdir: Path, root: Path, cni_conf_dir: Path) -> str:
-    """containerd's config (schema 2): state under ``workdir``, CRI as k8s-node.md says."""
+def containerd_major(version_output: str) -> int:
+    """The major version in ``containerd --version`` output.
+
+    ``containerd github.com/containerd/containerd 1.6.20~ds1 ...`` -> 1,
+    ``containerd github.com/containerd/containerd/v2 2.2.1+unknown`` -> 2.
+    """
+    fields = version_output.split()
+    if len(fields) < 3 or not fields[2].lstrip("v").split(".")[0].isdigit():
+        raise TestbedSetupError(f"unrecognised `containerd --version` output: {version_output!r}")
+    return int(fields[2].lstrip("v").split(".")[0])
+
+
+def containerd_root(major: int, *, overridden: bool, env: Mapping[str, str] | None = None) -> Path:
+    """The persistent root: a containerd 2 from the override gets its own unless one is set."""
+    if not overridden or major < 2 or "ARMNET_NODE_CONTAINERD_ROOT" in (os.environ if env is None else env):
+        return CONTAINERD_ROOT
+    return CONTAINERD_ROOT.with_name(f"{CONTAINERD_ROOT.name}-v{major}")
+
+
+def containerd_config(workdir: Path, root: Path, cni_conf_dir: Path, *, major: int = 1,
+                      shim: Path | None = None) -> str:
+    """containerd's config: state under ``workdir``, CRI as k8s-node.md says.
+
+    Schema 2 for containerd 1.6; for containerd 2 (``major``) the same settings in
+    schema 3, with ``shim`` as the runc shim if given.
+    """
+    if major >= 2:
+        return _containerd_config_v3(workdir, root, cni_conf_dir, shim)
     return f"""version = 2
 root = "{root}"
 state = "{workdir / 'state'}"
@@ -133,6 +174,68 @@ disabled_plugins = ["io.containerd.snapshotter.v1.aufs", "io.containerd.snapshot
 """
 
 
+def _containerd_config_v3(workdir: Path, root: Path, cni_conf_dir: Path, shim: Path | None) -> str:
+    runtime = '[plugins."io.containerd.cri.v1.runtime".containerd.runtimes.runc]'
+    return f"""version = 3
+root = "{root}"
+state = "{workdir / 'state'}"
+oom_score = 0
+# NRI would serve /var/run/nri/nri.sock and read /etc/nri; CDI reads /etc/cdi.
+disabled_plugins = ["io.containerd.tracing.processor.v1.otlp", "io.containerd.internal.v1.tracing",
+  "io.containerd.nri.v1.nri"]
+
+[grpc]
+  address = "{workdir / 'containerd.sock'}"
+
+[ttrpc]
+  address = "{workdir / 'containerd.sock.ttrpc'}"
+
+[debug]
+  address = ""
+
+[metrics]
+  address = ""
+
+[plugins]
+  [plugins."io.containerd.internal.v1.opt"]
+    path = "{workdir / 'opt'}"
+  [plugins."io.containerd.cri.v1.images"]
+    snapshotter = "overlayfs"
+    [plugins."io.containerd.cri.v1.images".pinned_images]
+      sandbox = "{PAUSE_IMAGE}"
+  [plugins."io.containerd.cri.v1.runtime"]
+    restrict_oom_score_adj = true
+    enable_selinux = false
+    enable_cdi = false
+    [plugins."io.containerd.cri.v1.runtime".cni]
+      bin_dirs = ["/usr/lib/cni"]
+      conf_dir = "{cni_conf_dir}"
+      max_conf_num = 1
+    [plugins."io.containerd.cri.v1.runtime".containerd]
+      default_runtime_name = "runc"
+      {runtime}
+        runtime_type = "io.containerd.runc.v2"
+        runtime_path = "{shim or ''}"
+        [plugins."io.containerd.cri.v1.runtime".containerd.runtimes.runc.options]
+          SystemdCgroup = false
+          Root = "{workdir / 'state' / 'runc'}"
+  [plugins."io.containerd.grpc.v1.cri"]
+    stream_server_address = "127.0.0.1"
+    stream_server_port = "0"
+"""
+
+
+def feature_gates(value: str) -> dict[str, bool]:
+    """``--feature-gates`` syntax (``A=true,B=false``) as the config's ``featureGates`` map."""
+    gates = {}
+    for item in filter(None, (part.strip() for part in value.split(","))):
+        name, sep, flag = item.partition("=")
+        if not sep or flag.strip().lower() not in ("true", "false"):
+            raise TestbedSetupError(f"{FEATURE_GATES_ENV}: {item!r} is not NAME=true|false")
+        gates[name.strip()] = flag.strip().lower() == "true"
+    return gates
+
+
 def pod_network_config(ipam_dir: Path) -> dict[str, Any]:
     """An isolated pod network: a host bridge without address, gateway, NAT or routes."""
     return {"cniVersion": "0.4.0", "name": CNI_NETWORK, "plugins": [{
@@ -144,9 +247,13 @@ def pod_network_config(ipam_dir: Path) -> dict[str, Any]:
 
 
 def kubelet_config(*, socket: Path, node_ip: str, port: int, healthz_port: int,
-                   ca_cert: Path, tls_cert: Path, tls_key: Path, pod_logs: Path) -> dict[str, Any]:
-    """The KubeletConfiguration; each setting is explained in docs/testing.md."""
-    return {
+                   ca_cert: Path, tls_cert: Path, tls_key: Path, pod_logs: Path,
+                   gates: dict[str, bool] | None = None) -> dict[str, Any]:
+    """The KubeletConfiguration; each setting is explained in docs/testing.md.
+
+    ``gates`` (the feature-gate override) becomes ``featureGates``; none by default.
+    """
+    config: dict[str, Any] = {
         "apiVersion": "kubelet.config.k8s.io/v1beta1",
         "kind": "KubeletConfiguration",
         "containerRuntimeEndpoint": f"unix://{socket}",
@@ -178,6 +285,9 @@ def kubelet_config(*, socket: Path, node_ip: str, port: int, healthz_port: int,
         "serializeImagePulls": False,
         "registerNode": True,
     }
+    if gates:
+        config["featureGates"] = gates
+    return config
 
 
 # ---------------------------------------------------------------------- images
@@ -274,6 +384,7 @@ class Node:
     lock_timeout: float = 600.0
 
     socket: Path = Path()
+    containerd_root: Path = CONTAINERD_ROOT
     kubelet_log: Path = Path()
     containerd_log: Path = Path()
     _procs: list[ManagedProcess] = field(default_factory=list)
@@ -289,7 +400,8 @@ class Node:
                                   "run the node tests / armnet dev up as root, or --no-node")
         bins = k8s_bin_dir()
         kubelet = require_tool("kubelet", bins / "kubelet")
-        containerd = require_tool("containerd")
+        containerd = (require_tool("containerd", Path(os.environ[CONTAINERD_ENV]))
+                      if os.environ.get(CONTAINERD_ENV) else require_tool("containerd"))
         require_tool("ctr")
         require_tool("runc")
         require_tool("podman")
@@ -319,8 +431,19 @@ class Node:
         cni_dir.mkdir()
         (cni_dir / "10-armnet-node.conflist").write_text(
             json.dumps(pod_network_config(w / "cni-ipam")))
-        CONTAINERD_ROOT.mkdir(parents=True, exist_ok=True)
-        (w / "containerd.toml").write_text(containerd_config(w, CONTAINERD_ROOT, cni_dir))
+        overridden = bool(os.environ.get(CONTAINERD_ENV))
+        major = 1
+        if overridden:
+            major = containerd_major(subprocess.run([containerd, "--version"], capture_output=True,
+                                                    text=True, check=False).stdout)
+        self.containerd_root = containerd_root(major, overridden=overridden)
+        self._host["containerd_root"] = str(self.containerd_root)
+        HOST_STATE.write_text(json.dumps(self._host))
+        shim = Path(containerd).parent / "containerd-shim-runc-v2"
+        self.containerd_root.mkdir(parents=True, exist_ok=True)
+        (w / "containerd.toml").write_text(containerd_config(
+            w, self.containerd_root, cni_dir, major=major,
+            shim=shim if overridden and shim.is_file() else None))
         self.socket = w / "containerd.sock"
         self.containerd_log = w / "containerd.log"
         t0 = time.monotonic()
@@ -347,7 +470,8 @@ class Node:
                            f"--user={KUBELET_CLIENT_USER}", check=False)
         config = kubelet_config(socket=self.socket, node_ip=self.node_ip, port=free_port(),
                                 healthz_port=free_port(), ca_cert=pki.ca_cert, tls_cert=tls_cert,
-                                tls_key=tls_key, pod_logs=w / "pod-logs")
+                                tls_key=tls_key, pod_logs=w / "pod-logs",
+                                gates=feature_gates(os.environ.get(FEATURE_GATES_ENV, "")))
         (w / "kubelet.yaml").write_text(yaml.safe_dump(config))
         self.kubelet_log = w / "kubelet.log"
         kubelet_proc = ManagedProcess("kubelet", [
@@ -374,7 +498,7 @@ class Node:
                     proc.stop()
                 self._procs.clear()
             self._restore_host_state()
-            unmount_all(CONTAINERD_ROOT)
+            unmount_all(self.containerd_root)
             if self._owns_workdir and self.workdir is not None:
                 unmount_all(self.workdir)
                 shutil.rmtree(self.workdir, ignore_errors=True)
@@ -607,7 +731,7 @@ class Node:
                     os.kill(pid, signal.SIGKILL)
             time.sleep(0.5)
             unmount_all(Path(old_workdir))
-            unmount_all(CONTAINERD_ROOT)
+            unmount_all(Path(self._host.get("containerd_root", CONTAINERD_ROOT)))
             if self._host.get("owns_workdir"):
                 shutil.rmtree(old_workdir, ignore_errors=True)
 
