@@ -23,7 +23,8 @@ caches, no bus I/O, the minimum of 7 batches): the CPU floor of each piece, stab
 enough on a loaded machine to compare two versions of one piece. A paced control
 loop pays several times these (its caches are cold at every call). It also counts
 the Python calls and bytecodes one ``sync_write`` / ``sync_read`` executes in the
-connector (``sys.settrace``), armnet's code apart from LeRobot's: deterministic.
+connector (``sys.settrace``), armnet's code apart from LeRobot's, and those the proxy
+executes (its requests answered in-process by the same session): deterministic.
 
 ``--profile`` adds a cProfile of the connector's handling (cumulative time,
 the functions that cost the most). The simulated servos live in their own
@@ -154,8 +155,75 @@ def traced_work(call: Callable[[], Any]) -> dict[str, tuple[int, int]]:
     return {name: (calls, opcodes) for name, (calls, opcodes) in counts.items()}
 
 
+class InProcessSocket:
+    """Stands in for robot.sock under a proxy: each request line goes to ``session`` in this thread.
+
+    ``serving`` is set while the connector's side runs, so a trace can leave that work out
+    and count the proxy's own alone.
+    """
+
+    def __init__(self, session: Any) -> None:
+        self.session = session
+        self.reply = b""
+        self.serving = False
+
+    def settimeout(self, _timeout: float | None) -> None:
+        pass
+
+    def sendall(self, line: bytes) -> None:
+        from armnet_agent.connector.server import encode_reply, parse_request
+
+        self.serving = True
+        try:
+            self.reply = encode_reply(self.session.handle(parse_request(line)))
+        finally:
+            self.serving = False
+
+    def recv(self, _size: int) -> bytes:
+        reply, self.reply = self.reply, b""
+        return reply
+
+    def close(self) -> None:
+        pass
+
+
+def traced_proxy_work(call: Callable[[], Any], fake: InProcessSocket) -> tuple[int, int]:
+    """Python calls and bytecodes the proxy (armnet_runtime) executes for one ``call``, the connector's side left out."""
+    counts = [0, 0]
+
+    def trace(frame: Any, event: str, _arg: Any) -> Any:
+        if fake.serving or "/armnet_runtime/" not in frame.f_code.co_filename:
+            return None
+        if event == "call":
+            frame.f_trace_opcodes = True
+            counts[0] += 1
+        elif event == "opcode":
+            counts[1] += 1
+        return trace
+
+    sys.settrace(trace)
+    try:
+        call()
+    finally:
+        sys.settrace(None)
+    return counts[0], counts[1]
+
+
+def proxy_on_session(session: Any, object_id: str, endpoint: str, bus_kwargs: dict[str, Any]) -> tuple[Any, Any]:
+    """A ``RemoteFeetechMotorsBus`` whose requests reach ``session``'s ``object_id`` through an ``InProcessSocket``."""
+    from armnet_runtime.lerobot import RemoteFeetechMotorsBus
+
+    proxy = RemoteFeetechMotorsBus(port=endpoint, **bus_kwargs)  # created on the real socket, then rerouted
+    fake = InProcessSocket(session)
+    proxy._conn.close()
+    proxy._conn._sock = fake
+    proxy._conn._sock_timeout = proxy._conn._timeout
+    object.__setattr__(proxy, "_object_id", object_id)
+    return proxy, fake
+
+
 def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: dict[str, float],
-               calls: int) -> dict[str, Any]:
+               calls: int, proxy: tuple[Any, Any] | None = None) -> dict[str, Any]:
     """The connector's and the proxy's own pieces of one ``sync_read`` / ``sync_write``, each alone."""
     from armnet_agent.connector.server import encode_reply, parse_request
     from armnet_agent.connector.session import _arguments
@@ -195,6 +263,13 @@ def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: d
             work = traced_work(lambda line=line: encode_reply(session.handle(parse_request(line))))
             for part, (n_calls, opcodes) in work.items():
                 timed[f"work: {method}, {part} (Python calls / bytecodes)"] = (n_calls, opcodes)
+        if proxy is not None:
+            bus, fake = proxy
+            for method, call in (("sync_write", lambda: bus.sync_write("Goal_Position", goals)),
+                                 ("sync_read", lambda: bus.sync_read("Present_Position"))):
+                call()  # the proxy's first call of a method asks whether it is one
+                time.sleep(PAUSE_S)
+                timed[f"work: {method}, the proxy's side (Python calls / bytecodes)"] = traced_proxy_work(call, fake)
         return timed
     finally:
         handle.present.clear()
@@ -316,7 +391,10 @@ def main() -> int:
                         lost += 1  # a starved simulator misses a reply now and then: count it, go on
                 if undo_stages is not None:
                     undo_stages()
-                hot = hot_pieces(session, object_id, goals, start, args.hot_calls) if args.hot else {}
+                hot = {}
+                if args.hot:
+                    proxy = proxy_on_session(session, object_id, arm.endpoint, bus_kwargs)
+                    hot = hot_pieces(session, object_id, goals, start, args.hot_calls, proxy)
                 direct.disconnect(disable_torque=False)
                 session.close()
 

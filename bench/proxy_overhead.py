@@ -30,10 +30,9 @@ figure is printed next to its target (issue #10):
 - camera ``read_latest``: proxy overhead <= 1 ms p50 and <= 2x the frame copy;
 - ticks on time: >= 99 % (100 Hz one arm + one camera; 30 Hz bimanual).
 
-``--compare-with TREE`` adds a third way in the same ticks: the same proxy to a
-connector run from another checkout (its own simulator), for a before/after of a
-change on a machine others load (only the connector side differs: the bench's
-own proxy code is this tree's).
+``--compare-with TREE`` adds a third way in the same ticks: another checkout's whole
+path (its proxy, in a client process of its own that times its calls, its connector
+and its simulator), for a before/after of a change on a machine others load.
 
     ~/.cache/armnet/venv/bin/python bench/proxy_overhead.py [--ticks 500] [--rounds 2] [--camera | --bimanual]
         [--compare-with /path/to/other/checkout]
@@ -248,6 +247,54 @@ class HelloProbe:
         self.conn.close()
 
 
+def serve_client(cell_line: str, arms: int) -> None:
+    """Child mode (``--compare-with``): this checkout's proxy, run on the tick the parent asks for.
+
+    Started with the other checkout's ``PYTHONPATH``, so ``armnet_runtime`` is that
+    tree's. Reads a tick number per line; answers with the call times (or a lost reply).
+    """
+    client = proxy_client(json.loads(cell_line), arms, 0)
+    print("ready", flush=True)
+    for line in sys.stdin:
+        samples = Samples()
+        ok = tick_work(client, int(line), samples)
+        print(json.dumps({"ok": ok, "calls": {k: v for k, v in samples.calls.items() if v}}), flush=True)
+    client.close()
+
+
+class TreeClientProbe:
+    """The baseline's proxy in its own process (``serve_client``): one tick of its calls per tick, timed there."""
+
+    name = "baseline"
+
+    def __init__(self, tree: Path, cell_line: str, arms: int) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, __file__, "--serve-client", str(arms)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            text=True, env=tree_env(tree),
+        )
+        assert self.process.stdin is not None and self.process.stdout is not None
+        self.process.stdin.write(cell_line)
+        self.process.stdin.flush()
+        if self.process.stdout.readline().strip() != "ready":
+            raise RuntimeError("the baseline client did not start")
+
+    def work(self, samples: Samples, tick: int) -> bool:
+        assert self.process.stdin is not None and self.process.stdout is not None
+        self.process.stdin.write(f"{tick}\n")
+        self.process.stdin.flush()
+        answer = json.loads(self.process.stdout.readline())
+        for key, values in answer["calls"].items():
+            samples.calls[key].extend(values)
+        if not answer["ok"]:
+            samples.failed += 1
+        return bool(answer["ok"])
+
+    def close(self) -> None:
+        if self.process.stdin is not None:
+            self.process.stdin.close()
+        self.process.wait(timeout=30)
+
+
 class CopyProbe:
     """The memory floor: an in-memory copy of a 640x480x3 frame per tick, after the same pause."""
 
@@ -292,11 +339,13 @@ def timed(bucket: list[float], call: Callable[[], Any]) -> Any:
     return value
 
 
-Probe = Client | HelloProbe | RawEchoProbe | CopyProbe
+Probe = Client | HelloProbe | RawEchoProbe | CopyProbe | TreeClientProbe
 
 
 def tick_work(client: Probe, tick: int, samples: Samples) -> bool:
     """One control tick's calls on ``client``; False when a bus reply was lost."""
+    if isinstance(client, TreeClientProbe):
+        return client.work(samples, tick)
     if not isinstance(client, Client):
         client.work(samples)
         return True
@@ -356,7 +405,7 @@ def verdict(ok: bool) -> str:
 
 
 def report_baseline(totals: dict[str, Samples], raw_p50: float) -> None:
-    """``--compare-with``: the same calls through the other tree's connector, in the same ticks."""
+    """``--compare-with``: the same calls through the other tree's proxy and connector, in the same ticks."""
     direct, proxy, baseline = totals["direct"], totals["proxy"], totals.get("baseline")
     if baseline is None or not baseline.ticks:
         return
@@ -423,7 +472,11 @@ def main() -> int:
     )
     parser.add_argument("--serve-cell", metavar="PRESET", help=argparse.SUPPRESS)
     parser.add_argument("--serve-echo", metavar="PATH", help=argparse.SUPPRESS)
+    parser.add_argument("--serve-client", metavar="ARMS", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.serve_client:
+        serve_client(sys.stdin.readline(), args.serve_client)
+        return 0
     if args.serve_cell:
         serve_cell(args.serve_cell)
         return 0
@@ -445,10 +498,8 @@ def main() -> int:
             for make in (direct_client, proxy_client):
                 clients.append(make(cell, arms, cameras))
             if baseline_process is not None:
-                assert baseline_process.stdout is not None
-                baseline = proxy_client(json.loads(baseline_process.stdout.readline()), arms, 0)
-                baseline.name = "baseline"
-                clients.append(baseline)
+                assert baseline_process.stdout is not None and args.compare_with is not None
+                clients.append(TreeClientProbe(args.compare_with, baseline_process.stdout.readline(), arms))
             clients += [HelloProbe(cell), RawEchoProbe(echo_dir.name), CopyProbe()]
             run_ticks(clients, 20, 1.0 / hz)  # warm-up: caches, first frames
             for _ in range(args.rounds):
@@ -468,14 +519,18 @@ def main() -> int:
     return 0
 
 
-def serve_baseline(tree: Path, preset: str) -> subprocess.Popen[str]:
-    """The cell of another checkout (its own simulator and connector), for ``--compare-with``."""
+def tree_env(tree: Path) -> dict[str, str]:
+    """The environment that imports armnet from another checkout."""
     tree = tree.resolve()
     paths = [tree / "runtime" / "src", tree / "agent", tree / "operator", tree / "cli", tree]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(str(path) for path in paths)}
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(str(path) for path in paths)}
+
+
+def serve_baseline(tree: Path, preset: str) -> subprocess.Popen[str]:
+    """The cell of another checkout (its own simulator and connector), for ``--compare-with``."""
     return subprocess.Popen(
-        [sys.executable, str(tree / "bench" / "proxy_overhead.py"), "--serve-cell", preset],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+        [sys.executable, str(tree.resolve() / "bench" / "proxy_overhead.py"), "--serve-cell", preset],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=tree_env(tree),
     )
 
 

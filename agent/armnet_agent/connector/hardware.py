@@ -54,7 +54,7 @@ class Handle:
     present: dict[bool, tuple[float, dict[str, float]]] = field(default_factory=dict)
     #: The safety facts of the motors last written, with the values they were built from.
     facts_cache: tuple[tuple[Any, ...], dict[str, Any]] | None = None
-    #: The goal rules compiled from those facts: (facts, relative limit, {normalize: rules}).
+    #: The goal rules compiled from those facts: (facts, relative limit, {normalize: (rules, their GoalScreen)}).
     limits_cache: tuple[dict[str, Any], Any, dict[bool, Any]] | None = None
 
 

@@ -25,6 +25,7 @@ from .retry import with_read_retry
 from .safety import (
     GOAL_POSITION,
     PROTECTED_REGISTERS,
+    GoalScreen,
     MotorFacts,
     MotorLimit,
     compile_limits,
@@ -68,23 +69,50 @@ def _simple_shape(obj: Any, method: str) -> _Shape | None:
     return _simple_shapes[key]
 
 
+#: Per (class, method, number of positional arguments, keyword names in call order): the
+#: parameter names the positional arguments bind to, or ``None`` when ``Signature.bind`` decides
+#: (the signature is not plain, or the call is one it refuses). Bounded: a client sending ever new
+#: keyword names gets each shape worked out again, never a growing table.
+_bindings: dict[tuple[type, str, int, tuple[str, ...]], tuple[str, ...] | None] = {}
+_MAX_BINDINGS = 1024
+
+
+def _binding(obj: Any, method: str, positional_count: int, keywords: tuple[str, ...]) -> tuple[str, ...] | None:
+    """The names ``positional_count`` positional arguments bind to, when a call of this shape binds plainly."""
+    shape = _simple_shape(obj, method)
+    if shape is None:
+        return None
+    positional, names, required = shape
+    if positional_count > len(positional):
+        return None
+    bound = positional[:positional_count]
+    if any(k not in names or k in bound for k in keywords):
+        return None
+    return bound if required <= {*bound, *keywords} else None
+
+
 def _bound_arguments(obj: Any, method: str, args: list[Any], kwargs: dict[str, Any]) -> dict[str, Any]:
     """The arguments a call passes, by parameter name (defaults not applied), as ``Signature.bind`` would.
 
     Why not always ``bind``: it costs tens of microseconds per call on a 100 Hz
-    control path. A well-formed call on a plain signature (no ``*args``, no
-    positional-only) is bound here directly; anything else, including every call
-    ``bind`` would refuse, goes through ``bind`` for its exact error.
+    control path. Whether a call binds, and to which names, depends only on its
+    shape (the method, how many positional arguments, which keywords), so the
+    decision is made once per shape and kept; the values are bound on every call.
+    A shape that is not plain (``*args``, positional-only) or that ``bind`` would
+    refuse goes through ``bind`` for its exact error.
     """
-    shape = _simple_shape(obj, method)
-    if shape is not None:
-        positional, names, required = shape
-        if len(args) <= len(positional):
-            bound = dict(zip(positional, args, strict=False))
-            if not kwargs or all(k in names and k not in bound for k in kwargs):
-                bound.update(kwargs)
-                if bound.keys() >= required:
-                    return bound
+    key = (type(obj), method, len(args), tuple(kwargs))
+    try:
+        names = _bindings[key]
+    except KeyError:
+        names = _binding(obj, method, len(args), key[3])
+        if len(_bindings) < _MAX_BINDINGS:
+            _bindings[key] = names
+    if names is not None:
+        bound = dict(zip(names, args, strict=True))
+        if kwargs:
+            bound.update(kwargs)
+        return bound
     try:
         return dict(_signature(obj, method).bind(obj, *args, **kwargs).arguments)
     except TypeError as exc:
@@ -129,7 +157,15 @@ def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tup
         values = {str(motor): _number(str(motor), arguments.get("value"))}
     else:
         raw = arguments.get("values")
-        if type(raw) is dict and _plain_goals(raw):
+        # Every key a str and every value a finite float: the goals are taken as they are.
+        # Why: a control loop's goals always are, and checking them in C loops costs less than
+        # converting them one by one. The sum of finite floats is finite unless it overflows to
+        # inf (then the goals take the per-motor path, which decides exactly); any nan or inf
+        # among them makes it non-finite.
+        if (
+            type(raw) is dict and set(map(type, raw.values())) <= _FLOAT_ONLY and set(map(type, raw)) <= _STR_ONLY
+            and math.isfinite(sum(raw.values()))
+        ):
             values = dict(raw)
         elif isinstance(raw, dict):
             values = {}
@@ -146,20 +182,6 @@ _FLOAT_ONLY = frozenset({float})
 _STR_ONLY = frozenset({str})
 
 
-def _plain_goals(raw: dict[Any, Any]) -> bool:
-    """True when every key is a ``str`` and every value a finite ``float``: the goals are taken as they are.
-
-    Why: a control loop's goals always are; checking them in C loops costs less than
-    converting them one by one. The sum of finite floats is finite unless it
-    overflows to ``inf`` (then the goals take the per-motor path, which decides exactly), and
-    any ``nan`` or ``inf`` among them makes it non-finite.
-    """
-    return (
-        set(map(type, raw.values())) <= _FLOAT_ONLY and set(map(type, raw)) <= _STR_ONLY
-        and math.isfinite(sum(raw.values()))
-    )
-
-
 def _motor_range(calibration: Any, motor: str) -> MotorRange | None:
     cal = (calibration or {}).get(motor)
     if cal is None:
@@ -171,19 +193,27 @@ def _motor_range(calibration: Any, motor: str) -> MotorRange | None:
 _calibration_values = operator.attrgetter("id", "range_min", "range_max", "drive_mode")
 
 
+#: A ``Motor``'s norm mode, read in a C call.
+_norm_mode = operator.attrgetter("norm_mode")
+
+
 def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     """The facts of ``motors``, rebuilt only when a motor's mode or calibration changed.
 
     Why a cache: building them costs more than the rest of the check at 100 Hz, and
     they change only when the customer recalibrates. The key holds the values the
-    facts are built from (not object identities), so an in-place edit is seen too.
+    facts are built from (not object identities), so an in-place edit is seen too;
+    it is read with C loops (``map``), one Python step per write, not per motor.
     """
     bus_motors = handle.obj.motors
     calibration = handle.obj.calibration or {}
-    key = tuple([
-        (m, bus_motors[m].norm_mode, None if (cal := calibration.get(m)) is None else _calibration_values(cal))
-        for m in motors
-    ])
+    names = tuple(motors)
+    calibrations = tuple(map(calibration.get, names))
+    try:
+        calibrated: tuple[Any, ...] = tuple(map(_calibration_values, calibrations))
+    except AttributeError:  # a motor without calibration (None)
+        calibrated = tuple(None if cal is None else _calibration_values(cal) for cal in calibrations)
+    key = (names, tuple(map(_norm_mode, map(bus_motors.__getitem__, names))), calibrated)
     cached = handle.facts_cache
     if cached is not None and cached[0] == key:
         return cached[1]
@@ -194,22 +224,34 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
             handle.cell_ranges.get(m),
             handle.cell_motors[m].norm_mode if m in handle.cell_motors else None,
         )
-        for m in motors
+        for m in names
     }
     handle.facts_cache = (key, facts)
     return facts
 
 
-def _goal_limits(handle: Handle, motors: Any, limit: Any, normalize: bool) -> Mapping[str, MotorLimit]:
-    """The compiled goal rules of ``motors`` (``safety.compile_limits``), rebuilt only when their facts are."""
+def _goal_rules(
+    handle: Handle, motors: Any, limit: Any, normalize: bool
+) -> tuple[Mapping[str, MotorLimit], GoalScreen | None]:
+    """The compiled goal rules of ``motors`` (``safety.compile_limits``) and their ``GoalScreen``.
+
+    Both are rebuilt only when the motors' facts are (a recalibration, another motor
+    list) or the limit changes; the check of each goal against them runs on every write.
+    """
     facts = _motor_facts(handle, motors)
     cached = handle.limits_cache
     if cached is None or cached[0] is not facts or cached[1] is not limit:
         cached = handle.limits_cache = (facts, limit, {})
-    limits = cached[2].get(normalize)
-    if limits is None:
-        limits = cached[2][normalize] = compile_limits(facts, limit, normalize=normalize)
-    return limits
+    rules = cached[2].get(normalize)
+    if rules is None:
+        limits = compile_limits(facts, limit, normalize=normalize)
+        rules = cached[2][normalize] = (limits, GoalScreen.build(tuple(facts), limits))
+    return rules
+
+
+def _goal_limits(handle: Handle, motors: Any, limit: Any, normalize: bool) -> Mapping[str, MotorLimit]:
+    """The compiled goal rules of ``motors`` alone (``_goal_rules``)."""
+    return _goal_rules(handle, motors, limit, normalize)[0]
 
 
 def _replace_argument(obj: Any, method: str, args: list[Any], kwargs: dict[str, Any], name: str, value: Any) -> None:
@@ -219,6 +261,18 @@ def _replace_argument(obj: Any, method: str, args: list[Any], kwargs: dict[str, 
         return
     positional = [p.name for p in list(_signature(obj, method).parameters.values())[1:]]
     args[positional.index(name)] = value
+
+
+#: Per (class, method) of the allow-list: (rewrites the calibration, moves the arm, writes goals).
+#: Any other method is none of these (``check`` lets it through).
+_METHOD_KINDS: dict[tuple[str, str], tuple[bool, bool, bool]] = {
+    (class_name, method): (
+        method in CALIBRATION_METHODS.get(class_name, ()), method in rules.motion, method in rules.goal_writers,
+    )
+    for class_name, rules in CLASSES.items()
+    for method in rules.methods | rules.motion | rules.goal_writers | CALIBRATION_METHODS.get(class_name, frozenset())
+}
+_NO_MOTION = (False, False, False)
 
 
 class MotionGuard:
@@ -237,15 +291,15 @@ class MotionGuard:
         Under ``safetyPolicy: clamp`` a goal write beyond the relative limit is not
         refused: its goals are clamped, and ``args``/``kwargs`` are rewritten in place.
         """
-        rules = CLASSES[handle.class_name]
-        if method in CALIBRATION_METHODS.get(handle.class_name, ()) and not handle.allow_calibration:
+        calibration, motion, goal_writer = _METHOD_KINDS.get((handle.class_name, method), _NO_MOTION)
+        if calibration and not handle.allow_calibration:
             message = CALIBRATION_REFUSAL.format(method=method)
             self.recorder.record_refusal("calibration", None, message, tripped=False)
             raise RequestError("NotAllowed", message)
-        if method not in rules.motion:
+        if not motion:
             return
         refusal = self.interlock.refusal()
-        if method not in rules.goal_writers:
+        if not goal_writer:
             if refusal is not None:
                 raise RequestError(*refusal)
             return
@@ -281,7 +335,12 @@ class MotionGuard:
             return {}
         limit = handle.arm_config.safety_limit if handle.arm_config is not None else None
         present = self._present(handle, known, normalize) if limit is not None else {}
-        limits = _goal_limits(handle, known, limit, normalize)
+        limits, screen = _goal_rules(handle, known, limit, normalize)
+        if screen is not None:
+            steps = screen.accept(known, present)
+            if steps is not None:  # every goal passes on its own: what decide_goals decides, in C loops
+                self.recorder.record_steps(steps)
+                return {}
         decision = decide_goals(known, present, limits, normalize=normalize, clamp=self.policy == "clamp")
         if decision.steps:
             self.recorder.record_steps(decision.steps)
@@ -334,4 +393,4 @@ class MotionGuard:
         name = args[0] if args else kwargs.get("data_name")
         if name == "Present_Position" and isinstance(result, dict):
             normalize = bool(kwargs.get("normalize", True))
-            handle.present[normalize] = (time.monotonic(), {m: float(v) for m, v in result.items()})
+            handle.present[normalize] = (time.monotonic(), dict(zip(result, map(float, result.values()), strict=True)))

@@ -12,8 +12,10 @@ call ``record_*``.
 
 from __future__ import annotations
 
+import operator
 import threading
 from dataclasses import dataclass, field
+from itertools import repeat
 from typing import Any
 
 #: Refusals kept with their reason; later ones are only counted.
@@ -91,10 +93,8 @@ class SafetyRecorder:
         under it. Only a write that sets a new largest locks (and looks again).
         """
         largest = self._largest
-        for motor, step in steps.items():
-            if abs(step) > largest.get(motor, 0.0):
-                break
-        else:
+        # In C loops: is any |step| above the motor's largest so far (0.0 when none yet)?
+        if not any(map(operator.gt, map(abs, steps.values()), map(largest.get, steps, repeat(0.0)))):
             return
         with self._lock:
             for motor, step in steps.items():

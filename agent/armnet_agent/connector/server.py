@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from armnet_runtime.wire import dumps_line, loads_json
+from armnet_runtime.wire import dumps_line, line_codec
 
 from .cell import Counters
 from .errors import RequestError, protocol_error
@@ -85,9 +85,16 @@ class FramingError(Exception):
     """The peer's bytes cannot be framed into a request line; the connection must close."""
 
 
+#: The line codec, bound once (``armnet_runtime.wire.line_codec``: orjson's C functions when installed).
+_dumps, _loads = line_codec()
+
+
 def encode_reply(reply: dict[str, Any]) -> bytes:
     try:
-        return dumps_line(reply)  # orjson when installed (armnet_runtime.wire)
+        try:
+            return _dumps(reply)
+        except TypeError:
+            return dumps_line(reply)  # the standard library encodes it, or says precisely why not
     except (TypeError, ValueError) as exc:  # a session bug must still produce a well-formed reply
         text = json.dumps({"ok": False, "error": f"reply could not be encoded: {exc}", "error_type": "RuntimeError"})
     return text.encode() + b"\n"
@@ -96,7 +103,7 @@ def encode_reply(reply: dict[str, Any]) -> bytes:
 def parse_request(line: bytes) -> dict[str, Any]:
     """The request object of one line; ``RequestError(ProtocolError)`` when it is not one."""
     try:
-        request = loads_json(line)
+        request = _loads(line)
     except (ValueError, RecursionError) as exc:
         raise protocol_error(f"the request line is not JSON ({exc}); send one JSON object per line") from None
     if not isinstance(request, dict):
@@ -196,6 +203,7 @@ class UnixServer:
         self._budget = budget if budget is not None else BufferBudget()
         self._listener: socket.socket | None = None
         self._stop = threading.Event()
+        self._stopping = False  # the same as ``_stop.is_set()``, read per request without a call
         self._accept_thread: threading.Thread | None = None
         self._connections: dict[int, tuple[socket.socket, threading.Thread]] = {}
         self._lock = threading.Lock()
@@ -277,7 +285,7 @@ class UnixServer:
         reader = LineReader(conn, self._limits.max_line_bytes, self._budget)
         try:
             session = self._session_factory()
-            while not self._stop.is_set():
+            while not self._stopping:
                 try:
                     line = reader.next()
                 except FramingError as exc:
@@ -311,6 +319,7 @@ class UnixServer:
 
     def shut(self) -> None:
         """Stop accepting and cut every connection, without waiting for their threads."""
+        self._stopping = True
         self._stop.set()
         if self._listener is not None:
             with contextlib.suppress(OSError):

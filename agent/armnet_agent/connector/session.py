@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from armnet_runtime.wire import decode, encode
+from armnet_runtime.wire import decode, encode, plain_arguments
 
 from . import __version__
 from .allowlist import CLASSES, refusal
@@ -63,11 +63,19 @@ def _decoded(value: Any, what: str) -> Any:
 
 
 def _arguments(request: dict[str, Any]) -> tuple[list[Any], dict[str, Any]]:
+    """The call's decoded positional and keyword arguments (``args``/``kwargs``, both optional).
+
+    ``op_call`` takes a control loop's call (``plain_arguments``, no keywords) as parsed
+    before it comes here.
+    """
     args = _decoded(_field(request, "args", list, default=[]), "args")
     kwargs = _decoded(_field(request, "kwargs", dict, default={}), "kwargs")
     if type(args) is not list or type(kwargs) is not dict or (kwargs and not all(type(k) is str for k in kwargs)):
         raise protocol_error("args must be a list and kwargs an object with string keys")
     return args, kwargs
+
+
+_ABSENT: Any = object()
 
 
 def _encoded(value: Any, what: str) -> Any:
@@ -271,7 +279,11 @@ class RobotSession(Session):
     def op_call(self, request: dict[str, Any]) -> Reply:
         plan = self._call_plan(request)
         handle, method, camera = plan.handle, request["method"], plan.camera
-        args, kwargs = _arguments(request)
+        args, kwargs = request.get("args", _ABSENT), request.get("kwargs", _ABSENT)
+        if type(args) is list and (kwargs is _ABSENT or (type(kwargs) is dict and not kwargs)) and plain_arguments(args):
+            kwargs = {}  # a control loop's call is its own decoding: used as parsed, no copy, no per-item step
+        else:
+            args, kwargs = _arguments(request)
         if plan.capped and (kwargs or len(args) > plan.capped_from):
             capped = cap_call(handle.class_name, plan.capped, args, kwargs)
             if capped.lowered:
@@ -296,7 +308,9 @@ class RobotSession(Session):
                 self.cell.guard.remember_present(handle, args, kwargs, result)
         if camera and method == "connect":
             self._frames_connected(handle, True)
-        if result is not None and _is_context_manager(result):
+        if result is None and not shared_frame:
+            return {"ok": True, "value": None}  # a write's reply: nothing to encode
+        if type(result) is not dict and _is_context_manager(result):
             context = _Context(handle, result.__enter__, lambda exc: bool(result.__exit__(
                 type(exc) if exc else None, exc, None)))
             return {"ok": True, "context_manager": True, "object_id": self._add("c", context)}

@@ -25,7 +25,7 @@ from armnet_runtime.errors import (
     SafetyViolation,
     ShuttingDown,
 )
-from armnet_runtime.wire import dumps_line, loads_json
+from armnet_runtime.wire import dumps_line, line_codec, loads_json
 
 CONNECT_TIMEOUT_S = 5.0
 """How long to wait for the connector to accept a connection."""
@@ -95,6 +95,7 @@ class PersistentConnection:
         self._sock_timeout: float | None = None
         self._buffer = bytearray()
         self._lock = threading.Lock()
+        self._dumps, self._loads = line_codec()
 
     def request(self, payload: dict[str, Any], *, timeout: float | None = _UNSET) -> dict[str, Any]:
         """Send one request and return the reply object; raise on transport failure.
@@ -103,7 +104,10 @@ class PersistentConnection:
         default is the connection's). Any failure closes the connection.
         """
         wait = self._timeout if timeout is _UNSET else timeout
-        line = dumps_line(payload)
+        try:
+            line = self._dumps(payload)
+        except TypeError:
+            line = dumps_line(payload)  # the standard library encodes it, or says precisely why not
         with self._lock:
             try:
                 if self._sock is None:
@@ -114,7 +118,14 @@ class PersistentConnection:
                     self._sock.settimeout(wait)
                     self._sock_timeout = wait
                 self._sock.sendall(line)
-                return _parse_reply(self._read_line(wait))
+                raw = self._read_line(wait)
+                try:
+                    reply = self._loads(raw)
+                except (ValueError, RecursionError):
+                    reply = None
+                if type(reply) is dict and type(reply.get("ok")) is bool:
+                    return reply
+                return _parse_reply(raw)  # not a reply: the precise error
             except BaseException:
                 self._close_locked()
                 raise

@@ -25,6 +25,7 @@ import base64
 import binascii
 import dataclasses
 import enum
+import functools
 import importlib
 import json
 import math
@@ -110,8 +111,15 @@ def encode(value: Any) -> Any:
     if kind is float:
         return value if math.isfinite(value) else _encode_non_finite(value)
     if kind is dict:
-        if set(map(type, value)) <= _STR_TYPE and TAG not in value and _finite_floats(value.values()):
-            return dict(value)  # a goal or position dict: no per-item step
+        # A goal or position dict: str keys and finite floats, checked in C loops (a per-item
+        # Python check was most of its encoding). A sum of finite floats is finite unless it
+        # overflows to inf (then the per-item path decides); a nan or an inf makes it non-finite.
+        items = value.values()
+        if (
+            set(map(type, value)) <= _STR_TYPE and TAG not in value
+            and set(map(type, items)) <= _FLOAT_TYPE and math.isfinite(sum(items))
+        ):
+            return dict(value)
         for key in value:
             if type(key) is not str or key == TAG:
                 return {TAG: "dict", "items": [[encode(k), encode(v)] for k, v in value.items()]}
@@ -125,15 +133,15 @@ def encode(value: Any) -> Any:
     return _encode_other(value, kind)
 
 
-def _finite_floats(values: Any) -> bool:
-    """True when every one of ``values`` (a collection, read twice) is a finite ``float``, checked in C loops.
+def encode_items(items: tuple[Any, ...] | list[Any]) -> list[Any]:
+    """``[encode(item) for item in items]`` as a list; plain strings, bools and None take no call.
 
-    Why: the dicts of a control loop (goals, positions) are all floats, and a
-    per-item Python check was most of their encoding. A sum of finite floats is
-    finite unless it overflows to ``inf`` (then the per-item path decides); a
-    ``nan`` or an ``inf`` among them makes it non-finite.
+    Why: the positional arguments of a control loop's call (``("Present_Position",)``)
+    are usually their own encoding; a C loop finds that out.
     """
-    return set(map(type, values)) <= _FLOAT_TYPE and math.isfinite(sum(values))
+    if set(map(type, items)) <= _PLAIN_NO_INT_TYPES:
+        return list(items)
+    return list(map(encode, items))
 
 
 def _is_plain(value: Any) -> bool:
@@ -251,6 +259,27 @@ def decode(obj: Any) -> Any:
             return list(obj)
         return [item if type(item) in _PLAIN_VALUES else decode(item) for item in obj]
     raise ProtocolError(f"not a tagged-JSON value: {kind.__qualname__}")
+
+
+_PLAIN_OR_DICT = frozenset((*_PLAIN_VALUES, dict))
+
+
+def plain_arguments(items: list[Any]) -> bool:
+    """True when ``items`` (a parsed JSON list) is its own decoding, so ``decode`` may be skipped.
+
+    That is: every item is a plain value, or a dict without the tag whose values are all
+    plain (a control loop's ``["Goal_Position", {motor: goal}]``). Checked with C loops;
+    anything else (a tagged value, a nested container) returns False and is decoded.
+    """
+    kinds = set(map(type, items))
+    if kinds <= _PLAIN_VALUES:
+        return True
+    if not kinds <= _PLAIN_OR_DICT:
+        return False
+    for item in items:
+        if type(item) is dict and (TAG in item or not set(map(type, item.values())) <= _PLAIN_VALUES):
+            return False
+    return True
 
 
 def _b64(obj: dict[str, Any]) -> bytes:
@@ -409,6 +438,20 @@ def dumps_line(obj: Any) -> bytes:
         except TypeError:
             pass  # the standard library gives the precise error (or encodes what orjson will not)
     return _std_encode(obj).encode() + b"\n"
+
+
+def line_codec() -> tuple[Callable[[Any], bytes], Callable[[bytes], Any]]:
+    """(dumps, loads) for a hot path to bind once: orjson's own C functions when installed.
+
+    Why: ``dumps_line``/``loads_json`` are a Python call each around the codec, paid
+    on both ends of every request. The bound ``dumps`` raises ``TypeError`` where
+    ``dumps_line`` would fall back to the standard library: callers then call
+    ``dumps_line``. Without orjson these are ``dumps_line`` and ``loads_json``.
+    """
+    fast = fast_codec()
+    if fast is None:
+        return dumps_line, loads_json
+    return functools.partial(fast.dumps, option=_orjson_options), fast.loads
 
 
 def loads_json(data: bytes) -> Any:

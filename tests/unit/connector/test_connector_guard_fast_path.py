@@ -176,7 +176,7 @@ def test_compiled_goal_rules_follow_a_recalibration_of_the_bus(motors: dict[str,
         assert cell["elbow_flex"].range_min <= to_raw(goal, after.norm_mode, after.to_raw_range) <= cell["elbow_flex"].range_max
 
 
-# -- goal values taken as they are (motion._plain_goals) -----------------------------
+# -- goal values taken as they are (motion._write_values) ---------------------------
 
 
 @pytest.mark.parametrize(

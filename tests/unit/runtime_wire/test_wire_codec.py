@@ -305,6 +305,29 @@ def test_without_orjson_the_standard_library_writes_the_same_lines(monkeypatch: 
         wire.loads_json(b"{not json")
 
 
+def test_the_bound_line_codec_writes_and_reads_the_lines_of_dumps_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    from armnet_runtime import wire
+
+    payload = {"op": "call", "args": ["Goal_Position", {"elbow_flex": 12.5}], "kwargs": encode({"big": 2**70})}
+    dumps, loads = wire.line_codec()
+    assert dumps(payload) == wire.dumps_line(payload)
+    assert loads(dumps(payload)) == payload
+    with pytest.raises(ValueError):
+        loads(b"{not json")
+    monkeypatch.setattr(wire, "_orjson", None)  # without the 'fast' extra: the plain functions
+    assert wire.line_codec() == (wire.dumps_line, wire.loads_json)
+
+
+@pytest.mark.parametrize(
+    "items",
+    [("Present_Position",), ("Goal_Position", {"a": 1.5}), ("x", 2**70), (None, True, math.nan, (1, 2)), ()],
+)
+def test_encode_items_is_encode_item_by_item(items: tuple[Any, ...]) -> None:
+    from armnet_runtime.wire import encode_items
+
+    assert json.dumps(encode_items(items)) == json.dumps([encode(item) for item in items])
+
+
 # -- the all-plain containers of a control loop, checked in C loops ----------------------
 
 

@@ -6,7 +6,9 @@ runtime/PROTOCOL.md). LeRobot polls some attributes every control tick, so the
 proxy keeps three caches that save round trips without changing semantics:
 
 - method names: whether a name is a method never changes for an object, so the
-  ``getattr`` round trip before each call is paid once per name;
+  ``getattr`` round trip before each call is paid once per name; the method proxy
+  is then kept in the instance's ``__dict__``, so a call finds it without
+  ``__getattr__`` (a customer's assignment to the name drops it);
 - missing names: a name the remote object lacks, or one the connector will not
   hand out (outside its allow-list), stays absent, so ``hasattr`` and
   ``getattr(obj, name, default)`` behave as for a missing attribute and answer
@@ -35,7 +37,7 @@ from armnet_runtime.errors import (
     RemoteCallError,
 )
 from armnet_runtime.transport import DEFAULT_CALL_TIMEOUT_S, PersistentConnection, check_response
-from armnet_runtime.wire import decode, encode
+from armnet_runtime.wire import decode, encode, encode_items
 
 logger = logging.getLogger("armnet_runtime.lerobot")
 
@@ -93,7 +95,7 @@ class ReadOnlyView:
 
 def encode_args(args: tuple[Any, ...]) -> list[Any]:
     """Positional arguments as the JSON list the protocol's ``args`` field carries."""
-    return [encode(arg) for arg in args]
+    return encode_items(args)
 
 
 class RemoteContextManager:
@@ -243,9 +245,9 @@ class RemoteObjectProxy:
                 }
             )
 
-    def _with_retry(self, action: Callable[[], _T]) -> _T:
+    def _with_retry(self, action: Callable[[], _T], *, first_attempt: int = 1) -> _T:
         with self._lock:
-            for attempt in (1, 2):
+            for attempt in range(first_attempt, 3):
                 try:
                     if self._object_id is None:
                         self._create()
@@ -261,7 +263,7 @@ class RemoteObjectProxy:
 
     def _request(self, payload: dict[str, Any]) -> dict[str, Any]:
         """Send an op on this object; ``object_id`` is filled in at send time."""
-        return self._with_retry(lambda: self._send({**payload, "object_id": self._object_id}))
+        return self._with_retry(self._send_call(payload))
 
     # ------------------------------------------------------------------ attribute protocol
 
@@ -296,6 +298,7 @@ class RemoteObjectProxy:
         if reply.get("callable"):
             method = self._method_proxy(name)
             self._methods[name] = method
+            self.__dict__[name] = method  # found by plain attribute lookup from now on
             return method
         value = decode(reply.get("value"))
         if reply.get("view") and isinstance(value, dict):
@@ -310,19 +313,47 @@ class RemoteObjectProxy:
             return
         self._request({"op": "setattr", "name": name, "value": encode(value)})
         self._missing.pop(name, None)
-        self._methods.pop(name, None)
+        if self._methods.pop(name, None) is not None:
+            self.__dict__.pop(name, None)
+
+    def _call(self, payload: dict[str, Any]) -> dict[str, Any]:
+        """``_request`` for a call on a live object, without its layers; anything unusual takes ``_request``.
+
+        Why: a control loop calls a few methods at 100 Hz on an object that exists
+        and a connection that works; creating, recovering and resending are for the
+        other calls. A send that failed here (the connector never saw it) marks the
+        object lost and continues as ``_request``'s second attempt: re-create, send again.
+        """
+        with self._lock:
+            object_id = self._object_id
+            if object_id is not None and not self._stale:
+                payload["object_id"] = object_id
+                try:
+                    reply = self._conn.request(payload)
+                except (ConnectorUnavailable, ProtocolError):
+                    object.__setattr__(self, "_stale", True)
+                    raise
+                except OSError:
+                    # Unsent: the second attempt of ``_with_retry`` re-creates the object and sends again.
+                    object.__setattr__(self, "_stale", True)
+                    return self._with_retry(self._send_call(payload), first_attempt=2)
+                if reply.get("ok") is True:
+                    return reply
+                return check_response(reply, error_message=f"remote {self._remote_class} call failed")
+        return self._request(payload)
+
+    def _send_call(self, payload: dict[str, Any]) -> Callable[[], dict[str, Any]]:
+        return lambda: self._send({**payload, "object_id": self._object_id})
 
     def _method_proxy(self, name: str) -> Callable[..., Any]:
+        lifecycle = name in ("connect", "disconnect")
+
         def method(*args: Any, **kwargs: Any) -> Any:
-            reply = self._request(
-                {"op": "call", "method": name, "args": encode_args(args), "kwargs": encode(kwargs)}
+            reply = self._call(
+                {"op": "call", "method": name, "args": encode_args(args), "kwargs": encode(kwargs) if kwargs else {}}
             )
-            if name == "connect":
-                self._set_connected(True)
-                object.__setattr__(self, "_connect_call", (args, kwargs))
-            elif name == "disconnect":
-                self._set_connected(False)
-                object.__setattr__(self, "_connect_call", None)
+            if lifecycle:
+                self._lifecycle(name, args, kwargs)
             if reply.get("context_manager"):
                 object_id = reply.get("object_id")
                 if not isinstance(object_id, str):
@@ -330,11 +361,18 @@ class RemoteObjectProxy:
                 return RemoteContextManager(
                     self._conn, object_id, error_message=f"remote {self._remote_class}.{name}() failed", owner=self
                 )
-            return decode(reply.get("value"))
+            value = reply.get("value")
+            return None if value is None else decode(value)
 
         method.__name__ = name
         method.__qualname__ = f"{type(self).__name__}.{name}"
         return method
+
+    def _lifecycle(self, name: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> None:
+        """After ``connect()``/``disconnect()``: what the proxy knows of the connection, and what a recovery replays."""
+        connected = name == "connect"
+        self._set_connected(connected)
+        object.__setattr__(self, "_connect_call", (args, kwargs) if connected else None)
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self._object_id} at {self._endpoint}>"

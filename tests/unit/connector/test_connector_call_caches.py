@@ -1,0 +1,191 @@
+"""What the bus path keeps between calls never lets a later call skip a check.
+
+The connector keeps, per call shape, how a call binds (``motion._bound_arguments``),
+per handle the goal screen of the motors last written (``safety.GoalScreen``), and
+takes a plain call's arguments as parsed (``wire.plain_arguments``); the proxy keeps
+its method proxies on the instance and sends a live object's calls directly. Each
+test warms a cache with a good call, then sends a call of another shape, a value
+outside the limits or a tagged value, and checks it is decided as without the cache.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import time
+from typing import Any
+
+import pytest
+from armnet_agent.connector.config import MotorRange
+from armnet_agent.connector.errors import RequestError
+from armnet_agent.connector.motion import _bound_arguments
+from armnet_agent.connector.safety import (
+    DEGREES,
+    RANGE_0_100,
+    GoalScreen,
+    MotorFacts,
+    compile_limits,
+    decide_goals,
+)
+from armnet_runtime.errors import InterlockTripped, SafetyViolation
+from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+from armnet_runtime.wire import TAG, decode, plain_arguments
+from lerobot.motors.feetech import FeetechMotorsBus
+
+pytestmark = pytest.mark.unit
+
+
+# -- the binding kept per call shape --------------------------------------------------
+
+
+def test_a_cached_binding_never_admits_a_call_of_another_shape(motors: dict[str, Any]) -> None:
+    bus = FeetechMotorsBus(port="/dev/null-armnet-test", motors=motors)
+    good = ["Goal_Position", {"gripper": 1.0}]
+    assert _bound_arguments(bus, "sync_write", good, {}) == {"data_name": "Goal_Position", "values": {"gripper": 1.0}}
+    for args, kwargs in (
+        (["Goal_Position", {"gripper": 1.0}, True], {}),  # normalize is keyword-only
+        (["Goal_Position"], {}),  # values missing
+        (["Goal_Position", {}], {"data_name": "Lock"}),  # given twice
+        (["Goal_Position", {}], {"bogus": 1}),
+    ):
+        with pytest.raises(RequestError) as refused:
+            _bound_arguments(bus, "sync_write", args, kwargs)
+        assert refused.value.reply()["error_type"] == "TypeError"
+    # The same shape again binds this call's values, not the first call's.
+    assert _bound_arguments(bus, "sync_write", ["Lock", 0], {"normalize": False}) == {
+        "data_name": "Lock", "values": 0, "normalize": False,
+    }
+    assert _bound_arguments(bus, "sync_write", ["Torque_Enable", {"gripper": 0}], {})["data_name"] == "Torque_Enable"
+
+
+# -- the goal screen -------------------------------------------------------------------
+
+
+def _limits(rng: random.Random) -> dict[str, Any]:
+    facts = {}
+    for index, motor in enumerate(("a", "b", "c")):
+        low = rng.randint(500, 1800)
+        high = low + rng.randint(3, 2000)
+        bus_range = MotorRange(index + 1, low - rng.randint(0, 300), high + rng.randint(0, 300), rng.randint(0, 1))
+        facts[motor] = MotorFacts(rng.choice((DEGREES, RANGE_0_100)), bus_range, MotorRange(index + 1, low, high, 0))
+    limit = rng.choice((None, 3.0, {"a": 2.0, "c": 8.0}))
+    return compile_limits(facts, limit, normalize=True)
+
+
+def test_the_goal_screen_accepts_only_writes_decide_goals_accepts_unchanged() -> None:
+    rng = random.Random(20)
+    accepted = 0
+    for _ in range(3000):
+        limits = _limits(rng)
+        screen = GoalScreen.build(("a", "b", "c"), limits)
+        goals = {m: rng.uniform(-120.0, 120.0) for m in ("a", "b", "c")}
+        present = {m: goal + rng.choice((0.0, rng.uniform(-10.0, 10.0))) for m, goal in goals.items()}
+        if rng.random() < 0.05:
+            present["b"] = math.nan
+        for clamp in (False, True):
+            decision = decide_goals(goals, present, limits, normalize=True, clamp=clamp)
+            steps = screen.accept(goals, present) if screen is not None else None
+            if steps is not None:
+                accepted += 1
+                assert decision.violation is None and decision.clamped == () and decision.goals == goals
+                assert steps == decision.steps
+    assert accepted > 50  # the screen does take writes (the usual one: the next test)
+
+
+def test_the_goal_screen_declines_what_it_cannot_vouch_for() -> None:
+    facts = {m: MotorFacts(DEGREES, MotorRange(1, 1000, 3000, 0), MotorRange(1, 1000, 3000, 0)) for m in ("a", "b")}
+    limits = compile_limits(facts, 5.0, normalize=True)
+    screen = GoalScreen.build(("a", "b"), limits)
+    assert screen is not None
+    assert screen.accept({"a": 1.0, "b": 2.0}, {"a": 0.0, "b": 0.0}) == {"a": 1.0, "b": 2.0}
+    assert screen.accept({"a": 1.0, "b": 9.0}, {"a": 0.0, "b": 0.0}) is None  # a step over the limit
+    assert screen.accept({"a": 1.0, "b": 170.0}, {"a": 0.0, "b": 168.0}) is None  # outside the calibrated range
+    assert screen.accept({"a": 1.0}, {"a": 0.0, "b": 0.0}) is None  # another motor list
+    assert screen.accept({"a": 1.0, "x": 0.0}, {"a": 0.0, "x": 0.0}) is None
+    assert screen.accept({"a": 1.0, "b": 2.0}, {"a": 0.0}) is None  # a position unknown
+    assert screen.accept({"a": 1.0, "b": math.nan}, {"a": 0.0, "b": 0.0}) is None
+    assert GoalScreen.build(("a", "x"), limits) is None  # not a motor of the bus
+
+
+# -- the arguments taken as parsed ------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("items", "plain"),
+    [
+        (["Goal_Position", {"a": 1.0, "b": 2}], True),
+        (["Present_Position"], True),
+        ([], True),
+        (["Goal_Position", {"a": {TAG: "float", "value": "nan"}}], False),
+        (["Goal_Position", {TAG: "tuple", "items": []}], False),
+        ([[1, 2]], False),
+        (["Goal_Position", {"a": [1.0]}], False),
+    ],
+)
+def test_plain_arguments_are_exactly_those_decode_leaves_as_they_are(items: list[Any], plain: bool) -> None:
+    assert plain_arguments(items) is plain
+    if plain:
+        assert decode(items) == items
+
+
+# -- through the connector: every check after warm caches -------------------------------
+
+
+@pytest.fixture
+def connector(sim_cell, make_connector, cell_config):
+    return make_connector(cell_config(sim_cell, safetyPolicy="trip"))
+
+
+@pytest.fixture
+def bus(connector, motors, calibration):
+    remote = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
+    remote.connect()
+    remote.enable_torque()
+    yield remote
+    if remote.is_connected:
+        remote.disconnect()
+
+
+def _warm(bus: Any) -> dict[str, float]:
+    present = bus.sync_read("Present_Position")
+    for _ in range(3):
+        bus.sync_write("Goal_Position", dict(present))
+    return present
+
+
+def test_after_cached_goal_writes_a_step_over_the_limit_is_refused_and_trips(bus, sim_cell, connector) -> None:
+    present = _warm(bus)
+    assert "sync_write" in bus.__dict__  # the proxy's method is kept on the instance
+    before = sim_cell.arm.goal_positions()
+    with pytest.raises(SafetyViolation):
+        bus.sync_write("Goal_Position", {**present, "elbow_flex": present["elbow_flex"] + 45.0})
+    assert sim_cell.arm.goal_positions() == before
+    assert connector.interlock.tripped
+    with pytest.raises(InterlockTripped):  # and the interlock holds for the next, cached-shape write
+        bus.sync_write("Goal_Position", dict(present))
+
+
+def test_after_cached_goal_writes_another_shape_is_still_checked(bus, sim_cell, connector) -> None:
+    present = _warm(bus)
+    # Fewer motors (another screen), then a tagged non-finite goal (not plain arguments).
+    bus.sync_write("Goal_Position", {"elbow_flex": present["elbow_flex"] + 1.0})
+    with pytest.raises(ValueError):
+        bus.sync_write("Goal_Position", {**present, "gripper": math.inf})
+    assert connector.interlock.tripped  # a non-finite goal trips, as any refused goal
+
+
+def test_after_cached_goal_writes_a_goal_outside_the_range_is_refused(bus, sim_cell, connector) -> None:
+    present = _warm(bus)
+    raw = bus.sync_read("Present_Position", normalize=False)
+    bus.sync_write("Goal_Position", raw, normalize=False)  # another binding shape, inside the range
+    with pytest.raises(SafetyViolation):
+        bus.sync_write("Goal_Position", {**raw, "elbow_flex": 10_000}, normalize=False)
+    assert connector.interlock.tripped
+    del present
+
+
+def test_a_lost_connection_under_a_cached_method_is_recovered(bus, connector) -> None:
+    bus.sync_read("Present_Position")
+    bus._conn._sock.close()  # the connection breaks under the proxy (say the connector restarted)
+    time.sleep(0.05)
+    assert set(bus.sync_read("Present_Position")) == set(bus.motors)
