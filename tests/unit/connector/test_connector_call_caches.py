@@ -1,8 +1,10 @@
 """What the bus path keeps between calls never lets a later call skip a check.
 
 The connector keeps, per call shape, how a call binds (``motion._bound_arguments``),
-per handle the goal screen of the motors last written (``safety.GoalScreen``), and
-takes a plain call's arguments as parsed (``wire.plain_arguments``); the proxy keeps
+per handle the goal screen of the motors last written (``safety.GoalScreen``), decides
+a control loop's goal write in one step when all of that is current
+(``MotionGuard._accepts_plain_goals``), and takes a plain call's arguments as parsed
+(``wire.plain_arguments``); the proxy keeps
 its method proxies on the instance and sends a live object's calls directly. Each
 test warms a cache with a good call, then sends a call of another shape, a value
 outside the limits or a tagged value, and checks it is decided as without the cache.
@@ -16,9 +18,12 @@ import time
 from typing import Any
 
 import pytest
-from armnet_agent.connector.config import MotorRange
+from armnet_agent.connector.cell import Counters
+from armnet_agent.connector.config import ArmConfig, MotorRange
 from armnet_agent.connector.errors import RequestError
-from armnet_agent.connector.motion import _bound_arguments
+from armnet_agent.connector.hardware import DeviceLock, Handle
+from armnet_agent.connector.interlock import Interlock
+from armnet_agent.connector.motion import MotionGuard, _bound_arguments
 from armnet_agent.connector.safety import (
     DEGREES,
     RANGE_0_100,
@@ -105,6 +110,65 @@ def test_the_goal_screen_declines_what_it_cannot_vouch_for() -> None:
     assert screen.accept({"a": 1.0, "b": 2.0}, {"a": 0.0}) is None  # a position unknown
     assert screen.accept({"a": 1.0, "b": math.nan}, {"a": 0.0, "b": 0.0}) is None
     assert GoalScreen.build(("a", "x"), limits) is None  # not a motor of the bus
+
+
+# -- the one-step goal write (MotionGuard._accepts_plain_goals) ---------------------------
+
+
+def _guard_and_handle(motors: dict[str, Any], calibration: dict[str, Any]) -> tuple[MotionGuard, Handle]:
+    bus = FeetechMotorsBus(port="/dev/null-armnet-test", motors=motors, calibration=calibration)
+    cell = {m: MotorRange(c.id, c.range_min, c.range_max, c.drive_mode) for m, c in calibration.items()}
+    handle = Handle(
+        "FeetechMotorsBus", bus, DeviceLock("test"), arm_config=ArmConfig(port="/dev/null", safety_limit=5.0),
+        cell_ranges=cell,
+    )
+    guard = MotionGuard(Interlock(), present_max_age_s=60.0, counters=Counters(), policy="trip")
+    return guard, handle
+
+
+def _middle(calibration: dict[str, Any]) -> dict[str, float]:
+    return dict.fromkeys(calibration, 0.0) | {"gripper": 50.0}
+
+
+def test_the_one_step_goal_write_takes_only_what_the_long_way_accepts(motors, calibration) -> None:
+    guard, handle = _guard_and_handle(motors, calibration)
+    present = _middle(calibration)
+    handle.present[True] = (time.monotonic(), dict(present))
+    assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])  # nothing compiled yet
+    guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})  # the long way compiles
+    assert guard._accepts_plain_goals(handle, ["Goal_Position", {**present, "elbow_flex": 1.0}])
+    declined = (
+        ["Goal_Position", {**present, "elbow_flex": 9.0}],  # a step over the limit
+        ["Goal_Position", {**present, "elbow_flex": math.nan}],
+        ["Goal_Position", {**present, "elbow_flex": 1}],  # an int: the long way converts it
+        ["Goal_Position", {"elbow_flex": 1.0}],  # another motor list: other rules
+        ["Goal_Position", {**present, "nope": 1.0}],  # not a motor of the bus
+        ["Lock", dict(present)],
+        [["Goal_Position"], dict(present)],
+        ["Goal_Position", dict(present), True],
+    )
+    for args in declined:
+        assert not guard._accepts_plain_goals(handle, args), args
+    with pytest.raises(RequestError) as refused:  # and check decides the step over the limit the long way
+        guard.check(handle, "sync_write", ["Goal_Position", {**present, "elbow_flex": 9.0}], {})
+    assert refused.value.reply()["error_type"] == "SafetyViolation" and guard.interlock.tripped
+    assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])  # the interlock holds
+    with pytest.raises(RequestError):
+        guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})
+
+
+def test_the_one_step_goal_write_follows_a_recalibration_and_stale_positions(motors, calibration) -> None:
+    guard, handle = _guard_and_handle(motors, calibration)
+    present = _middle(calibration)
+    handle.present[True] = (time.monotonic(), dict(present))
+    guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})
+    assert guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
+    handle.obj.calibration["elbow_flex"].range_min += 10  # edited in place: the facts differ by value
+    assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
+    guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})  # the long way rebuilds the rules
+    assert guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
+    handle.present[True] = (time.monotonic() - 120.0, dict(present))  # this tick's read is too old
+    assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
 
 
 # -- the arguments taken as parsed ------------------------------------------------------
