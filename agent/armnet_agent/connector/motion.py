@@ -69,11 +69,12 @@ def _simple_shape(obj: Any, method: str) -> _Shape | None:
     return _simple_shapes[key]
 
 
-#: Per (class, method, number of positional arguments, keyword names in call order): the
-#: parameter names the positional arguments bind to, or ``None`` when ``Signature.bind`` decides
-#: (the signature is not plain, or the call is one it refuses). Bounded: a client sending ever new
-#: keyword names gets each shape worked out again, never a growing table.
-_bindings: dict[tuple[type, str, int, tuple[str, ...]], tuple[str, ...] | None] = {}
+#: Per (class, method, number of positional arguments, keyword names in call order) of a call
+#: that binds plainly: the parameter names the positional arguments bind to. Only shapes that
+#: bind are kept: their keywords are parameter names, so they are few for any signature. A shape
+#: ``Signature.bind`` decides (not plain, or refused) is never kept: its key would hold names and
+#: counts a job chose (up to a request line each), and refusals would fill the table.
+_bindings: dict[tuple[type, str, int, tuple[str, ...]], tuple[str, ...]] = {}
 _MAX_BINDINGS = 1024
 
 
@@ -96,17 +97,16 @@ def _bound_arguments(obj: Any, method: str, args: list[Any], kwargs: dict[str, A
 
     Why not always ``bind``: it costs tens of microseconds per call on a 100 Hz
     control path. Whether a call binds, and to which names, depends only on its
-    shape (the method, how many positional arguments, which keywords), so the
-    decision is made once per shape and kept; the values are bound on every call.
+    shape (the method, how many positional arguments, which keywords), so a shape
+    that binds is worked out once and kept; the values are bound on every call.
     A shape that is not plain (``*args``, positional-only) or that ``bind`` would
     refuse goes through ``bind`` for its exact error.
     """
     key = (type(obj), method, len(args), tuple(kwargs))
-    try:
-        names = _bindings[key]
-    except KeyError:
+    names = _bindings.get(key)
+    if names is None:
         names = _binding(obj, method, len(args), key[3])
-        if len(_bindings) < _MAX_BINDINGS:
+        if names is not None and len(_bindings) < _MAX_BINDINGS:
             _bindings[key] = names
     if names is not None:
         bound = dict(zip(names, args, strict=True))
