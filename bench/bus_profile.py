@@ -139,12 +139,22 @@ def traced_work(call: Callable[[], Any]) -> dict[str, tuple[int, int]]:
         name = frame.f_code.co_filename
         return counts["armnet" if "/armnet_agent/" in name or "/armnet_runtime/" in name else "LeRobot and below"]
 
+    _count_traced(call, kind)
+    return {name: (calls, opcodes) for name, (calls, opcodes) in counts.items()}
+
+
+def _count_traced(call: Callable[[], Any], counter: Callable[[Any], list[int] | None]) -> None:
+    """Run ``call`` once under a trace: each frame's calls and bytecodes go to ``counter(frame)`` (None: not counted)."""
+
     def trace(frame: Any, event: str, _arg: Any) -> Any:
+        tally = counter(frame)
+        if tally is None:
+            return None
         if event == "call":
             frame.f_trace_opcodes = True
-            kind(frame)[0] += 1
+            tally[0] += 1
         elif event == "opcode":
-            kind(frame)[1] += 1
+            tally[1] += 1
         return trace
 
     sys.settrace(trace)
@@ -152,7 +162,6 @@ def traced_work(call: Callable[[], Any]) -> dict[str, tuple[int, int]]:
         call()
     finally:
         sys.settrace(None)
-    return {name: (calls, opcodes) for name, (calls, opcodes) in counts.items()}
 
 
 class InProcessSocket:
@@ -190,22 +199,8 @@ class InProcessSocket:
 def traced_proxy_work(call: Callable[[], Any], fake: InProcessSocket) -> tuple[int, int]:
     """Python calls and bytecodes the proxy (armnet_runtime) executes for one ``call``, the connector's side left out."""
     counts = [0, 0]
-
-    def trace(frame: Any, event: str, _arg: Any) -> Any:
-        if fake.serving or "/armnet_runtime/" not in frame.f_code.co_filename:
-            return None
-        if event == "call":
-            frame.f_trace_opcodes = True
-            counts[0] += 1
-        elif event == "opcode":
-            counts[1] += 1
-        return trace
-
-    sys.settrace(trace)
-    try:
-        call()
-    finally:
-        sys.settrace(None)
+    _count_traced(call, lambda frame: None if fake.serving or "/armnet_runtime/" not in frame.f_code.co_filename
+                  else counts)
     return counts[0], counts[1]
 
 

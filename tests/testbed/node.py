@@ -136,22 +136,7 @@ disabled_plugins = ["io.containerd.snapshotter.v1.aufs", "io.containerd.snapshot
   "io.containerd.snapshotter.v1.devmapper", "io.containerd.snapshotter.v1.zfs",
   "io.containerd.tracing.processor.v1.otlp", "io.containerd.internal.v1.tracing"]
 
-[grpc]
-  address = "{workdir / 'containerd.sock'}"
-
-[ttrpc]
-  address = "{workdir / 'containerd.sock.ttrpc'}"
-
-[debug]
-  address = ""
-
-[metrics]
-  address = ""
-
-[plugins]
-  [plugins."io.containerd.internal.v1.opt"]
-    path = "{workdir / 'opt'}"
-  [plugins."io.containerd.grpc.v1.cri"]
+{_sockets_and_opt(workdir)}  [plugins."io.containerd.grpc.v1.cri"]
     # Required here: without CAP_SYS_RESOURCE runc cannot apply the negative
     # oom_score_adj the kubelet asks for (every pod fails otherwise).
     restrict_oom_score_adj = true
@@ -174,17 +159,9 @@ disabled_plugins = ["io.containerd.snapshotter.v1.aufs", "io.containerd.snapshot
 """
 
 
-def _containerd_config_v3(workdir: Path, root: Path, cni_conf_dir: Path, shim: Path | None) -> str:
-    runtime = '[plugins."io.containerd.cri.v1.runtime".containerd.runtimes.runc]'
-    return f"""version = 3
-root = "{root}"
-state = "{workdir / 'state'}"
-oom_score = 0
-# NRI would serve /var/run/nri/nri.sock and read /etc/nri; CDI reads /etc/cdi.
-disabled_plugins = ["io.containerd.tracing.processor.v1.otlp", "io.containerd.internal.v1.tracing",
-  "io.containerd.nri.v1.nri"]
-
-[grpc]
+def _sockets_and_opt(workdir: Path) -> str:
+    """The sections both schemas write alike: the sockets under ``workdir``, no debug or metrics, ``opt``."""
+    return f"""[grpc]
   address = "{workdir / 'containerd.sock'}"
 
 [ttrpc]
@@ -199,7 +176,20 @@ disabled_plugins = ["io.containerd.tracing.processor.v1.otlp", "io.containerd.in
 [plugins]
   [plugins."io.containerd.internal.v1.opt"]
     path = "{workdir / 'opt'}"
-  [plugins."io.containerd.cri.v1.images"]
+"""
+
+
+def _containerd_config_v3(workdir: Path, root: Path, cni_conf_dir: Path, shim: Path | None) -> str:
+    runtime = '[plugins."io.containerd.cri.v1.runtime".containerd.runtimes.runc]'
+    return f"""version = 3
+root = "{root}"
+state = "{workdir / 'state'}"
+oom_score = 0
+# NRI would serve /var/run/nri/nri.sock and read /etc/nri; CDI reads /etc/cdi.
+disabled_plugins = ["io.containerd.tracing.processor.v1.otlp", "io.containerd.internal.v1.tracing",
+  "io.containerd.nri.v1.nri"]
+
+{_sockets_and_opt(workdir)}  [plugins."io.containerd.cri.v1.images"]
     snapshotter = "overlayfs"
     [plugins."io.containerd.cri.v1.images".pinned_images]
       sandbox = "{PAUSE_IMAGE}"

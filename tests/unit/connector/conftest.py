@@ -150,3 +150,26 @@ def calibration() -> dict[str, Any]:
 def calibration_path() -> Callable[[str], Path]:
     """``calibration_path("so101_left")``: a calibration file shipped with the simulator."""
     return calibration_file
+
+
+# A test module that needs another policy or bus defines its own ``connector`` / ``bus``
+# (a module's fixture takes precedence over these).
+@pytest.fixture
+def connector(sim_cell: SimulatedCellProcess, make_connector: Callable[..., Connector],
+              cell_config: Callable[..., ConnectorConfig]) -> Connector:
+    """A connector on the simulated SO-101 with the trip policy: an oversized step is refused
+    (the default, clamp, is in test_connector_policy)."""
+    return make_connector(cell_config(sim_cell, safetyPolicy="trip"))
+
+
+@pytest.fixture
+def bus(connector: Connector, motors: dict[str, Any], calibration: dict[str, Any]) -> Iterator[Any]:
+    """LeRobot's bus through that connector (the SDK's proxy), connected with torque on."""
+    from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+
+    remote = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
+    remote.connect()
+    remote.enable_torque()
+    yield remote
+    if remote.is_connected:
+        remote.disconnect()

@@ -23,22 +23,6 @@ def wait_until(predicate, timeout: float = 5.0) -> bool:
     return predicate()
 
 
-@pytest.fixture
-def connector(sim_cell, make_connector, cell_config):
-    # The trip policy: an oversized step is refused (the default, clamp, is in test_connector_policy).
-    return make_connector(cell_config(sim_cell, safetyPolicy="trip"))
-
-
-@pytest.fixture
-def bus(connector, motors, calibration):
-    remote = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
-    remote.connect()
-    remote.enable_torque()
-    yield remote
-    if remote.is_connected:
-        remote.disconnect()
-
-
 def test_sync_write_moves_the_simulated_arm_and_sync_read_reads_it_back(bus, sim_cell) -> None:
     start = bus.sync_read("Present_Position")
     goal = {motor: value + (5.0 if motor != "gripper" else 10.0) for motor, value in start.items()}

@@ -33,7 +33,6 @@ from armnet_agent.connector.safety import (
     decide_goals,
 )
 from armnet_runtime.errors import InterlockTripped, SafetyViolation
-from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 from armnet_runtime.wire import TAG, decode, plain_arguments
 from lerobot.motors.feetech import FeetechMotorsBus
 
@@ -193,21 +192,6 @@ def test_plain_arguments_are_exactly_those_decode_leaves_as_they_are(items: list
 
 
 # -- through the connector: every check after warm caches -------------------------------
-
-
-@pytest.fixture
-def connector(sim_cell, make_connector, cell_config):
-    return make_connector(cell_config(sim_cell, safetyPolicy="trip"))
-
-
-@pytest.fixture
-def bus(connector, motors, calibration):
-    remote = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
-    remote.connect()
-    remote.enable_torque()
-    yield remote
-    if remote.is_connected:
-        remote.disconnect()
 
 
 def _warm(bus: Any) -> dict[str, float]:
