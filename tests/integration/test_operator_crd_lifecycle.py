@@ -91,9 +91,12 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
         job("after")
         wait("a new job bound after the CRD came back", lambda: phase("after") == "dispatched", proc, log)
         # kopf may miss the CRD's return (it rescans discovery on CRD events only, and the last
-        # one can precede discovery); the operator restarts its watches rather than trust it.
-        assert "restarting the watches" in log.read_text()
-        assert "starting the operator's watches and reconcile loop again" in log.read_text()
+        # one can precede discovery); the operator restarts its watches rather than trust it:
+        # on the CRD's new uid, or earlier, when kopf's own watch failed on the 404 and stopped
+        # (then the operator runs kopf again after a backoff; seen in a loaded CI run).
+        text = log.read_text()
+        assert "restarting the watches" in text or "kopf stopped (404" in text, text[-3000:]
+        assert "starting the operator's watches and reconcile loop again" in text
 
         # Deleted and created again between two looks (kubectl replace --force, a GitOps sync):
         # a new uid is a return all the same.
