@@ -89,7 +89,19 @@ def is_lost_reply(exc: BaseException, *, connecting: bool = False) -> bool:
         return False
     if isinstance(exc, (ConnectionError, TimeoutError)):
         return True
+    if isinstance(exc, IndexError) and _raised_in_servo_sdk(exc):
+        return True  # scservo_sdk indexes a reply cut short by a loaded host instead of reporting it
     return connecting and isinstance(exc, RuntimeError) and _HANDSHAKE_MISS in str(exc)
+
+
+def _raised_in_servo_sdk(exc: BaseException) -> bool:
+    """Whether ``exc`` came from inside ``scservo_sdk`` (its packet parser), not from armnet or LeRobot code."""
+    frame = exc.__traceback__
+    while frame is not None:
+        if "scservo_sdk" in frame.tb_frame.f_code.co_filename:
+            return True
+        frame = frame.tb_next
+    return False
 
 
 def drop_pending_input(bus: Any) -> None:

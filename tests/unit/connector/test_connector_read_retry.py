@@ -134,6 +134,24 @@ def test_which_calls_and_failures_are_retried() -> None:
     assert is_lost_reply(RuntimeError("motor check failed:\nMissing motor IDs:\n - 2"), connecting=True)
 
 
+def test_an_index_error_from_the_servo_sdk_is_a_reply_cut_short_and_one_from_elsewhere_is_not() -> None:
+    """scservo_sdk indexes a truncated status packet instead of reporting it (seen in a loaded CI
+    run: ``connect`` failed with IndexError); an IndexError of any other code is a bug, not a retry."""
+    import scservo_sdk
+
+    def raised_in(filename: str) -> IndexError:
+        try:
+            exec(compile("[][0]", filename, "exec"))  # noqa: S102 - a frame that lives in that file
+        except IndexError as exc:
+            return exc
+        raise AssertionError("no IndexError")
+
+    assert is_lost_reply(raised_in(scservo_sdk.__file__))
+    assert is_lost_reply(raised_in(scservo_sdk.__file__), connecting=True)
+    assert not is_lost_reply(raised_in(__file__))
+    assert not is_lost_reply(IndexError("no traceback"))
+
+
 def test_a_write_retry_is_checked_again_and_an_interlock_tripped_meanwhile_ends_it() -> None:
     """The guard ran before the first attempt; a trip during the wait must hold for the retry too."""
     from armnet_agent.connector.errors import RequestError
