@@ -94,8 +94,6 @@ def run(args: argparse.Namespace) -> int:
 MAX_RESTARTS = 5
 
 
-
-
 def restart_after(failures: int) -> float | None:
     """Seconds before the operator runs kopf again after ``failures`` failures in a row (None: give up).
 

@@ -222,11 +222,11 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     """
     names = tuple(motors)
     key = _facts_key(handle, names)
-    bus_motors = handle.obj.motors
-    calibration = handle.obj.calibration or {}
     cached = handle.facts_cache
     if cached is not None and cached[0] == key:
         return cached[1]
+    bus_motors = handle.obj.motors
+    calibration = handle.obj.calibration or {}
     facts = {
         m: MotorFacts(
             getattr(bus_motors[m].norm_mode, "value", str(bus_motors[m].norm_mode)),
@@ -257,11 +257,6 @@ def _goal_rules(
         limits = compile_limits(facts, limit, normalize=normalize)
         rules = cached[2][normalize] = (limits, GoalScreen.build(tuple(facts), limits))
     return rules
-
-
-def _goal_limits(handle: Handle, motors: Any, limit: Any, normalize: bool) -> Mapping[str, MotorLimit]:
-    """The compiled goal rules of ``motors`` alone (``_goal_rules``)."""
-    return _goal_rules(handle, motors, limit, normalize)[0]
 
 
 def _replace_argument(obj: Any, method: str, args: list[Any], kwargs: dict[str, Any], name: str, value: Any) -> None:
@@ -365,7 +360,7 @@ class MotionGuard:
         facts, compiled = handle.facts_cache, handle.limits_cache
         if (
             limit is None or present is None or time.monotonic() - present[0] > self.present_max_age_s
-            or not present[1].keys() >= goals.keys() or facts is None or compiled is None
+            or facts is None or compiled is None
             or compiled[0] is not facts[1] or compiled[1] is not limit
         ):
             return False

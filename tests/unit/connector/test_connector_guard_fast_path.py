@@ -21,7 +21,7 @@ from armnet_agent.connector.hardware import DeviceLock, Handle
 from armnet_agent.connector.motion import (
     BadMotorValue,
     _bound_arguments,
-    _goal_limits,
+    _goal_rules,
     _motor_facts,
     write_arguments,
 )
@@ -163,12 +163,12 @@ def test_compiled_goal_rules_follow_a_recalibration_of_the_bus(motors: dict[str,
     bus = FeetechMotorsBus(port="/dev/null-armnet-test", motors=motors, calibration=calibration)
     cell = {m: MotorRange(c.id, c.range_min, c.range_max, c.drive_mode) for m, c in calibration.items()}
     handle = Handle("FeetechMotorsBus", bus, DeviceLock("test"), cell_ranges=cell)
-    first = _goal_limits(handle, ["elbow_flex"], 10.0, True)["elbow_flex"]
+    first = _goal_rules(handle, ["elbow_flex"], 10.0, True)[0]["elbow_flex"]
     assert first.inside is not None
     shifted = {m: dataclasses.replace(c, range_min=c.range_min + 300, range_max=c.range_max + 300)
                for m, c in bus.calibration.items()}
     bus.calibration = shifted
-    after = _goal_limits(handle, ["elbow_flex"], 10.0, True)["elbow_flex"]
+    after = _goal_rules(handle, ["elbow_flex"], 10.0, True)[0]["elbow_flex"]
     assert after.to_raw_range is not None and after.to_raw_range.range_min == shifted["elbow_flex"].range_min
     assert after.inside is not None and after.inside != first.inside
     low, high = after.inside
