@@ -9,6 +9,13 @@ overlaps that cost with the job's own start-up (which imports LeRobot too).
 A ``create`` that arrives mid-import waits on Python's per-module import lock
 for the rest of it, never imports twice, and an import that fails here fails
 again, with its real error, in the request that needs it.
+
+Some of those imports edit the process environment: numpy's first import sets
+``OPENBLAS_MAIN_FREE`` and deletes it again. Done in this thread while another
+thread walks ``os.environ`` (``requests`` reads proxy settings from it on every
+Docker API call), the walk meets a key that is gone: a job failed to launch with
+``KeyError: 'OPENBLAS_MAIN_FREE'``. So every process that starts a connector calls
+:func:`import_before_threads` first, while it has one thread.
 """
 
 from __future__ import annotations
@@ -22,6 +29,19 @@ log = logging.getLogger(__name__)
 
 DEVICE_MODULES = ("lerobot.motors.feetech", "lerobot.cameras.opencv")
 """What ``hardware.create_feetech`` / ``create_camera`` import on a request."""
+
+ENVIRONMENT_EDITING_MODULES = ("numpy",)
+"""Modules whose first import edits ``os.environ`` (numpy: ``OPENBLAS_MAIN_FREE``)."""
+
+
+def import_before_threads(modules: tuple[str, ...] = ENVIRONMENT_EDITING_MODULES) -> None:
+    """Import ``modules`` now, in the calling thread: call it before the process starts threads.
+
+    Later imports of them (the warm imports, a job's first request) find them in
+    ``sys.modules`` and leave the environment alone.
+    """
+    for name in modules:
+        importlib.import_module(name)
 
 
 def start_warm_imports(modules: tuple[str, ...] = DEVICE_MODULES) -> threading.Thread:

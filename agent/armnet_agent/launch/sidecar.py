@@ -101,6 +101,9 @@ def parse_record(log_text: str) -> dict[str, Any] | None:
 def main() -> int:
     from armnet_agent.connector import Connector, ConnectorConfig
     from armnet_agent.connector.interlock import TripReason
+    from armnet_agent.connector.warm_imports import import_before_threads
+
+    import_before_threads()  # before the connector's threads (warm_imports.py)
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s",
                         stream=sys.stderr)

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from armnet_core import JobResult, JobStatus
 
+from armnet_agent.connector.warm_imports import import_before_threads
 from armnet_agent.launch.cell_spec import (
     DEFAULT_TASK,
     EMBODIMENT_PRESET,
@@ -86,6 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import_before_threads()  # before the connector's and the engine client's threads (warm_imports.py)
     # Connector and simulator warnings (deadline, safety trips) go to stderr, tagged.
     logging.basicConfig(level=logging.WARNING, format="armnet run: %(message)s")
     # SIGTERM cancels like Ctrl-C: the job is killed and the cell torn down, never orphaned.

@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from armnet_agent.connector.warm_imports import import_before_threads
 from armnet_agent.deviceplugin.server import DEVICE_PLUGIN_DIR, DevicePlugins
 from armnet_agent.launch.container import EngineUnavailable, connect_engine
 from armnet_agent.node.agent import AgentSettings, NodeAgent
@@ -108,6 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import_before_threads()  # before any worker, connector or metrics thread (warm_imports.py)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s armnet agent %(levelname)s %(name)s: %(message)s")
     logging.getLogger("armnet_agent.node").setLevel(logging.INFO)
