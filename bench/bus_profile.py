@@ -255,6 +255,9 @@ def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: d
         timed = {name: hot_cpu_us(call, calls) for name, call in pieces.items()}
         for method, line in (("sync_write", write_line), ("sync_read", read_line)):
             time.sleep(PAUSE_S)
+            # This tick's read, as in a control loop: the write's goal check reuses its positions
+            # (the timed pieces above took longer than presentPositionMaxAgeMs).
+            session.handle(parse_request(read_line))
             work = traced_work(lambda line=line: encode_reply(session.handle(parse_request(line))))
             for part, (n_calls, opcodes) in work.items():
                 timed[f"work: {method}, {part} (Python calls / bytecodes)"] = (n_calls, opcodes)
