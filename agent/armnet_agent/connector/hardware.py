@@ -54,6 +54,10 @@ class Handle:
     present: dict[bool, tuple[float, dict[str, float]]] = field(default_factory=dict)
     #: The safety facts of the motors last written, with the values they were built from.
     facts_cache: tuple[tuple[Any, ...], dict[str, Any]] | None = None
+    #: Counts the calls that may have changed the bus's calibration (``motion.KEEPS_CALIBRATION``).
+    calibration_epoch: int = 0
+    #: ``calibration_epoch`` when ``facts_cache`` was last compared with the bus by value.
+    facts_epoch: int = -1
     #: The goal rules compiled from those facts: (facts, relative limit, {normalize: (rules, their GoalScreen)}).
     limits_cache: tuple[dict[str, Any], Any, dict[bool, Any]] | None = None
 

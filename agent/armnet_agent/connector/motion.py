@@ -223,6 +223,7 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     names = tuple(motors)
     key = _facts_key(handle, names)
     cached = handle.facts_cache
+    handle.facts_epoch = handle.calibration_epoch  # compared by value now: current until the next such call
     if cached is not None and cached[0] == key:
         return cached[1]
     bus_motors = handle.obj.motors
@@ -279,6 +280,15 @@ _METHOD_KINDS: dict[tuple[str, str], tuple[bool, bool, bool]] = {
 }
 _NO_MOTION = (False, False, False)
 
+#: The calls that never change a bus's calibration or its motors' norm modes: LeRobot's
+#: reads and writes of registers use them, never assign or edit them (a test holds the
+#: installed LeRobot to it). Any other call on a handle moves ``Handle.calibration_epoch``,
+#: and the goal fast path trusts the motors' facts only while that stays where it was
+#: when they were last compared by value (``_motor_facts``). Nothing else can change
+#: them: the calibration is not assignable through the connector, and a job reaches the
+#: real object only through calls.
+KEEPS_CALIBRATION = frozenset({"sync_read", "sync_write", "read", "write"})
+
 
 class MotionGuard:
     """Decides, per call, whether a motion request reaches the bus (see ``safety``)."""
@@ -296,6 +306,8 @@ class MotionGuard:
         Under ``safetyPolicy: clamp`` a goal write beyond the relative limit is not
         refused: its goals are clamped, and ``args``/``kwargs`` are rewritten in place.
         """
+        if method not in KEEPS_CALIBRATION:
+            handle.calibration_epoch += 1  # this call may change the bus's calibration (see KEEPS_CALIBRATION)
         calibration, motion, goal_writer = _METHOD_KINDS.get((handle.class_name, method), _NO_MOTION)
         if calibration and not handle.allow_calibration:
             message = CALIBRATION_REFUSAL.format(method=method)
@@ -340,9 +352,10 @@ class MotionGuard:
         only when every fact the long way would use is at hand and current: the
         interlock clear; the call's shape bound as (data_name, values) by
         ``_bound_arguments`` before; the goals str -> finite float, for motors of
-        the bus; this tick's positions fresh; the motors' facts unchanged, compared
-        by value (``_facts_key``); their rules and screen compiled for them and this
-        limit. The same ``GoalScreen.accept`` then decides, and the steps are recorded.
+        the bus; this tick's positions fresh; the motors' facts compared by value
+        (``_facts_key``) since the last call that may have changed the calibration
+        (``KEEPS_CALIBRATION``); their rules and screen compiled for them and this
+        limit. The same ``GoalScreen.step_sizes`` then decides, and the steps are recorded.
         """
         obj = handle.obj
         goals = args[1] if len(args) == 2 else None
@@ -365,12 +378,16 @@ class MotionGuard:
         ):
             return False
         rules = compiled[2].get(True)
-        if rules is None or rules[1] is None or facts[0] != _facts_key(handle, tuple(goals)):
+        if (
+            rules is None or rules[1] is None
+            or handle.facts_epoch != handle.calibration_epoch or facts[0][0] != tuple(goals)
+        ):
             return False
-        steps = rules[1].accept(goals, present[1])
-        if steps is None:
+        screen = rules[1]
+        sizes = screen.step_sizes(goals, present[1])
+        if sizes is None:
             return False
-        self.recorder.record_steps(steps)
+        self.recorder.record_step_sizes(screen.motors, sizes)
         return True
 
     def _refuse_goal(self, exc: RequestError, kind: str) -> None:
@@ -389,9 +406,9 @@ class MotionGuard:
         present = self._present(handle, known, normalize) if limit is not None else {}
         limits, screen = _goal_rules(handle, known, limit, normalize)
         if screen is not None:
-            steps = screen.accept(known, present)
-            if steps is not None:  # every goal passes on its own: what decide_goals decides, in C loops
-                self.recorder.record_steps(steps)
+            sizes = screen.step_sizes(known, present)
+            if sizes is not None:  # every goal passes on its own: what decide_goals decides, in C loops
+                self.recorder.record_step_sizes(screen.motors, sizes)
                 return {}
         decision = decide_goals(known, present, limits, normalize=normalize, clamp=self.policy == "clamp")
         if decision.steps:

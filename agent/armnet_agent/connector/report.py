@@ -85,7 +85,11 @@ class SafetyRecorder:
         self._mismatches: dict[str, list[str]] = {}
 
     def record_steps(self, steps: dict[str, float]) -> None:
-        """Keep each motor's largest step; a write with no new largest takes no lock.
+        """Keep each motor's largest step (signed steps: ``decide_goals``'s)."""
+        self.record_step_sizes(tuple(steps), tuple(map(abs, steps.values())))
+
+    def record_step_sizes(self, motors: tuple[str, ...], sizes: tuple[float, ...]) -> None:
+        """Keep each motor's largest step size; a write with no new largest takes no lock.
 
         Why the look before the lock: at 100 Hz almost every write's steps are below
         the largest seen, and the largest only ever grows, so a step that is not
@@ -93,12 +97,11 @@ class SafetyRecorder:
         under it. Only a write that sets a new largest locks (and looks again).
         """
         largest = self._largest
-        # In C loops: is any |step| above the motor's largest so far (0.0 when none yet)?
-        if not any(map(operator.gt, map(abs, steps.values()), map(largest.get, steps, repeat(0.0)))):
+        # In C loops: is any size above the motor's largest so far (0.0 when none yet)?
+        if not any(map(operator.gt, sizes, map(largest.get, motors, repeat(0.0)))):
             return
         with self._lock:
-            for motor, step in steps.items():
-                size = abs(step)
+            for motor, size in zip(motors, sizes, strict=True):
                 if size > largest.get(motor, 0.0):
                     largest[motor] = size
 

@@ -273,9 +273,9 @@ class GoalScreen:
 
     Why: nearly every write of a control loop is one where each goal is inside its
     proven interval (``MotorLimit.inside``) and each step within its relative limit,
-    and ``decide_goals`` then clamps nothing and refuses nothing. ``accept`` finds
+    and ``decide_goals`` then clamps nothing and refuses nothing. ``step_sizes`` finds
     exactly those writes with a few ``map`` passes instead of a Python step per
-    motor, and returns their steps (for the report); for any other write it returns
+    motor, and returns their step sizes (for the report); for any other write it returns
     None and ``decide_goals`` decides as always. It only ever accepts a write that
     ``decide_goals`` accepts unchanged.
     """
@@ -306,26 +306,29 @@ class GoalScreen:
             relative.append(math.inf if rules.relative is None else rules.relative)
         return cls(motors, tuple(lows), tuple(highs), tuple(relative))
 
-    def accept(self, goals: Mapping[str, float], present: Mapping[str, float]) -> dict[str, float] | None:
-        """The steps of a write whose every goal passes on its own, or None (``decide_goals`` decides then).
+    def step_sizes(self, goals: Mapping[str, float], present: Mapping[str, float]) -> tuple[float, ...] | None:
+        """The step sizes (``|goal - present|``, in ``motors`` order) of a write whose every goal passes
+        on its own, or None (``decide_goals`` decides then).
 
         ``goals`` must hold exactly this screen's motors and ``present`` know every one of
         them. A nan goal, position or step fails the comparisons, so it is never accepted here.
+        Sizes, not signed steps: the safety report keeps each motor's largest size, and
+        nothing else of an accepted write is needed.
         """
-        if len(goals) != len(self.motors):
+        motors = self.motors
+        if len(goals) != len(motors):
             return None
         try:
-            values = tuple(map(goals.__getitem__, self.motors))
-            here = tuple(map(present.__getitem__, self.motors))
+            values = tuple(map(goals.__getitem__, motors))
+            sizes = tuple(map(abs, map(operator.sub, values, map(present.__getitem__, motors))))
         except KeyError:
             return None
-        steps = tuple(map(operator.sub, values, here))
         if (
             all(map(operator.le, self.lows, values))
             and all(map(operator.le, values, self.highs))
-            and all(map(operator.le, map(abs, steps), self.relative))
+            and all(map(operator.le, sizes, self.relative))
         ):
-            return dict(zip(self.motors, steps, strict=True))
+            return sizes
         return None
 
 

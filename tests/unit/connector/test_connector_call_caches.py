@@ -18,6 +18,7 @@ import time
 from typing import Any
 
 import pytest
+from armnet_agent.connector.allowlist import CALIBRATION_METHODS
 from armnet_agent.connector.cell import Counters
 from armnet_agent.connector.config import ArmConfig, MotorRange
 from armnet_agent.connector.errors import RequestError
@@ -88,11 +89,11 @@ def test_the_goal_screen_accepts_only_writes_decide_goals_accepts_unchanged() ->
             present["b"] = math.nan
         for clamp in (False, True):
             decision = decide_goals(goals, present, limits, normalize=True, clamp=clamp)
-            steps = screen.accept(goals, present) if screen is not None else None
-            if steps is not None:
+            sizes = screen.step_sizes(goals, present) if screen is not None else None
+            if sizes is not None:
                 accepted += 1
                 assert decision.violation is None and decision.clamped == () and decision.goals == goals
-                assert steps == decision.steps
+                assert dict(zip(screen.motors, sizes, strict=True)) == {m: abs(v) for m, v in decision.steps.items()}
     assert accepted > 50  # the screen does take writes (the usual one: the next test)
 
 
@@ -101,13 +102,13 @@ def test_the_goal_screen_declines_what_it_cannot_vouch_for() -> None:
     limits = compile_limits(facts, 5.0, normalize=True)
     screen = GoalScreen.build(("a", "b"), limits)
     assert screen is not None
-    assert screen.accept({"a": 1.0, "b": 2.0}, {"a": 0.0, "b": 0.0}) == {"a": 1.0, "b": 2.0}
-    assert screen.accept({"a": 1.0, "b": 9.0}, {"a": 0.0, "b": 0.0}) is None  # a step over the limit
-    assert screen.accept({"a": 1.0, "b": 170.0}, {"a": 0.0, "b": 168.0}) is None  # outside the calibrated range
-    assert screen.accept({"a": 1.0}, {"a": 0.0, "b": 0.0}) is None  # another motor list
-    assert screen.accept({"a": 1.0, "x": 0.0}, {"a": 0.0, "x": 0.0}) is None
-    assert screen.accept({"a": 1.0, "b": 2.0}, {"a": 0.0}) is None  # a position unknown
-    assert screen.accept({"a": 1.0, "b": math.nan}, {"a": 0.0, "b": 0.0}) is None
+    assert screen.step_sizes({"a": 1.0, "b": -2.0}, {"a": 0.0, "b": 0.0}) == (1.0, 2.0)
+    assert screen.step_sizes({"a": 1.0, "b": 9.0}, {"a": 0.0, "b": 0.0}) is None  # a step over the limit
+    assert screen.step_sizes({"a": 1.0, "b": 170.0}, {"a": 0.0, "b": 168.0}) is None  # outside the calibrated range
+    assert screen.step_sizes({"a": 1.0}, {"a": 0.0, "b": 0.0}) is None  # another motor list
+    assert screen.step_sizes({"a": 1.0, "x": 0.0}, {"a": 0.0, "x": 0.0}) is None
+    assert screen.step_sizes({"a": 1.0, "b": 2.0}, {"a": 0.0}) is None  # a position unknown
+    assert screen.step_sizes({"a": 1.0, "b": math.nan}, {"a": 0.0, "b": 0.0}) is None
     assert GoalScreen.build(("a", "x"), limits) is None  # not a motor of the bus
 
 
@@ -156,13 +157,18 @@ def test_the_one_step_goal_write_takes_only_what_the_long_way_accepts(motors, ca
         guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})
 
 
-def test_the_one_step_goal_write_follows_a_recalibration_and_stale_positions(motors, calibration) -> None:
+@pytest.mark.parametrize("method", sorted(CALIBRATION_METHODS["FeetechMotorsBus"] | {"connect", "read_calibration"}))
+def test_the_one_step_goal_write_follows_a_recalibration_and_stale_positions(motors, calibration, method) -> None:
     guard, handle = _guard_and_handle(motors, calibration)
+    handle.allow_calibration = True
     present = _middle(calibration)
     handle.present[True] = (time.monotonic(), dict(present))
     guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})
     assert guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
-    handle.obj.calibration["elbow_flex"].range_min += 10  # edited in place: the facts differ by value
+    # A call that may recalibrate (anything but KEEPS_CALIBRATION), which edits the calibration
+    # in place: the one-step path no longer vouches for the facts; the long way compares by value.
+    guard.check(handle, method, [], {})
+    handle.obj.calibration["elbow_flex"].range_min += 10
     assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
     guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})  # the long way rebuilds the rules
     assert guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])

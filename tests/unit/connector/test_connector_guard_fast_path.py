@@ -19,6 +19,7 @@ from armnet_agent.connector.config import MotorRange
 from armnet_agent.connector.errors import RequestError
 from armnet_agent.connector.hardware import DeviceLock, Handle
 from armnet_agent.connector.motion import (
+    KEEPS_CALIBRATION,
     BadMotorValue,
     _bound_arguments,
     _goal_rules,
@@ -200,3 +201,33 @@ def test_a_non_finite_goal_among_floats_is_refused(bad: float, motors: dict[str,
     with pytest.raises(BadMotorValue) as refused:
         write_arguments(handle, "sync_write", ["Goal_Position", {"gripper": 1.0, "elbow_flex": bad}], {})
     assert refused.value.kind == "non_finite"
+
+
+def test_lerobots_register_reads_and_writes_keep_the_calibration_and_the_motors(
+    sim_cell, motors: dict[str, Any], calibration: dict[str, Any]
+) -> None:
+    """``motion.KEEPS_CALIBRATION``: the goal fast path trusts the motors' facts across these
+    calls without comparing them again, so the installed LeRobot must never assign or edit a
+    bus's calibration or its motors' norm modes in them (on the simulator, the real bus)."""
+    bus = FeetechMotorsBus(port=sim_cell.arm.port, motors=motors, calibration=calibration)
+    bus.connect()
+    try:
+        table, entries = bus.calibration, dict(bus.calibration)
+        values = {m: dataclasses.astuple(c) for m, c in entries.items()}
+        modes = {m: motor.norm_mode for m, motor in bus.motors.items()}
+        present = bus.sync_read("Present_Position")
+        calls = {
+            "sync_read": lambda: bus.sync_read("Present_Position"),
+            "sync_write": lambda: bus.sync_write("Goal_Position", present),
+            "read": lambda: bus.read("Present_Position", "elbow_flex"),
+            "write": lambda: bus.write("Goal_Position", "elbow_flex", present["elbow_flex"]),
+        }
+        assert set(calls) == KEEPS_CALIBRATION
+        for call in calls.values():
+            call()
+            assert bus.calibration is table and bus.calibration == entries
+            assert all(bus.calibration[m] is entries[m] for m in entries)
+            assert {m: dataclasses.astuple(c) for m, c in bus.calibration.items()} == values
+            assert {m: motor.norm_mode for m, motor in bus.motors.items()} == modes
+    finally:
+        bus.disconnect(disable_torque=False)
