@@ -351,8 +351,9 @@ class MotionGuard:
         pause each costs several microseconds of cold caches. This takes the write
         only when every fact the long way would use is at hand and current: the
         interlock clear; the call's shape bound as (data_name, values) by
-        ``_bound_arguments`` before; the goals str -> finite float, for motors of
-        the bus; this tick's positions fresh; the motors' facts compared by value
+        ``_bound_arguments`` before; the goals finite floats, for exactly the motors
+        (in the order) the facts were built for, which the long way took only from
+        the bus's motors; this tick's positions fresh; the motors' facts compared by value
         (``_facts_key``) since the last call that may have changed the calibration
         (``KEEPS_CALIBRATION``); their rules and screen compiled for them and this
         limit. The same ``GoalScreen.step_sizes`` then decides, and the steps are recorded.
@@ -363,8 +364,7 @@ class MotionGuard:
             type(goals) is not dict or not goals or type(args[0]) is not str or args[0] != GOAL_POSITION
             or self.interlock.tripped
             or _bindings.get((type(obj), "sync_write", 2, ())) != _DATA_NAME_VALUES
-            or not set(map(type, goals.values())) <= _FLOAT_ONLY or not set(map(type, goals)) <= _STR_ONLY
-            or not math.isfinite(sum(goals.values())) or not obj.motors.keys() >= goals.keys()
+            or not set(map(type, goals.values())) <= _FLOAT_ONLY or not math.isfinite(sum(goals.values()))
             or handle.arm_config is None
         ):
             return False
