@@ -8,6 +8,7 @@ interlock on a violation. The rules themselves live in ``safety``.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import operator
@@ -154,7 +155,9 @@ def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tup
     normalize = bool(arguments.get("normalize", True))
     if method == "write":
         motor = arguments.get("motor")
-        values = {str(motor): _number(str(motor), arguments.get("value"))}
+        if type(motor) is not str:
+            raise RequestError("TypeError", f"{method}: motor must be a motor name (str), got {type(motor).__name__}")
+        values = {motor: _number(motor, arguments.get("value"))}
     else:
         raw = arguments.get("values")
         # Every key a str and every value a finite float: the goals are taken as they are.
@@ -169,8 +172,13 @@ def _write_values(handle: Handle, method: str, arguments: dict[str, Any]) -> tup
             values = dict(raw)
         elif isinstance(raw, dict):
             values = {}
-            for m, v in raw.items():
-                name = m if type(m) is str else str(m)
+            for name, v in raw.items():
+                if type(name) is not str:
+                    # Refused, not converted: str() of a look-alike (a str enum member equal to a
+                    # motor's name) would check one motor while LeRobot writes another.
+                    raise RequestError(
+                        "TypeError", f"{method}: values must be keyed by motor names (str), got {type(name).__name__}"
+                    )
                 # A finite float is taken as it is (the control loop's goals); anything else is converted or refused.
                 values[name] = v if type(v) is float and math.isfinite(v) else _number(name, v)
         else:
@@ -182,6 +190,27 @@ _FLOAT_ONLY = frozenset({float})
 _STR_ONLY = frozenset({str})
 #: How ``sync_write(data_name, values)`` binds two positional arguments (``_bindings``).
 _DATA_NAME_VALUES = ("data_name", "values")
+
+
+def calibration_problem(calibration: Any) -> str | None:
+    """Why ``calibration`` is not a calibration LeRobot can write (None when it is one).
+
+    LeRobot's ``write_calibration`` keeps the job's dict as the bus's calibration without
+    looking at its values, and the guard converts every later goal with it: a value that
+    is not a whole number (an array, a float, a bool) must not get that far.
+    """
+    if type(calibration) is not dict or not calibration:
+        return "calibration_dict must be a non-empty dict of motor name -> MotorCalibration"
+    for motor, entry in calibration.items():
+        if type(motor) is not str:
+            return f"motor names must be str, got {type(motor).__name__}"
+        if not dataclasses.is_dataclass(entry) or isinstance(entry, type):
+            return f"{motor}: expected a MotorCalibration, got {type(entry).__name__}"
+        for field in dataclasses.fields(entry):
+            value = getattr(entry, field.name)
+            if type(value) is not int:
+                return f"{motor}.{field.name} must be an int, got {type(value).__name__}"
+    return None
 
 
 def _motor_range(calibration: Any, motor: str) -> MotorRange | None:
@@ -221,10 +250,11 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
     they change only when the customer recalibrates.
     """
     names = tuple(motors)
+    epoch = handle.calibration_epoch
     key = _facts_key(handle, names)
     cached = handle.facts_cache
-    handle.facts_epoch = handle.calibration_epoch  # compared by value now: current until the next such call
     if cached is not None and cached[0] == key:
+        handle.facts_epoch = epoch  # compared by value: current until the next call that may recalibrate
         return cached[1]
     bus_motors = handle.obj.motors
     calibration = handle.obj.calibration or {}
@@ -238,6 +268,9 @@ def _motor_facts(handle: Handle, motors: Any) -> dict[str, MotorFacts]:
         for m in names
     }
     handle.facts_cache = (key, facts)
+    # Only now: a comparison or a build that raised (a calibration of odd values) leaves the
+    # old facts untrusted by the fast path, so every later write takes the long way again.
+    handle.facts_epoch = epoch
     return facts
 
 
@@ -313,6 +346,10 @@ class MotionGuard:
             message = CALIBRATION_REFUSAL.format(method=method)
             self.recorder.record_refusal("calibration", None, message, tripped=False)
             raise RequestError("NotAllowed", message)
+        if method == "write_calibration":
+            problem = calibration_problem(_bound_arguments(handle.obj, method, args, kwargs).get("calibration_dict"))
+            if problem is not None:
+                raise RequestError("TypeError", f"write_calibration: {problem}; nothing was written")
         if not motion:
             return
         if goal_writer and method == "sync_write" and not kwargs and self._accepts_plain_goals(handle, args):

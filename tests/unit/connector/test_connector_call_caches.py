@@ -167,13 +167,43 @@ def test_the_one_step_goal_write_follows_a_recalibration_and_stale_positions(mot
     assert guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
     # A call that may recalibrate (anything but KEEPS_CALIBRATION), which edits the calibration
     # in place: the one-step path no longer vouches for the facts; the long way compares by value.
-    guard.check(handle, method, [], {})
+    guard.check(handle, method, [dict(calibration)] if method == "write_calibration" else [], {})
     handle.obj.calibration["elbow_flex"].range_min += 10
     assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
     guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})  # the long way rebuilds the rules
     assert guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
     handle.present[True] = (time.monotonic() - 120.0, dict(present))  # this tick's read is too old
     assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
+
+
+def test_facts_whose_comparison_raises_stay_untrusted_by_the_one_step_goal_write(motors, calibration) -> None:
+    """A calibration of odd values (here an array id) makes the long way's comparison raise:
+    every later write must take the long way and raise again, never the old facts' fast path."""
+    import numpy as np
+
+    guard, handle = _guard_and_handle(motors, calibration)
+    present = _middle(calibration)
+    handle.present[True] = (time.monotonic(), dict(present))
+    guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})
+    assert guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
+    guard.check(handle, "read_calibration", [], {})
+    handle.obj.calibration["shoulder_pan"].id = np.array([1, 1])
+    for _ in range(2):
+        with pytest.raises(ValueError, match="ambiguous"):
+            guard.check(handle, "sync_write", ["Goal_Position", dict(present)], {})
+        assert not guard._accepts_plain_goals(handle, ["Goal_Position", dict(present)])
+
+
+@pytest.mark.parametrize(
+    ("method", "args"),
+    [("sync_write", ["Goal_Position", {1: 0.0}]), ("write", ["Goal_Position", 1, 0.0])],
+)
+def test_a_goal_keyed_by_anything_but_a_motor_name_is_refused(motors, calibration, method, args) -> None:
+    guard, handle = _guard_and_handle(motors, calibration)
+    handle.present[True] = (time.monotonic(), _middle(calibration))
+    with pytest.raises(RequestError) as refused:
+        guard.check(handle, method, args, {})
+    assert refused.value.reply()["error_type"] == "TypeError" and "motor name" in refused.value.message
 
 
 # -- the arguments taken as parsed ------------------------------------------------------

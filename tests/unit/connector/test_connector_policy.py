@@ -288,6 +288,33 @@ def test_a_calibration_job_may_rewrite_eeprom_and_the_connector_restores_the_cel
     assert connector.safety_report().calibration["arm"][-1] == "end: the cell's calibration is in place"
 
 
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("id", [1, 1]), ("range_min", 870.5), ("range_max", True), ("homing_offset", "0")],
+)
+def test_a_calibration_job_may_not_write_a_calibration_of_odd_values(
+    sim_cell, make_connector, cell_config, motors, calibration, field, value
+) -> None:
+    """LeRobot keeps write_calibration's dict as the bus's calibration unchecked, and every later
+    goal is converted with it: a value that is not a whole number is refused before the bus."""
+    import dataclasses
+
+    import numpy as np
+
+    connector = make_connector(cell_config(sim_cell, allowCalibrationJobs=True))
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
+    job.connect()
+    odd = dict(calibration)
+    odd["shoulder_pan"] = dataclasses.replace(
+        calibration["shoulder_pan"], **{field: np.array(value) if isinstance(value, list) else value}
+    )
+    with pytest.raises(TypeError, match=rf"shoulder_pan\.{field} must be an int, .*; nothing was written"):
+        job.write_calibration(odd)
+    assert job.read_calibration() == calibration  # the servos' EEPROM kept the cell's calibration
+    job.write_calibration(dict(calibration))  # whole numbers are written as before
+    job.disconnect()
+
+
 def test_a_calibration_job_still_may_not_re_address_a_servo(sim_cell, make_connector, cell_config, motors) -> None:
     connector = make_connector(cell_config(sim_cell, allowCalibrationJobs=True))
     job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
