@@ -144,3 +144,21 @@ def test_rotation_backend_and_capture_size_read_as_on_opencv_camera() -> None:
     assert (cam.capture_width, cam.capture_height) == (240, 320)
     assert cam.backend == a_config().backend
     assert SimulatedCamera(a_config()).rotation is None
+
+
+def test_each_rendered_picture_is_its_own_and_drawing_on_one_leaves_the_next_clean() -> None:
+    """render_arms copies one cached background per size: a picture a caller draws on (or one
+    arm drawn in place) must never reach the next picture."""
+    from armnet_agent.sim.render import render_arms
+
+    joints = {"shoulder_lift": 10.0, "elbow_flex": 20.0, "wrist_flex": 5.0, "gripper": 30.0}
+    for arms in ({"arm": joints}, {"left": joints, "right": joints}, {}):
+        first = render_arms(arms, 320, 240)
+        assert first.flags.writeable and first.flags.c_contiguous
+        first[:] = 255
+        again = render_arms(arms, 320, 240)
+        assert not np.array_equal(first, again)
+        assert np.array_equal(again, render_arms(arms, 320, 240))
+    moved = render_arms({"arm": {**joints, "elbow_flex": 60.0}}, 320, 240)
+    assert not np.array_equal(moved, render_arms({"arm": joints}, 320, 240))
+    assert np.array_equal(render_arms({"arm": joints}, 320, 240)[0, 0], (32, 34, 40))  # the background
