@@ -315,6 +315,30 @@ def test_a_calibration_job_may_not_write_a_calibration_of_odd_values(
     job.disconnect()
 
 
+@pytest.mark.parametrize(
+    ("field", "value", "error"),
+    [("range_min", 2**63, "exceeds the maximum"), ("range_max", -5, "Negative values"),
+     ("homing_offset", 10**9, "exceeds 2047")],
+)
+def test_a_calibration_beyond_what_its_registers_hold_is_refused_and_not_kept(
+    sim_cell, make_connector, cell_config, motors, calibration, field, value, error
+) -> None:
+    """Whole numbers past a register's range: LeRobot's own encoding refuses them before it
+    keeps the dict, so neither the servos nor the guard's conversion see them."""
+    import dataclasses
+
+    connector = make_connector(cell_config(sim_cell, allowCalibrationJobs=True))
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
+    job.connect()
+    odd = dict(calibration)
+    odd["shoulder_pan"] = dataclasses.replace(calibration["shoulder_pan"], **{field: value})
+    with pytest.raises(ValueError, match=error):
+        job.write_calibration(odd)
+    assert job.read_calibration() == calibration
+    assert job.calibration == calibration  # the bus kept the cell's calibration, not the job's
+    job.disconnect()
+
+
 def test_a_calibration_job_still_may_not_re_address_a_servo(sim_cell, make_connector, cell_config, motors) -> None:
     connector = make_connector(cell_config(sim_cell, allowCalibrationJobs=True))
     job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
