@@ -210,6 +210,9 @@ def calibration_problem(calibration: Any) -> str | None:
             value = getattr(entry, field.name)
             if type(value) is not int:
                 return f"{motor}.{field.name} must be an int, got {type(value).__name__}"
+        drive_mode = getattr(entry, "drive_mode", 0)
+        if drive_mode not in (0, 1):
+            return f"{motor}.drive_mode must be 0 or 1, got {drive_mode}"
     return None
 
 

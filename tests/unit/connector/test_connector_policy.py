@@ -290,7 +290,7 @@ def test_a_calibration_job_may_rewrite_eeprom_and_the_connector_restores_the_cel
 
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("id", [1, 1]), ("range_min", 870.5), ("range_max", True), ("homing_offset", "0")],
+    [("id", [1, 1]), ("range_min", 870.5), ("range_max", True), ("homing_offset", "0"), ("drive_mode", 7)],
 )
 def test_a_calibration_job_may_not_write_a_calibration_of_odd_values(
     sim_cell, make_connector, cell_config, motors, calibration, field, value
@@ -308,7 +308,7 @@ def test_a_calibration_job_may_not_write_a_calibration_of_odd_values(
     odd["shoulder_pan"] = dataclasses.replace(
         calibration["shoulder_pan"], **{field: np.array(value) if isinstance(value, list) else value}
     )
-    with pytest.raises(TypeError, match=rf"shoulder_pan\.{field} must be an int, .*; nothing was written"):
+    with pytest.raises(TypeError, match=rf"shoulder_pan\.{field} must be (an int|0 or 1), .*; nothing was written"):
         job.write_calibration(odd)
     assert job.read_calibration() == calibration  # the servos' EEPROM kept the cell's calibration
     job.write_calibration(dict(calibration))  # whole numbers are written as before
