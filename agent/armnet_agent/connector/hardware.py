@@ -182,7 +182,7 @@ def _calibration_refusal(given: Any, cell: dict[str, Any]) -> str | None:
 def create_feetech(
     args: list[Any], kwargs: dict[str, Any], config: ConnectorConfig, locks: DeviceLocks,
     ranges: dict[str, dict[str, MotorRange]], *, interlock: Interlock, recorder: SafetyRecorder,
-    end_recording: Callable[[float], bool] | None = None,
+    end_recording: Callable[[float], bool] | None = None, on_lost_reply: Callable[[], None] | None = None,
 ) -> Handle:
     """The job's bus, built from the cell's description: the job only chooses a subset of its motors.
 
@@ -227,6 +227,8 @@ def create_feetech(
     )
     if end_recording is not None:
         policy = dataclasses.replace(policy, end_recording=end_recording)
+    if on_lost_reply is not None:
+        policy = dataclasses.replace(policy, on_lost_reply=on_lost_reply)
     obj = policed_bus_class()(port=arm.port, motors=motors, calibration=cell_calibration, armnet_policy=policy)
     return Handle(
         "FeetechMotorsBus", obj, locks.get(arm.port), overrides={"port": port},

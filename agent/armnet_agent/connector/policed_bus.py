@@ -28,6 +28,7 @@ from .interlock import Interlock
 from .registers import is_goal_register, needs_current_value, write_refusal
 from .reply_window import LATE_REPLY_WAIT_S
 from .report import SafetyRecorder
+from .retry import retry_lost_replies
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +69,8 @@ class BusPolicy:
     #: confirmation or a stop): waits up to the given seconds, True when the operator ends it.
     end_recording: Callable[[float], bool] = _never_ends
     recording_max_s: float = RANGE_RECORDING_MAX_S
+    #: Called once per servo reply the connector's own reads lost and asked again (a metric).
+    on_lost_reply: Callable[[], None] = _nothing
     #: Per register address: the servo ids whose register there is a goal (``is_goal_register``).
     #: Filled on first use; the cell's motor table and the control tables never change.
     _goal_ids: dict[int, frozenset[int]] = field(default_factory=dict, init=False, compare=False, repr=False)
@@ -180,24 +183,33 @@ def policed_bus_class() -> type:
             (a reset confirmation, or a stop), or ``recording_max_s`` passes; the ranges
             go back to the job as the call's value. ``display_values`` is accepted and
             ignored (the job prints what it gets). Same refusal as LeRobot when a joint
-            did not move.
+            did not move. Unlike LeRobot's, a poll that lost a servo reply is asked again:
+            one late reply in minutes of polling must not throw the operator's work away.
             """
             del display_values
             policy = self._armnet_policy
             names = self._get_motors_list(motors)
-            mins = dict(self.sync_read("Present_Position", names, normalize=False))
+            mins = dict(self._armnet_raw_positions(names))
             maxes = dict(mins)
             deadline = time.monotonic() + policy.recording_max_s
             ended = False
             while not ended:
                 ended = policy.end_recording(RANGE_RECORDING_POLL_S) or time.monotonic() >= deadline
-                positions = self.sync_read("Present_Position", names, normalize=False)
+                positions = self._armnet_raw_positions(names)
                 mins = {m: min(positions[m], v) for m, v in mins.items()}
                 maxes = {m: max(positions[m], v) for m, v in maxes.items()}
             unmoved = [m for m in names if mins[m] == maxes[m]]
             if unmoved:
                 raise ValueError(f"Some motors have the same min and max values: {unmoved}; move every joint through its range")
             return mins, maxes
+
+        def _armnet_raw_positions(self, names: list[str]) -> dict[str, Any]:
+            """The motors' raw positions; a lost reply is asked again (``retry``), as a job's own read is."""
+            return retry_lost_replies(
+                self, "record_ranges_of_motion's sync_read",
+                lambda: self.sync_read("Present_Position", names, normalize=False),
+                on_retry=self._armnet_policy.on_lost_reply,
+            )
 
         def _armnet_eeprom(self) -> dict[int, tuple[int, int, int] | None]:
             held: dict[int, tuple[int, int, int] | None] = {}

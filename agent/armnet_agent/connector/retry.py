@@ -25,10 +25,12 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
-from .hardware import Handle
 from .reply_window import LATE_REPLY_WAIT_S
+
+if TYPE_CHECKING:  # the policed bus uses this module too, and hardware imports the policed bus
+    from .hardware import Handle
 
 log = logging.getLogger(__name__)
 
@@ -140,25 +142,45 @@ def with_read_retry(
     connector checks the call again there, so an interlock tripped during the
     wait (a deadline, a cancel, a lost device) holds for a write's retry too.
     """
-    connecting = what == "connect"
-    if connecting and getattr(handle.obj, "is_connected", False):
+    if what == "connect" and getattr(handle.obj, "is_connected", False):
         return call()  # already connected: LeRobot raises at once, nothing to retry
-    delays = retry_delays(what)
+    return retry_lost_replies(
+        handle.obj, f"{handle.class_name}.{what}", call, connecting=what == "connect",
+        on_retry=on_retry, before_retry=before_retry, sleep=sleep,
+    )
+
+
+def retry_lost_replies(
+    bus: Any,
+    label: str,
+    call: Callable[[], _T],
+    *,
+    on_retry: Callable[[], None],
+    connecting: bool = False,
+    before_retry: Callable[[], None] | None = None,
+    sleep: Callable[[float], None] = time.sleep,
+) -> _T:
+    """``with_read_retry`` for a bus without a handle: the connector's own reads inside a long call.
+
+    ``label`` names the read in the debug log. A ``connect`` (``connecting``) closes the
+    half-open port between attempts; any other read drops the late replies instead.
+    """
+    delays = retry_delays("connect" if connecting else label)
     for attempt in range(len(delays) + 1):
         try:
             return call()
         except Exception as exc:
             if attempt == len(delays) or not is_lost_reply(exc, connecting=connecting):
                 raise
-            log.debug("%s.%s lost a reply (%s); retry %d of %d", handle.class_name, what,
+            log.debug("%s lost a reply (%s); retry %d of %d", label,
                       str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__,
                       attempt + 1, len(delays))
             on_retry()
             sleep(delays[attempt])
             if connecting:
-                _close_half_open(handle.obj)
+                _close_half_open(bus)
             else:
-                drop_pending_input(handle.obj)
+                drop_pending_input(bus)
             if before_retry is not None:
                 before_retry()
     raise AssertionError("unreachable")

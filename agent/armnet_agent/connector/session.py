@@ -200,7 +200,7 @@ class RobotSession(Session):
         if class_name == "FeetechMotorsBus":
             handle = create_feetech(
                 args, kwargs, cell.config, cell.locks, cell.ranges, interlock=cell.interlock, recorder=cell.guard.recorder,
-                end_recording=cell.inputs_end_recording,
+                end_recording=cell.inputs_end_recording, on_lost_reply=self._count_retry,
             )
         elif class_name == "OpenCVCamera":
             assert cell.camera_factory is not None

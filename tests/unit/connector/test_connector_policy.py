@@ -347,10 +347,12 @@ def test_a_calibration_job_still_may_not_re_address_a_servo(sim_cell, make_conne
     job.disconnect()
 
 
-def test_a_calibration_jobs_range_recording_ends_on_the_operators_confirmation_not_the_connectors_stdin(
-    sim_cell, make_connector, cell_config, motors, capsys
-) -> None:
-    """pytest's stdin cannot be read: LeRobot's own loop (Enter on stdin) would fail here."""
+def _record_ranges(sim_cell, make_connector, cell_config, motors, *, lose_replies_at_poll: int | None = None):
+    """A calibration job records its ranges while the operator moves each joint by 150 ticks and confirms.
+
+    Returns the arm's start positions, the recorded (mins, maxes) and the connector.
+    ``lose_replies_at_poll``: at that poll the simulated wrist loses its next reply.
+    """
     from armnet_agent.connector import LocalOperatorInputs
 
     start = sim_cell.arm.positions()
@@ -358,6 +360,8 @@ def test_a_calibration_jobs_range_recording_ends_on_the_operators_confirmation_n
 
     def operator(inputs: LocalOperatorInputs) -> None:  # called at each poll of the recording
         polls.append(1)
+        if len(polls) == lose_replies_at_poll:
+            sim_cell.arm.drop_replies("wrist_flex", 1)
         if len(polls) == 2:
             for motor, position in start.items():
                 sim_cell.arm.move_by_hand(motor, position + 150)
@@ -370,7 +374,26 @@ def test_a_calibration_jobs_range_recording_ends_on_the_operators_confirmation_n
     job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors)
     job.connect()
     job.disable_torque()
-    mins, maxes = job.record_ranges_of_motion()
+    ranges = job.record_ranges_of_motion()
     job.disconnect()
+    return start, ranges, connector
+
+
+def test_a_calibration_jobs_range_recording_ends_on_the_operators_confirmation_not_the_connectors_stdin(
+    sim_cell, make_connector, cell_config, motors, capsys
+) -> None:
+    """pytest's stdin cannot be read: LeRobot's own loop (Enter on stdin) would fail here."""
+    start, (mins, maxes), _connector = _record_ranges(sim_cell, make_connector, cell_config, motors)
     assert {m: (mins[m], maxes[m]) for m in start} == {m: (p, p + 150) for m, p in start.items()}
     assert "NAME" not in capsys.readouterr().out  # no live table on the connector's terminal
+
+
+def test_a_range_recording_poll_that_lost_a_servo_reply_asks_again_and_the_recording_completes(
+    sim_cell, make_connector, cell_config, motors
+) -> None:
+    """A loaded CI host lost one reply in a recording's polls and the whole calibration failed with it."""
+    start, (mins, maxes), connector = _record_ranges(
+        sim_cell, make_connector, cell_config, motors, lose_replies_at_poll=3
+    )
+    assert {m: (mins[m], maxes[m]) for m in start} == {m: (p, p + 150) for m, p in start.items()}
+    assert connector.counters.bus_retries >= 1
