@@ -17,6 +17,7 @@ from types import FrameType
 
 from .calibration import Calibration, CalibrationError, load_calibration
 from .presets import PRESETS, build_cell
+from .pty_server import interleave_serving_threads
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     except (CalibrationError, ValueError) as exc:
         print(f"armnet sim: {exc}", file=sys.stderr)
         return 2
+    interleave_serving_threads()
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:

@@ -204,6 +204,9 @@ def _child_main(
     """Child entry point: serve the cell until the parent says stop or goes away."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     from .presets import build_cell
+    from .pty_server import interleave_serving_threads
+
+    interleave_serving_threads()
 
     try:
         cell = build_cell(preset, **options).start()

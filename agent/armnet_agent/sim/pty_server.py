@@ -36,6 +36,7 @@ import logging
 import os
 import select
 import struct
+import sys
 import termios
 import threading
 import time
@@ -54,6 +55,9 @@ QUIET_AFTER_S = 0.001
 REALTIME_PRIORITY = 1
 #: Nice value requested for the serving thread when real-time scheduling is refused.
 BOOSTED_NICE = -10
+#: The interpreter's thread switch interval in a process that only simulates a cell (the
+#: interpreter's default is 5 ms): see ``interleave_serving_threads``.
+SERVING_SWITCH_INTERVAL_S = 0.0002
 #: Linux ``TCGETS2``: reads ``struct termios2``, whose ``c_ospeed`` (bytes 40..44) is the
 #: line speed in bit/s, also for the non-standard rates pyserial sets with ``BOTHER``.
 _TCGETS2 = 0x802C542A
@@ -223,6 +227,20 @@ def _set_line_speed(fd: int, speed: int) -> None:
     attrs = termios.tcgetattr(fd)
     attrs[4] = attrs[5] = speed
     termios.tcsetattr(fd, termios.TCSANOW, attrs)
+
+
+def interleave_serving_threads() -> None:
+    """In a process of its own, let the simulator's threads take turns at a fine grain.
+
+    Real servos on two buses answer in parallel, each on its own CPU. Here every arm's
+    serving thread shares one interpreter lock: a read on one arm that arrived while the
+    other arm's thread applied a kept goal write (~300 us of Python) waited for it, up
+    to the interpreter's default 5 ms switch interval, and a bimanual control loop saw
+    that wait as noise in its read times. Process-wide, so only the simulator's own
+    processes call it (``SimulatedCellProcess``'s child, ``armnet sim``), never a process
+    that merely hosts a simulator among other work.
+    """
+    sys.setswitchinterval(SERVING_SWITCH_INTERVAL_S)
 
 
 def _boost_this_thread() -> None:
