@@ -248,6 +248,8 @@ def test_a_followed_job_is_cancelled_when_its_client_is_killed_and_a_detached_on
     assert detached.wait(60) == 0, detached.stderr.read() if detached.stderr else ""
     watcher = armnet(bed, "logs", "-f", "detached", stdout=logs["watcher"], stderr=logs["watcher"])
     try:
+        # The followed client runs beside the detached one: on a loaded host it may create its job later.
+        bed.wait(lambda: bed.job_exists("followed"), timeout=60, what="the followed client to create its job")
         assert bed.job("followed")["metadata"]["annotations"]["armnet.io/follower-timeout-seconds"] == "5"
         assert "annotations" not in bed.job("detached")["metadata"]
         for name in ("followed", "detached"):
