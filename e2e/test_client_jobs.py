@@ -243,7 +243,7 @@ def test_a_followed_job_is_cancelled_when_its_client_is_killed_and_a_detached_on
                       "--args", '{"lines": 400, "pause": 0.25}', "--timeout", "200", "--name", "followed",
                       "--follower-timeout", str(window), stdout=logs["followed"], stderr=logs["followed"])
     detached = armnet(bed, "submit", "--detach", "--image", image, "--embodiment", "lerobot/so-101",
-                      "--task", bed.node, "--args", '{"lines": 60, "pause": 0.25}', "--timeout", "200",
+                      "--task", bed.node, "--args", '{"lines": 240, "pause": 0.25}', "--timeout", "200",
                       "--name", "detached")
     assert detached.wait(60) == 0, detached.stderr.read() if detached.stderr else ""
     watcher = armnet(bed, "logs", "-f", "detached", stdout=logs["watcher"], stderr=logs["watcher"])

@@ -210,7 +210,8 @@ def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
     assert st["result"]["error"] == f"stopped by cell operator {OPERATOR}"
     # Graceful: the job saw is_shutting_down() (the grace window the interlock trip opens) and returned.
     assert st["result"].get("returnValue") == {"stopped_cleanly": True}, json.dumps(st)[:3000]
-    assert deadline_trips(bed) >= 1  # a cancel trips the interlock the way a deadline does
+    # A cancel trips the interlock the way a deadline does; counted just after the status is written.
+    bed.wait(lambda: deadline_trips(bed) >= 1, 10, "the cancel's interlock trip counted")
 
     def ready_again() -> bool:
         status = bed.cell(cell).get("status") or {}

@@ -115,7 +115,8 @@ def test_a_job_dispatched_to_a_cell_that_goes_offline_is_requeued_to_another(bed
     bed.alive.discard(flaky)
     spare = bed.cell("b-spare")
     body = bed.wait_job("j", phase="dispatched", cellName=spare)
-    assert "Requeued" in bed.events("j")
+    # Events go out from a background poster: the rebind may be visible before the Event is.
+    bed.wait("a Requeued event", lambda: "Requeued" in bed.events("j"))
     bed.wait("the requeue counted", lambda: operator.metrics.requeues._value.get() == 1)
     bed.wait("the offline cell marked Offline and released", lambda: (
         bed.get_cell(flaky)["status"].get("phase") == "Offline" and not bed.get_cell(flaky)["status"].get("currentJob")))

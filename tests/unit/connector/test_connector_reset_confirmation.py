@@ -93,9 +93,8 @@ def waiting_reset(inputs: LocalOperatorInputs, timeout_s: float) -> tuple[thread
 def test_each_reset_wait_has_a_number_of_its_own_while_it_waits() -> None:
     inputs = LocalOperatorInputs()
     assert inputs.pending_reset_wait() is None
-    first, _ = waiting_reset(inputs, 0.05)
-    first.join(10)
-    assert inputs.pending_reset_wait() is None  # timed out: nothing waits
+    assert inputs.wait_reset_confirmation(0.05) is False  # wait number 1, timed out
+    assert inputs.pending_reset_wait() is None  # nothing waits
     second, _ = waiting_reset(inputs, 10)
     assert inputs.pending_reset_wait() == 2
     inputs.confirm_reset_wait(2)
@@ -112,8 +111,7 @@ def test_a_confirmation_naming_the_waiting_reset_confirms_it() -> None:
 
 def test_a_confirmation_naming_an_earlier_reset_wait_is_dropped_and_the_reset_keeps_waiting() -> None:
     inputs = LocalOperatorInputs()
-    first, _ = waiting_reset(inputs, 0.05)
-    first.join(10)
+    assert inputs.wait_reset_confirmation(0.05) is False  # wait number 1, timed out
     second, result = waiting_reset(inputs, 10)
     assert inputs.confirm_reset_wait(1) is False
     assert inputs.ignored_confirmations == 1 and inputs.pending_reset_wait() == 2
