@@ -242,7 +242,7 @@ class CellState:
             try:
                 with cell_bus(arm, ranges) as bus:
                     report = move_to_rest(bus, name, rest_pose(arm, ranges), self.config.rest_speed_ticks_per_second,
-                                          deadline=deadline)
+                                          deadline=deadline, on_lost_reply=self._count_lost_reply)
             except Exception as exc:  # noqa: BLE001 — reported, with the bus's own words
                 report = RestReport(name, False, failure=f"{type(exc).__name__}: {bounded(str(exc), 300)}")
             finally:
@@ -270,6 +270,9 @@ class CellState:
                 "ResetTimeoutException",
                 f"{message}; the cell's interlock is tripped. Finish up (save your data) and return.",
             )
+
+    def _count_lost_reply(self) -> None:
+        self.counters.bus_retries += 1
 
     def inputs_end_recording(self, timeout_s: float) -> bool:
         """A calibration job's ``record_ranges_of_motion`` ends on the operator's reset confirmation or stop.

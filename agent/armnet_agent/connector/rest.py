@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 from .config import ArmConfig, MotorRange
+from .retry import retry_lost_replies
 from .safety import RestWalk
 
 log = logging.getLogger(__name__)
@@ -114,20 +115,36 @@ def torque_off(bus: Any) -> bool:
 
 
 def move_to_rest(
-    bus: Any, arm_name: str, target: dict[str, int], speed_ticks_per_s: float, *, deadline: float | None = None
+    bus: Any, arm_name: str, target: dict[str, int], speed_ticks_per_s: float, *, deadline: float | None = None,
+    on_lost_reply: Callable[[], None] = lambda: None,
 ) -> RestReport:
     """Walk the cell's ``bus`` to ``target`` (raw ticks) at ``speed_ticks_per_s``, then read back where it ended.
 
     ``deadline`` (``time.monotonic()``) ends the walk and the settling early: at a
     job's end the grace window is the hard limit and torque off must still fit in
-    it, so a walk cut short is reported as not reached, never waited out.
+    it, so a walk cut short is reported as not reached, never waited out. A position
+    read that lost a servo reply is asked again the connector's way (``retry``: past
+    the late reply, which is dropped; LeRobot's own ``num_retry`` asks at once and takes
+    the late reply as the answer), within ``deadline``; ``on_lost_reply`` counts each.
     """
+
+    def positions() -> dict[str, int]:
+        def in_time() -> None:
+            if _past(deadline):
+                raise TimeoutError("the stop's time for a rest ran out while a servo reply was lost")
+
+        read = retry_lost_replies(
+            bus, "rest's sync_read", lambda: bus.sync_read("Present_Position", motors, normalize=False),
+            on_retry=on_lost_reply, before_retry=in_time,
+        )
+        return {m: int(v) for m, v in read.items()}
+
     motors = [m for m in target if m in bus.motors]
     if not motors:
         return RestReport(arm_name, True)
     if _past(deadline):  # torque is not even switched on for a walk that cannot take a step
         return RestReport(arm_name, False, failure="the stop's time for a rest ran out before it began")
-    present = {m: int(v) for m, v in bus.sync_read("Present_Position", motors, normalize=False, num_retry=RETRIES).items()}
+    present = positions()
     # Hold where we are before torque comes on, so a stale goal cannot make the arm jump.
     bus.sync_write("Goal_Position", present, normalize=False, num_retry=RETRIES)
     bus.enable_torque(motors, num_retry=RETRIES)
@@ -144,8 +161,8 @@ def move_to_rest(
     if deadline is not None:
         settle_deadline = min(settle_deadline, deadline)
     while True:
-        now = bus.sync_read("Present_Position", motors, normalize=False, num_retry=RETRIES)
-        errors = {m: walk.goal[m] - int(now[m]) for m in motors}
+        reached = positions()
+        errors = {m: walk.goal[m] - reached[m] for m in motors}
         if all(abs(e) <= SETTLE_TOLERANCE_TICKS for e in errors.values()):
             return RestReport(arm_name, True, errors)
         if time.monotonic() >= settle_deadline:

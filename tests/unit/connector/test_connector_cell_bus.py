@@ -112,6 +112,23 @@ def test_a_rest_that_cannot_reach_a_servo_is_reported_not_ok(connector, client_f
     assert record.as_dict()["rests"][0]["reached"] is False
 
 
+def test_a_rest_whose_position_reads_lose_servo_replies_asks_again_and_reaches_rest(connector, sim_cell) -> None:
+    """LeRobot's own num_retry asked again at once and took the late reply as its answer (a loaded CI host).
+
+    The connector's own bus, connected first, so the lost replies are the rest's position reads.
+    """
+    from armnet_agent.connector.rest import cell_bus, move_to_rest, rest_pose
+
+    arm, ranges = connector.config.arms["arm"], connector.cell.ranges["arm"]
+    lost: list[int] = []
+    with cell_bus(arm, ranges) as bus:
+        sim_cell.arm.drop_replies("elbow_flex", 2)  # the first position read and its first retry
+        report = move_to_rest(bus, "arm", rest_pose(arm, ranges), 2000.0, on_lost_reply=lambda: lost.append(1))
+    assert report.reached, report.message()
+    assert at_rest(sim_cell), sim_cell.arm.positions()
+    assert len(lost) == 2
+
+
 def test_a_rest_that_ends_outside_its_tolerance_is_reported_not_ok(connector, client_for, sim_cell) -> None:
     """Someone holds the wrist far from its rest pose for the whole move."""
     held_at = REST["wrist_roll"] - 800
