@@ -242,7 +242,7 @@ class CellState:
             try:
                 with cell_bus(arm, ranges) as bus:
                     report = move_to_rest(bus, name, rest_pose(arm, ranges), self.config.rest_speed_ticks_per_second,
-                                          deadline=deadline, on_lost_reply=self._count_lost_reply)
+                                          deadline=deadline, on_lost_reply=self.count_bus_retry)
             except Exception as exc:  # noqa: BLE001 — reported, with the bus's own words
                 report = RestReport(name, False, failure=f"{type(exc).__name__}: {bounded(str(exc), 300)}")
             finally:
@@ -271,7 +271,8 @@ class CellState:
                 f"{message}; the cell's interlock is tripped. Finish up (save your data) and return.",
             )
 
-    def _count_lost_reply(self) -> None:
+    def count_bus_retry(self) -> None:
+        """One servo reply lost and asked again (``retry``), by any of the connector's reads."""
         self.counters.bus_retries += 1
 
     def inputs_end_recording(self, timeout_s: float) -> bool:

@@ -127,6 +127,9 @@ def move_to_rest(
     the late reply, which is dropped; LeRobot's own ``num_retry`` asks at once and takes
     the late reply as the answer), within ``deadline``; ``on_lost_reply`` counts each.
     """
+    motors = [m for m in target if m in bus.motors]
+    if not motors:
+        return RestReport(arm_name, True)
 
     def positions() -> dict[str, int]:
         def in_time() -> None:
@@ -139,9 +142,6 @@ def move_to_rest(
         )
         return {m: int(v) for m, v in read.items()}
 
-    motors = [m for m in target if m in bus.motors]
-    if not motors:
-        return RestReport(arm_name, True)
     if _past(deadline):  # torque is not even switched on for a walk that cannot take a step
         return RestReport(arm_name, False, failure="the stop's time for a rest ran out before it began")
     present = positions()

@@ -165,7 +165,7 @@ def retry_lost_replies(
     ``label`` names the read in the debug log. A ``connect`` (``connecting``) closes the
     half-open port between attempts; any other read drops the late replies instead.
     """
-    delays = retry_delays("connect" if connecting else label)
+    delays = CONNECT_RETRY_DELAYS_S if connecting else LOOP_RETRY_DELAYS_S
     for attempt in range(len(delays) + 1):
         try:
             return call()

@@ -200,7 +200,7 @@ class RobotSession(Session):
         if class_name == "FeetechMotorsBus":
             handle = create_feetech(
                 args, kwargs, cell.config, cell.locks, cell.ranges, interlock=cell.interlock, recorder=cell.guard.recorder,
-                end_recording=cell.inputs_end_recording, on_lost_reply=self._count_retry,
+                end_recording=cell.inputs_end_recording, on_lost_reply=cell.count_bus_retry,
             )
         elif class_name == "OpenCVCamera":
             assert cell.camera_factory is not None
@@ -226,13 +226,10 @@ class RobotSession(Session):
         else:
             with handle.lock:
                 if is_read(handle.class_name, name, kind="get"):
-                    value = with_read_retry(handle, name, lambda: getattr(handle.obj, name), on_retry=self._count_retry)
+                    value = with_read_retry(handle, name, lambda: getattr(handle.obj, name), on_retry=self.cell.count_bus_retry)
                 else:
                     value = getattr(handle.obj, name)
         return {"ok": True, "callable": False, "value": _encoded(value, name)}
-
-    def _count_retry(self) -> None:
-        self.cell.counters.bus_retries += 1
 
     def op_setattr(self, request: dict[str, Any]) -> Reply:
         handle = self._handle(request)
@@ -299,7 +296,7 @@ class RobotSession(Session):
             bound = getattr(handle.obj, method)
             if plan.retried:
                 result = with_read_retry(
-                    handle, method, lambda: bound(*args, **kwargs), on_retry=self._count_retry,
+                    handle, method, lambda: bound(*args, **kwargs), on_retry=self.cell.count_bus_retry,
                     before_retry=lambda: self.cell.guard.check(handle, method, args, kwargs),
                 )
             else:
