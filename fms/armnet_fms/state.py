@@ -3,6 +3,12 @@
 One writer per field: the poller replaces ``cells``/``jobs``; the NATS callback
 and the confirm action change ``pending``. Both run on the web server's event
 loop, so no lock is needed.
+
+The agent repeats a reset's notice while the reset waits (a core NATS notice
+can be lost), so a notice for the reset already shown changes nothing (its
+deadline stays the one first reckoned), and one for a reset that ended here
+(confirmed, past its deadline, or replaced by a later one) never brings its
+button back.
 """
 
 from __future__ import annotations
@@ -18,6 +24,9 @@ from .actions import AuditEvent
 from .view import CellRow, PendingReset, build_fleet, pending_from_notice
 
 log = logging.getLogger(__name__)
+
+#: How many ended reset requests are remembered (a repeat of one still in flight must not revive it).
+ENDED_REQUESTS_KEPT = 1024
 
 
 class FleetSource(Protocol):
@@ -40,6 +49,8 @@ class FleetState:
     cells: list[dict[str, Any]] = field(default_factory=list)
     jobs: list[dict[str, Any]] = field(default_factory=list)
     pending: dict[str, PendingReset] = field(default_factory=dict)
+    #: Reset requests that ended here, oldest first (a dict as an ordered set, at most ENDED_REQUESTS_KEPT).
+    ended_requests: dict[str, None] = field(default_factory=dict)
     kube_ok: bool = False
     kube_errors: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event)
@@ -68,12 +79,19 @@ class FleetState:
         if spec is None:
             return  # not a cell we know; a forged notice must not create a button
         pending = pending_from_notice(cell, notice, float(spec.get("resetTimeoutSeconds") or 300), self.clock())
-        if pending is not None:
-            self.pending[cell] = pending
-            self.changed.set()
+        if pending is None or pending.request_id in self.ended_requests:
+            return
+        shown = self.pending.get(cell)
+        if shown is not None and shown.request_id == pending.request_id:
+            return  # a repeat of the reset already shown
+        if shown is not None:
+            self._ended(shown.request_id)  # a later wait replaces it: the job no longer waits on that one
+        self.pending[cell] = pending
+        self.changed.set()
 
     def clear_reset(self, cell: str, request_id: str) -> None:
         if cell in self.pending and self.pending[cell].request_id == request_id:
+            self._ended(request_id)
             del self.pending[cell]
             self.changed.set()
 
@@ -87,4 +105,9 @@ class FleetState:
     def _forget_expired(self) -> None:
         now = self.clock()
         for cell in [c for c, p in self.pending.items() if p.expired(now)]:
-            del self.pending[cell]
+            self._ended(self.pending.pop(cell).request_id)
+
+    def _ended(self, request_id: str) -> None:
+        self.ended_requests[request_id] = None
+        while len(self.ended_requests) > ENDED_REQUESTS_KEPT:
+            del self.ended_requests[next(iter(self.ended_requests))]

@@ -7,6 +7,7 @@ args, no secrets, no logs, no result tails.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime
@@ -75,7 +76,7 @@ class PendingReset:
     namespace: str
     job_uid: str
     request_id: str
-    received_at: float
+    began_at: float  # when the wait began, by the FMS's clock (heard, less the seconds it had waited)
     deadline: float
 
     def seconds_left(self, now: float) -> float:
@@ -119,7 +120,9 @@ def pending_from_notice(cell: str, notice: Mapping[str, Any], reset_timeout_s: f
     """The pending reset a ``reset.requested`` notice announces, or None if it is malformed.
 
     The deadline is counted from when the FMS heard it (the agent's clock may
-    differ), so the time shown is never longer than the job really waits.
+    differ), less the seconds the notice says the wait has lasted (``elapsed``:
+    the agent repeats a notice while its wait lasts, and the first one heard may
+    be a repeat), so the time shown is never longer than the job really waits.
     """
     namespace, job, at = notice.get("namespace"), notice.get("job"), notice.get("at")
     if not all(isinstance(v, str) and v and len(v) <= 253 for v in (namespace, job, at)):
@@ -128,8 +131,16 @@ def pending_from_notice(cell: str, notice: Mapping[str, Any], reset_timeout_s: f
     request = notice.get("request")  # the agent names the wait; older agents did not
     if not (isinstance(request, str) and 0 < len(request) <= 128):
         request = reset_request_id(job, at)
-    return PendingReset(cell=cell, namespace=namespace, job_uid=job, request_id=request, received_at=now,
-                        deadline=now + reset_timeout_s)
+    began = now - _seconds_waited(notice.get("elapsed"), reset_timeout_s)
+    return PendingReset(cell=cell, namespace=namespace, job_uid=job, request_id=request, began_at=began,
+                        deadline=began + reset_timeout_s)
+
+
+def _seconds_waited(elapsed: Any, most: float) -> float:
+    """A notice's ``elapsed`` as seconds in [0, most]; 0 for anything but a finite positive number."""
+    if type(elapsed) not in (int, float) or not math.isfinite(elapsed) or elapsed <= 0:
+        return 0.0
+    return min(float(elapsed), most)
 
 
 def _int(value: Any) -> int | None:

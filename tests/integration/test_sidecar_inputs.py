@@ -164,8 +164,11 @@ def test_a_confirmation_for_an_earlier_reset_wait_never_confirms_the_waiting_one
     first = in_background(pod.job_cell().reset)
     wait_for(lambda: pod.inputs.wait_reset_pending(0), what="the first reset to wait")
     inputs.poll_reset()  # the agent announces wait 1
+    assert inputs.pending_reset_wait() == 1  # the bridge repeats its notice while this holds
     assert inputs.confirm_reset() is True
     first[0].join(30)
+    inputs.poll_reset()
+    assert inputs.pending_reset_wait() is None  # wait 1 ended: the repeats stop
     assert inputs.confirm_reset() is False  # a double click: no reset waits now
     second = in_background(pod.job_cell().reset)
     wait_for(lambda: pod.inputs.wait_reset_pending(0), what="the second reset to wait")

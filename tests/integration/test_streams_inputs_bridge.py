@@ -195,6 +195,46 @@ def test_a_confirmation_naming_an_earlier_reset_request_never_confirms_the_waiti
     assert second == [True]
 
 
+def test_a_lost_reset_notice_is_repeated_with_the_same_request_until_the_reset_is_confirmed(
+    link: NatsLink, nats_server: str
+) -> None:
+    """The page subscribes only after the first notice went out (as after a reconnect): it still gets the prompt."""
+    cell = f"cell-{uuid.uuid4().hex[:6]}"
+    inputs = LocalOperatorInputs()
+    bridge = OperatorInputsBridge(link, inputs, namespace="team-a", job_uid="uid-1", cell=cell,
+                                  reannounce_s=0.1).start()
+    assert bridge.wait_active(20)
+    confirmed: list[bool] = []
+    waiter = threading.Thread(target=lambda: confirmed.append(inputs.wait_reset_confirmation(20)))
+    try:
+        waiter.start()
+        wait_for(lambda: bridge._reset_request is not None, what="the first notice")
+        first = bridge._reset_request
+
+        async def hear_then_confirm() -> list[dict[str, Any]]:
+            nc = await nats.connect(nats_server)
+            notices = await nc.subscribe(f"fms.{cell}.reset.requested")
+            await nc.flush()
+            heard = [json.loads((await notices.next_msg(timeout=10)).data) for _ in range(2)]
+            await nc.publish(f"fms.{cell}.reset.confirm",
+                             json.dumps({"by": "ana", "request": heard[-1]["request"]}).encode())
+            await nc.flush()
+            await nc.close()
+            return heard
+
+        heard = asyncio.run(hear_then_confirm())
+        waiter.join(20)
+        sent = bridge.reset_notices_sent
+        time.sleep(0.5)  # five repeat periods; one repeat may have been on its way at the click
+        after = bridge.reset_notices_sent - sent
+    finally:
+        bridge.close()
+    assert confirmed == [True]
+    assert {n["request"] for n in heard} == {first}
+    assert heard[1]["elapsed"] > heard[0]["elapsed"] >= 0
+    assert after <= 1, "the notice is repeated only while the reset waits"
+
+
 def test_an_outcome_for_a_rollout_that_is_not_active_never_ends_the_active_one(link: NatsLink, nats_server: str) -> None:
     active: list[int | None] = [2]
     inputs = LocalOperatorInputs()

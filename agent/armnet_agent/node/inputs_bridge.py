@@ -8,8 +8,12 @@ job's :class:`~armnet_agent.connector.inputs.OperatorInputs`, which decides what
 it means (a reset confirmation with no reset waiting is dropped there). So that
 the cell's operator knows when a confirmation counts, the bridge announces on
 ``fms.<cell>.reset.requested`` each time the job's reset starts to wait, with a
-request id; a confirmation naming another request is dropped here. This
-module never touches hardware.
+request id; a confirmation naming another request is dropped here. The notice is
+core NATS (not stored), so one sent while the link reconnects, or before the
+page lists the cell, would be lost and the page would show no prompt until the
+reset timed out: the same notice (same request id, with the seconds waited so
+far) is repeated every ``REANNOUNCE_S`` while that wait lasts. This module never
+touches hardware.
 """
 
 from __future__ import annotations
@@ -17,8 +21,11 @@ from __future__ import annotations
 import json
 import logging
 import math
+import threading
+import time
 import unicodedata
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
@@ -33,6 +40,8 @@ from .streams import NatsLink, Subscription, fms_subject, teleop_subject
 log = logging.getLogger(__name__)
 
 MAX_INPUT_BYTES = 16 * 1024
+#: How often a waiting reset's notice is repeated (the page's prompt appears at most this late after a lost notice).
+REANNOUNCE_S = 2.0
 MAX_ACTION_MOTORS = 64
 Name = Annotated[str, Field(max_length=128)]
 
@@ -93,6 +102,21 @@ def reset_request_id(job_uid: str, announced_at: str) -> str:
     return f"{job_uid}@{announced_at}"[:128]
 
 
+@dataclass(frozen=True)
+class _ResetNotice:
+    """The announcement of one reset wait, repeated as it was while that wait lasts."""
+
+    request: str
+    at: str
+    wait: int | None  # the inputs' number for this wait (``pending_reset_wait``): another number ends the repeats
+    began: float  # time.monotonic() at the first announcement
+
+    def payload(self, namespace: str, job_uid: str, now: float) -> bytes:
+        """``elapsed`` lets a page that first hears a repeat count the timeout from when the wait began."""
+        return json.dumps({"namespace": namespace, "job": job_uid, "at": self.at, "request": self.request,
+                           "elapsed": round(max(0.0, now - self.began), 3)}).encode()
+
+
 def parse_input(model: type[_Input], data: bytes) -> _Input:
     """The checked message, or ``ValueError`` saying what is wrong (never echoing much of it)."""
     if len(data) > MAX_INPUT_BYTES:
@@ -117,7 +141,8 @@ class OperatorInputsBridge:
                  cell: str, announce_resets: bool = True,
                  active_rollout: Callable[[], int | None] | None = None,
                  on_verdict: Callable[[bool, str, int | None], None] | None = None,
-                 accepts_verdict: Callable[[int | None], bool] | None = None) -> None:
+                 accepts_verdict: Callable[[int | None], bool] | None = None,
+                 reannounce_s: float = REANNOUNCE_S) -> None:
         """``active_rollout``: the index of the rollout the job is in now (None between rollouts).
 
         ``accepts_verdict(rollout)`` is False for a rollout the job began without outcome
@@ -147,6 +172,14 @@ class OperatorInputsBridge:
         self._subscriptions: list[Subscription] = []
         #: The request id of the last reset wait announced; a confirmation naming another one is dropped.
         self._reset_request: str | None = None
+        #: The notice of the reset wait announced last, while it may still wait (repeated until it does not).
+        self._reset_notice: _ResetNotice | None = None
+        self._notice_lock = threading.Lock()
+        self._reannounce_s = reannounce_s
+        self._closed = threading.Event()
+        self._repeater: threading.Thread | None = None
+        #: Notices sent (first announcements and repeats): what a test or an operator reads to see them go out.
+        self.reset_notices_sent = 0
 
     @property
     def subjects(self) -> list[str]:
@@ -162,20 +195,54 @@ class OperatorInputsBridge:
         if (self._announce_resets and isinstance(self.inputs, LocalOperatorInputs | SidecarInputs)
                 and self.inputs.on_reset_requested is None):
             self.inputs.on_reset_requested = self.announce_reset_waiting
+            self._repeater = threading.Thread(target=self._repeat_notices, name="armnet-reset-notices", daemon=True)
+            self._repeater.start()
         return self
 
     def announce_reset_waiting(self, inputs: object = None) -> None:
-        """Tell the cell's operator that the job's reset waits for a confirmation (core NATS, best effort)."""
+        """Tell the cell's operator that the job's reset waits for a confirmation (core NATS, best effort).
+
+        Repeated every ``reannounce_s`` while this wait lasts (``_repeat_notices``).
+        """
         at = datetime.now(UTC).isoformat()
-        self._reset_request = reset_request_id(self.job_uid, at)
-        notice = {"namespace": self.namespace, "job": self.job_uid, "at": at, "request": self._reset_request}
-        self.link.notify(self.reset_requested_subject, json.dumps(notice).encode())
+        request = reset_request_id(self.job_uid, at)
+        wait = self.inputs.pending_reset_wait() if isinstance(self.inputs, LocalOperatorInputs | SidecarInputs) else None
+        notice = _ResetNotice(request=request, at=at, wait=wait, began=time.monotonic())
+        with self._notice_lock:
+            self._reset_request, self._reset_notice = request, notice
+        self._send_notice(notice)
+
+    def _send_notice(self, notice: _ResetNotice) -> None:
+        self.link.notify(self.reset_requested_subject, notice.payload(self.namespace, self.job_uid, time.monotonic()))
+        self.reset_notices_sent += 1
+
+    def _repeat_notices(self) -> None:
+        while not self._closed.wait(self._reannounce_s):
+            self.repeat_reset_notice()
+
+    def repeat_reset_notice(self) -> None:
+        """Send the last notice again if its wait still waits; forget it once that wait has ended."""
+        with self._notice_lock:
+            notice = self._reset_notice
+        if notice is None:
+            return
+        assert isinstance(self.inputs, LocalOperatorInputs | SidecarInputs)
+        if notice.wait is None or self.inputs.pending_reset_wait() != notice.wait:
+            with self._notice_lock:
+                if self._reset_notice is notice:
+                    self._reset_notice = None
+            return
+        self._send_notice(notice)
 
     def wait_active(self, timeout_s: float) -> bool:
         """True once every subject is subscribed on the server (for callers that must not miss one)."""
         return all(s.wait_active(timeout_s) for s in self._subscriptions)
 
     def close(self) -> None:
+        self._closed.set()
+        if self._repeater is not None:
+            self._repeater.join(5.0)
+            self._repeater = None
         for subscription in self._subscriptions:
             subscription.close()
         self._subscriptions = []

@@ -9,8 +9,10 @@ reached on the host next to ``observer.sock`` (``node.sidecar_observer``).
 
 Reset waits: the connector numbers each wait; ``watch`` polls ``reset_pending``
 while the job runs and calls ``on_reset_requested`` (the bridge's announcement
-on ``fms.<cell>.reset.requested``) once per new wait; a confirmation names the
-wait announced, so the connector drops one that arrives after that wait ended.
+on ``fms.<cell>.reset.requested``) once per new wait; ``pending_reset_wait``
+says whether that wait still waits, as the last poll saw it (the bridge repeats
+its notice while it does); a confirmation names the wait announced, so the
+connector drops one that arrives after that wait ended.
 Verdicts name the rollout the agent saw active; the connector checks again.
 
 Each input is counted by op and result (``armnet_agent_sidecar_inputs_total``);
@@ -61,6 +63,7 @@ class SidecarInputs:
         #: Called (with this object) once per reset wait the connector began: the bridge announces it.
         self.on_reset_requested: Callable[[SidecarInputs], None] | None = None
         self._announced: int | None = None
+        self._pending: int | None = None  # the wait the last answered poll saw waiting, if any
         self._lock = threading.Lock()
         self._closed = threading.Event()
         self._watcher: threading.Thread | None = None
@@ -115,14 +118,22 @@ class SidecarInputs:
             return
         wait, pending = reply.get("wait"), reply.get("pending")
         if pending is not True or type(wait) is not int:
+            with self._lock:
+                self._pending = None
             return
         with self._lock:
+            self._pending = wait
             if wait == self._announced:
                 return
             self._announced = wait
         callback = self.on_reset_requested
         if callback is not None:
             callback(self)
+
+    def pending_reset_wait(self) -> int | None:
+        """The announced reset wait if the last answered poll saw it still waiting, else None."""
+        with self._lock:
+            return self._pending if self._pending == self._announced else None
 
     def close(self) -> None:
         self._closed.set()

@@ -22,12 +22,13 @@ class StreamsCollector(Collector):
                  bridges: Callable[[], Iterable[OperatorInputsBridge]] = lambda: ()) -> None:
         self.link = link
         self.bridges = bridges
-        self._inputs_retired = (0, 0)
+        self._inputs_retired = (0, 0, 0)
 
     def retire(self, bridge: OperatorInputsBridge) -> None:
         """Keep a closed bridge's counts (counters never go down when a job ends)."""
-        accepted, rejected = self._inputs_retired
-        self._inputs_retired = (accepted + bridge.accepted, rejected + bridge.rejected)
+        accepted, rejected, notices = self._inputs_retired
+        self._inputs_retired = (accepted + bridge.accepted, rejected + bridge.rejected,
+                                notices + bridge.reset_notices_sent)
 
     def collect(self) -> Iterator[Metric]:
         link = self.link
@@ -44,12 +45,16 @@ class StreamsCollector(Collector):
                                   value=link.spooled)
         yield GaugeMetricFamily("armnet_agent_nats_pending", "Messages waiting to be sent (memory and spool)",
                                 value=link.pending)
-        accepted, rejected = self._inputs_retired
+        accepted, rejected, notices = self._inputs_retired
         for bridge in self.bridges():
             accepted += bridge.accepted
             rejected += bridge.rejected
+            notices += bridge.reset_notices_sent
         inputs = CounterMetricFamily("armnet_agent_operator_inputs",
                                      "Operator inputs received on NATS, by result", labels=["result"])
         inputs.add_metric(["accepted"], accepted)
         inputs.add_metric(["rejected"], rejected)
         yield inputs
+        yield CounterMetricFamily("armnet_agent_reset_notices",
+                                  "Reset-wait notices sent to the cell operator's page (a wait's first notice and its "
+                                  "repeats every 2 s while it waits)", value=notices)

@@ -120,3 +120,14 @@ def test_the_page_never_gets_job_args_image_or_secrets() -> None:
 def test_the_request_id_the_agent_names_in_its_notice_is_the_one_used() -> None:
     notice = {**a_notice(), "request": "job-uid-1@agent-named"}
     assert pending_from_notice("so101-a", notice, 30, NOW).request_id == "job-uid-1@agent-named"
+
+
+def test_a_notice_first_heard_as_a_repeat_counts_the_timeout_from_when_the_wait_began() -> None:
+    pending = pending_from_notice("so101-a", {**a_notice(), "elapsed": 12.5}, 30, NOW)
+    assert pending.seconds_left(NOW) == 17.5
+
+
+@pytest.mark.parametrize("elapsed", [-5, float("nan"), float("inf"), True, "12", None, 1e308])
+def test_an_elapsed_that_is_not_a_plausible_duration_never_lengthens_the_wait(elapsed: object) -> None:
+    pending = pending_from_notice("so101-a", {**a_notice(), "elapsed": elapsed}, 30, NOW)
+    assert 0 <= pending.seconds_left(NOW) <= 30

@@ -17,6 +17,7 @@ def test_a_scrape_shows_the_link_and_the_bridges_counters() -> None:
     bridge = OperatorInputsBridge(link, LocalOperatorInputs(), namespace="ns", job_uid="uid", cell="cell")
     bridge._on_message("teleop.ns.uid.event", b'{"event": "next_episode"}')
     bridge._on_message("teleop.ns.uid.event", b"garbage")
+    bridge.announce_reset_waiting()
     registry = CollectorRegistry()
     registry.register(StreamsCollector(link, bridges=lambda: [bridge]))
 
@@ -26,6 +27,7 @@ def test_a_scrape_shows_the_link_and_the_bridges_counters() -> None:
     assert "armnet_agent_nats_dropped_total 0.0" in text
     assert 'armnet_agent_operator_inputs_total{result="accepted"} 1.0' in text
     assert 'armnet_agent_operator_inputs_total{result="rejected"} 1.0' in text
+    assert "armnet_agent_reset_notices_total 1.0" in text
 
 
 def test_a_retired_bridge_keeps_its_counts() -> None:

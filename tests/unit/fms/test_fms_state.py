@@ -1,0 +1,87 @@
+"""What the FMS keeps of reset notices: the agent repeats a notice while its reset waits, and may be heard late."""
+
+from __future__ import annotations
+
+import pytest
+from armnet_fms.local import LocalFleet
+from armnet_fms.state import ENDED_REQUESTS_KEPT, FleetState
+
+from tests.unit.fms.fms_builders import NOW, a_cell, a_notice
+
+pytestmark = pytest.mark.unit
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = NOW
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def a_state(clock: Clock) -> FleetState:
+    source = LocalFleet("so101-a", "job-uid-1", reset_timeout_s=30, rollout=lambda: None, on_stop=lambda: None)
+    state = FleetState(kube=source, clock=clock)
+    state.cells = [a_cell(reset_timeout=30)]
+    return state
+
+
+def a_request(at: str = "2027-01-15T07:59:59+00:00", elapsed: float = 0.0) -> dict[str, object]:
+    return {**a_notice(at=at), "request": f"job-uid-1@{at}", "elapsed": elapsed}
+
+
+def test_a_repeated_notice_keeps_the_deadline_first_reckoned() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.on_reset_requested("so101-a", a_request())
+    clock.now += 10
+    state.on_reset_requested("so101-a", a_request())  # a repeat whose elapsed was lost would add 10 s
+    assert state.pending["so101-a"].seconds_left(clock.now) == 20
+
+
+def test_the_first_notice_heard_may_be_a_repeat_and_shows_the_time_really_left() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.on_reset_requested("so101-a", a_request(elapsed=8))
+    assert state.pending["so101-a"].seconds_left(clock.now) == 22
+
+
+def test_a_repeat_of_a_confirmed_reset_never_brings_its_button_back() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.on_reset_requested("so101-a", a_request())
+    state.clear_reset("so101-a", "job-uid-1@2027-01-15T07:59:59+00:00")
+    state.on_reset_requested("so101-a", a_request(elapsed=2))  # sent before the click reached the job
+    assert "so101-a" not in state.pending
+
+
+def test_a_repeat_of_a_reset_past_its_deadline_stays_gone() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.on_reset_requested("so101-a", a_request())
+    clock.now += 31
+    state._forget_expired()
+    state.on_reset_requested("so101-a", a_request(elapsed=2))
+    assert "so101-a" not in state.pending
+
+
+def test_a_later_wait_replaces_the_one_shown_and_the_earlier_one_cannot_return() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:00+00:00"))
+    state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:30+00:00"))
+    state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:00+00:00", elapsed=4))  # late repeat
+    assert state.pending["so101-a"].request_id == "job-uid-1@2027-01-15T07:59:30+00:00"
+
+
+def test_a_notice_for_a_cell_the_fms_does_not_list_makes_no_button() -> None:
+    state = a_state(Clock())
+    state.on_reset_requested("forged-cell", a_request())
+    assert state.pending == {}
+
+
+def test_the_memory_of_ended_requests_is_bounded() -> None:
+    state = a_state(Clock())
+    for i in range(ENDED_REQUESTS_KEPT + 10):
+        state.on_reset_requested("so101-a", a_request(at=f"2027-01-15T07:59:59.{i:06d}+00:00"))
+    assert len(state.ended_requests) == ENDED_REQUESTS_KEPT
