@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import json
 import threading
+import time
 import uuid
 from typing import Any
 
@@ -42,6 +43,18 @@ def grant_tenant(k8s: Any, namespace: str, user: str) -> None:
                      "name": "armnet-cell-reader"},
          "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
     ]))
+    wait_authorized(k8s, user, ("create", f"robotjobs.{G}", "-n", namespace), ("list", f"cells.{G}"))
+
+
+def wait_authorized(k8s: Any, user: str, *checks: tuple[str, ...], timeout_s: float = 20.0) -> None:
+    """Until the apiserver's authorizer allows each check as ``user``: RBAC learns new bindings from an
+    informer, so a request made the moment a binding is created can still be refused."""
+    deadline = time.monotonic() + timeout_s
+    for check in checks:
+        while k8s.kubectl("auth", "can-i", "--as", user, *check, check=False).stdout.strip() != "yes":
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{user} is still not allowed to {' '.join(check)} after {timeout_s:.0f} s")
+            time.sleep(0.05)
 
 
 class Tenant:

@@ -76,7 +76,7 @@ def follow_for(
         assert [x.text for x in client.logs(name)][-1] == "status: succeeded"
         ended = time.monotonic()
         timer.join()
-        time.sleep(0.8)
+        time.sleep(1.2)  # beats every 0.2 s would go on: five or more would arrive after the slack below
     return uid, ended, listener.beats
 
 
@@ -86,7 +86,7 @@ def test_a_non_detached_jobs_follower_beats_while_it_follows_and_stops_after(
     uid, ended, beats = follow_for(Tenant(k8s, namespace), nats_server, "kept", False, 1.5)
 
     assert len(beats) >= 3
-    assert all(at <= ended + 0.3 for at, _ in beats)
+    assert all(at <= ended + 0.5 for at, _ in beats)  # one sent at the end may arrive late on a loaded host
     assert set(beats[0][1]) == {"at", "client"}
 
 
