@@ -67,7 +67,7 @@ def test_teleop_publishes_sampled_actions_and_key_events_then_esc_ends_it(
     try:
         got = asyncio.run(collect(nats_server, f"teleop.{namespace}.{uid}.>",
                                   [b"\x1b[C", b"\x1b[D", b"\x1b"], master, proc))
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=60) == 0  # exit after Esc; a loaded host can stall an exit for seconds
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -131,7 +131,7 @@ def test_teleop_shows_the_followers_state_from_the_jobs_rerun_packets(
 
         screen.wait_for(lambda text: b"shoulder_pan 13.5  gripper 40.0" in text, "the follower's last state")
         os.write(master, b"\x1b")
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=60) == 0  # exit after Esc; a loaded host can stall an exit for seconds
     finally:
         if proc.poll() is None:
             proc.kill()
