@@ -233,21 +233,28 @@ def batch(bed: AgentBed, telemetry: TelemetryHeard, job_watch: JobWatch) -> dict
     bed.k8s.kubectl("create", "secret", "generic", "api-token", "-n", bed.namespace,
                     f"--from-literal=API_TOKEN={SECRET_VALUE}")
     moves = (EXAMPLES / "_so101_moves.py",)
-    raises = bed.image("raises", JOBS / "raises.py")
-    bus_loop = bed.image("bus-loop", EXAMPLES / "bus_loop.py", moves)
+    # Every image first, then the jobs in one burst: built between submits (minutes on a cold
+    # host), the first jobs had ended and freed a cell before ``observed`` was submitted.
+    images = {
+        "raises": bed.image("raises", JOBS / "raises.py"),
+        "bus-loop": bed.image("bus-loop", EXAMPLES / "bus_loop.py", moves),
+        "looks-around": bed.image("looks-around", LOOKS_AROUND),
+        "unsafe": bed.image("unsafe", JOBS / "unsafe.py", moves),
+        "both-arms": bed.image("both-arms", JOBS / "drives_both_arms.py", moves),
+        "ignores": bed.image("ignores", JOBS / "ignores_shutdown.py"),
+        "observed": bed.image("observed", OBSERVED, moves),
+    }
     return {
         # No pod is ever made for it: any image will do.
-        "missing-secret": bed.submit("no-secret", raises, secrets={"API_TOKEN": "absent"}),
-        "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
+        "missing-secret": bed.submit("no-secret", images["raises"], secrets={"API_TOKEN": "absent"}),
+        "success": bed.submit("bus-loop", images["bus-loop"], timeout=240, args={"degrees": 4}),
         # Generous timeouts: on a loaded host a pod's Python takes a minute or more to import the SDK.
-        "failure": bed.submit("raises", raises, timeout=300),
-        "shape": bed.submit("looks-around", bed.image("looks-around", LOOKS_AROUND), timeout=300,
-                            secrets={"API_TOKEN": "api-token"}),
-        "safety": bed.submit("unsafe", bed.image("unsafe", JOBS / "unsafe.py", moves), timeout=300),
-        "bimanual": bed.submit("bimanual", bed.image("both-arms", JOBS / "drives_both_arms.py", moves),
-                               embodiment="lerobot/bimanual_so101", timeout=300),
-        "timeout": bed.submit("ignores", bed.image("ignores", JOBS / "ignores_shutdown.py"), timeout=JOB_TIMEOUT),
-        "observed": bed.submit("observed", bed.image("observed", OBSERVED, moves),
+        "failure": bed.submit("raises", images["raises"], timeout=300),
+        "shape": bed.submit("looks-around", images["looks-around"], timeout=300, secrets={"API_TOKEN": "api-token"}),
+        "safety": bed.submit("unsafe", images["unsafe"], timeout=300),
+        "bimanual": bed.submit("bimanual", images["both-arms"], embodiment="lerobot/bimanual_so101", timeout=300),
+        "timeout": bed.submit("ignores", images["ignores"], timeout=JOB_TIMEOUT),
+        "observed": bed.submit("observed", images["observed"],
                                timeout=300, args={"skip": list(DEV_MOUNTS)}),  # the venv: large, no sockets
     }
 
