@@ -12,8 +12,15 @@ same machine load), by:
   through the connector's shared-memory frame area (a tmpfs, as in a pod).
 
 The processes are those of a real cell: the simulated servos on a pty in one
-process (the hardware), the connector in another (the sidecar), the bench in a
-third (the job); nothing shares a GIL.
+process (the hardware), the connector in another (the sidecar), the proxied job
+in the bench's own process, and the direct job in a process of its own, as on a
+bare machine; nothing shares a GIL. Each job's cameras capture in its own
+process and draw the arm as it moves, so every frame is a new picture, as a real
+camera decodes a new frame every period: the connector's for the proxied job,
+the direct job's own for the direct one (with the direct camera in the bench's
+process, its capture thread would load the proxied job's process, which on a
+real cell has none; and a camera that re-sent one still picture would cost the
+direct job nothing per frame).
 
 Modes:
 
@@ -134,6 +141,8 @@ class Client:
         self.name = name
         self.buses = buses
         self.cameras = cameras
+        #: Arm name -> the goals last sent, for cameras that draw them (the direct job's; None: nobody draws).
+        self.poses: dict[str, dict[str, float]] | None = None
         for bus in buses:
             connect_with_retries(bus)
         for camera in cameras:
@@ -162,11 +171,16 @@ def connect_with_retries(bus: Any, attempts: int = 3) -> None:
 
 
 def direct_client(cell: dict[str, Any], arms: int, cameras: int) -> Client:
+    """The bare machine's way: LeRobot's bus on the pty, and cameras drawing the arm the ticks move."""
     from armnet_agent.sim.camera import SimulatedCamera
     from lerobot.motors.feetech import FeetechMotorsBus
 
     buses = [FeetechMotorsBus(port=arm["port"], **so101_bus_kwargs(arm["calibration_file"])) for arm in cell["arms"][:arms]]
-    return Client("direct", buses, [SimulatedCamera(camera_config()) for _ in range(cameras)])
+    poses: dict[str, dict[str, float]] = {}
+    client = Client("direct", buses, [SimulatedCamera(camera_config(), source=lambda: dict(poses))
+                                      for _ in range(cameras)])
+    client.poses = poses
+    return client
 
 
 def proxy_client(cell: dict[str, Any], arms: int, cameras: int) -> Client:
@@ -247,13 +261,15 @@ class HelloProbe:
         self.conn.close()
 
 
-def serve_client(cell_line: str, arms: int) -> None:
-    """Child mode (``--compare-with``): this checkout's proxy, run on the tick the parent asks for.
+def serve_client(cell_line: str, arms: int, cameras: int, way: str) -> None:
+    """Child mode: one job's calls in a process of its own, run on the tick the parent asks for.
 
-    Started with the other checkout's ``PYTHONPATH``, so ``armnet_runtime`` is that
-    tree's. Reads a tick number per line; answers with the call times (or a lost reply).
+    ``way`` is ``direct`` (the bare machine's job) or ``proxy`` (``--compare-with``: started with
+    the other checkout's ``PYTHONPATH``, so ``armnet_runtime`` is that tree's). Reads a tick
+    number per line; answers with the call times (or a lost reply).
     """
-    client = proxy_client(json.loads(cell_line), arms, 0)
+    make = direct_client if way == "direct" else proxy_client
+    client = make(json.loads(cell_line), arms, cameras)
     print("ready", flush=True)
     for line in sys.stdin:
         samples = Samples()
@@ -262,21 +278,26 @@ def serve_client(cell_line: str, arms: int) -> None:
     client.close()
 
 
-class TreeClientProbe:
-    """The baseline's proxy in its own process (``serve_client``): one tick of its calls per tick, timed there."""
+class ClientProcessProbe:
+    """A job in its own process (``serve_client``): one tick of its calls per tick, timed there.
 
-    name = "baseline"
+    ``direct``: the bare machine's job; ``baseline``: another checkout's proxy (``--compare-with``).
+    """
 
-    def __init__(self, tree: Path, cell_line: str, arms: int) -> None:
+    def __init__(self, name: str, cell_line: str, arms: int, cameras: int = 0, tree: Path | None = None) -> None:
+        self.name = name
+        way = "direct" if name == "direct" else "proxy"
         self.process = subprocess.Popen(
-            [sys.executable, __file__, "--serve-client", str(arms)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            text=True, env=tree_env(tree),
+            [sys.executable, __file__, "--serve-client", str(arms), "--client-cameras", str(cameras),
+             "--client-way", way],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            env=tree_env(tree) if tree is not None else None,
         )
         assert self.process.stdin is not None and self.process.stdout is not None
         self.process.stdin.write(cell_line)
         self.process.stdin.flush()
         if self.process.stdout.readline().strip() != "ready":
-            raise RuntimeError("the baseline client did not start")
+            raise RuntimeError(f"the {self.name} client did not start")
 
     def work(self, samples: Samples, tick: int) -> bool:
         assert self.process.stdin is not None and self.process.stdout is not None
@@ -339,20 +360,22 @@ def timed(bucket: list[float], call: Callable[[], Any]) -> Any:
     return value
 
 
-Probe = Client | HelloProbe | RawEchoProbe | CopyProbe | TreeClientProbe
+Probe = Client | HelloProbe | RawEchoProbe | CopyProbe | ClientProcessProbe
 
 
 def tick_work(client: Probe, tick: int, samples: Samples) -> bool:
     """One control tick's calls on ``client``; False when a bus reply was lost."""
-    if isinstance(client, TreeClientProbe):
+    if isinstance(client, ClientProcessProbe):
         return client.work(samples, tick)
     if not isinstance(client, Client):
         client.work(samples)
         return True
     offset = WIGGLE_DEG * math.sin(tick / 20.0)
     try:
-        for bus, start in zip(client.buses, client.starts, strict=True):
+        for arm, (bus, start) in enumerate(zip(client.buses, client.starts, strict=True)):
             goals = {name: start[name] + (offset if name != "gripper" else 0.0) for name in SO101_JOINTS}
+            if client.poses is not None:
+                client.poses[f"arm{arm}"] = goals
             timed(samples.calls["sync_read"], lambda bus=bus: bus.sync_read("Present_Position"))
             timed(samples.calls["sync_write"], lambda bus=bus, goals=goals: bus.sync_write("Goal_Position", goals))
         for camera in client.cameras:
@@ -473,9 +496,11 @@ def main() -> int:
     parser.add_argument("--serve-cell", metavar="PRESET", help=argparse.SUPPRESS)
     parser.add_argument("--serve-echo", metavar="PATH", help=argparse.SUPPRESS)
     parser.add_argument("--serve-client", metavar="ARMS", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--client-cameras", type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument("--client-way", choices=("direct", "proxy"), default="proxy", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve_client:
-        serve_client(sys.stdin.readline(), args.serve_client)
+        serve_client(sys.stdin.readline(), args.serve_client, args.client_cameras, args.client_way)
         return 0
     if args.serve_cell:
         serve_cell(args.serve_cell)
@@ -490,16 +515,18 @@ def main() -> int:
     baseline_process = serve_baseline(args.compare_with, preset) if args.compare_with else None
     try:
         assert cell_process.stdout is not None
-        cell = json.loads(cell_process.stdout.readline())
+        cell_line = cell_process.stdout.readline()
+        cell = json.loads(cell_line)
         totals = {name: Samples() for name in ("direct", "proxy", "hello", "raw", "copy", "baseline")}
         clients: list[Probe] = []
         echo_dir = tempfile.TemporaryDirectory(prefix="armnet-bench-echo-")
         try:
-            for make in (direct_client, proxy_client):
-                clients.append(make(cell, arms, cameras))
+            clients.append(ClientProcessProbe("direct", cell_line, arms, cameras))
+            clients.append(proxy_client(cell, arms, cameras))
             if baseline_process is not None:
                 assert baseline_process.stdout is not None and args.compare_with is not None
-                clients.append(TreeClientProbe(args.compare_with, baseline_process.stdout.readline(), arms))
+                clients.append(ClientProcessProbe("baseline", baseline_process.stdout.readline(), arms,
+                                                  tree=args.compare_with))
             clients += [HelloProbe(cell), RawEchoProbe(echo_dir.name), CopyProbe()]
             run_ticks(clients, 20, 1.0 / hz)  # warm-up: caches, first frames
             for _ in range(args.rounds):
