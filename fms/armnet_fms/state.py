@@ -6,15 +6,19 @@ loop, so no lock is needed.
 
 The agent repeats a reset's notice while the reset waits (a core NATS notice
 can be lost), so a notice for the reset already shown changes nothing (its
-deadline stays the one first reckoned), and one for a reset that ended here
-(confirmed, past its deadline, or replaced by a later one) never brings its
-button back.
+deadline stays the one first reckoned); a notice for a wait that began before
+the one shown never replaces it (a late repeat); one for a reset past its
+deadline here never brings its button back, and one for a reset confirmed or
+replaced here does not for ``REPEAT_GRACE_S`` (a repeat already in flight),
+after which the button comes back: the job still waits, so the confirmation
+was lost.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,6 +31,8 @@ log = logging.getLogger(__name__)
 
 #: How many ended reset requests are remembered (a repeat of one still in flight must not revive it).
 ENDED_REQUESTS_KEPT = 1024
+#: How long repeats of a request confirmed or replaced here are ignored: five of the agent's repeat periods.
+REPEAT_GRACE_S = 10.0
 
 
 class FleetSource(Protocol):
@@ -49,8 +55,9 @@ class FleetState:
     cells: list[dict[str, Any]] = field(default_factory=list)
     jobs: list[dict[str, Any]] = field(default_factory=list)
     pending: dict[str, PendingReset] = field(default_factory=dict)
-    #: Reset requests that ended here, oldest first (a dict as an ordered set, at most ENDED_REQUESTS_KEPT).
-    ended_requests: dict[str, None] = field(default_factory=dict)
+    #: Reset requests that ended here -> until when their notices are ignored (inf: for good), oldest
+    #: first, at most ENDED_REQUESTS_KEPT.
+    ended_requests: dict[str, float] = field(default_factory=dict)
     kube_ok: bool = False
     kube_errors: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event)
@@ -78,20 +85,21 @@ class FleetState:
                      if (c.get("metadata") or {}).get("name") == cell), None)
         if spec is None:
             return  # not a cell we know; a forged notice must not create a button
-        pending = pending_from_notice(cell, notice, float(spec.get("resetTimeoutSeconds") or 300), self.clock())
-        if pending is None or pending.request_id in self.ended_requests:
+        now = self.clock()
+        pending = pending_from_notice(cell, notice, float(spec.get("resetTimeoutSeconds") or 300), now)
+        if pending is None or now < self.ended_requests.get(pending.request_id, -math.inf):
             return
         shown = self.pending.get(cell)
-        if shown is not None and shown.request_id == pending.request_id:
-            return  # a repeat of the reset already shown
         if shown is not None:
-            self._ended(shown.request_id)  # a later wait replaces it: the job no longer waits on that one
+            if shown.request_id == pending.request_id or pending.began_at <= shown.began_at:
+                return  # a repeat of the reset shown, or of an earlier wait arriving late
+            self._ended(shown.request_id, now + REPEAT_GRACE_S)  # a later wait replaces it
         self.pending[cell] = pending
         self.changed.set()
 
     def clear_reset(self, cell: str, request_id: str) -> None:
         if cell in self.pending and self.pending[cell].request_id == request_id:
-            self._ended(request_id)
+            self._ended(request_id, self.clock() + REPEAT_GRACE_S)
             del self.pending[cell]
             self.changed.set()
 
@@ -105,9 +113,10 @@ class FleetState:
     def _forget_expired(self) -> None:
         now = self.clock()
         for cell in [c for c, p in self.pending.items() if p.expired(now)]:
-            self._ended(self.pending.pop(cell).request_id)
+            self._ended(self.pending.pop(cell).request_id, math.inf)  # the job's wait is over too
 
-    def _ended(self, request_id: str) -> None:
-        self.ended_requests[request_id] = None
+    def _ended(self, request_id: str, ignored_until: float) -> None:
+        self.ended_requests.pop(request_id, None)  # re-added last: the newest stay longest
+        self.ended_requests[request_id] = ignored_until
         while len(self.ended_requests) > ENDED_REQUESTS_KEPT:
             del self.ended_requests[next(iter(self.ended_requests))]

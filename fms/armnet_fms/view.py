@@ -138,9 +138,15 @@ def pending_from_notice(cell: str, notice: Mapping[str, Any], reset_timeout_s: f
 
 def _seconds_waited(elapsed: Any, most: float) -> float:
     """A notice's ``elapsed`` as seconds in [0, most]; 0 for anything but a finite positive number."""
-    if type(elapsed) not in (int, float) or not math.isfinite(elapsed) or elapsed <= 0:
+    if type(elapsed) not in (int, float):
         return 0.0
-    return min(float(elapsed), most)
+    try:
+        seconds = float(elapsed)
+    except OverflowError:  # an int past a float's range
+        return 0.0
+    if not math.isfinite(seconds) or seconds <= 0:
+        return 0.0
+    return min(seconds, most)
 
 
 def _int(value: Any) -> int | None:

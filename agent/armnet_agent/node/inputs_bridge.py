@@ -172,7 +172,9 @@ class OperatorInputsBridge:
         self._subscriptions: list[Subscription] = []
         #: The request id of the last reset wait announced; a confirmation naming another one is dropped.
         self._reset_request: str | None = None
-        #: The notice of the reset wait announced last, while it may still wait (repeated until it does not).
+        #: The inputs' number for that wait (None when the inputs do not number waits).
+        self._reset_wait: int | None = None
+        #: The notice of the reset wait announced last (repeated while that wait waits).
         self._reset_notice: _ResetNotice | None = None
         self._notice_lock = threading.Lock()
         self._reannounce_s = reannounce_s
@@ -208,31 +210,37 @@ class OperatorInputsBridge:
         request = reset_request_id(self.job_uid, at)
         wait = self.inputs.pending_reset_wait() if isinstance(self.inputs, LocalOperatorInputs | SidecarInputs) else None
         notice = _ResetNotice(request=request, at=at, wait=wait, began=time.monotonic())
-        with self._notice_lock:
-            self._reset_request, self._reset_notice = request, notice
-        self._send_notice(notice)
+        with self._notice_lock:  # set and sent in one step: a repeat of the previous wait never follows it
+            self._reset_request, self._reset_wait, self._reset_notice = request, wait, notice
+            self._send_notice(notice)
 
     def _send_notice(self, notice: _ResetNotice) -> None:
+        """Under ``_notice_lock`` (``notify`` only queues the message on the link's loop)."""
         self.link.notify(self.reset_requested_subject, notice.payload(self.namespace, self.job_uid, time.monotonic()))
         self.reset_notices_sent += 1
+        self.link.input_counts.add(reset_notices=1)
 
     def _repeat_notices(self) -> None:
         while not self._closed.wait(self._reannounce_s):
-            self.repeat_reset_notice()
+            try:
+                self.repeat_reset_notice()
+            except Exception as exc:  # noqa: BLE001 - the repeats must outlive one failure; the next period tries again
+                self._rejections.warning("repeating a reset notice failed: %s: %s", type(exc).__name__, exc)
 
     def repeat_reset_notice(self) -> None:
-        """Send the last notice again if its wait still waits; forget it once that wait has ended."""
+        """Send the last notice again while its wait still waits (as the inputs last saw it).
+
+        Checked and sent under one lock with ``announce_reset_waiting``, so a repeat of an
+        ended wait can never go out after the next wait's first notice.
+        """
+        if not isinstance(self.inputs, LocalOperatorInputs | SidecarInputs):
+            return
         with self._notice_lock:
             notice = self._reset_notice
-        if notice is None:
-            return
-        assert isinstance(self.inputs, LocalOperatorInputs | SidecarInputs)
-        if notice.wait is None or self.inputs.pending_reset_wait() != notice.wait:
-            with self._notice_lock:
-                if self._reset_notice is notice:
-                    self._reset_notice = None
-            return
-        self._send_notice(notice)
+            if notice is None:
+                return
+            if notice.wait is not None and self.inputs.pending_reset_wait() == notice.wait:
+                self._send_notice(notice)
 
     def wait_active(self, timeout_s: float) -> bool:
         """True once every subject is subscribed on the server (for callers that must not miss one)."""
@@ -259,11 +267,13 @@ class OperatorInputsBridge:
             message = parse_input(model, data)
         except ValueError as exc:
             self.rejected += 1
+            self.link.input_counts.add(rejected=1)
             self._rejections.warning("dropped an operator input on %s: %s", subject, exc)
             return
         try:
             apply(message)
         finally:
+            self.link.input_counts.add(accepted=1)
             self.accepted += 1  # counted once applied: a caller waiting on the count sees its effect
 
     def _teleop_action(self, message: _Input) -> None:
@@ -276,12 +286,20 @@ class OperatorInputsBridge:
 
     def _reset_confirm(self, message: _Input) -> None:
         assert isinstance(message, ResetConfirm)
-        if isinstance(message.request, str) and message.request != self._reset_request:
-            # Meant for an earlier wait (it timed out, and this one began before the click arrived).
-            log.warning("reset confirmation by %s dropped: it names request %s, not the reset waiting now",
-                        message.by, message.request[:128])
-            return
-        if self.inputs.confirm_reset():
+        confirm = self.inputs.confirm_reset
+        if isinstance(message.request, str):
+            with self._notice_lock:
+                request, wait = self._reset_request, self._reset_wait
+            if message.request != request:
+                # Meant for an earlier wait (it timed out, and this one began before the click arrived).
+                log.warning("reset confirmation by %s dropped: it names request %s, not the reset waiting now",
+                            message.by, message.request[:128])
+                return
+            if wait is not None and isinstance(self.inputs, LocalOperatorInputs | SidecarInputs):
+                # That wait only: a next wait that began before its own notice went out is not confirmed.
+                inputs = self.inputs
+                confirm = lambda: inputs.confirm_reset_wait(wait)  # noqa: E731
+        if confirm():
             log.info("reset confirmed by %s", message.by)
         else:
             log.warning("reset confirmation by %s dropped: no reset was waiting for one", message.by)

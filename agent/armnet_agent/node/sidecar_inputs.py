@@ -92,7 +92,16 @@ class SidecarInputs:
         if wait is None:
             self._metrics.sidecar_inputs.labels(op="confirm_reset", result="dropped").inc()
             return False
-        return self._send("confirm_reset", {"wait": wait})
+        return self.confirm_reset_wait(wait)
+
+    def confirm_reset_wait(self, wait: int) -> bool:
+        """Confirm reset wait ``wait`` only; the connector drops it if another wait is the one waiting."""
+        applied = self._send("confirm_reset", {"wait": wait})
+        if applied:
+            with self._lock:
+                if self._pending == wait:
+                    self._pending = None  # confirmed: its notice is not repeated while the next poll is due
+        return applied
 
     # -- what the pod session calls -----------------------------------------------------
 
@@ -107,6 +116,9 @@ class SidecarInputs:
             while not self._closed.wait(self._poll_s):
                 if running():
                     self.poll_reset()
+                else:
+                    with self._lock:
+                        self._pending = None  # the job's container is gone: no reset of its waits
 
         self._watcher = threading.Thread(target=loop, name="armnet-sidecar-inputs", daemon=True)
         self._watcher.start()
@@ -115,6 +127,8 @@ class SidecarInputs:
         """Ask once whether a reset waits; a new wait is announced (``on_reset_requested``)."""
         reply = self._call({"op": "reset_pending"})
         if reply is None:
+            with self._lock:
+                self._pending = None  # unknown: stop repeating; the next answered poll resumes it
             return
         wait, pending = reply.get("wait"), reply.get("pending")
         if pending is not True or type(wait) is not int:

@@ -116,6 +116,22 @@ class Subscription:
         self._link._unsubscribe(self)
 
 
+class InputCounts:
+    """Operator inputs and reset notices of every bridge on one link; totals never go down."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.accepted = 0
+        self.rejected = 0
+        self.reset_notices = 0
+
+    def add(self, *, accepted: int = 0, rejected: int = 0, reset_notices: int = 0) -> None:
+        with self._lock:
+            self.accepted += accepted
+            self.rejected += rejected
+            self.reset_notices += reset_notices
+
+
 class NatsLink:
     """One NATS connection for the agent process; see the module docstring."""
 
@@ -135,6 +151,8 @@ class NatsLink:
         self._refused_log = RateLimitedLog(log)
         self.published = 0
         self.refused = 0
+        #: Every inputs bridge on this link counts here too (the process's totals, for the metrics).
+        self.input_counts = InputCounts()
 
     # counters an operator watches (see stream_metrics)
     @property

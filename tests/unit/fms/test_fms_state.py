@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 from armnet_fms.local import LocalFleet
-from armnet_fms.state import ENDED_REQUESTS_KEPT, FleetState
+from armnet_fms.state import ENDED_REQUESTS_KEPT, REPEAT_GRACE_S, FleetState
 
 from tests.unit.fms.fms_builders import NOW, a_cell, a_notice
 
@@ -46,13 +46,24 @@ def test_the_first_notice_heard_may_be_a_repeat_and_shows_the_time_really_left()
     assert state.pending["so101-a"].seconds_left(clock.now) == 22
 
 
-def test_a_repeat_of_a_confirmed_reset_never_brings_its_button_back() -> None:
+def test_a_repeat_in_flight_at_the_confirmation_does_not_bring_its_button_back() -> None:
     clock = Clock()
     state = a_state(clock)
     state.on_reset_requested("so101-a", a_request())
     state.clear_reset("so101-a", "job-uid-1@2027-01-15T07:59:59+00:00")
+    clock.now += 2
     state.on_reset_requested("so101-a", a_request(elapsed=2))  # sent before the click reached the job
     assert "so101-a" not in state.pending
+
+
+def test_repeats_after_the_grace_mean_the_confirmation_was_lost_and_the_button_comes_back() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.on_reset_requested("so101-a", a_request())
+    state.clear_reset("so101-a", "job-uid-1@2027-01-15T07:59:59+00:00")
+    clock.now += REPEAT_GRACE_S + 1
+    state.on_reset_requested("so101-a", a_request(elapsed=REPEAT_GRACE_S + 1))
+    assert state.pending["so101-a"].seconds_left(clock.now) == 30 - REPEAT_GRACE_S - 1
 
 
 def test_a_repeat_of_a_reset_past_its_deadline_stays_gone() -> None:
@@ -69,8 +80,18 @@ def test_a_later_wait_replaces_the_one_shown_and_the_earlier_one_cannot_return()
     clock = Clock()
     state = a_state(clock)
     state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:00+00:00"))
+    clock.now += 30
     state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:30+00:00"))
-    state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:00+00:00", elapsed=4))  # late repeat
+    clock.now += 1
+    state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:00+00:00", elapsed=31))  # late repeat
+    assert state.pending["so101-a"].request_id == "job-uid-1@2027-01-15T07:59:30+00:00"
+
+
+def test_a_late_repeat_of_an_earlier_wait_never_shown_does_not_hide_the_wait_shown() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:30+00:00", elapsed=1))
+    state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:00+00:00", elapsed=20))
     assert state.pending["so101-a"].request_id == "job-uid-1@2027-01-15T07:59:30+00:00"
 
 
@@ -81,7 +102,9 @@ def test_a_notice_for_a_cell_the_fms_does_not_list_makes_no_button() -> None:
 
 
 def test_the_memory_of_ended_requests_is_bounded() -> None:
-    state = a_state(Clock())
+    clock = Clock()
+    state = a_state(clock)
     for i in range(ENDED_REQUESTS_KEPT + 10):
+        clock.now += 1
         state.on_reset_requested("so101-a", a_request(at=f"2027-01-15T07:59:59.{i:06d}+00:00"))
     assert len(state.ended_requests) == ENDED_REQUESTS_KEPT

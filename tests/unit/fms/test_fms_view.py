@@ -127,7 +127,11 @@ def test_a_notice_first_heard_as_a_repeat_counts_the_timeout_from_when_the_wait_
     assert pending.seconds_left(NOW) == 17.5
 
 
-@pytest.mark.parametrize("elapsed", [-5, float("nan"), float("inf"), True, "12", None, 1e308])
-def test_an_elapsed_that_is_not_a_plausible_duration_never_lengthens_the_wait(elapsed: object) -> None:
+@pytest.mark.parametrize("elapsed", [-5, float("nan"), float("inf"), True, "12", None, 10**400])
+def test_an_elapsed_that_is_not_a_duration_counts_the_timeout_from_when_the_notice_was_heard(elapsed: object) -> None:
     pending = pending_from_notice("so101-a", {**a_notice(), "elapsed": elapsed}, 30, NOW)
-    assert 0 <= pending.seconds_left(NOW) <= 30
+    assert pending.seconds_left(NOW) == 30
+
+
+def test_an_elapsed_past_the_timeout_shows_a_reset_already_over() -> None:
+    assert pending_from_notice("so101-a", {**a_notice(), "elapsed": 1e308}, 30, NOW).expired(NOW)
