@@ -108,7 +108,7 @@ class _ResetNotice:
 
     request: str
     at: str
-    wait: int | None  # the inputs' number for this wait (``pending_reset_wait``): another number ends the repeats
+    wait: int | None  # the inputs' number for this wait (``pending_reset_wait``): repeated while it waits
     began: float  # time.monotonic() at the first announcement
 
     def payload(self, namespace: str, job_uid: str, now: float) -> bytes:
@@ -170,11 +170,8 @@ class OperatorInputsBridge:
             fms_subject(cell, "stop"): (Stop, self._stop),
         }
         self._subscriptions: list[Subscription] = []
-        #: The request id of the last reset wait announced; a confirmation naming another one is dropped.
-        self._reset_request: str | None = None
-        #: The inputs' number for that wait (None when the inputs do not number waits).
-        self._reset_wait: int | None = None
-        #: The notice of the reset wait announced last (repeated while that wait waits).
+        #: The notice of the reset wait announced last (repeated while that wait waits); a
+        #: confirmation naming another request is dropped.
         self._reset_notice: _ResetNotice | None = None
         self._notice_lock = threading.Lock()
         self._reannounce_s = reannounce_s
@@ -182,6 +179,12 @@ class OperatorInputsBridge:
         self._repeater: threading.Thread | None = None
         #: Notices sent (first announcements and repeats): what a test or an operator reads to see them go out.
         self.reset_notices_sent = 0
+
+    @property
+    def _reset_request(self) -> str | None:
+        """The request id of the last reset wait announced."""
+        notice = self._reset_notice
+        return notice.request if notice is not None else None
 
     @property
     def subjects(self) -> list[str]:
@@ -211,7 +214,7 @@ class OperatorInputsBridge:
         wait = self.inputs.pending_reset_wait() if isinstance(self.inputs, LocalOperatorInputs | SidecarInputs) else None
         notice = _ResetNotice(request=request, at=at, wait=wait, began=time.monotonic())
         with self._notice_lock:  # set and sent in one step: a repeat of the previous wait never follows it
-            self._reset_request, self._reset_wait, self._reset_notice = request, wait, notice
+            self._reset_notice = notice
             self._send_notice(notice)
 
     def _send_notice(self, notice: _ResetNotice) -> None:
@@ -289,12 +292,13 @@ class OperatorInputsBridge:
         confirm = self.inputs.confirm_reset
         if isinstance(message.request, str):
             with self._notice_lock:
-                request, wait = self._reset_request, self._reset_wait
-            if message.request != request:
+                notice = self._reset_notice
+            if notice is None or message.request != notice.request:
                 # Meant for an earlier wait (it timed out, and this one began before the click arrived).
                 log.warning("reset confirmation by %s dropped: it names request %s, not the reset waiting now",
                             message.by, message.request[:128])
                 return
+            wait = notice.wait
             if wait is not None and isinstance(self.inputs, LocalOperatorInputs | SidecarInputs):
                 # That wait only: a next wait that began before its own notice went out is not confirmed.
                 inputs = self.inputs
