@@ -7,7 +7,8 @@ loop, so no lock is needed.
 The agent repeats a reset's notice while the reset waits (a core NATS notice
 can be lost), so a notice for the reset already shown changes nothing (its
 deadline stays the one first reckoned); a notice for a wait that began before
-the one shown never replaces it (a late repeat); one for a reset past its
+the one shown never replaces it (a late repeat), nor does one naming a job the
+cell does not run (a stale or forged notice) replace the running job's; one for a reset past its
 deadline here never brings its button back, and one for a reset confirmed or
 replaced here does not for ``REPEAT_GRACE_S`` (a repeat already in flight),
 after which the button comes back: the job still waits, so the confirmation
@@ -93,6 +94,9 @@ class FleetState:
         if shown is not None:
             if shown.request_id == pending.request_id or pending.began_at <= shown.began_at:
                 return  # a repeat of the reset shown, or of an earlier wait arriving late
+            running = self._current_job_uid(cell)
+            if shown.job_uid == running != pending.job_uid:
+                return  # a notice naming a job the cell does not run never hides the real prompt
             self._ended(shown.request_id, now + REPEAT_GRACE_S)  # a later wait replaces it
         self.pending[cell] = pending
         self.changed.set()
@@ -102,6 +106,17 @@ class FleetState:
             self._ended(request_id, self.clock() + REPEAT_GRACE_S)
             del self.pending[cell]
             self.changed.set()
+
+    def _current_job_uid(self, cell: str) -> str | None:
+        """The uid of the job the cell ran at the last poll (``status.currentJob``), if any."""
+        status = next(((c.get("status") or {}) for c in self.cells
+                       if (c.get("metadata") or {}).get("name") == cell), {})
+        key = status.get("currentJob")
+        for job in self.jobs:
+            meta = job.get("metadata") or {}
+            if f"{meta.get('namespace')}/{meta.get('name')}" == key:
+                return str(meta.get("uid"))
+        return None
 
     def cell_names(self) -> set[str]:
         """The names of the Cells read last (the only cells whose telemetry the FMS keeps)."""

@@ -6,7 +6,7 @@ import pytest
 from armnet_fms.local import LocalFleet
 from armnet_fms.state import ENDED_REQUESTS_KEPT, REPEAT_GRACE_S, FleetState
 
-from tests.unit.fms.fms_builders import NOW, a_cell, a_notice
+from tests.unit.fms.fms_builders import NOW, a_cell, a_job, a_notice
 
 pytestmark = pytest.mark.unit
 
@@ -93,6 +93,31 @@ def test_a_late_repeat_of_an_earlier_wait_never_shown_does_not_hide_the_wait_sho
     state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:30+00:00", elapsed=1))
     state.on_reset_requested("so101-a", a_request(at="2027-01-15T07:59:00+00:00", elapsed=20))
     assert state.pending["so101-a"].request_id == "job-uid-1@2027-01-15T07:59:30+00:00"
+
+
+def test_a_later_notice_naming_a_job_the_cell_does_not_run_never_hides_the_running_jobs_prompt() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.jobs = [a_job()]  # the cell runs team-a/eval-1, uid job-uid-1
+    state.on_reset_requested("so101-a", a_request())
+    clock.now += 1
+    forged = {**a_notice(job_id="other-uid", at="2027-01-15T08:00:00+00:00"), "request": "other-uid@x"}
+    state.on_reset_requested("so101-a", forged)
+    assert state.pending["so101-a"].request_id == "job-uid-1@2027-01-15T07:59:59+00:00"
+    assert state.rows()[0].reset is not None
+
+
+def test_the_next_jobs_first_wait_replaces_a_prompt_left_by_the_job_before() -> None:
+    clock = Clock()
+    state = a_state(clock)
+    state.jobs = [a_job()]
+    state.on_reset_requested("so101-a", a_request())
+    clock.now += 5
+    state.cells = [a_cell(job="team-a/eval-2")]  # the poll: the cell moved on to the next job
+    state.jobs = [a_job(name="eval-2", job_id="job-uid-2")]
+    state.on_reset_requested("so101-a", {**a_notice(job_id="job-uid-2", at="2027-01-15T08:00:04+00:00"),
+                                         "request": "job-uid-2@2027-01-15T08:00:04+00:00"})
+    assert state.pending["so101-a"].job_uid == "job-uid-2"
 
 
 def test_a_notice_for_a_cell_the_fms_does_not_list_makes_no_button() -> None:
