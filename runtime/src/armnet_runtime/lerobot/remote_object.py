@@ -317,29 +317,21 @@ class RemoteObjectProxy:
             self.__dict__.pop(name, None)
 
     def _call(self, payload: dict[str, Any]) -> dict[str, Any]:
-        """``_request`` for a call on a live object, without its layers; anything unusual takes ``_request``.
+        """``_request`` for a call on a live object, without its closures; anything unusual takes ``_request``.
 
         Why: a control loop calls a few methods at 100 Hz on an object that exists
         and a connection that works; creating, recovering and resending are for the
-        other calls. A send that failed here (the connector never saw it) marks the
-        object lost and continues as ``_request``'s second attempt: re-create, send again.
+        other calls. A send that failed here (the connector never saw it; ``_transport``
+        marked the object lost) continues as ``_request``'s second attempt: re-create, send again.
         """
         with self._lock:
             object_id = self._object_id
             if object_id is not None and not self._stale:
                 payload["object_id"] = object_id
                 try:
-                    reply = self._conn.request(payload)
-                except (ConnectorUnavailable, ProtocolError):
-                    object.__setattr__(self, "_stale", True)
-                    raise
-                except OSError:
-                    # Unsent: the second attempt of ``_with_retry`` re-creates the object and sends again.
-                    object.__setattr__(self, "_stale", True)
+                    return self._send(payload)
+                except _UnsentRequest:
                     return self._with_retry(self._send_call(payload), first_attempt=2)
-                if reply.get("ok") is True:
-                    return reply
-                return check_response(reply, error_message=f"remote {self._remote_class} call failed")
         return self._request(payload)
 
     def _send_call(self, payload: dict[str, Any]) -> Callable[[], dict[str, Any]]:
