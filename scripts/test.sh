@@ -8,15 +8,18 @@ venv="${ARMNET_VENV:-$HOME/.cache/armnet/venv}"
 
 bash scripts/setup.sh
 
-echo "== ruff =="
-"$venv/bin/ruff" check .
-echo "== mypy (strict, every package) =="
-"$venv/bin/mypy"
-echo "== import-linter (checked layers, .importlinter) =="
-"$venv/bin/lint-imports" --no-cache --no-logo
-echo "== pytest =="
+lint() {
+  echo "== ruff =="
+  "$venv/bin/ruff" check .
+  echo "== mypy (strict, every package) =="
+  "$venv/bin/mypy"
+  echo "== import-linter (checked layers, .importlinter) =="
+  "$venv/bin/lint-imports" --no-cache --no-logo
+}
 export PATH="$venv/bin:$PATH"
 if [ "$#" -gt 0 ]; then
+  lint
+  echo "== pytest =="
   exec "$venv/bin/python" -m pytest "$@"
 fi
 
@@ -31,9 +34,10 @@ fi
 # One group per line; files separated by spaces; each group is its own session.
 # Balanced by measurement (2026-11-25, warm): the main session alone ran 6 minutes at half
 # the CPU after the side sessions ended, so the container tier and the local-run e2e moved
-# into them.
+# into them; on 2026-11-28 the main session still ended 2 minutes after the other two, so
+# the Helm chart's rendering, RBAC and lifecycle tests moved beside the agent's scenarios.
 side_groups=(
-  "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container"
+  "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container tests/integration/test_helm_chart.py tests/integration/test_helm_rbac.py tests/integration/test_helm_lifecycle.py"
   "tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
 )
 # Each session prints its slowest tests (--durations): where the suite's time budget goes.
@@ -48,9 +52,17 @@ for group in "${side_groups[@]}"; do
   side_pids+=("$!")
   for f in "${files[@]}"; do ignores+=("--ignore=$f"); done
 done
-trap 'rm -f "${side_logs[@]}"' EXIT
+# The linters run beside the sessions too (mypy alone is ~20 s of one core in a fresh
+# clone); their report comes first once they end.
+lint_log="$(mktemp /tmp/armnet-test-lint.XXXXXX)"
+trap 'rm -f "${side_logs[@]}" "$lint_log"' EXIT
+lint >"$lint_log" 2>&1 &
+lint_pid=$!
 main_rc=0
 "$venv/bin/python" -m pytest --durations=25 "${ignores[@]}" || main_rc=$?
+lint_rc=0
+wait "$lint_pid" || lint_rc=$?
+cat "$lint_log"
 failed=()
 for i in "${!side_groups[@]}"; do
   rc=0
@@ -59,7 +71,13 @@ for i in "${!side_groups[@]}"; do
   cat "${side_logs[$i]}"
   if [ "$rc" -ne 0 ]; then failed+=("${side_groups[$i]} (exit $rc)"); fi
 done
+if [ "$lint_rc" -ne 0 ]; then
+  echo "lint failed (exit $lint_rc): the linters' report is above" >&2
+fi
 if [ "$main_rc" -ne 0 ] || [ "${#failed[@]}" -gt 0 ]; then
   echo "pytest failed: suite exit $main_rc; side groups failed: ${failed[*]:-none}" >&2
+  exit 1
+fi
+if [ "$lint_rc" -ne 0 ]; then
   exit 1
 fi

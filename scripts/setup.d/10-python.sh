@@ -30,10 +30,23 @@ if [ ! -f "$stamp" ]; then
   touch "$stamp"
 fi
 
-echo "[setup/python] installing armnet (editable), rerun-sdk for armnet view, and dev tools"
-"${pip[@]}" install -c <(echo "$torch_pin") -e "$here/runtime[fast,view]" -e "$here[dev]"
-"$venv/bin/python" -c "import lerobot.motors.feetech, lerobot.cameras.opencv, scservo_sdk, armnet_runtime" \
-  || { echo "[setup/python] LeRobot motors/cameras do not import; see shared reference lerobot-feetech.md §0" >&2; exit 1; }
-"$venv/bin/python" -c "from lerobot.robots.so_follower import SO101Follower; from lerobot.robots.bi_so_follower import BiSOFollower" \
-  || { echo "[setup/python] LeRobot's robot classes do not import (torchvision/av/einops/pillow?); see docs/lerobot-compatibility.md" >&2; exit 1; }
+# The editable install points the venv at this clone; it is redone (~15 s) only when the
+# clone, its package metadata or its top-level packages changed since the last one
+# (another clone ran setup, a dependency or a package was added); the import checks
+# (~7 s of CPU) run after each install.
+editable_stamp="$venv/.armnet-editable"
+editable_key="$(cd "$here" && { echo "$here"; cat pyproject.toml runtime/pyproject.toml
+  ls -d runtime/src/*/__init__.py operator/*/__init__.py agent/*/__init__.py cli/*/__init__.py fms/*/__init__.py; } 2>/dev/null | sha256sum | cut -c1-16)"
+if [ "$(cat "$editable_stamp" 2>/dev/null)" != "$editable_key" ]; then
+  echo "[setup/python] installing armnet (editable), rerun-sdk for armnet view, and dev tools"
+  rm -f "$editable_stamp"
+  "${pip[@]}" install -c <(echo "$torch_pin") -e "$here/runtime[fast,view]" -e "$here[dev]"
+  "$venv/bin/python" -c "import lerobot.motors.feetech, lerobot.cameras.opencv, scservo_sdk, armnet_runtime" \
+    || { echo "[setup/python] LeRobot motors/cameras do not import; see shared reference lerobot-feetech.md §0" >&2; exit 1; }
+  "$venv/bin/python" -c "from lerobot.robots.so_follower import SO101Follower; from lerobot.robots.bi_so_follower import BiSOFollower" \
+    || { echo "[setup/python] LeRobot's robot classes do not import (torchvision/av/einops/pillow?); see docs/lerobot-compatibility.md" >&2; exit 1; }
+  echo "$editable_key" >"$editable_stamp"
+else
+  echo "[setup/python] armnet already installed (editable) from $here"
+fi
 echo "[setup/python] ready: $venv"
