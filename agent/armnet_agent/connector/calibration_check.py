@@ -57,11 +57,14 @@ def calibration_mismatches(
 
 #: STS3215 addresses of those registers (two bytes each), as in LeRobot's control table.
 CALIBRATION_ADDRESSES = {"Homing_Offset": 31, "Min_Position_Limit": 9, "Max_Position_Limit": 11}
+#: The one contiguous read that covers them (addresses 9 through 32).
+CALIBRATION_BLOCK_START = min(CALIBRATION_ADDRESSES.values())
+CALIBRATION_BLOCK_LENGTH = max(CALIBRATION_ADDRESSES.values()) + 2 - CALIBRATION_BLOCK_START
 #: Homing_Offset is sign-magnitude, its sign at bit 11 (LeRobot's STS encoding table).
 HOMING_OFFSET_SIGN_BIT = 11
 #: The line speed of the cell's Feetech bus (LeRobot's default for these servos).
 BAUD_RATE = 1_000_000
-#: Extra tries per register: a loaded machine can miss a reply (LeRobot's reads use 2; the idle
+#: Extra tries per servo: a loaded machine can miss a reply (LeRobot's reads use 2; the idle
 #: probe can afford more, and a read that never answers says nothing about calibration).
 READ_RETRIES = 5
 
@@ -97,16 +100,12 @@ def read_calibration(
         packets = PacketHandler(0)
         held: dict[int, tuple[int, int, int] | None] = {}
         for motor_id in sorted(set(motor_ids)):
-            values: list[int] = []
-            for register in CALIBRATION_REGISTERS:
-                value = _read_word(packets, handler, motor_id, CALIBRATION_ADDRESSES[register], COMM_SUCCESS)
-                if value is None:  # a servo that does not answer is a mismatch; its other registers too
-                    break
-                values.append(value)
-            if len(values) < len(CALIBRATION_REGISTERS):
+            block = _read_block(packets, handler, motor_id, COMM_SUCCESS)
+            if block is None:  # a servo that does not answer is a mismatch on every register
                 held[motor_id] = None
                 continue
-            homing, low, high = values
+            homing, low, high = (_word(block, CALIBRATION_ADDRESSES[r] - CALIBRATION_BLOCK_START)
+                                 for r in CALIBRATION_REGISTERS)
             held[motor_id] = (_sign_magnitude(homing, HOMING_OFFSET_SIGN_BIT), low, high)
         return held
     finally:
@@ -128,21 +127,31 @@ def _reply_window_as_lerobot(handler: Any) -> None:
     handler.setPacketTimeout = set_packet_timeout
 
 
-def _read_word(packets: Any, handler: Any, motor_id: int, address: int, success: int) -> int | None:
-    """A two-byte register, or None when the servo stays silent, reports an error or cuts its reply short.
+def _word(block: list[int], offset: int) -> int:
+    """A two-byte register from a block read: protocol 0 (STS servos) sends the low byte first."""
+    return block[offset] | block[offset + 1] << 8
 
-    ``scservo_sdk`` raises IndexError on a truncated reply instead of reporting it. A failed
-    attempt's reply may still come: wait it out and drop it before asking again, else every
-    later read of the pass is shifted by one reply (a false calibration mismatch, seen under load).
+
+def _read_block(packets: Any, handler: Any, motor_id: int, success: int) -> list[int] | None:
+    """The servo's bytes from the first calibration register to the last, or None when it stays silent.
+
+    One read per servo, of a length no other read of this pass asks for: a Feetech reply
+    names its servo but not the register it answers, so a late reply to a register read
+    could pass for the next register's (values shifted by one register, a false mismatch
+    seen under load). A late reply here answers an earlier try of this same block read:
+    the same EEPROM bytes. A reply of another length (truncated, or some other request's)
+    is no answer. ``scservo_sdk`` skips replies from other servos itself, and raises
+    IndexError on a truncated reply instead of reporting it.
     """
     for attempt in range(1 + READ_RETRIES):
         if attempt:
             time.sleep(LATE_REPLY_WAIT_S)
         handler.ser.reset_input_buffer()  # a reply that came after its request gave up is no answer
         try:
-            value, result, error = packets.read2ByteTxRx(handler, motor_id, address)
+            data, result, error = packets.readTxRx(handler, motor_id, CALIBRATION_BLOCK_START,
+                                                   CALIBRATION_BLOCK_LENGTH)
         except (IndexError, OSError):
             continue
-        if result == success and not error:
-            return int(value)
+        if result == success and not error and len(data) == CALIBRATION_BLOCK_LENGTH:
+            return [int(b) for b in data]
     return None
