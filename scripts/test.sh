@@ -53,7 +53,7 @@ for group in "${side_groups[@]}"; do
   for f in "${files[@]}"; do ignores+=("--ignore=$f"); done
 done
 # The linters run beside the sessions too (mypy alone is ~20 s of one core in a fresh
-# clone); their report comes first once they end.
+# clone); their report is printed once the main session has ended.
 lint_log="$(mktemp /tmp/armnet-test-lint.XXXXXX)"
 trap 'rm -f "${side_logs[@]}" "$lint_log"' EXIT
 lint >"$lint_log" 2>&1 &

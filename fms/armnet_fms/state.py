@@ -26,7 +26,14 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from .actions import AuditEvent
-from .view import CellRow, PendingReset, build_fleet, pending_from_notice
+from .view import (
+    CellRow,
+    PendingReset,
+    build_fleet,
+    current_job_uid,
+    jobs_by_key,
+    pending_from_notice,
+)
 
 log = logging.getLogger(__name__)
 
@@ -109,14 +116,8 @@ class FleetState:
 
     def _current_job_uid(self, cell: str) -> str | None:
         """The uid of the job the cell ran at the last poll (``status.currentJob``), if any."""
-        status = next(((c.get("status") or {}) for c in self.cells
-                       if (c.get("metadata") or {}).get("name") == cell), {})
-        key = status.get("currentJob")
-        for job in self.jobs:
-            meta = job.get("metadata") or {}
-            if f"{meta.get('namespace')}/{meta.get('name')}" == key:
-                return str(meta.get("uid"))
-        return None
+        listed = next((c for c in self.cells if (c.get("metadata") or {}).get("name") == cell), None)
+        return current_job_uid(listed, jobs_by_key(self.jobs)) if listed is not None else None
 
     def cell_names(self) -> set[str]:
         """The names of the Cells read last (the only cells whose telemetry the FMS keeps)."""

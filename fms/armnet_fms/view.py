@@ -248,12 +248,25 @@ def build_row(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, An
     )
 
 
+def jobs_by_key(jobs: Iterable[Mapping[str, Any]]) -> dict[str, Mapping[str, Any]]:
+    """The jobs by ``namespace/name``, the key a Cell's ``status.currentJob`` holds."""
+    return {f"{(j.get('metadata') or {}).get('namespace')}/{(j.get('metadata') or {}).get('name')}": j
+            for j in jobs}
+
+
+def current_job_uid(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """The uid of the job the cell's ``status.currentJob`` names, if it is among the jobs read."""
+    current = (cell.get("status") or {}).get("currentJob")
+    job = jobs_by_key.get(current) if isinstance(current, str) else None
+    uid = (job.get("metadata") or {}).get("uid") if job is not None else None
+    return uid if isinstance(uid, str) else None
+
+
 def build_fleet(cells: Iterable[Mapping[str, Any]], jobs: Iterable[Mapping[str, Any]],
                 pending: Mapping[str, PendingReset], now: float, *, site: str = "",
                 query: str = "") -> list[CellRow]:
     """The rows of the cells matching ``site`` (label) and ``query`` (substring of the name), by name."""
-    by_key = {f"{(j.get('metadata') or {}).get('namespace')}/{(j.get('metadata') or {}).get('name')}": j
-              for j in jobs}
+    by_key = jobs_by_key(jobs)
     rows = []
     for cell in cells:
         row = build_row(cell, by_key, pending.get(str((cell.get("metadata") or {}).get("name"))), now)
