@@ -29,7 +29,10 @@ Shape (every field optional)::
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import sys
+from types import ModuleType
 from typing import Any, Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -162,14 +165,34 @@ def parse_cell_config(raw: str) -> CellConfig:
 
 
 def build_camera_configs(cameras: dict[str, CameraConfig]) -> dict[str, Any]:
-    """LeRobot ``OpenCVCameraConfig`` objects when LeRobot is importable, plain dicts otherwise."""
+    """The cell's cameras as LeRobot ``OpenCVCameraConfig`` objects, or plain dicts.
+
+    Why not import LeRobot here: this runs before ``@main``, and LeRobot's camera
+    module brings torch (seconds of CPU) into every job. The configs are LeRobot's
+    objects when the job has imported ``lerobot.cameras.opencv`` (a script that imports
+    LeRobot at its top has, by the time the context is built); otherwise the dict holds
+    plain dicts and is upgraded in place when the job imports that module. Without
+    LeRobot installed they stay plain dicts.
+    """
     if not cameras:
         return {}
-    try:
-        from lerobot.cameras.configs import ColorMode, Cv2Rotation
-        from lerobot.cameras.opencv import OpenCVCameraConfig
-    except ImportError:
-        return {name: camera.model_dump() for name, camera in cameras.items()}
+    built: dict[str, Any] = {name: camera.model_dump() for name, camera in cameras.items()}
+    if "lerobot.cameras.opencv" not in sys.modules and importlib.util.find_spec("lerobot") is None:
+        return built
+
+    def upgrade(_module: ModuleType) -> None:
+        built.update(_lerobot_camera_configs(cameras))
+
+    from armnet_runtime.lerobot.import_hook import when_imported
+
+    when_imported("lerobot.cameras.opencv", upgrade)
+    return built
+
+
+def _lerobot_camera_configs(cameras: dict[str, CameraConfig]) -> dict[str, Any]:
+    from lerobot.cameras.configs import ColorMode, Cv2Rotation
+    from lerobot.cameras.opencv import OpenCVCameraConfig
+
     built: dict[str, Any] = {}
     for name, camera in cameras.items():
         rotation = -90 if camera.rotation == 270 else camera.rotation

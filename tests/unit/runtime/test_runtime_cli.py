@@ -20,8 +20,8 @@ pytestmark = [pytest.mark.unit, pytest.mark.timeout(120)]
 REPO = Path(__file__).resolve().parents[3]
 HELLO = REPO / "runtime" / "examples" / "hello.py"
 JOB_ENV = {"ARMNET_JOB_ID": "job-42", "ARMNET_EMBODIMENT": "lerobot/so-101", "ARMNET_TASK": "demo"}
-# Most runs are local-container runs: the LeRobot import swap (step 1) is then skipped by
-# design, which saves importing LeRobot and torch in every process. The hello run keeps it.
+# Most runs are local-container runs (the LeRobot import swap is then skipped by design);
+# the hello run and the start-up test keep the swap.
 FAST_ENV = {**JOB_ENV, "ARMNET_LOCAL_CONTAINER": "1"}
 
 
@@ -70,13 +70,32 @@ def test_exit_codes_have_the_documented_values() -> None:
 
 
 def test_hello_succeeds_with_progress_and_a_result_marker() -> None:
-    """The full path, LeRobot import swap included (LeRobot is installed in the test venv)."""
+    """The full path; LeRobot is installed in the test venv, but a job that does not import it
+    never loads it (the import swap waits for the job's own import)."""
     result = run_script(HELLO, env={**JOB_ENV, "ARMNET_ARGS": '{"name": "armnet", "steps": 2}'})
     assert result.code == 0, result.stderr
     assert result.of_kind("progress") == ["hello, armnet", "step 1/2", "step 2/2"]
     assert result.of_kind("result") == [{"greeting": "hello, armnet", "steps": 2, "job_id": "job-42"}]
     assert result.of_kind("traceback") == []
-    assert "armnet-runtime: INFO armnet LeRobot remote mode installed: patched" in result.stderr
+    assert "LeRobot" not in result.stderr
+
+
+def test_a_job_that_does_not_import_lerobot_reaches_main_without_lerobot_or_torch(tmp_path: Path) -> None:
+    """The platform's work before ``@main`` imports neither (the swap waits for the job's import),
+    even on a cell with cameras, whose configs would be LeRobot's objects."""
+    script = write(tmp_path, """
+        import sys
+        from armnet_runtime import main
+
+        @main
+        def run(ctx):
+            heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("lerobot", "torch"))
+            return {"heavy": heavy, "front": type(ctx.camera_configs["front"]).__name__}
+    """)
+    cameras = '{"camera_configs": {"front": {"index_or_path": 0, "fps": 30}}}'
+    result = run_script(script, env={**JOB_ENV, "ARMNET_CELL_CONFIG": cameras})
+    assert result.code == 0, result.stderr
+    assert result.of_kind("result") == [{"heavy": [], "front": "dict"}]
 
 
 def test_every_output_line_carries_a_utc_timestamp(tmp_path: Path) -> None:

@@ -41,8 +41,7 @@ def bind_early(name):
     return module
 
 def patched_lines():
-    lines = [m for level, m in records if "remote mode" in m]
-    return lines
+    return [m for level, m in records if "remote mode" in m and level != "DEBUG"]
 """
 
 
@@ -135,6 +134,68 @@ checks["still_proxy"] = lerobot.motors.feetech.FeetechMotorsBus is RemoteFeetech
 bus = FeetechMotorsBus(port="/dev/ttyACM0", motors={"gripper": Motor(6, "sts3215", MotorNormMode.RANGE_0_100)})
 print(json.dumps({"checks": checks, "lines": patched_lines(), "early": early, "described": bus.describe()}))
 """
+
+
+def test_swap_imports_nothing_and_swaps_when_the_job_imports_lerobot() -> None:
+    """A job pays for LeRobot only when it imports LeRobot: the swap waits for that import."""
+    sock_dir = Path(tempfile.mkdtemp(prefix="armw", dir="/tmp"))
+    server = ObjectServer(str(sock_dir / "robot.sock"), {"FeetechMotorsBus": EchoBus}).start()
+    try:
+        result = run_case(LAZY_CASE, env={"ARMNET_CELL_SOCKET": server.endpoint})
+    finally:
+        server.stop()
+        shutil.rmtree(sock_dir, ignore_errors=True)
+    assert result["before"] == {"lerobot": [], "torch": False}
+    checks = result["checks"]
+    assert isinstance(checks, dict) and checks == {name: True for name in checks}
+    assert result["lines"] == [
+        "armnet LeRobot remote mode: patched lerobot.motors.feetech.feetech.FeetechMotorsBus",
+        "armnet LeRobot remote mode: patched lerobot.cameras.opencv.camera_opencv.OpenCVCamera",
+        "armnet LeRobot remote mode already installed: nothing new to patch",
+    ]
+    assert result["described"] == ["/dev/ttyACM0", "gripper:lerobot.motors.motors_bus.Motor"]
+
+
+LAZY_CASE = """
+from armnet_runtime.lerobot import RemoteFeetechMotorsBus, RemoteOpenCVCamera, install_lerobot_remote_mode
+from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus as Proxy
+install_lerobot_remote_mode()
+before = {"lerobot": sorted(m for m in sys.modules if m.startswith("lerobot")), "torch": "torch" in sys.modules}
+from lerobot.robots.so_follower import so_follower  # binds FeetechMotorsBus at its import
+from lerobot.motors.feetech import FeetechMotorsBus
+from lerobot.motors.feetech.feetech import FeetechMotorsBus as Defined
+from lerobot.motors.motors_bus import SerialMotorsBus
+import lerobot.cameras.opencv
+from lerobot.cameras import Camera
+from lerobot.motors import Motor, MotorNormMode
+bus = FeetechMotorsBus(port="/dev/ttyACM0", motors={"gripper": Motor(6, "sts3215", MotorNormMode.RANGE_0_100)})
+checks = {
+    "package_bus": FeetechMotorsBus is RemoteFeetechMotorsBus,
+    "module_bus": Defined is RemoteFeetechMotorsBus,
+    "robot_module_bus": so_follower.FeetechMotorsBus is RemoteFeetechMotorsBus,
+    "camera": lerobot.cameras.opencv.OpenCVCamera is RemoteOpenCVCamera,
+    "virtual_base": isinstance(bus, SerialMotorsBus) and issubclass(RemoteOpenCVCamera, Camera),
+}
+install_lerobot_remote_mode()
+checks["still_proxy"] = lerobot.motors.feetech.FeetechMotorsBus is RemoteFeetechMotorsBus
+print(json.dumps({"before": before, "checks": checks, "lines": patched_lines(), "described": bus.describe()}))
+"""
+
+
+def test_camera_configs_become_lerobot_configs_when_the_job_imports_lerobot() -> None:
+    """Before the job imports LeRobot's camera they are plain dicts; after, LeRobot's configs."""
+    result = run_case(
+        """
+        from armnet_runtime.cell_config import CameraConfig, build_camera_configs
+        configs = build_camera_configs({"front": CameraConfig(index_or_path=0, fps=30, width=64, height=48)})
+        before = type(configs["front"]).__name__
+        from lerobot.cameras.opencv import OpenCVCameraConfig
+        after = configs["front"]
+        print(json.dumps({"before": before, "after": type(after).__name__,
+                          "fields": [after.width, after.height, after.fps]}))
+        """
+    )
+    assert result == {"before": "dict", "after": "OpenCVCameraConfig", "fields": [64, 48, 30]}
 
 
 def test_swap_is_skipped_for_local_container() -> None:

@@ -1,19 +1,22 @@
 """The LeRobot import swap: customer code keeps ``from lerobot... import FeetechMotorsBus``.
 
 ``armnet-runtime`` calls :func:`install_lerobot_remote_mode` before it loads the
-customer's script. It replaces LeRobot's hardware classes with the remote proxies
-everywhere a module holds them: the defining module, the package that re-exports
-it, and every ``lerobot.*`` module already imported that bound the class at import
-time (``lerobot.robots.so_follower.so_follower`` binds ``FeetechMotorsBus`` when it
-is imported). Modules imported afterwards bind the proxies from the patched
-packages. Data types (``Motor``, ``MotorCalibration``, ``OpenCVCameraConfig``,
-enums) stay real: they cross the socket as tagged JSON.
+customer's script. It imports nothing: it asks to be called back when the job itself
+imports a module that defines one of LeRobot's hardware classes
+(:mod:`armnet_runtime.lerobot.import_hook`), so a job that never imports LeRobot starts
+like plain Python, and one that does pays only LeRobot's own import. Right after such a
+module's code has run, and before anything else can bind a name from it, the class is
+replaced by its remote proxy; the package that re-exports it then binds the proxy, and
+so does every module imported afterwards (``lerobot.robots.so_follower.so_follower``
+binds ``FeetechMotorsBus`` when it is imported). Modules loaded before the call (an
+in-process caller that imported LeRobot first) are patched where they bound the class.
+Data types (``Motor``, ``MotorCalibration``, ``OpenCVCameraConfig``, enums) stay real:
+they cross the socket as tagged JSON.
 """
 
 from __future__ import annotations
 
 import abc
-import importlib
 import importlib.util
 import logging
 import os
@@ -21,6 +24,7 @@ import sys
 from types import ModuleType
 
 from armnet_runtime import env
+from armnet_runtime.lerobot import import_hook
 from armnet_runtime.lerobot.remote_arx5 import RemoteARX5Arm
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
@@ -39,20 +43,25 @@ _originals: dict[int, tuple[type, type[RemoteObjectProxy]]] = {}
 """id(original class) -> (original class, proxy); kept so a second call still finds them."""
 
 
-def _find_originals() -> None:
+def _record_original(module: ModuleType, name: str, proxy: type[RemoteObjectProxy]) -> bool:
+    """Remember ``module.name`` as an original hardware class; False when it is not one."""
+    found = getattr(module, name, None)
+    if isinstance(found, type) and not issubclass(found, RemoteObjectProxy):
+        _originals[id(found)] = (found, proxy)
+        register_virtual_bases(found, proxy)
+        return True
+    return False
+
+
+def _swap_when_imported(module: ModuleType) -> None:
+    """The import hook's callback: swap the classes a just-imported module defines."""
+    patched: list[str] = []
     for name, modules, proxy in SWAP_TARGETS:
-        for module_name in modules:
-            try:
-                if importlib.util.find_spec(module_name.split(".")[0]) is None:
-                    continue
-                module = importlib.import_module(module_name)
-            except Exception as exc:  # noqa: BLE001 - a broken optional dependency must not break the job
-                logger.debug("armnet LeRobot remote mode: cannot import %s: %r", module_name, exc)
-                continue
-            found = getattr(module, name, None)
-            if isinstance(found, type) and not issubclass(found, RemoteObjectProxy):
-                _originals[id(found)] = (found, proxy)
-                register_virtual_bases(found, proxy)
+        if module.__name__ in modules and _record_original(module, name, proxy):
+            setattr(module, name, proxy)
+            patched.append(f"{module.__name__}.{name}")
+    if patched:
+        logger.info("armnet LeRobot remote mode: patched %s", ", ".join(patched))
 
 
 def register_virtual_bases(original: type, proxy: type[RemoteObjectProxy]) -> list[str]:
@@ -99,8 +108,9 @@ def install_lerobot_remote_mode() -> None:
 
     Skipped (one log line) when ``ARMNET_LOCAL_CONTAINER`` is set: the container
     then drives the hardware directly. A no-op when LeRobot is not installed.
-    Idempotent; the single info line lists exactly the ``module.name`` bindings
-    it replaced.
+    Imports nothing: a module not yet imported is swapped when the job imports it
+    (one info line per module, naming the ``module.name`` bindings replaced); modules
+    already imported are patched now (one info line listing them). Idempotent.
     """
     if os.environ.get(env.LOCAL_CONTAINER):
         logger.info(
@@ -111,16 +121,18 @@ def install_lerobot_remote_mode() -> None:
     if importlib.util.find_spec("lerobot") is None:
         logger.debug("armnet LeRobot remote mode: LeRobot is not installed, nothing to patch")
         return
-    _find_originals()
+    loaded = [(name, module_name, proxy) for name, modules, proxy in SWAP_TARGETS
+              for module_name in modules if module_name in sys.modules]
+    for name, module_name, proxy in loaded:
+        _record_original(sys.modules[module_name], name, proxy)
     patched = _patch_loaded_modules()
     if patched:
         logger.info("armnet LeRobot remote mode installed: patched %s", ", ".join(patched))
-    elif _originals:
+    elif loaded:
         logger.info("armnet LeRobot remote mode already installed: nothing new to patch")
-    else:
-        checked = [module for _, modules, _ in SWAP_TARGETS for module in modules]
-        logger.warning(
-            "armnet LeRobot remote mode: LeRobot is installed but none of its hardware classes were found "
-            "(checked %s); remote robot access may fail. Supported: lerobot 0.4.x",
-            ", ".join(checked),
-        )
+    awaited = sorted({module_name for _, modules, _ in SWAP_TARGETS for module_name in modules
+                      if module_name not in sys.modules} - set(import_hook.watched()))
+    for module_name in awaited:
+        import_hook.when_imported(module_name, _swap_when_imported)
+    if awaited:
+        logger.debug("armnet LeRobot remote mode: will swap on import of %s", ", ".join(awaited))
