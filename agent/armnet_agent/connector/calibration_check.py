@@ -11,11 +11,13 @@ agent's health probe calls when no job holds the bus (docs/connector.md,
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from .reply_window import LATE_REPLY_WAIT_S, LEROBOT_REPLY_WINDOW_MS
+
+T = TypeVar("T")
 
 #: The EEPROM registers that hold a servo's calibration, in tuple order.
 CALIBRATION_REGISTERS = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
@@ -96,7 +98,7 @@ def read_calibration(
         raise ConnectionError(f"could not open the servo bus at {port}")
     try:
         handler.setBaudRate(baudrate)
-        _reply_window_as_lerobot(handler)
+        use_lerobot_reply_window(handler)
         packets = PacketHandler(0)
         held: dict[int, tuple[int, int, int] | None] = {}
         for motor_id in sorted(set(motor_ids)):
@@ -112,7 +114,7 @@ def read_calibration(
         handler.closePort()
 
 
-def _reply_window_as_lerobot(handler: Any) -> None:
+def use_lerobot_reply_window(handler: Any) -> None:
     """Give each reply the window LeRobot's bus gives it (50 ms plus the bytes' time).
 
     Why: the SDK's own window (~34 ms at 1 Mbaud) is shorter than the one LeRobot
@@ -143,15 +145,33 @@ def _read_block(packets: Any, handler: Any, motor_id: int, success: int) -> list
     is no answer. ``scservo_sdk`` skips replies from other servos itself, and raises
     IndexError on a truncated reply instead of reporting it.
     """
-    for attempt in range(1 + READ_RETRIES):
-        if attempt:
-            time.sleep(LATE_REPLY_WAIT_S)
-        handler.ser.reset_input_buffer()  # a reply that came after its request gave up is no answer
+
+    def read() -> list[int] | None:
         try:
             data, result, error = packets.readTxRx(handler, motor_id, CALIBRATION_BLOCK_START,
                                                    CALIBRATION_BLOCK_LENGTH)
         except (IndexError, OSError):
-            continue
+            return None
         if result == success and not error and len(data) == CALIBRATION_BLOCK_LENGTH:
             return [int(b) for b in data]
+        return None
+
+    return ask_until_answered(handler, read)
+
+
+def ask_until_answered(handler: Any, ask: Callable[[], T | None], tries: int = 1 + READ_RETRIES) -> T | None:
+    """``ask()``'s first answer that is not None, over up to ``tries`` requests.
+
+    Before each retry it waits for a reply that came after its request gave up and drops
+    it with everything else waiting on the line: a late reply is no answer, and must not
+    be read as the answer to the next request. Used by every idle read of the bus (the
+    agent's pings and calibration reads), so a loaded host answers as LeRobot's reads do.
+    """
+    for attempt in range(tries):
+        if attempt:
+            time.sleep(LATE_REPLY_WAIT_S)
+        handler.ser.reset_input_buffer()
+        answer = ask()
+        if answer is not None:
+            return answer
     return None

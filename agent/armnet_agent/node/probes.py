@@ -13,19 +13,30 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any
 
-from armnet_agent.connector.calibration_check import calibration_mismatches, read_calibration
+from armnet_agent.connector.calibration_check import (
+    READ_RETRIES,
+    ask_until_answered,
+    calibration_mismatches,
+    read_calibration,
+    use_lerobot_reply_window,
+)
 from armnet_agent.connector.config import MotorRange, read_calibration_file
 from armnet_agent.node.health import ArmProbe
 
 log = logging.getLogger(__name__)
 
 BAUD_RATE = 1_000_000
-#: Pings per servo before it counts as silent: a loaded host misses a reply now and then (the
-#: calibration read retries each register five times for the same reason).
-PING_TRIES = 3
+#: Pings per servo before it counts as silent, with LeRobot's reply window and a wait for a
+#: late reply before each retry, as the calibration read asks: a loaded host's simulator (or
+#: a busy robot host) misses a reply now and then, and a healthy servo must not read silent.
+PING_TRIES = 1 + READ_RETRIES
+#: Once a servo stayed silent through every try the bus is most likely unpowered or unplugged:
+#: the others are asked this often, so a dead arm's probe stays short (the heartbeat waits).
+PING_TRIES_AFTER_SILENCE = 2
 STS3215_MODEL = 777
 SO101_MOTOR_NAMES = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
 
@@ -98,14 +109,14 @@ def ping_servos(port: str, ids: dict[str, int]) -> dict[str, tuple[int, int | No
         return silent
     try:
         handler.setBaudRate(BAUD_RATE)
+        use_lerobot_reply_window(handler)
         packets = PacketHandler(0)
         answers: dict[str, tuple[int, int | None]] = {}
+        tries = PING_TRIES
         for motor, sid in sorted(ids.items(), key=lambda item: item[1]):
-            model = None
-            for _ in range(PING_TRIES):
-                model = _ping(packets, handler, sid, COMM_SUCCESS)
-                if model is not None:
-                    break
+            model = ask_until_answered(handler, partial(_ping, packets, handler, sid, COMM_SUCCESS), tries)
+            if model is None:
+                tries = PING_TRIES_AFTER_SILENCE
             answers[motor] = (sid, model)
         return answers
     finally:

@@ -32,6 +32,21 @@ def test_a_simulated_arm_as_its_calibration_file_says_has_no_mismatch(sim_cell, 
     assert probe.calibration_mismatches == ()
 
 
+def test_servos_answering_late_within_lerobots_window_are_not_silent(sim_cell, tmp_path) -> None:
+    """40 ms: past scservo_sdk's own ping window (~34 ms), within LeRobot's (50 ms). A loaded
+    host answers this late; the probe must read the servos as LeRobot would, not as silent."""
+    sim_cell.arm.set_latency_ms(40)
+    probe = probe_arm(sim_cell.arm.port, calibration_of(sim_cell, tmp_path))
+    assert all(model == 777 for _, model in probe.answers.values()), probe.answers
+
+
+def test_a_servo_that_loses_several_replies_in_a_row_still_answers_the_probe(sim_cell, tmp_path) -> None:
+    sim_cell.arm.drop_replies("elbow_flex", 4)
+    probe = probe_arm(sim_cell.arm.port, calibration_of(sim_cell, tmp_path))
+    assert probe.answers["elbow_flex"] == (3, 777)
+    assert probe.calibration_mismatches == ()
+
+
 def test_a_servo_whose_homing_offset_was_changed_outside_armnet_is_named(sim_cell, tmp_path) -> None:
     path = calibration_of(sim_cell, tmp_path)
     data = json.loads(path.read_text())
