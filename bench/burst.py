@@ -1,9 +1,10 @@
 """500 RobotJobs applied at once: queue positions, a bind elsewhere during the burst, operator memory.
 
-Issue 17's figures, measured against the test bed's real kube-apiserver with
-``armnet operator`` in its own process, for one or more source trees in the
-same run (``--tree ../armnet-before --tree .``: the code before and after a change,
-alternated ``--rounds`` times on one control plane).
+The operator under a burst, with every object checked as hostile input, measured
+against the test bed's real kube-apiserver with ``armnet operator`` in its own
+process, for one or more source trees in the same run (``--tree ../armnet-before
+--tree .``: the code before and after a change, alternated ``--rounds`` times on
+one control plane).
 
 Per run: one cell of embodiment A (it takes one job; the rest must queue), one
 free cell of embodiment B. The bench creates N jobs for A from 16 threads and,

@@ -1,4 +1,4 @@
-"""Dispatch benchmark (issue 9): what the node agent adds, as ratios to a same-run baseline.
+"""Dispatch benchmark: what the node agent adds, as ratios to a same-run baseline.
 
 Part 1, dispatch (``--dispatch``): submit -> running and submit -> result of
 a trivial job on a warm image, p50/p99 over ``--rounds``. The platform: the test

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fuzzer (b) of issue 17, long: random and hostile RobotJob and Cell manifests against the
+# The manifest fuzzer, long: random and hostile RobotJob and Cell manifests against the
 # real API server with the operator running (tests/integration/test_operator_fuzz_manifests.py).
 # Usage: bench/fuzz_manifests.sh [EXAMPLES]   (default 300; the suite runs 12)
 set -euo pipefail

@@ -31,7 +31,7 @@ Modes:
 Floors timed in the same ticks: a raw line round trip between two plain
 processes (no armnet code: what any connector in its own process pays), a bare
 ``hello`` to the connector, and an in-memory copy of a 640x480x3 frame. Each
-figure is printed next to its target (issue #10):
+figure is printed next to its target (docs/benchmarks.md):
 
 - bus calls: armnet's own share (proxy overhead p50 - raw floor p50) <= 50 us;
 - camera ``read_latest``: proxy overhead <= 1 ms p50 and <= 2x the frame copy;

@@ -42,7 +42,7 @@ if [ "$(cat "$editable_stamp" 2>/dev/null)" != "$editable_key" ]; then
   rm -f "$editable_stamp"
   "${pip[@]}" install -c <(echo "$torch_pin") -e "$here/runtime[fast,view]" -e "$here[dev]"
   "$venv/bin/python" -c "import lerobot.motors.feetech, lerobot.cameras.opencv, scservo_sdk, armnet_runtime" \
-    || { echo "[setup/python] LeRobot motors/cameras do not import; see shared reference lerobot-feetech.md §0" >&2; exit 1; }
+    || { echo "[setup/python] LeRobot motors/cameras do not import; see docs/lerobot-compatibility.md" >&2; exit 1; }
   "$venv/bin/python" -c "from lerobot.robots.so_follower import SO101Follower; from lerobot.robots.bi_so_follower import BiSOFollower" \
     || { echo "[setup/python] LeRobot's robot classes do not import (torchvision/av/einops/pillow?); see docs/lerobot-compatibility.md" >&2; exit 1; }
   echo "$editable_key" >"$editable_stamp"

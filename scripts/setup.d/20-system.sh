@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # System packages for the test bed: the container engine (Podman + runc, no crun:
 # crun refuses this machine's hybrid cgroups), debootstrap for the base image,
-# NATS with JetStream, openssl; for the test-bed node (../shared/reference/k8s-node.md):
+# NATS with JetStream, openssl; for the test-bed node (docs/reference/testbed-host.md):
 # containerd, the CNI plugins (in /usr/lib/cni), and gcc + buildah to build the
 # pause image (step 45); Chromium and its WebDriver for the FMS page's browser tests
 # (tests/browser/, driven with selenium); zsh, so the `armnet completion zsh` test runs the
@@ -9,7 +9,7 @@
 # is missing, so a warm run never touches the network.
 #
 # Also writes /etc/containers/containers.conf (runc + ulimits below the VM's hard
-# limits) when it is absent; see ../shared/reference/podman.md for why.
+# limits) when it is absent; see docs/reference/testbed-host.md, "Podman", for why.
 set -euo pipefail
 log() { echo "[setup/system] $*"; }
 

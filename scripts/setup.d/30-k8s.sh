@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Kubernetes test-bed binaries: kube-apiserver, kubectl, kubelet (one wrapper module,
-# see ../shared/reference/k8s-testbed.md §2 and k8s-node.md) and etcd (a SEPARATE
+# see docs/reference/testbed-host.md, "Kubernetes components") and etcd (a SEPARATE
 # wrapper module, so minimal version selection cannot move the Kubernetes
 # dependency set), built with the `go` tool from the module proxy into ~/.cache/armnet/k8s/v<version>/bin.
 #
@@ -100,7 +100,7 @@ fi
 # Same wrapper module and flags as the apiserver. Its packages need their own
 # `go get` first (otherwise: missing go.sum entry for github.com/google/cadvisor/...);
 # a module prepared before kubelet was added gets the import and the requirements
-# here, which only adds to go.mod. Built without cgo like the apiserver (k8s-node.md).
+# here, which only adds to go.mod. Built without cgo like the apiserver (docs/reference/testbed-host.md).
 if have kubelet "v$K8S_VERSION"; then
   log "kubelet v$K8S_VERSION cached in $bin"
 else

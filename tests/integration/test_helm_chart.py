@@ -369,7 +369,7 @@ def test_job_pod_policy_can_be_turned_off() -> None:
 
 # ---------------------------------------------------------------------------- monitoring
 OPERATOR_METRICS = REPO_ROOT / "operator" / "armnet_operator" / "metrics.py"
-# The agent's metrics (issue 9; docs/agent.md): the alerts use these names.
+# The agent's metrics (docs/agent.md): the alerts use these names.
 AGENT_METRICS = {"armnet_agent_interlock_trips_total", "armnet_agent_heartbeat_age_seconds",
                  "armnet_agent_nats_connected"}
 

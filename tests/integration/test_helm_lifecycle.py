@@ -2,7 +2,7 @@
 
 Only the API objects: the test bed runs no controller-manager or scheduler, so the
 Deployment and DaemonSet create no pods here (running the shipped images on the
-test-bed node is the "install for real" part of issue 14). What this pins: the
+test-bed node is tests/images/test_helm_install_node.py). What this pins: the
 documented adoption of CRDs left by an earlier release works, an upgrade applies
 the CRD templates (Helm's crds/ folder would not), and an uninstall keeps the CRDs
 and the tenants' RobotJobs.

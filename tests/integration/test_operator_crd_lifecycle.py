@@ -1,4 +1,4 @@
-"""The RobotJob CRD deleted and re-applied under a running `armnet operator` (issue 17, item 11).
+"""The RobotJob CRD deleted and re-applied under a running `armnet operator`.
 
 Runs on a control plane of its own: deleting the CRD deletes every RobotJob,
 which must never touch the session's shared control plane and its tests.

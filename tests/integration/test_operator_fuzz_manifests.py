@@ -1,4 +1,4 @@
-"""Fuzzer (b) of issue 17: random and hostile RobotJob and Cell manifests against the real
+"""The manifest fuzzer: random and hostile RobotJob and Cell manifests against the real
 API server, with the operator running.
 
 After every few manifests a probe job of another embodiment must bind to a

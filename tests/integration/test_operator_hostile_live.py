@@ -1,4 +1,4 @@
-"""Hostile RobotJobs and Cells against the real API server with the operator running (issue 17).
+"""Hostile RobotJobs and Cells against the real API server with the operator running.
 
 The CRD rejects what it can, naming the field; what only the operator can judge
 (args depth and size, ports shared across cells of a node, a status that lies
@@ -35,7 +35,7 @@ def cell_doc(name: str, **spec: Any) -> dict[str, Any]:
             "spec": {"embodiment": "lerobot/so-101", "nodeName": "h", **spec}}
 
 
-# ---------------------------------------------------------------- item 7 and 9: the CRDs bound every number and path
+# ---------------------------------------------------------------- the CRDs bound every number and path
 @pytest.mark.parametrize(("spec", "says"), [
     ({"ttlSecondsAfterFinished": 9223372036854775807}, "spec.ttlSecondsAfterFinished"),
     ({"timeoutSeconds": 10**12}, "spec.timeoutSeconds"),
@@ -70,7 +70,7 @@ def test_bad_cells_are_rejected_naming_the_field(bed: Bed, spec: dict[str, Any],
     assert says in rejected(bed, cell_doc(f"bad-{bed.ns}", **spec))
 
 
-# ---------------------------------------------------------------- item 8: deep and huge args
+# ---------------------------------------------------------------- deep and huge args
 def test_args_a_thousand_levels_deep_fail_the_job_and_the_operator_keeps_binding(bed: Bed, operator: Any) -> None:
     cell = bed.cell("c1")
     head = json.dumps({"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": "deep", "namespace": bed.ns},
@@ -96,7 +96,7 @@ def test_a_megabyte_of_args_fails_the_job_saying_the_limit(bed: Bed, operator: A
     bed.wait("an InvalidSpec event", lambda: "InvalidSpec" in bed.events("huge"))  # posted after the phase
 
 
-# ---------------------------------------------------------------- item 9: ports across cells of one node
+# ---------------------------------------------------------------- ports across cells of one node
 def test_a_second_cell_on_the_same_port_of_a_node_is_invalid_and_never_bound(bed: Bed, operator: Any) -> None:
     port = {"port": f"/dev/tty-{bed.ns}", "robotId": "r"}
     first = bed.cell("a-first")
@@ -113,7 +113,7 @@ def test_a_second_cell_on_the_same_port_of_a_node_is_invalid_and_never_bound(bed
     assert not bed.get_cell(second)["status"].get("currentJob")
 
 
-# ---------------------------------------------------------------- item 10: the claim is the one truth; status repaired
+# ---------------------------------------------------------------- the claim is the one truth; status repaired
 def test_a_job_patched_to_running_on_a_cell_that_holds_another_fails_with_the_reason(bed: Bed, operator: Any) -> None:
     cell = bed.cell("c1")
     bed.job("holder")

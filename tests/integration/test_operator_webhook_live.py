@@ -1,4 +1,4 @@
-"""The real kube-apiserver asks the operator's admission webhook about every new RobotJob (issue 17 item 8).
+"""The real kube-apiserver asks the operator's admission webhook about every new RobotJob.
 
 The operator runs in-process with its webhook on 127.0.0.1 (a serving
 certificate from the test bed's CA); a ValidatingWebhookConfiguration, like

@@ -4,7 +4,8 @@ Owns: the binaries' location (built by scripts/setup.d/30-k8s.sh), the PKI, the
 static token file, kubeconfigs per identity, readiness, and applying ``crds/``.
 It never runs a controller-manager or scheduler, so namespaces never finish
 deleting, pods without a node stay Pending and there is no ``default``
-ServiceAccount (see ../shared/reference/k8s-testbed.md §4.6). Fresh etcd per start.
+ServiceAccount (see docs/reference/testbed-host.md, "A control plane without
+controllers"). Fresh etcd per start.
 
 The plane is always node-capable (``tests/testbed/node.py`` adds a real kubelet on
 demand): the Node authorizer and the NodeRestriction admission plugin only judge

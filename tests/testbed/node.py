@@ -1,6 +1,6 @@
 """A real Kubernetes node for tests: containerd + kubelet registered with the control plane.
 
-Facts and settings come from ../shared/reference/k8s-node.md (a working trial on
+Facts and settings come from docs/reference/testbed-host.md, "A real node" (a working trial on
 this machine kind): Debian's containerd 1.6 and runc, a kubelet built by
 scripts/setup.d/30-k8s.sh, a local pause image (scripts/setup.d/45-pause-image.sh),
 images imported without a registry (``podman save`` -> ``ctr images import``).
@@ -121,7 +121,7 @@ def containerd_root(major: int, *, overridden: bool, env: Mapping[str, str] | No
 
 def containerd_config(workdir: Path, root: Path, cni_conf_dir: Path, *, major: int = 1,
                       shim: Path | None = None) -> str:
-    """containerd's config: state under ``workdir``, CRI as k8s-node.md says.
+    """containerd's config: state under ``workdir``, CRI as docs/reference/testbed-host.md says.
 
     Schema 2 for containerd 1.6; for containerd 2 (``major``) the same settings in
     schema 3, with ``shim`` as the runc shim if given.

@@ -24,7 +24,7 @@ class ClassRules:
 
 
 FEETECH = ClassRules(
-    # The methods LeRobot's robots call on their bus (reference §8.1/8.2). Absent on
+    # The methods LeRobot's robots call on their bus (docs/reference/feetech-lerobot.md, §4). Absent on
     # purpose: setup_motor / set_baudrate (rewrite servo ids and baud rates of a shared
     # cell), scan_port (opens arbitrary ports).
     methods=frozenset(

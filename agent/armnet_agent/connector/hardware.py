@@ -101,7 +101,7 @@ class DeviceLock:
 
 
 class DeviceLocks:
-    """One lock per device: LeRobot's PortHandler is not thread-safe (reference §10)."""
+    """One lock per device: LeRobot's PortHandler is not thread-safe (docs/reference/feetech-lerobot.md, §1)."""
 
     def __init__(self, wait_s: float = DEVICE_LOCK_WAIT_S) -> None:
         self._locks: dict[str, DeviceLock] = {}

@@ -1,6 +1,6 @@
 """Cancel a non-detached job whose following client went away (docs/agent.md, "Followed jobs").
 
-The seed's rule for ``JobSpec.detach=False``: losing the client requests
+The SDK's rule for ``JobSpec.detach=False``: losing the client requests
 graceful cancellation. Only the agent can enforce that in a way that survives a
 client crash (``kill -9``, a laptop lid closing), so the client's part is small:
 

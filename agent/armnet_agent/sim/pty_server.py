@@ -1,7 +1,7 @@
 """Serve a byte-level request handler on a pseudo-terminal, from one thread.
 
 This module owns the pty and nothing else: it knows no protocol. Design points
-from running the real SDK against a pty (reference §9, §10):
+from running the real SDK against a pty (docs/reference/feetech-lerobot.md, §1 and §8):
 
 - the slave is put in raw mode at creation and a slave fd is kept open for the
   server's lifetime and never read, so the master never sees ``EIO`` when the

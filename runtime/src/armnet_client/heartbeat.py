@@ -1,6 +1,6 @@
 """Heartbeats of a client that follows a non-detached job (``JobSpec.detach=False``).
 
-The seed's rule: losing the following client requests graceful cancellation.
+The SDK's rule (``JobSpec.detach``): losing the following client requests graceful cancellation.
 Only the agent can enforce it in a way that survives a client crash, so the
 client's part is small: while it follows, publish ``{"at": <UTC time>,
 "client": <host:pid>}`` every ``interval_s`` on

@@ -1,7 +1,8 @@
 """Following one job's log subjects in JetStream: replay from the first line, then live.
 
 Why not nats-py's ordered consumer: it resets itself after missed heartbeats
-and has had bugs doing so (issue 12 asks to test the reconnect path for real).
+and has had bugs doing so, so the reconnect path must be ours and tested against a
+really restarted server.
 Instead this module keeps the last stream sequence it delivered and, after
 anything goes wrong (a reconnect, a consumer the restarted server forgot, a
 timeout), makes a fresh ephemeral pull consumer starting at the next sequence.

@@ -58,7 +58,7 @@ def open_bus(client, endpoint: str, motors: dict[str, Motor]) -> str:
     return bus
 
 
-# -- item 2: rest and reset through the cell's own bus ---------------------------------------
+# -- rest and reset through the cell's own bus ---------------------------------------
 
 
 def test_return_to_rest_moves_every_cell_motor_even_when_the_job_bus_holds_one(
@@ -81,7 +81,7 @@ def test_a_job_bus_that_renames_motors_is_refused_and_rest_still_ends_at_the_cel
     swapped = {"shoulder_pan": 5, "shoulder_lift": 2, "elbow_flex": 3, "wrist_flex": 4, "wrist_roll": 1, "gripper": 6}
     reply = client.request({"op": "create", "class": "FeetechMotorsBus", "args": [],
                             "kwargs": _encoded(port=connector.robot_endpoint, motors=raw_motors(swapped))})
-    assert reply["ok"] is False and reply["error_type"] == "NotAllowed", reply  # issue 17 item 1
+    assert reply["ok"] is False and reply["error_type"] == "NotAllowed", reply  # ids belong to the cell
     assert "shoulder_pan" in reply["error"] or "wrist_roll" in reply["error"]
     assert client.request({"op": "return_to_rest"}) == {"ok": True}
     assert wait_until(lambda: at_rest(sim_cell), 2.0), sim_cell.arm.positions()
@@ -153,7 +153,7 @@ def test_a_rest_that_ends_outside_its_tolerance_is_reported_not_ok(connector, cl
     assert abs(report.errors["elbow_flex"]) <= TOLERANCE  # the rest of the arm got there
 
 
-# -- item 3: bounded time on the bus ----------------------------------------------------------
+# -- bounded time on the bus ----------------------------------------------------------
 
 
 def test_a_hostile_retry_count_on_a_missing_servo_ends_with_a_clear_error(connector, client_for, sim_cell) -> None:
@@ -274,7 +274,7 @@ def test_a_rest_too_slow_for_the_grace_window_is_cut_short_and_torque_still_goes
     assert [r.reached for r in record.rests] == [False]
 
 
-# -- item 6: one handle's close does not drop the arm under another ---------------------------
+# -- one handle's close does not drop the arm under another ---------------------------
 
 
 def test_closing_one_connections_bus_keeps_torque_for_the_other_until_the_last_closes(

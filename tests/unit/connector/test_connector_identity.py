@@ -1,4 +1,4 @@
-"""Motor identity, units, limits and protocol belong to the cell (issue 17 item 1).
+"""Motor identity, units, limits and protocol belong to the cell.
 
 Each test drives the real connector, the real LeRobot bus and scservo_sdk on the
 simulated SO-101, through the SDK's remote bus as a job would.
@@ -28,7 +28,7 @@ def refusal(connector, motors, **kwargs) -> RemoteCallError:
 def test_a_motor_name_aliased_to_another_servos_id_is_refused_naming_what_the_cell_has(connector) -> None:
     from lerobot.motors import Motor, MotorNormMode
 
-    # The bypass of issue 17: servo 1 (shoulder_pan) named wrist_roll, to borrow wrist_roll's limits.
+    # The aliasing bypass: servo 1 (shoulder_pan) named wrist_roll, to borrow wrist_roll's limits.
     error = refusal(connector, {"wrist_roll": Motor(1, "sts3215", MotorNormMode.DEGREES)})
     assert "wrist_roll" in str(error) and "id 5" in str(error)
 

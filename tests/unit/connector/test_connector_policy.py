@@ -1,4 +1,4 @@
-"""The register write policy, the cell-owned calibration and the clamp|trip safety policy (issue 8 items 0-2).
+"""The register write policy, the cell-owned calibration and the clamp|trip safety policy.
 
 Every test goes through the real LeRobot bus behind the connector, on the
 simulated SO-101, and checks the servos' registers on the simulator's side.
@@ -183,7 +183,7 @@ def test_a_refused_calibration_leaves_the_next_job_calibrated(connector, motors,
 def test_a_refused_calibration_leaves_the_cell_calibrated_after_a_simulator_restart(
     tmp_path, make_connector, cell_config, motors
 ) -> None:
-    """The damage scenario of issue 8 on a named cell whose EEPROM survives restarts."""
+    """A job unlocks EEPROM and rewrites homing and limits: refused, on a named cell whose EEPROM survives restarts."""
     from armnet_agent.sim import SimulatedCellProcess
 
     with SimulatedCellProcess("so101", state_dir=tmp_path) as sim:

@@ -1,4 +1,4 @@
-"""Hostile jobs against the cell, checked on the servos' side (issue 17 fuzzer (a), issue 8 item 0).
+"""Hostile jobs against the cell, checked on the servos' side.
 
 Random and hostile create arguments (aliased names, other units, protocols,
 calibrations), random (register, motor, value) writes, goal steps, method calls,

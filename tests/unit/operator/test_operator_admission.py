@@ -1,4 +1,4 @@
-"""The admission decision on a RobotJob (issue 17 item 8): the same args rule as InvalidSpec, at the door.
+"""The admission decision on a RobotJob: the same args rule as InvalidSpec, at the door.
 
 Pure: an AdmissionReview dict in, a verdict out. The server around it is in
 test_operator_webhook_server.py; the real API server calling it is in

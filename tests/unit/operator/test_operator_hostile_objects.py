@@ -1,4 +1,4 @@
-"""Hostile RobotJobs and Cells meet the pure core: no overflow, no crash, no silent queue (issue 17).
+"""Hostile RobotJobs and Cells meet the pure core: no overflow, no crash, no silent queue.
 
 Each rule is one table or one test: bad TTLs, unreadable status fields, args
 beyond the limits, jobs that claim to run without the cell's claim, and cells
@@ -49,7 +49,7 @@ def job_body(**status: object) -> dict:
     }
 
 
-# ---------------------------------------------------------------- item 7: numbers
+# ---------------------------------------------------------------- numbers
 @pytest.mark.parametrize("ttl", [9223372036854775807, 10**15, 2**63 - 1, -5])
 def test_an_extreme_ttl_neither_overflows_nor_deletes_a_job_early(ttl: int) -> None:
     job = a_job().with_ttl(ttl).finished(seconds_ago=10)
@@ -68,7 +68,7 @@ def test_an_extreme_priority_still_sorts() -> None:
     assert plan.bindings[0].job == jobs[0]
 
 
-# ---------------------------------------------------------------- item 10: status repaired
+# ---------------------------------------------------------------- status repaired
 @pytest.mark.parametrize(("status", "field"), [
     ({"finishedAt": "not a time"}, "status.finishedAt"),
     ({"queuePosition": "first"}, "status.queuePosition"),
@@ -111,7 +111,7 @@ def test_a_deleting_job_with_an_unreadable_status_still_loses_its_finalizer() ->
     assert {type(a).__name__ for a in actions} == {"RepairStatus", "RemoveFinalizer"}
 
 
-# ---------------------------------------------------------------- item 10: the claim is the one truth
+# ---------------------------------------------------------------- the claim is the one truth
 def test_a_running_job_its_cell_does_not_claim_fails_with_the_reason() -> None:
     holder = a_job().running_on("c")
     intruder = a_job().running_on("c")
@@ -134,7 +134,7 @@ def test_a_running_job_just_bound_is_left_alone_while_the_watch_catches_up() -> 
     assert of_type(plan_lifecycle([job], [cell], NOW, TIMING), FinishJob) == []
 
 
-# ---------------------------------------------------------------- item 8: args
+# ---------------------------------------------------------------- args
 @pytest.mark.parametrize(("args", "says"), [
     (deep(MAX_ARGS_DEPTH + 1), f"nested more than {MAX_ARGS_DEPTH} levels"),
     (deep(5000), f"nested more than {MAX_ARGS_DEPTH} levels"),
@@ -169,7 +169,7 @@ def test_a_spec_field_of_the_wrong_type_fails_the_job_naming_the_field() -> None
     assert job.spec_problem is not None and "spec.priority" in job.spec_problem
 
 
-# ---------------------------------------------------------------- item 9: cells
+# ---------------------------------------------------------------- cells
 ARM = Arm("robot", port="/dev/ttyACM0", robot_id="r1", calibration_dir="/var/lib/armnet/cal/r1", safety_limit=10)
 
 

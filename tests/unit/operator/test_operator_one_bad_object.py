@@ -1,4 +1,4 @@
-"""One bad object never stops scheduling (issue 17, item 7).
+"""One bad object never stops scheduling.
 
 A pass that fails on one object reports it (log with its name, Event,
 ``Reconciled`` condition, metric), skips it and whatever is tied to it, and

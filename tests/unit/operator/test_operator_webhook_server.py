@@ -1,4 +1,4 @@
-"""The admission webhook's HTTPS server: real TLS, real HTTP, hostile bodies (issue 17 item 8).
+"""The admission webhook's HTTPS server: real TLS, real HTTP, hostile bodies.
 
 In-process (aiohttp on loopback, a certificate from the test bed's CA); the
 API server calling it is tests/integration/test_operator_webhook_live.py.

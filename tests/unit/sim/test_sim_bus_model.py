@@ -1,4 +1,4 @@
-"""Instruction handling on a multi-drop bus, byte for byte (reference §1.5)."""
+"""Instruction handling on a multi-drop bus, byte for byte (docs/reference/feetech-lerobot.md, §1)."""
 
 from __future__ import annotations
 

@@ -58,7 +58,7 @@ def test_overload_makes_reads_and_writes_raise_but_sync_read_ignores_it(
         bus.raw.read("Present_Position", "gripper")
     with pytest.raises(RuntimeError, match="Overload"):
         bus.raw.write("Torque_Enable", "gripper", 1)
-    # GroupSyncRead never looks at the ERR byte (reference §1.10).
+    # GroupSyncRead never looks at the ERR byte (docs/reference/feetech-lerobot.md, §1).
     assert "gripper" in bus.sync_read("Present_Position")
     assert bus.read("Status", "shoulder_pan") == 0
 

@@ -1,4 +1,4 @@
-"""A named simulated cell keeps its servos' saved EEPROM across simulator restarts (issue 8 item 1).
+"""A named simulated cell keeps its servos' saved EEPROM across simulator restarts.
 
 So the damage a calibration write does to a real cell (LeRobot writes Lock=0, then
 homing and limits) can be reproduced, and its absence shown, by tests at all.
