@@ -6,7 +6,10 @@ repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$repo"
 venv="${ARMNET_VENV:-$HOME/.cache/armnet/venv}"
 
-bash scripts/setup.sh
+# The whole suite: setup also builds the shipped images (setup.d/50-images.sh), once per
+# content, before any test session starts: a build beside the suite's timing-sensitive tests
+# took their cores for minutes. A run with pytest arguments builds an image only if a test asks.
+ARMNET_SETUP_IMAGES=$([ "$#" -eq 0 ] && echo 1 || echo 0) bash scripts/setup.sh
 
 lint() {
   echo "== ruff =="

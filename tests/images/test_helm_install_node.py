@@ -178,9 +178,8 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
                                rm=True, dockerfile="Containerfile", buildargs={"RUNTIME": runtime_image},
                                network_mode="none")
     bus_loop_image = build_bus_loop_image(podman, runtime_lerobot_image)
-    for image in (f"{operator_image.rsplit(':', 1)[0]}:{tag}", f"{agent_image.rsplit(':', 1)[0]}:{tag}", job_image,
-                  bus_loop_image):
-        k8s_node.import_image(image)
+    k8s_node.import_images(f"{operator_image.rsplit(':', 1)[0]}:{tag}", f"{agent_image.rsplit(':', 1)[0]}:{tag}",
+                           job_image, bus_loop_image)
     system = k8s.create_namespace("armnet-system")
     tenant = k8s.create_namespace("tenant")
     name = f"it-{uuid.uuid4().hex[:6]}"

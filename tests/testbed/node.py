@@ -445,7 +445,7 @@ class Node:
         progress(f"containerd up in {time.monotonic() - t0:.1f} s")
 
         t0 = time.monotonic()
-        imported = [image for image in (PAUSE_IMAGE, *self.images) if self.import_image(image)]
+        imported = self.import_images(PAUSE_IMAGE, *self.images)
         progress(f"images: {len(imported)} imported ({', '.join(imported) or 'all cached'}) "
                  f"in {time.monotonic() - t0:.1f} s")
 
@@ -531,28 +531,41 @@ class Node:
         Skipped when the node already has it from the same Podman image id (the
         image cache persists); returns whether it imported.
         """
-        inspect = subprocess.run(["podman", "image", "inspect", "--format", "{{.Id}}", image],
-                                 capture_output=True, text=True, check=False)
-        if inspect.returncode:
-            raise TestbedSetupError(f"image {image} is not in podman: {inspect.stderr.strip()}")
-        image_id = inspect.stdout.strip()
-        listed = self.ctr("images", "ls", f"name=={image}").stdout
-        if f"{SOURCE_LABEL}={image_id}" in listed:
-            return False
+        return bool(self.import_images(image))
+
+    def import_images(self, *images: str) -> list[str]:
+        """Import the images the node lacks in ONE archive; return those imported.
+
+        Why one archive: the agent image and the runtime's LeRobot variant share a ~5 GB
+        dependency layer. Saved one by one, each archive carries it and containerd unpacks
+        it twice; a multi-image archive carries each layer once.
+        """
+        wanted: dict[str, str] = {}
+        for image in images:
+            inspect = subprocess.run(["podman", "image", "inspect", "--format", "{{.Id}}", image],
+                                     capture_output=True, text=True, check=False)
+            if inspect.returncode:
+                raise TestbedSetupError(f"image {image} is not in podman: {inspect.stderr.strip()}")
+            image_id = inspect.stdout.strip()
+            if f"{SOURCE_LABEL}={image_id}" not in self.ctr("images", "ls", f"name=={image}").stdout:
+                wanted[image] = image_id
+        if not wanted:
+            return []
         assert self.workdir is not None
-        archive = self.workdir / f"image-{hashlib.sha256(image.encode()).hexdigest()[:12]}.tar"
+        key = hashlib.sha256(" ".join(sorted(wanted)).encode()).hexdigest()[:12]
+        archive = self.workdir / f"images-{key}.tar"
         try:
-            saved = subprocess.run(["podman", "save", "--format", "docker-archive", "-o",
-                                    str(archive), image], capture_output=True, text=True,
-                                   check=False)
+            saved = subprocess.run(["podman", "save", "--multi-image-archive", "--format", "docker-archive",
+                                    "-o", str(archive), *wanted], capture_output=True, text=True, check=False)
             if saved.returncode:
-                raise RuntimeError(f"podman save {image} failed: {saved.stderr.strip()}")
-            self.ctr("images", "import", str(archive))
+                raise RuntimeError(f"podman save {' '.join(wanted)} failed: {saved.stderr.strip()}")
+            self.ctr("images", "import", str(archive), timeout=1200)
         finally:
             archive.unlink(missing_ok=True)
-        self.ctr("images", "label", image, f"{SOURCE_LABEL}={image_id}")
-        self.drop_unnamed_images()  # the name's earlier image, if this import replaced one
-        return True
+        for image, image_id in wanted.items():
+            self.ctr("images", "label", image, f"{SOURCE_LABEL}={image_id}")
+        self.drop_unnamed_images()  # the names' earlier images, if this import replaced any
+        return list(wanted)
 
     def drop_unnamed_images(self) -> list[str]:
         """Remove the CRI's image-id references that no named image shares any more; return them.
@@ -566,10 +579,10 @@ class Node:
             self.ctr("images", "rm", ref, check=False)
         return orphans
 
-    def ctr(self, *args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+    def ctr(self, *args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess[str]:
         """``ctr`` against this node's containerd, namespace ``k8s.io`` (the CRI's)."""
         argv = ["ctr", "--address", str(self.socket), "--namespace", "k8s.io", *args]
-        result = subprocess.run(argv, capture_output=True, text=True, timeout=300, check=False)
+        result = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, check=False)
         if check and result.returncode:
             raise RuntimeError(f"{' '.join(argv)} failed: {result.stderr.strip()}")
         return result
