@@ -64,9 +64,12 @@ class InProcessRun:
         self.out, self.err = io.StringIO(), io.StringIO()
         self.joints: dict[str, dict[str, float]] = {}
         self.raw_positions: dict[str, dict[str, int]] = {}
+        self.trip: str | None = None
 
     def _inspect(self, cell: LocalCell, result: JobResult) -> None:
-        assert cell.sim is not None
+        assert cell.sim is not None and cell.connector is not None
+        trip = cell.connector.interlock.trip_info
+        self.trip = trip.message if trip is not None else None
         for name, arm in cell.sim.arms.items():
             self.joints[name] = arm.normalized_positions()
             self.raw_positions[name] = arm.positions()
@@ -289,6 +292,27 @@ def test_the_time_before_main_counts_against_the_timeout(tmp_path: Path) -> None
     assert result.status is JobStatus.TIMEOUT, str(result)
     assert "importing" in result.stdout and "reached main" not in result.stdout
     assert result.exit_code == -9
+
+
+def test_the_interlock_trip_at_the_timeout_names_the_timeout_the_user_gave(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    job = write_job(tmp_path, "waits.py", """
+    import time
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        while not ctx.cell.is_shutting_down():
+            time.sleep(0.05)
+    """)
+    run = InProcessRun(str(job), "--timeout", "2", "--grace", "30")
+    with caplog.at_level("WARNING", logger="armnet_agent.connector"):
+        result = run()
+    assert result.status is JobStatus.TIMEOUT, str(result)
+    assert run.trip == "the job exceeded its timeout of 2 s"
+    assert "the job exceeded its timeout of 2 s: interlock tripped, grace window of 30 s open" in caplog.messages
+    assert result.error is not None and result.error.startswith("job exceeded its timeout of 2 s;")
 
 
 def test_a_job_polling_is_shutting_down_ends_timeout_with_its_return_value() -> None:

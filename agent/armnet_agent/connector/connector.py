@@ -176,9 +176,9 @@ class Connector:
     def grace_expired(self) -> bool:
         return self.cell.deadline.grace_expired
 
-    def pass_deadline(self) -> None:
-        """Open the grace window now: the job ran out of time."""
-        self.cell.deadline.pass_deadline()
+    def pass_deadline(self, timeout_s: float | None = None) -> None:
+        """Open the grace window now: the job ran out of its ``timeout_s`` (the host's clock; else the config's)."""
+        self.cell.deadline.pass_deadline(timeout_s)
 
     def cancel(self, why: str | None = None) -> None:
         """Open the grace window now: the job was cancelled, or stopped for ``why`` (the interlock says so)."""

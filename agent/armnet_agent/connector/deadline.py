@@ -19,6 +19,13 @@ log = logging.getLogger(__name__)
 CANCELLED_MESSAGE = "the job was cancelled"
 
 
+def timeout_message(timeout_s: float | None) -> str:
+    """What the interlock's trip says at the deadline: the job's timeout as configured (``2 s``)."""
+    if timeout_s is None:
+        return "the job exceeded its timeout"
+    return f"the job exceeded its timeout of {timeout_s:g} s"
+
+
 class Deadline:
     """Timer thread: deadline → interlock + grace window → ``on_grace_expired``."""
 
@@ -61,16 +68,20 @@ class Deadline:
         if self._stop.wait(self.grace_s):
             return
         self._expired.set()
-        log.warning("grace window of %.1f s closed: the job process must end now", self.grace_s)
+        log.warning("grace window of %g s closed: the job process must end now", self.grace_s)
         if self._on_grace_expired is not None:
             try:
                 self._on_grace_expired()
             except Exception:  # the host's callback must not kill the timer thread silently
                 log.exception("on_grace_expired callback failed")
 
-    def pass_deadline(self) -> None:
-        """Enter the grace window now because the job ran out of time (the timer does this)."""
-        self._enter_grace(f"the job exceeded its timeout of {self.timeout_s} s")
+    def pass_deadline(self, timeout_s: float | None = None) -> None:
+        """Enter the grace window now because the job ran out of time (the timer does this).
+
+        ``timeout_s``: the job's timeout when the host's clock ran it out (``armnet run`` and
+        the agent's container jobs give this connector no timeout: one clock only).
+        """
+        self._enter_grace(timeout_message(timeout_s if timeout_s is not None else self.timeout_s))
 
     def cancel(self, why: str = CANCELLED_MESSAGE) -> None:
         """Enter the grace window now because the job was stopped (``why``: cancelled, its device lost).
@@ -86,7 +97,7 @@ class Deadline:
             return
         self._passed_at = self._clock()
         self._interlock.trip(TripReason.DEADLINE, why)
-        log.warning("%s: interlock tripped, grace window of %.1f s open", why, self.grace_s)
+        log.warning("%s: interlock tripped, grace window of %g s open", why, self.grace_s)
 
     @property
     def deadline_passed(self) -> bool:

@@ -84,13 +84,16 @@ class LocalCell:
         sim: CellSimulator | None = None,
         inputs: OperatorInputs | None = None,
         tripped: str | None = None,
+        timeout_s: float | None = None,
     ) -> None:
         """``sim``: a running simulator owned by the caller (kept on exit), else one is started.
 
         ``tripped``: start with the interlock already tripped, with this reason
         (a connector re-created for a job it did not see start never resumes motion).
+        ``timeout_s``: the job's timeout, which ``pass_deadline`` names (the supervisor's clock runs it).
         """
         self.spec = spec
+        self.timeout_s = timeout_s
         self.layout = layout or plan_layout(spec, run_dir)
         prompt = terminal_prompt if sys.stdin.isatty() and not auto_confirm_reset else None
         self.inputs: OperatorInputs = inputs or LocalOperatorInputs(
@@ -146,7 +149,7 @@ class LocalCell:
     def pass_deadline(self) -> None:
         """The job hit its timeout: trip the interlock and open the grace window."""
         if self.connector is not None:
-            self.connector.pass_deadline()
+            self.connector.pass_deadline(self.timeout_s)
 
     def cancel(self, why: str | None = None) -> None:
         """The job was cancelled (or stopped for ``why``): trip the interlock, naming it, and open the grace window."""

@@ -215,6 +215,7 @@ def run_local_job(
             inputs_source=request.inputs,
             on_grace_expired=hooks.kill_now.set,
             inputs=page.inputs if page is not None else None,
+            timeout_s=request.timeout_seconds,
         ) as cell:
             if page is not None:
                 page.cell = cell

@@ -90,12 +90,12 @@ class DeviceWatch:
         if state.lost and not previous.lost:
             log.warning("cell %s: device lost: %s", self.cell, "; ".join(state.problems))
         elif state.problems and not previous.problems:
-            log.info("cell %s: %s (lost if it lasts %.1f s)", self.cell, "; ".join(state.problems), self._debounce_s)
+            log.info("cell %s: %s (lost if it lasts %g s)", self.cell, "; ".join(state.problems), self._debounce_s)
         elif previous.lost and not state.lost:
-            log.info("cell %s: every device stayed present for %.1f s: no longer lost", self.cell, self._debounce_s)
+            log.info("cell %s: every device stayed present for %g s: no longer lost", self.cell, self._debounce_s)
         elif not state.problems and previous.problems:
             log.info("cell %s: every device is present%s", self.cell,
-                     f" again (healthy once it stays so for {self._debounce_s:.1f} s)" if state.lost else "")
+                     f" again (healthy once it stays so for {self._debounce_s:g} s)" if state.lost else "")
 
     def tick(self) -> None:
         """One read of the loop: a failure is retried at the next, its traceback logged at most once a minute."""

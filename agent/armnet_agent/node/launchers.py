@@ -184,6 +184,7 @@ class ContainerLauncher:
         local_cell = LocalCell(
             plan.cell_spec, plan.layout.socket_dir.parent, layout=plan.layout, sim=request.sim,
             inputs=request.inputs, on_grace_expired=request.on_grace_expired, tripped=request.tripped,
+            timeout_s=plan.timeout_seconds,
         )
         with local_cell:
             yield ContainerSession(self, request, local_cell)

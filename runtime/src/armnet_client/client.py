@@ -219,7 +219,7 @@ class Client:
                 return job, result
             if deadline is not None and time.monotonic() >= deadline:
                 raise WaitTimeout(
-                    f"robotjob {name!r} is still {job.status.phase or 'submitted'} after {timeout}s; "
+                    f"robotjob {name!r} is still {job.status.phase or 'submitted'} after {timeout:g} s; "
                     f"it keeps running: `armnet get {name}` or `armnet cancel {name}`"
                 )
             time.sleep(self.poll_interval_s)

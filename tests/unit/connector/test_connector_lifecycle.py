@@ -43,6 +43,20 @@ def test_past_the_deadline_motion_is_refused_as_shutting_down(make_connector, ce
     assert reply["error_type"] == "ShuttingDown" and "is_shutting_down" in reply["error"]
 
 
+def test_a_deadline_the_hosts_clock_passed_names_the_jobs_timeout_as_configured(make_connector, cell_config) -> None:
+    connector = make_connector(cell_config(None))  # no timeout of its own: armnet run's and the agent's clock
+    connector.pass_deadline(2)
+    trip = connector.interlock.trip_info
+    assert trip is not None and trip.message == "the job exceeded its timeout of 2 s"
+
+
+def test_the_connectors_own_deadline_names_its_timeout_without_a_float_tail(make_connector, cell_config) -> None:
+    connector = make_connector(cell_config(None, timeoutSeconds=600))
+    connector.pass_deadline()
+    trip = connector.interlock.trip_info
+    assert trip is not None and trip.message == "the job exceeded its timeout of 600 s"
+
+
 def test_a_cancel_trips_the_interlock_naming_the_cancel_not_a_timeout(make_connector, cell_config) -> None:
     connector = make_connector(cell_config(None))
     connector.cancel()
