@@ -14,16 +14,21 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_cli.main import main as armnet
 from armnet_client import (
     Client,
     ClusterUnreachable,
+    CrdsMissing,
     Forbidden,
     InvalidJob,
     JobNotFound,
+    NamespaceNotFound,
     NoClusterConfigured,
 )
+from armnet_client.kube import translate
 from armnet_core.models import JobSpec, JobStatus
 from kubernetes import client as kclient
+from kubernetes.client.exceptions import ApiException
 
 from tests.integration.client_bed import G, Tenant, V
 
@@ -105,6 +110,42 @@ def test_a_tenant_cannot_read_or_cancel_another_namespaces_jobs(k8s: Any, namesp
     finally:
         k8s.delete_namespace(other_ns)
     assert owner.client().get("private").status is JobStatus.SUBMITTED
+
+
+def test_a_namespace_that_does_not_exist_is_named_as_missing_by_submit_and_get(
+    k8s: Any, capsys: pytest.CaptureFixture[str]
+) -> None:
+    admin = Client(kubeconfig=str(k8s.kubeconfig), namespace="no-such-namespace", env={})
+    with pytest.raises(NamespaceNotFound, match="namespace 'no-such-namespace' does not exist on this cluster"):
+        admin.submit(SPEC, name="nowhere")
+    with pytest.raises(NamespaceNotFound):
+        admin.list_jobs()
+
+    where = ["--kubeconfig", str(k8s.kubeconfig), "-n", "no-such-namespace"]
+    assert armnet(["submit", "--detach", "--image", "localhost/pick:dev", "--embodiment", "test/client", *where]) == 1
+    assert armnet(["get", *where]) == 1
+    errors = capsys.readouterr().err.splitlines()
+    assert [line.split(":", 1)[0] for line in errors] == ["error", "error"]
+    assert all("namespace 'no-such-namespace' does not exist" in line and "CRD" not in line for line in errors)
+
+
+def test_an_empty_namespace_that_exists_still_lists_no_jobs(
+    k8s: Any, tenant: Tenant, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert Client(kubeconfig=str(k8s.kubeconfig), namespace=tenant.namespace, env={}).list_jobs() == []
+    assert tenant.cli("get") == 0  # a tenant may not read namespaces: its own empty list stands
+    assert capsys.readouterr().out.strip() == f"No RobotJobs in namespace {tenant.namespace}."
+
+
+def test_a_resource_the_cluster_does_not_serve_is_crds_missing(k8s: Any) -> None:
+    api = kclient.CustomObjectsApi(k8s.api_client())
+    with pytest.raises(ApiException) as refused:
+        api.list_namespaced_custom_object("absent.armnet.io", V, "default", "robotjobs")
+
+    error = translate(refused.value.status or 0, refused.value.body, verb="list", resource="robotjobs",
+                      namespace="default")
+
+    assert isinstance(error, CrdsMissing) and "the armnet CRDs are not installed" in str(error)
 
 
 def test_an_explicit_missing_kubeconfig_is_no_cluster_configured(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ from armnet_core.models import Job, JobResult, JobSpec
 from pydantic import ValidationError
 
 from . import kube
-from .errors import ClientError, InvalidJob, NatsUnreachable, WaitTimeout
+from .errors import ClientError, Forbidden, InvalidJob, NatsUnreachable, WaitTimeout
 from .heartbeat import DEFAULT_INTERVAL_S, HeartbeatSender
 from .logstream import DEFAULT_STREAM, CaughtUp, Event, FollowSettings, follow_events
 from .logwire import LogLine
@@ -144,13 +144,30 @@ class Client:
         return view_of(self._read(name))
 
     def list_jobs(self) -> list[RobotJob]:
-        """The namespace's RobotJobs, oldest first (as ``kubectl get`` lists by name, we list by age)."""
+        """The namespace's RobotJobs, oldest first (as ``kubectl get`` lists by name, we list by age).
+
+        The apiserver lists a namespace that does not exist as empty: an empty list is
+        checked, and :class:`NamespaceNotFound` says so when the caller may look.
+        """
         ns = self.namespace
         found = self._call("list", "robotjobs", lambda: self._api().list_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS), namespace=ns)
         jobs = [RobotJob.model_validate(item) for item in found.get("items", [])]
+        if not jobs:
+            self._require_namespace(ns)
         return sorted(jobs, key=lambda j: (j.metadata.creation_timestamp.isoformat()
                                            if j.metadata.creation_timestamp else "", j.metadata.name))
+
+    def _require_namespace(self, ns: str) -> None:
+        """:class:`NamespaceNotFound` if ``ns`` does not exist; a caller who may not read namespaces
+        (a tenant, usually) is not told, as ``kubectl`` does not."""
+        from kubernetes import client as kclient
+
+        try:
+            self._call("get", "namespaces", lambda: kclient.CoreV1Api(self._connect().api_client).read_namespace(ns),
+                       namespace=None, name=ns)
+        except Forbidden:
+            pass
 
     def submit_manifest(self, manifest: dict[str, Any], *, namespace: Optional[str] = None,
                         follow: bool = False) -> Job:

@@ -30,6 +30,29 @@ class JobNotFound(ClientError, LookupError):
         )
 
 
+class NamespaceNotFound(ClientError, LookupError):
+    """The namespace asked for does not exist on the cluster (a typo in --namespace, or the context's)."""
+
+    def __init__(self, namespace: str) -> None:
+        self.namespace = namespace
+        super().__init__(
+            f"namespace {namespace!r} does not exist on this cluster: check --namespace (or the "
+            "kubeconfig context's namespace); `kubectl get namespaces` lists them"
+        )
+
+
+class CrdsMissing(ClientError):
+    """The cluster does not serve the armnet resources: its CRDs are not installed."""
+
+    def __init__(self, resource: str, detail: str) -> None:
+        self.resource = resource
+        super().__init__(
+            f"this cluster does not serve {resource} ({detail}): the armnet CRDs are not installed; "
+            "install the armnet chart (docs/helm.md) or `kubectl apply -f crds/`, or point --context "
+            "at the cluster that runs armnet"
+        )
+
+
 class Forbidden(ClientError, PermissionError):
     """The identity in the kubeconfig may not do this in this namespace (RBAC said 403)."""
 

@@ -22,9 +22,11 @@ from .errors import (
     ClientError,
     ClusterUnreachable,
     Conflict,
+    CrdsMissing,
     Forbidden,
     InvalidJob,
     JobNotFound,
+    NamespaceNotFound,
     NoClusterConfigured,
 )
 
@@ -117,17 +119,37 @@ def connect(target: ClusterTarget, env: Optional[Mapping[str, str]] = None) -> C
     )
 
 
-def api_message(body: Any) -> str:
-    """The ``message`` of a Kubernetes ``Status`` body, or the raw body when it is not one."""
+def _status_body(body: Any) -> Any:
     if isinstance(body, bytes):
         body = body.decode("utf-8", errors="replace")
     try:
-        parsed = json.loads(body) if isinstance(body, str) else body
+        return json.loads(body) if isinstance(body, str) else body
     except ValueError:
-        return str(body)[:500]
+        return None
+
+
+def api_message(body: Any) -> str:
+    """The ``message`` of a Kubernetes ``Status`` body, or the raw body when it is not one."""
+    parsed = _status_body(body)
     if isinstance(parsed, dict) and isinstance(parsed.get("message"), str):
         return str(parsed["message"])
+    if isinstance(body, bytes):
+        body = body.decode("utf-8", errors="replace")
     return str(body)[:500]
+
+
+def missing_object(body: Any) -> Optional[tuple[str, str]]:
+    """(kind, name) of what a 404 ``Status`` says is missing; None when it names nothing.
+
+    The apiserver names the object it did not find (``details``: a robotjob, or the
+    namespace a create went to) and names nothing when it does not serve the
+    resource at all (its CRD is not installed).
+    """
+    parsed = _status_body(body)
+    details = parsed.get("details") if isinstance(parsed, dict) else None
+    if not isinstance(details, dict) or not details.get("name"):
+        return None
+    return str(details.get("kind") or ""), str(details["name"])
 
 
 def translate(
@@ -136,8 +158,14 @@ def translate(
 ) -> ClientError:
     """The typed error for an apiserver answer ``status`` to ``verb resource [name]``."""
     message = api_message(body)
-    if status == 404 and name is not None and namespace is not None:
-        return JobNotFound(name, namespace)
+    if status == 404:
+        missing = missing_object(body)
+        if missing is None:
+            return CrdsMissing(resource, message)
+        if missing[0] == "namespaces":
+            return NamespaceNotFound(missing[1])
+        if name is not None and namespace is not None:
+            return JobNotFound(name, namespace)
     if status == 403:
         return Forbidden(verb, resource, namespace, message)
     if status == 401:
@@ -150,9 +178,7 @@ def translate(
     if status == 409:
         return Conflict(f"conflict on {resource} {name or ''}: {message}".replace("  ", " "))
     if status == 404:
-        return ClientError(
-            f"{resource} not found ({message}); are the armnet CRDs installed on this cluster?"
-        )
+        return ClientError(f"{resource} not found: {message}")
     return ClientError(f"the cluster answered {status} to {verb} {resource}: {message}")
 
 

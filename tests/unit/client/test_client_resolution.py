@@ -9,9 +9,11 @@ import pytest
 from armnet_client.errors import (
     ClientError,
     Conflict,
+    CrdsMissing,
     Forbidden,
     InvalidJob,
     JobNotFound,
+    NamespaceNotFound,
     NoClusterConfigured,
 )
 from armnet_client.kube import (
@@ -114,11 +116,36 @@ def test_an_unknown_context_names_the_ones_there_are(tmp_path: Path) -> None:
 STATUS_BODY = json.dumps({"kind": "Status", "message": "robotjobs is forbidden: User \"tenant-b\""})
 
 
+def not_found(message: str, **details: str) -> str:
+    """A 404 ``Status`` body as the apiserver sends it (``details`` name what is missing, if anything)."""
+    return json.dumps({"kind": "Status", "apiVersion": "v1", "status": "Failure", "message": message,
+                       "reason": "NotFound", "details": details, "code": 404})
+
+
 def test_404_on_a_named_job_is_job_not_found_with_its_namespace() -> None:
-    error = translate(404, "{}", verb="get", resource="robotjobs", namespace="team-a", name="pick-1")
+    body = not_found('robotjobs.armnet.io "pick-1" not found', name="pick-1", group="armnet.io", kind="robotjobs")
+    error = translate(404, body, verb="get", resource="robotjobs", namespace="team-a", name="pick-1")
 
     assert isinstance(error, JobNotFound)
     assert "'pick-1' not found in namespace 'team-a'" in str(error)
+
+
+def test_404_naming_the_namespace_says_the_namespace_is_missing_not_the_crds() -> None:
+    body = not_found('namespaces "no-such-namespace" not found', name="no-such-namespace", kind="namespaces")
+    error = translate(404, body, verb="create", resource="robotjobs", namespace="no-such-namespace")
+
+    assert isinstance(error, NamespaceNotFound)
+    assert str(error).startswith("namespace 'no-such-namespace' does not exist on this cluster")
+    assert "CRD" not in str(error)
+
+
+@pytest.mark.parametrize("name", ["pick-1", None])
+def test_404_naming_nothing_is_a_resource_the_cluster_does_not_serve(name: str | None) -> None:
+    body = not_found("the server could not find the requested resource")
+    error = translate(404, body, verb="get", resource="robotjobs", namespace="team-a", name=name)
+
+    assert isinstance(error, CrdsMissing)
+    assert "the armnet CRDs are not installed" in str(error)
 
 
 def test_403_is_forbidden_naming_verb_and_namespace() -> None:
