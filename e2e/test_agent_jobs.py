@@ -87,6 +87,12 @@ def report_time(moment: datetime) -> str:
     return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
+def streamed_end(bed: AgentBed, name: str, messages: int) -> dict[str, Any]:
+    """The last of the job's ``messages`` status messages on its stream: the agent says there why it ended."""
+    uid = bed.job(name)["metadata"]["uid"]
+    return json.loads(stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.status", messages)[-1])
+
+
 def seconds_between(start: str, end: str) -> float:
     parse = lambda s: datetime.fromisoformat(s.replace("Z", "+00:00"))  # noqa: E731
     return (parse(end) - parse(start)).total_seconds()
@@ -154,6 +160,8 @@ def test_a_missing_secret_fails_the_job_before_it_starts_naming_the_secret(
     assert st["phase"] == "failed"
     assert "'absent'" in st["result"]["error"] and bed.namespace in st["result"]["error"]
     assert "startedAt" not in st
+    end = streamed_end(bed, batch["missing-secret"], 1)
+    assert (end["phase"], end["detail"]) == ("failed", {"error": st["result"]["error"]})
 
 
 def test_secrets_and_a_large_args_object_reach_the_job_and_no_secret_value_reaches_the_status(
@@ -175,6 +183,8 @@ def test_a_job_ignoring_shutdown_is_killed_at_the_end_of_grace_and_ends_timeout(
     st = status(bed.wait_phase(batch["timeout-ignored"], timeout=300))
     assert st["phase"] == "timeout"
     assert "killed at the end of the 3 s grace window" in st["result"]["error"]
+    end = streamed_end(bed, batch["timeout-ignored"], 2)
+    assert (end["phase"], end["detail"]["error"]) == ("timeout", st["result"]["error"])
     # The clock runs from the container start: killed within grace (3 s) + 1 s after the deadline.
     assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 1
 
@@ -213,6 +223,8 @@ def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next
     stored = datetime.now(UTC)  # the API server holds the cancel from here on
     st = status(bed.wait_phase("to-cancel", timeout=60))
     assert st["phase"] == "cancelled"
+    end = streamed_end(bed, "to-cancel", 2)
+    assert (end["phase"], end["detail"]["error"]) == ("cancelled", "the job was cancelled before it finished")
     bed.wait(lambda: not (bed.cell(cell).get("status") or {}).get("currentJob"), 30, f"{cell} released")
     # The job ignores shutdown: it gets the cell's whole grace window (3 s), then the kill
     # within grace + 1 s of the window opening (finishedAt of a killed job is when the kill was
@@ -334,6 +346,8 @@ def test_a_vanished_device_fails_the_running_job_with_device_lost_and_the_cell_r
     assert hw["reason"] == "DeviceLost" and f"arm arm's serial port: {link} does not exist" in hw["message"]
     assert st["phase"] == "failed", json.dumps(st)[:3000]
     assert st["result"]["error"] == f"device lost: arm arm's serial port: {link} does not exist"
+    end = streamed_end(bed, "loses-device", 2)
+    assert (end["phase"], end["detail"]["error"]) == ("failed", st["result"]["error"])
     # Debounce 1.5 s + a 0.5 s read + the cell's 3 s grace (the job ignores shutdown: killed at its
     # end), not the job's 300 s timeout; the rest is slack for the loaded 2-core VM.
     assert seconds_between(report_time(unplugged), st["finishedAt"]) <= 1.5 + 0.5 + 3 + 10, st
@@ -371,6 +385,8 @@ def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a
     st = status(bed.wait_phase("vanishes", timeout=120))
     assert st["phase"] == "failed"
     assert "vanished" in st["result"]["error"]
+    end = streamed_end(bed, "vanishes", 2)  # running, from the first agent; failed, from the second
+    assert (end["phase"], end["detail"]) == ("failed", {"error": st["result"]["error"]})
 
 
 def test_a_nats_outage_mid_job_loses_no_line_and_the_result_still_lands_in_status(

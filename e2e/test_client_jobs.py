@@ -207,6 +207,24 @@ def test_execute_of_a_failing_job_raises_the_remote_traceback(bed: AgentBed) -> 
     assert "about to fail" in result.stdout
 
 
+def test_submit_of_an_image_the_node_lacks_says_on_the_terminal_why_it_failed_before_it_started(
+    bed: AgentBed,
+) -> None:
+    submit = armnet(bed, "submit", "--image", "localhost/no-such-image:404", "--embodiment", "lerobot/so-101",
+                    "--task", bed.node, "--name", "no-such-image")
+    out, err = submit.communicate(timeout=300)
+    reason = "image localhost/no-such-image:404 not found on this node; push it to a registry the node can pull from"
+    assert submit.returncode == 1, err.decode()
+    assert out.decode().split() == ["no-such-image"]
+    assert f"[status: failed] {reason}" in err.decode()
+    # The agent said it on the job's stream (what `armnet submit` followed), not only in its status.
+    uid = bed.job("no-such-image")["metadata"]["uid"]
+    ends = [(e.terminal_phase, e.reason) for e in follow_events(FollowSettings(str(bed.nats_url)), bed.namespace, uid,
+                                                                follow=False)
+            if isinstance(e, LogLine) and e.kind == "status"]
+    assert ends == [("failed", reason)]
+
+
 # ------------------------------------------------------------------ logs -f
 
 

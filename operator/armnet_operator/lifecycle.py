@@ -182,7 +182,9 @@ def _plan_job(
 
 def _plan_cancel(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> list[Action]:
     if not job.active:
-        return [FinishJob(job, JobPhase.CANCELLED, "Cancelled", None)]
+        # Said in the result: the customer following the job sees why it ended.
+        error = "the job was cancelled before it started" if job.cancel else "the job was deleted before it started"
+        return [FinishJob(job, JobPhase.CANCELLED, "Cancelled", error)]
     if job.cancel_requested_at is None:
         return [RequestCancel(job)]
     agent_gone = cell is None or not heartbeat_fresh(cell, now, timing.heartbeat_timeout)

@@ -101,3 +101,27 @@ def test_execute_follows_until_the_operator_cancels_and_raise_for_status_raises(
     assert result.status is JobStatus.CANCELLED
     with pytest.raises(RemoteExecutionError, match="status=cancelled"):
         result.raise_for_status()
+
+
+def test_following_a_job_the_operator_cancelled_while_queued_says_why_it_ended(
+    k8s: Any, namespace: str, nats_server: str, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """No agent ever had the job, so its stream says nothing: the follow's last line comes from its status."""
+    tenant = Tenant(k8s, namespace)
+    client = tenant.client()
+    client.nats_url = nats_server
+    Publisher(nats_server, namespace, "none").publish([])  # the log stream exists, as on any cluster with agents
+    with running_operator(k8s, namespace, monkeypatch):
+        client.submit(JobSpec(image="localhost/pick:dev", embodiment=f"test/none-{namespace}"), name="never-ran")
+        eventually("the job queued", lambda: client.describe("never-ran").queued_reason)
+        client.cancel("never-ran")
+        eventually("the job cancelled", lambda: client.get("never-ran").status is JobStatus.CANCELLED)
+    lines = list(client.logs("never-ran", follow=True))
+    capsys.readouterr()  # KopfRunner swapped sys.stdout while it ran: the CLI is asked once it stopped
+    assert tenant.cli("logs", "-f", "never-ran", "--no-timestamps", "--nats-url", nats_server) == 0
+    printed = capsys.readouterr().out
+
+    assert [(x.kind, x.text, x.reason, x.source) for x in lines] == [
+        ("status", "status: cancelled", "the job was cancelled before it started", "status")]
+    assert printed == "[status: cancelled] the job was cancelled before it started\n"

@@ -123,6 +123,16 @@ def terminal_patch(
     return {"metadata": {"resourceVersion": resource_version}, "status": status}
 
 
+def end_detail(patch: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``detail`` of the job's terminal status message on its stream, from the terminal patch written.
+
+    The exit code and error as ``status.result`` has them: a client following the
+    stream tells the customer why the job ended without reading the RobotJob.
+    """
+    result = patch["status"].get("result") or {}
+    return {key: result[key] for key in ("exitCode", "error") if result.get(key) is not None}
+
+
 def failed_before_start(resource_version: str, error: str, now: datetime) -> dict[str, Any]:
     """An infrastructure failure or a bad job (missing Secret): ``failed`` with a short error."""
     return {

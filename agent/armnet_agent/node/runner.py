@@ -14,6 +14,10 @@ The steps, each safe to repeat after a crash at any point:
 5. write the terminal status, then remove the container. A container still
    present is the "not yet reported" fact: a restarted agent re-reads its log
    from the start and writes the same result.
+
+Every terminal status the runner writes (step 1's failure included) is also
+published on the job's status stream with its error, so a client following the
+job says why it ended.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from armnet_agent.node.launchers import JobLauncher, JobSession, SessionRequest
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import TERMINAL_PHASES, Cell, Job, cancel_reason, parse_job
 from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
-from armnet_agent.node.publish import Link, inputs_bridge, job_output
+from armnet_agent.node.publish import JobOutput, Link, inputs_bridge, job_output
 from armnet_agent.node.rollout_history import as_status
 from armnet_agent.node.rollout_recorder import RolloutRecorder
 from armnet_agent.sim.presets import CellSimulator
@@ -87,6 +91,7 @@ class JobRunner:
         self.adopted_container = container
         self.hooks = JobHooks()
         self.session: JobSession | None = None
+        self._output: JobOutput = job_output(deps.link, job.namespace, job.uid)
         self._on_done = on_done
         self._progress: str | None = None
         self._rollout: dict[str, int] | None = None
@@ -194,8 +199,8 @@ class JobRunner:
             self._run_job()
         except Exception as exc:  # noqa: BLE001 - an agent bug fails the job, never the agent
             log.exception("job %s: the agent failed running it", self.job.key)
-            self._write_terminal(infra_failure(f"the node agent failed: {type(exc).__name__}: {exc}",
-                                               SupervisorLimits(self.job.timeout_seconds)), None)
+            self._publish_end(self._write_terminal(infra_failure(
+                f"the node agent failed: {type(exc).__name__}: {exc}", SupervisorLimits(self.job.timeout_seconds)), None))
         finally:
             self._finished.set()
             if self._on_done is not None:
@@ -223,7 +228,7 @@ class JobRunner:
         for directory in (plan.layout.cache_dir, plan.layout.volume_dir):
             directory.mkdir(parents=True, exist_ok=True)
         inputs = LocalOperatorInputs()
-        output = job_output(self.deps.link, job.namespace, job.uid)
+        output = self._output
         request = SessionRequest(
             job=job, cell=cell, plan=plan, sim=self.sim, adopted=self.adopted_container,
             tripped=ADOPTED_TRIP if adopted else None, inputs=inputs,
@@ -281,8 +286,8 @@ class JobRunner:
                     self._terminal_begun = True
                 written = self._write_terminal(result, record)
                 self.reported = True
-                if written:
-                    output.status(result.status.value, {"exitCode": result.exit_code})
+                if written is not None:
+                    self._publish_end(written)
                     self._count(result, record, started_at)
                 session.remove()
         finally:
@@ -394,10 +399,15 @@ class JobRunner:
     def _fail_before_start(self, error: str) -> None:
         log.warning("job %s failed before start: %s", self.job.key, error)
         now = datetime.now(UTC)
-        self._write(lambda current: report.failed_before_start(current.resource_version, error, now))
+        self._publish_end(self._write(lambda current: report.failed_before_start(current.resource_version, error, now)))
         self.deps.metrics.jobs_finished.labels(outcome="failed").inc()
 
-    def _write_terminal(self, result: JobResult, record: report.ConnectorRecord | None) -> bool:
+    def _publish_end(self, written: dict[str, Any] | None) -> None:
+        """The terminal status just written, on the job's status stream (nothing when none was written)."""
+        if written is not None:
+            self._output.status(written["status"]["phase"], report.end_detail(written))
+
+    def _write_terminal(self, result: JobResult, record: report.ConnectorRecord | None) -> dict[str, Any] | None:
         def body(current: Job) -> dict[str, Any]:
             reason = cancel_reason(current) if result.status is JobStatus.CANCELLED else None
             final = result.model_copy(update={"error": reason}) if reason else result
@@ -405,24 +415,25 @@ class JobRunner:
 
         return self._write(body)
 
-    def _write(self, body_for: Callable[[Job], dict[str, Any]]) -> bool:
-        """A terminal write on the job as it is now; never over another terminal phase."""
+    def _write(self, body_for: Callable[[Job], dict[str, Any]]) -> dict[str, Any] | None:
+        """A terminal write on the job as it is now; never over another terminal phase. The body written, or None."""
         for _ in range(STATUS_RETRIES):
             try:
                 current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
             except Gone:
-                return False
+                return None
             if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
-                return False
+                return None
+            body = body_for(current)
             try:
-                self.deps.kube.patch_job_status(current.namespace, current.name, body_for(current))
-                return True
+                self.deps.kube.patch_job_status(current.namespace, current.name, body)
+                return body
             except Conflict:
                 continue
             except Gone:
-                return False
+                return None
         log.error("job %s: terminal status not written after %d conflicts", self.job.key, STATUS_RETRIES)
-        return False
+        return None
 
     def _count(self, result: JobResult, record: report.ConnectorRecord, started_at: datetime) -> None:
         metrics = self.deps.metrics

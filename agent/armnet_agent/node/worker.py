@@ -44,7 +44,7 @@ from armnet_agent.node.model import (
 )
 from armnet_agent.node.plan import LaunchError, cell_spec_for
 from armnet_agent.node.probes import probe_arm
-from armnet_agent.node.publish import telemetry_notifier
+from armnet_agent.node.publish import job_output, telemetry_notifier
 from armnet_agent.node.runner import JobRunner, RunnerDeps
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
 from armnet_agent.node.telemetry_sources import (
@@ -270,11 +270,11 @@ class CellWorker:
 
     def _vanished(self, job: Job) -> None:
         log.warning("job %s: %s", job.key, VANISHED)
+        body = report.failed_before_start(job.resource_version, VANISHED, datetime.now(UTC))
         try:
-            self.deps.kube.patch_job_status(
-                job.namespace, job.name, report.failed_before_start(job.resource_version, VANISHED, datetime.now(UTC))
-            )
+            self.deps.kube.patch_job_status(job.namespace, job.name, body)
             self.deps.metrics.jobs_finished.labels(outcome="failed").inc()
+            job_output(self.deps.link, job.namespace, job.uid).status("failed", report.end_detail(body))
         except KubeError as exc:
             log.info("job %s: vanished-container status not written (%s); next pass decides again", job.key, exc)
 

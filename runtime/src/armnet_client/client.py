@@ -37,7 +37,7 @@ from .mapping import (
     view_of,
 )
 from .resources import API_VERSION, CELLS, GROUP, JOBS, VERSION, Cell, RobotJob, RobotJobSpec
-from .statusfeed import status_events
+from .statusfeed import ended, status_events
 
 log = logging.getLogger("armnet_client")
 
@@ -296,7 +296,9 @@ class Client:
 
         Reads JetStream when a NATS URL is configured and reachable; otherwise
         says so once (a warning) and follows the job's status instead (progress,
-        rollout, then the output tails when it ends).
+        rollout, then the output tails when it ends). With ``follow`` the last
+        line is the job's terminal status with why it ended (``LogLine.reason``),
+        from the stream or, when the stream does not say, from the RobotJob.
         """
         for event in self.log_events(name, follow, since=since):
             if isinstance(event, LogLine):
@@ -313,12 +315,18 @@ class Client:
             beats = (HeartbeatSender(self.nats_url, ns, job_id, self.heartbeat_interval_s).start()
                      if follow and not job.spec.detach else None)
             try:
+                end: Optional[LogLine] = None
                 for event in follow_events(
                     FollowSettings(self.nats_url, stream=self.stream), ns, job_id, follow=follow,
                     finished=self._finished_probe(name), since=since,
                 ):
                     streamed = streamed or isinstance(event, LogLine)
+                    if follow and isinstance(event, LogLine) and event.terminal_phase:
+                        end = event  # the follow's last line: said below, with why the job ended
+                        continue
                     yield event
+                if follow:
+                    yield from self._ending(name, end)
                 return
             except NatsUnreachable as exc:
                 log.warning("%s; following the job's status instead (progress, then the last "
@@ -332,6 +340,24 @@ class Client:
         # Lines already delivered from the stream are not repeated from the tails.
         yield from status_events(lambda: self._read(name), follow=follow,
                                  interval_s=self.poll_interval_s, tails=not streamed)
+
+    def _ending(self, name: str, streamed: Optional[LogLine]) -> Iterator[LogLine]:
+        """The job's end with why it ended: the stream's status message, else the RobotJob's.
+
+        The stream may not say (a job the operator cancelled while queued never reached an
+        agent; an older agent published no error): then ``status.result.error`` does.
+        """
+        if streamed is not None and (streamed.reason or streamed.terminal_phase == "succeeded"):
+            yield streamed
+            return
+        try:
+            written = ended(self._read(name))
+        except ClientError as exc:
+            log.debug("the job's end not read from its status: %s", exc)
+            written = None
+        chosen = written if written is not None and (written.reason or streamed is None) else streamed
+        if chosen is not None:
+            yield chosen
 
     def _finished_probe(self, name: str) -> Callable[[], bool]:
         """A check of the job's phase, at most once per poll interval (the follower asks often)."""

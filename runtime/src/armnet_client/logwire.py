@@ -8,7 +8,8 @@ so that re-published lines are dropped by JetStream's duplicate window.
 
 Payloads (docs/streams.md): stdout, stderr and progress carry the line itself
 (UTF-8, usually with the ``armnet-runtime`` timestamp prefix); rerun carries one
-raw packet; status is JSON ``{"phase", "detail", "at"}``. Output lines are never
+raw packet; status is JSON ``{"phase", "detail", "at"}`` (a finished job's
+``detail.error`` says why it ended). Output lines are never
 parsed as JSON: a customer printing JSON must see it as printed. A line's time
 is the status's ``at``, else the timestamp prefix, else the time JetStream
 stored the message.
@@ -53,6 +54,15 @@ class LogLine:
             return None
         phase = self.data.get("phase")
         return phase if phase in TERMINAL_PHASES else None
+
+    @property
+    def reason(self) -> Optional[str]:
+        """Why the job ended, if this is its terminal status and it says (``detail.error``)."""
+        if self.terminal_phase is None:
+            return None
+        detail = self.data.get("detail")
+        error = detail.get("error") if isinstance(detail, dict) else None
+        return error if isinstance(error, str) and error else None
 
 
 def job_subjects(namespace: str, job_id: str) -> str:

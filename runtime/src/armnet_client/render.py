@@ -149,14 +149,18 @@ def dumps(document: Any, output: str) -> str:
 
 
 def log_text(line: LogLine, *, timestamps: bool = True) -> str:
-    """One printed log line: ``<UTC time> <text>``; stderr lines are marked, status lines bracketed."""
+    """One printed log line: ``<UTC time> <text>``; stderr lines are marked, status lines bracketed.
+
+    A finished job's status line is followed by why it ended (``[status: failed] <error>``).
+    """
     stamp = ""
     if timestamps and line.time is not None:
         stamp = line.time.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z "  # noqa: UP017
     if line.kind == "stderr":
         return f"{stamp}[stderr] {line.text}"
     if line.kind == "status":
-        return f"{stamp}[{line.text}]"
+        reason = line.reason
+        return f"{stamp}[{line.text}]" + (f" {reason}" if reason else "")
     return f"{stamp}{line.text}"
 
 

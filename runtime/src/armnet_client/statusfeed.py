@@ -2,8 +2,9 @@
 
 Without NATS the client still shows something useful: each new progress
 message, each rollout step, the phase changes, and when the job ends the
-output tails the agent kept in ``status.result``. The diffing is pure
-(:func:`changes`); :func:`status_events` only polls.
+output tails the agent kept in ``status.result``, then the end with why it
+ended (``status.result.error``). The diffing is pure (:func:`changes`,
+:func:`ended`); :func:`status_events` only polls.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def changes(before: Optional[RobotJob], after: RobotJob, *, tails: bool = True) 
 
     phase = status_of(new.phase).value
     if old is None or status_of(old.phase).value != phase:
-        line("status", f"status: {phase}", {"phase": phase})
+        line("status", f"status: {phase}", _status_data(after))
     if new.progress and (old is None or old.progress != new.progress):
         line("progress", new.progress)
     if new.rollout and (old is None or old.rollout != new.rollout):
@@ -47,6 +48,24 @@ def changes(before: Optional[RobotJob], after: RobotJob, *, tails: bool = True) 
     if result is not None and lines and lines[0].kind == "status":
         lines.append(lines.pop(0))
     return lines
+
+
+def ended(job: RobotJob) -> Optional[LogLine]:
+    """The status line of a finished job, with why it ended as the stream's would say it; None while it runs."""
+    result = result_from_robotjob(job)
+    if result is None:
+        return None
+    return LogLine(kind="status", text=f"status: {result.status.value}", time=job.status.finished_at,
+                   data=_status_data(job), source="status")
+
+
+def _status_data(job: RobotJob) -> dict[str, object]:
+    """``{"phase", "detail": {"error"}}`` as the agent's status message: the error once the job ended."""
+    data: dict[str, object] = {"phase": status_of(job.status.phase).value}
+    result = result_from_robotjob(job)
+    if result is not None and result.error:
+        data["detail"] = {"error": result.error}
+    return data
 
 
 def status_events(

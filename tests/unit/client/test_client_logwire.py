@@ -7,7 +7,7 @@ from datetime import datetime, timezone
 import pytest
 from armnet_client.logwire import decode, job_subjects, seq_of
 from armnet_client.resources import RobotJob
-from armnet_client.statusfeed import changes
+from armnet_client.statusfeed import changes, ended
 
 from .builders import a_robotjob
 
@@ -94,3 +94,27 @@ def test_status_feed_leaves_the_tails_out_when_the_output_was_already_shown() ->
     after = RobotJob.model_validate(a_robotjob(phase="failed", result={"stdoutTail": "a\n"}))
 
     assert [(x.kind, x.text) for x in changes(before, after, tails=False)] == [("status", "status: failed")]
+
+
+def test_a_terminal_status_message_says_why_the_job_ended() -> None:
+    payload = b'{"phase": "failed", "detail": {"error": "image x not found on this node"}}'
+    done = decode("logs.a.u.status", payload, msg_id=None, stream_seq=9, stored_at=STORED)
+    plain = decode("logs.a.u.status", b'{"phase": "succeeded", "detail": {"exitCode": 0}}', msg_id=None,
+                   stream_seq=9, stored_at=STORED)
+
+    assert (done.text, done.reason) == ("status: failed", "image x not found on this node")
+    assert plain.reason is None
+
+
+def test_status_feed_ends_with_the_terminal_status_and_why_the_job_ended() -> None:
+    before = RobotJob.model_validate(a_robotjob(phase="running"))
+    after = RobotJob.model_validate(a_robotjob(phase="timeout", finishedAt="2026-11-24T10:01:00Z", result={
+        "error": "job exceeded its timeout of 2 s; it stopped within the 3 s grace window"}))
+
+    last = changes(before, after, tails=False)[-1]
+
+    assert (last.text, last.reason) == (
+        "status: timeout", "job exceeded its timeout of 2 s; it stopped within the 3 s grace window")
+    assert ended(after) == last
+    assert ended(after) is not None and ended(after).reason == last.reason  # type: ignore[union-attr]
+    assert ended(before) is None

@@ -188,3 +188,24 @@ def test_since_takes_durations_and_times_with_a_zone() -> None:
         parse_since("2026-11-24T09:00:00", NOW)
     with pytest.raises(ValueError, match="duration like 10m"):
         parse_since("yesterday", NOW)
+
+
+def test_a_finished_jobs_status_line_says_why_it_ended() -> None:
+    out = io.StringIO()
+    printer = LogPrinter(out, live=False, timestamps=False)
+
+    printer.show(line("status", "status: failed", {"phase": "failed", "detail": {
+        "error": "image localhost/x:404 not found on this node; push it to a registry the node can pull from"}}))
+    printer.show(line("status", "status: succeeded", {"phase": "succeeded", "detail": {"exitCode": 0}}))
+
+    assert out.getvalue().splitlines() == [
+        "[status: failed] image localhost/x:404 not found on this node; push it to a registry the node can pull from",
+        "[status: succeeded]"]
+
+
+def test_tail_keeps_a_finished_jobs_status_from_the_backlog() -> None:
+    end = line("status", "status: cancelled", {"phase": "cancelled", "detail": {"error": "stopped"}})
+    events = [line("stdout", str(i)) for i in range(3)] + [end]
+
+    assert [x.text for x in tail(events, 1)] == ["2", "status: cancelled"]
+    assert [x.text for x in tail([*events, CaughtUp()], 0)] == ["status: cancelled"]

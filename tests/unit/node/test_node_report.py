@@ -10,6 +10,7 @@ from armnet_agent.node.report import (
     ERROR_MAX,
     TAIL_MAX,
     ConnectorRecord,
+    end_detail,
     failed_before_start,
     running_patch,
     terminal_patch,
@@ -89,3 +90,13 @@ def test_non_finite_numbers_a_job_chose_still_give_a_status_the_api_server_parse
     text = json.dumps(body, allow_nan=False)  # raises on inf/nan, as the API server would refuse them
     steps = json.loads(text)["status"]["result"]["safety"]["largestRequestedStep"]
     assert steps == {"shoulder_pan": "inf", "gripper": "nan", "elbow_flex": 2.5}
+
+
+def test_the_streams_end_message_carries_the_error_the_status_has() -> None:
+    record = ConnectorRecord(trip_reason="safety", trip_message="shoulder_pan: step 60 > limit 10")
+    failed = terminal_patch("1", result(status=JobStatus.FAILED, exit_code=1, error="exit code 1"), record)
+    assert end_detail(failed) == {"exitCode": 1, "error": failed["status"]["result"]["error"]}
+    assert "shoulder_pan: step 60" in end_detail(failed)["error"]
+    assert end_detail(failed_before_start("1", "image x not found on this node", T0)) == {
+        "error": "image x not found on this node"}
+    assert end_detail(terminal_patch("1", result())) == {"exitCode": 0}

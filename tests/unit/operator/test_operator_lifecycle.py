@@ -90,10 +90,10 @@ def test_a_running_job_on_a_cell_lost_past_the_grace_fails_with_the_reason():
     assert finish.phase is JobPhase.FAILED and finish.error == "cell c lost"
 
 
-def test_a_queued_job_is_cancelled_at_once():
+def test_a_queued_job_is_cancelled_at_once_saying_so():
     job = a_job().cancelled_by_user().queued()
     [finish] = of_type(plan([job], []), FinishJob)
-    assert finish.phase is JobPhase.CANCELLED and finish.error is None
+    assert finish.phase is JobPhase.CANCELLED and finish.error == "the job was cancelled before it started"
 
 
 def test_a_running_job_is_asked_to_stop_gracefully():
@@ -117,7 +117,8 @@ def test_a_cancel_on_a_cell_whose_agent_is_gone_is_forced_after_the_timeout():
 
 def test_deleting_a_queued_job_cancels_it_first():
     job = a_job().being_deleted().queued()
-    assert of_type(plan([job], []), FinishJob)[0].phase is JobPhase.CANCELLED
+    [finish] = of_type(plan([job], []), FinishJob)
+    assert finish.phase is JobPhase.CANCELLED and finish.error == "the job was deleted before it started"
     assert of_type(plan([job], []), RemoveFinalizer) == []
 
 

@@ -37,24 +37,30 @@ def parse_since(text: str, now: datetime) -> datetime:
 
 
 def tail(events: Iterable[Event], count: Optional[int]) -> Iterator[LogLine]:
-    """The last ``count`` output lines stored so far, then everything live (``None``: everything)."""
+    """The last ``count`` output lines stored so far, then everything live (``None``: everything).
+
+    A finished job's terminal status is kept from the backlog too: it says why the job ended.
+    """
     if count is None:
         yield from (e for e in events if isinstance(e, LogLine))
         return
     held: deque[LogLine] = deque(maxlen=max(count, 0) or None)
+    end: list[LogLine] = []
     backlog = True
     for event in events:
         if isinstance(event, CaughtUp):
             if backlog:
-                yield from (held if count > 0 else [])
+                yield from [*(held if count > 0 else []), *end]
             backlog = False
         elif backlog:
             if event.kind in ("stdout", "stderr"):
                 held.append(event)
+            elif event.terminal_phase:
+                end[:] = [event]
         else:
             yield event
     if backlog:
-        yield from (held if count > 0 else [])
+        yield from [*(held if count > 0 else []), *end]
 
 
 class LogPrinter:
