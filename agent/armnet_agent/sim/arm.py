@@ -36,15 +36,26 @@ class MotorSpec:
     name: str
     id: int
     norm_mode: str = DEGREES
+    #: EEPROM values a prepared cell holds on this servo (seeded when it is calibrated).
+    configured: tuple[tuple[str, int], ...] = ()
 
+
+#: What LeRobot 0.4.4's ``SO101Follower.configure()`` saves in each servo's EEPROM (it
+#: writes them inside ``torque_disabled()``, whose ``Lock=0`` makes them persist): an
+#: SO-101 that LeRobot has set up and calibrated holds these.
+SO101_CONFIGURED = (("P_Coefficient", 16), ("I_Coefficient", 0), ("D_Coefficient", 32))
+#: The gripper's too: half torque, half current, 25 % overload torque, "to avoid burnout".
+SO101_GRIPPER_CONFIGURED = (
+    *SO101_CONFIGURED, ("Max_Torque_Limit", 500), ("Protection_Current", 250), ("Overload_Torque", 25),
+)
 
 SO101_MOTORS: tuple[MotorSpec, ...] = (
-    MotorSpec("shoulder_pan", 1),
-    MotorSpec("shoulder_lift", 2),
-    MotorSpec("elbow_flex", 3),
-    MotorSpec("wrist_flex", 4),
-    MotorSpec("wrist_roll", 5),
-    MotorSpec("gripper", 6, RANGE_0_100),
+    MotorSpec("shoulder_pan", 1, configured=SO101_CONFIGURED),
+    MotorSpec("shoulder_lift", 2, configured=SO101_CONFIGURED),
+    MotorSpec("elbow_flex", 3, configured=SO101_CONFIGURED),
+    MotorSpec("wrist_flex", 4, configured=SO101_CONFIGURED),
+    MotorSpec("wrist_roll", 5, configured=SO101_CONFIGURED),
+    MotorSpec("gripper", 6, RANGE_0_100, configured=SO101_GRIPPER_CONFIGURED),
 )
 
 
@@ -76,6 +87,7 @@ class SimulatedArm(StartStop):
                 calibration=self.calibration[m.name].servo_calibration()
                 if m.name in self.calibration
                 else None,
+                configured=dict(m.configured),
                 params=physics,
                 now=now,
             )

@@ -8,6 +8,7 @@ passed in, nothing here blocks or does I/O.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 from . import control_table as ct
@@ -52,9 +53,11 @@ class Servo:
         servo_id: int,
         *,
         calibration: ServoCalibration | None = None,
+        configured: Mapping[str, int] | None = None,
         params: PhysicsParams | None = None,
         now: float = 0.0,
     ) -> None:
+        """``configured``: EEPROM values LeRobot's setup saved on a prepared cell, seeded with ``calibration``."""
         self.params = params or PhysicsParams()
         self.faults = ServoFaults()
         self._memory = ct.default_memory(servo_id)
@@ -63,8 +66,14 @@ class Servo:
             self._set(_REG["Min_Position_Limit"], calibration.range_min)
             self._set(_REG["Max_Position_Limit"], calibration.range_max)
             # A calibrated servo has been through LeRobot's setup, whose configure()
-            # leaves the return delay at its minimum (0): what a prepared cell holds.
+            # leaves the return delay at its minimum (0) and saves the robot's gains
+            # and limits (``configured``): what a prepared cell holds.
             self._set(_REG["Return_Delay_Time"], 0)
+            for name, value in (configured or {}).items():
+                reg = _REG.get(name)
+                if reg is None or reg.area is ct.Area.RAM:
+                    raise ValueError(f"{name!r} is not an EEPROM register of the STS3215 a setup can save")
+                self._set(reg, value)
         # What a power cycle restores: the EEPROM as last saved with Lock = 0.
         self._saved = bytes(self._memory)
         self._pending: tuple[int, bytes] | None = None

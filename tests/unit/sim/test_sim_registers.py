@@ -107,3 +107,29 @@ def test_factory_reset_keeps_the_id_and_restores_limits() -> None:
 
 def test_reads_past_the_table_are_zero_filled_to_the_requested_length() -> None:
     assert Servo(1).read(250, 10, now=0) == bytes(10)
+
+
+def test_a_prepared_servo_holds_what_lerobots_setup_saved_through_a_power_cycle() -> None:
+    configured = {"P_Coefficient": 16, "Max_Torque_Limit": 500, "Overload_Torque": 25}
+    servo = Servo(6, calibration=ServoCalibration(homing_offset=0, range_min=100, range_max=4000),
+                  configured=configured)
+    servo.power_cycle(now=1)
+    assert {name: servo.get(name) for name in configured} == configured
+    assert servo.get("Torque_Limit") == 500  # loaded from Max_Torque_Limit at power-on
+    assert Servo(6, configured=configured).get("P_Coefficient") == 32  # an unprepared servo: factory values
+
+
+def test_a_setup_saves_eeprom_only() -> None:
+    with pytest.raises(ValueError, match="Torque_Limit"):
+        Servo(1, calibration=ServoCalibration(0, 0, 4095), configured={"Torque_Limit": 500})
+
+
+def test_the_simulated_so101_is_a_prepared_cell_with_lerobots_gripper_limits() -> None:
+    from armnet_agent.sim.arm import SimulatedArm
+    from armnet_agent.sim.calibration import builtin_calibration
+
+    arm = SimulatedArm(calibration=builtin_calibration("so101"))
+    assert arm.register("gripper", "Max_Torque_Limit") == 500
+    assert arm.register("gripper", "Protection_Current") == 250
+    assert arm.register("elbow_flex", "Max_Torque_Limit") == 1000
+    assert {arm.register(m, "P_Coefficient") for m in arm.motors} == {16}
