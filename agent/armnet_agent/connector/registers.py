@@ -7,9 +7,16 @@ joint into a wheel under ``Goal_Velocity``; ``Torque_Limit=0`` drops the arm;
 in EEPROM for every later tenant. So every register write is decided here, by
 register name, before it reaches the bus.
 
+The rules follow where a register lives in the STS3215's control table (LeRobot's
+``tables.py``: addresses 0-39 are EEPROM, 40-71 RAM, 80-86 factory settings kept
+like EEPROM). EEPROM belongs to the cell: a job may only write the value a servo
+already holds (so LeRobot's ``configure()`` on a prepared cell is a no-op). The RAM
+registers a job may tune within bounds are put back by the connector when the job's
+bus lets go (``restore``), so the next tenant finds the cell as this one did.
+
 This module owns the rules as plain data (STS3215 first) and the decision
 function. It never touches a bus: the caller passes the value the servo holds
-where a rule needs it (EEPROM writes are allowed only when they change nothing).
+where a rule needs it.
 """
 
 from __future__ import annotations
@@ -24,13 +31,13 @@ class Rule(StrEnum):
 
     #: Goal_Position: allowed here; the motion guard checks it against the cell's limits.
     GOAL = "goal"
-    #: Only the listed values (e.g. Torque_Enable 0/1, Operating_Mode position only).
+    #: Only the listed values (Torque_Enable 0/1).
     VALUES = "values"
-    #: Only values inside the cell's bounds for that register (PID, acceleration, torque).
+    #: RAM a job may tune: only values inside the cell's bounds, and restored when its bus lets go.
     BOUNDED = "bounded"
-    #: EEPROM a job never changes: only the exact value LeRobot's ``configure()`` writes,
-    #: and only when the servo already holds it (so the write is a no-op).
-    CONFIGURE_NOOP = "configure_noop"
+    #: EEPROM (the cell's configuration): only the value the servo already holds, so the
+    #: write changes nothing (LeRobot's ``configure()`` on a prepared cell).
+    EEPROM = "eeprom"
     #: Never written by a job.
     REFUSED = "refused"
 
@@ -38,7 +45,7 @@ class Rule(StrEnum):
 @dataclass(frozen=True)
 class RegisterRule:
     rule: Rule
-    #: Allowed values (VALUES) or LeRobot's configure value (CONFIGURE_NOOP).
+    #: Allowed values (VALUES).
     values: frozenset[int] = frozenset()
     #: What the register does, for the refusal message.
     why: str = ""
@@ -46,42 +53,48 @@ class RegisterRule:
 
 #: Default bounds of the BOUNDED registers (raw register units), inclusive. A cell
 #: overrides them with ``registerBounds``. They hold every value LeRobot's SO-101
-#: ``configure()`` writes (P=16, I=0, D=32, acceleration 254, gripper torque 500,
-#: protection current 250, overload torque 25) and the STS3215 factory values.
+#: ``configure()`` writes to these RAM registers (acceleration 254) and the STS3215's
+#: power-on values. Every one of them is restored when the job's bus lets go.
 DEFAULT_BOUNDS: Mapping[str, tuple[int, int]] = {
-    "P_Coefficient": (8, 32),
-    "I_Coefficient": (0, 8),
-    "D_Coefficient": (0, 32),
     "Acceleration": (0, 254),
-    "Maximum_Acceleration": (0, 254),
     "Goal_Velocity": (0, 1000),
     "Goal_Time": (0, 0),
     "Torque_Limit": (200, 1000),
-    "Max_Torque_Limit": (200, 1000),
-    "Protection_Current": (100, 500),
-    "Overload_Torque": (10, 100),
 }
 
+#: The order the connector writes restored registers back in: the servo's force
+#: ceiling first, then how it moves. The arm is held where it is before any of them
+#: (``restore.restore_registers``), so none of them can move it.
+RESTORE_ORDER: tuple[str, ...] = ("Torque_Limit", "Acceleration", "Goal_Velocity", "Goal_Time")
+
 _EEPROM = (
-    "is the servo's EEPROM configuration, owned by the cell (it survives power cycles and "
-    "every later job depends on it)"
+    "is in the servo's EEPROM, the cell's configuration (it outlives the job and every later job "
+    "depends on it)"
 )
 _CALIBRATION = (
     "holds the cell's calibration, owned by the cell; the calibration is provided read-only "
     "at ctx.cell.calibration_dir"
 )
 
+#: EEPROM and factory registers of the STS3215 that LeRobot's ``configure()`` (or a
+#: robot's) writes: accepted when the servo already holds the value. Addresses from
+#: LeRobot's control table; all below 40 (EEPROM) or in 80-86 (factory).
+_STS3215_EEPROM_NOOP = (
+    "Return_Delay_Time",  # 7
+    "Max_Torque_Limit",  # 16: loaded into Torque_Limit at power-on
+    "P_Coefficient", "D_Coefficient", "I_Coefficient",  # 21-23
+    "Protection_Current",  # 28
+    "Operating_Mode",  # 33: position (0), wheel (1), PWM (2), step (3)
+    "Overload_Torque",  # 36
+    "Maximum_Acceleration",  # 85 (factory)
+)
+
 #: STS3215 (LeRobot's ``sts3215`` control table). A register not listed is refused.
 STS3215: Mapping[str, RegisterRule] = {
     "Goal_Position": RegisterRule(Rule.GOAL),
     "Torque_Enable": RegisterRule(Rule.VALUES, frozenset({0, 1}), "switches the servo's torque (0 off, 1 on)"),
-    "Operating_Mode": RegisterRule(
-        Rule.VALUES, frozenset({0}),
-        "selects position (0), wheel/velocity (1), PWM (2) or step (3) mode; only position mode "
-        "keeps the cell's position limits meaningful",
-    ),
     **{name: RegisterRule(Rule.BOUNDED, why="is limited to the cell's bounds") for name in DEFAULT_BOUNDS},
-    "Return_Delay_Time": RegisterRule(Rule.CONFIGURE_NOOP, frozenset({0}), _EEPROM),
+    **{name: RegisterRule(Rule.EEPROM, why=_EEPROM) for name in _STS3215_EEPROM_NOOP},
     "Homing_Offset": RegisterRule(Rule.REFUSED, why=_CALIBRATION),
     "Min_Position_Limit": RegisterRule(Rule.REFUSED, why=_CALIBRATION),
     "Max_Position_Limit": RegisterRule(Rule.REFUSED, why=_CALIBRATION),
@@ -116,9 +129,15 @@ def is_goal_register(model: str, register: str | None) -> bool:
 
 
 def needs_current_value(model: str, register: str) -> bool:
-    """True when deciding a write needs the value the servo holds (a no-op EEPROM write)."""
+    """True when deciding a write needs the value the servo holds (an EEPROM write must be a no-op)."""
     rule = POLICIES.get(model, {}).get(register)
-    return rule is not None and rule.rule is Rule.CONFIGURE_NOOP
+    return rule is not None and rule.rule is Rule.EEPROM
+
+
+def is_restored(model: str, register: str | None) -> bool:
+    """True for a register whose job writes the connector puts back when the job's bus lets go."""
+    rule = POLICIES.get(model, {}).get(register) if register is not None else None
+    return rule is not None and rule.rule is Rule.BOUNDED
 
 
 def write_refusal(
@@ -167,14 +186,18 @@ def write_refusal(
             f"writing {register}={value} on motor {motor!r} is not allowed: {register} {rule.why} "
             f"[{low}, {high}]"
         )
-    # CONFIGURE_NOOP
-    if value in rule.values and current == value:
+    # EEPROM
+    if current is not None and current == value:
         return None
-    held = "unknown" if current is None else str(current)
+    if current is None:
+        return (
+            f"writing {register}={value} on motor {motor!r} is not allowed: {register} {rule.why}; a job may "
+            "write it only with write(), one servo at a time, and only the value the servo already holds"
+        )
     return (
-        f"writing {register}={value} on motor {motor!r} is not allowed: {register} {rule.why}. "
-        f"The servo holds {held}; only LeRobot's configure() value {sorted(rule.values)} is accepted, "
-        "and only when the servo already holds it"
+        f"writing {register}={value} on motor {motor!r} is not allowed: {register} {rule.why}. The servo "
+        f"holds {current}, and a job may write only that value (so LeRobot's configure() works on a cell "
+        "prepared with its values); changing it is the cell owner's decision"
     )
 
 
@@ -182,7 +205,12 @@ def valid_bounds(bounds: Mapping[str, tuple[int, int]]) -> list[str]:
     """Problems with a cell's ``registerBounds`` (unknown registers, reversed ranges)."""
     problems = []
     for register, (low, high) in bounds.items():
-        if register not in DEFAULT_BOUNDS:
+        if STS3215.get(register, RegisterRule(Rule.REFUSED)).rule is Rule.EEPROM:
+            problems.append(
+                f"{register!r} is in the servos' EEPROM: jobs may only write the value the servo holds, so it "
+                f"takes no bounds (set it on the servos themselves); bounded: {sorted(DEFAULT_BOUNDS)}"
+            )
+        elif register not in DEFAULT_BOUNDS:
             problems.append(f"{register!r} is not a bounded register; bounded: {sorted(DEFAULT_BOUNDS)}")
         elif low > high:
             problems.append(f"{register!r}: lower bound {low} is above upper bound {high}")

@@ -25,6 +25,8 @@ HOSTILE_WRITES = [
     ("Lock", 0),
     ("Return_Delay_Time", 250),
     ("Baud_Rate", 4),
+    ("P_Coefficient", 8),  # EEPROM: the cell's gains
+    ("Max_Torque_Limit", 200),  # EEPROM: loaded into Torque_Limit at every power-on
 ]
 
 
@@ -68,9 +70,9 @@ def test_a_sync_write_outside_the_policy_is_refused_and_changes_no_servo(bus, si
 
 def test_values_inside_the_cells_bounds_are_written(bus, sim_cell) -> None:
     bus.write("Acceleration", "elbow_flex", 100)
-    bus.write("P_Coefficient", "elbow_flex", 16)
+    bus.write("Torque_Limit", "elbow_flex", 400)
     assert sim_cell.arm.register("elbow_flex", "Acceleration") == 100
-    assert sim_cell.arm.register("elbow_flex", "P_Coefficient") == 16
+    assert sim_cell.arm.register("elbow_flex", "Torque_Limit") == 400
 
 
 def test_lerobots_configure_sequence_succeeds_on_the_cell(bus, sim_cell) -> None:

@@ -7,7 +7,14 @@ import math
 import pytest
 from armnet_agent.connector import ConnectorConfig
 from armnet_agent.connector.identity import CellMotor, JobMotor, motors_refusal, protocol_refusal
-from armnet_agent.connector.registers import DEFAULT_BOUNDS, STS3215, write_refusal
+from armnet_agent.connector.registers import (
+    DEFAULT_BOUNDS,
+    RESTORE_ORDER,
+    STS3215,
+    Rule,
+    is_restored,
+    write_refusal,
+)
 from pydantic import ValidationError
 
 pytestmark = pytest.mark.unit
@@ -16,11 +23,6 @@ pytestmark = pytest.mark.unit
 def refusal(register: str, value: int, **kwargs) -> str | None:
     kwargs.setdefault("interlock_held", False)
     return write_refusal("sts3215", register, "elbow_flex", value, **kwargs)
-
-
-def test_operating_mode_is_position_only() -> None:
-    assert refusal("Operating_Mode", 0) is None
-    assert "Operating_Mode" in (refusal("Operating_Mode", 1) or "")
 
 
 def test_bounded_registers_accept_only_values_inside_the_bounds() -> None:
@@ -34,10 +36,37 @@ def test_a_cells_bounds_replace_the_defaults() -> None:
     assert refusal("Goal_Velocity", 1500) is not None
 
 
-def test_return_delay_is_written_only_when_the_servo_already_holds_lerobots_value() -> None:
-    assert refusal("Return_Delay_Time", 0, current=0) is None
-    assert "holds 250" in (refusal("Return_Delay_Time", 0, current=250) or "")
-    assert refusal("Return_Delay_Time", 250, current=250) is not None
+EEPROM_REGISTERS = ["Return_Delay_Time", "Max_Torque_Limit", "P_Coefficient", "I_Coefficient", "D_Coefficient",
+                    "Protection_Current", "Operating_Mode", "Overload_Torque", "Maximum_Acceleration"]
+
+
+@pytest.mark.parametrize("register", EEPROM_REGISTERS)
+def test_an_eeprom_register_is_written_only_with_the_value_the_servo_already_holds(register: str) -> None:
+    assert refusal(register, 16, current=16) is None  # LeRobot's configure() on a prepared cell: a no-op
+    changed = refusal(register, 16, current=32) or ""
+    assert "EEPROM" in changed and "holds 32" in changed
+    assert "EEPROM" in (refusal(register, 16) or "")  # a sync_write: the servo's value is not read
+
+
+def test_max_torque_limit_is_eeprom_and_a_job_cannot_lower_it() -> None:
+    why = refusal("Max_Torque_Limit", 200, current=1000) or ""
+    assert "Max_Torque_Limit" in why and "EEPROM" in why and "holds 1000" in why
+
+
+def test_every_rule_follows_where_the_register_lives_in_lerobots_sts3215_control_table() -> None:
+    """EEPROM (addresses 0-39) and factory (80-86) are the cell's; only RAM (40-71) is tuned and restored."""
+    from lerobot.motors.feetech.tables import MODEL_CONTROL_TABLE
+
+    table = MODEL_CONTROL_TABLE["sts3215"]
+    for register, rule in STS3215.items():
+        address = table[register][0]
+        persistent = address < 40 or address >= 80
+        if persistent:
+            assert rule.rule in (Rule.EEPROM, Rule.REFUSED), register
+        else:
+            assert rule.rule is not Rule.EEPROM, register
+        assert is_restored("sts3215", register) == (rule.rule is Rule.BOUNDED), register
+    assert {r for r, rule in STS3215.items() if rule.rule is Rule.BOUNDED} == set(DEFAULT_BOUNDS) == set(RESTORE_ORDER)
 
 
 @pytest.mark.parametrize("register", ["ID", "Baud_Rate", "Lock", "Homing_Offset", "Min_Position_Limit", "Phase"])
@@ -117,3 +146,8 @@ def test_register_bounds_name_bounded_registers_in_order() -> None:
         ConnectorConfig.model_validate({**arm(5), "registerBounds": {"ID": [0, 10]}})
     with pytest.raises(ValidationError, match="above upper bound"):
         ConnectorConfig.model_validate({**arm(5), "registerBounds": {"Goal_Velocity": [10, 0]}})
+
+
+def test_register_bounds_for_an_eeprom_register_say_it_takes_none() -> None:
+    with pytest.raises(ValidationError, match="'P_Coefficient' is in the servos' EEPROM"):
+        ConnectorConfig.model_validate({**arm(5), "registerBounds": {"P_Coefficient": [8, 32]}})
