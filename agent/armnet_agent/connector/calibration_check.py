@@ -10,14 +10,12 @@ agent's health probe calls when no job holds the bus (docs/connector.md,
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any
 
-from .reply_window import LATE_REPLY_WAIT_S, LEROBOT_REPLY_WINDOW_MS
-
-T = TypeVar("T")
+from .block_read import read_block
+from .reply_window import LEROBOT_REPLY_WINDOW_MS
 
 #: The EEPROM registers that hold a servo's calibration, in tuple order.
 CALIBRATION_REGISTERS = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
@@ -87,7 +85,7 @@ def read_calibration(
     untouched; the caller must hold the bus (no job running). Raises
     ``ConnectionError`` if the port cannot be opened.
     """
-    from scservo_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+    from scservo_sdk import PacketHandler, PortHandler
 
     handler = PortHandler(port)
     try:
@@ -102,7 +100,8 @@ def read_calibration(
         packets = PacketHandler(0)
         held: dict[int, tuple[int, int, int] | None] = {}
         for motor_id in sorted(set(motor_ids)):
-            block = _read_block(packets, handler, motor_id, COMM_SUCCESS)
+            block = read_block(packets, handler, motor_id, CALIBRATION_BLOCK_START, CALIBRATION_BLOCK_LENGTH,
+                               retries=READ_RETRIES)
             if block is None:  # a servo that does not answer is a mismatch on every register
                 held[motor_id] = None
                 continue
@@ -132,46 +131,3 @@ def use_lerobot_reply_window(handler: Any) -> None:
 def _word(block: list[int], offset: int) -> int:
     """A two-byte register from a block read: protocol 0 (STS servos) sends the low byte first."""
     return block[offset] | block[offset + 1] << 8
-
-
-def _read_block(packets: Any, handler: Any, motor_id: int, success: int) -> list[int] | None:
-    """The servo's bytes from the first calibration register to the last, or None when it stays silent.
-
-    One read per servo, of a length no other read of this pass asks for: a Feetech reply
-    names its servo but not the register it answers, so a late reply to a register read
-    could pass for the next register's (values shifted by one register, a false mismatch
-    seen under load). A late reply here answers an earlier try of this same block read:
-    the same EEPROM bytes. A reply of another length (truncated, or some other request's)
-    is no answer. ``scservo_sdk`` skips replies from other servos itself, and raises
-    IndexError on a truncated reply instead of reporting it.
-    """
-
-    def read() -> list[int] | None:
-        try:
-            data, result, error = packets.readTxRx(handler, motor_id, CALIBRATION_BLOCK_START,
-                                                   CALIBRATION_BLOCK_LENGTH)
-        except (IndexError, OSError):
-            return None
-        if result == success and not error and len(data) == CALIBRATION_BLOCK_LENGTH:
-            return [int(b) for b in data]
-        return None
-
-    return ask_until_answered(handler, read)
-
-
-def ask_until_answered(handler: Any, ask: Callable[[], T | None], tries: int = 1 + READ_RETRIES) -> T | None:
-    """``ask()``'s first answer that is not None, over up to ``tries`` requests.
-
-    Before each retry it waits for a reply that came after its request gave up and drops
-    it with everything else waiting on the line: a late reply is no answer, and must not
-    be read as the answer to the next request. Used by every idle read of the bus (the
-    agent's pings and calibration reads), so a loaded host answers as LeRobot's reads do.
-    """
-    for attempt in range(tries):
-        if attempt:
-            time.sleep(LATE_REPLY_WAIT_S)
-        handler.ser.reset_input_buffer()
-        answer = ask()
-        if answer is not None:
-            return answer
-    return None

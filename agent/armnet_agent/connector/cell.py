@@ -1,9 +1,10 @@
 """The state one connector shares between its connections: the cell of one job.
 
 This module owns the shared facts (config, interlock, deadline, inputs, the
-live objects of every connection, counters) and the cell-wide actions
-(``return_to_rest``, ``reset``, releasing every device). Per-connection request
-handling lives in ``session``.
+live objects of every connection, counters, each arm's register ledger) and the
+cell-wide actions (``return_to_rest``, ``reset``, releasing every device and
+putting back the registers a job changed). Per-connection request handling lives
+in ``session``.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ from .hardware import (
 from .inputs import CompletionMonitor, NeverComplete, OperatorInputs
 from .interlock import Interlock, TripReason
 from .motion import MotionGuard
-from .rest import RestReport, cell_bus, move_to_rest, rest_pose, torque_off
+from .rest import RestReport, cell_bus, move_to_rest, rest_pose, restore_registers, torque_off
+from .restore import RegisterLedger, RestoreOutcome, restore_block
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +61,10 @@ class Counters:
     torque_off_unconfirmed: int = 0
     #: Stops that found a device still busy past the wait and turned torque off beside the call.
     stop_lock_timeouts: int = 0
+    #: Registers a job changed that the connector wrote back and read back as the job found them.
+    registers_restored: int = 0
+    #: Restores that left a register as the job changed it (alert: the next tenant would inherit it).
+    register_restore_failures: int = 0
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,8 @@ class CellState:
         self.torque_confirmed: dict[str, bool] = {}
         #: Set when the job ends: connections closing then leave rest and torque off to ``shut_down``.
         self.stopping = threading.Event()
+        #: Per arm: the values the job found in the registers it may tune (``restore``).
+        self.ledgers: dict[str, RegisterLedger] = {name: RegisterLedger() for name in self.config.arms}
         self._live_lock = threading.Lock()
         self._reset_lock = threading.Lock()
 
@@ -131,8 +139,9 @@ class CellState:
         A bus is disconnected without torque off: several handles of the job may
         drive one arm, and closing one must not drop the arm under the others.
         When the job's last live bus on the arm goes, torque goes off through the
-        cell's own bus (``torque_off_arm``). ``lock_wait_s`` bounds the wait for
-        the device (the connector's stop); past it the device is left to its call.
+        cell's own bus (``torque_off_arm``), then the registers the job changed go
+        back (``restore_arm``). ``lock_wait_s`` bounds the wait for the device (the
+        connector's stop); past it the device is left to its call (and the restore to the stop).
         """
         self.unregister(handle)
         lock = handle.lock
@@ -151,8 +160,22 @@ class CellState:
         finally:
             lock.release()
         if handle.class_name == "FeetechMotorsBus" and handle.arm is not None and not self._arm_in_use(handle.arm):
-            if torque_off and self.config.disable_torque_on_shutdown and not self.stopping.is_set():
+            if self.stopping.is_set():
+                return  # shut_down releases every arm in its own order
+            if torque_off and self.config.disable_torque_on_shutdown:
                 self.torque_off_arm(handle.arm, lock_wait_s=lock_wait_s)
+            self.restore_arm(handle.arm, lock_wait_s=lock_wait_s)
+
+    def bus_let_go(self, handle: Handle) -> None:
+        """A job's own ``disconnect`` of ``handle``: if that was its last connected bus on the arm, restore it.
+
+        Torque is as the job's ``disconnect`` left it (LeRobot's meaning of its
+        ``disable_torque``); the registers the job changed go back either way.
+        """
+        arm = handle.arm
+        if arm is None or self.stopping.is_set() or handle.obj.is_connected or self._arm_in_use(arm):
+            return
+        self.restore_arm(arm)
 
     def _arm_in_use(self, arm: str) -> bool:
         """Whether another connected bus of the job is on ``arm`` (then its torque stays)."""
@@ -197,7 +220,8 @@ class CellState:
         return confirmed
 
     def shut_down(self, lock_wait_s: float, rest_deadline: float | None = None) -> None:
-        """The job's end: release every device, rest every arm and torque it off (each if configured).
+        """The job's end: release every device, rest every arm and torque it off (each if configured),
+        and put back the registers the job changed (before the rest, else after torque off).
 
         A rest still walking at ``rest_deadline`` (``time.monotonic()``) stops there and
         is reported as missed: torque off comes after it and must fit in the grace window.
@@ -206,6 +230,8 @@ class CellState:
             self.release(handle, lock_wait_s=lock_wait_s, torque_off=False)
         if self.config.rest_on_shutdown:
             for arm_name in self.config.arms:
+                # First the registers: the walk must move with the cell's torque limit and speed, not the job's.
+                self.restore_arm(arm_name, lock_wait_s=lock_wait_s, deadline=rest_deadline)
                 try:
                     self._rest_arm(arm_name, lock_wait_s=lock_wait_s, deadline=rest_deadline)
                 except RequestError as exc:  # the device is still busy: torque off below goes beside it
@@ -213,6 +239,65 @@ class CellState:
         if self.config.disable_torque_on_shutdown:
             for arm_name in self.config.arms:
                 self.torque_off_arm(arm_name, lock_wait_s=lock_wait_s)
+        for arm_name in self.config.arms:  # what is still to put back (all of it, without a rest)
+            self.restore_arm(arm_name, lock_wait_s=lock_wait_s, deadline=rest_deadline)
+
+    def ledger(self, arm_name: str) -> RegisterLedger:
+        """Where the job's buses on ``arm_name`` note the values they change."""
+        return self.ledgers[arm_name]
+
+    def restore_arm(
+        self, arm_name: str, *, lock_wait_s: float | None = None, deadline: float | None = None
+    ) -> RestoreOutcome | None:
+        """Put back every register of ``arm_name`` the job changed, through the cell's own bus; never raises.
+
+        Under the device lock (a job's bus on the device sends nothing meanwhile),
+        whatever the interlock says: these are the connector's writes, of values the
+        arm held before the job. The outcome goes to the safety report; a register
+        still as the job left it stays pending, so a later release or the stop tries
+        again. None: nothing was pending.
+        """
+        ledger = self.ledgers.get(arm_name)
+        pending = ledger.pending() if ledger is not None else {}
+        if ledger is None or not any(pending.values()):
+            return None
+        arm = self.config.arms[arm_name]
+        ranges = self.ranges.get(arm_name) or {}
+        names = {r.id: motor for motor, r in ranges.items()}
+        lock = self.locks.get(arm.port)
+        wait_s = lock.wait_s if lock_wait_s is None else lock_wait_s
+        if deadline is not None:
+            wait_s = max(0.0, min(wait_s, deadline - time.monotonic()))
+        if not lock.acquire(wait_s):
+            outcome = RestoreOutcome(failures=(
+                f"the registers the job changed were not written back ({_listed(pending, names)}): the arm's device "
+                "stayed busy with a call",
+            ))
+        else:
+            try:
+                with cell_bus(arm, ranges, handshake=False) as bus:
+                    model = arm.motor_model
+                    block = restore_block(model, bus.model_ctrl_table[model], bus.model_encoding_table.get(model, {}))
+                    outcome = restore_registers(bus, block, pending, names, on_lost_reply=self.count_bus_retry,
+                                                deadline=deadline)
+            except Exception as exc:  # noqa: BLE001 — reported, with the bus's own words
+                outcome = RestoreOutcome(failures=(
+                    f"the registers the job changed were not written back ({_listed(pending, names)}): "
+                    f"{type(exc).__name__}: {bounded(str(exc), 300)}",
+                ))
+            finally:
+                lock.release()
+        for servo_id, register in outcome.settled:
+            ledger.settle(servo_id, register)
+        self.guard.recorder.record_restore(arm_name, outcome)
+        self.counters.registers_restored += len(outcome.restored)
+        if outcome.failures:
+            self.counters.register_restore_failures += 1
+            log.error("arm %s: registers not restored: %s", arm_name, "; ".join(outcome.failures))
+        elif outcome.restored:
+            log.info("arm %s: restored %s", arm_name,
+                     ", ".join(f"{r.motor} {r.register}={r.value}" for r in outcome.restored))
+        return outcome
 
     # -- cell-wide actions -------------------------------------------------------------
 
@@ -292,3 +377,11 @@ class CellState:
     @staticmethod
     def now() -> float:
         return time.time()
+
+
+def _listed(pending: dict[int, dict[str, int]], names: dict[int, str]) -> str:
+    """``pending`` as "motor Register, ..." for a failure line."""
+    return ", ".join(
+        f"{names.get(servo_id, f'servo {servo_id}')} {register}"
+        for servo_id, registers in sorted(pending.items()) for register in registers
+    )

@@ -206,7 +206,7 @@ class Connector:
         return dataclasses.replace(report, torque_off_confirmed=confirmed)
 
     def record(self) -> ConnectorRecord:
-        """The job's account so far (interlock, safety, rest, torque off, counters, calibration) as frozen data."""
+        """The job's account so far (interlock, safety, rest, torque off, counters, calibration, restores) as frozen data."""
         cell = self.cell
         trip = cell.interlock.trip_info
         report = cell.guard.recorder.snapshot()
@@ -225,4 +225,5 @@ class Connector:
             torque_off_confirmed=MappingProxyType(dict(cell.torque_confirmed)),
             counters=MappingProxyType({**dataclasses.asdict(cell.counters), **totals}),
             calibration_mismatches=MappingProxyType(dict(report.calibration_mismatches)),
+            register_restore_failures=MappingProxyType(dict(report.restore_failures)),
         )

@@ -26,6 +26,7 @@ from .identity import CellMotor, JobMotor, cell_motor_table, motors_refusal, pro
 from .interlock import Interlock
 from .policed_bus import BusPolicy, policed_bus_class
 from .report import SafetyRecorder
+from .restore import RegisterLedger
 
 log = logging.getLogger(__name__)
 
@@ -183,13 +184,15 @@ def create_feetech(
     args: list[Any], kwargs: dict[str, Any], config: ConnectorConfig, locks: DeviceLocks,
     ranges: dict[str, dict[str, MotorRange]], *, interlock: Interlock, recorder: SafetyRecorder,
     end_recording: Callable[[float], bool] | None = None, on_lost_reply: Callable[[], None] | None = None,
+    ledger_for: Callable[[str], RegisterLedger] | None = None,
 ) -> Handle:
     """The job's bus, built from the cell's description: the job only chooses a subset of its motors.
 
     Checked before anything is built (so a refused request changes nothing, not even
     scservo_sdk's process-global byte order): the port maps to an arm of the cell;
     every motor is the cell's, with its id, model and unit; the calibration is absent
-    or the cell's; the protocol is the motors' own. The bus gets the cell's calibration.
+    or the cell's; the protocol is the motors' own. The bus gets the cell's calibration,
+    and ``ledger_for(arm)``: where it notes what the job's writes change (``restore``).
     """
     from lerobot.motors.feetech import FeetechMotorsBus
 
@@ -229,6 +232,8 @@ def create_feetech(
         policy = dataclasses.replace(policy, end_recording=end_recording)
     if on_lost_reply is not None:
         policy = dataclasses.replace(policy, on_lost_reply=on_lost_reply)
+    if ledger_for is not None:
+        policy = dataclasses.replace(policy, ledger=ledger_for(arm_name))
     obj = policed_bus_class()(port=arm.port, motors=motors, calibration=cell_calibration, armnet_policy=policy)
     return Handle(
         "FeetechMotorsBus", obj, locks.get(arm.port), overrides={"port": port},

@@ -8,8 +8,10 @@ address and servo id, covers every path LeRobot has or will add, with the
 cell's motor table (never the job's names).
 
 This module owns the subclass and its small changes to LeRobot's behaviour:
-torque on/off leave ``Lock`` alone (the EEPROM stays locked), and a disconnect with torque off reads the torque back
-and records whether it is really off. The decisions live in ``registers``.
+torque on/off leave ``Lock`` alone (the EEPROM stays locked), a disconnect with torque off reads the torque back
+and records whether it is really off, and before a job's first write to a register the
+connector restores later (``restore``), the servo's values go into the arm's ledger.
+The decisions live in ``registers``.
 """
 
 from __future__ import annotations
@@ -21,13 +23,15 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
+from .block_read import read_block
 from .calibration_check import calibration_mismatches
 from .errors import RequestError
 from .identity import CellMotor
 from .interlock import Interlock
-from .registers import is_goal_register, needs_current_value, write_refusal
+from .registers import is_goal_register, is_restored, needs_current_value, write_refusal
 from .reply_window import LATE_REPLY_WAIT_S
 from .report import SafetyRecorder
+from .restore import READ_RETRIES, RegisterLedger, RestoreBlock, restore_block
 from .retry import retry_lost_replies
 
 log = logging.getLogger(__name__)
@@ -71,6 +75,8 @@ class BusPolicy:
     recording_max_s: float = RANGE_RECORDING_MAX_S
     #: Called once per servo reply the connector's own reads lost and asked again (a metric).
     on_lost_reply: Callable[[], None] = _nothing
+    #: The arm's values as the job found them, shared by every bus of the job on the arm (``restore``).
+    ledger: RegisterLedger = field(default_factory=RegisterLedger)
     #: Per register address: the servo ids whose register there is a goal (``is_goal_register``).
     #: Filled on first use; the cell's motor table and the control tables never change.
     _goal_ids: dict[int, frozenset[int]] = field(default_factory=dict, init=False, compare=False, repr=False)
@@ -134,6 +140,16 @@ def policed_bus_class() -> type:
                 model: {addr: name for name, (addr, _length) in reversed(list(table.items()))}
                 for model, table in self.model_ctrl_table.items()
             }
+            models = {motor.model for _name, motor in armnet_policy.motors_by_id.values()}
+            self._armnet_blocks: dict[str, RestoreBlock] = {
+                model: restore_block(model, self.model_ctrl_table[model], self.model_encoding_table.get(model, {}))
+                for model in models if model in self.model_ctrl_table
+            }
+            #: Addresses where some model of the cell keeps a restored register: one set lookup per write.
+            self._armnet_restored_at = frozenset(
+                self.model_ctrl_table[model][name][0] for model, block in self._armnet_blocks.items()
+                for name in block.fields
+            )
 
         def _register_at(self, model: str, address: int) -> str | None:
             return self._armnet_registers.get(model, {}).get(address)
@@ -145,11 +161,41 @@ def policed_bus_class() -> type:
                 return int(held)
 
             self._armnet_policy.check(self._register_at, addr, motor_id, int(value), current)
+            if addr in self._armnet_restored_at:
+                self._armnet_note_restored(addr, (motor_id,))
             return super()._write(addr, length, motor_id, value, **kwargs)
 
         def _sync_write(self, addr: int, length: int, ids_values: dict[int, int], *args: Any, **kwargs: Any) -> Any:
             self._armnet_policy.check_all(self._register_at, addr, ids_values)
+            if addr in self._armnet_restored_at:
+                self._armnet_note_restored(addr, tuple(ids_values))
             return super()._sync_write(addr, length, ids_values, *args, **kwargs)
+
+        def _armnet_note_restored(self, addr: int, motor_ids: tuple[int, ...]) -> None:
+            """Before the write goes out: each servo's values as the job found them, and the register as touched.
+
+            The snapshot is read once per servo, before the job's first write to any of
+            its restored registers, so a connection that dies right after the write still
+            leaves the connector what to put back. A servo whose snapshot cannot be read
+            is not written: the connector could not put the value back.
+            """
+            ledger = self._armnet_policy.ledger
+            for motor_id in motor_ids:
+                name, motor = self._armnet_policy.motors_by_id[motor_id]  # the policy check passed: a cell motor
+                register = self._register_at(motor.model, addr)
+                if not is_restored(motor.model, register):
+                    continue
+                if not ledger.has_snapshot(motor_id):
+                    block = self._armnet_blocks[motor.model]
+                    data = read_block(self.packet_handler, self.port_handler, motor_id, block.start, block.length,
+                                      retries=READ_RETRIES, ignore_status_bits=True)
+                    if data is None:
+                        raise ConnectionError(
+                            f"motor {name!r} did not answer the read of the values this write would replace, so the "
+                            "connector could not put them back at the end of the job; nothing was written. Retry"
+                        )
+                    ledger.keep_snapshot(motor_id, block.decode(data))
+                ledger.touch(motor_id, str(register))
 
         # Torque on/off without Lock: the cell keeps its servos' EEPROM locked (a calibration
         # job that wants its writes saved writes Lock=0 itself; the connector relocks at the end).

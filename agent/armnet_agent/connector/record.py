@@ -35,10 +35,18 @@ class ConnectorRecord:
     #: Per arm: how the servos' EEPROM differs from the cell's calibration file at the latest
     #: check (empty: as the file says). Non-empty: CalibrationPresent/HardwareReady false.
     calibration_mismatches: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
+    #: Per arm: registers the job changed that the connector could not put back when the job's bus
+    #: let go (empty: every arm is as the job found it). Non-empty: the cell needs an operator.
+    register_restore_failures: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
 
     @property
     def calibration_ok(self) -> bool:
         return not any(self.calibration_mismatches.values())
+
+    @property
+    def registers_restored(self) -> bool:
+        """Every register the job changed is back as it found it (or it changed none)."""
+        return not any(self.register_restore_failures.values())
 
     @property
     def rest_missed(self) -> bool:
@@ -56,4 +64,5 @@ class ConnectorRecord:
             "torqueOffConfirmed": dict(self.torque_off_confirmed),
             "counters": dict(self.counters),
             "calibrationMismatches": {arm: list(notes) for arm, notes in self.calibration_mismatches.items()},
+            "registerRestoreFailures": {arm: list(lines) for arm, lines in self.register_restore_failures.items()},
         }

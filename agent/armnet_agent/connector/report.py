@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from itertools import repeat
 from typing import Any
 
+from .restore import RestoreOutcome
+
 #: Refusals kept with their reason; later ones are only counted.
 MAX_REFUSALS_KEPT = 50
 MAX_REASON_CHARS = 300
@@ -49,6 +51,12 @@ class SafetyReport:
     #: the latest check (when the bus connected, or after a calibration job's restore). Non-empty: the cell's calibration
     #: is not what the file says; the agent sets CalibrationPresent false with these reasons.
     calibration_mismatches: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    #: Per arm, per motor: the registers the job changed that the connector wrote back when its
+    #: bus let go, as register -> (what the job left, what was written back and read back).
+    registers_restored: dict[str, dict[str, dict[str, tuple[int | None, int]]]] = field(default_factory=dict)
+    #: Per arm: the registers the latest restore could not put back (empty: the arm is as the job
+    #: found it). Non-empty: the next tenant would inherit them; an operator should look at the cell.
+    restore_failures: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def clamps_total(self) -> int:
@@ -66,6 +74,13 @@ class SafetyReport:
             "torqueOffConfirmed": dict(self.torque_off_confirmed),
             "calibration": {arm: list(notes) for arm, notes in self.calibration.items()},
             "calibrationMismatches": {arm: list(notes) for arm, notes in self.calibration_mismatches.items()},
+            "registersRestored": {
+                arm: {motor: {register: {"found": found, "restoredTo": value}
+                              for register, (found, value) in registers.items()}
+                      for motor, registers in motors.items()}
+                for arm, motors in self.registers_restored.items()
+            },
+            "registerRestoreFailures": {arm: list(lines) for arm, lines in self.restore_failures.items()},
         }
 
 
@@ -83,6 +98,8 @@ class SafetyRecorder:
         self._torque_off: dict[str, bool] = {}
         self._calibration: dict[str, list[str]] = {}
         self._mismatches: dict[str, list[str]] = {}
+        self._restored: dict[str, dict[str, dict[str, tuple[int | None, int]]]] = {}
+        self._restore_failures: dict[str, tuple[str, ...]] = {}
 
     def record_steps(self, steps: dict[str, float]) -> None:
         """Keep each motor's largest step (signed steps: ``decide_goals``'s)."""
@@ -141,6 +158,19 @@ class SafetyRecorder:
             else:
                 self._mismatches.pop(arm, None)
 
+    def record_restore(self, arm: str, outcome: RestoreOutcome) -> None:
+        """One restore of ``arm``: what it put back (kept for the job) and what it could not (the latest wins)."""
+        with self._lock:
+            for item in outcome.restored:
+                registers = self._restored.setdefault(arm, {}).setdefault(item.motor, {})
+                # The first value the job left is the one to report; a later restore of it keeps it.
+                found = registers[item.register][0] if item.register in registers else item.found
+                registers[item.register] = (found, item.value)
+            if outcome.failures:
+                self._restore_failures[arm] = tuple(f[:MAX_REASON_CHARS] for f in outcome.failures[:MAX_REFUSALS_KEPT])
+            else:
+                self._restore_failures.pop(arm, None)
+
     def snapshot(self) -> SafetyReport:
         with self._lock:
             return SafetyReport(
@@ -153,4 +183,6 @@ class SafetyRecorder:
                 torque_off_confirmed=dict(self._torque_off),
                 calibration={arm: tuple(notes) for arm, notes in self._calibration.items()},
                 calibration_mismatches={arm: tuple(notes) for arm, notes in self._mismatches.items()},
+                registers_restored={arm: {m: dict(r) for m, r in motors.items()} for arm, motors in self._restored.items()},
+                restore_failures=dict(self._restore_failures),
             )

@@ -4,21 +4,32 @@ This module owns the cell's bus: a ``FeetechMotorsBus`` the connector builds
 from the cell's description alone (the arm's device, the motor names and ids of
 the cell's calibration file, the arm's motor model), never from a job's bus
 object, names or calibration. A job that named its motors differently, or gave
-them other ids, cannot make the rest pose or torque off land on other servos.
-It also owns the execution of the rest walk (raw ticks; the walk is the pure
-``safety.RestWalk``) and its outcome, read back from the servos.
+them other ids, cannot make the rest pose, torque off or a restore land on other
+servos. It also owns the execution of the rest walk (raw ticks; the walk is the
+pure ``safety.RestWalk``) and of the register restore (the rules are ``restore``'s),
+and their outcomes, read back from the servos.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
+from .block_read import read_block
 from .config import ArmConfig, MotorRange
+from .restore import (
+    READ_RETRIES,
+    WRITE_ROUNDS,
+    RestoreBlock,
+    RestoreOutcome,
+    judge_restore,
+    restore_plan,
+    servos_of,
+)
 from .retry import retry_lost_replies
 from .safety import RestWalk
 
@@ -168,6 +179,70 @@ def move_to_rest(
         if time.monotonic() >= settle_deadline:
             return RestReport(arm_name, False, errors)
         time.sleep(TICK_S)
+
+
+def restore_registers(
+    bus: Any, block: RestoreBlock, pending: Mapping[int, Mapping[str, int]], names: Mapping[int, str], *,
+    on_lost_reply: Callable[[], None] = lambda: None, deadline: float | None = None,
+) -> RestoreOutcome:
+    """Write ``pending`` back on the cell's ``bus`` (a connected LeRobot bus whose motors are ``names``' values).
+
+    Raises when the servos to restore cannot be held first (their torque state or
+    positions cannot be read): nothing is written then, since a restored torque limit
+    or speed on a servo still driving toward a goal would move the arm.
+    """
+    pending = {i: registers for i, registers in pending.items() if registers and i in names}
+    before = _read_blocks(bus, block, sorted(pending), deadline)
+    plan = restore_plan(pending, before)
+    if plan:
+        hold_in_place(bus, [names[i] for i in servos_of(plan)], on_lost_reply=on_lost_reply, deadline=deadline)
+    after = dict(before)
+    for _ in range(WRITE_ROUNDS):
+        if not plan:
+            break
+        for register, values in plan.items():  # in RESTORE_ORDER: the plan keeps it
+            bus.sync_write(register, {names[i]: v for i, v in values.items()}, normalize=False)
+        after.update(_read_blocks(bus, block, servos_of(plan), deadline))
+        if deadline is not None and time.monotonic() >= deadline:
+            break
+        plan = restore_plan(pending, after)
+    return judge_restore(pending, before, after, names)
+
+
+def hold_in_place(
+    bus: Any, motors: list[str], *, on_lost_reply: Callable[[], None] = lambda: None, deadline: float | None = None,
+) -> None:
+    """Every motor with torque on gets its present position as its goal: what it drives toward is where it is."""
+    if not motors:
+        return
+
+    def in_time() -> None:
+        if deadline is not None and time.monotonic() >= deadline:
+            raise TimeoutError("the stop's time ran out while a servo reply was lost")
+
+    torque = retry_lost_replies(
+        bus, "restore's torque read", lambda: bus.sync_read("Torque_Enable", motors, normalize=False),
+        on_retry=on_lost_reply, before_retry=in_time,
+    )
+    driven = [m for m in motors if int(torque[m])]
+    if not driven:
+        return
+    present = retry_lost_replies(
+        bus, "restore's position read", lambda: bus.sync_read("Present_Position", driven, normalize=False),
+        on_retry=on_lost_reply, before_retry=in_time,
+    )
+    bus.sync_write("Goal_Position", {m: int(v) for m, v in present.items()}, normalize=False)
+
+
+def _read_blocks(
+    bus: Any, block: RestoreBlock, ids: Sequence[int], deadline: float | None
+) -> dict[int, Mapping[str, int] | None]:
+    held: dict[int, Mapping[str, int] | None] = {}
+    for servo_id in ids:
+        data = read_block(bus.packet_handler, bus.port_handler, servo_id, block.start, block.length,
+                          retries=READ_RETRIES, ignore_status_bits=True, deadline=deadline)
+        held[servo_id] = None if data is None else block.decode(data)
+    return held
 
 
 def _past(deadline: float | None) -> bool:

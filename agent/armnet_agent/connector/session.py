@@ -144,6 +144,8 @@ class _CallPlan:
     capped: tuple[str, ...] = ()
     #: Calls with at most this many positional arguments and no keyword ones pass no capped value.
     capped_from: int = 0
+    #: A bus's ``disconnect``: the job lets go of the arm (``CellState.bus_let_go``).
+    lets_go: bool = False
 
 
 class RobotSession(Session):
@@ -201,6 +203,7 @@ class RobotSession(Session):
             handle = create_feetech(
                 args, kwargs, cell.config, cell.locks, cell.ranges, interlock=cell.interlock, recorder=cell.guard.recorder,
                 end_recording=cell.inputs_end_recording, on_lost_reply=cell.count_bus_retry,
+                ledger_for=cell.ledger,
             )
         elif class_name == "OpenCVCamera":
             assert cell.camera_factory is not None
@@ -268,6 +271,7 @@ class RobotSession(Session):
         plan = _CallPlan(
             handle, is_retried(handle.class_name, method), camera, camera and method in FRAME_READS,
             capped, first_capped(handle.class_name, capped),
+            lets_go=handle.class_name == "FeetechMotorsBus" and method == "disconnect",
         )
         if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
             self._plans[(request["object_id"], method)] = plan
@@ -289,20 +293,24 @@ class RobotSession(Session):
         shared_frame = plan.frame_read and _wants_shared_frame(request)
         if camera and method == "disconnect":
             self._frames_connected(handle, False)  # first: the SDK stops serving frames locally at once
-        with handle.lock:
-            self.cell.guard.check(handle, method, args, kwargs)
-            if method == "torque_disabled":
-                return self._torque_disabled(handle, args, kwargs)
-            bound = getattr(handle.obj, method)
-            if plan.retried:
-                result = with_read_retry(
-                    handle, method, lambda: bound(*args, **kwargs), on_retry=self.cell.count_bus_retry,
-                    before_retry=lambda: self.cell.guard.check(handle, method, args, kwargs),
-                )
-            else:
-                result = bound(*args, **kwargs)
-            if method == "sync_read":
-                self.cell.guard.remember_present(handle, args, kwargs, result)
+        try:
+            with handle.lock:
+                self.cell.guard.check(handle, method, args, kwargs)
+                if method == "torque_disabled":
+                    return self._torque_disabled(handle, args, kwargs)
+                bound = getattr(handle.obj, method)
+                if plan.retried:
+                    result = with_read_retry(
+                        handle, method, lambda: bound(*args, **kwargs), on_retry=self.cell.count_bus_retry,
+                        before_retry=lambda: self.cell.guard.check(handle, method, args, kwargs),
+                    )
+                else:
+                    result = bound(*args, **kwargs)
+                if method == "sync_read":
+                    self.cell.guard.remember_present(handle, args, kwargs, result)
+        finally:
+            if plan.lets_go:  # the job's own disconnect, even one that failed half-way
+                self.cell.bus_let_go(handle)
         if camera and method == "connect":
             self._frames_connected(handle, True)
         if result is None and not shared_frame:

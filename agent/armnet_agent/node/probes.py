@@ -17,9 +17,9 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from armnet_agent.connector.block_read import ask_until_answered
 from armnet_agent.connector.calibration_check import (
     READ_RETRIES,
-    ask_until_answered,
     calibration_mismatches,
     read_calibration,
     use_lerobot_reply_window,
