@@ -165,9 +165,12 @@ def _plan_job(
     if not job.deleting and not job.terminal and not job.has_finalizer:
         actions.append(AddFinalizer(job))
     if job.terminal:
-        if job.deleting and job.has_finalizer and not claimed:
+        # A finished job has nothing left for the finalizer to protect once its cell is
+        # released, deleted or not: left on, it would hang every later delete of the job
+        # (and of the CRD) whenever no operator runs, e.g. after ``helm uninstall``.
+        if job.has_finalizer and not claimed:
             actions.append(RemoveFinalizer(job))
-        elif not job.deleting and _ttl_expired(job, now, timing):
+        if not job.deleting and _ttl_expired(job, now, timing):
             actions.append(DeleteJob(job))
         return actions
     cell = cells.get(job.cell_name or "")

@@ -109,6 +109,39 @@ def test_a_finished_job_frees_its_cell_for_the_next_and_is_deleted_after_its_ttl
     bed.wait("its Bound, Started and Finished Events", lambda: {"Bound", "Started", "Finished"} <= set(bed.events("first")))
 
 
+def test_finished_jobs_lose_their_finalizer_so_they_delete_at_once_after_the_operator_is_gone(
+    k8s: Any, namespace: str, bed: Bed, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``helm uninstall`` keeps RobotJobs but removes the operator: a kept job must not hang ``kubectl delete``.
+
+    ``kept`` finishes under the operator; ``legacy`` finished with the finalizer on
+    before this operator started (as an older one left it): both lose it, level-based.
+    """
+    finalizer = "armnet.io/release-cell"
+
+    def finalizers(name: str) -> list[str]:
+        return list((bed.get_job(name) or {}).get("metadata", {}).get("finalizers") or [])
+
+    bed.apply({"apiVersion": f"{G}/{V}", "kind": "RobotJob",
+               "metadata": {"name": "legacy", "namespace": bed.ns, "finalizers": [finalizer]},
+               "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}})
+    bed.agent_sets("legacy", "succeeded")
+    with running_operator(k8s, namespace, monkeypatch):
+        cell = bed.cell("c1")
+        bed.job("kept")
+        bed.wait_job("kept", phase="dispatched", cellName=cell)
+        bed.wait("the finalizer on the live job", lambda: finalizer in finalizers("kept"))
+        bed.agent_sets("kept", "running")
+        bed.agent_sets("kept", "succeeded")
+        bed.wait("the cell released", lambda: not bed.get_cell(cell)["status"].get("currentJob"))
+        bed.wait("the finished job's finalizer removed", lambda: not finalizers("kept"))
+        bed.wait("the older finished job's finalizer removed", lambda: not finalizers("legacy"))
+    assert bed.get_job("kept")["status"]["phase"] == "succeeded", "kept: only the finalizer went, not the job"
+    done = bed.k8s.kubectl("delete", "robotjob", "kept", "legacy", "-n", bed.ns, "--timeout=30s", check=False)
+    assert done.returncode == 0, done.stderr
+    assert bed.get_job("kept") is None and bed.get_job("legacy") is None
+
+
 def test_a_job_dispatched_to_a_cell_that_goes_offline_is_requeued_to_another(bed: Bed, operator: Any) -> None:
     flaky = bed.cell("a-flaky")
     body = bed.wait_job(bed.job("j"), phase="dispatched", cellName=flaky)

@@ -130,6 +130,25 @@ def test_the_finalizer_goes_only_once_the_cell_is_released():
     assert of_type(plan([job], [released]), RemoveFinalizer) == [RemoveFinalizer(job)]
 
 
+def test_a_finished_job_loses_the_finalizer_once_its_cell_is_released_without_being_deleted():
+    """Kept after it ends, it must still delete at once when no operator runs any more."""
+    job = a_job().finished(JobPhase.SUCCEEDED, seconds_ago=1, cell="c")
+    claimed = a_cell().named("c").claimed_by(job).ready()
+    released = a_cell().named("c").ready()
+    assert of_type(plan([job], [claimed]), RemoveFinalizer) == []
+    assert of_type(plan([job], [released]), RemoveFinalizer) == [RemoveFinalizer(job)]
+
+
+def test_a_finished_job_whose_cell_is_gone_loses_the_finalizer():
+    job = a_job().finished(JobPhase.FAILED, seconds_ago=1, cell="gone")
+    assert of_type(plan([job], []), RemoveFinalizer) == [RemoveFinalizer(job)]
+
+
+def test_a_finished_job_past_its_ttl_loses_the_finalizer_then_is_deleted():
+    job = a_job().with_ttl(5).finished(seconds_ago=6)
+    assert of_type(plan([job], []), RemoveFinalizer | DeleteJob) == [RemoveFinalizer(job), DeleteJob(job)]
+
+
 def test_every_live_job_gets_the_finalizer():
     job = a_job().without_finalizer().queued()
     assert of_type(plan([job], []), AddFinalizer) == [AddFinalizer(job)]
