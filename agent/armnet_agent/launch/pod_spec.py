@@ -19,6 +19,8 @@ of a job on a robot host, so each choice is deliberate:
   the agent's device plugin, ``deviceplugin``), whose allocation gives them; or,
   without the plugin, ``hostPath`` CharDevice volumes mounted into it alone. The
   customer container requests nothing and sees neither serial devices nor cameras;
+- the connector runs as a non-root user the pod names (``CONNECTOR_USER``),
+  whatever its image's USER, with every capability dropped;
 - the customer container runs as a non-root user, without privilege
   escalation, capabilities or host namespaces, with a read-only root
   filesystem (``/tmp`` is an ``emptyDir``), and no service-account token;
@@ -59,6 +61,10 @@ START_ALLOWANCE_S = 900
 CONNECTOR_STOP_S = 10
 #: The customer's user: any non-root id; 65532 is the distroless "nonroot" convention.
 JOB_USER = 65532
+#: The connector's user: the agent image's own (``armnet``, in dialout/video/plugdev). Set in the
+#: pod, not left to the image's USER: ``agent.connectorImage`` may name any image, and a connector
+#: image running as root would hold the robot's devices as root.
+CONNECTOR_USER = 65532
 SOCKETS_SIZE = "256Mi"
 #: The connector's observer socket for the agent: an emptyDir mounted into the connector ONLY (the
 #: tenant shares the sockets volume and the network namespace, never this); the agent reaches it on the
@@ -139,6 +145,7 @@ class PodInputs:
     image_pull_policy: str = "IfNotPresent"
     job_read_only_root: bool = True
     job_user: int = JOB_USER
+    connector_user: int = CONNECTOR_USER
     #: Where the connector serves its read-only observer socket for the agent (``OBSERVER_VOLUME``), or None.
     observer_dir: str | None = None
 
@@ -263,7 +270,12 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         # The customer container starts only once robot.sock exists (see serving_gate).
         "lifecycle": {"postStart": {"exec": {"command": serving_gate(robot_sock)}}},
         "readinessProbe": _probe(robot_sock, 5, 3),
+        # The uid alone, no runAsGroup: the runtime then adds the user's supplementary groups
+        # from the image's /etc/group (dialout, video: the devices), as it does for the image's
+        # own numeric USER.
         "securityContext": {
+            "runAsNonRoot": True,
+            "runAsUser": inputs.connector_user,
             "allowPrivilegeEscalation": False,
             "privileged": False,
             "readOnlyRootFilesystem": True,

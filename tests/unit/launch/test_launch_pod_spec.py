@@ -16,6 +16,7 @@ from armnet_agent.launch.pod_spec import (
     ANNOTATION_CELL,
     ANNOTATION_JOB,
     CONNECTOR_CONTAINER,
+    CONNECTOR_USER,
     DEADLINE_MARGIN_S,
     JOB_CONTAINER,
     SIDECAR_ENV,
@@ -133,6 +134,17 @@ def test_the_customer_container_is_non_root_without_privileges_and_with_a_read_o
     assert context["readOnlyRootFilesystem"] is True
     assert context["capabilities"] == {"drop": ["ALL"]}
     assert {"name": "job-tmp", "mountPath": "/tmp"} in job["volumeMounts"]
+
+
+def test_the_connector_runs_as_the_non_root_user_the_pod_names_not_its_images() -> None:
+    """``agent.connectorImage`` may be any image: the pod itself keeps the device holder off root."""
+    connector, _ = containers(build_pod(inputs(connector_image="registry.example/anything:latest")))
+    context = connector["securityContext"]
+    assert context["runAsNonRoot"] is True
+    assert context["runAsUser"] == CONNECTOR_USER != 0
+    assert "runAsGroup" not in context, "a group would drop the image user's device groups (dialout, video)"
+    assert context["allowPrivilegeEscalation"] is False and context["privileged"] is False
+    assert context["capabilities"] == {"drop": ["ALL"]}
 
 
 def test_the_calibration_is_read_only_for_the_customer_and_written_by_the_connector() -> None:
