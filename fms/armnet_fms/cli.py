@@ -14,7 +14,11 @@ import sys
 import time
 from pathlib import Path
 
+from armnet_core.nats_url import nats_url_from
+
 from .auth import AuthConfigError, AuthSettings, parse_tokens
+
+DEFAULT_NATS_URL = "nats://127.0.0.1:4222"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=int(env("ARMNET_FMS_PORT", "8080")))
     parser.add_argument("--kubeconfig", default=None, help="as kubectl (default: $KUBECONFIG, in-cluster)")
     parser.add_argument("--context", default=None)
-    parser.add_argument("--nats-url", default=env("ARMNET_FMS_NATS_URL", env("NATS_URL", "nats://127.0.0.1:4222")))
+    parser.add_argument("--nats-url", default=nats_url_from(None, os.environ, "ARMNET_FMS_NATS_URL") or DEFAULT_NATS_URL,
+                        help="the agents' NATS (default: $ARMNET_FMS_NATS_URL, else $NATS_URL, else "
+                             f"{DEFAULT_NATS_URL})")
     parser.add_argument("--operators-file", default=env("ARMNET_FMS_OPERATORS_FILE", ""),
                         help="'<operator>:<token>' lines (mount the auth Secret here)")
     parser.add_argument("--session-key-file", default=env("ARMNET_FMS_SESSION_KEY_FILE", ""),

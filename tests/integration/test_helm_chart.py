@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.support.helm import ALL_OPTIONS, CHART, REPO_ROOT, env_of, find, helm, render
+from tests.support.helm import ALL_OPTIONS, CHART, REPO_ROOT, env_of, find, helm, notes, render
 from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
@@ -187,6 +187,87 @@ def test_operator_runs_non_root_read_only_with_only_a_projected_token() -> None:
     assert pod["automountServiceAccountToken"] is False
     token = next(v for v in pod["volumes"] if v["name"] == "kube-api-access")
     assert token["projected"]["sources"][0]["serviceAccountToken"]["expirationSeconds"] <= 3607
+
+
+FMS_ON = {"fms": {"enabled": True, "operators": [{"name": "maria", "token": "maria-token-0123456789abcdef"}]}}
+
+
+def pod_security(objects: list[dict[str, Any]], suffix: str) -> dict[str, Any]:
+    return dict(find(objects, "Deployment", suffix)["spec"]["template"]["spec"]["securityContext"])
+
+
+def test_operator_and_fms_pods_run_as_the_images_user_by_default() -> None:
+    objects = render(values=FMS_ON)
+
+    for suffix in ("-operator", "-fms"):
+        assert pod_security(objects, suffix) == {"runAsNonRoot": True, "runAsUser": 65532, "runAsGroup": 65532,
+                                                 "seccompProfile": {"type": "RuntimeDefault"}}, suffix
+
+
+def test_operator_and_fms_users_are_values_and_may_be_left_to_the_platform() -> None:
+    mine = {"podSecurityContext": {"runAsUser": 1001, "runAsGroup": 1001}}
+    assigned = {"podSecurityContext": {"runAsUser": None, "runAsGroup": None}}
+    custom = render(values={"operator": mine, "fms": {**FMS_ON["fms"], **mine}})
+    openshift = render(values={"operator": assigned, "fms": {**FMS_ON["fms"], **assigned}})
+
+    for suffix in ("-operator", "-fms"):
+        context = pod_security(custom, suffix)
+        assert (context["runAsUser"], context["runAsGroup"], context["runAsNonRoot"]) == (1001, 1001, True)
+        context = pod_security(openshift, suffix)
+        assert "runAsUser" not in context and "runAsGroup" not in context and context["runAsNonRoot"] is True
+        container = find(openshift, "Deployment", suffix)["spec"]["template"]["spec"]["containers"][0]
+        assert container["securityContext"]["runAsNonRoot"] is True, "the container stays non-root either way"
+
+
+@pytest.mark.parametrize("values", [
+    {"operator": {"podSecurityContext": {"runAsNonRoot": True, "runAsUser": 0}}},
+    {"operator": {"podSecurityContext": {"runAsNonRoot": False}}},
+    {"fms": {"podSecurityContext": {"runAsNonRoot": True, "runAsUser": "nobody"}}},
+])
+def test_schema_refuses_a_root_or_non_numeric_operator_or_fms_user(values: dict[str, Any]) -> None:
+    result = helm("template", "armnet", str(CHART), "--values", "-", input=yaml.safe_dump(values), check=False)
+
+    assert result.returncode != 0
+    assert "podSecurityContext" in result.stderr, result.stderr
+
+
+# ---------------------------------------------------------------------------- NOTES and README
+def test_notes_say_what_was_installed_and_how_to_label_a_host_register_a_cell_and_submit_a_job() -> None:
+    values = {"agent": {"robotHostLabel": {"key": "example.com/robot", "value": "so101"}},
+              "jobNamespaces": [{"name": "team-x"}], "nats": {"url": "nats://nats.example:4222"}}
+    text = notes("robots", "ops", values=values)
+
+    assert 'release "robots" in namespace ops' in text
+    assert "Deployment robots-armnet-operator, 2 replica(s)" in text
+    assert "DaemonSet robots-armnet-agent, on nodes labelled example.com/robot=so101" in text
+    assert "kubectl label node <robot-host> example.com/robot=so101" in text
+    assert "kind: Cell" in text and "kind: RobotJob" in text
+    assert "kubectl apply -n team-x -f -" in text
+    assert "--clusterrole=robots-armnet-tenant-edit" in text
+    assert "No NATS configured" not in text
+    assert "cell operator's page" not in text, "the FMS is off by default"
+
+
+def test_notes_warn_when_no_nats_is_configured_and_point_at_the_fms_when_it_is_on() -> None:
+    text = notes(values=FMS_ON)
+
+    assert "No NATS configured" in text and "StreamsConnected=False" in text
+    assert "kubectl -n armnet-system port-forward svc/armnet-fms 8080" in text
+
+
+def test_the_chart_readme_is_what_helm_show_readme_prints_and_names_only_real_values() -> None:
+    readme = helm("show", "readme", str(CHART)).stdout
+    values = yaml.safe_load((CHART / "values.yaml").read_text())
+
+    assert readme.startswith("# armnet")
+    assert "helm uninstall" in readme and "armnet.io/release-cell" in readme
+    named = set(re.findall(r"`((?:operator|agent|fms|nats|rbac|crds|metrics|admissionWebhook)\.[A-Za-z.]+)`", readme))
+    assert {"operator.podSecurityContext", "fms.podSecurityContext", "agent.connectorImage"} <= named
+    for path in named:
+        node: Any = values
+        for key in path.split("."):
+            assert isinstance(node, dict) and key in node, f"README names {path}, which values.yaml does not have"
+            node = node[key]
 
 
 # ---------------------------------------------------------------------------- agent

@@ -72,6 +72,19 @@ def _render(release: str, namespace: str, values_files: tuple[str, ...], extra: 
     return [doc for doc in yaml.safe_load_all(out) if doc]
 
 
+def notes(release: str = "armnet", namespace: str = "armnet-system", *,
+          values: dict[str, Any] | None = None) -> str:
+    """The release notes (templates/NOTES.txt) as ``helm install`` prints them, without a cluster.
+
+    ``helm template`` never renders NOTES.txt; a client-side dry-run install does.
+    """
+    extra = yaml.safe_dump(values) if values is not None else None
+    args = ["install", release, str(CHART), "--namespace", namespace, "--dry-run=client"]
+    out = helm(*args, *(["--values", "-"] if extra is not None else []), input=extra).stdout
+    assert "NOTES:" in out, f"helm printed no NOTES section:\n{out[-2000:]}"
+    return out.split("NOTES:", 1)[1]
+
+
 def find(objects: list[dict[str, Any]], kind: str, name_suffix: str = "") -> dict[str, Any]:
     matches = [o for o in objects if o["kind"] == kind and o["metadata"]["name"].endswith(name_suffix)]
     assert len(matches) == 1, f"expected one {kind} named *{name_suffix}, got {[m['metadata']['name'] for m in matches]}"

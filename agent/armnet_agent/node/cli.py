@@ -19,6 +19,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from armnet_core.nats_url import nats_url_from
+
 from armnet_agent.connector.warm_imports import import_before_threads
 from armnet_agent.deviceplugin.server import DEVICE_PLUGIN_DIR, DevicePlugins
 from armnet_agent.launch.container import EngineUnavailable, connect_engine
@@ -66,7 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a full pass runs at least this often; watch events trigger passes sooner")
     parser.add_argument("--engine-url", default=_env("ENGINE_URL"),
                         help="Docker API of the container engine (default: DOCKER_HOST, else Podman's socket)")
-    parser.add_argument("--nats-url", default=_env("NATS_URL"), help="publish job output to NATS (default: off)")
+    parser.add_argument("--nats-url", default=nats_url_from(None, os.environ, ENV + "NATS_URL"),
+                        help="NATS: job output, live logs, and the cell operator's inputs (Confirm reset, "
+                             "Success/Fail) and teleop (default: $ARMNET_AGENT_NATS_URL, else $NATS_URL, else off; "
+                             "without it each of this node's Cells shows StreamsConnected=False)")
     parser.add_argument("--telemetry-servo-hz", type=_rate(MAX_SERVO_HZ), default=_env("TELEMETRY_SERVO_HZ", "4"),
                         help="servo telemetry reads per second published for the cell operator's page "
                              f"(0: off, at most {MAX_SERVO_HZ:g}; needs --nats-url)")

@@ -22,6 +22,9 @@ CALIBRATION_PRESENT = "CalibrationPresent"
 CAMERAS_READY = "CamerasReady"
 INTERLOCK_CLEAR = "InterlockClear"
 HEALTH_CONDITIONS = (AGENT_CONNECTED, HARDWARE_READY, CALIBRATION_PRESENT, CAMERAS_READY, INTERLOCK_CLEAR)
+STREAMS_CONNECTED = "StreamsConnected"
+"""Not a health condition (the operator still binds: jobs run without NATS). It tells the person
+at the cell and the platform team why the cell operator's buttons and live logs do nothing."""
 
 
 @dataclass(frozen=True)
@@ -54,6 +57,18 @@ class CellProbe:
     bus_held_by_job: bool = False
     #: (reason, message) when the device watch finds the cell's devices lost (``device_health``)
     devices_lost: tuple[str, str] | None = None
+
+
+@dataclass(frozen=True)
+class StreamsProbe:
+    """The agent's NATS link as the heartbeat finds it."""
+
+    #: A NATS URL is configured (flag, ARMNET_AGENT_NATS_URL or NATS_URL).
+    configured: bool
+    #: Connected, with the log stream in place.
+    connected: bool = False
+    #: ``host:port`` of the server, for the message (never the URL: it may carry a password).
+    server: str = ""
 
 
 @dataclass(frozen=True)
@@ -158,6 +173,27 @@ def interlock_condition(probe: CellProbe) -> Condition:
             f"the running job's interlock is tripped: {probe.interlock_trip}; it clears when the job ends",
         )
     return _ok(INTERLOCK_CLEAR, "Clear", "motion is allowed")
+
+
+INPUTS_NEED_NATS = ("the cell operator's Confirm reset and Success/Fail, teleop and live logs "
+                    "reach this cell's jobs only through it")
+
+
+def streams_condition(probe: StreamsProbe) -> Condition:
+    """``StreamsConnected``: whether the operator's inputs can reach this cell's jobs at all."""
+    if not probe.configured:
+        return _bad(
+            STREAMS_CONNECTED, "NatsNotConfigured",
+            f"the node agent has no NATS server; {INPUTS_NEED_NATS}, so a job waiting for a reset waits out "
+            "its timeout: give the agent --nats-url, ARMNET_AGENT_NATS_URL or NATS_URL",
+        )
+    if not probe.connected:
+        return _bad(
+            STREAMS_CONNECTED, "NatsUnreachable",
+            f"the node agent cannot reach NATS at {probe.server or 'its URL'} (it keeps retrying); "
+            f"{INPUTS_NEED_NATS}: check the server and the agent's URL and credentials",
+        )
+    return _ok(STREAMS_CONNECTED, "Connected", f"the node agent's NATS link to {probe.server} is up")
 
 
 def merge_conditions(

@@ -12,11 +12,12 @@ import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
+from urllib.parse import urlsplit
 
 from prometheus_client import CollectorRegistry
 
 from armnet_agent.connector.inputs import OperatorInputs
-from armnet_agent.node import streams
+from armnet_agent.node import health, streams
 from armnet_agent.node.sidecar_inputs import SidecarInputs
 from armnet_agent.node.stream_metrics import StreamsCollector
 
@@ -67,6 +68,25 @@ def open_link(url: str | None, spool_dir: Path | None) -> Link:
         return NoLink()
     link: Link = streams.NatsLink(streams.StreamSettings(url=url, spool_dir=spool_dir)).start()
     return link
+
+
+def streams_probe(link: Link) -> health.StreamsProbe:
+    """What the Cells' ``StreamsConnected`` condition says about this link."""
+    if not isinstance(link, streams.NatsLink) or not link.enabled:
+        return health.StreamsProbe(configured=False)
+    return health.StreamsProbe(configured=True, connected=link.connected, server=server_of(link.settings.url or ""))
+
+
+def server_of(url: str) -> str:
+    """``host:port`` of a NATS URL, without the user and password it may carry."""
+    try:
+        parts = urlsplit(url)
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        return "its URL"
+    if not host:
+        return "its URL"
+    return f"{host}:{port}" if port else host
 
 
 def register_metrics(link: Link, registry: CollectorRegistry) -> None:

@@ -44,7 +44,7 @@ from armnet_agent.node.model import (
 )
 from armnet_agent.node.plan import LaunchError, cell_spec_for
 from armnet_agent.node.probes import probe_arm
-from armnet_agent.node.publish import job_output, telemetry_notifier
+from armnet_agent.node.publish import job_output, streams_probe, telemetry_notifier
 from armnet_agent.node.runner import JobRunner, RunnerDeps
 from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
 from armnet_agent.node.telemetry_sources import (
@@ -373,11 +373,12 @@ class CellWorker:
         return runner is not None and not runner.done
 
     def _heartbeat(self) -> None:
+        streams = health.streams_condition(streams_probe(self.deps.link))
         try:
-            conditions = health.cell_health(self.probe())
+            conditions = (*health.cell_health(self.probe()), streams)
         except Exception:  # noqa: BLE001 - a probe bug must not stop the heartbeat; the others stay as they were
             log.warning("cell %s: health probe failed", self.cell.name, exc_info=True)
-            conditions = health.cell_health(health.CellProbe(arms={}))[:1]
+            conditions = (*health.cell_health(health.CellProbe(arms={}))[:1], streams)
         for _ in range(3):
             now = datetime.now(UTC)
             try:

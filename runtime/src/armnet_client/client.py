@@ -17,6 +17,8 @@ from datetime import datetime
 from typing import Any, Optional, TextIO
 
 from armnet_core.models import Job, JobResult, JobSpec
+from armnet_core.nats_url import SHARED_ENV as SHARED_NATS_ENV
+from armnet_core.nats_url import nats_url_from as resolve_nats_url
 from pydantic import ValidationError
 
 from . import kube
@@ -43,14 +45,12 @@ log = logging.getLogger("armnet_client")
 
 DEFAULT_FOLLOWER_TIMEOUT_S = 30.0
 
-NATS_URL_ENV = ("ARMNET_NATS_URL", "NATS_URL")
+NATS_URL_ENV = ("ARMNET_NATS_URL", SHARED_NATS_ENV)
 
 
 def nats_url_from(flag: Optional[str], env: Mapping[str, str]) -> Optional[str]:
     """``--nats-url``, else ``$ARMNET_NATS_URL``, else ``$NATS_URL`` (what ``armnet dev up`` prints)."""
-    if flag:
-        return flag
-    return next((env[name] for name in NATS_URL_ENV if env.get(name)), None)
+    return resolve_nats_url(flag, env, NATS_URL_ENV[0])
 
 
 class Client:
