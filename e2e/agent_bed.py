@@ -81,7 +81,10 @@ class AgentBed:
         # The non-root job user must reach the venv mounted under /root (development stand-in only).
         self.image_lines = ["RUN chmod 0755 /root"]
         self.on_image = node.import_image
-        self.agent_args = ["--launcher", "pod", "--connector-image", self.base_image, "--image-pull-policy", "Never",
+        # The stand-in connector image is the bare base image (the venv under /root, 0700 there; the
+        # agent's simulator ptys are root's): it runs as root, which the agent does only when told.
+        self.agent_args = ["--launcher", "pod", "--connector-image", self.base_image, "--connector-user", "0",
+                           "--image-pull-policy", "Never",
                            "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
                            # The pods' observer sockets, under the test node's own kubelet root.
                            "--kubelet-root-dir", str(node.workdir / "kubelet")]

@@ -63,7 +63,8 @@ CONNECTOR_STOP_S = 10
 JOB_USER = 65532
 #: The connector's user: the agent image's own (``armnet``, in dialout/video/plugdev). Set in the
 #: pod, not left to the image's USER: ``agent.connectorImage`` may name any image, and a connector
-#: image running as root would hold the robot's devices as root.
+#: image running as root would hold the robot's devices as root. 0 (development stand-ins only)
+#: is the one way to a root connector, and it must be asked for (``--connector-user 0``).
 CONNECTOR_USER = 65532
 SOCKETS_SIZE = "256Mi"
 #: The connector's observer socket for the agent: an emptyDir mounted into the connector ONLY (the
@@ -274,7 +275,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         # from the image's /etc/group (dialout, video: the devices), as it does for the image's
         # own numeric USER.
         "securityContext": {
-            "runAsNonRoot": True,
+            "runAsNonRoot": inputs.connector_user != 0,
             "runAsUser": inputs.connector_user,
             "allowPrivilegeEscalation": False,
             "privileged": False,

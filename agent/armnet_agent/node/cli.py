@@ -24,6 +24,7 @@ from armnet_core.nats_url import nats_url_from
 from armnet_agent.connector.warm_imports import import_before_threads
 from armnet_agent.deviceplugin.server import DEVICE_PLUGIN_DIR, DevicePlugins
 from armnet_agent.launch.container import EngineUnavailable, connect_engine
+from armnet_agent.launch.pod_spec import CONNECTOR_USER
 from armnet_agent.node.agent import AgentSettings, NodeAgent
 from armnet_agent.node.kube import AgentKube, make_client
 from armnet_agent.node.launchers import ContainerLauncher, JobLauncher, PodLauncher, PodSettings
@@ -51,6 +52,17 @@ def _rate(bound: float) -> Callable[[str], float]:
         return value
 
     return parse
+
+
+def _uid(text: str) -> int:
+    """An argparse type: a numeric uid (Kubernetes' runAsUser takes no names)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a numeric uid") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is not a uid")
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -93,6 +105,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connector-command", default=_env("CONNECTOR_COMMAND"),
                         help="pod launcher: the sidecar's command, space-separated "
                              "(default: python3 -m armnet_agent.launch.sidecar)")
+    parser.add_argument("--connector-user", type=_uid, default=_env("CONNECTOR_USER", str(CONNECTOR_USER)),
+                        help=f"pod launcher: the connector sidecar's uid, set in the pod whatever the image's USER "
+                             f"(default {CONNECTOR_USER}, the agent image's user, in the device groups); "
+                             "0 runs it as root: development stand-in images only")
     parser.add_argument("--pod-simulator", choices=("agent", "sidecar"), default=_env("POD_SIMULATOR", "agent"),
                         help="pod launcher, simulated cells: run the simulator in the agent and hand its ptys to "
                              "the connector as devices, or in the job pod's sidecar (needed when the agent itself "
@@ -157,7 +173,10 @@ def run(args: argparse.Namespace) -> int:
             device_plugin=args.device_plugin,
             simulator_in_pod=args.pod_simulator == "sidecar",
             kubelet_root=args.kubelet_root_dir,
+            connector_user=args.connector_user,
         )
+        if args.connector_user == 0:
+            logging.warning("--connector-user 0: job pods' connectors run as root (development only)")
         if args.device_plugin:
             device_plugins = DevicePlugins(metrics, args.device_plugin_dir).start()
         if args.connector_command:

@@ -35,6 +35,7 @@ from armnet_agent.launch.container import ContainerJob
 from armnet_agent.launch.plan import LABEL_JOB_UID, LABEL_MANAGED_BY, MANAGED_BY_AGENT
 from armnet_agent.launch.pod import PodExists, PodJob
 from armnet_agent.launch.pod_spec import (
+    CONNECTOR_USER,
     JOB_USER,
     OBSERVER_DIR,
     PodInputs,
@@ -293,6 +294,8 @@ class PodSettings:
     resources: PodResources = PodResources()
     job_read_only_root: bool = True
     job_user: int = JOB_USER
+    #: The connector sidecar's uid (``pod_spec.CONNECTOR_USER``); 0 only for development stand-in images.
+    connector_user: int = CONNECTOR_USER
     dev_mounts: tuple[str, ...] = ()
     dev_env: Mapping[str, str] = field(default_factory=dict)
     #: The connector requests the cell's extended resource (the agent's device plugin gives the
@@ -404,6 +407,7 @@ class PodLauncher:
             image_pull_policy=s.image_pull_policy,
             job_read_only_root=s.job_read_only_root,
             job_user=s.job_user,
+            connector_user=s.connector_user,
             observer_dir=OBSERVER_DIR,
         )
         return build_pod(inputs)

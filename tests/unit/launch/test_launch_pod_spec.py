@@ -147,6 +147,12 @@ def test_the_connector_runs_as_the_non_root_user_the_pod_names_not_its_images() 
     assert context["capabilities"] == {"drop": ["ALL"]}
 
 
+def test_a_root_connector_is_only_what_the_agent_asks_for_explicitly() -> None:
+    """Development stand-in images: ``--connector-user 0``; never the image's USER deciding it."""
+    connector, _ = containers(build_pod(inputs(connector_user=0)))
+    assert (connector["securityContext"]["runAsUser"], connector["securityContext"]["runAsNonRoot"]) == (0, False)
+
+
 def test_the_calibration_is_read_only_for_the_customer_and_written_by_the_connector() -> None:
     connector, job = containers(build_pod(inputs()))
     calibration = [m for m in job["volumeMounts"] if m["name"] == "calibration"]

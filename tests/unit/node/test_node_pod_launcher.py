@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 from armnet_agent.connector.inputs import LocalOperatorInputs
-from armnet_agent.launch.pod_spec import SIDECAR_ENV, SecretRef, device_path
+from armnet_agent.launch.pod_spec import CONNECTOR_USER, SIDECAR_ENV, SecretRef, device_path
 from armnet_agent.node.launchers import PodLauncher, PodSettings, SessionRequest
 from armnet_agent.node.metrics import AgentMetrics
 from armnet_agent.node.model import parse_cell, parse_job
@@ -44,11 +44,11 @@ def sim() -> Iterator[SimulatedCell]:
 
 
 def manifest(sim: SimulatedCell, refs: tuple[SecretRef, ...] = (), simulator_in_pod: bool = False,
-             device_plugin: bool = False, **spec: Any) -> dict[str, Any]:
+             device_plugin: bool = False, connector_user: int = CONNECTOR_USER, **spec: Any) -> dict[str, Any]:
     job, cell = parse_job(job_obj(**spec)), parse_cell(CELL)
     plan = plan_launch(job, cell, PATHS, {})
     settings = PodSettings(node_name="host-1", connector_image="armnet/connector:1", simulator_in_pod=simulator_in_pod,
-                           device_plugin=device_plugin)
+                           device_plugin=device_plugin, connector_user=connector_user)
     launcher = PodLauncher(None, settings, AgentMetrics())
     request = SessionRequest(job=job, cell=cell, plan=plan, sim=sim, adopted=None, tripped=None,
                              inputs=LocalOperatorInputs(), on_grace_expired=lambda: None, secret_refs=refs)
@@ -127,3 +127,10 @@ def test_with_the_device_plugin_the_pod_requests_the_cells_resource_instead_of_m
     assert connector["resources"]["limits"]["armnet.io/cell-cell-1"] == "1"
     assert not [v for v in pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
     assert sidecar_config(pod)["connector"]["arms"]["arm"]["port"] == device_path("arm")
+
+
+def test_the_connector_runs_as_the_agents_connector_user(sim: SimulatedCell) -> None:
+    (default,) = manifest(sim)["spec"]["initContainers"]
+    (chosen,) = manifest(sim, connector_user=1001)["spec"]["initContainers"]
+    assert (default["securityContext"]["runAsUser"], default["securityContext"]["runAsNonRoot"]) == (65532, True)
+    assert (chosen["securityContext"]["runAsUser"], chosen["securityContext"]["runAsNonRoot"]) == (1001, True)

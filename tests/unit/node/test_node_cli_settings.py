@@ -1,4 +1,5 @@
-"""Where the agent and the FMS find NATS, and what the agent's Cells say without it.
+"""The agent's settings from flags and environment: where it (and the FMS) find NATS, what its
+Cells say without it, and the connector's user.
 
 ``armnet dev up`` exports ``NATS_URL``; the chart sets each component's own variable.
 Every program takes its flag, then its own variable, then ``NATS_URL``.
@@ -102,3 +103,12 @@ def test_a_connected_link_makes_the_condition_true() -> None:
 ])
 def test_the_server_shown_is_host_and_port_only(url: str, server: str) -> None:
     assert server_of(url) == server
+
+
+def test_the_connector_user_is_a_numeric_uid_from_flag_or_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("ARMNET_AGENT_CONNECTOR_USER", raising=False)
+    assert agent_args([]).connector_user == 65532
+    monkeypatch.setenv("ARMNET_AGENT_CONNECTOR_USER", "1001")
+    assert agent_args([]).connector_user == 1001
+    with pytest.raises(SystemExit):
+        agent_args(["--connector-user", "armnet"])
