@@ -46,6 +46,17 @@ def test_a_cell_body_parses_failing_health_conditions() -> None:
     assert cell.failing_conditions == ("InterlockClear",)
 
 
+def test_a_cell_whose_agent_has_no_nats_still_takes_jobs() -> None:
+    """StreamsConnected=False tells the cell operator why the buttons do nothing; jobs run without NATS."""
+    cell = parse_cell({
+        "metadata": {"name": "c", "resourceVersion": "3"},
+        "spec": {"embodiment": "lerobot/so-101", "nodeName": "h"},
+        "status": {"lastHeartbeatTime": "2026-01-01T12:00:00Z", "conditions": [
+            {"type": "StreamsConnected", "status": "False", "reason": "NatsNotConfigured"}]},
+    })
+    assert cell.failing_conditions == ()
+
+
 def test_a_claim_carries_the_observed_resource_version() -> None:
     patch = claim_cell(a_cell().named("c").ready(), a_job().named("j").queued(), NOW)
     assert patch.body["metadata"] == {"resourceVersion": "1"}
