@@ -242,7 +242,7 @@ def test_notes_say_what_was_installed_and_how_to_label_a_host_register_a_cell_an
     assert "DaemonSet robots-armnet-agent, on nodes labelled example.com/robot=so101" in text
     assert "kubectl label node <robot-host> example.com/robot=so101" in text
     assert "kind: Cell" in text and "kind: RobotJob" in text
-    assert "kubectl apply -n team-x -f -" in text
+    assert "kubectl apply -n team-x -f - <<EOF" in text
     assert "--clusterrole=robots-armnet-tenant-edit" in text
     assert "No NATS configured" not in text
     assert "cell operator's page" not in text, "the FMS is off by default"
