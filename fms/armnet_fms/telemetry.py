@@ -14,7 +14,10 @@ and ``MAX_SAMPLES`` servo readings per cell of at most ``MAX_ARMS`` arms of
 clock at arrival, so an agent's clock skew moves nothing.
 
 While a job runs, the agent publishes only positions (it reads nothing on the
-job's bus): such a reading's load and temperature are None.
+job's bus): such a reading's load and temperature are None. The page's view
+follows the latest reading: what it does not read now (load and temperature
+while a job runs, an arm it could not read) is not plotted from older reads
+either, so a plot never draws a line the page's text says is not read.
 """
 
 from __future__ import annotations
@@ -42,6 +45,8 @@ HISTORY_S = 30.0
 MAX_CELLS = 256
 JPEG_MAGIC = b"\xff\xd8\xff"
 FIELDS = ("position", "load", "temperature")
+JOB_UNREAD = ("load", "temperature")
+"""What a job's readings never give: the agent puts no traffic of its own on a job's bus."""
 _TOKEN = re.compile(r"^[A-Za-z0-9_-]{1,63}$")
 _LIMIT = 1 << 20  # no real servo value comes near; anything past it is not a reading
 
@@ -226,26 +231,40 @@ class TelemetryStore:
         """The page's telemetry of ``cell``: cameras with their frame age, and each motor's series.
 
         ``series`` is ``[{"arm", "motor", "points": [[age_s, position, load, temperature], ...]}]``,
-        oldest first, ``age_s`` in seconds before ``now`` (a silent motor has no point at that read;
-        load and temperature are null when unknown: a job's reads give positions only).
+        oldest first, ``age_s`` in seconds before ``now`` (a silent motor has no point at that read).
+        ``unread``: the quantities the latest reading does not read (a job's reads give positions
+        only); they are null at every point, older reads included. An arm the latest reading names
+        in ``errors`` has no series: its older points would draw a line the page says is not read.
         """
         entry = self._cells.get(cell)
         if entry is None:
-            return {"cell": cell, "cameras": [], "series": [], "source": None, "ageS": None, "errors": []}
+            return {"cell": cell, "cameras": [], "series": [], "source": None, "ageS": None, "unread": [],
+                    "errors": []}
         readings = [r for r in entry.readings if r.at >= now - self.history_s]
+        last = readings[-1] if readings else None
+        unread = unread_fields(last)
+        keep = [name not in unread for name in FIELDS]
+        unread_arms = {arm for arm, _ in last.errors} if last is not None else set()
         series: dict[tuple[str, str], list[list[float | None]]] = {}
         for reading in readings:
             age = round(now - reading.at, 2)
             for arm, motor, values in reading.motors:
+                if arm in unread_arms:
+                    continue
                 points = series.setdefault((arm, motor), [])
                 if values is not None:
-                    points.append([age, *values])
-        last = readings[-1] if readings else None
+                    points.append([age, *(v if k else None for v, k in zip(values, keep, strict=True))])
         return {
             "cell": cell,
             "cameras": [{"name": name, "ageS": round(now - frame.at, 2)} for name, frame in sorted(entry.frames.items())],
             "series": [{"arm": arm, "motor": motor, "points": points} for (arm, motor), points in series.items()],
             "source": last.source if last is not None else None,
             "ageS": round(now - last.at, 2) if last is not None else None,
+            "unread": list(unread),
             "errors": [{"arm": arm, "error": error} for arm, error in (last.errors if last is not None else ())],
         }
+
+
+def unread_fields(last: ServoReading | None) -> tuple[str, ...]:
+    """The quantities the latest reading does not read (the page says so and plots none of their values)."""
+    return JOB_UNREAD if last is not None and last.source == "job" else ()

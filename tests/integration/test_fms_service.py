@@ -239,7 +239,7 @@ def test_a_cells_camera_frame_and_servo_readings_reach_only_logged_in_operators(
 
     ok, encoded = cv2.imencode(".jpg", np.full((24, 32, 3), 200, np.uint8))
     jpeg = bytes(encoded)
-    reading = {"t": 0, "source": "job", "arms": {"arm": {"motors": {
+    reading = {"t": 0, "source": "idle", "arms": {"arm": {"motors": {
         "gripper": {"position": 2100, "load": 15, "temperature": 33}}}}}
 
     def served() -> httpx.Response | None:  # core NATS: sent again until the FMS has it

@@ -52,14 +52,16 @@
     }
   }
 
-  function plot(title, index, series) {
+  // A quantity the latest reading does not read (the server's ``unread``: load and temperature
+  // while a job runs) gets no line at all, not even from reads before: the text says it is not read.
+  function plot(field, title, index, series, notRead) {  // notRead: why, or ""
     const figure = document.createElement("figure");
     figure.className = "plot";
     const chart = svg("svg", { viewBox: `0 0 ${WIDTH} ${HEIGHT}`, role: "img", "aria-label": title, class: "plot" });
-    chart.dataset.field = title;
+    chart.dataset.field = field;
+    const drawnSeries = notRead ? [] : series;
     let lo = Infinity, hi = -Infinity;
-    // null: not known at that read (a job's reads give positions only; the agent reads nothing on its bus)
-    for (const s of series) for (const p of s.points) {
+    for (const s of drawnSeries) for (const p of s.points) {
       if (p[index] === null) continue;
       lo = Math.min(lo, p[index]); hi = Math.max(hi, p[index]);
     }
@@ -68,7 +70,7 @@
     if (hi - lo < 1) { lo -= 1; hi += 1; }
     chart.appendChild(svg("rect", { x: 0, y: 0, width: WIDTH, height: HEIGHT, class: "plot-bg" }));
     let drawn = 0;
-    series.forEach((s, i) => {
+    drawnSeries.forEach((s, i) => {
       const valued = s.points.filter((p) => p[index] !== null);
       if (!valued.length) return;
       const points = valued.map((p) => {
@@ -83,8 +85,8 @@
     });
     chart.dataset.points = String(drawn);
     const caption = document.createElement("figcaption");
-    caption.textContent = known ? `${title}: ${Math.round(lo)} … ${Math.round(hi)}`
-      : `${title}: not read while a job runs`;
+    caption.textContent = notRead ? `${title}: ${notRead}` : known ? `${title}: ${Math.round(lo)} … ${Math.round(hi)}`
+      : `${title}: no readings`;
     figure.append(chart, caption);
     return figure;
   }
@@ -104,11 +106,19 @@
   function render(t) {
     renderCameras(t.cameras || []);
     const series = t.series || [];
-    plots.replaceChildren(...FIELDS.map(([, title, index]) => plot(title, index, series)), legend(series));
+    const unread = t.unread || [];
+    const why = t.source === "job" ? "not read while a job runs" : "not read";
+    plots.replaceChildren(...FIELDS.map(([field, title, index]) =>
+      plot(field, title, index, series, unread.includes(field) ? why : "")), legend(series));
     const parts = [];
     if (t.ageS === null || t.ageS === undefined) parts.push("no servo readings yet");
-    else parts.push(`servos read ${t.ageS < 2 ? "just now" : Math.round(t.ageS) + " s ago"} (${t.source === "job" ? "positions from the job's own reads; load and temperature are not read while a job runs" : "cell idle"})`);
-    for (const e of t.errors || []) parts.push(`arm ${e.arm}: ${e.error}`);
+    else {
+      const who = t.source === "job" ? "positions from the job's own reads" : "cell idle";
+      const missing = unread.length ? `; ${unread.join(" and ")} ${unread.length > 1 ? "are" : "is"} ${why}` : "";
+      parts.push(`servos read ${t.ageS < 2 ? "just now" : Math.round(t.ageS) + " s ago"} (${who}${missing})`);
+    }
+    // The arm's name in quotes, first: an arm is often named "arm" (never "arm arm: …").
+    for (const e of t.errors || []) parts.push(`“${e.arm}” not plotted: ${e.error}`);
     state.textContent = parts.join("; ");
   }
 

@@ -88,7 +88,7 @@ def test_the_cameras_are_listed_with_their_frame_age() -> None:
 
 def test_a_cell_never_heard_has_an_empty_view() -> None:
     assert TelemetryStore().view("nobody", 1.0) == {
-        "cell": "nobody", "cameras": [], "series": [], "source": None, "ageS": None, "errors": []}
+        "cell": "nobody", "cameras": [], "series": [], "source": None, "ageS": None, "unread": [], "errors": []}
 
 
 def test_a_silent_motor_has_no_point_at_that_read() -> None:
@@ -103,6 +103,33 @@ def test_an_arm_that_was_not_read_shows_its_reason() -> None:
     store = TelemetryStore()
     store.accept("telemetry.c.servos", data, 1.0)
     assert store.view("c", 1.0)["errors"] == [{"arm": "arm", "error": "busy"}]
+
+
+def test_an_arm_the_latest_reading_could_not_read_has_no_line_from_older_reads() -> None:
+    store = TelemetryStore()
+    two_arms = {"left": {"motors": {"gripper": {"position": 1, "load": 2, "temperature": 30}}},
+                "right": {"motors": {"gripper": {"position": 5, "load": 6, "temperature": 31}}}}
+    store.accept("telemetry.c.servos", json.dumps({"source": "idle", "arms": two_arms}).encode(), 1.0)
+    later = {"left": {"error": "the job has not connected this arm's bus"},
+             "right": {"motors": {"gripper": {"position": 7}}}}
+    store.accept("telemetry.c.servos", json.dumps({"source": "job", "arms": later}).encode(), 2.0)
+    view = store.view("c", 2.0)
+    assert [(s["arm"], s["motor"]) for s in view["series"]] == [("right", "gripper")]
+    assert view["errors"] == [{"arm": "left", "error": "the job has not connected this arm's bus"}]
+
+
+def test_while_a_job_runs_no_load_or_temperature_is_served_even_from_reads_before_it() -> None:
+    store = TelemetryStore()
+    store.accept("telemetry.c.servos", reading(position=100, load=5, temperature=30), 1.0)
+    store.accept("telemetry.c.servos", reading(position=110, source="job"), 2.0)
+    view = store.view("c", 2.0)
+    assert view["unread"] == ["load", "temperature"]
+    assert view["series"][0]["points"] == [[1.0, 100, None, None], [0.0, 110, None, None]]
+    # The job over, the idle agent reads everything again: the whole window is served as read.
+    store.accept("telemetry.c.servos", reading(position=120, load=7, temperature=31), 3.0)
+    view = store.view("c", 3.0)
+    assert view["unread"] == []
+    assert view["series"][0]["points"][0] == [2.0, 100, 5, 30]
 
 
 @pytest.mark.parametrize("body", [
