@@ -20,35 +20,48 @@
     return `${Math.round(seconds / 60)} min ago`;
   }
 
-  function cellCard(cell, linked, big) {
-    const card = el("div", `card phase-${cell.phase}${big ? " big" : ""}`);
-    card.id = `cell-${cell.name}`;
-    const title = el("h2");
-    if (linked) {
-      const a = el("a", "", cell.name);
+  // A fleet card is one link stretched over the whole card (fms.css): a tap anywhere on it, or
+  // Enter on its focused name, opens the cell. Cards are updated in place, never replaced, so a
+  // tap or the keyboard focus survives the live feed's re-renders (twice a second).
+  function fleetCard(cell) {
+    let card = document.getElementById(`cell-${cell.name}`);
+    if (!card) {
+      card = el("div");
+      card.id = `cell-${cell.name}`;
+      const title = el("h2");
+      const a = el("a", "open", cell.name);
       a.href = `/cells/${encodeURIComponent(cell.name)}`;
       title.appendChild(a);
-    } else title.textContent = cell.name;
-    card.appendChild(title);
+      card.appendChild(title);
+    }
+    card.className = `card linked phase-${cell.phase}`;
+    const title = card.firstElementChild;
+    while (title.nextSibling) title.nextSibling.remove();
+    card.append(...cardFacts(cell));
+    return card;
+  }
+
+  function cardFacts(cell) {
+    const facts = [];
     const badges = el("p");
     badges.appendChild(el("span", "badge phase", cell.phase));
     badges.appendChild(el("span", `badge interlock ${cell.interlock}`, `interlock ${cell.interlock}`));
     if (cell.unschedulable) badges.appendChild(el("span", "badge", "cordoned"));
     if (cell.reset) badges.appendChild(el("span", "badge waiting", "reset waiting"));
     if (cell.site) badges.appendChild(el("span", "badge", `site ${cell.site}`));
-    card.appendChild(badges);
+    facts.push(badges);
     const job = cell.job;
-    card.appendChild(el("p", "job", job ? `Job ${job.namespace}/${job.name} (${job.phase})` : "No job"));
+    facts.push(el("p", "job", job ? `Job ${job.namespace}/${job.name} (${job.phase})` : "No job"));
     if (job && job.rolloutIndex !== null) {
       const total = job.rolloutTotal ? `/${job.rolloutTotal}` : "";
-      card.appendChild(el("p", "rollout", `Rollout ${job.rolloutIndex}${total}${job.rolloutActive ? "" : " (ended)"}`));
+      facts.push(el("p", "rollout", `Rollout ${job.rolloutIndex}${total}${job.rolloutActive ? "" : " (ended)"}`));
     }
-    if (job && job.progress) card.appendChild(el("p", "progress", job.progress));
+    if (job && job.progress) facts.push(el("p", "progress", job.progress));
     for (const c of cell.falseConditions) {
-      card.appendChild(el("p", "cond", `${c.type}: ${c.reason}${c.message ? " (" + c.message + ")" : ""}`));
+      facts.push(el("p", "cond", `${c.type}: ${c.reason}${c.message ? " (" + c.message + ")" : ""}`));
     }
-    card.appendChild(el("p", "heartbeat", `Heartbeat ${age(cell.heartbeatAgeS)}`));
-    return card;
+    facts.push(el("p", "heartbeat", `Heartbeat ${age(cell.heartbeatAgeS)}`));
+    return facts;
   }
 
   function renderFeedState(data) {
@@ -64,38 +77,78 @@
     const box = document.getElementById("cells");
     const q = document.getElementById("filter-q").value.toLowerCase();
     const site = document.getElementById("filter-site").value;
-    box.replaceChildren(...data.cells
+    const cards = data.cells
       .filter((c) => (!q || c.name.toLowerCase().includes(q)) && (!site || c.site === site))
-      .map((c) => cellCard(c, true, false)));
+      .map(fleetCard);
+    // Only a card out of place is moved: moving one drops a tap in progress and the focus.
+    cards.forEach((card, i) => { if (box.children[i] !== card) box.insertBefore(card, box.children[i] || null); });
+    while (box.children.length > cards.length) box.lastElementChild.remove();
+  }
+
+  // Nothing moves under a finger: each control has its own slot, kept (invisible, untappable)
+  // while the control does not apply, so Confirm reset and Success/Fail never share a spot.
+  function show(node, shown) { node.classList.toggle("off", !shown); }
+
+  // A button that appears, or comes to act on something else (another reset, rollout, job),
+  // ignores taps for ARM_MS, drawn greyed with a filling bar: a late second tap on the spot
+  // never confirms a reset nobody did nor judges a rollout nobody watched (docs/fms.md).
+  const ARM_MS = 1500;
+  const armTimers = new Map();
+  function offer(buttons, key) {  // key: what the buttons act on now, "" while they are not shown
+    for (const button of buttons) {
+      if (button.dataset.armedFor === key) continue;
+      button.dataset.armedFor = key;
+      if (key) disarm(button);
+    }
+  }
+  function disarm(button) {
+    clearTimeout(armTimers.get(button));
+    button.disabled = true;
+    button.classList.remove("arming");
+    void button.offsetWidth;  // restarts the bar's animation
+    button.style.setProperty("--arm-ms", `${ARM_MS}ms`);
+    button.classList.add("arming");
+    armTimers.set(button, setTimeout(() => { button.disabled = false; button.classList.remove("arming"); }, ARM_MS));
   }
 
   let resetDeadline = 0;
+  let confirmedRequest = "";  // the reset this page confirmed: its box stays hidden while the feed catches up
   function renderCell(data) {
     const cell = data.cells.find((c) => c.name === cellName);
     const card = document.getElementById("cell-card");
     if (!cell) { card.replaceChildren(el("p", "", "This cell does not exist (or is not yours to see).")); return; }
-    card.replaceChildren(...cellCard(cell, false, true).childNodes);
+    card.replaceChildren(el("h2", "", cell.name), ...cardFacts(cell));
     card.className = `card big phase-${cell.phase}`;
     const job = cell.job, active = !!(job && job.active);
+    const jobKey = active ? `${job.namespace}/${job.name}` : "";
     const resetBox = document.getElementById("reset-box");
-    resetBox.hidden = !cell.reset;
-    if (cell.reset) {
+    const resetShown = !!cell.reset && cell.reset.request !== confirmedRequest;
+    show(resetBox, resetShown);
+    if (resetShown) {
       resetBox.dataset.request = cell.reset.request;
       resetDeadline = Date.now() + cell.reset.secondsLeft * 1000;
     }
+    offer([document.getElementById("confirm-reset")], resetShown ? cell.reset.request : "");
     tickReset();
     // Success/Fail only while a rollout that asked for them runs: after its end a verdict would be dropped.
     const rolling = active && job.rolloutIndex !== null && job.rolloutActive && job.outcomeControls;
-    document.getElementById("outcome-box").hidden = !rolling;
+    const outcomeBox = document.getElementById("outcome-box");
+    show(outcomeBox, rolling);
     if (rolling) {
-      document.getElementById("outcome-box").dataset.rollout = String(job.rolloutIndex);
+      outcomeBox.dataset.rollout = String(job.rolloutIndex);
       document.getElementById("outcome-rollout").textContent =
         `${job.rolloutIndex}${job.rolloutTotal ? "/" + job.rolloutTotal : ""}`;
     }
+    offer([document.getElementById("mark-success"), document.getElementById("mark-fail")],
+      rolling ? `${jobKey}#${job.rolloutIndex}` : "");
     renderVerdicts((job && job.verdicts) || []);
-    document.getElementById("stop-box").hidden = !active;
-    document.getElementById("cordon").hidden = cell.unschedulable;
-    document.getElementById("uncordon").hidden = !cell.unschedulable;
+    show(document.getElementById("stop-box"), active);
+    offer([document.getElementById("stop")], jobKey);
+    const cordon = document.getElementById("cordon"), uncordon = document.getElementById("uncordon");
+    cordon.hidden = cell.unschedulable;
+    uncordon.hidden = !cell.unschedulable;
+    offer([cordon], cell.unschedulable ? "" : "cordon");
+    offer([uncordon], cell.unschedulable ? "uncordon" : "");
   }
 
   function renderVerdicts(verdicts) {
@@ -112,6 +165,8 @@
     if (node) node.textContent = `${left} s left before the reset times out.`;
   }
 
+  // The answer goes under the buttons, in their column: in sight of the finger that tapped
+  // (within a tablet's first screen), and a long one grows downwards, moving no button.
   async function act(action, body) {
     const out = document.getElementById("action-result");
     out.className = ""; out.textContent = "sending…";
@@ -124,20 +179,34 @@
       const reply = await response.json();
       out.textContent = response.ok ? reply.message : reply.error;
       out.className = response.ok ? "" : "error";
+      return response.ok;
     } catch (err) {
       out.textContent = "the FMS did not answer; try again"; out.className = "error";
+      return false;
     }
   }
 
   function wireCellButtons() {
-    document.getElementById("confirm-reset").addEventListener("click", () => {
+    const confirm = document.getElementById("confirm-reset");
+    confirm.addEventListener("click", async () => {
       const request = document.getElementById("reset-box").dataset.request || "";
-      document.getElementById("reset-box").hidden = true;  // one click, one confirmation
-      act("confirm-reset", {request});
+      confirmedRequest = request;  // one tap, one confirmation: the box hides at once
+      show(document.getElementById("reset-box"), false);
+      if (!(await act("confirm-reset", {request}))) {
+        // Not confirmed: if the reset still waits, its button comes back, and arms again.
+        confirmedRequest = ""; offer([confirm], ""); render();
+      }
     });
     const rollout = () => document.getElementById("outcome-box").dataset.rollout || "";
-    document.getElementById("mark-success").addEventListener("click", () => act("success", {request: rollout()}));
-    document.getElementById("mark-fail").addEventListener("click", () => act("fail", {request: rollout()}));
+    const verdicts = [document.getElementById("mark-success"), document.getElementById("mark-fail")];
+    const mark = async (action) => {
+      // One tap, one verdict: both buttons wait for the answer, then arm again.
+      for (const button of verdicts) { clearTimeout(armTimers.get(button)); button.disabled = true; }
+      await act(action, {request: rollout()});
+      verdicts.forEach(disarm);
+    };
+    verdicts[0].addEventListener("click", () => mark("success"));
+    verdicts[1].addEventListener("click", () => mark("fail"));
     const stop = document.getElementById("stop");
     let armed = 0;
     stop.addEventListener("click", () => {
