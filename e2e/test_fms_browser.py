@@ -3,8 +3,11 @@
 Headless Chromium (Debian's, through chromedriver and selenium) drives
 ``armnet fms`` (a real process) while the real ``armnet operator`` and ``armnet
 agent`` run real job containers on simulated cells (``AgentBed``). One bed for
-the module: both jobs are submitted at the start and run side by side.
-Screenshots of the fleet and cell views go to ``test-artifacts/``.
+the module: both jobs are submitted at the start and run side by side. The
+window is a landscape tablet's (1024x768: 625 px of page in sight): each tap's
+answer must show there, and no button may move or change meaning under a finger
+(``tests/support/fms_tablet.py``). Screenshots of the fleet and cell views go to
+``test-artifacts/``.
 """
 
 from __future__ import annotations
@@ -15,12 +18,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from selenium.common.exceptions import (
-    ElementNotInteractableException,
-    NoSuchElementException,
-    StaleElementReferenceException,
-    TimeoutException,
-)
+from selenium.common.exceptions import TimeoutException
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as visible
 from selenium.webdriver.support.ui import WebDriverWait
@@ -33,6 +31,20 @@ from tests.support.fms_server import (
     console_errors,
     log_in,
     screenshot,
+)
+from tests.support.fms_tablet import (
+    VERDICTS,
+    assert_in_first_screen,
+    assert_nothing_moved,
+    button_boxes,
+    filter_labels,
+    first_state_showing,
+    on_a_tablet,
+    open_card_with_the_keyboard,
+    overlaps,
+    tap,
+    tap_card_away_from_its_name,
+    watch_outcome_box,
 )
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
@@ -131,42 +143,69 @@ def wait_text(driver: Any, element_id: str, text: str, timeout: float = 60) -> N
     WebDriverWait(driver, timeout).until(visible.text_to_be_present_in_element((By.ID, element_id), text))
 
 
-def click_when_visible(driver: Any, element_id: str, timeout: float = 60) -> None:
-    """Click once the element shows. The page re-renders from its live feed twice a second, so
-    an element seen visible may be mid-render at the click: such a click is tried again."""
-    def clicked(d: Any) -> bool:
-        try:
-            d.find_element(By.ID, element_id).click()
-            return True
-        except (ElementNotInteractableException, StaleElementReferenceException, NoSuchElementException):
-            return False
+def tap_and_see_the_answer(driver: Any, element_id: str, answer: str) -> None:
+    """Tap, then the answer shows in the tablet's first screen, in sight of the finger."""
+    tap(driver, element_id)
+    wait_text(driver, "action-result", answer)
+    assert_in_first_screen(driver, element_id)
+    assert_in_first_screen(driver, "action-result")
 
-    WebDriverWait(driver, timeout).until(visible.visibility_of_element_located((By.ID, element_id)))
-    WebDriverWait(driver, timeout).until(clicked)
+
+def telemetry_seen(driver: Any) -> dict[str, Any]:
+    """The telemetry line and each plot's number of points, read in one render."""
+    seen: dict[str, Any] = driver.execute_script(
+        "return {text: document.getElementById('telemetry-state').textContent,"
+        " points: Object.fromEntries([...document.querySelectorAll('svg.plot')]"
+        "   .map((p) => [p.dataset.field, Number(p.dataset.points)])),"
+        " captions: [...document.querySelectorAll('#plots figcaption')].map((c) => c.textContent)};")
+    return seen
 
 
 def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
     bed: AgentBed, fms: FmsServer, jobs: dict[str, str], browser: Any
 ) -> None:
     cell = cell_of(bed, jobs["reset"])
+    on_a_tablet(browser)
     log_in(browser, fms.url)
     # Live: the page was loaded before the job ran; it shows the job without a reload.
     wait_text(browser, f"cell-{cell}", jobs["reset"], timeout=180)
     wait_text(browser, f"cell-{cell}", "reset waiting", timeout=180)
+    assert filter_labels(browser) == {"filter-q": "Cell name", "filter-site": "Site"}
     screenshot(browser, "fms-fleet")
-    browser.get(f"{fms.url}/cells/{cell}")
-    WebDriverWait(browser, 60).until(visible.visibility_of_element_located((By.ID, "confirm-reset")))
+    # The whole card opens the cell, not only its name; and so does the keyboard (Tab, Enter).
+    tap_card_away_from_its_name(browser, cell)
+    WebDriverWait(browser, 30).until(lambda d: d.current_url == f"{fms.url}/cells/{cell}")
+    browser.get(f"{fms.url}/")
+    wait_text(browser, f"cell-{cell}", "reset waiting")
+    open_card_with_the_keyboard(browser, cell)
+    WebDriverWait(browser, 30).until(lambda d: d.current_url == f"{fms.url}/cells/{cell}")
+    WebDriverWait(browser, 60).until(visible.element_to_be_clickable((By.ID, "confirm-reset")))
     wait_text(browser, "reset-left", "s left")
     screenshot(browser, "fms-cell-reset")
-    click_when_visible(browser, "confirm-reset")
-    wait_text(browser, "action-result", "reset confirmed")
+    # The job runs and has not opened the arm's bus: the line says what is not read, the plots draw none of it.
+    wait_text(browser, "telemetry-state", "not plotted: the job has not connected this arm's bus")
+    seen = telemetry_seen(browser)
+    assert "arm arm" not in seen["text"] and "not read while a job runs" in seen["text"], seen
+    assert seen["points"] == {"position": 0, "load": 0, "temperature": 0}, seen
+    before = button_boxes(browser)
+    watch_outcome_box(browser, before["confirm-reset"])
+    tap_and_see_the_answer(browser, "confirm-reset", "reset confirmed")
     wait_text(browser, "outcome-rollout", "1/2")
+    # Where Confirm reset was, no verdict button: a late second tap marks nothing; and Success/Fail
+    # appeared unarmed (they ignore taps for a moment, whatever lies under the finger).
+    first = first_state_showing(browser, "1/2")
+    assert first["under"] not in VERDICTS and not first["underArmed"] and first["armed"] == [], first
+    after = button_boxes(browser)
+    assert not any(overlaps(before["confirm-reset"], after[v]) for v in VERDICTS), (before, after)
+    assert_nothing_moved(before, after)
     screenshot(browser, "fms-cell")
-    click_when_visible(browser, "mark-fail")
-    wait_text(browser, "action-result", "rollout 1/2 marked failure")
+    tap_and_see_the_answer(browser, "mark-fail", "rollout 1/2 marked failure")
     wait_text(browser, "outcome-rollout", "2/2")
+    # Fail stays under the finger but means rollout 2 now: it was unarmed when it came to mean it.
+    assert first_state_showing(browser, "2/2")["armed"] == [], first_state_showing(browser, "2/2")
+    assert_nothing_moved(after, button_boxes(browser))
     wait_text(browser, "verdicts", f"Rollout 1/2: failure, marked by {OPERATOR}")  # the page reads status.rollouts
-    click_when_visible(browser, "mark-success")
+    tap_and_see_the_answer(browser, "mark-success", "rollout 2/2 marked success")
     job = bed.wait_phase(jobs["reset"], timeout=120)
     st = job["status"]
     assert st["phase"] == "succeeded", json.dumps(st)[:3000]
@@ -181,11 +220,13 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
              and e.get("reportingComponent") == "armnet-fms"]
     assert f"reset confirmed by cell operator {OPERATOR}" in audit
     assert f"rollout 1/2 marked failure by cell operator {OPERATOR}" in audit
-    # The job over, the cell is idle: the agent reads its servos and camera itself, live on the page.
+    # The job over, the cell is idle: the agent reads its servos (all three quantities) and camera
+    # itself, live on the page.
     WebDriverWait(browser, 120).until(lambda d: d.execute_script(
         "const img = document.getElementById('camera-front');"
-        "const plot = document.querySelector('svg.plot');"
-        "return !!img && img.naturalWidth > 0 && !!plot && Number(plot.dataset.points) > 0;"))
+        "const load = document.querySelector('svg.plot[data-field=load]');"
+        "return !!img && img.naturalWidth > 0 && !!load && Number(load.dataset.points) > 0;"))
+    assert all(points > 0 for points in telemetry_seen(browser)["points"].values()), telemetry_seen(browser)
     screenshot(browser, "fms-cell-idle")
 
 
@@ -194,17 +235,19 @@ def test_stop_cancels_the_job_trips_its_interlock_and_the_cell_is_ready_after(
 ) -> None:
     cell = cell_of(bed, jobs["stop"])
     bed.wait_phase(jobs["stop"], phases=("running",), timeout=180)
+    on_a_tablet(browser)
     log_in(browser, fms.url)
     browser.get(f"{fms.url}/cells/{cell}")
     try:
-        click_when_visible(browser, "stop", timeout=120)
+        tap(browser, "stop", timeout=120)
     except TimeoutException:
         status = bed.job(jobs["stop"]).get("status") or {}
         pytest.fail(f"no Stop button for {jobs['stop']} on {cell}; its status: {json.dumps(status)[:2000]}; "
                     f"the page at {browser.current_url}: {browser.page_source[:1500]}")
+    before = button_boxes(browser)
     wait_text(browser, "stop", "Tap again")
-    click_when_visible(browser, "stop")
-    wait_text(browser, "action-result", f"stopped by cell operator {OPERATOR}")
+    assert_nothing_moved(before, button_boxes(browser))  # the longer text moved nothing beside it
+    tap_and_see_the_answer(browser, "stop", f"stopped by cell operator {OPERATOR}")
     st = bed.wait_phase(jobs["stop"], timeout=120)["status"]
     assert st["phase"] == "cancelled", json.dumps(st)[:3000]
     assert st["result"]["error"] == f"stopped by cell operator {OPERATOR}"

@@ -14,7 +14,6 @@ import shutil
 import textwrap
 import threading
 from pathlib import Path
-from typing import Any
 
 import pytest
 from armnet_agent.local_run.cli import add_arguments, parse_request, run_local_job
@@ -26,6 +25,7 @@ from selenium.webdriver.support.ui import WebDriverWait
 
 from e2e.agent_bed import EXAMPLES
 from tests.support.fms_server import chromium, console_errors, free_port, log_in
+from tests.support.fms_tablet import tap
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
 
@@ -77,7 +77,7 @@ def test_a_customer_confirms_a_reset_and_marks_rollouts_on_the_local_page(tmp_pa
     try:
         log_in(driver, f"http://127.0.0.1:{port}", token)
         driver.get(f"http://127.0.0.1:{port}/cells/local")
-        click(driver, "confirm-reset", timeout=300)  # SDK imports and the rest pose: minutes on a loaded machine
+        tap(driver, "confirm-reset", timeout=300)  # SDK imports and the rest pose: minutes on a loaded machine
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "1/2"))
         # The camera the job opened and the positions of its own reads, through the agent's telemetry code.
         WebDriverWait(driver, 60).until(lambda d: d.execute_script(
@@ -86,12 +86,19 @@ def test_a_customer_confirms_a_reset_and_marks_rollouts_on_the_local_page(tmp_pa
             "return !!img && img.naturalWidth > 0 && !!plot && Number(plot.dataset.points) > 0;"))
         WebDriverWait(driver, 30).until(visible.text_to_be_present_in_element((By.ID, "telemetry-state"),
                                                                                "job's own reads"))
-        click(driver, "mark-fail")
+        # Positions only: the plots draw no line of the load and temperature the line says are not read.
+        seen = driver.execute_script(
+            "return {text: document.getElementById('telemetry-state').textContent,"
+            " points: Object.fromEntries([...document.querySelectorAll('svg.plot')]"
+            "   .map((p) => [p.dataset.field, Number(p.dataset.points)]))};")
+        assert "load and temperature are not read while a job runs" in seen["text"], seen
+        assert seen["points"]["position"] > 0 and seen["points"]["load"] == seen["points"]["temperature"] == 0, seen
+        tap(driver, "mark-fail")
         WebDriverWait(driver, 60).until(visible.text_to_be_present_in_element((By.ID, "outcome-rollout"), "2/2"))
         # Checked before the last click: the run ends with it, and its page server with it (the page's
         # next telemetry poll then fails, as it should).
         assert console_errors(driver) == []
-        click(driver, "mark-success")
+        tap(driver, "mark-success")
         runner.join(120)
     finally:
         driver.quit()
@@ -110,7 +117,3 @@ def wait_for_token(err: io.StringIO, timeout: float = 60) -> str:
                 return line.rsplit("token ", 1)[1].rstrip(")")
         time.sleep(0.1)
     raise AssertionError(f"armnet run --fms printed no page address:\n{err.getvalue()}")
-
-
-def click(driver: Any, element_id: str, timeout: float = 60) -> None:
-    WebDriverWait(driver, timeout).until(visible.visibility_of_element_located((By.ID, element_id))).click()
