@@ -232,10 +232,12 @@ def test_schema_refuses_a_root_or_non_numeric_operator_or_fms_user(values: dict[
 
 
 # ---------------------------------------------------------------------------- NOTES and README
-def test_notes_say_what_was_installed_and_how_to_label_a_host_register_a_cell_and_submit_a_job() -> None:
+def test_notes_say_what_was_installed_and_how_to_label_a_host_register_a_cell_and_submit_a_job(
+    k8s: ControlPlane,
+) -> None:
     values = {"agent": {"robotHostLabel": {"key": "example.com/robot", "value": "so101"}},
               "jobNamespaces": [{"name": "team-x"}], "nats": {"url": "nats://nats.example:4222"}}
-    text = notes("robots", "ops", values=values)
+    text = notes(k8s, "robots", "ops", values=values)
 
     assert 'release "robots" in namespace ops' in text
     assert "Deployment robots-armnet-operator, 2 replica(s)" in text
@@ -248,8 +250,8 @@ def test_notes_say_what_was_installed_and_how_to_label_a_host_register_a_cell_an
     assert "cell operator's page" not in text, "the FMS is off by default"
 
 
-def test_notes_warn_when_no_nats_is_configured_and_point_at_the_fms_when_it_is_on() -> None:
-    text = notes(values=FMS_ON)
+def test_notes_warn_when_no_nats_is_configured_and_point_at_the_fms_when_it_is_on(k8s: ControlPlane) -> None:
+    text = notes(k8s, values=FMS_ON)
 
     assert "No NATS configured" in text and "StreamsConnected=False" in text
     assert "kubectl -n armnet-system port-forward svc/armnet-fms 8080" in text
