@@ -24,7 +24,14 @@ from pydantic import ValidationError
 from . import kube
 from .errors import ClientError, Forbidden, InvalidJob, NatsUnreachable, WaitTimeout
 from .heartbeat import DEFAULT_INTERVAL_S, HeartbeatSender
-from .logstream import DEFAULT_STREAM, CaughtUp, Event, FollowSettings, follow_events
+from .logstream import (
+    DEFAULT_STREAM,
+    CaughtUp,
+    Event,
+    FollowSettings,
+    follow_batches,
+    follow_events,
+)
 from .logwire import LogLine
 from .mapping import (
     CellView,
@@ -306,6 +313,13 @@ class Client:
 
     def log_events(self, name: str, follow: bool = True, *,
                    since: Optional[datetime] = None) -> Iterator[Event]:
+        """:meth:`logs` with the :class:`CaughtUp` marker (where the stored lines end and live ones begin)."""
+        for batch in self.log_batches(name, follow, since=since):
+            yield from batch
+
+    def log_batches(self, name: str, follow: bool = True, *,
+                    since: Optional[datetime] = None) -> Iterator[list[Event]]:
+        """:meth:`log_events` a list at a time: what arrived together (a printer writes it out at once)."""
         job = self._read(name)
         ns = job.metadata.namespace or self.namespace
         job_id = job.status.job_id or job.metadata.uid or ""
@@ -316,17 +330,23 @@ class Client:
                      if follow and not job.spec.detach else None)
             try:
                 end: Optional[LogLine] = None
-                for event in follow_events(
+                for batch in follow_batches(
                     FollowSettings(self.nats_url, stream=self.stream), ns, job_id, follow=follow,
                     finished=self._finished_probe(name), since=since,
                 ):
-                    streamed = streamed or isinstance(event, LogLine)
-                    if follow and isinstance(event, LogLine) and event.terminal_phase:
-                        end = event  # the follow's last line: said below, with why the job ended
-                        continue
-                    yield event
+                    streamed = streamed or any(isinstance(event, LogLine) for event in batch)
+                    if follow:
+                        # The follow's last line is said below, with why the job ended.
+                        ends = [e for e in batch if isinstance(e, LogLine) and e.terminal_phase]
+                        if ends:
+                            end = ends[-1]
+                            batch = [e for e in batch if not (isinstance(e, LogLine) and e.terminal_phase)]
+                    if batch:
+                        yield batch
                 if follow:
-                    yield from self._ending(name, end)
+                    ending: list[Event] = list(self._ending(name, end))
+                    if ending:
+                        yield ending
                 return
             except NatsUnreachable as exc:
                 log.warning("%s; following the job's status instead (progress, then the last "
@@ -338,8 +358,9 @@ class Client:
             log.warning("no NATS URL configured (--nats-url or ARMNET_NATS_URL): following the job's "
                         "status instead (progress, then the last 16 KiB of output when it ends)")
         # Lines already delivered from the stream are not repeated from the tails.
-        yield from status_events(lambda: self._read(name), follow=follow,
-                                 interval_s=self.poll_interval_s, tails=not streamed)
+        for event in status_events(lambda: self._read(name), follow=follow,
+                                   interval_s=self.poll_interval_s, tails=not streamed):
+            yield [event]
 
     def _ending(self, name: str, streamed: Optional[LogLine]) -> Iterator[LogLine]:
         """The job's end with why it ended: the stream's status message, else the RobotJob's.

@@ -8,9 +8,15 @@ anything goes wrong (a reconnect, a consumer the restarted server forgot, a
 timeout), makes a fresh ephemeral pull consumer starting at the next sequence.
 Messages at or below the last delivered sequence are dropped, so a line is
 delivered exactly once and in stream order, across any number of restarts.
+A message may carry several lines (``armnet_core.logbatch``); a line whose
+number its kind has already delivered is dropped too (a restarted agent
+re-publishes a re-adopted job's lines, cut into different messages).
 
-The iterator is synchronous (the CLI and ``Client.logs`` are): it runs its own
-asyncio loop, one ``fetch`` at a time, in the caller's thread.
+The iterators are synchronous (the CLI and ``Client.logs`` are): they run their
+own asyncio loop, one ``fetch`` at a time, in the caller's thread.
+:func:`follow_batches` gives what each fetch brought (a few thousand lines at
+most) at once, so a printer can write it out in one go; :func:`follow_events`
+gives the same one by one.
 """
 
 from __future__ import annotations
@@ -24,9 +30,18 @@ from datetime import datetime
 from typing import Any, Optional
 
 from .errors import NatsForbidden, NatsUnreachable
-from .logwire import CaughtUp, Event, LogLine, consumer_name, decode, inbox_prefix, job_subjects
+from .logwire import (
+    TEXT_KINDS,
+    CaughtUp,
+    Event,
+    LogLine,
+    consumer_name,
+    decode_message,
+    inbox_prefix,
+    job_subjects,
+)
 
-__all__ = ["DEFAULT_STREAM", "CaughtUp", "Event", "FollowSettings", "follow_events"]
+__all__ = ["DEFAULT_STREAM", "CaughtUp", "Event", "FollowSettings", "follow_batches", "follow_events"]
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +60,10 @@ class FollowSettings:
     settle_s: float = 3.0
     """How long a finished job's stream must stay quiet before a follow without its terminal
     status message ends."""
+    yield_lines: int = 2000
+    """:func:`follow_batches` hands lines on at least this often: a fetch of many batched
+    messages holds far more lines, and keeping them all alive at once costs the garbage
+    collector more than the rest of the work."""
 
 
 class _Session:
@@ -167,9 +186,37 @@ def follow_events(
     over and nothing is pending. Raises :class:`NatsUnreachable` if the server
     cannot be reached at the start or stays away longer than ``outage_limit_s``.
     """
+    for batch in follow_batches(settings, namespace, job_id, follow=follow, finished=finished, since=since,
+                                clock=clock):
+        yield from batch
+
+
+class _LineNumbers:
+    """The highest line number delivered per kind: a line at or below it was delivered already."""
+
+    def __init__(self) -> None:
+        self.highest: dict[str, int] = {}
+
+    def new(self, line: LogLine) -> bool:
+        if line.seq is None or line.kind not in TEXT_KINDS:
+            return True
+        if line.seq <= self.highest.get(line.kind, -1):
+            return False
+        self.highest[line.kind] = line.seq
+        return True
+
+
+def follow_batches(
+    settings: FollowSettings, namespace: str, job_id: str, *, follow: bool = True,
+    finished: Optional[Callable[[], bool]] = None, since: Optional[datetime] = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> Iterator[list[Event]]:
+    """:func:`follow_events`, a list at a time: what one fetch brought, in lists of about
+    ``settings.yield_lines`` (never an empty list)."""
     loop = asyncio.new_event_loop()
     session = _Session(settings, namespace, job_subjects(namespace, job_id))
     last = 0
+    numbers = _LineNumbers()
     caught_up = False
     outage_since: Optional[float] = None
     done_since: Optional[float] = None
@@ -200,18 +247,28 @@ def follow_events(
                 continue
             if msgs:
                 done_since = None
+            batch: list[Event] = []
+            ended = False
             for msg in msgs:
-                line = _line_of(msg)
-                if line is None or line.stream_seq <= last:
+                stream_seq, lines = _lines_of(msg)
+                if stream_seq <= last:
                     continue
-                last = line.stream_seq
-                yield line
-                if line.terminal_phase and follow:
-                    return
+                last = stream_seq
+                batch.extend(line for line in lines if numbers.new(line))
+                if follow and lines and lines[-1].terminal_phase:
+                    ended = True
+                    break
+                if len(batch) >= settings.yield_lines:
+                    yield batch
+                    batch = []
+            if batch:
+                yield batch
+            if ended:
+                return
             if idle_and_done:
                 if not caught_up:
                     caught_up = True
-                    yield CaughtUp()
+                    yield [CaughtUp()]
                 if not follow:
                     return
                 if finished is not None and finished():
@@ -227,13 +284,12 @@ def follow_events(
         loop.close()
 
 
-def _line_of(msg: Any) -> Optional[LogLine]:
+def _lines_of(msg: Any) -> tuple[int, list[LogLine]]:
+    """The message's stream sequence and lines; (0, []) for a message that is not JetStream's."""
     try:
         meta = msg.metadata
     except Exception:  # noqa: BLE001 - a non-JetStream message on our inbox: not a log line
-        return None
-    headers = msg.headers or {}
-    return decode(
-        msg.subject, msg.data, msg_id=headers.get("Nats-Msg-Id"),
-        stream_seq=int(meta.sequence.stream), stored_at=meta.timestamp,
-    )
+        return 0, []
+    stream_seq = int(meta.sequence.stream)
+    return stream_seq, decode_message(msg.subject, msg.data, headers=msg.headers, stream_seq=stream_seq,
+                                      stored_at=meta.timestamp)

@@ -7,11 +7,13 @@ status) into the JetStream stream ``ARMNET_LOGS``, with the message id
 so that re-published lines are dropped by JetStream's duplicate window.
 
 Payloads (docs/streams.md): stdout, stderr and progress carry the line itself
-(UTF-8, usually with the ``armnet-runtime`` timestamp prefix); rerun carries one
-raw packet; status is JSON ``{"phase", "detail", "at"}`` (a finished job's
-``detail.error`` says why it ended). Output lines are never
-parsed as JSON: a customer printing JSON must see it as printed. A line's time
-is the status's ``at``, else the timestamp prefix, else the time JetStream
+(UTF-8, usually with the ``armnet-runtime`` timestamp prefix), or several
+consecutive lines of that kind (``armnet_core.logbatch``: an ``Armnet-Lines``
+header, lines joined by ``\n``, numbered from ``Armnet-Seq``); rerun carries
+one raw packet; status is JSON ``{"phase", "detail", "at"}`` (a finished job's
+``detail.error`` says why it ended). Output lines are never parsed as JSON: a
+customer printing JSON must see it as printed. A line's time is the status's
+``at``, else the timestamp prefix, else the time JetStream
 stored the message.
 """
 
@@ -22,9 +24,12 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal, Optional, Union
 
+from armnet_core.logbatch import LINES_HEADER, split_lines
 from armnet_runtime.markers import split_timestamp
 
 KINDS = ("stdout", "stderr", "progress", "rerun", "status")
+TEXT_KINDS = frozenset({"stdout", "stderr", "progress"})
+"""Kinds whose messages may carry several lines."""
 TERMINAL_PHASES = frozenset({"succeeded", "failed", "timeout", "cancelled"})
 
 Source = Literal["stream", "status"]
@@ -147,6 +152,26 @@ def decode(
         kind=kind, text=text, time=moment or prefixed or stored_at, stream_seq=stream_seq,
         seq=seq_of(msg_id), data=data,
     )
+
+
+def decode_message(
+    subject: str, payload: bytes, *, headers: Optional[dict[str, str]], stream_seq: int,
+    stored_at: Optional[datetime],
+) -> list[LogLine]:
+    """Every line of one JetStream message, in order: one, or a batch's; never raises.
+
+    The lines of a batch share the message's ``stream_seq`` and carry their own ``seq``.
+    """
+    msg_id = headers.get("Nats-Msg-Id") if headers else None
+    kind = kind_of(subject)
+    if kind not in TEXT_KINDS or not headers or LINES_HEADER not in headers:
+        return [decode(subject, payload, msg_id=msg_id, stream_seq=stream_seq, stored_at=stored_at)]
+    lines = []
+    for seq, data in split_lines(payload, headers):
+        text = data.decode("utf-8", errors="replace").rstrip("\r")
+        prefixed, rest = split_timestamp(text)
+        lines.append(LogLine(kind, rest, prefixed or stored_at, stream_seq, seq))
+    return lines
 
 
 @dataclass(frozen=True)

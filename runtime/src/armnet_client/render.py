@@ -155,7 +155,11 @@ def log_text(line: LogLine, *, timestamps: bool = True) -> str:
     """
     stamp = ""
     if timestamps and line.time is not None:
-        stamp = line.time.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z "  # noqa: UP017
+        moment = line.time
+        if moment.tzinfo is not timezone.utc:  # noqa: UP017
+            moment = moment.astimezone(timezone.utc)  # noqa: UP017
+        # isoformat, not strftime: a third of the cost, and it is paid on every line of a burst
+        stamp = moment.isoformat(timespec="milliseconds")[:-6] + "Z "
     if line.kind == "stderr":
         return f"{stamp}[stderr] {line.text}"
     if line.kind == "status":

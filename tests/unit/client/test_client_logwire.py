@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime, timezone
 
 import pytest
-from armnet_client.logwire import decode, job_subjects, seq_of
+from armnet_client.logwire import decode, decode_message, job_subjects, seq_of
 from armnet_client.resources import RobotJob
 from armnet_client.statusfeed import changes, ended
 
@@ -118,3 +118,31 @@ def test_status_feed_ends_with_the_terminal_status_and_why_the_job_ended() -> No
     assert ended(after) == last
     assert ended(after) is not None and ended(after).reason == last.reason  # type: ignore[union-attr]
     assert ended(before) is None
+
+
+def test_a_batch_message_gives_each_line_with_its_number_and_its_own_timestamp() -> None:
+    payload = b"2026-11-24T10:00:02.000001Z one\n2026-11-24T10:00:02.000002Z two\r\nno stamp"
+    lines = decode_message("logs.a.u.stderr", payload, stream_seq=9, stored_at=STORED,
+                           headers={"Nats-Msg-Id": "u:stderr:4-6", "Armnet-Lines": "3", "Armnet-Seq": "4"})
+
+    assert [(x.kind, x.text, x.seq, x.stream_seq) for x in lines] == [
+        ("stderr", "one", 4, 9), ("stderr", "two", 5, 9), ("stderr", "no stamp", 6, 9)]
+    assert [x.time for x in lines] == [datetime(2026, 11, 24, 10, 0, 2, 1, tzinfo=timezone.utc),  # noqa: UP017
+                                       datetime(2026, 11, 24, 10, 0, 2, 2, tzinfo=timezone.utc),  # noqa: UP017
+                                       STORED]
+
+
+def test_a_message_in_the_single_line_format_is_one_line_numbered_by_its_message_id() -> None:
+    (line,) = decode_message("logs.a.u.stdout", b"a {\n} spread out", stream_seq=3, stored_at=STORED,
+                             headers={"Nats-Msg-Id": "u:stdout:12"})
+
+    assert (line.text, line.seq, line.stream_seq) == ("a {\n} spread out", 12, 3)
+
+
+def test_a_status_or_rerun_message_is_never_split_even_with_a_lines_header() -> None:
+    headers = {"Armnet-Lines": "2", "Armnet-Seq": "1"}
+    (status,) = decode_message("logs.a.u.status", b'{"phase": "running"}', headers=headers, stream_seq=1,
+                               stored_at=STORED)
+    (rerun,) = decode_message("logs.a.u.rerun", b"\x00\n\x01", headers=headers, stream_seq=2, stored_at=STORED)
+
+    assert status.text == "status: running" and rerun.data == b"\x00\n\x01"

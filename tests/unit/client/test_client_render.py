@@ -7,7 +7,7 @@ import json
 from datetime import datetime, timedelta, timezone
 
 import pytest
-from armnet_client.cli.printer import LogPrinter, parse_since, tail
+from armnet_client.cli.printer import LogPrinter, parse_since, tail, tail_batches
 from armnet_client.logwire import CaughtUp, LogLine
 from armnet_client.mapping import cell_view_of, job_from_robotjob, result_from_robotjob, view_of
 from armnet_client.render import (
@@ -179,6 +179,49 @@ def test_tail_keeps_the_last_n_stored_lines_then_everything_live() -> None:
     assert [x.text for x in tail(events, 2)] == ["3", "4", "live"]
     assert [x.text for x in tail(events, None)] == ["0", "1", "2", "3", "4", "live"]
     assert [x.text for x in tail(events, 0)] == ["live"]
+
+
+class Writes(io.StringIO):
+    """A text stream that counts writes and flushes (a pipe pays a system call for each flush)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.writes = self.flushes = 0
+
+    def write(self, text: str) -> int:
+        self.writes += 1
+        return super().write(text)
+
+    def flush(self) -> None:
+        self.flushes += 1
+
+
+def test_lines_that_arrived_together_are_printed_with_one_write_and_one_flush() -> None:
+    out = Writes()
+    printer = LogPrinter(out, live=False)
+
+    printer.show_all([line("stdout", "a"), line("stderr", "b"), line("progress", "p"), line("stdout", "c")])
+
+    assert out.getvalue().splitlines() == ["2026-11-24T10:05:00.000Z a", "2026-11-24T10:05:00.000Z [stderr] b",
+                                           "2026-11-24T10:05:00.000Z [progress] p", "2026-11-24T10:05:00.000Z c"]
+    assert (out.writes, out.flushes) == (1, 1)
+
+
+def test_a_line_time_in_another_zone_is_printed_in_utc_to_the_millisecond() -> None:
+    moment = datetime(2026, 11, 24, 11, 5, 0, 123999, tzinfo=timezone(timedelta(hours=1)))
+    out = io.StringIO()
+
+    LogPrinter(out, live=False).show(LogLine("stdout", "x", moment))
+
+    assert out.getvalue() == "2026-11-24T10:05:00.123Z x\n"
+
+
+def test_tail_over_batches_keeps_the_last_n_stored_lines_then_each_live_batch_whole() -> None:
+    batches = [[line("stdout", "0"), line("stdout", "1")], [line("stdout", "2"), CaughtUp()],
+               [line("stdout", "live 1"), line("stdout", "live 2")]]
+
+    assert [[x.text for x in b] for b in tail_batches(batches, 2)] == [["1", "2"], ["live 1", "live 2"]]
+    assert [[x.text for x in b] for b in tail_batches(batches, None)] == [["0", "1"], ["2"], ["live 1", "live 2"]]
 
 
 def test_since_takes_durations_and_times_with_a_zone() -> None:

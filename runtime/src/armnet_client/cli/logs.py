@@ -7,7 +7,7 @@ import sys
 
 from ..render import utcnow
 from .common import add_cluster_options, client_from, guarded
-from .printer import LogPrinter, parse_since, tail
+from .printer import LogPrinter, parse_since, tail_batches
 
 EXAMPLES = """
   armnet logs pick-7x2k           # everything the job printed so far, timestamped (UTC)
@@ -37,9 +37,9 @@ def run(args: argparse.Namespace) -> int:
             return 2
         printer = LogPrinter(sys.stdout, live=sys.stdout.isatty(), timestamps=not args.no_timestamps)
         try:
-            events = client_from(args).log_events(args.job, follow=args.follow, since=since)
-            for line in tail(events, args.tail):
-                printer.show(line)
+            batches = client_from(args).log_batches(args.job, follow=args.follow, since=since)
+            for lines in tail_batches(batches, args.tail):
+                printer.show_all(lines)
         finally:
             printer.close()
         return 0

@@ -3,6 +3,8 @@
 On a terminal the progress line is redrawn in place (``\\r`` + clear) under
 the output and shows ``[rollout 3/10]`` after a ``rollout_begin``; into a pipe
 or file every progress message is an ordinary line, so logs stay greppable.
+Lines that arrived together are written together, with one flush: a burst of
+output costs one write per NATS fetch, not one per line.
 """
 
 from __future__ import annotations
@@ -41,26 +43,41 @@ def tail(events: Iterable[Event], count: Optional[int]) -> Iterator[LogLine]:
 
     A finished job's terminal status is kept from the backlog too: it says why the job ended.
     """
+    for batch in tail_batches(([event] for event in events), count):
+        yield from batch
+
+
+def tail_batches(batches: Iterable[list[Event]], count: Optional[int]) -> Iterator[list[LogLine]]:
+    """:func:`tail` over lists of events that arrived together; yields non-empty lists."""
     if count is None:
-        yield from (e for e in events if isinstance(e, LogLine))
+        for batch in batches:
+            lines = [e for e in batch if isinstance(e, LogLine)]
+            if lines:
+                yield lines
         return
     held: deque[LogLine] = deque(maxlen=max(count, 0) or None)
     end: list[LogLine] = []
     backlog = True
-    for event in events:
-        if isinstance(event, CaughtUp):
-            if backlog:
-                yield from [*(held if count > 0 else []), *end]
-            backlog = False
-        elif backlog:
-            if event.kind in ("stdout", "stderr"):
-                held.append(event)
-            elif event.terminal_phase:
-                end[:] = [event]
-        else:
-            yield event
+    for batch in batches:
+        live: list[LogLine] = []
+        for event in batch:
+            if isinstance(event, CaughtUp):
+                if backlog:
+                    live.extend([*(held if count > 0 else []), *end])
+                backlog = False
+            elif backlog:
+                if event.kind in ("stdout", "stderr"):
+                    held.append(event)
+                elif event.terminal_phase:
+                    end[:] = [event]
+            else:
+                live.append(event)
+        if live:
+            yield live
     if backlog:
-        yield from [*(held if count > 0 else []), *end]
+        last = [*(held if count > 0 else []), *end]
+        if last:
+            yield last
 
 
 class LogPrinter:
@@ -72,6 +89,21 @@ class LogPrinter:
         self._progress: Optional[str] = None
 
     def show(self, line: LogLine) -> None:
+        self.show_all([line])
+
+    def show_all(self, lines: Iterable[LogLine]) -> None:
+        """Print ``lines`` in order with one write and one flush."""
+        parts: list[str] = []
+        for line in lines:
+            self._render(line, parts)
+        if parts:
+            self.out.write("".join(parts))
+            self.out.flush()
+
+    def _render(self, line: LogLine, parts: list[str]) -> None:
+        if line.kind in ("stdout", "stderr") and self._progress is None:  # the bulk of a log: the short way
+            parts.append(log_text(line, timestamps=self.timestamps) + "\n")
+            return
         step = rollout_of(line)
         if step is not None:
             self.rollout = step
@@ -82,20 +114,18 @@ class LogPrinter:
                 f"[rollout {step[0]}/{step[1]}]")
             if self.live:
                 self._progress = text
-                self.out.write(f"{_CLEAR}{text}")
-                self.out.flush()
+                parts.append(f"{_CLEAR}{text}")
             else:
                 self._println(log_text(LogLine("progress", f"[progress] {text}", line.time),
-                                       timestamps=self.timestamps))
+                                       timestamps=self.timestamps), parts)
             return
-        self._println(log_text(line, timestamps=self.timestamps))
+        self._println(log_text(line, timestamps=self.timestamps), parts)
 
-    def _println(self, text: str) -> None:
+    def _println(self, text: str, parts: list[str]) -> None:
         if self.live and self._progress is not None:
-            self.out.write(f"{_CLEAR}{text}\n{self._progress}")
+            parts.append(f"{_CLEAR}{text}\n{self._progress}")
         else:
-            self.out.write(text + "\n")
-        self.out.flush()
+            parts.append(text + "\n")
 
     def close(self) -> None:
         if self.live and self._progress is not None:
