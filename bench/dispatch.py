@@ -24,7 +24,7 @@ supervisor's line splitting and classification), and in the ``nats`` mode every
 line goes through ``JobStream.line`` -> ``NatsLink`` -> JetStream, while a
 subscriber in another process (a JetStream ordered consumer from the first
 message, as a client following a job would use) audits what it receives (one
-message per id): every printed line whole, once, in order, or lost, cut into
+message per id, one line or a batch of them): every printed line whole, once, in order, or lost, cut into
 fragments, repeated or late. The ``follow`` mode is the same run without NATS: the baseline
 (``ContainerJob`` reading Podman's k8s-file log file); the ``api`` mode is that
 path with the Docker API's follow instead (the fallback, and the path before).
@@ -376,6 +376,7 @@ def dispatch(args: argparse.Namespace) -> None:
 def subscriber(url: str, subject: str, expected: int, idle_s: float) -> None:
     """Child mode: audit the lines on ``subject`` from the first (one per message id); print one JSON line."""
     import nats
+    from armnet_core.logbatch import split_lines
     from nats.js.api import ConsumerConfig, DeliverPolicy
 
     async def run() -> dict[str, Any]:
@@ -391,9 +392,10 @@ def subscriber(url: str, subject: str, expected: int, idle_s: float) -> None:
             msg_id = (msg.headers or {}).get("Nats-Msg-Id", "")
             if msg_id not in seen:
                 seen.add(msg_id)
-                if audit.feed(msg.data.decode(errors="replace")):
-                    counts["last_at"] = time.time()
-                    counts["first_at"] = counts["first_at"] or counts["last_at"]
+                for _, line in split_lines(msg.data, msg.headers):  # one line, or a batch of them
+                    if audit.feed(line.decode(errors="replace")):
+                        counts["last_at"] = time.time()
+                        counts["first_at"] = counts["first_at"] or counts["last_at"]
                 if len(audit.indices) >= expected:
                     complete.set()
 

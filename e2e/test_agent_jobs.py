@@ -473,11 +473,15 @@ def line_number(progress: str | None) -> int:
 
 
 def stream_lines(url: str | None, subject: str, expected: int) -> list[str]:
-    """Every message stored on ``subject`` of the job log stream, from the first (JetStream replay)."""
+    """Every line stored on ``subject`` of the job log stream, from the first (JetStream replay).
+
+    A message may carry several lines (``armnet_core.logbatch``); ``expected`` counts lines.
+    """
     import asyncio
 
     import nats
     import nats.errors
+    from armnet_core.logbatch import split_lines
     from nats.js.api import ConsumerConfig, DeliverPolicy
 
     assert url is not None
@@ -493,7 +497,7 @@ def stream_lines(url: str | None, subject: str, expected: int) -> list[str]:
                     msg = await sub.next_msg(timeout=10 if len(got) < expected else 1)
                 except nats.errors.TimeoutError:
                     return got
-                got.append(msg.data.decode())
+                got.extend(line.decode() for _, line in split_lines(msg.data, msg.headers))
         finally:
             await nc.close()
 

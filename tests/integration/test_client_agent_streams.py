@@ -20,6 +20,7 @@ from armnet_client.logwire import LogLine
 from armnet_client.viewer import packet_of
 from armnet_runtime.rerun import Entry, Packet, encode_packet
 
+from tests.integration.client_bed import Publisher, stdout_lines
 from tests.testbed.natsd import NatsServer
 
 pytestmark = pytest.mark.integration
@@ -72,3 +73,23 @@ def test_every_line_the_agent_publishes_is_followed_once_in_order_across_a_nats_
     assert [packet_of(x) for x in got if x.kind == "rerun"] == [packet]
     assert got[-1].terminal_phase == "succeeded"
 
+
+
+def test_a_job_an_older_agent_began_in_single_lines_and_a_newer_one_re_published_in_batches_reads_once(
+    nats_server: str,
+) -> None:
+    ns, uid = f"ns-{uuid.uuid4().hex[:6]}", uuid.uuid4().hex
+    Publisher(nats_server, ns, uid).publish(stdout_lines(1, 40))  # one line per message, as before batching
+    link = streams.NatsLink(streams.StreamSettings(url=nats_server))  # the upgraded agent re-adopts the job
+    job = streams.JobStream(link, ns, uid)
+    for i in range(1, 101):  # it re-reads the container log from the start: waiting lines share messages
+        job.line("stdout", i, f"line {i}")
+    job.status("succeeded", {"exitCode": 0})
+    link.start()
+    try:
+        got = [e for e in follow_events(FollowSettings(nats_server), ns, uid) if isinstance(e, LogLine)]
+    finally:
+        link.stop()
+
+    assert [(x.seq, x.text) for x in got if x.kind == "stdout"] == [(i, f"line {i}") for i in range(1, 101)]
+    assert got[-1].terminal_phase == "succeeded"

@@ -1,8 +1,10 @@
 """Job output to JetStream through ``NatsLink``/``JobStream``, against a real nats-server.
 
 A client replays a job's subject from its first line, in order, each line once;
-a re-published line is deduplicated; an outage of the server loses nothing and
-never blocks the publisher.
+lines that wait together share messages (``armnet_core.logbatch``), never
+across kinds, and a line printed alone leaves alone; a re-published line is
+deduplicated; an outage of the server loses nothing and never blocks the
+publisher.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import nats
@@ -24,6 +27,9 @@ from armnet_agent.node.streams import (
     StreamSettings,
     line_msg_id,
 )
+from armnet_client.logstream import FollowSettings, follow_events
+from armnet_client.logwire import LogLine, seq_of
+from armnet_core.logbatch import LINES_HEADER, split_lines
 from nats.js.api import ConsumerConfig, DeliverPolicy
 
 from tests.testbed.natsd import NatsServer
@@ -44,26 +50,53 @@ def wait_for(condition: Callable[[], bool], timeout: float = 30, what: str = "co
         time.sleep(0.02)
 
 
-def replay(url: str, subject: str, expected: int) -> list[tuple[str, str]]:
-    """(msg id, payload) of every stored message on ``subject``, from the first; reads past ``expected``."""
+@dataclass(frozen=True)
+class Stored:
+    """One stored message as a plain subscriber reads it."""
 
-    async def read() -> list[tuple[str, str]]:
+    subject: str
+    msg_id: str
+    headers: dict[str, str]
+    payload: bytes
+
+    @property
+    def lines(self) -> list[tuple[int | None, str]]:
+        """(line number, text) of each line it carries (one, or a batch's)."""
+        return [(seq, data.decode()) for seq, data in split_lines(self.payload, self.headers, seq_of(self.msg_id))]
+
+
+def replay(url: str, subject: str, expected_lines: int) -> list[Stored]:
+    """Every stored message on ``subject``, from the first; reads on a moment past ``expected_lines`` lines."""
+
+    async def read() -> list[Stored]:
         nc = await nats.connect(url)
         try:
             sub = await nc.jetstream().subscribe(
                 subject, ordered_consumer=True, config=ConsumerConfig(deliver_policy=DeliverPolicy.ALL)
             )
-            got: list[tuple[str, str]] = []
+            got: list[Stored] = []
+            lines = 0
             while True:
                 try:
-                    msg = await sub.next_msg(timeout=5 if len(got) < expected else 0.5)
+                    msg = await sub.next_msg(timeout=5 if lines < expected_lines else 0.5)
                 except nats.errors.TimeoutError:
                     return got
-                got.append(((msg.headers or {}).get("Nats-Msg-Id", ""), msg.data.decode()))
+                headers = dict(msg.headers or {})
+                got.append(Stored(msg.subject, headers.get("Nats-Msg-Id", ""), headers, msg.data))
+                lines += len(got[-1].lines)
         finally:
             await nc.close()
 
     return asyncio.run(read())
+
+
+def texts(messages: list[Stored]) -> list[str]:
+    return [text for message in messages for _, text in message.lines]
+
+
+def followed(url: str, namespace: str, job_uid: str) -> list[LogLine]:
+    """What ``armnet logs`` reads of the job: each line once (by its number), in order."""
+    return [e for e in follow_events(FollowSettings(url), namespace, job_uid, follow=False) if isinstance(e, LogLine)]
 
 
 @pytest.fixture
@@ -80,14 +113,103 @@ def test_lines_replay_from_the_first_in_order(link: NatsLink, nats_server: str) 
         job.line("stdout", seq, f"line {seq}")
     wait_for(lambda: link.pending == 0, what="every line acknowledged")
 
-    lines = replay(nats_server, job.subject("stdout"), 300)
+    stored = replay(nats_server, job.subject("stdout"), 300)
 
-    assert [text for _, text in lines] == [f"line {seq}" for seq in range(300)]
-    assert [msg_id for msg_id, _ in lines] == [line_msg_id("job-1", "stdout", seq) for seq in range(300)]
+    assert [line for message in stored for line in message.lines] == [(seq, f"line {seq}") for seq in range(300)]
 
 
-def test_a_line_published_again_with_the_same_seq_is_stored_once(link: NatsLink, nats_server: str) -> None:
-    job = JobStream(link, a_namespace(), "job-2")
+@pytest.fixture
+def waiting_link(nats_server: str) -> Iterator[NatsLink]:
+    """A link not started yet: what is published waits, so the first send finds it all (no timing)."""
+    link = NatsLink(StreamSettings(url=nats_server, batch_max_lines=1000, batch_max_bytes=16 * 1024))
+    yield link
+    link.stop()
+
+
+def test_lines_that_wait_together_share_messages_each_line_once_in_order(
+    waiting_link: NatsLink, nats_server: str
+) -> None:
+    job = JobStream(waiting_link, a_namespace(), "job-batched")
+    for seq in range(1, 2501):
+        job.line("stdout", seq, f"line {seq}")
+    waiting_link.start()
+    wait_for(lambda: waiting_link.pending == 0, what="every line acknowledged")
+
+    stored = replay(nats_server, job.subject("stdout"), 2500)
+
+    assert [line for message in stored for line in message.lines] == [(seq, f"line {seq}") for seq in range(1, 2501)]
+    assert [(m.headers[LINES_HEADER], m.msg_id) for m in stored] == [
+        ("1000", "job-batched:stdout:1-1000"), ("1000", "job-batched:stdout:1001-2000"),
+        ("500", "job-batched:stdout:2001-2500")]
+    assert waiting_link.published == 2500, "counted in lines"
+
+
+def test_a_line_longer_than_a_batch_travels_alone_between_its_neighbours(
+    waiting_link: NatsLink, nats_server: str
+) -> None:
+    job = JobStream(waiting_link, a_namespace(), "job-long-line")
+    long = "y" * (20 * 1024)  # over batch_max_bytes (16 KiB), under the line limit
+    for seq, text in enumerate(["a", "b", long, "c", "d"], start=1):
+        job.line("stdout", seq, text)
+    waiting_link.start()
+    wait_for(lambda: waiting_link.pending == 0, what="every line acknowledged")
+
+    stored = replay(nats_server, job.subject("stdout"), 5)
+
+    assert [m.lines for m in stored] == [[(1, "a"), (2, "b")], [(3, long)], [(4, "c"), (5, "d")]]
+    assert LINES_HEADER not in stored[1].headers and stored[1].msg_id == line_msg_id("job-long-line", "stdout", 3)
+
+
+def test_stdout_and_stderr_keep_their_interleaving(waiting_link: NatsLink, nats_server: str) -> None:
+    namespace = a_namespace()
+    job = JobStream(waiting_link, namespace, "job-mixed")
+    printed = [("stdout", 1, "o1"), ("stdout", 2, "o2"), ("stderr", 1, "e1"), ("stdout", 3, "o3"),
+               ("stderr", 2, "e2"), ("stderr", 3, "e3"), ("progress", 1, "half"), ("stdout", 4, "o4")]
+    for kind, seq, text in printed:
+        job.line(kind, seq, text)
+    waiting_link.start()
+    wait_for(lambda: waiting_link.pending == 0, what="every line acknowledged")
+
+    stored = replay(nats_server, f"logs.{namespace}.job-mixed.>", len(printed))
+
+    assert [(m.subject.rsplit(".", 1)[-1], seq, text) for m in stored for seq, text in m.lines] == printed
+    assert len(stored) == 6, "consecutive lines of one kind share a message; a change of kind starts another"
+
+
+def test_the_last_lines_of_a_burst_are_sent_with_nothing_after_them(link: NatsLink, nats_server: str) -> None:
+    job = JobStream(link, a_namespace(), "job-tail")
+    for seq in range(1, 1501):  # a burst that ends mid-batch, then silence (no status, no more lines)
+        job.line("stdout", seq, f"line {seq}")
+    wait_for(lambda: link.pending == 0, what="every line acknowledged")
+
+    assert texts(replay(nats_server, job.subject("stdout"), 1500)) == [f"line {seq}" for seq in range(1, 1501)]
+
+
+def test_a_line_printed_alone_leaves_alone_in_the_single_line_format(link: NatsLink, nats_server: str) -> None:
+    job = JobStream(link, a_namespace(), "job-quiet")
+    job.line("stdout", 1, "hello")
+    wait_for(lambda: link.pending == 0, what="the line acknowledged")
+
+    (stored,) = replay(nats_server, job.subject("stdout"), 1)
+
+    assert (stored.payload, stored.msg_id, LINES_HEADER in stored.headers) == (b"hello", "job-quiet:stdout:1", False)
+
+
+def test_a_line_with_a_newline_in_it_is_never_joined(waiting_link: NatsLink, nats_server: str) -> None:
+    job = JobStream(waiting_link, a_namespace(), "job-newline")
+    for seq, text in enumerate(["a", "two\nparts", "b"], start=1):
+        job.line("stdout", seq, text)
+    waiting_link.start()
+    wait_for(lambda: waiting_link.pending == 0, what="every line acknowledged")
+
+    stored = replay(nats_server, job.subject("stdout"), 3)
+
+    assert [m.lines for m in stored] == [[(1, "a")], [(2, "two\nparts")], [(3, "b")]]
+
+
+def test_a_line_published_again_with_the_same_seq_is_read_once(link: NatsLink, nats_server: str) -> None:
+    namespace = a_namespace()
+    job = JobStream(link, namespace, "job-2")
     for seq in range(5):
         job.line("stderr", seq, f"err {seq}")
     for seq in range(5):  # a re-adopted job re-reads its container log from the start
@@ -95,9 +217,8 @@ def test_a_line_published_again_with_the_same_seq_is_stored_once(link: NatsLink,
     job.line("stderr", 5, "err 5")
     wait_for(lambda: link.pending == 0, what="every line acknowledged")
 
-    lines = replay(nats_server, job.subject("stderr"), 6)
-
-    assert [text for _, text in lines] == [f"err {seq}" for seq in range(6)]
+    assert [(x.seq, x.text) for x in followed(nats_server, namespace, "job-2")] == [
+        (seq, f"err {seq}") for seq in range(6)]
 
 
 def test_status_transitions_go_to_the_status_subject_once_per_phase(link: NatsLink, nats_server: str) -> None:
@@ -109,8 +230,8 @@ def test_status_transitions_go_to_the_status_subject_once_per_phase(link: NatsLi
 
     statuses = replay(nats_server, job.subject("status"), 2)
 
-    assert [msg_id for msg_id, _ in statuses] == ["job-3:status:running", "job-3:status:succeeded"]
-    assert '"phase":"succeeded"' in statuses[1][1] and '"exitCode":0' in statuses[1][1]
+    assert [m.msg_id for m in statuses] == ["job-3:status:running", "job-3:status:succeeded"]
+    assert b'"phase":"succeeded"' in statuses[1].payload and b'"exitCode":0' in statuses[1].payload
 
 
 def test_an_outage_of_the_server_loses_no_line_and_duplicates_none(
@@ -137,10 +258,10 @@ def test_an_outage_of_the_server_loses_no_line_and_duplicates_none(
     finally:
         link.stop()
 
-    lines = replay(nats_service.url, job.subject("stdout"), 1200)
+    stored = replay(nats_service.url, job.subject("stdout"), 1200)
 
     expected = [f"before {seq}" for seq in range(200)] + [f"during {seq}" for seq in range(200, 1200)]
-    assert [text for _, text in lines] == expected
+    assert texts(stored) == expected, "every line once: a resend repeats the message it resends, and is dropped"
     assert link.dropped == 0
     assert not any((tmp_path / "spool").glob("*.seg")), "a drained spool leaves no file behind"
 
@@ -178,14 +299,14 @@ def test_an_overlong_line_is_cut_with_a_notice_and_a_rerun_packet_is_sent_as_byt
     job.line("rerun", 0, b"\x00\x01packet")
     wait_for(lambda: link.pending == 0, what="the lines acknowledged")
 
-    (_, text), = replay(nats_server, job.subject("stdout"), 1)
-    (_, packet), = replay(nats_server, job.subject("rerun"), 1)
+    (text,) = texts(replay(nats_server, job.subject("stdout"), 1))
+    (packet,) = replay(nats_server, job.subject("rerun"), 1)
 
     assert text == "x" * MAX_LINE_BYTES + " ... [armnet: line cut, 10 bytes dropped]"
-    assert packet == "\x00\x01packet"
+    assert packet.payload == b"\x00\x01packet"
 
 
-def test_a_restarted_agent_re_publishing_a_job_from_its_first_line_stores_each_line_once(
+def test_a_restarted_agent_re_publishing_a_job_from_its_first_line_is_read_once_per_line(
     nats_server: str, tmp_path: Path
 ) -> None:
     namespace = a_namespace()
@@ -205,5 +326,7 @@ def test_a_restarted_agent_re_publishing_a_job_from_its_first_line_stores_each_l
     finally:
         second.stop()
 
-    lines = replay(nats_server, job.subject("stdout"), 80)
-    assert [text for _, text in lines] == [f"line {seq}" for seq in range(80)]
+    # The lines are cut into messages as they waited, so JetStream may keep a re-published
+    # line twice; a reader drops a line whose number it has delivered (docs/streams.md).
+    assert [(x.seq, x.text) for x in followed(nats_server, namespace, "job-readopted")] == [
+        (seq, f"line {seq}") for seq in range(80)]

@@ -27,14 +27,14 @@ class StreamsCollector(Collector):
                                 "1 while the agent is connected to NATS and its stream is in place",
                                 value=1.0 if link.connected else 0.0)
         yield CounterMetricFamily("armnet_agent_nats_published",
-                                  "Messages JetStream acknowledged (resent duplicates it dropped included)", value=link.published)
+                                  "Lines (and status messages) JetStream acknowledged; resent duplicates it dropped included", value=link.published)
         yield CounterMetricFamily("armnet_agent_nats_dropped",
-                                  "Messages lost: outbox and spool full, too large, refused, or unsent at stop",
+                                  "Lines (and status messages) lost: outbox and spool full, too large, refused, or unsent at stop",
                                   value=link.dropped)
         yield CounterMetricFamily("armnet_agent_nats_spooled",
-                                  "Messages written to the disk spool while NATS was down or behind",
+                                  "Lines (and status messages) written to the disk spool while NATS was down or behind",
                                   value=link.spooled)
-        yield GaugeMetricFamily("armnet_agent_nats_pending", "Messages waiting to be sent (memory and spool)",
+        yield GaugeMetricFamily("armnet_agent_nats_pending", "Lines (and status messages) waiting to be sent (memory and spool)",
                                 value=link.pending)
         counts = link.input_counts
         inputs = CounterMetricFamily("armnet_agent_operator_inputs",

@@ -6,9 +6,10 @@ message in an :class:`~armnet_agent.node.stream_outbox.Outbox` (memory, then a
 bounded disk spool) and returns. A sender task publishes in order with the
 message's ``Nats-Msg-Id``, keeps a message until JetStream acknowledged it, and
 resends from the first unacknowledged one after an outage; the stream's
-duplicate window makes those resends idempotent. :class:`JobStream` names one
-job's subjects and message ids. Subjects and payloads are described in
-docs/streams.md.
+duplicate window makes those resends idempotent. Output lines that wait
+together are sent together, several to a message (``armnet_core.logbatch``;
+the outbox joins them). :class:`JobStream` names one job's subjects and
+message ids. Subjects and payloads are described in docs/streams.md.
 
 This module never raises into a caller's publish, and never blocks a job.
 """
@@ -26,13 +27,17 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from armnet_core.logbatch import batch_headers
+
 from armnet_agent.connector.ratelog import RateLimitedLog
 
-from .stream_outbox import Outbox, OutMessage
+from .stream_outbox import BatchLimits, Outbox, OutMessage
 
 log = logging.getLogger(__name__)
 
 LOG_KINDS = ("stdout", "stderr", "progress", "rerun")
+TEXT_KINDS = frozenset({"stdout", "stderr", "progress"})
+"""Kinds whose lines may share a message (a Rerun packet is binary: always alone)."""
 MAX_LINE_BYTES = 64 * 1024
 """A stdout/stderr/progress line longer than this is cut (the tail is dropped, with a notice)."""
 MAX_MESSAGE_BYTES = 1000 * 1024
@@ -60,6 +65,12 @@ class StreamSettings:
     ack_timeout_s: float = 5.0
     window: int = 512
     """How many messages are sent before waiting for their JetStream acks."""
+    window_bytes: int = 4 << 20
+    """A window also ends past this many bytes, so a slow link acks it within ``ack_timeout_s``."""
+    batch_max_lines: int = 1000
+    """At most this many output lines share one message (1: one line per message, as before batching)."""
+    batch_max_bytes: int = 64 * 1024
+    """At most this many payload bytes in a message of several lines (a longer line goes alone)."""
     ack_every: int = 64
     """One message in this many (and the last of a window) asks for an ack that vouches for those before it."""
 
@@ -137,7 +148,8 @@ class NatsLink:
 
     def __init__(self, settings: StreamSettings) -> None:
         self.settings = settings
-        self._outbox = Outbox(settings.memory_max_bytes, settings.spool_dir, settings.spool_max_bytes)
+        self._outbox = Outbox(settings.memory_max_bytes, settings.spool_dir, settings.spool_max_bytes,
+                              BatchLimits(settings.batch_max_lines, settings.batch_max_bytes))
         self._subscriptions: list[Subscription] = []
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -184,14 +196,18 @@ class NatsLink:
             self._thread.start()
         return self
 
-    def publish(self, subject: str, payload: bytes, msg_id: str) -> None:
-        """Queue one message for JetStream; never blocks, never raises (a full queue drops and counts)."""
+    def publish(self, subject: str, payload: bytes, msg_id: str, line_seq: int | None = None) -> None:
+        """Queue one message for JetStream; never blocks, never raises (a full queue drops and counts).
+
+        ``line_seq``: the message is output line number ``line_seq`` (no ``\\n`` in it), which
+        may share a message with the lines next to it.
+        """
         if not self.enabled:
             return
         if self._stopping:
             self._refuse(f"a message on {subject} after the link stopped")
             return
-        message = OutMessage(subject, payload, msg_id)
+        message = OutMessage(subject, payload, msg_id, line_seq)
         if message.size > MAX_MESSAGE_BYTES:
             self._refuse(f"a {message.size}-byte message on {subject} (over {MAX_MESSAGE_BYTES} bytes)")
             return
@@ -240,8 +256,8 @@ class NatsLink:
             log.warning("NATS link stopped with %d messages unsent; they are dropped", left)
         self._thread = None
 
-    def _refuse(self, what: str) -> None:
-        self.refused += 1
+    def _refuse(self, what: str, lines: int = 1) -> None:
+        self.refused += lines
         self._refused_log.warning("NATS: dropped %s", what)
 
     def _kick(self) -> None:
@@ -411,7 +427,7 @@ class NatsLink:
                 await self._sleep(delay)
                 delay = min(delay * 2, self.settings.max_backoff_s)
                 continue
-            batch = self._outbox.peek(self.settings.window)
+            batch = self._outbox.peek(self.settings.window, self.settings.window_bytes)
             if not batch:
                 self._sender_idle = True
                 if not len(self._outbox):
@@ -428,7 +444,8 @@ class NatsLink:
         the server stores one connection's messages to a stream in order, so an ack
         for message k vouches for those before it (an ack per message costs the
         Python client several times the throughput). Whatever is not vouched for is
-        resent, and the duplicate window drops what was stored already.
+        resent, and the duplicate window drops what was stored already. Counts are
+        in lines: a message of several lines counts each.
         """
         from nats.js.errors import APIError, NoStreamResponseError
 
@@ -436,6 +453,8 @@ class NatsLink:
         acks: list[tuple[int, asyncio.Future[Any]]] = []
         for index, message in enumerate(batch):
             headers = {"Nats-Msg-Id": message.msg_id}
+            if message.lines > 1 and message.seq is not None:
+                headers.update(batch_headers(message.seq, message.lines))
             try:
                 if index == len(batch) - 1 or (index + 1) % every == 0:
                     acks.append((index, await js.publish_async(message.subject, message.payload, headers=headers)))
@@ -459,10 +478,11 @@ class NatsLink:
                 healthy = False
                 break
             if error is None:
-                self.published += index + 1 - done
+                self.published += sum(m.lines for m in batch[done:index + 1])
             else:
-                self.published += index - done
-                self._refuse(f"a message on {batch[index].subject}: JetStream refused it ({error})")
+                self.published += sum(m.lines for m in batch[done:index])
+                self._refuse(f"a message on {batch[index].subject}: JetStream refused it ({error})",
+                             batch[index].lines)
             done = index + 1
         for _, future in acks:
             if not future.done():
@@ -500,12 +520,18 @@ class JobStream:
         return self._subjects[kind]
 
     def line(self, kind: str, seq: int, text: str | bytes) -> None:
-        """Publish one output line (``bytes`` for a Rerun packet, published as is)."""
+        """Publish one output line (``bytes`` for a Rerun packet, published as is).
+
+        Text lines may share a message with their neighbours of the same kind
+        (docs/streams.md); a line with a ``\\n`` in it always goes alone, so
+        readers split batches exactly.
+        """
         subject = self._subjects.get(kind)
         if subject is None or kind == "status":
             raise ValueError(f"unknown output kind {kind!r}; one of {', '.join(LOG_KINDS)}")
         payload = text if isinstance(text, bytes) else _cut(text)
-        self.link.publish(subject, payload, line_msg_id(self.job_uid, kind, seq))
+        joinable = kind in TEXT_KINDS and b"\n" not in payload
+        self.link.publish(subject, payload, line_msg_id(self.job_uid, kind, seq), seq if joinable else None)
 
     def status(self, phase: str, detail: dict[str, Any]) -> None:
         """Publish a status transition; one message per phase (a repeat of a phase is deduplicated)."""
