@@ -17,6 +17,8 @@ from armnet_runtime.markers import (
     parse_marker_line,
 )
 from armnet_runtime.streams import TimestampedStream
+from hypothesis import given
+from hypothesis import strategies as st
 
 pytestmark = pytest.mark.unit
 
@@ -154,3 +156,29 @@ def test_concurrent_writers_keep_every_marker_parseable() -> None:
     assert all(m is not None and m.timestamp is not None for m in parsed)
     progress_lines = [m.payload for m in parsed if m is not None and m.kind == "progress"]
     assert progress_lines == [f"0-{i}" for i in range(200)]
+
+
+def _by_the_pattern(line: str) -> tuple[object, str]:
+    match = markers._TIMESTAMP_RE.match(line)
+    if match is None:
+        return None, line
+    try:
+        return datetime.fromisoformat(match.group(1).replace("Z", "+00:00")), line[match.end():]
+    except ValueError:
+        return None, line
+
+
+@pytest.mark.parametrize("line", [
+    "2026-11-24T10:00:00.250000Z hello", "2026-11-24T10:00:00.250000Z ", "2026-11-24T10:00:00.250000Zhello",
+    "2026-11-24T10:00:00Z hello", "2026-11-24T10:00:00.25+01:00 hello", "2026-13-24T10:00:00.250000Z bad month",
+    "2026-11-24 10:00:00.250000Z no T", "2026-11-24T10:00:00.25000xZ x", "٢٠٢٦-11-24T10:00:00.250000Z arabic digits",
+    "+026-11-24T10:00:00.250000Z sign", "2026-11-24T10:00:00,250000Z comma", "plain text", "",
+])
+def test_the_fixed_width_prefix_is_read_as_the_pattern_reads_it(line: str) -> None:
+    assert markers.split_timestamp(line) == _by_the_pattern(line)
+
+
+@given(st.datetimes(min_value=datetime(1970, 1, 2), max_value=datetime(9998, 1, 1)), st.text(max_size=20))
+def test_every_formatted_timestamp_splits_back_off_its_line(moment: datetime, rest: str) -> None:
+    utc = moment.replace(tzinfo=UTC)
+    assert markers.split_timestamp(f"{markers.format_timestamp(utc)} {rest}") == (utc, rest)
