@@ -3,14 +3,15 @@
 Each image's build context holds two wheel folders, so the Containerfiles install
 offline and the big layer is built once:
 
-- ``deps/``: a locked dependency set (``deps/requirements.txt``, one ``name==version``
-  per wheel in the folder), cached under ~/.cache/armnet/wheelhouse by a hash of the
-  pyproject files. Three locks: ``runtime`` (the SDK's closure), ``platform`` (the
-  operator's: the root distribution's closure) and ``lerobot`` (the platform lock plus
-  ``armnet-runtime[lerobot]`` and LeRobot 0.4.4; torch 2.13.0 from PyPI, a CUDA build
-  that also runs on CPU, ~5 GB installed). The agent image and the runtime image's
-  LeRobot variant use the same ``lerobot`` lock, so their dependency layer is one layer
-  on a robot host.
+- ``deps/``: the wheels of one committed lock, lock/<name>.txt (``deps/requirements.txt``,
+  one ``name==version`` per wheel in the folder), fetched hash-checked and cached under
+  ~/.cache/armnet/wheelhouse by the lock file's hash. Three locks, each compiled with the
+  developer venv's lock as constraints (scripts/lock.sh), so an image holds the venv's
+  versions: ``runtime`` (the SDK's closure), ``platform`` (the operator's: the root
+  distribution's closure) and ``lerobot`` (the platform plus ``armnet-runtime[lerobot]``,
+  LeRobot 0.4.4 with its dependencies; torch 2.13.0, a CUDA build that also runs on CPU,
+  ~5 GB installed). The agent image and the runtime image's LeRobot variant use the same
+  ``lerobot`` lock, so their dependency layer is one layer on a robot host.
 - ``wheels/``: this repository's own wheels, rebuilt every time (small).
 
 ``ensure_image`` tags each build with a hash of everything that goes into it (the
@@ -36,10 +37,9 @@ from pathlib import Path
 from typing import Any
 
 from tests.testbed.images import BASE_IMAGE, REPO_ROOT, WHEEL_CACHE, build_wheels
+from tests.testbed.lockfile import lock_file
 from tests.testbed.procs import progress
 
-TORCH_PIN = "torch==2.13.0"
-LEROBOT_PIN = "lerobot==0.4.4"
 HASH_LABEL = "armnet.io/content-hash"
 # Sources of our two wheels; a change in any of them is a new image. README.md goes into the
 # root wheel's metadata only (its long description), so an edit there rebuilds nothing.
@@ -72,11 +72,9 @@ ALL = {spec.name: spec for spec in (RUNTIME, RUNTIME_LEROBOT, OPERATOR, AGENT)}
 
 # ---------------------------------------------------------------------- locks
 def _lock_digest(lock: str) -> str:
-    """What decides a lock's content: the pyproject files, Python, and the lerobot pins."""
-    digest = hashlib.sha256()
-    for f in (REPO_ROOT / "pyproject.toml", REPO_ROOT / "runtime" / "pyproject.toml"):
-        digest.update(f.read_bytes())
-    digest.update(f"{sys.version_info[:2]} {TORCH_PIN} {LEROBOT_PIN}".encode())
+    """What decides a lock's wheel folder: the lock file (pins and hashes) and the Python it is for."""
+    digest = hashlib.sha256(lock_file(lock).read_bytes())
+    digest.update(f"{sys.version_info[:2]}".encode())
     return digest.hexdigest()[:16]
 
 
@@ -87,8 +85,13 @@ def _pip(*args: str) -> None:
         raise RuntimeError(f"{' '.join(argv)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}")
 
 
-def lock_dir(lock: str, own_wheels: Sequence[Path]) -> Path:
-    """The wheel folder of ``lock`` with its requirements.txt; built once (network: PyPI)."""
+def lock_dir(lock: str) -> Path:
+    """The wheel folder of lock/<lock>.txt with its requirements.txt; built once (network: PyPI).
+
+    Every file is checked against the lock's hashes as it is downloaded (``--require-hashes``);
+    the two dependencies published only as source (feetech-servo-sdk, evdev) are built into
+    wheels here from their hash-checked archives, so the image builds compile nothing.
+    """
     house = WHEEL_CACHE / f"lock-{lock}-{_lock_digest(lock)}"
     stamp = house / ".complete"
     if stamp.exists():
@@ -97,19 +100,7 @@ def lock_dir(lock: str, own_wheels: Sequence[Path]) -> Path:
     progress(f"building the {lock} dependency lock {house} (cold: minutes; lerobot: ~4 GB)")
     shutil.rmtree(house, ignore_errors=True)
     house.mkdir(parents=True)
-    constraints = house / ".constraints.txt"
-    constraints.write_text(TORCH_PIN + "\n")
-    runtime = next(w for w in own_wheels if w.name.startswith("armnet_runtime-"))
-    platform = [w for w in own_wheels if not w.name.startswith("armnet_runtime-")]
-    wanted = {"runtime": [str(runtime)],
-              "platform": [str(runtime), *map(str, platform)],
-              "lerobot": [f"{runtime}[lerobot]", *map(str, platform)]}[lock]
-    links = str(runtime.parent)
-    _pip("wheel", "-w", str(house), "--find-links", links, "-c", str(constraints), *wanted)
-    if lock == "lerobot":  # LeRobot pins torch<2.11: its own deps come from the extra above
-        _pip("wheel", "-w", str(house), "--no-deps", LEROBOT_PIN)
-    for own in own_wheels:  # ours are rebuilt for every image; the lock holds dependencies only
-        (house / own.name).unlink(missing_ok=True)
+    _pip("wheel", "-w", str(house), "--require-hashes", "--no-deps", "-r", str(lock_file(lock)))
     (house / "requirements.txt").write_text("".join(
         f"{requirement(wheel)}\n" for wheel in sorted(house.glob("*.whl"))))
     stamp.touch()
@@ -189,7 +180,7 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
         shutil.copytree(REPO_ROOT / spec.containerfile_dir, context)
         own = [w for w in build_wheels(Path(tmp) / "all-wheels")
                if any(w.name.startswith(prefix + "-") for prefix in spec.own)]
-        house = lock_dir(spec.lock, own)
+        house = lock_dir(spec.lock)
         _link_all((context / "deps"), [*house.glob("*.whl"), house / "requirements.txt"])
         _link_all(context / "wheels", own)
         labels = {"VERSION": version, "REVISION": _revision(),
