@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import pip
 import pytest
 
 from tests.images.conftest import run_image
 from tests.testbed.images import REPO_ROOT
+from tests.testbed.lockfile import OVERRIDES, overridden, unexcused
 from tests.testbed.plugin import Podman
 
 pytestmark = [pytest.mark.container, pytest.mark.timeout(1800)]
@@ -119,3 +122,20 @@ def test_no_image_ships_pip_or_wheel_in_its_venv_or_a_compiler(
     assert code == 0, output
     assert output.strip().split(maxsplit=1) == ["/opt/armnet/venv", "True []"]
 
+
+
+@pytest.mark.parametrize("fixture", ["runtime_image", "runtime_lerobot_image", "operator_image",
+                                     "agent_image"])
+def test_pip_check_in_every_image_finds_no_conflict_but_the_declared_exceptions(
+        podman: Podman, fixture: str, request: pytest.FixtureRequest) -> None:
+    """The images ship no pip: this session's pip is mounted read-only and run by the image's Python."""
+    image = request.getfixturevalue(fixture)
+    script = ("import sys; sys.path.insert(0, '/opt/pipcheck'); "
+              "from pip._internal.cli.main import main; sys.exit(main(['check']))")
+    code, output = run_image(
+        podman, image, entrypoint=["python", "-c", script],
+        environment={"PIP_DISABLE_PIP_VERSION_CHECK": "1"},
+        volumes={str(Path(pip.__file__).parent): {"bind": "/opt/pipcheck/pip", "mode": "ro"}})
+
+    assert code in (0, 1), output  # 1: pip found conflicts, which must all be declared ones
+    assert unexcused(output, overridden(OVERRIDES.read_text())) == []
