@@ -10,8 +10,8 @@ A ``create`` that arrives mid-import waits on Python's per-module import lock
 for the rest of it, never imports twice, and an import that fails here fails
 again, with its real error, in the request that needs it.
 
-Some of those imports edit the process environment: numpy's first import sets
-``OPENBLAS_MAIN_FREE`` and deletes it again. Done in this thread while another
+Some of those imports edit the process environment: numpy's first import (before
+2.4, which uses ``putenv`` instead) sets ``OPENBLAS_MAIN_FREE`` and deletes it again. Done in this thread while another
 thread walks ``os.environ`` (``requests`` reads proxy settings from it on every
 Docker API call), the walk meets a key that is gone: a job failed to launch with
 ``KeyError: 'OPENBLAS_MAIN_FREE'``. So every process that starts a connector calls

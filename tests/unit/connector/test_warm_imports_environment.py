@@ -6,7 +6,10 @@ agent that import ran in the warm-imports thread while another thread walked
 and a job failed to launch with ``KeyError: 'OPENBLAS_MAIN_FREE'``. Each case runs
 in a fresh interpreter (numpy is imported once per process), with the
 environment's store replaced by one that records deletions, so the hazard shows
-deterministically instead of in one CI run of fifteen.
+deterministically instead of in one CI run of fifteen. numpy 2.4 (the lock's) sets
+and unsets that key with ``putenv`` instead of through ``os.environ`` (numpy
+gh-30627), so its import no longer deletes anything: the guard stays for numpy
+releases before 2.4 and any other module that edits the environment.
 """
 
 from __future__ import annotations
@@ -43,16 +46,29 @@ def run_fresh(body: str) -> str:
     return done.stdout.strip()
 
 
-def test_without_it_a_threaded_numpy_import_deletes_a_key_from_the_environment() -> None:
-    """The hazard itself: shows the recorder sees what broke the launch."""
+def test_the_recorder_sees_a_key_another_thread_deletes_from_the_environment() -> None:
+    """What broke the launch, made on purpose: the recorder must see it, or the test below proves nothing."""
     out = run_fresh(
         """
-        thread = threading.Thread(target=lambda: __import__("numpy"))
+        os.environ["ARMNET_PROBE_MAIN_FREE"] = "1"
+        thread = threading.Thread(target=lambda: os.environ.pop("ARMNET_PROBE_MAIN_FREE"))
         thread.start(); thread.join()
         print(",".join(Recording.deleted))
         """
     )
-    assert "OPENBLAS_MAIN_FREE" in out.split(",")
+    assert out.split(",") == ["ARMNET_PROBE_MAIN_FREE"]
+
+
+def test_the_locked_numpy_import_in_a_thread_deletes_no_key_from_the_environment() -> None:
+    """numpy >= 2.4 edits the environment with putenv only; an older numpy would fail this."""
+    out = run_fresh(
+        """
+        thread = threading.Thread(target=lambda: __import__("numpy"))
+        thread.start(); thread.join()
+        print(",".join(Recording.deleted) or "-")
+        """
+    )
+    assert out == "-"
 
 
 def test_after_it_the_warm_imports_thread_deletes_nothing_while_the_main_thread_walks_the_environment() -> None:
