@@ -26,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     up.add_argument("--no-node", action="store_true",
                     help="do not start the node (containerd + kubelet; needs root, changes "
                          "host sysctls/cgroups until Ctrl-C, holds the host's node lock)")
+    up.add_argument("--no-controllers", action="store_true",
+                    help="with the node, do not start kube-controller-manager and kube-scheduler "
+                         "(without them a Deployment or DaemonSet, e.g. the Helm chart's, makes no pods)")
     up.add_argument("--no-nats", action="store_true", help="do not start nats-server")
     up.add_argument("--no-podman", action="store_true", help="do not start the Podman API service")
     up.add_argument("--repo", type=Path, default=None,
@@ -95,6 +98,11 @@ def _start_all(testbed: Any, args: argparse.Namespace, stack: contextlib.ExitSta
             lines.append(f"# images on the node: {', '.join(node.images)}; more: "
                          f"ctr --address {node.socket} -n k8s.io images import <podman save archive>")
             lines.append(f"# kubelet log: {node.kubelet_log}")
+            lines.append(f"# kubelet root dir (the chart's agent.kubeletRootDir): {node.kubelet_root_dir}")
+            if not args.no_controllers:
+                stack.enter_context(testbed.WorkloadControllers(plane=plane))
+                lines.append("# kube-controller-manager and kube-scheduler are running: Deployments and "
+                             "DaemonSets (the Helm chart's) make pods on the node")
     if not args.no_nats:
         nats = stack.enter_context(testbed.NatsServer())
         lines.append(f"export NATS_URL={nats.url}")

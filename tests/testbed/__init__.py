@@ -6,6 +6,7 @@ directories, and stops and removes them again. Used by the pytest plugin
 missing binary raises :class:`TestbedSetupError` naming ``scripts/setup.sh``.
 """
 
+from tests.testbed.controllers import WorkloadControllers
 from tests.testbed.errors import TestbedSetupError
 from tests.testbed.images import BASE_IMAGE, build_wheels, require_base_image
 from tests.testbed.kube import ControlPlane, KubeUser
@@ -21,6 +22,7 @@ __all__ = [
     "Node",
     "PodmanService",
     "TestbedSetupError",
+    "WorkloadControllers",
     "build_wheels",
     "require_base_image",
 ]

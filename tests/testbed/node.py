@@ -466,7 +466,7 @@ class Node:
         self.kubelet_log = w / "kubelet.log"
         kubelet_proc = ManagedProcess("kubelet", [
             kubelet, f"--config={w / 'kubelet.yaml'}", f"--kubeconfig={kubeconfig}",
-            f"--root-dir={w / 'kubelet'}", f"--hostname-override={self.name}",
+            f"--root-dir={self.kubelet_root_dir}", f"--hostname-override={self.name}",
             f"--node-ip={self.node_ip}", "--v=1",
         ], self.kubelet_log)
         self._track(kubelet_proc)
@@ -525,6 +525,12 @@ class Node:
                    interval=0.2, what="the restarted kubelet's device-plugin socket", alive=proc.ensure_running)
 
     # ------------------------------------------------------------------ images
+    @property
+    def kubelet_root_dir(self) -> Path:
+        """The kubelet's ``--root-dir`` (the chart's ``agent.kubeletRootDir`` on this node)."""
+        assert self.workdir is not None
+        return self.workdir / "kubelet"
+
     def import_image(self, image: str) -> bool:
         """Make a Podman image available to pods (``imagePullPolicy: Never``), same name.
 

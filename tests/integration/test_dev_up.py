@@ -1,0 +1,107 @@
+"""``armnet dev up`` gives what docs/helm.md's install on the test bed needs, with nothing
+started by hand: a control plane, a Ready node, kube-controller-manager and
+kube-scheduler (a Deployment makes a pod that is scheduled and runs), the kubelet's
+root dir for ``agent.kubeletRootDir``, and ``NATS_URL``. Ctrl-C stops it all.
+
+The real command in its own process; its printed lines are what a user pastes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.testbed.images import BASE_IMAGE
+
+pytestmark = [pytest.mark.node, pytest.mark.integration, pytest.mark.timeout(600)]
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def dev_up() -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armnet_cli.main", "dev", "up", "--no-podman", "--repo", str(REPO)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )
+    assert proc.stdout is not None
+    lines: list[str] = []
+    for line in proc.stdout:  # the node waits for the host-wide lock if another test bed holds it
+        lines.append(line.rstrip("\n"))
+        if line.startswith("# Ctrl-C stops everything"):
+            break
+    else:
+        pytest.fail("armnet dev up ended before it was up:\n" + "\n".join(lines[-40:]))
+    try:
+        yield proc, lines
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=120)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+
+def printed(lines: list[str], pattern: str) -> str:
+    for line in lines:
+        found = re.search(pattern, line)
+        if found:
+            return found.group(1)
+    raise AssertionError(f"no line matches {pattern!r}:\n" + "\n".join(lines))
+
+
+def kubectl(lines: list[str], *args: str, stdin: str | None = None) -> str:
+    env = {**os.environ, "KUBECONFIG": printed(lines, r"^export KUBECONFIG=(\S+)")}
+    tools = printed(lines, r"^export PATH=([^:\s]+):")
+    done = subprocess.run([str(Path(tools) / "kubectl"), *args], input=stdin, capture_output=True,
+                          text=True, env=env, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_dev_up_prints_the_nats_url_and_the_kubelet_root_dir(dev_up) -> None:
+    _proc, lines = dev_up
+    assert printed(lines, r"^export NATS_URL=(nats://127\.0\.0\.1:\d+)$")
+    root = Path(printed(lines, r"agent\.kubeletRootDir\): (\S+)$"))
+    assert (root / "pods").is_dir()  # the kubelet keeps its pods there: the agent mounts <root>/pods
+
+
+def test_a_deployment_on_dev_up_makes_a_pod_that_runs_on_its_node(dev_up) -> None:
+    _proc, lines = dev_up
+    assert any("kube-controller-manager and kube-scheduler are running" in line for line in lines)
+    deployment = {
+        "apiVersion": "apps/v1", "kind": "Deployment",
+        "metadata": {"name": "sleeper", "namespace": "default"},
+        "spec": {"replicas": 1, "selector": {"matchLabels": {"app": "sleeper"}}, "template": {
+            "metadata": {"labels": {"app": "sleeper"}},
+            "spec": {"dnsPolicy": "Default", "containers": [{
+                "name": "sleep", "image": BASE_IMAGE, "imagePullPolicy": "Never",
+                "command": ["sleep", "3600"]}]}}},
+    }
+    kubectl(lines, "apply", "-f", "-", stdin=json.dumps(deployment))
+    deadline = time.monotonic() + 180
+    pods: list[dict[str, object]] = []
+    while time.monotonic() < deadline:
+        pods = json.loads(kubectl(lines, "get", "pods", "-n", "default", "-l", "app=sleeper", "-o", "json"))["items"]
+        if any(p.get("status", {}).get("phase") == "Running" for p in pods):  # type: ignore[union-attr]
+            break
+        time.sleep(1)
+    assert any(p.get("status", {}).get("phase") == "Running" for p in pods), pods  # type: ignore[union-attr]
+    kubectl(lines, "delete", "deployment", "sleeper", "-n", "default", "--wait=false")
+
+
+def test_ctrl_c_stops_dev_up(dev_up) -> None:
+    proc, _lines = dev_up
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=120) == 0
