@@ -41,6 +41,7 @@ from tests.testbed.lockfile import lock_file
 from tests.testbed.procs import progress
 
 HASH_LABEL = "armnet.io/content-hash"
+LOCK_LABEL = "armnet.io/lock"
 # Sources of our two wheels; a change in any of them is a new image. README.md goes into the
 # root wheel's metadata only (its long description), so an edit there rebuilds nothing.
 RUNTIME_SOURCES = ("runtime/pyproject.toml", "runtime/src")
@@ -173,7 +174,8 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
         pass
     # The earlier builds are stale now: free their space before this build needs it (a
     # ~6 GB agent image and its ~9 GB build stage commit through /var/tmp).
-    _drop_older_builds(client, spec.repository, keep="")
+    lock_label = f"{spec.lock}-{_lock_digest(spec.lock)}"
+    _drop_older_builds(client, spec.repository, keep="", lock=lock_label)
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix=f"armnet-{spec.name}-") as tmp:
         context = Path(tmp) / "context"
@@ -189,7 +191,7 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
         try:
             image, _logs = client.images.build(
                 path=str(context), dockerfile="Containerfile", tag=tag, rm=True, forcerm=True,
-                buildargs={**args, **labels}, labels={HASH_LABEL: tag.rsplit(":", 1)[1]},
+                buildargs={**args, **labels, "LOCK": lock_label}, labels={HASH_LABEL: tag.rsplit(":", 1)[1]},
                 network_mode="none", timeout=3600,
             )
         except docker.errors.BuildError as exc:
@@ -197,11 +199,11 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
             raise RuntimeError(f"building {tag} failed: {exc.msg}\n" + "\n".join(lines[-40:])) from exc
     image.tag(spec.repository, "dev")
     progress(f"built {tag} in {time.monotonic() - started:.0f} s")
-    _drop_older_builds(client, spec.repository, keep=str(image.id))
+    _drop_older_builds(client, spec.repository, keep=str(image.id), lock=lock_label)
     return tag
 
 
-def _drop_older_builds(client: Any, repository: str, *, keep: str) -> None:
+def _drop_older_builds(client: Any, repository: str, *, keep: str, lock: str) -> None:
     """Remove this repository's earlier content-hash builds and the build's dangling stages.
 
     Why: each change to our sources is a new image, and the agent's is ~6 GB; a machine
@@ -209,7 +211,9 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str) -> None:
     Only images this module tagged (the content-hash label) and untagged build leftovers
     older than a day are removed (younger stages are the layer cache the next build of a
     sibling image reuses: the agent and runtime-lerobot share their ~5 GB dependency
-    stage); an image a container still uses stays (Podman refuses, and we go on).
+    stage); an image a container still uses stays (Podman refuses, and we go on). A stage
+    labelled with another version of this build's lock (``LOCK_LABEL``: ``<lock>-<digest>``)
+    is never reused, so it goes at once: three lock changes in a day filled the disk.
     """
     import docker
 
@@ -220,6 +224,14 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str) -> None:
             client.images.remove(image.id, force=True)
         except docker.errors.APIError as exc:
             progress(f"kept an earlier build of {repository} ({image.id[:19]}): {exc}")
+    name = lock.rsplit("-", 1)[0] + "-"
+    for image in client.images.list(filters={"dangling": True, "label": LOCK_LABEL}):
+        held = str((image.labels or {}).get(LOCK_LABEL, ""))
+        if held.startswith(name) and held != lock:
+            try:
+                client.images.remove(image.id, force=True)
+            except docker.errors.APIError as exc:
+                progress(f"kept a build stage of lock {held} ({image.id[:19]}): {exc}")
     try:
         client.images.prune(filters={"dangling": True, "until": "24h"})
     except docker.errors.APIError as exc:
