@@ -21,7 +21,7 @@ from kubernetes.client import rest
 from kubernetes.client.exceptions import ApiException
 
 from .errors import Conflict, NotFound, PermanentError, ResourceMissing, TransientError
-from .leader import LeaseMove, LeaseView, decide_lease
+from .leader import LeaseMove, LeaseSeen, LeaseView, decide_lease, observe
 from .model import GROUP, VERSION, Cell, Job
 from .patches import Patch, Target
 
@@ -92,13 +92,19 @@ def _resource_missing(error: ApiException) -> bool:
 
 
 class KubeApi:
-    def __init__(self, api_client: client.ApiClient, component: str, identity: str) -> None:
+    def __init__(
+        self, api_client: client.ApiClient, component: str, identity: str,
+        monotonic: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.custom = client.CustomObjectsApi(api_client)
         self.core = client.CoreV1Api(api_client)
         self.leases = client.CoordinationV1Api(api_client)
         self.extensions = client.ApiextensionsV1Api(api_client)
         self.component = component
         self.identity = identity
+        self.monotonic = monotonic
+        """The clock a Lease's expiry is measured on (a test's may be stepped by hand)."""
+        self._leases_seen: dict[tuple[str, str], LeaseSeen] = {}
         self._events: queue.SimpleQueue[tuple[Job | Cell, str, str, str, datetime] | None] = queue.SimpleQueue()
         self._quiet = threading.Event()
         self._quiet.set()
@@ -292,7 +298,11 @@ class KubeApi:
 
     # -------------------------------------------------------------- leader Lease
     def hold_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:
-        """Acquire or renew the Lease; True while this replica leads."""
+        """Acquire or renew the Lease; True while this replica leads.
+
+        ``now`` (wall clock) is only written, as renewTime/acquireTime for people reading
+        the Lease; whether another holder has expired is measured on ``self.monotonic``.
+        """
         try:
             lease = self._send(self.leases.read_namespaced_lease, name, namespace)
         except ApiException as error:
@@ -300,14 +310,18 @@ class KubeApi:
                 raise _translate(error, f"lease {namespace}/{name}") from error
             return self._create_lease(namespace, name, duration, now)
         spec = lease.spec
-        renewed = spec.renew_time if spec else None
         view = LeaseView(
             holder=spec.holder_identity if spec else None,
-            renewed=renewed,
+            renewed=spec.renew_time if spec else None,
             duration=timedelta(seconds=(spec.lease_duration_seconds if spec else None) or 15),
             transitions=(spec.lease_transitions if spec else None) or 0,
+            acquired=spec.acquire_time if spec else None,
         )
-        move = decide_lease(view, self.identity, now)
+        # Expiry runs on our own clock from when we last saw the record change, never on the
+        # holder's renewTime: the two replicas' clocks may disagree by any amount.
+        ticks = self.monotonic()
+        seen = self._leases_seen[(namespace, name)] = observe(self._leases_seen.get((namespace, name)), view, ticks)
+        move = decide_lease(seen, self.identity, ticks)
         if move is LeaseMove.FOLLOW:
             return False
         stamp = now.strftime("%Y-%m-%dT%H:%M:%S.%fZ")

@@ -353,3 +353,47 @@ def test_closing_the_api_posts_the_queued_events_joins_the_poster_and_sends_noth
     with pytest.raises(TransientError):
         api.read_job(bed.ns, "told")
     assert "TooLate" not in bed.events("told")
+
+
+@pytest.mark.parametrize("skew_hours", [10, -10], ids=["holder-clock-ahead", "holder-clock-behind"])
+def test_a_lease_held_by_a_replica_with_a_skewed_clock_expires_on_our_own_clock(bed: Bed, skew_hours: int) -> None:
+    """Against the real server: the holder's renewTime is hours off our clock. While it renews, it keeps
+    the Lease however far its clock is; once it stops, we take over after leaseDurationSeconds of our own
+    (stepped by hand, so nothing here waits on the machine's speed)."""
+    from datetime import UTC, datetime, timedelta
+
+    from armnet_operator.kube import KubeApi, make_client
+    from kubernetes import client
+
+    leases = client.CoordinationV1Api(bed.k8s.api_client())
+    theirs = datetime.now(UTC) + timedelta(hours=skew_hours)
+
+    def holder_writes(at: datetime, create: bool = False) -> None:
+        spec = {"holderIdentity": "other", "renewTime": at.strftime("%Y-%m-%dT%H:%M:%S.%fZ"), "leaseDurationSeconds": 15}
+        if create:
+            leases.create_namespaced_lease(bed.ns, client.V1Lease.from_dict(  # type: ignore[no-untyped-call]
+                {"metadata": {"name": "skewed", "namespace": bed.ns},
+                 "spec": {**spec, "acquireTime": spec["renewTime"], "leaseTransitions": 2}}))
+        else:
+            leases.patch_namespaced_lease("skewed", bed.ns, {"spec": spec})
+
+    ticks = [1000.0]
+    api = KubeApi(make_client(str(bed.k8s.kubeconfig)), "armnet-test", "me", monotonic=lambda: ticks[0])
+    try:
+        holder_writes(theirs, create=True)
+        for beat in range(1, 6):  # 5 renewals 10 s apart on our clock: 50 s, over three lease durations
+            assert not api.hold_lease(bed.ns, "skewed", timedelta(seconds=15), datetime.now(UTC))
+            ticks[0] += 10
+            holder_writes(theirs + timedelta(seconds=10 * beat))
+        assert not api.hold_lease(bed.ns, "skewed", timedelta(seconds=15), datetime.now(UTC))  # sees the last renewal
+        ticks[0] += 15
+        assert not api.hold_lease(bed.ns, "skewed", timedelta(seconds=15), datetime.now(UTC))  # exactly 15 s: not yet
+        assert leases.read_namespaced_lease("skewed", bed.ns).spec.holder_identity == "other"
+        ticks[0] += 0.5
+        assert api.hold_lease(bed.ns, "skewed", timedelta(seconds=15), datetime.now(UTC))
+        spec = leases.read_namespaced_lease("skewed", bed.ns).spec
+        assert (spec.holder_identity, spec.lease_transitions) == ("me", 3)
+        ticks[0] += 3600  # our own lease renews whatever our clock did
+        assert api.hold_lease(bed.ns, "skewed", timedelta(seconds=15), datetime.now(UTC))
+    finally:
+        api.close()

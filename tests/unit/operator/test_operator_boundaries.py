@@ -6,7 +6,7 @@ from datetime import timedelta
 
 import pytest
 from armnet_operator.errors import PermanentError
-from armnet_operator.leader import LeaseMove, LeaseView, decide_lease
+from armnet_operator.leader import LeaseMove, LeaseSeen, LeaseView, decide_lease, observe
 from armnet_operator.model import FINALIZER, CellPhase, JobPhase, QueuedReason
 from armnet_operator.parsing import parse_cell, parse_job
 from armnet_operator.patches import (
@@ -131,12 +131,60 @@ def test_bad_settings_name_the_variable_and_the_flag() -> None:
         load_settings({}, environ={"ARMNET_OPERATOR_HEARTBEAT_TIMEOUT": "-1"})
 
 
+DURATION = timedelta(seconds=15)
+
+
 @pytest.mark.parametrize(("lease", "move"), [
     (None, LeaseMove.ACQUIRE),
-    (LeaseView("me", ago(100), timedelta(seconds=15)), LeaseMove.RENEW),
-    (LeaseView("other", ago(5), timedelta(seconds=15)), LeaseMove.FOLLOW),
-    (LeaseView("other", ago(16), timedelta(seconds=15)), LeaseMove.ACQUIRE),
-    (LeaseView("", None, timedelta(seconds=15)), LeaseMove.ACQUIRE),
+    (LeaseView("me", ago(100), DURATION), LeaseMove.RENEW),
+    (LeaseView("other", ago(100), DURATION), LeaseMove.FOLLOW),  # just seen: its age on the holder's clock is no evidence
+    (LeaseView("", None, DURATION), LeaseMove.ACQUIRE),
 ])
-def test_the_lease_is_taken_only_when_free_or_expired(lease: LeaseView | None, move: LeaseMove) -> None:
-    assert decide_lease(lease, "me", NOW) is move
+def test_the_lease_is_taken_only_when_free_and_followed_when_first_seen(lease: LeaseView | None, move: LeaseMove) -> None:
+    seen = observe(None, lease, 1000.0) if lease is not None else None
+    assert decide_lease(seen, "me", 1000.0) is move
+
+
+def _holder_plays(skew: timedelta, renews_until: float, looks: list[float]) -> list[LeaseMove]:
+    """The other replica renews every 5 s of the candidate's time up to ``renews_until``, stamping
+    renewTime on its own clock (the candidate's wall clock + ``skew``); the candidate looks at ``looks``
+    (its monotonic seconds, starting at 0) and says what it would do each time."""
+    seen: LeaseSeen | None = None
+    moves = []
+    for t in looks:
+        last_renewal = min(t, renews_until) // 5 * 5
+        lease = LeaseView("other", NOW + skew + timedelta(seconds=last_renewal), DURATION, transitions=3, acquired=NOW + skew)
+        seen = observe(seen, lease, t)
+        moves.append(decide_lease(seen, "me", t))
+    return moves
+
+
+LOOKS = [0.0, 6.0, 12.0, 18.0, 24.0, 30.0, 36.0, 42.0, 48.0, 54.0, 60.0]
+SKEWS = [timedelta(hours=1), timedelta(hours=-1), timedelta(0)]
+
+
+@pytest.mark.parametrize("skew", SKEWS, ids=["holder-1h-ahead", "holder-1h-behind", "no-skew"])
+def test_a_holder_that_keeps_renewing_is_never_taken_over_whatever_its_clock(skew: timedelta) -> None:
+    assert set(_holder_plays(skew, renews_until=1e9, looks=LOOKS)) == {LeaseMove.FOLLOW}
+
+
+@pytest.mark.parametrize("skew", SKEWS, ids=["holder-1h-ahead", "holder-1h-behind", "no-skew"])
+def test_a_holder_that_stops_renewing_is_taken_over_a_lease_duration_after_the_last_change_seen(skew: timedelta) -> None:
+    # Last renewal at 20 s; the candidate sees it at its look at 24 s, so the lease is its own from 24 + 15 = 39 s on.
+    moves = _holder_plays(skew, renews_until=20.0, looks=LOOKS)
+    assert moves == [LeaseMove.FOLLOW] * 7 + [LeaseMove.ACQUIRE] * 4
+
+
+def test_expiry_is_exact_on_the_candidates_own_clock() -> None:
+    seen = observe(None, LeaseView("other", NOW + timedelta(days=365), DURATION), 100.0)
+    assert decide_lease(seen, "me", 115.0) is LeaseMove.FOLLOW
+    assert decide_lease(seen, "me", 115.001) is LeaseMove.ACQUIRE
+    assert observe(seen, LeaseView("other", NOW + timedelta(days=365), DURATION), 114.0) is seen  # unchanged: clock keeps running
+    renewed = observe(seen, LeaseView("other", NOW - timedelta(days=365), DURATION), 114.0)  # any change restarts it
+    assert decide_lease(renewed, "me", 120.0) is LeaseMove.FOLLOW
+
+
+@pytest.mark.parametrize("skew", SKEWS, ids=["ours-1h-ahead", "ours-1h-behind", "no-skew"])
+def test_our_own_lease_is_renewed_whenever_we_look(skew: timedelta) -> None:
+    seen = observe(None, LeaseView("me", NOW + skew, DURATION), 0.0)
+    assert [decide_lease(seen, "me", t) for t in (0.0, 14.0, 16.0, 3600.0)] == [LeaseMove.RENEW] * 4
