@@ -1,7 +1,9 @@
 """The FMS web service (Starlette): pages, the live feed (server-sent events), the actions.
 
-Every route but ``/login``, ``/healthz``, ``/metrics`` and the static files
-needs an authenticated cell operator (``auth``); a POST made with a session
+Every route but ``/login``, ``/logout``, ``/healthz``, ``/metrics`` and the
+static files (the ``public`` list in ``build_app``) needs an authenticated cell
+operator (``guard.operator_only``); every response carries the security headers
+(``guard.SecurityHeaders``). A POST made with a session
 cookie or a proxy header must carry that credential's CSRF token. Decisions
 live in ``view`` and ``actions``; this module reads requests, applies plans and
 counts them.
@@ -16,7 +18,6 @@ import json
 import logging
 import time
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ from prometheus_client.core import CounterMetricFamily
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 from prometheus_client.registry import Collector
 from starlette.applications import Starlette
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import (
     HTMLResponse,
@@ -40,6 +42,7 @@ from starlette.staticfiles import StaticFiles
 from . import auth
 from .actions import ActionKind, Plan, Refused, plan_action
 from .bus import BusUnavailable, OperatorBus
+from .guard import SESSION_COOKIE, Caller, SecurityHeaders, operator_only
 from .state import FleetState
 from .telemetry import TelemetryStore
 from .view import build_row, row_json
@@ -47,20 +50,6 @@ from .view import build_row, row_json
 log = logging.getLogger(__name__)
 
 STATIC = Path(__file__).parent / "static"
-SESSION_COOKIE = "armnet_fms_session"
-SECURITY_HEADERS = {
-    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
-    "X-Frame-Options": "DENY",
-    "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",
-    "Cache-Control": "no-store",
-}
-
-
-@dataclass(frozen=True)
-class Caller:
-    operator: str
-    credential: str  # what the CSRF token is bound to; "" for a bearer token (no ambient credential)
 
 
 class Metrics:
@@ -102,7 +91,7 @@ def _page(name: str, **values: str) -> HTMLResponse:
     text = (STATIC / name).read_text(encoding="utf-8")
     for key, value in values.items():
         text = text.replace("{{" + key + "}}", html.escape(value, quote=True))
-    return HTMLResponse(text, headers=SECURITY_HEADERS)
+    return HTMLResponse(text)
 
 
 def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, *, site: str = "",
@@ -121,23 +110,7 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
     Gauge("armnet_fms_telemetry_frame_bytes", "Bytes of all latest camera frames held (bounded by the frame budget)",
           registry=metrics.registry).set_function(lambda: store.frame_bytes)
 
-    def caller(request: Request) -> Caller | None:
-        if settings.trusted_header:
-            user = request.headers.get(settings.trusted_header, "")
-            if user and auth.valid_operator(user):
-                return Caller(user, "header:" + user)
-        token = auth.bearer(request.headers.get("authorization", ""))
-        if token:
-            operator = auth.operator_for_token(settings, token)
-            return Caller(operator, "") if operator else None
-        cookie = request.cookies.get(SESSION_COOKIE, "")
-        operator = auth.session_operator(settings, cookie, clock()) if cookie else None
-        return Caller(operator, cookie) if operator else None
-
-    def unauthorized(request: Request) -> Response:
-        if request.url.path.startswith(("/api/", "/live")):
-            return JSONResponse({"error": "log in as a cell operator"}, status_code=401, headers=SECURITY_HEADERS)
-        return RedirectResponse("/login", status_code=303)
+    guarded = operator_only(settings, clock)
 
     async def login_page(request: Request) -> Response:
         return _page("login.html", message="")
@@ -162,16 +135,10 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         response.delete_cookie(SESSION_COOKIE, path="/")
         return response
 
-    async def fleet_page(request: Request) -> Response:
-        who = caller(request)
-        if who is None:
-            return unauthorized(request)
+    async def fleet_page(request: Request, who: Caller) -> Response:
         return _page("fleet.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential))
 
-    async def cell_page(request: Request) -> Response:
-        who = caller(request)
-        if who is None:
-            return unauthorized(request)
+    async def cell_page(request: Request, who: Caller) -> Response:
         return _page("cell.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential),
                      cell=request.path_params["name"], telemetry="on" if telemetry is not None else "off")
 
@@ -183,15 +150,10 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
             rows = [r for r in rows if r.name == only]
         return {"cells": [row_json(r, now) for r in rows], "kubeOk": state.kube_ok, "natsOk": bus.connected}
 
-    async def fleet_json(request: Request) -> Response:
-        if caller(request) is None:
-            return unauthorized(request)
-        return JSONResponse(snapshot(request), headers=SECURITY_HEADERS)
+    async def fleet_json(request: Request, who: Caller) -> Response:
+        return JSONResponse(snapshot(request))
 
-    async def live(request: Request) -> Response:
-        if caller(request) is None:
-            return unauthorized(request)
-
+    async def live(request: Request, who: Caller) -> Response:
         async def events() -> AsyncIterator[bytes]:
             metrics.live_clients.inc()
             last, quiet = "", 0.0
@@ -212,33 +174,25 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
                 metrics.live_clients.dec()
 
         return StreamingResponse(events(), media_type="text/event-stream",
-                                 headers={**SECURITY_HEADERS, "X-Accel-Buffering": "no"})
+                                 headers={"X-Accel-Buffering": "no"})
 
-    async def camera_frame(request: Request) -> Response:
-        if caller(request) is None:
-            return unauthorized(request)
+    async def camera_frame(request: Request, who: Caller) -> Response:
         frame = store.frame(request.path_params["name"], request.path_params["camera"])
         if frame is None:
-            return JSONResponse({"error": "no frame from this camera yet"}, status_code=404, headers=SECURITY_HEADERS)
-        return Response(frame.jpeg, media_type="image/jpeg", headers=SECURITY_HEADERS)
+            return JSONResponse({"error": "no frame from this camera yet"}, status_code=404)
+        return Response(frame.jpeg, media_type="image/jpeg")
 
-    async def cell_telemetry(request: Request) -> Response:
-        if caller(request) is None:
-            return unauthorized(request)
-        return JSONResponse(store.view(request.path_params["name"], clock()), headers=SECURITY_HEADERS)
+    async def cell_telemetry(request: Request, who: Caller) -> Response:
+        return JSONResponse(store.view(request.path_params["name"], clock()))
 
-    async def act(request: Request) -> Response:
-        who = caller(request)
-        if who is None:
-            return unauthorized(request)
+    async def act(request: Request, who: Caller) -> Response:
         try:
             kind = ActionKind(request.path_params["action"])
         except ValueError:
-            return JSONResponse({"error": "unknown action"}, status_code=404, headers=SECURITY_HEADERS)
+            return JSONResponse({"error": "unknown action"}, status_code=404)
         if who.credential and not auth.csrf_ok(settings, who.credential, request.headers.get("x-csrf-token", "")):
             metrics.actions.labels(kind.value, "csrf_refused").inc()
-            return JSONResponse({"error": "missing or wrong CSRF token; reload the page"}, status_code=403,
-                                headers=SECURITY_HEADERS)
+            return JSONResponse({"error": "missing or wrong CSRF token; reload the page"}, status_code=403)
         body = await _json_body(request)
         name = request.path_params["name"]
         try:
@@ -246,14 +200,14 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
             await _apply(plan, target)
         except Refused as refusal:
             metrics.actions.labels(kind.value, "refused").inc()
-            return JSONResponse({"error": str(refusal)}, status_code=409, headers=SECURITY_HEADERS)
+            return JSONResponse({"error": str(refusal)}, status_code=409)
         except BusUnavailable as error:
             metrics.actions.labels(kind.value, "error").inc()
-            return JSONResponse({"error": str(error)}, status_code=503, headers=SECURITY_HEADERS)
+            return JSONResponse({"error": str(error)}, status_code=503)
         metrics.actions.labels(kind.value, "ok").inc()
         log.info("cell %s: %s by cell operator %s", name, plan.done, who.operator)
         await state.refresh()
-        return JSONResponse({"ok": True, "message": plan.done}, headers=SECURITY_HEADERS)
+        return JSONResponse({"ok": True, "message": plan.done})
 
     async def _decide(kind: ActionKind, name: str, operator: str, request_id: str) -> tuple[Plan, str]:
         # Re-read the cell and its job: the button the operator pressed may be older than the fleet.
@@ -302,22 +256,26 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
                 await poller
             await bus.close()
 
-    routes = [
+    # The only routes anyone may reach; every other route is wrapped by ``guarded`` below.
+    public = [
         Route("/login", login_page, methods=["GET"]),
         Route("/login", login, methods=["POST"]),
         Route("/logout", logout, methods=["POST"]),
-        Route("/", fleet_page),
-        Route("/cells/{name}", cell_page),
-        Route("/api/fleet", fleet_json),
-        Route("/live", live),
-        Route("/api/cells/{name}/camera/{camera}.jpg", camera_frame, methods=["GET"]),
-        Route("/api/cells/{name}/telemetry", cell_telemetry, methods=["GET"]),
-        Route("/api/cells/{name}/{action}", act, methods=["POST"]),
         Route("/metrics", metrics_route),
         Route("/healthz", healthz),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
-    app = Starlette(routes=routes, lifespan=lifespan)
+    operator_routes: list[tuple[str, Any, list[str] | None]] = [
+        ("/", fleet_page, None),
+        ("/cells/{name}", cell_page, None),
+        ("/api/fleet", fleet_json, None),
+        ("/live", live, None),
+        ("/api/cells/{name}/camera/{camera}.jpg", camera_frame, ["GET"]),
+        ("/api/cells/{name}/telemetry", cell_telemetry, ["GET"]),
+        ("/api/cells/{name}/{action}", act, ["POST"]),
+    ]
+    routes = [*public, *(Route(path, guarded(endpoint), methods=methods) for path, endpoint, methods in operator_routes)]
+    app = Starlette(routes=routes, lifespan=lifespan, middleware=[Middleware(SecurityHeaders)])
     app.state.metrics = metrics
     return app
 
