@@ -112,8 +112,15 @@ def test_kubectl_get_armnet_lists_jobs_and_cells_with_their_columns(k8s: Any, na
     assert "robotjob.armnet.io/shown" in out
     header = k8s.kubectl("get", "rj", "-n", namespace).stdout.splitlines()[0].split()
     assert header == ["NAME", "PHASE", "CELL", "EMBODIMENT", "AGE"]
-    cells = k8s.kubectl("get", "cells").stdout.splitlines()
-    assert not cells or cells[0].split() == ["NAME", "EMBODIMENT", "TASK", "PHASE", "JOB", "NODE", "AGE"]
+    name = f"shown-{uuid.uuid4().hex[:6]}"
+    apply(k8s, {"apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": name},
+                "spec": {"embodiment": "lerobot/so-101", "task": "fold", "nodeName": "host-a", "simulated": True}})
+    try:
+        lines = k8s.kubectl("get", "cell", name).stdout.splitlines()
+    finally:
+        k8s.kubectl("delete", "cell", name, "--wait=false")
+    assert lines[0].split() == ["NAME", "EMBODIMENT", "TASK", "PHASE", "JOB", "NODE", "AGE"]
+    assert lines[1].split()[:4] == [name, "lerobot/so-101", "fold", "host-a"]  # no status yet: PHASE, JOB blank
 
 
 def test_the_rollout_history_holds_the_agents_fifty_newest_and_refuses_more(k8s: Any, namespace: str) -> None:
