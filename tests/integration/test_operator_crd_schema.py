@@ -102,7 +102,9 @@ def test_a_bimanual_cell_must_name_both_arms(k8s: Any) -> None:
 
 
 def test_the_examples_are_valid(k8s: Any) -> None:
-    for path in sorted(EXAMPLES.glob("*.yaml")):
+    paths = sorted(EXAMPLES.glob("*.yaml"))
+    assert {p.name for p in paths} >= {"cell-so101.yaml", "robotjob.yaml"}, paths  # a moved folder must not pass
+    for path in paths:
         k8s.kubectl("apply", "--dry-run=server", "-f", str(path), *(["-n", "default"] if "job" in path.name else []))
 
 
