@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +27,9 @@ from tests.testbed.images import BASE_IMAGE
 pytestmark = [pytest.mark.node, pytest.mark.integration, pytest.mark.timeout(600)]
 
 REPO = Path(__file__).resolve().parents[2]
+#: A warm start is ~10 s (control plane, node, controllers); this test runs before its session
+#: takes the host's node lock (scripts/test.sh), so it never waits for another node.
+UP_WITHIN_S = 240.0
 
 
 @pytest.fixture(scope="module")
@@ -34,15 +39,33 @@ def dev_up() -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )
     assert proc.stdout is not None
-    lines: list[str] = []
-    for line in proc.stdout:  # the node waits for the host-wide lock if another test bed holds it
-        lines.append(line.rstrip("\n"))
-        if line.startswith("# Ctrl-C stops everything"):
-            break
-    else:
-        pytest.fail("armnet dev up ended before it was up:\n" + "\n".join(lines[-40:]))
+    lines: queue.Queue[str | None] = queue.Queue()
+
+    def read() -> None:  # a thread: a buffered reader and select() do not mix
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            lines.put(line.rstrip("\n"))
+        lines.put(None)
+
+    threading.Thread(target=read, daemon=True).start()
+    seen: list[str] = []
+    deadline = time.monotonic() + UP_WITHIN_S
+    up = False
+    while not up and time.monotonic() < deadline:
+        try:
+            line = lines.get(timeout=1.0)
+        except queue.Empty:
+            continue
+        if line is None:
+            break  # it ended
+        seen.append(line)
+        up = line.startswith("# Ctrl-C stops everything")
+    if not up:
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=120)
+        pytest.fail(f"armnet dev up was not up within {UP_WITHIN_S:.0f} s:\n" + "\n".join(seen[-40:]))
     try:
-        yield proc, lines
+        yield proc, seen
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)

@@ -29,10 +29,9 @@ Shape (every field optional)::
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
-from types import ModuleType
+from collections.abc import Iterator
 from typing import Any, Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -168,25 +167,58 @@ def build_camera_configs(cameras: dict[str, CameraConfig]) -> dict[str, Any]:
     """The cell's cameras as LeRobot ``OpenCVCameraConfig`` objects, or plain dicts.
 
     Why not import LeRobot here: this runs before ``@main``, and LeRobot's camera
-    module brings torch (seconds of CPU) into every job. The configs are LeRobot's
-    objects when the job has imported ``lerobot.cameras.opencv`` (a script that imports
-    LeRobot at its top has, by the time the context is built); otherwise the dict holds
-    plain dicts and is upgraded in place when the job imports that module. Without
-    LeRobot installed they stay plain dicts.
+    module brings torch (seconds of CPU) into every job. The mapping holds plain dicts
+    and becomes LeRobot's configs, in place, the first time a value is read once the job
+    has imported LeRobot (``SO101FollowerConfig(cameras=ctx.camera_configs)`` reads them);
+    a job that never imports LeRobot never loads it. Without LeRobot installed they stay
+    plain dicts.
     """
-    if not cameras:
-        return {}
-    built: dict[str, Any] = {name: camera.model_dump() for name, camera in cameras.items()}
-    if "lerobot.cameras.opencv" not in sys.modules and importlib.util.find_spec("lerobot") is None:
-        return built
+    return CameraConfigs(cameras)
 
-    def upgrade(_module: ModuleType) -> None:
-        built.update(_lerobot_camera_configs(cameras))
 
-    from armnet_runtime.lerobot.import_hook import when_imported
+class CameraConfigs(dict[str, Any]):
+    """A dict of camera configs that turns into LeRobot's the first time it is read after
+    the job imported LeRobot. Every read goes through here (``__iter__`` is overridden, so
+    ``dict(...)`` and ``{**...}`` take the slow path through ``__getitem__`` too)."""
 
-    when_imported("lerobot.cameras.opencv", upgrade)
-    return built
+    def __init__(self, cameras: dict[str, CameraConfig]) -> None:
+        super().__init__({name: camera.model_dump() for name, camera in cameras.items()})
+        self._cameras = dict(cameras)
+        self._upgraded = not cameras
+
+    def _upgrade(self) -> None:
+        if self._upgraded or "lerobot" not in sys.modules:
+            return
+        self._upgraded = True
+        try:
+            configs = _lerobot_camera_configs(self._cameras)
+        except ImportError:
+            return
+        super().update(configs)
+
+    def __getitem__(self, key: str) -> Any:
+        self._upgrade()
+        return super().__getitem__(key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        self._upgrade()
+        return super().get(key, default)
+
+    def __iter__(self) -> Iterator[str]:
+        self._upgrade()
+        return super().__iter__()
+
+    def items(self) -> Any:
+        self._upgrade()
+        return super().items()
+
+    def values(self) -> Any:
+        self._upgrade()
+        return super().values()
+
+    def __repr__(self) -> str:
+        self._upgrade()
+        return super().__repr__()
 
 
 def _lerobot_camera_configs(cameras: dict[str, CameraConfig]) -> dict[str, Any]:
