@@ -129,8 +129,16 @@ def test_bimanual_on_direct_hardware(
     assert set(result["final_positions"]) == {"left", "right"}
 
 
+#: What the connector gives a job's reads (agent/armnet_agent/connector/retry.py): a read
+#: whose reply a loaded host lost is asked again. This stand-in server has no connector, so
+#: its bus asks LeRobot itself; without it one lost reply failed the job (seen with the
+#: suite's three sessions on two cores).
+READ_RETRIES = 3
+
+
 class ArmSelectingBus:
-    """What the connector does on ``create``: the real bus on the device ``?arm=`` selects."""
+    """What the connector does on ``create``: the real bus on the device ``?arm=`` selects,
+    whose position reads are asked again after a lost reply, as the connector's are."""
 
     def __init__(self, ports: dict[str, str]) -> None:
         self.ports = ports
@@ -139,9 +147,13 @@ class ArmSelectingBus:
     def __call__(self, port: str, motors: Any, calibration: Any = None, **kwargs: Any) -> Any:
         from lerobot.motors.feetech import FeetechMotorsBus
 
+        class RetryingReads(FeetechMotorsBus):  # type: ignore[misc]
+            def sync_read(self, *args: Any, num_retry: int = READ_RETRIES, **kw: Any) -> Any:
+                return super().sync_read(*args, num_retry=num_retry, **kw)
+
         self.requested.append(port)
         arm = parse_endpoint(port).arm or "arm"
-        return FeetechMotorsBus(port=self.ports[arm], motors=motors, calibration=calibration, **kwargs)
+        return RetryingReads(port=self.ports[arm], motors=motors, calibration=calibration, **kwargs)
 
 
 def test_bimanual_as_a_job_through_the_swap_and_proxies(work_dir: Path) -> None:
