@@ -53,6 +53,16 @@ def bus(connector, motors, calibration):
         remote.disconnect()
 
 
+def tuned_by_a_raw_client(connector, client_for, motors):
+    """A job's connection on the wire (no SDK), its bus connected and every TUNED register written."""
+    client = client_for(connector.robot_endpoint)
+    bus = client.create("FeetechMotorsBus", port=connector.robot_endpoint, motors=motors)
+    assert client.call(bus, "connect")["ok"]
+    for motor, register, value in TUNED:
+        assert client.call(bus, "write", register, motor, value)["ok"]
+    return client
+
+
 def tune(bus) -> None:
     """The job's writes: single writes and a sync_write, all inside the cell's bounds."""
     bus.write("Torque_Limit", "elbow_flex", 300)
@@ -94,11 +104,7 @@ def test_a_dropped_connection_leaves_the_registers_as_the_job_found_them(
     connector, client_for, sim_cell, motors
 ) -> None:
     found = held(sim_cell)
-    client = client_for(connector.robot_endpoint)
-    bus = client.create("FeetechMotorsBus", port=connector.robot_endpoint, motors=motors)
-    assert client.call(bus, "connect")["ok"]
-    for motor, register, value in TUNED:
-        assert client.call(bus, "write", register, motor, value)["ok"]
+    client = tuned_by_a_raw_client(connector, client_for, motors)
     assert_tuned(sim_cell)
     client.close()  # no disconnect, no close: the connection just ends
     assert wait_until(lambda: held(sim_cell) == found), held(sim_cell)
@@ -146,11 +152,7 @@ def test_the_connectors_stop_puts_back_what_a_job_still_holding_its_bus_tuned(
     connector, client_for, sim_cell, motors
 ) -> None:
     found = held(sim_cell)
-    client = client_for(connector.robot_endpoint)
-    bus = client.create("FeetechMotorsBus", port=connector.robot_endpoint, motors=motors)
-    assert client.call(bus, "connect")["ok"]
-    for motor, register, value in TUNED:
-        assert client.call(bus, "write", register, motor, value)["ok"]
+    _still_connected = tuned_by_a_raw_client(connector, client_for, motors)
     connector.stop()  # the interlock trips first: the restore is the connector's, not the job's
     assert held(sim_cell) == found
     assert set(connector.safety_report().registers_restored["arm"]) == {"elbow_flex", "gripper", "wrist_flex"}
