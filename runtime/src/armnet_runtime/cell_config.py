@@ -181,10 +181,15 @@ class CameraConfigs(dict[str, Any]):
     the job imported LeRobot. Every read goes through here (``__iter__`` is overridden, so
     ``dict(...)`` and ``{**...}`` take the slow path through ``__getitem__`` too)."""
 
-    def __init__(self, cameras: dict[str, CameraConfig]) -> None:
-        super().__init__({name: camera.model_dump() for name, camera in cameras.items()})
-        self._cameras = dict(cameras)
-        self._upgraded = not cameras
+    def __init__(self, cameras: Any = ()) -> None:
+        given = dict(cameras)
+        if all(isinstance(camera, CameraConfig) for camera in given.values()):
+            super().__init__({name: camera.model_dump() for name, camera in given.items()})
+            self._cameras: dict[str, CameraConfig] = given
+        else:  # built like a dict from ready values (dataclasses.asdict, copies): kept as given
+            super().__init__(given)
+            self._cameras = {}
+        self._upgraded = not self._cameras
 
     def _upgrade(self) -> None:
         if self._upgraded or "lerobot" not in sys.modules:

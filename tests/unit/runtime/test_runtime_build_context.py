@@ -285,3 +285,21 @@ def test_a_listed_secret_that_is_not_set_is_named(job_env: pytest.MonkeyPatch) -
     job_env.delenv("ARMNET_TEST_MISSING_SECRET", raising=False)
     with pytest.raises(RuntimeError, match="ARMNET_TEST_MISSING_SECRET"):
         build_context()
+
+
+def test_camera_configs_copy_and_rebuild_as_a_dict_does() -> None:
+    """Customers copy ``ctx.camera_configs`` or ``dataclasses.asdict`` a dataclass holding it
+    (which rebuilds the mapping from its items); either way the cameras survive, whether
+    LeRobot is loaded in this process (LeRobot's configs) or not (plain dicts)."""
+    import copy
+    import dataclasses
+
+    config = parse_cell_config(json.dumps({"camera_configs": {"front": {"index_or_path": 0, "fps": 30}}}))
+    cameras = build_camera_configs(config.camera_configs)
+
+    @dataclasses.dataclass
+    class Holder:
+        cameras: dict[str, Any]
+
+    assert dataclasses.asdict(Holder(cameras))["cameras"]["front"]["fps"] == 30
+    assert dataclasses.asdict(Holder(copy.deepcopy(cameras)))["cameras"]["front"]["fps"] == 30
