@@ -33,6 +33,13 @@ CONNECT_TIMEOUT_S = 5.0
 DEFAULT_CALL_TIMEOUT_S = 30.0
 """How long a hardware call may take before the client gives up on the reply."""
 
+CREATE_TIMEOUT_S = 180.0
+"""How long creating a remote device may take: the connector's first ``create`` of a
+class imports LeRobot's device module (torch, datasets) unless its warm-up got there
+first, and on a busy or small robot host that import alone took over 30 s. The job's own
+timeout bounds it all the same; a connector that is gone still fails at once (the socket
+closes)."""
+
 MAX_LINE_BYTES = 64 * 1024 * 1024
 """Longest reply line accepted; matches the connector's request limit."""
 

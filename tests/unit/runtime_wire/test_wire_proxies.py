@@ -338,3 +338,23 @@ def test_unencodable_argument_fails_before_sending(server: ObjectServer) -> None
         bus.sync_write("Goal_Position", {"gripper": object()})
     assert server.count("call", "sync_write") == 0
     assert server.created[0].goals == {}
+
+
+class SlowToCreateBus(DemoBus):
+    """A connector whose first ``create`` of the class imports LeRobot's module first."""
+
+    def __init__(self, port: str, motors: dict[str, Any], calibration: Any = None) -> None:
+        time.sleep(1.5)
+        super().__init__(port, motors, calibration)
+
+
+def test_create_waits_past_the_call_timeout_for_a_connector_still_importing_the_class(sock_dir: Path) -> None:
+    srv = ObjectServer(str(sock_dir / "robot.sock"), {"FeetechMotorsBus": SlowToCreateBus}).start()
+    try:
+        bus = ShortTimeoutBus(port=srv.endpoint, motors={})  # creating takes 3x its call timeout
+        assert bus.sync_read("Present_Position")["gripper"] == 50.5
+        srv.mode = "wedge"
+        with pytest.raises(ConnectorUnavailable, match="no reply"):
+            bus.sync_read("Present_Position")  # every other call keeps the class's own timeout
+    finally:
+        srv.stop()

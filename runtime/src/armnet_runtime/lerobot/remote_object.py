@@ -36,7 +36,7 @@ from armnet_runtime.errors import (
     RemoteAttributeError,
     RemoteCallError,
 )
-from armnet_runtime.transport import DEFAULT_CALL_TIMEOUT_S, PersistentConnection, check_response
+from armnet_runtime.transport import CREATE_TIMEOUT_S, DEFAULT_CALL_TIMEOUT_S, PersistentConnection, check_response
 from armnet_runtime.wire import decode, encode, encode_items
 
 logger = logging.getLogger("armnet_runtime.lerobot")
@@ -194,10 +194,13 @@ class RemoteObjectProxy:
 
     # ------------------------------------------------------------------ requests
 
-    def _transport(self, payload: dict[str, Any]) -> dict[str, Any]:
-        """One request/reply; any transport failure marks the remote object as lost."""
+    def _transport(self, payload: dict[str, Any], timeout: float | None = None) -> dict[str, Any]:
+        """One request/reply (waiting ``timeout``, or the class's call timeout); any
+        transport failure marks the remote object as lost."""
         try:
-            return self._conn.request(payload)
+            if timeout is None:
+                return self._conn.request(payload)
+            return self._conn.request(payload, timeout=timeout)
         except (ConnectorUnavailable, ProtocolError):
             object.__setattr__(self, "_stale", True)
             raise
@@ -207,8 +210,8 @@ class RemoteObjectProxy:
             object.__setattr__(self, "_stale", True)
             raise _UnsentRequest(str(exc)) from exc
 
-    def _send(self, payload: dict[str, Any]) -> dict[str, Any]:
-        reply = self._transport(payload)
+    def _send(self, payload: dict[str, Any], timeout: float | None = None) -> dict[str, Any]:
+        reply = self._transport(payload, timeout)
         if reply.get("ok"):
             return reply  # the usual reply: no failure message to build
         return check_response(reply, error_message=f"remote {self._remote_class} {payload['op']} failed")
@@ -216,7 +219,9 @@ class RemoteObjectProxy:
     def _create(self) -> None:
         try:
             reply = self._send(
-                {"op": "create", "class": self._remote_class, "args": self._create_args, "kwargs": self._create_kwargs}
+                {"op": "create", "class": self._remote_class, "args": self._create_args, "kwargs": self._create_kwargs},
+                # The connector may still be importing the class's LeRobot module (transport.py).
+                timeout=None if self._call_timeout_s is None else max(CREATE_TIMEOUT_S, self._call_timeout_s),
             )
         except RemoteCallError as exc:
             if exc.error_type != NOT_ALLOWED:
