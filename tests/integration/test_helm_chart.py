@@ -578,8 +578,7 @@ spec:
 @pytest.fixture(scope="module")
 def monitoring_crds(k8s: ControlPlane) -> None:
     k8s.kubectl("apply", "--server-side", "-f", "-", input=MONITORING_CRDS)
-    k8s.kubectl("wait", "--for=condition=Established", "--timeout=60s",
-                "crd/servicemonitors.monitoring.coreos.com", "crd/prometheusrules.monitoring.coreos.com")
+    k8s.wait_established("crd/servicemonitors.monitoring.coreos.com", "crd/prometheusrules.monitoring.coreos.com")
 
 
 def test_every_rendered_manifest_passes_a_server_side_dry_run(

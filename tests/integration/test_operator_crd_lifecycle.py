@@ -85,7 +85,7 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
         wait("the operator saying the CRD is missing", lambda: "robotjobs.armnet.io are not served" in log.read_text(),
              proc, log)
         k8s.kubectl("apply", "--server-side", "-f", str(CRD))
-        k8s.kubectl("wait", "--for=condition=Established", "--timeout=60s", "crd/robotjobs.armnet.io")
+        k8s.wait_established("crd/robotjobs.armnet.io")
         beat()
         wait("the CRD served again", lambda: k8s.kubectl("get", "rj", "-n", ns, check=False).returncode == 0, proc, log)
         job("after")
@@ -106,7 +106,7 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
             "get", "cell", "c1", "-o", "jsonpath={.status.currentJob}").stdout, proc, log)
         restarts = log.read_text().count("reconcile loop again")
         k8s.kubectl("replace", "--force", "-f", str(CRD))
-        k8s.kubectl("wait", "--for=condition=Established", "--timeout=60s", "crd/robotjobs.armnet.io")
+        k8s.wait_established("crd/robotjobs.armnet.io")
         wait("the CRD served once more", lambda: k8s.kubectl("get", "rj", "-n", ns, check=False).returncode == 0,
              proc, log)
         wait("the watches restarted for the replaced CRD",
