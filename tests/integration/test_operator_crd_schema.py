@@ -139,3 +139,47 @@ def test_the_rollout_history_holds_the_agents_fifty_newest_and_refuses_more(k8s:
     with pytest.raises(ApiException) as refused:
         custom.patch_namespaced_custom_object_status(*args, {"status": {"rollouts": [*rows, rows[-1]]}})
     assert refused.value.status == 422 and "status.rollouts" in str(refused.value.body)
+
+
+def a_cell(completion: dict[str, Any] | None) -> dict[str, Any]:
+    spec: dict[str, Any] = {"embodiment": "lerobot/so-101", "nodeName": "h", "simulated": True,
+                            "cameras": {"front": {"indexOrPath": 0}}}
+    if completion is not None:
+        spec["completion"] = completion
+    return {"apiVersion": "armnet.io/v1alpha1", "kind": "Cell",
+            "metadata": {"name": f"c-{uuid.uuid4().hex[:6]}"}, "spec": spec}
+
+
+def a_completion(**change: Any) -> dict[str, Any]:
+    body: dict[str, Any] = {"camera": "front", "region": {"left": 0.7, "top": 0.1, "width": 0.1, "height": 0.1},
+                            "colour": {"hueMin": 170, "hueMax": 8}}
+    body.update(change)
+    return {k: v for k, v in body.items() if v is not None}
+
+
+def test_a_cell_with_a_completion_monitor_is_accepted_with_its_defaults(k8s: Any) -> None:
+    cell = a_cell(a_completion())
+    apply(k8s, cell)
+    try:
+        stored = json.loads(k8s.kubectl("get", "cell", cell["metadata"]["name"], "-o", "json").stdout)
+        completion = stored["spec"]["completion"]
+        assert (completion["scorer"], completion["consecutiveFrames"], completion["rateHz"]) == ("region", 3, 5)
+    finally:
+        k8s.kubectl("delete", "cell", cell["metadata"]["name"], "--wait=false")
+
+
+@pytest.mark.parametrize(("completion", "says"), [
+    (a_completion(camera="wrist"), "spec.completion.camera must name one of spec.cameras"),
+    (a_completion(region={"left": 0.5, "top": 0.5, "width": 0, "height": 0.1}), "spec.completion.region.width"),
+    (a_completion(region={"left": -0.1, "top": 0.5, "width": 0.1, "height": 0.1}), "spec.completion.region.left"),
+    (a_completion(region={"left": 0.95, "top": 0.5, "width": 0.1, "height": 0.1}), "spec.completion.region leaves the picture"),
+    (a_completion(rateHz=10000), "spec.completion.rateHz"),
+    (a_completion(consecutiveFrames=0), "spec.completion.consecutiveFrames"),
+    (a_completion(arucoId=3), "exactly one object to look for"),
+    (a_completion(colour=None), "exactly one object to look for"),
+    (a_completion(colour=None, arucoId=60), "spec.completion.arucoId is not in its dictionary"),
+    (a_completion(scorer="classifier"), "spec.completion.scorer"),
+    (a_completion(colour={"hueMin": 0, "hueMax": 8, "valueMin": 200, "valueMax": 10}), "must not exceed"),
+])
+def test_a_hostile_completion_is_rejected_saying_what_to_fix(k8s: Any, completion: dict[str, Any], says: str) -> None:
+    assert says in rejected(k8s, a_cell(completion))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from .completion_config import CompletionConfig  # noqa: E402
 from .config import ArmConfig, CameraConfig, ConnectorConfig, load_config  # noqa: E402
 from .connector import Connector  # noqa: E402
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs  # noqa: E402
@@ -16,6 +17,7 @@ from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, Opera
 __all__ = [
     "ArmConfig",
     "CameraConfig",
+    "CompletionConfig",
     "CompletionMonitor",
     "Connector",
     "ConnectorConfig",

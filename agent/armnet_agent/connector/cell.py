@@ -65,6 +65,16 @@ class Counters:
     registers_restored: int = 0
     #: Restores that left a register as the job changed it (alert: the next tenant would inherit it).
     register_restore_failures: int = 0
+    #: Frames the completion monitor scored (``completion``).
+    completion_frames_scored: int = 0
+    #: Scores that raised: each counts as "not complete" (alert: the cell's scorer is broken).
+    completion_scorer_errors: int = 0
+    #: Scores slower than the monitor's limit: each counts as "not complete".
+    completion_scorer_slow: int = 0
+    #: Times the monitor's camera could not be opened or stopped delivering frames.
+    completion_camera_errors: int = 0
+    #: ``is_complete(block=True)`` calls that saw no frame newer than the call scored in time.
+    completion_block_timeouts: int = 0
 
 
 @dataclass(frozen=True)

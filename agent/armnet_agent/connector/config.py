@@ -16,6 +16,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic.alias_generators import to_camel
 
+from .completion_config import CompletionConfig, unknown_camera
 from .identity import NORM_MODES
 from .registers import valid_bounds
 
@@ -143,6 +144,11 @@ class ConnectorConfig(_Model):
         default_factory=dict,
         description="inclusive [low, high] raw bounds per bounded register (registers.DEFAULT_BOUNDS)",
     )
+    completion: CompletionConfig | None = Field(
+        default=None,
+        description="the cell's completion monitor: which camera it watches and how it scores "
+        "(None: no monitor, every episode waits for an operator's outcome)",
+    )
     present_position_max_age_ms: float = Field(
         default=25.0,
         ge=0,
@@ -159,6 +165,9 @@ class ConnectorConfig(_Model):
         problems = valid_bounds(self.register_bounds)
         if problems:
             raise ValueError("registerBounds: " + "; ".join(problems))
+        camera_problem = unknown_camera(self.completion, self.cameras)
+        if camera_problem is not None:
+            raise ValueError(camera_problem)
         return self
 
     def arm_for(self, selector: str | None) -> tuple[str, ArmConfig]:

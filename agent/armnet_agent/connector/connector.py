@@ -17,6 +17,7 @@ from types import MappingProxyType, TracebackType
 
 from .agent_inputs import AGENT_SOCKET, AgentSession
 from .cell import CellState, Counters
+from .completion import CameraCompletionMonitor, CameraFrames
 from .config import ConnectorConfig
 from .frames import FrameAreas
 from .hardware import CameraFactory
@@ -82,6 +83,13 @@ class Connector:
             camera_factory=camera_factory,
             on_grace_expired=on_grace_expired,
         )
+        # The cell's own completion monitor when its config has one (and the host passed none).
+        self.monitor: CameraCompletionMonitor | None = None
+        if completion is None and config.completion is not None and self.cell.camera_factory is not None:
+            name = config.completion.camera
+            source = CameraFrames(self.cell.camera_factory, name, config.cameras[name])
+            self.monitor = CameraCompletionMonitor(config.completion, source, self.cell.counters)
+            self.cell.completion = self.monitor
         # Camera frames reach the job through areas in the socket directory (frames.py).
         self.frames = FrameAreas(self.socket_dir)
         # Both sockets share one cap on unfinished request bytes (server.py).
@@ -126,6 +134,8 @@ class Connector:
                 server.stop()
             raise
         self.cell.deadline.start()
+        if self.monitor is not None:
+            self.monitor.start()
         self._started = True
         log.info("connector serving %s and %s in %s", ROBOT_SOCKET, OPERATOR_SOCKET, self.socket_dir)
         return self
@@ -138,6 +148,8 @@ class Connector:
         self.cell.stopping.set()
         self.cell.deadline.stop()
         self.cell.interlock.trip(TripReason.SHUTDOWN, "the connector is shutting down")
+        if self.monitor is not None:
+            self.monitor.stop()
         for server in self._servers:
             server.shut()
         log.info("connector stopping: connections cut")

@@ -1,0 +1,194 @@
+"""A cell's ``completion`` settings: which camera the monitor watches and how it scores (pydantic, pure).
+
+The Cell spec (``spec.completion``), a local run's cell file and the connector's
+config all load this one model, so a setting is checked the same way wherever
+it comes from. Every refusal says what to change: a cell owner's typo (an empty
+region, a rate of 10 000 Hz, zero frames) must be an error on the cell, never a
+monitor that silently scores nothing or burns the connector's CPU.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic.alias_generators import to_camel
+
+from .scoring import (
+    ARUCO_DICTIONARIES,
+    ArucoRegionScorer,
+    ColourRegionScorer,
+    FrameScorer,
+    HsvRange,
+    Region,
+    aruco_dictionary_size,
+)
+
+#: The fastest a monitor may score: a camera's usual rate; more only costs CPU beside the job.
+MAX_RATE_HZ = 30.0
+#: The slowest: ``block=True`` waits a few periods, which must stay well under a call's timeout.
+MIN_RATE_HZ = 0.5
+MAX_CONSECUTIVE_FRAMES = 300
+#: Scorers this connector has; ``classifier`` and ``service`` are not built yet.
+SCORERS = ("region",)
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(alias_generator=to_camel, populate_by_name=True, extra="forbid", frozen=True)
+
+
+def _finite(value: Any, what: str) -> Any:
+    if isinstance(value, bool):
+        raise ValueError(f"{what} must be a number, got {value!r}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{what} is {value}; give a finite number")
+    return value
+
+
+class RegionConfig(_Model):
+    """The target region, as fractions of the picture: its top-left corner (left, top), then its size.
+
+    Why not x and y: Kubernetes reads YAML 1.1, where a bare ``y`` key is the boolean true.
+    """
+
+    left: float
+    top: float
+    width: float
+    height: float
+
+    @field_validator("left", "top", "width", "height", mode="before")
+    @classmethod
+    def _numbers(cls, value: Any) -> Any:
+        return _finite(value, "completion.region fields")
+
+    @model_validator(mode="after")
+    def _inside_the_picture(self) -> RegionConfig:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(
+                f"completion.region is empty ({self.width} x {self.height}); give width and height above 0 "
+                "as fractions of the picture (e.g. width: 0.2)"
+            )
+        if self.left < 0 or self.top < 0 or self.left + self.width > 1 or self.top + self.height > 1:
+            raise ValueError(
+                f"completion.region (left {self.left}, top {self.top}, width {self.width}, height {self.height}) "
+                "leaves the picture; left, top, left + width and top + height must lie between 0 and 1 "
+                "(fractions of the picture, origin top-left)"
+            )
+        return self
+
+    def region(self) -> Region:
+        return Region(self.left, self.top, self.width, self.height)
+
+
+class ColourConfig(_Model):
+    """An OpenCV HSV range: hue 0..179 (hueMin > hueMax wraps through red), saturation and value 0..255."""
+
+    hue_min: int = Field(ge=0, le=179)
+    hue_max: int = Field(ge=0, le=179)
+    saturation_min: int = Field(default=80, ge=0, le=255)
+    saturation_max: int = Field(default=255, ge=0, le=255)
+    value_min: int = Field(default=80, ge=0, le=255)
+    value_max: int = Field(default=255, ge=0, le=255)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ColourConfig:
+        if self.saturation_min > self.saturation_max or self.value_min > self.value_max:
+            raise ValueError(
+                "completion.colour: saturationMin/valueMin must not exceed saturationMax/valueMax "
+                "(only the hue may wrap, with hueMin > hueMax)"
+            )
+        return self
+
+    def hsv(self) -> HsvRange:
+        return HsvRange(self.hue_min, self.hue_max, self.saturation_min, self.saturation_max,
+                        self.value_min, self.value_max)
+
+
+class CompletionConfig(_Model):
+    """How the cell's completion monitor scores an episode (docs/connector.md, "Completion monitor")."""
+
+    camera: str = Field(min_length=1, max_length=253, description="the cell camera the monitor watches")
+    scorer: str = "region"
+    region: RegionConfig
+    colour: ColourConfig | None = Field(default=None, description="the object is a blob of this HSV range")
+    aruco_id: int | None = Field(default=None, description="the object is the ArUco marker of this id")
+    aruco_dictionary: str = "DICT_4X4_50"
+    min_pixels: int = Field(default=30, description="the smallest blob of the colour that counts as the object")
+    consecutive_frames: int = Field(default=3, description="hits in a row before the episode is complete")
+    rate_hz: float = Field(default=5.0, description="frames scored per second")
+
+    @field_validator("scorer")
+    @classmethod
+    def _known_scorer(cls, value: str) -> str:
+        if value not in SCORERS:
+            raise ValueError(f"completion.scorer {value[:40]!r} is not available; use one of {list(SCORERS)}")
+        return value
+
+    @field_validator("rate_hz", mode="before")
+    @classmethod
+    def _rate(cls, value: Any) -> Any:
+        _finite(value, "completion.rateHz")
+        if isinstance(value, int | float) and not MIN_RATE_HZ <= value <= MAX_RATE_HZ:
+            raise ValueError(
+                f"completion.rateHz is {value}; give {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} frames per second "
+                "(the monitor shares the connector's CPU with the job)"
+            )
+        return value
+
+    @field_validator("consecutive_frames", mode="before")
+    @classmethod
+    def _frames(cls, value: Any) -> Any:
+        _finite(value, "completion.consecutiveFrames")
+        if isinstance(value, int) and not 1 <= value <= MAX_CONSECUTIVE_FRAMES:
+            raise ValueError(
+                f"completion.consecutiveFrames is {value}; give 1 to {MAX_CONSECUTIVE_FRAMES} "
+                "(how many scored frames in a row must show the object in the region)"
+            )
+        return value
+
+    @field_validator("min_pixels", mode="before")
+    @classmethod
+    def _pixels(cls, value: Any) -> Any:
+        _finite(value, "completion.minPixels")
+        if isinstance(value, int) and not 1 <= value <= 10_000_000:
+            raise ValueError(f"completion.minPixels is {value}; give 1 to 10000000 pixels")
+        return value
+
+    @field_validator("aruco_dictionary")
+    @classmethod
+    def _dictionary(cls, value: str) -> str:
+        if value not in ARUCO_DICTIONARIES:
+            raise ValueError(f"completion.arucoDictionary {value[:40]!r} is unknown; use one of {list(ARUCO_DICTIONARIES)}")
+        return value
+
+    @model_validator(mode="after")
+    def _one_object(self) -> CompletionConfig:
+        if (self.colour is None) == (self.aruco_id is None):
+            raise ValueError(
+                "completion needs exactly one object to look for: a colour (an HSV range) or an arucoId"
+            )
+        size = aruco_dictionary_size(self.aruco_dictionary)
+        if self.aruco_id is not None and not 0 <= self.aruco_id < size:
+            raise ValueError(
+                f"completion.arucoId is {self.aruco_id}; {self.aruco_dictionary} holds ids 0 to {size - 1}"
+            )
+        return self
+
+    def build_scorer(self) -> FrameScorer:
+        """The scorer these settings describe."""
+        if self.colour is not None:
+            return ColourRegionScorer(self.region.region(), self.colour.hsv(), self.min_pixels)
+        assert self.aruco_id is not None  # _one_object
+        return ArucoRegionScorer(self.region.region(), self.aruco_id, self.aruco_dictionary)
+
+
+def unknown_camera(completion: CompletionConfig | None, cameras: Any) -> str | None:
+    """Why ``completion`` names no camera of the cell (``cameras``: its names), None if it does."""
+    if completion is None or completion.camera in cameras:
+        return None
+    return (
+        f"completion.camera {completion.camera[:64]!r} is not a camera of this cell; "
+        f"name one of {sorted(cameras)} (spec.cameras)"
+    )
+

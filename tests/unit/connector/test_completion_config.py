@@ -1,0 +1,80 @@
+"""A cell's ``completion`` settings: hostile or mistyped values are refused with what to fix."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+from armnet_agent.connector import CompletionConfig, ConnectorConfig
+from armnet_agent.connector.scoring import ArucoRegionScorer, ColourRegionScorer
+from pydantic import ValidationError
+
+pytestmark = pytest.mark.unit
+
+
+def a_completion(**overrides: Any) -> dict[str, Any]:
+    data: dict[str, Any] = {
+        "camera": "front",
+        "scorer": "region",
+        "region": {"left": 0.7, "top": 0.1, "width": 0.1, "height": 0.1},
+        "colour": {"hueMin": 170, "hueMax": 8},
+        "consecutiveFrames": 3,
+        "rateHz": 10,
+    }
+    data.update(overrides)
+    return data
+
+
+def test_a_colour_completion_loads_in_camel_case_and_builds_the_colour_scorer() -> None:
+    config = CompletionConfig.model_validate(a_completion())
+    assert (config.camera, config.consecutive_frames, config.rate_hz) == ("front", 3, 10)
+    assert isinstance(config.build_scorer(), ColourRegionScorer)
+
+
+def test_an_aruco_completion_builds_the_aruco_scorer() -> None:
+    config = CompletionConfig.model_validate(a_completion(colour=None, arucoId=7))
+    assert isinstance(config.build_scorer(), ArucoRegionScorer)
+
+
+HOSTILE: list[tuple[str, dict[str, Any], str]] = [
+    ("an empty region", {"region": {"left": 0.5, "top": 0.5, "width": 0, "height": 0.1}}, "region is empty"),
+    ("a negative region", {"region": {"left": -0.2, "top": 0.1, "width": 0.1, "height": 0.1}}, "leaves the picture"),
+    ("a region past the edge", {"region": {"left": 0.95, "top": 0.1, "width": 0.1, "height": 0.1}}, "leaves the picture"),
+    ("a NaN region", {"region": {"left": float("nan"), "top": 0.1, "width": 0.1, "height": 0.1}}, "finite number"),
+    ("a huge rate", {"rateHz": 10_000}, "give 0.5 to 30 frames per second"),
+    ("a zero rate", {"rateHz": 0}, "give 0.5 to 30 frames per second"),
+    ("an infinite rate", {"rateHz": float("inf")}, "finite number"),
+    ("K = 0", {"consecutiveFrames": 0}, "consecutiveFrames is 0; give 1 to 300"),
+    ("K = a million", {"consecutiveFrames": 1_000_000}, "give 1 to 300"),
+    ("no object", {"colour": None}, "exactly one object"),
+    ("two objects", {"arucoId": 3}, "exactly one object"),
+    ("an ArUco id the dictionary lacks", {"colour": None, "arucoId": 50}, "holds ids 0 to 49"),
+    ("an unknown dictionary", {"colour": None, "arucoId": 1, "arucoDictionary": "DICT_ARUCO_ORIGINAL"}, "use one of"),
+    ("a scorer not built yet", {"scorer": "classifier"}, "use one of ['region']"),
+    ("a hue past 179", {"colour": {"hueMin": 0, "hueMax": 200}}, "colour.hueMax\n  Input should be less than or equal to 179"),
+    ("a reversed saturation range", {"colour": {"hueMin": 0, "hueMax": 8, "saturationMin": 200,
+                                                "saturationMax": 100}}, "must not exceed"),
+    ("zero pixels", {"minPixels": 0}, "give 1 to 10000000 pixels"),
+    ("a typo in a field", {"rate": 5}, "rate"),
+]
+
+
+@pytest.mark.parametrize(("case", "change", "says"), HOSTILE, ids=[c[0] for c in HOSTILE])
+def test_a_hostile_completion_is_refused_saying_what_to_fix(case: str, change: dict[str, Any], says: str) -> None:
+    with pytest.raises(ValidationError) as raised:
+        CompletionConfig.model_validate(a_completion(**change))
+    assert says in str(raised.value)
+
+
+def test_the_connector_refuses_a_completion_on_a_camera_the_cell_lacks(
+    cell_config: Callable[..., ConnectorConfig],
+) -> None:
+    with pytest.raises(ValidationError) as raised:
+        cell_config(None, completion=a_completion(camera="wrist"))
+    assert "completion.camera 'wrist' is not a camera of this cell; name one of ['front']" in str(raised.value)
+
+
+def test_a_cell_without_completion_has_no_monitor_settings(cell_config: Callable[..., ConnectorConfig]) -> None:
+    assert cell_config(None).completion is None
+    assert cell_config(None, completion=a_completion()).completion == CompletionConfig.model_validate(a_completion())
