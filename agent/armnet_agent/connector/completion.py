@@ -25,7 +25,15 @@ from typing import Any, Protocol
 from .completion_config import CompletionConfig
 from .config import CameraConfig
 from .ratelog import RateLimitedLog
-from .scoring import FrameScorer, Streak, Verdict
+from .scoring import (
+    ArucoRegionScorer,
+    ColourRegionScorer,
+    FrameScorer,
+    HsvRange,
+    Region,
+    Streak,
+    Verdict,
+)
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +50,18 @@ BLOCK_EXTRA_S = 1.0
 def block_wait_s(rate_hz: float) -> float:
     """The longest ``is_complete(block=True)`` waits for a frame newer than the call to be scored."""
     return 3.0 / rate_hz + BLOCK_EXTRA_S
+
+
+def build_scorer(config: CompletionConfig) -> FrameScorer:
+    """The scorer a cell's completion settings describe."""
+    r = config.region
+    region = Region(r.left, r.top, r.width, r.height)
+    c = config.colour
+    if c is not None:
+        colour = HsvRange(c.hue_min, c.hue_max, c.saturation_min, c.saturation_max, c.value_min, c.value_max)
+        return ColourRegionScorer(region, colour, config.min_pixels)
+    assert config.aruco_id is not None  # the config holds exactly one object
+    return ArucoRegionScorer(region, config.aruco_id, config.aruco_dictionary)
 
 
 @dataclass(frozen=True)
@@ -91,7 +111,7 @@ class CameraFrames:
 
         c = self._camera_config
         requested = OpenCVCameraConfig(
-            index_or_path=c.index_or_path,  # type: ignore[arg-type]  # the factory maps it to the device
+            index_or_path=c.index_or_path,  # the factory maps a name to the cell's device
             fps=c.fps, width=c.width, height=c.height, color_mode=ColorMode(c.color_mode.lower()),
             rotation=Cv2Rotation(c.rotation), warmup_s=0,
         )
@@ -139,7 +159,7 @@ class CameraCompletionMonitor:
         self.config = config
         self._source = source
         self._counters = counters
-        self._scorer = scorer if scorer is not None else config.build_scorer()
+        self._scorer = scorer if scorer is not None else build_scorer(config)
         self._period = 1.0 / config.rate_hz
         self._cond = threading.Condition()
         self._streak = Streak(config.consecutive_frames)

@@ -1,7 +1,8 @@
 """A cell's ``completion`` settings: which camera the monitor watches and how it scores (pydantic, pure).
 
 The Cell spec (``spec.completion``), a local run's cell file and the connector's
-config all load this one model, so a setting is checked the same way wherever
+config all load this one model (plain data: it imports no OpenCV, so the pure
+modules that read a connector config stay free of it), so a setting is checked the same way wherever
 it comes from. Every refusal says what to change: a cell owner's typo (an empty
 region, a rate of 10 000 Hz, zero frames) must be an error on the cell, never a
 monitor that silently scores nothing or burns the connector's CPU.
@@ -15,15 +16,14 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic.alias_generators import to_camel
 
-from .scoring import (
-    ARUCO_DICTIONARIES,
-    ArucoRegionScorer,
-    ColourRegionScorer,
-    FrameScorer,
-    HsvRange,
-    Region,
-    aruco_dictionary_size,
-)
+#: The ArUco dictionaries a cell may name (OpenCV's predefined ones, by their OpenCV name).
+ARUCO_DICTIONARIES = ("DICT_4X4_50", "DICT_4X4_100", "DICT_5X5_50", "DICT_5X5_100", "DICT_6X6_50", "DICT_6X6_250")
+
+
+def aruco_dictionary_size(name: str) -> int:
+    """How many ids ``name`` (one of ``ARUCO_DICTIONARIES``) holds: the number after the last underscore."""
+    return int(name.rsplit("_", 1)[1])
+
 
 #: The fastest a monitor may score: a camera's usual rate; more only costs CPU beside the job.
 MAX_RATE_HZ = 30.0
@@ -77,9 +77,6 @@ class RegionConfig(_Model):
             )
         return self
 
-    def region(self) -> Region:
-        return Region(self.left, self.top, self.width, self.height)
-
 
 class ColourConfig(_Model):
     """An OpenCV HSV range: hue 0..179 (hueMin > hueMax wraps through red), saturation and value 0..255."""
@@ -99,10 +96,6 @@ class ColourConfig(_Model):
                 "(only the hue may wrap, with hueMin > hueMax)"
             )
         return self
-
-    def hsv(self) -> HsvRange:
-        return HsvRange(self.hue_min, self.hue_max, self.saturation_min, self.saturation_max,
-                        self.value_min, self.value_max)
 
 
 class CompletionConfig(_Model):
@@ -174,13 +167,6 @@ class CompletionConfig(_Model):
                 f"completion.arucoId is {self.aruco_id}; {self.aruco_dictionary} holds ids 0 to {size - 1}"
             )
         return self
-
-    def build_scorer(self) -> FrameScorer:
-        """The scorer these settings describe."""
-        if self.colour is not None:
-            return ColourRegionScorer(self.region.region(), self.colour.hsv(), self.min_pixels)
-        assert self.aruco_id is not None  # _one_object
-        return ArucoRegionScorer(self.region.region(), self.aruco_id, self.aruco_dictionary)
 
 
 def unknown_camera(completion: CompletionConfig | None, cameras: Any) -> str | None:

@@ -120,10 +120,10 @@ class ColourRegionScorer:
         hsv = cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_BGR2HSV)
         c = self.colour
         if c.hue_min <= c.hue_max:
-            mask = cv2.inRange(hsv, (c.hue_min, c.saturation_min, c.value_min), (c.hue_max, c.saturation_max, c.value_max))
+            mask = _in_range(hsv, (c.hue_min, c.saturation_min, c.value_min), (c.hue_max, c.saturation_max, c.value_max))
         else:  # wraps through red (179 -> 0)
-            low = cv2.inRange(hsv, (c.hue_min, c.saturation_min, c.value_min), (179, c.saturation_max, c.value_max))
-            high = cv2.inRange(hsv, (0, c.saturation_min, c.value_min), (c.hue_max, c.saturation_max, c.value_max))
+            low = _in_range(hsv, (c.hue_min, c.saturation_min, c.value_min), (179, c.saturation_max, c.value_max))
+            high = _in_range(hsv, (0, c.saturation_min, c.value_min), (c.hue_max, c.saturation_max, c.value_max))
             mask = cv2.bitwise_or(low, high)
         count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
         if count <= 1:
@@ -142,13 +142,10 @@ class ColourRegionScorer:
         return FrameScore(hit, share if hit else min(share, 0.99), where)
 
 
-#: The ArUco dictionaries a cell may name (OpenCV's predefined ones, by their OpenCV name).
-ARUCO_DICTIONARIES = ("DICT_4X4_50", "DICT_4X4_100", "DICT_5X5_50", "DICT_5X5_100", "DICT_6X6_50", "DICT_6X6_250")
+def _in_range(hsv: Any, low: tuple[int, int, int], high: tuple[int, int, int]) -> Any:
+    import cv2
 
-
-def aruco_dictionary_size(name: str) -> int:
-    """How many ids ``name`` (one of ``ARUCO_DICTIONARIES``) holds: the number after the last underscore."""
-    return int(name.rsplit("_", 1)[1])
+    return cv2.inRange(hsv, np.array(low, np.uint8), np.array(high, np.uint8))
 
 
 @dataclass(frozen=True)
@@ -182,7 +179,7 @@ class ArucoRegionScorer:
         return FrameScore(bool(hits), 1.0 if hits else 0.5, where + (" in the region" if hits else ", outside the region"))
 
 
-@functools.lru_cache(maxsize=len(ARUCO_DICTIONARIES))
+@functools.lru_cache(maxsize=8)
 def _aruco_detector(dictionary: str) -> Any:
     """One detector per dictionary, built once (the monitor's one thread uses it)."""
     import cv2

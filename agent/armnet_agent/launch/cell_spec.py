@@ -25,6 +25,8 @@ from armnet_runtime import env as env_keys
 from armnet_runtime.endpoints import with_arm
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from armnet_agent.connector.completion_config import CompletionConfig, unknown_camera
+
 PRESET_EMBODIMENT = {"so101": SO101_EMBODIMENT, "bimanual_so101": BIMANUAL_SO101_EMBODIMENT}
 EMBODIMENT_PRESET = {embodiment: preset for preset, embodiment in PRESET_EMBODIMENT.items()}
 PRESET_ARMS = {"so101": ("arm",), "bimanual_so101": ("left", "right")}
@@ -65,6 +67,9 @@ class LocalCellFile(BaseModel):
     reset_timeout_seconds: float | None = Field(default=None, gt=0)
     language_instruction: str | None = None
     latency_ms: float = Field(default=0.0, ge=0)
+    completion: CompletionConfig | None = Field(
+        default=None, description="the cell's completion monitor (docs/connector.md); None: operators only"
+    )
     calibration_files: dict[str, Path] = Field(
         default_factory=dict, description="arm name -> LeRobot calibration JSON (default: shipped)"
     )
@@ -102,6 +107,8 @@ class LocalCellSpec:
     calibration_files: Mapping[str, Path] = field(default_factory=dict)
     #: The Cell's name on a cluster (None: a local run's ``local-<preset>``).
     cell_name: str | None = None
+    #: The cell's completion monitor (None: only an operator's outcome completes an episode).
+    completion: CompletionConfig | None = None
 
     @property
     def arm_names(self) -> tuple[str, ...]:
@@ -196,6 +203,9 @@ def resolve_spec(
         if file.cameras is not None
         else (CameraSpec("front"),)
     )
+    camera_problem = unknown_camera(file.completion, {camera.name for camera in cameras})
+    if camera_problem is not None:
+        raise LocalCellError(camera_problem)
     return LocalCellSpec(
         preset=chosen_preset,
         embodiment=cell_embodiment,
@@ -216,6 +226,7 @@ def resolve_spec(
         language_instruction=file.language_instruction,
         latency_ms=file.latency_ms,
         calibration_files=dict(file.calibration_files),
+        completion=file.completion,
     )
 
 

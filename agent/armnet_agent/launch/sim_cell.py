@@ -66,6 +66,7 @@ def build_connector_config(spec: LocalCellSpec, layout: CellLayout, ports: dict[
         safety_policy="trip" if spec.safety_policy == "trip" else "clamp",
         allow_calibration_jobs=spec.allow_calibration_jobs,
         register_bounds=dict(spec.register_bounds),
+        completion=spec.completion,
     )
 
 

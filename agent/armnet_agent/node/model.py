@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from armnet_agent.connector.completion_config import CompletionConfig, unknown_camera
 from armnet_agent.launch.cell_spec import CameraSpec
 from armnet_agent.node import rollout_history
 from armnet_agent.node.follower_rule import follower_window
@@ -55,6 +56,7 @@ class _CellSpec(_Loose):
     safety_policy: Literal["clamp", "trip"] = Field(default="clamp", alias="safetyPolicy")
     allow_calibration_jobs: bool = Field(default=False, alias="allowCalibrationJobs")
     register_bounds: dict[str, tuple[int, int]] = Field(default_factory=dict, alias="registerBounds")
+    completion: CompletionConfig | None = None
 
 
 class _JobSpec(_Loose):
@@ -92,6 +94,8 @@ class Cell:
     safety_policy: str = "clamp"
     allow_calibration_jobs: bool = False
     register_bounds: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: The cell's completion monitor settings (``spec.completion``), None: operators only.
+    completion: CompletionConfig | None = None
     current_job: str | None = None
     annotations: dict[str, str] = field(default_factory=dict)
     resource_version: str = ""
@@ -136,6 +140,9 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
         spec = _CellSpec.model_validate(obj.get("spec") or {})
     except ValidationError as exc:
         raise ValueError(f"Cell {meta.get('name')}: invalid spec: {exc}") from exc
+    camera_problem = unknown_camera(spec.completion, spec.cameras)
+    if camera_problem is not None:
+        raise ValueError(f"Cell {meta.get('name')}: invalid spec: {camera_problem}")
     arms = {name: _arm(arm) for name, arm in spec.arms.items()}
     if not arms:
         arms = {"arm": _arm(spec.robot or _Arm())}
@@ -156,6 +163,7 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
         safety_policy=spec.safety_policy,
         allow_calibration_jobs=spec.allow_calibration_jobs,
         register_bounds=dict(spec.register_bounds),
+        completion=spec.completion,
         current_job=status.get("currentJob"),
         annotations=dict(meta.get("annotations") or {}),
         resource_version=str(meta.get("resourceVersion", "")),

@@ -99,6 +99,7 @@ def cell_spec_for(cell: Cell) -> LocalCellSpec:
         safety_policy=cell.safety_policy,
         allow_calibration_jobs=cell.allow_calibration_jobs,
         register_bounds=cell.register_bounds,
+        completion=cell.completion,
         cameras=cell.cameras,
         grace_seconds=cell.grace_seconds,
         reset_timeout_seconds=cell.reset_timeout_seconds,

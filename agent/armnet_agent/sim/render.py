@@ -4,6 +4,16 @@ The picture is a schematic, not a photo: for each arm a side view of the
 shoulder-lift / elbow / wrist chain with the gripper jaws, plus one gauge per
 joint. It exists so a job's camera stream visibly changes when the arm moves
 and stays identical while it is still.
+
+It is also a task scene a completion monitor can score: each arm's panel shows
+a blue target pad, and a red disc marks the arm's end effector (the gripper's
+base, where the wrist link ends). The side view is a planar projection: the
+base sits at the bottom middle of the panel's upper part, and shoulder_lift,
+elbow_flex and wrist_flex turn links of 0.42, 0.38 and 0.2 of the scene's size
+in the picture's plane (0 degrees: straight up; positive: towards the right);
+shoulder_pan, wrist_roll and the gripper do not move the disc. The pad sits
+where the disc is at ``TARGET_POSE``, so a job that drives the arm there puts
+the disc on the pad; ``target_region`` gives the pad as fractions of the picture.
 """
 
 from __future__ import annotations
@@ -26,6 +36,16 @@ _GAUGE = (60, 180, 110)
 _TEXT = (200, 200, 200)
 _CHAIN = ("shoulder_lift", "elbow_flex", "wrist_flex")
 _LINK_LENGTHS = (0.42, 0.38, 0.2)
+_SCENE_SHARE = 0.62  # of the panel's height; the gauges take the rest
+
+#: The joint angles (degrees) that put the end effector on the target pad.
+TARGET_POSE: Mapping[str, float] = {"shoulder_lift": 20.0, "elbow_flex": 40.0, "wrist_flex": 0.0}
+#: Colours of the scene, RGB: a blue pad, and a red disc on the end effector.
+TARGET_RGB = (40, 90, 230)
+END_EFFECTOR_RGB = (230, 30, 30)
+#: Half the pad's side and the disc's radius, as fractions of the scene's size.
+_PAD_HALF = 0.06
+_DISC_RADIUS = 0.03
 
 
 def render_arms(arms: Mapping[str, JointAngles], width: int, height: int) -> Image:
@@ -63,34 +83,68 @@ def _background(height: int, width: int) -> Image:
     return image
 
 
+def chain_points(joints: JointAngles, w: int, h: int) -> list[tuple[float, float]]:
+    """The base, elbow, wrist and end effector, in pixels of a ``w x h`` panel (the planar projection)."""
+    scene_h = int(h * _SCENE_SHARE)
+    scale = min(w, scene_h) * 0.9
+    point = (w * 0.5, scene_h * 0.92)
+    points = [point]
+    angle = math.pi / 2  # straight up at every joint's mid-range
+    for joint, length in zip(_CHAIN, _LINK_LENGTHS, strict=True):
+        angle -= math.radians(joints.get(joint, 0.0))
+        point = (point[0] + math.cos(angle) * length * scale, point[1] - math.sin(angle) * length * scale)
+        points.append(point)
+    return points
+
+
+def target_region(width: int, height: int, arms: int = 1) -> tuple[float, float, float, float]:
+    """The first arm's target pad as (x, y, width, height) fractions of a ``width x height`` picture.
+
+    A completion region for the simulated camera is this rectangle (a cell file
+    or a Cell spec copies the numbers; docs/simulator.md lists them for 640x480).
+    """
+    panel_w = int(width / arms)
+    x0, y0, x1, y1 = _pad_corners(panel_w, height)
+    return x0 / width, y0 / height, (x1 - x0) / width, (y1 - y0) / height
+
+
+def _pad_corners(w: int, h: int) -> tuple[int, int, int, int]:
+    cx, cy = chain_points(TARGET_POSE, w, h)[-1]
+    half = _scene_scale(w, h) * _PAD_HALF
+    return int(round(cx - half)), int(round(cy - half)), int(round(cx + half)), int(round(cy + half))
+
+
+def _scene_scale(w: int, h: int) -> float:
+    return min(w, int(h * _SCENE_SHARE)) * 0.9
+
+
 def _draw_arm(panel: Image, name: str, joints: JointAngles) -> None:
     h, w = panel.shape[:2]
-    scene_h = int(h * 0.62)
-    _draw_chain(panel, joints, w, scene_h)
+    scene_h = int(h * _SCENE_SHARE)
+    x0, y0, x1, y1 = _pad_corners(w, h)
+    cv2.rectangle(panel, (x0, y0), (x1 - 1, y1 - 1), TARGET_RGB, -1)
+    _draw_chain(panel, joints, w, h)
+    tip = chain_points(joints, w, h)[-1]
+    cv2.circle(panel, _pt(tip), max(2, int(_scene_scale(w, h) * _DISC_RADIUS)), END_EFFECTOR_RGB, -1)
     _draw_gauges(panel, joints, top=scene_h, w=w, h=h)
     _text(panel, name, (6, max(12, h // 24)), h)
 
 
 def _draw_chain(panel: Image, joints: JointAngles, w: int, h: int) -> None:
-    scale = min(w, h) * 0.9
-    base = (w * 0.5, h * 0.92)
+    scene_h = int(h * _SCENE_SHARE)
+    scale = _scene_scale(w, h)
+    points = chain_points(joints, w, h)
+    base = points[0]
     cv2.line(panel, _pt((base[0] - w * 0.2, base[1])), _pt((base[0] + w * 0.2, base[1])), _JOINT, 2)
     # shoulder_pan has no side-view component: show it as the base's tilt marker.
     pan = math.radians(joints.get("shoulder_pan", 0.0))
-    marker = (base[0] + math.sin(pan) * w * 0.15, base[1] - math.cos(pan) * h * 0.05)
+    marker = (base[0] + math.sin(pan) * w * 0.15, base[1] - math.cos(pan) * scene_h * 0.05)
     cv2.line(panel, _pt(base), _pt(marker), _GAUGE, 2)
-    angle = math.pi / 2  # straight up at every joint's mid-range
-    point = base
-    for joint, length in zip(_CHAIN, _LINK_LENGTHS, strict=True):
-        angle -= math.radians(joints.get(joint, 0.0))
-        nxt = (
-            point[0] + math.cos(angle) * length * scale,
-            point[1] - math.sin(angle) * length * scale,
-        )
-        cv2.line(panel, _pt(point), _pt(nxt), _LINK, max(2, int(scale / 60)))
-        cv2.circle(panel, _pt(point), max(3, int(scale / 80)), _JOINT, -1)
-        point = nxt
-    _draw_gripper(panel, point, angle, joints, scale)
+    for start, end in zip(points, points[1:], strict=False):
+        cv2.line(panel, _pt(start), _pt(end), _LINK, max(2, int(scale / 60)))
+        cv2.circle(panel, _pt(start), max(3, int(scale / 80)), _JOINT, -1)
+    angle = math.pi / 2 - sum(math.radians(joints.get(joint, 0.0)) for joint in _CHAIN)
+    _draw_gripper(panel, points[-1], angle, joints, scale)
 
 
 def _draw_gripper(

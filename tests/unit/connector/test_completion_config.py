@@ -7,6 +7,7 @@ from typing import Any
 
 import pytest
 from armnet_agent.connector import CompletionConfig, ConnectorConfig
+from armnet_agent.connector.completion import build_scorer
 from armnet_agent.connector.scoring import ArucoRegionScorer, ColourRegionScorer
 from pydantic import ValidationError
 
@@ -29,12 +30,12 @@ def a_completion(**overrides: Any) -> dict[str, Any]:
 def test_a_colour_completion_loads_in_camel_case_and_builds_the_colour_scorer() -> None:
     config = CompletionConfig.model_validate(a_completion())
     assert (config.camera, config.consecutive_frames, config.rate_hz) == ("front", 3, 10)
-    assert isinstance(config.build_scorer(), ColourRegionScorer)
+    assert isinstance(build_scorer(config), ColourRegionScorer)
 
 
 def test_an_aruco_completion_builds_the_aruco_scorer() -> None:
     config = CompletionConfig.model_validate(a_completion(colour=None, arucoId=7))
-    assert isinstance(config.build_scorer(), ArucoRegionScorer)
+    assert isinstance(build_scorer(config), ArucoRegionScorer)
 
 
 HOSTILE: list[tuple[str, dict[str, Any], str]] = [

@@ -107,7 +107,7 @@ def show_frames(source: ShownFrames, counters: Counters, image: np.ndarray, coun
         stamp += 1.0
         scored = counters.completion_frames_scored
         source.show(image, stamp)
-        assert wait_until(lambda: counters.completion_frames_scored > scored)
+        assert wait_until(lambda scored=scored: counters.completion_frames_scored > scored)
     return stamp
 
 

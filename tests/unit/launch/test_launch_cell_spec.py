@@ -113,3 +113,27 @@ def test_the_cells_safety_policy_and_calibration_setting_reach_the_connector() -
 def test_a_nan_safety_limit_in_the_cell_file_is_refused() -> None:
     with pytest.raises(ValueError, match="safety_limit"):
         LocalCellFile(safety_limit=float("nan"))
+
+
+def test_a_cell_file_sets_the_completion_monitor_of_a_local_run(tmp_path: Path) -> None:
+    from armnet_agent.launch.sim_cell import build_connector_config
+
+    path = tmp_path / "cell.yaml"
+    path.write_text(
+        "completion:\n  camera: front\n  region: {left: 0.7, top: 0.1, width: 0.1, height: 0.1}\n"
+        "  colour: {hueMin: 170, hueMax: 8}\n  consecutiveFrames: 2\n"
+    )
+    spec = spec_for(cell_file=load_cell_file(path))
+    layout = plan_layout(spec, RUN_DIR)
+    config = build_connector_config(spec, layout, {arm.name: "/dev/null" for arm in layout.arms})
+    assert config.completion is not None and config.completion.consecutive_frames == 2
+
+
+def test_a_cell_file_whose_completion_names_a_camera_the_cell_lacks_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "cell.yaml"
+    path.write_text(
+        "completion:\n  camera: wrist\n  region: {left: 0.7, top: 0.1, width: 0.1, height: 0.1}\n"
+        "  colour: {hueMin: 170, hueMax: 8}\n"
+    )
+    with pytest.raises(LocalCellError, match="completion.camera 'wrist' is not a camera of this cell"):
+        spec_for(cell_file=load_cell_file(path))

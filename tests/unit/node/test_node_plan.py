@@ -141,3 +141,30 @@ def test_a_bimanual_cell_gets_per_arm_endpoints_and_calibration_files() -> None:
 def test_a_hardware_cell_is_refused_with_what_to_do() -> None:
     with pytest.raises(LaunchError, match="simulated"):
         plan_launch(parse_job(job_obj()), parse_cell(cell_obj(simulated=False)), PATHS, {})
+
+
+COMPLETION = {"camera": "front", "region": {"left": 0.7, "top": 0.1, "width": 0.1, "height": 0.1},
+              "colour": {"hueMin": 170, "hueMax": 8}, "consecutiveFrames": 4, "rateHz": 8}
+
+
+def test_the_cells_completion_monitor_reaches_its_connector() -> None:
+    plan = plan_launch(parse_job(job_obj()), parse_cell(cell_obj(completion=COMPLETION)), PATHS, {})
+    config = build_connector_config(plan.cell_spec, plan.layout, {"arm": "/dev/pts/9"})
+    assert config.completion is not None
+    assert (config.completion.camera, config.completion.consecutive_frames, config.completion.rate_hz) == ("front", 4, 8)
+    assert build_connector_config(
+        plan_launch(parse_job(job_obj()), parse_cell(cell_obj()), PATHS, {}).cell_spec, plan.layout, {"arm": "/x"}
+    ).completion is None
+
+
+@pytest.mark.parametrize(("completion", "says"), [
+    ({**COMPLETION, "camera": "wrist"}, "completion.camera 'wrist' is not a camera of this cell; name one of ['front']"),
+    ({**COMPLETION, "region": {"left": 0.5, "top": 0.5, "width": 0, "height": 0.1}}, "completion.region is empty"),
+    ({**COMPLETION, "rateHz": 1e6}, "give 0.5 to 30 frames per second"),
+])
+def test_a_cell_with_a_bad_completion_is_an_error_naming_the_cell_and_the_fix(
+    completion: dict[str, Any], says: str,
+) -> None:
+    with pytest.raises(ValueError, match="^Cell cell-1: invalid spec") as raised:
+        parse_cell(cell_obj(completion=completion))
+    assert says in str(raised.value)

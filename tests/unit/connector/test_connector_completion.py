@@ -1,0 +1,112 @@
+"""``ctx.cell.is_complete`` through the real connector on the simulated SO-101, scored from rendered frames.
+
+The simulator's camera draws a red disc on the arm's end effector and a blue
+target pad where the disc lands at ``TARGET_POSE``; the cell's completion
+monitor looks for the disc inside the pad's region. LeRobot's bus (the SDK's
+proxy) drives the arm; the SDK's ``Cell`` asks.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+from armnet_agent.connector import Connector, ConnectorConfig
+from armnet_agent.connector.hardware import simulated_camera_factory
+from armnet_agent.sim import SimulatedCellProcess
+from armnet_agent.sim.render import TARGET_POSE, target_region
+from armnet_runtime.context import Cell
+
+pytestmark = pytest.mark.unit
+
+STEP = 8.0  # degrees per goal write, under the cell's limit
+
+
+def completion_of_the_target() -> dict[str, Any]:
+    left, top, width, height = target_region(640, 480)
+    return {
+        "camera": "front",
+        "region": {"left": left, "top": top, "width": width, "height": height},
+        "colour": {"hueMin": 170, "hueMax": 8, "saturationMin": 120, "valueMin": 80},
+        "consecutiveFrames": 3,
+        "rateHz": 15,
+    }
+
+
+@pytest.fixture
+def connector(sim_cell: SimulatedCellProcess, make_connector: Callable[..., Connector],
+              cell_config: Callable[..., ConnectorConfig]) -> Connector:
+    config = cell_config(sim_cell, completion=completion_of_the_target())
+    return make_connector(config, camera_factory=simulated_camera_factory(source=sim_cell))
+
+
+@pytest.fixture
+def bus(connector: Connector, motors: dict[str, Any], calibration: dict[str, Any]) -> Iterator[Any]:
+    from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+
+    remote = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
+    remote.connect()
+    remote.enable_torque()
+    yield remote
+    if remote.is_connected:
+        remote.disconnect()
+
+
+def drive_to(bus: Any, goal: dict[str, float]) -> None:
+    """Step every joint of ``goal`` towards it, then wait until the arm is there."""
+    deadline = time.monotonic() + 60
+    while True:
+        present = bus.sync_read("Present_Position")
+        if all(abs(present[j] - g) < 0.5 for j, g in goal.items()):
+            return
+        assert time.monotonic() < deadline, f"the arm did not reach {goal}: {present}"
+        step = {j: present[j] + max(-STEP, min(STEP, g - present[j])) for j, g in goal.items()}
+        bus.sync_write("Goal_Position", step)
+        time.sleep(0.05)
+
+
+def a_job_cell(connector: Connector) -> Cell:
+    return Cell(robot_port=connector.robot_endpoint, operator_call_endpoint=connector.operator_endpoint)
+
+
+def test_a_job_that_drives_the_arm_onto_the_target_is_scored_complete(connector: Connector, bus: Any) -> None:
+    cell = a_job_cell(connector)
+    assert not cell.is_complete(block=True)
+    drive_to(bus, dict(TARGET_POSE))
+    status = cell.is_complete(block=True)
+    deadline = time.monotonic() + 30  # K frames in a row: the streak fills after the arm stops
+    while not status.complete and time.monotonic() < deadline:
+        status = cell.is_complete(block=True)
+    assert (status.complete, status.success) == (True, True)
+    assert connector.counters.completion_scorer_errors == 0
+    assert connector.record().counters["completion_frames_scored"] >= 3
+
+
+def test_a_job_that_stops_short_of_the_target_is_not_complete(connector: Connector, bus: Any) -> None:
+    short = {**TARGET_POSE, "elbow_flex": TARGET_POSE["elbow_flex"] - 15.0}
+    drive_to(bus, short)
+    cell = a_job_cell(connector)
+    for _ in range(5):  # five final checks, each on frames captured after the arm stopped
+        assert cell.is_complete(block=True) == (False, False)
+    assert connector.counters.completion_block_timeouts == 0
+
+
+def test_an_operators_outcome_wins_over_the_monitor(connector: Connector, bus: Any) -> None:
+    drive_to(bus, dict(TARGET_POSE))
+    cell = a_job_cell(connector)
+    deadline = time.monotonic() + 30
+    while not cell.is_complete(block=True) and time.monotonic() < deadline:
+        pass
+    connector.cell.inputs.report_outcome(False)  # the operator says: failed
+    assert tuple(cell.is_complete()) == (True, False)
+
+
+def test_a_cell_without_completion_settings_never_completes_on_its_own(
+    sim_cell: SimulatedCellProcess, make_connector: Callable[..., Connector],
+    cell_config: Callable[..., ConnectorConfig],
+) -> None:
+    plain = make_connector(cell_config(sim_cell), camera_factory=simulated_camera_factory(source=sim_cell))
+    assert plain.monitor is None
+    assert a_job_cell(plain).is_complete(block=True) == (False, False)
