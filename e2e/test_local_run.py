@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 import os
 import subprocess
 import sys
@@ -345,3 +346,55 @@ def test_image_without_a_container_engine_says_so_and_fails(tmp_path: Path) -> N
     assert result.status is JobStatus.FAILED
     assert "no container engine answers" in proc.stderr
     assert result.error is not None and "DOCKER_HOST" in result.error
+
+
+def completion_cell_file(tmp_path: Path) -> Path:
+    """A local cell whose monitor looks for the simulator's end-effector disc on its target pad."""
+    from armnet_agent.sim.render import target_region
+
+    left, top, width, height = target_region(640, 480)
+    cell = tmp_path / "cell.json"
+    cell.write_text(json.dumps({"completion": {
+        "camera": "front", "region": {"left": left, "top": top, "width": width, "height": height},
+        "colour": {"hueMin": 170, "hueMax": 8, "saturationMin": 120, "valueMin": 80},
+        "consecutiveFrames": 3, "rateHz": 15,
+    }}))
+    return cell
+
+
+REACH_JOB = BUS_PREAMBLE + """
+    TARGET = {"shoulder_lift": 20.0, "elbow_flex": 40.0, "wrist_flex": 0.0}  # the simulator's TARGET_POSE
+
+    @main
+    def run(ctx: Context):
+        goal = dict(TARGET) if ctx.args["reach"] else {**TARGET, "elbow_flex": 25.0}
+        before = tuple(ctx.cell.is_complete(block=True))
+        bus = open_bus(ctx.cell.robot_port, ctx.cell.calibration_file_path)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            present = bus.sync_read("Present_Position")
+            if all(abs(present[j] - g) < 0.5 for j, g in goal.items()):
+                break
+            bus.sync_write("Goal_Position", {j: present[j] + max(-8.0, min(8.0, g - present[j])) for j, g in goal.items()})
+            time.sleep(0.05)
+        checks = []
+        for _ in range(10):  # each waits for a frame captured after it to be scored
+            status = ctx.cell.is_complete(block=True)
+            checks.append(tuple(status))
+            if status.complete:
+                break
+        bus.disconnect(disable_torque=False)
+        return {"before": before, "last": checks[-1], "checks": len(checks), "at": present}
+"""
+
+
+@pytest.mark.parametrize("reach", [True, False], ids=["onto the target", "short of the target"])
+def test_the_cells_monitor_scores_a_job_complete_only_when_it_drove_the_arm_onto_the_target(
+    tmp_path: Path, reach: bool,
+) -> None:
+    job = write_job(tmp_path, "reach.py", REACH_JOB)
+    proc, result = armnet_run(str(job), "--cell-config", str(completion_cell_file(tmp_path)),
+                              "--args", json.dumps({"reach": reach}), "--timeout", "300")
+    value = assert_succeeded(result)
+    assert value["before"] == [False, False]  # the arm starts away from the target
+    assert value["last"] == ([True, True] if reach else [False, False]), value
