@@ -38,6 +38,8 @@ DEFAULT_SAFETY_LIMIT = 10.0
 DEFAULT_GRACE_SECONDS = 10.0
 DEFAULT_RESET_TIMEOUT_SECONDS = 60.0
 ROBOT_SOCKET = "robot.sock"
+#: LeRobot's dataset root under the job's output directory.
+LEROBOT_DIR = "lerobot"
 OPERATOR_SOCKET = "operator.sock"
 
 
@@ -136,6 +138,8 @@ class CellLayout:
     cache_dir: Path
     volume_dir: Path
     arms: tuple[ArmLayout, ...]
+    #: The job's own output directory (``ARMNET_OUTPUT_DIR``); the agent uploads it when the job ends.
+    output_dir: Path
 
     @property
     def robot_endpoint(self) -> str:
@@ -250,6 +254,7 @@ def plan_layout(spec: LocalCellSpec, run_dir: Path) -> CellLayout:
         cache_dir=run_dir / "cache",
         volume_dir=run_dir / "volume",
         arms=tuple(arms),
+        output_dir=run_dir / "output",
     )
 
 
@@ -315,6 +320,9 @@ def build_job_env(
         env_keys.CACHE_HOME: str(layout.cache_dir),
         env_keys.VOLUME_HOME: str(layout.volume_dir),
         env_keys.HF_HOME: str(layout.cache_dir / "huggingface"),
+        env_keys.OUTPUT_DIR: str(layout.output_dir),
+        # LeRobot's datasets (``LeRobotDataset.create``, ``lerobot-record``) land in the output directory.
+        env_keys.HF_LEROBOT_HOME: str(layout.output_dir / LEROBOT_DIR),
     }
     if not spec.is_bimanual:
         env[env_keys.CALIBRATION_FILE_PATH] = str(layout.arms[0].calibration_file)

@@ -104,15 +104,19 @@ class ContainerJob:
         env: Mapping[str, str],
         run_dir: Path,
         extra_mounts: Mapping[str, str] | None = None,
+        writable_mounts: tuple[str, ...] = (),
     ) -> ContainerJob:
         """Create and start a local run's job container (the script mounted from the host).
 
         ``extra_mounts`` (host path -> container path, read-only) is for
-        development images that take their Python environment from the host.
+        development images that take their Python environment from the host;
+        ``writable_mounts`` are host directories mounted read-write at the same
+        path (``armnet run --output``).
         """
         script = script.resolve()
         mounts = [Mount(str(run_dir), str(run_dir)), Mount(str(script.parent), JOB_DIR_IN_CONTAINER, read_only=True)]
         mounts += [Mount(host, inside, read_only=True) for host, inside in (extra_mounts or {}).items()]
+        mounts += [Mount(path, path) for path in writable_mounts]
         spec = ContainerSpec(
             image=image,
             command=tuple(container_command(script)),

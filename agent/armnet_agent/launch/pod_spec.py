@@ -149,6 +149,8 @@ class PodInputs:
     connector_user: int = CONNECTOR_USER
     #: Where the connector serves its read-only observer socket for the agent (``OBSERVER_VOLUME``), or None.
     observer_dir: str | None = None
+    #: The job's output directory on the host (``ARMNET_OUTPUT_DIR``, uploaded when the job ends), or None.
+    output_dir: str | None = None
 
 
 def device_path(arm: str) -> str:
@@ -323,6 +325,7 @@ def _job(inputs: PodInputs) -> dict[str, Any]:
             {"name": "cache", "mountPath": inputs.cache_dir},
             {"name": "volume", "mountPath": inputs.volume_dir},
             {"name": "job-tmp", "mountPath": "/tmp"},
+            *([{"name": "output", "mountPath": inputs.output_dir}] if inputs.output_dir else []),
             *_dev_mounts(inputs),
         ],
         "resources": inputs.resources.as_spec(),
@@ -355,6 +358,8 @@ def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
         {"name": "cache", "hostPath": {"path": inputs.cache_dir, "type": "DirectoryOrCreate"}},
         {"name": "volume", "hostPath": {"path": inputs.volume_dir, "type": "DirectoryOrCreate"}},
     ]
+    if inputs.output_dir:
+        volumes.append({"name": "output", "hostPath": {"path": inputs.output_dir, "type": "DirectoryOrCreate"}})
     if inputs.observer_dir:
         volumes.append({"name": OBSERVER_VOLUME, "emptyDir": {"medium": "Memory", "sizeLimit": "1Mi"}})
     volumes += [

@@ -122,7 +122,8 @@ class LocalCell:
 
     def _start(self) -> None:
         layout = self.layout
-        for directory in (layout.socket_dir, layout.calibration_dir, layout.cache_dir, layout.volume_dir):
+        for directory in (layout.socket_dir, layout.calibration_dir, layout.cache_dir, layout.volume_dir,
+                          layout.output_dir):
             directory.mkdir(parents=True, exist_ok=True)
         calibrations = {}
         shipped = {preset.name: preset.calibration for preset in PRESETS[self.spec.preset]}

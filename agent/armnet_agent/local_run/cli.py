@@ -19,6 +19,7 @@ import tempfile
 import threading
 import uuid
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +33,7 @@ from armnet_agent.launch.cell_spec import (
     LocalCellSpec,
     build_job_env,
     load_cell_file,
+    plan_layout,
     resolve_spec,
 )
 from armnet_agent.local_run.render import TerminalRenderer
@@ -77,6 +79,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="PORT",
         help="serve the cell operator's page for this cell on http://127.0.0.1:PORT "
         "(confirm resets, mark rollouts, stop; docs/fms.md)",
+    )
+    parser.add_argument(
+        "--output",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="keep the job's output directory (ARMNET_OUTPUT_DIR; LeRobot datasets land in its lerobot/) "
+        "here; default: a temporary directory removed after the run",
     )
     parser.add_argument(
         "--inputs",
@@ -127,6 +137,7 @@ class LocalRunRequest:
         auto_confirm_reset: bool,
         inputs: str | None,
         fms_port: int | None = None,
+        output_dir: Path | None = None,
     ) -> None:
         self.script = script
         self.spec = spec
@@ -136,6 +147,7 @@ class LocalRunRequest:
         self.auto_confirm_reset = auto_confirm_reset
         self.inputs = inputs
         self.fms_port = fms_port
+        self.output_dir = output_dir
 
 
 def parse_request(args: argparse.Namespace) -> LocalRunRequest:
@@ -174,7 +186,17 @@ def parse_request(args: argparse.Namespace) -> LocalRunRequest:
         auto_confirm_reset=args.auto_confirm_reset,
         inputs=args.inputs,
         fms_port=getattr(args, "fms", None),
+        output_dir=_output_dir(getattr(args, "output", None)),
     )
+
+
+def _output_dir(path: Path | None) -> Path | None:
+    """``--output``, absolute (it is mounted at the same path in a container); not a file."""
+    if path is None:
+        return None
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"--output {path} is a file; name a directory (it is created if missing)")
+    return path.resolve()
 
 
 def run_local_job(
@@ -208,9 +230,13 @@ def run_local_job(
     try:
         if request.fms_port is not None:
             page = _start_page(request.fms_port, job_id, spec.reset_timeout_seconds, hooks, renderer)
+        layout = plan_layout(spec, run_dir)
+        if request.output_dir is not None:
+            layout = replace(layout, output_dir=request.output_dir)
         with LocalCell(
             spec,
             run_dir,
+            layout=layout,
             auto_confirm_reset=request.auto_confirm_reset,
             inputs_source=request.inputs,
             on_grace_expired=hooks.kill_now.set,
@@ -297,7 +323,9 @@ def _run_in_container(
 ) -> JobResult:
     from armnet_agent.launch.container import ContainerJob
 
-    job = ContainerJob.start(engine, request.image or "", request.script, env, run_dir)
+    output = request.output_dir
+    job = ContainerJob.start(engine, request.image or "", request.script, env, run_dir,
+                             writable_mounts=(str(output),) if output is not None else ())
     try:
         return _supervise_interruptible(job, limits, hooks)
     finally:

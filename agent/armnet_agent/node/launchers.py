@@ -394,6 +394,7 @@ class PodLauncher:
             calibration_dir=str(layout.calibration_dir),
             cache_dir=str(layout.cache_dir),
             volume_dir=str(layout.volume_dir),
+            output_dir=str(layout.output_dir),
             timeout_seconds=job.timeout_seconds,
             grace_seconds=cell.grace_seconds,
             job_command=plan.container.command,
@@ -453,10 +454,10 @@ class PodSession:
         return job
 
     def _own_host_dirs(self) -> None:
-        """The cache and volume are host directories: the job's non-root user must be able to write them."""
+        """The cache, volume and output are host directories: the job's non-root user must be able to write them."""
         layout = self.request.plan.layout
         uid = self.launcher.settings.job_user
-        for directory in (layout.cache_dir, layout.volume_dir):
+        for directory in (layout.cache_dir, layout.volume_dir, layout.output_dir):
             directory.mkdir(parents=True, exist_ok=True)
             try:
                 os.chown(directory, uid, uid)

@@ -65,6 +65,10 @@ class HostPaths:
     def volume_dir(self, namespace: str) -> Path:
         return self.state_dir / "volumes" / namespace
 
+    def output_dir(self, job_uid: str) -> Path:
+        """Apart from the run directory (removed when the job ends): kept until its upload finished."""
+        return self.state_dir / "outputs" / job_uid
+
 
 @dataclass(frozen=True)
 class LaunchPlan:
@@ -126,7 +130,8 @@ def plan_launch(job: Job, cell: Cell, paths: HostPaths, secrets: Mapping[str, st
     spec = cell_spec_for(cell)
     run_dir = paths.run_dir(job.uid)
     layout = replace(
-        plan_layout(spec, run_dir), cache_dir=paths.cache_dir(cell.name), volume_dir=paths.volume_dir(job.namespace)
+        plan_layout(spec, run_dir), cache_dir=paths.cache_dir(cell.name), volume_dir=paths.volume_dir(job.namespace),
+        output_dir=paths.output_dir(job.uid),
     )
     env = build_job_env(spec, layout, job_id=job.uid, timeout_seconds=job.timeout_seconds, args=job.args)
     env.update(secrets)
@@ -145,6 +150,7 @@ def plan_launch(job: Job, cell: Cell, paths: HostPaths, secrets: Mapping[str, st
         Mount(str(layout.calibration_dir), str(layout.calibration_dir), read_only=True),
         Mount(str(layout.cache_dir), str(layout.cache_dir)),
         Mount(str(layout.volume_dir), str(layout.volume_dir)),
+        Mount(str(layout.output_dir), str(layout.output_dir)),
         *(Mount(path, path, read_only=True) for path in paths.dev_mounts),
     )
     container = ContainerSpec(

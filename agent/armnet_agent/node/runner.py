@@ -225,7 +225,7 @@ class JobRunner:
         except (SecretMissing, LaunchError) as exc:
             self._fail_before_start(str(exc))
             return
-        for directory in (plan.layout.cache_dir, plan.layout.volume_dir):
+        for directory in (plan.layout.cache_dir, plan.layout.volume_dir, plan.layout.output_dir):
             directory.mkdir(parents=True, exist_ok=True)
         inputs = LocalOperatorInputs()
         output = self._output

@@ -52,6 +52,8 @@ def test_the_env_holds_exactly_the_cell_keys() -> None:
     assert env[env_keys.CELL_SOCKET] == "unix:///tmp/armnet-run-x/sockets/robot.sock"
     assert env[env_keys.OPERATOR_CALL_ENDPOINT] == "unix:///tmp/armnet-run-x/sockets/operator.sock"
     assert env[env_keys.CALIBRATION_DIR] == "/tmp/armnet-run-x/calibration"
+    assert env[env_keys.OUTPUT_DIR] == "/tmp/armnet-run-x/output"
+    assert env[env_keys.HF_LEROBOT_HOME] == "/tmp/armnet-run-x/output/lerobot"  # LeRobot's datasets are kept
     assert all(key.startswith(("ARMNET_", "REMOTEROBOT_", "HF_")) for key in env)
     assert "PATH" not in env
 

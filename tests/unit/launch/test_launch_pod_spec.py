@@ -122,6 +122,15 @@ def test_the_observer_socket_volume_is_mounted_into_the_connector_only() -> None
     assert "observer" not in {m["name"] for m in job["volumeMounts"]}
 
 
+def test_the_output_directory_is_the_job_containers_only() -> None:
+    pod = build_pod(inputs(output_dir="/var/lib/armnet/outputs/uid-1"))
+    connector, job = containers(pod)
+    volumes = {v["name"]: v for v in pod["spec"]["volumes"]}
+    assert volumes["output"]["hostPath"] == {"path": "/var/lib/armnet/outputs/uid-1", "type": "DirectoryOrCreate"}
+    assert {"name": "output", "mountPath": "/var/lib/armnet/outputs/uid-1"} in job["volumeMounts"]
+    assert "output" not in {m["name"] for m in connector["volumeMounts"]}
+
+
 def test_without_an_observer_directory_there_is_no_observer_volume() -> None:
     assert "observer" not in {v["name"] for v in build_pod(inputs())["spec"]["volumes"]}
 

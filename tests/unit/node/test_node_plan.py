@@ -118,6 +118,16 @@ def test_calibration_is_mounted_read_only_and_the_sockets_read_write() -> None:
     assert modes[str(plan.layout.socket_dir)] is False
 
 
+def test_each_job_gets_its_own_writable_output_directory_outside_its_run_directory() -> None:
+    plan = plan_launch(parse_job(job_obj()), parse_cell(cell_obj()), PATHS, {})
+    output = plan.layout.output_dir
+    assert output == PATHS.output_dir("uid-1")
+    assert not output.is_relative_to(PATHS.run_dir("uid-1"))  # the run directory is removed when the job ends
+    assert plan.container.env[env_keys.OUTPUT_DIR] == str(output)
+    assert plan.container.env[env_keys.HF_LEROBOT_HOME] == str(output / "lerobot")
+    assert {m.inside: m.read_only for m in plan.container.mounts}[str(output)] is False
+
+
 def test_args_over_the_kernels_env_limit_fail_the_launch_with_a_clear_message() -> None:
     with pytest.raises(LaunchError, match="ARMNET_ARGS.*128 KiB"):
         plan_launch(parse_job(job_obj(args={"blob": "x" * 140_000})), parse_cell(cell_obj()), PATHS, {})
