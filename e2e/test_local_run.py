@@ -398,3 +398,21 @@ def test_the_cells_monitor_scores_a_job_complete_only_when_it_drove_the_arm_onto
     value = assert_succeeded(result)
     assert value["before"] == [False, False]  # the arm starts away from the target
     assert value["last"] == ([True, True] if reach else [False, False]), value
+
+
+def test_what_a_job_writes_to_its_output_directory_is_kept_with_output(tmp_path: Path) -> None:
+    job = write_job(tmp_path, "writer.py", """
+    import os
+    from pathlib import Path
+    from armnet_runtime import Context, main
+
+    @main
+    def run(ctx: Context):
+        out = Path(os.environ["ARMNET_OUTPUT_DIR"])
+        (out / "episode_0.txt").write_text("recorded")
+        return os.environ["HF_LEROBOT_HOME"]
+    """)
+    kept = tmp_path / "kept"
+    lerobot_home = assert_succeeded(InProcessRun(str(job), "--output", str(kept))())
+    assert (kept / "episode_0.txt").read_text() == "recorded"
+    assert lerobot_home == str(kept / "lerobot")  # LeRobot's datasets land in the kept directory
