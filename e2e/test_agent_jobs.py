@@ -144,6 +144,9 @@ def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, 
     assert len(progress) == len(printed) - len(plain) > 0
     phases = [json.loads(text)["phase"] for text in stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.status", 2)]
     assert phases[0] == "running" and phases[-1] == "succeeded", phases
+    # The job's output directory leaves the robot host with the job (until its upload to an
+    # object store is built, nothing else would ever remove it).
+    bed.wait(lambda: not (bed.state_dir / "outputs" / uid).exists(), 60, "the job's output directory removed")
 
 
 def test_a_job_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:

@@ -298,6 +298,11 @@ class JobRunner:
                 bridge.close()
             self.session = None
             shutil.rmtree(plan.layout.socket_dir.parent, ignore_errors=True)
+            if self.reported:
+                # Nothing uploads the output yet (docs/outputs.md): it goes with the job rather
+                # than fill the robot host. An agent stopped before the status keeps it for the
+                # agent that adopts the job.
+                shutil.rmtree(plan.layout.output_dir, ignore_errors=True)
 
     def _count_start(self, adopted: bool) -> None:
         if adopted:
