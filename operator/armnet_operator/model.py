@@ -66,6 +66,7 @@ class QueuedReason(StrEnum):
     ALL_CELLS_BUSY = "AllCellsBusy"
     ALL_CELLS_UNAVAILABLE = "AllCellsUnavailable"
     WAITING_FOR_CELL_RELEASE = "WaitingForCellRelease"
+    QUOTA_EXHAUSTED = "QuotaExhausted"
 
 
 class BoundReason(StrEnum):

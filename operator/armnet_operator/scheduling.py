@@ -1,23 +1,31 @@
 """Scheduling: which waiting RobotJob goes to which free Cell, and why the rest wait.
 
-Pure: input is a snapshot of jobs and cells plus ``now``; output is a plan.
-Order is priority (higher first), then submission time (FIFO), then name, so
-the plan is deterministic. A job that matches no free cell never blocks the
-jobs behind it (no head-of-line blocking): each job draws from its own pool.
+Pure: input is a snapshot of jobs and cells (and CellQuotas with their usage)
+plus ``now``; output is a plan. Tenants take turns by the fair-share rule
+(``fairshare``: within nominal share first, then lowest weighted usage); within
+a tenant the order is priority (higher first), then submission time (FIFO),
+then name, so the plan is deterministic. Without CellQuotas every job belongs
+to one unmanaged tenant and the order is exactly priority then FIFO. A job that
+matches no free cell never blocks the jobs behind it (no head-of-line
+blocking): each job draws from its own pool, and a tenant out of quota never
+blocks another tenant.
 
-Cost: one sort of the waiting jobs, then amortised O(1) per job, so the cost
+Cost: one sort of the waiting jobs, then O(log tenants) per job, so the cost
 per decision grows only with log(queue length).
 """
 
 from __future__ import annotations
 
+import heapq
 from collections import defaultdict, deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
+from .fairshare import Ledger, holds_cell
 from .health import derive_cell_phase, is_available
 from .model import Cell, CellPhase, Job, QueuedReason
+from .quota import DEFAULT_SHARING, CellQuota, FairSharing, Usage
 
 
 @dataclass(frozen=True)
@@ -119,8 +127,14 @@ def plan_bindings(
     cells: Iterable[Cell],
     now: datetime,
     heartbeat_timeout: timedelta,
+    quotas: Iterable[CellQuota] = (),
+    usage: Mapping[str, Usage] | None = None,
+    sharing: FairSharing = DEFAULT_SHARING,
 ) -> SchedulePlan:
-    """Bind waiting jobs to free available cells; give every other waiting job a reason."""
+    """Bind waiting jobs to free available cells; give every other waiting job a reason.
+
+    ``usage`` is each quota's usage by quota name (absent: none yet).
+    """
     jobs = list(jobs)
     cells = list(cells)
     occupied = occupied_cells(jobs, cells)
@@ -131,25 +145,62 @@ def plan_bindings(
     }
     pools = _Pools([cell for cell, phase in phases.values() if phase is CellPhase.READY])
     census = _Census(phases)
+    claimed = frozenset(k for k in claimed_jobs if k is not None)
+    ledger = Ledger(quotas, (j for j in jobs if holds_cell(j, claimed)), usage or {}, now, sharing)
+
+    queues: dict[str, list[Job]] = defaultdict(list)
+    for job in sorted((j for j in jobs if j.waiting), key=order_key):
+        queues[ledger.tenant_of(job)].append(job)
+    turns = [(ledger.rank(t), order_key(q[0]), t) for t, q in queues.items()]
+    heapq.heapify(turns)
+    heads = dict.fromkeys(queues, 0)
 
     bindings: list[Binding] = []
+    entries: list[tuple[Job, QueuedReason, str]] = []
+    exhausted: list[tuple[Job, QueuedReason, str]] = []
+    while turns:
+        _, _, tenant = heapq.heappop(turns)
+        queue, head = queues[tenant], heads[tenant]
+        job = queue[head]
+        heads[tenant] = head + 1
+        if job.key in claimed_jobs:
+            # A half-done binding from a crash: wait for the repair to release the claim.
+            entries.append((job, QueuedReason.WAITING_FOR_CELL_RELEASE,
+                            "a Cell still holds an unfinished claim on this job; it is released shortly"))
+        elif (problem := ledger.blocked(tenant, job)) is not None:
+            # Usage only grows within a pass: the rest of this tenant's queue waits too.
+            exhausted.extend(_quota_entry(j, census, problem) for j in queue[head:])
+            continue
+        elif (cell := pools.pop(job)) is not None:
+            bindings.append(Binding(job, cell))
+            ledger.charge(tenant)
+        else:
+            entries.append((job, *census.reason(job)))
+        if head + 1 < len(queue):
+            heapq.heappush(turns, (ledger.rank(tenant), order_key(queue[head + 1]), tenant))
+    exhausted.sort(key=lambda entry: order_key(entry[0]))
+    return SchedulePlan(tuple(bindings), _positions(entries + exhausted))
+
+
+def _quota_entry(job: Job, census: _Census, problem: str) -> tuple[Job, QueuedReason, str]:
+    """A missing or unavailable cell is the more actionable fact; else the quota is why."""
+    reason, message = census.reason(job)
+    if reason is QueuedReason.ALL_CELLS_BUSY:
+        return job, QueuedReason.QUOTA_EXHAUSTED, problem
+    return job, reason, message
+
+
+def _positions(entries: list[tuple[Job, QueuedReason, str]]) -> dict[str, QueueEntry]:
+    """Each waiting job's place among the jobs competing for its cells, in the order given.
+
+    A job with a task competes with the jobs of its task and with untasked jobs of
+    its embodiment; an untasked job with every job of its embodiment.
+    """
     queued: dict[str, QueueEntry] = {}
     ahead_any: dict[str, int] = defaultdict(int)
     ahead_untasked: dict[str, int] = defaultdict(int)
     ahead_task: dict[tuple[str, str], int] = defaultdict(int)
-    for job in sorted((j for j in jobs if j.waiting), key=order_key):
-        if job.key in claimed_jobs:
-            # A half-done binding from a crash: wait for the repair to release the claim.
-            reason, message = (
-                QueuedReason.WAITING_FOR_CELL_RELEASE,
-                "a Cell still holds an unfinished claim on this job; it is released shortly",
-            )
-        else:
-            cell = pools.pop(job)
-            if cell is not None:
-                bindings.append(Binding(job, cell))
-                continue
-            reason, message = census.reason(job)
+    for job, reason, message in entries:
         emb = job.embodiment
         if job.task is None:
             position = ahead_any[emb] + 1
@@ -159,7 +210,7 @@ def plan_bindings(
             ahead_task[(emb, job.task)] += 1
         ahead_any[emb] += 1
         queued[job.key] = QueueEntry(reason, position, message)
-    return SchedulePlan(tuple(bindings), queued)
+    return queued
 
 
 def choose_cell(

@@ -10,6 +10,7 @@ from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 
 from armnet_operator.model import Cell, CellPhase, Job, JobPhase, Timing
+from armnet_operator.quota import CellQuota, QuotaPeriod, Usage
 
 NOW = datetime(2026, 1, 1, 12, 0, 0, tzinfo=UTC)
 SO101 = "lerobot/so-101"
@@ -149,3 +150,47 @@ def a_job() -> JobBuilder:
 
 def a_cell() -> CellBuilder:
     return CellBuilder()
+
+
+class QuotaBuilder:
+    """``a_quota("team-a").nominal(2).in_cohort("lab")``: one tenant's share of SO-101 cells."""
+
+    def __init__(self, namespace: str) -> None:
+        self.quota = CellQuota(name=f"{namespace}-so101", namespace=namespace, embodiment=SO101, nominal_cells=1)
+
+    def _with(self, **changes: object) -> QuotaBuilder:
+        self.quota = replace(self.quota, **changes)  # type: ignore[arg-type]
+        return self
+
+    def named(self, name: str) -> QuotaBuilder:
+        return self._with(name=name)
+
+    def nominal(self, cells: int) -> QuotaBuilder:
+        return self._with(nominal_cells=cells)
+
+    def for_embodiment(self, embodiment: str) -> QuotaBuilder:
+        return self._with(embodiment=embodiment)
+
+    def for_task(self, task: str) -> QuotaBuilder:
+        return self._with(task=task)
+
+    def in_cohort(self, cohort: str, borrowing_limit: int | None = None) -> QuotaBuilder:
+        return self._with(cohort=cohort, borrowing_limit=borrowing_limit)
+
+    def weighing(self, weight: float) -> QuotaBuilder:
+        return self._with(weight=weight)
+
+    def with_credits(self, cell_hours: float, period: QuotaPeriod = QuotaPeriod.WEEK) -> QuotaBuilder:
+        return self._with(credits_cell_hours=cell_hours, period=period)
+
+    def build(self) -> CellQuota:
+        return self.quota
+
+
+def a_quota(namespace: str) -> QuotaBuilder:
+    return QuotaBuilder(namespace)
+
+
+def used(cell_seconds: float) -> Usage:
+    """A quota's recorded usage, as last accrued just now."""
+    return Usage(decayed_cell_seconds=cell_seconds, updated_at=NOW)
