@@ -10,7 +10,7 @@ import pytest
 pytestmark = pytest.mark.unit
 
 PACKAGE = Path(__file__).resolve().parents[3] / "operator" / "armnet_operator"
-PURE = ["model", "args", "admission", "cell_checks", "health", "scheduling", "quota", "fairshare", "lifecycle", "conditions", "patches", "parsing",
+PURE = ["model", "args", "admission", "cell_checks", "health", "scheduling", "quota", "fairshare", "quota_parsing", "lifecycle", "conditions", "patches", "parsing",
         "reconcile", "leader", "settings", "errors"]
 FORBIDDEN_IN_PURE = ("kopf", "kubernetes", "armnet_agent", "prometheus_client", "aiohttp")
 

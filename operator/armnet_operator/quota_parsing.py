@@ -1,0 +1,100 @@
+"""The boundary for CellQuotas: a body from the API server into a ``CellQuota`` and its ``Usage``.
+
+The CRD schema rejects bad values at apply time; this guards against objects
+stored before the schema (or written with validation off). A malformed quota
+raises ``PermanentError`` naming the fields to fix, so the caller reports it
+and goes on with the other quotas: a bad CellQuota never stops the operator.
+A bad usage in status is read as no usage (it is rebuilt from now on).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from .errors import PermanentError
+from .parsing import Timestamp
+from .quota import CellQuota, QuotaPeriod, Usage
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="ignore", populate_by_name=True)
+
+
+class _QuotaSpec(_Strict):
+    namespace: str = Field(min_length=1, max_length=63, pattern=r"^[a-z0-9]([-a-z0-9]*[a-z0-9])?$")
+    embodiment: str = Field(min_length=1, max_length=253)
+    task: str | None = Field(default=None, min_length=1, max_length=253)
+    nominal_cells: int = Field(alias="nominalCells", ge=0, le=100_000)
+    borrowing_limit: int | None = Field(default=None, alias="borrowingLimit", ge=0, le=100_000)
+    weight: float = Field(default=1.0, gt=0, le=1000)
+    cohort: str | None = Field(default=None, min_length=1, max_length=63)
+    credits_cell_hours: float | None = Field(default=None, alias="creditsCellHours", ge=0)
+    period: QuotaPeriod | None = None
+
+    @model_validator(mode="after")
+    def _credits_need_a_period(self) -> _QuotaSpec:
+        if (self.credits_cell_hours is None) != (self.period is None):
+            raise ValueError("creditsCellHours and period go together (credits are granted per period)")
+        if self.borrowing_limit is not None and self.cohort is None:
+            raise ValueError("borrowingLimit needs a cohort to borrow from")
+        return self
+
+
+class _Usage(_Strict):
+    decayed_cell_seconds: float = Field(default=0.0, alias="decayedCellSeconds", ge=0)
+    period_cell_seconds: float = Field(default=0.0, alias="periodCellSeconds", ge=0)
+    period_start: Timestamp | None = Field(default=None, alias="periodStart")
+    updated_at: Timestamp | None = Field(default=None, alias="updatedAt")
+
+
+def parse_cell_quota(body: Mapping[str, Any]) -> CellQuota:
+    """The quota, or ``PermanentError`` saying which fields of which CellQuota to fix."""
+    meta = body.get("metadata") or {}
+    name = str(meta.get("name") or "") if isinstance(meta, Mapping) else ""
+    if not name:
+        raise PermanentError("a CellQuota without metadata.name was ignored")
+    raw = body.get("spec")
+    if not isinstance(raw, Mapping):
+        raise PermanentError(f"CellQuota {name!r} has no spec; it was ignored")
+    try:
+        spec = _QuotaSpec.model_validate(dict(raw))
+    except ValidationError as error:
+        fields = "; ".join(
+            f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else f"spec: {e['msg']}"
+            for e in error.errors())
+        raise PermanentError(f"CellQuota {name!r} was ignored until fixed: {fields}") from None
+    return CellQuota(
+        name=name, namespace=spec.namespace, embodiment=spec.embodiment, nominal_cells=spec.nominal_cells,
+        task=spec.task, borrowing_limit=spec.borrowing_limit, weight=spec.weight, cohort=spec.cohort,
+        credits_cell_hours=spec.credits_cell_hours, period=spec.period,
+        resource_version=str(meta.get("resourceVersion") or ""),
+    )
+
+
+def parse_usage(body: Mapping[str, Any]) -> Usage:
+    """``status.usage``; absent or unreadable reads as no usage yet."""
+    status = body.get("status")
+    raw = status.get("usage") if isinstance(status, Mapping) else None
+    if not isinstance(raw, Mapping):
+        return Usage()
+    try:
+        usage = _Usage.model_validate(dict(raw))
+    except ValidationError:
+        return Usage()
+    return Usage(usage.decayed_cell_seconds, usage.period_cell_seconds, usage.period_start, usage.updated_at)
+
+
+def usage_status(usage: Usage) -> dict[str, Any]:
+    """``status.usage`` as the operator writes it back."""
+    def stamp(value: Any) -> str | None:
+        return None if value is None else value.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+    return {"decayedCellSeconds": round(usage.decayed_cell_seconds, 3),
+            "periodCellSeconds": round(usage.period_cell_seconds, 3),
+            "periodStart": stamp(usage.period_start), "updatedAt": stamp(usage.updated_at)}
+
+
+__all__ = ["parse_cell_quota", "parse_usage", "usage_status"]
