@@ -30,7 +30,15 @@ from dataclasses import dataclass
 from datetime import datetime
 
 from .model import Cell, Job
-from .quota import DEFAULT_SHARING, CellQuota, FairSharing, Usage, credits_left, period_end
+from .quota import (
+    DEFAULT_SHARING,
+    CellQuota,
+    FairSharing,
+    Usage,
+    accrue_usage,
+    credits_left,
+    period_end,
+)
 
 UNMANAGED = ""
 """The tenant key of jobs from namespaces without any CellQuota."""
@@ -266,4 +274,42 @@ def _victim(
     return best
 
 
-__all__ = ["UNMANAGED", "Ledger", "Reclaim", "holds_cell", "index_quotas", "plan_reclaim"]
+@dataclass(frozen=True)
+class Standing:
+    """A quota's standing for its status: what it holds, borrows and waits for, and its usage."""
+
+    cells_in_use: int
+    borrowed_cells: int
+    waiting_jobs: int
+    usage: Usage
+
+
+def plan_standings(
+    jobs: Iterable[Job],
+    cells: Iterable[Cell],
+    quotas: Iterable[CellQuota],
+    usage: Mapping[str, Usage],
+    now: datetime,
+    sharing: FairSharing = DEFAULT_SHARING,
+) -> dict[str, Standing]:
+    """Each quota's standing at ``now``, its usage accrued since it was last written.
+
+    The cells held now are taken as held since the last write: the writer calls
+    this every pass (seconds apart), so the error is one pass of a change.
+    """
+    jobs = list(jobs)
+    claimed = {c.current_job for c in cells if c.current_job}
+    ledger = Ledger(quotas, (j for j in jobs if holds_cell(j, claimed)), usage, now, sharing)
+    waiting: dict[str, int] = defaultdict(int)
+    for job in jobs:
+        if job.waiting and job.key not in claimed:
+            waiting[ledger.tenant_of(job)] += 1
+    return {
+        name: Standing(a.used, max(0, a.used - a.quota.nominal_cells), waiting[name],
+                       accrue_usage(a.usage, a.used, now, sharing.half_life, a.quota.period))
+        for name, a in ledger.accounts.items()
+    }
+
+
+__all__ = ["UNMANAGED", "Ledger", "Reclaim", "Standing", "holds_cell", "index_quotas", "plan_reclaim",
+           "plan_standings"]

@@ -15,6 +15,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import PermanentError
+from .fairshare import Standing
 from .parsing import Timestamp
 from .quota import CellQuota, QuotaPeriod, Usage
 
@@ -97,4 +98,10 @@ def usage_status(usage: Usage) -> dict[str, Any]:
             "periodStart": stamp(usage.period_start), "updatedAt": stamp(usage.updated_at)}
 
 
-__all__ = ["parse_cell_quota", "parse_usage", "usage_status"]
+def standing_status(standing: Standing) -> dict[str, Any]:
+    """The quota's ``status`` as the operator writes it (a merge patch of these fields)."""
+    return {"cellsInUse": standing.cells_in_use, "borrowedCells": standing.borrowed_cells,
+            "waitingJobs": standing.waiting_jobs, "usage": usage_status(standing.usage)}
+
+
+__all__ = ["parse_cell_quota", "parse_usage", "standing_status", "usage_status"]
