@@ -26,7 +26,13 @@ CHART = REPO_ROOT / "helm" / "armnet"
 ALL_OPTIONS = CHART / "ci" / "all-options-values.yaml"
 HELM_CACHE = Path.home() / ".cache" / "armnet" / "helm"
 #: The CRDs the chart installs (and keeps on uninstall).
-CRDS = ("cells.armnet.io", "robotjobs.armnet.io")
+CRDS = tuple(sorted(
+    doc["metadata"]["name"]
+    for path in (REPO_ROOT / "crds").glob("*.yaml")
+    for doc in yaml.safe_load_all(path.read_text())
+    if isinstance(doc, dict) and doc.get("kind") == "CustomResourceDefinition"
+))
+"""Every CRD the chart ships (the repository's crds/ is their single source)."""
 
 
 def helm_binary() -> Path:

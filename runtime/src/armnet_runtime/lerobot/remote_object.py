@@ -36,7 +36,12 @@ from armnet_runtime.errors import (
     RemoteAttributeError,
     RemoteCallError,
 )
-from armnet_runtime.transport import CREATE_TIMEOUT_S, DEFAULT_CALL_TIMEOUT_S, PersistentConnection, check_response
+from armnet_runtime.transport import (
+    CREATE_TIMEOUT_S,
+    DEFAULT_CALL_TIMEOUT_S,
+    PersistentConnection,
+    check_response,
+)
 from armnet_runtime.wire import decode, encode, encode_items
 
 logger = logging.getLogger("armnet_runtime.lerobot")
