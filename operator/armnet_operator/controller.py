@@ -20,6 +20,8 @@ from .kube import WRITERS, KubeApi
 from .metrics import Metrics
 from .model import Cell, Job
 from .parsing import parse_cell, parse_job
+from .quota import QuotaObject
+from .quota_parsing import read_quota
 from .reconcile import Limits, Memory, reconcile_once
 from .settings import OperatorSettings
 
@@ -45,6 +47,7 @@ class Cache:
     def __init__(self) -> None:
         self.jobs: dict[str, Job] = {}
         self.cells: dict[str, Cell] = {}
+        self.quotas: dict[str, QuotaObject] = {}
         self._job_overlay: dict[str, tuple[Job, float]] = {}
         self._cell_overlay: dict[str, tuple[Cell, float]] = {}
         self._lock = threading.Lock()
@@ -75,6 +78,25 @@ class Cache:
                 _settle(self._cell_overlay, name, cell.resource_version)
         self.changed.set()
 
+    def on_quota(self, event_type: str | None, body: Mapping[str, Any]) -> None:
+        """A CellQuota event; a malformed one is kept too (with its problem), so it is reported."""
+        quota = read_quota(body)
+        with self._lock:
+            if event_type == "DELETED":
+                self.quotas.pop(quota.name, None)
+            elif _newer(quota.resource_version, self.quotas.get(quota.name)):
+                self.quotas[quota.name] = quota
+        self.changed.set()
+
+    def load_quotas(self, bodies: list[dict[str, Any]]) -> None:
+        """The full list (read once per leadership): nothing binds on a cache the quota watch has not filled."""
+        for body in bodies:
+            self.on_quota("ADDED", body)
+
+    def quota_snapshot(self) -> list[QuotaObject]:
+        with self._lock:
+            return list(self.quotas.values())
+
     def remember(self, jobs: Mapping[str, Job], cells: Mapping[str, Cell], deleted: set[str]) -> None:
         stamp = time.monotonic()
         with self._lock:
@@ -101,6 +123,16 @@ class Cache:
                 else:
                     cells[name] = cell
         return list(jobs.values()), list(cells.values())
+
+
+def _newer(version: str, held: QuotaObject | None) -> bool:
+    """A listed quota never replaces a newer one the watch already delivered."""
+    if held is None:
+        return True
+    try:
+        return int(version) >= int(held.resource_version)
+    except ValueError:
+        return True
 
 
 def _settle(overlay: dict[str, Any], key: str, seen_version: str) -> None:
@@ -135,8 +167,9 @@ class Controller:
         self.memory = Memory()
         self.limits = Limits(
             position_refresh=timedelta(seconds=settings.position_refresh), parallel_binds=WRITERS,
-            queue_seconds=QUEUE_SECONDS_PER_PASS,
+            queue_seconds=QUEUE_SECONDS_PER_PASS, quota_refresh=timedelta(seconds=settings.quota_refresh),
         )
+        self._quotas_listed = False
         self.leading = False
         self._renewed_at: datetime | None = None
         self._task: asyncio.Task[None] | None = None
@@ -259,6 +292,13 @@ class Controller:
         watched = set(self.settings.namespaces)
         return [c for c in cells if not c.current_job or c.current_job.split("/")[0] in watched]
 
+    def _quotas_in_scope(self, quotas: list[QuotaObject]) -> list[QuotaObject]:
+        """A namespaced operator applies (and writes the status of) only its own tenants' CellQuotas."""
+        if not self.settings.namespaces:
+            return quotas
+        watched = set(self.settings.namespaces)
+        return [q for q in quotas if q.namespace in watched]
+
     def _watch_crds(self, now: datetime, every: timedelta) -> None:
         """Every replica, leader or not, notices its CRDs deleted or replaced (at most every ``every``).
 
@@ -310,16 +350,25 @@ class Controller:
         if leading != self.leading:
             log.info("%s leadership", "gained" if leading else "lost")
             self.memory = Memory()
+            self._quotas_listed = False
         self.leading = leading
         self.metrics.leader.set(1 if leading else 0)
         if not leading:
             return
         started = time.perf_counter()
+        if not self._quotas_listed:
+            try:
+                self.cache.load_quotas(self.api.list_quotas())
+            except PermanentError as error:  # an RBAC without cellquotas: schedule unrationed, say why
+                log.error("%s; CellQuotas are not applied", error)
+            self._quotas_listed = True
         jobs, cells = self.cache.snapshot()
         cells = self._cells_in_scope(cells)
+        quotas = self._quotas_in_scope(self.cache.quota_snapshot())
         self.api.writing(True)
         try:
-            outcome = reconcile_once(jobs, cells, now, self.settings.timing, self.api, self.memory, self.limits)
+            outcome = reconcile_once(jobs, cells, now, self.settings.timing, self.api, self.memory, self.limits,
+                                     quotas)
         finally:
             self.api.writing(False)
         self.cache.remember(outcome.jobs_written, outcome.cells_written, outcome.deleted)

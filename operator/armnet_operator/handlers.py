@@ -130,6 +130,10 @@ def build_registry(
     async def cell_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:
         _store(controller, "Cell", body, lambda: controller.cache.on_cell(event.get("type"), body))
 
+    @kopf.on.event(GROUP, VERSION, "cellquotas", registry=registry)
+    async def quota_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:
+        _store(controller, "CellQuota", body, lambda: controller.cache.on_quota(event.get("type"), body))
+
     return registry, controller
 
 

@@ -74,7 +74,8 @@ def _translate(error: ApiException, what: str) -> Exception:
     if error.status in (401, 403):
         return PermanentError(
             f"{what}: forbidden ({error.reason}); grant the operator's ServiceAccount the RBAC "
-            "rules in helm/armnet (robotjobs, robotjobs/status, cells/status, events, leases, "
+            "rules in helm/armnet (robotjobs, robotjobs/status, cells/status, cellquotas, cellquotas/status, "
+            "events, leases, "
             "customresourcedefinitions get)"
         )
     if error.status == 422:
@@ -169,6 +170,10 @@ class KubeApi:
                 return cast(dict[str, Any], self._send(self.custom.patch_cluster_custom_object_status,
                     GROUP, VERSION, "cells", patch.name, patch.body
                 ))
+            if patch.target is Target.QUOTA_STATUS:
+                return cast(dict[str, Any], self._send(self.custom.patch_cluster_custom_object_status,
+                    GROUP, VERSION, "cellquotas", patch.name, patch.body
+                ))
             if patch.target is Target.JOB_STATUS:
                 return cast(dict[str, Any], self._send(self.custom.patch_namespaced_custom_object_status,
                     GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
@@ -195,6 +200,16 @@ class KubeApi:
             ))
         except ApiException as error:
             raise _translate(error, f"robotjob {namespace}/{name}") from error
+
+    def list_quotas(self) -> list[dict[str, Any]]:
+        """Every CellQuota (none if the CRD is not installed: nothing is rationed then)."""
+        try:
+            found = self._send(self.custom.list_cluster_custom_object, GROUP, VERSION, "cellquotas")
+        except ApiException as error:
+            if error.status == 404:
+                return []
+            raise _translate(error, "list cellquotas") from error
+        return list(cast(dict[str, Any], found).get("items") or [])
 
     def read_cell(self, name: str) -> dict[str, Any]:
         try:

@@ -34,6 +34,7 @@ class Target(StrEnum):
     CELL_STATUS = "cell-status"
     JOB_STATUS = "job-status"
     JOB = "job"
+    QUOTA_STATUS = "cellquota-status"
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,12 @@ def _job_status(job: Job, status: dict[str, Any]) -> Patch:
 
 def _conditions(job: Job) -> list[dict[str, Any]]:
     return [dict(c) for c in job.conditions]
+
+
+def quota_status(name: str, status: dict[str, Any]) -> Patch:
+    """A CellQuota's status, without a resourceVersion: the leading operator is its only writer,
+    and the spec (which others change) is not in the patch."""
+    return Patch(Target.QUOTA_STATUS, name, "", {"status": status})
 
 
 def claim_cell(cell: Cell, job: Job, now: datetime) -> Patch:

@@ -54,6 +54,23 @@ class Usage:
 
 
 @dataclass(frozen=True)
+class QuotaObject:
+    """A CellQuota as the operator's cache holds it: parsed, or why it could not be.
+
+    ``namespace`` is ``spec.namespace`` as written (None if unreadable), so a
+    namespaced operator can tell a malformed quota of its own tenants from
+    another operator's. ``usage`` is read from the status either way.
+    """
+
+    name: str
+    quota: CellQuota | None
+    usage: Usage
+    problem: str | None = None
+    namespace: str | None = None
+    resource_version: str = ""
+
+
+@dataclass(frozen=True)
 class FairSharing:
     """How usage is weighed when tenants compete for the same cells."""
 
@@ -126,6 +143,6 @@ def credits_left(quota: CellQuota, usage: Usage, now: datetime) -> float | None:
 
 
 __all__ = [
-    "DEFAULT_SHARING", "CellQuota", "FairSharing", "QuotaPeriod", "Usage", "accrue_usage", "credits_left", "decay",
+    "DEFAULT_SHARING", "CellQuota", "FairSharing", "QuotaObject", "QuotaPeriod", "Usage", "accrue_usage", "credits_left", "decay",
     "period_end", "period_start",
 ]

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from .errors import PermanentError
 from .fairshare import Standing
 from .parsing import Timestamp
-from .quota import CellQuota, QuotaPeriod, Usage
+from .quota import CellQuota, QuotaObject, QuotaPeriod, Usage
 
 
 class _Strict(BaseModel):
@@ -98,10 +98,28 @@ def usage_status(usage: Usage) -> dict[str, Any]:
             "periodStart": stamp(usage.period_start), "updatedAt": stamp(usage.updated_at)}
 
 
+def read_quota(body: Mapping[str, Any]) -> QuotaObject:
+    """What the cache keeps of one CellQuota body; never raises on a malformed one."""
+    meta = body.get("metadata")
+    meta = meta if isinstance(meta, Mapping) else {}
+    spec = body.get("spec")
+    namespace = spec.get("namespace") if isinstance(spec, Mapping) else None
+    try:
+        quota: CellQuota | None = parse_cell_quota(body)
+        problem = None
+    except PermanentError as error:
+        quota, problem = None, str(error)
+    return QuotaObject(
+        name=str(meta.get("name") or ""), quota=quota, usage=parse_usage(body), problem=problem,
+        namespace=namespace if isinstance(namespace, str) else None,
+        resource_version=str(meta.get("resourceVersion") or ""),
+    )
+
+
 def standing_status(standing: Standing) -> dict[str, Any]:
     """The quota's ``status`` as the operator writes it (a merge patch of these fields)."""
     return {"cellsInUse": standing.cells_in_use, "borrowedCells": standing.borrowed_cells,
             "waitingJobs": standing.waiting_jobs, "usage": usage_status(standing.usage)}
 
 
-__all__ = ["parse_cell_quota", "parse_usage", "standing_status", "usage_status"]
+__all__ = ["parse_cell_quota", "parse_usage", "read_quota", "standing_status", "usage_status"]

@@ -48,6 +48,8 @@ from .lifecycle import (
 )
 from .model import Cell, CellPhase, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
+from .quota import QuotaObject, Usage
+from .quota_writes import current_usage, plan_quota_writes, quotas_in_force
 from .scheduling import Binding, QueueEntry, plan_bindings
 
 log = logging.getLogger(__name__)
@@ -76,6 +78,10 @@ class Memory:
     seen_phases: MutableMapping[str, JobPhase | None] = field(default_factory=dict)
     failing: MutableMapping[str, str] = field(default_factory=dict)
     """Objects a pass could not handle, by subject key, with the error last reported for each."""
+    quota_usage: MutableMapping[str, Usage] = field(default_factory=dict)
+    """Each CellQuota's usage as this replica last wrote it (until the watch delivers it)."""
+    quota_shown: MutableMapping[str, dict[str, Any]] = field(default_factory=dict)
+    """Each CellQuota's status as last written, apart from its usage: a change is written at once."""
 
 
 @dataclass(frozen=True)
@@ -130,6 +136,8 @@ class Limits:
     """Jobs whose finalizer or queue status one pass writes; the rest wait for the next pass."""
     queue_seconds: float | None = None
     """Time a pass may spend on finalizers and queue status; what is left waits for the next pass."""
+    quota_refresh: timedelta = timedelta(seconds=30)
+    """A CellQuota's usage is written at least this often while nothing else in its status changes."""
 
 
 def reconcile_once(
@@ -140,8 +148,12 @@ def reconcile_once(
     api: Api,
     memory: Memory,
     limits: Limits = Limits(),
+    quotas: Sequence[QuotaObject] = (),
 ) -> Outcome:
+    """One pass. ``quotas`` are the CellQuotas in scope (none: no tenant is rationed)."""
     outcome = Outcome()
+    in_force, _ = quotas_in_force(quotas)
+    usage = current_usage(quotas, memory.quota_usage)
     jobs, cells = list(jobs), check_cells(cells)
     try:
         actions = plan_lifecycle(jobs, cells, now, timing)
@@ -167,13 +179,13 @@ def reconcile_once(
     by_key.update(outcome.jobs_written)
     by_name.update(outcome.cells_written)
     try:
-        plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout)
+        plan = plan_bindings(by_key.values(), by_name.values(), now, timing.heartbeat_timeout, in_force, usage)
     except Exception:  # noqa: BLE001 - as above: the pass goes on without the objects it fails on
         kept_jobs, kept_cells, failed = screen(by_key.values(), by_name.values(), now, timing)
         outcome.failed.update(failed)
         by_key = {j.key: j for j in kept_jobs}
         by_name = {c.name: c for c in kept_cells}
-        plan = plan_bindings(kept_jobs, kept_cells, now, timing.heartbeat_timeout)
+        plan = plan_bindings(kept_jobs, kept_cells, now, timing.heartbeat_timeout, in_force, usage)
     # Bindings touch disjoint cells and jobs, so they may run side by side: the
     # preconditions, not the ordering, are what keep them safe.
     bound_before = len(outcome.bound)
@@ -205,9 +217,50 @@ def reconcile_once(
         if key in plan.queued:
             memory.queue_written_at[key] = now
     by_key.update(outcome.jobs_written)
+    if quotas or memory.quota_shown:
+        _write_quotas(by_key.values(), by_name.values(), quotas, now, api, memory, limits, outcome)
     _report_failures(outcome, {**{f"job:{k}": j for k, j in by_key.items()},
                                **{f"cell:{n}": c for n, c in by_name.items()}}, memory, api, now)
     return outcome
+
+
+def _write_quotas(jobs: Iterable[Job], cells: Iterable[Cell], quotas: Sequence[QuotaObject], now: datetime,
+                  api: Api, memory: Memory, limits: Limits, outcome: Outcome) -> None:
+    """Each CellQuota's status that is due (last: binds and queue status go first).
+
+    A quota that cannot be read or is ignored is logged once per distinct
+    problem and says why in ``status.message``. A failed write (even a
+    forbidden one: an RBAC without ``cellquotas/status``) is logged and retried
+    next pass; it never stops scheduling.
+    """
+    problems = {f"quota:{name}": problem for name, problem in quotas_in_force(quotas)[1].items()}
+    for key, problem in problems.items():
+        if memory.failing.get(key) != problem:
+            memory.failing[key] = problem
+            log.error("%s", problem)
+    for key in [k for k in memory.failing if k.startswith("quota:") and k not in problems]:
+        del memory.failing[key]
+    known = {q.name for q in quotas}
+    for stale in [n for n in memory.quota_shown if n not in known]:
+        memory.quota_shown.pop(stale, None)
+        memory.quota_usage.pop(stale, None)
+    writes = plan_quota_writes(jobs, cells, quotas, memory.quota_usage, memory.quota_shown, now,
+                               limits.quota_refresh)
+    for write in writes:
+        try:
+            api.patch(patches.quota_status(write.name, write.status))
+        except NotFound:
+            continue
+        except TransientError as error:
+            _count(error, outcome)
+            continue
+        except Exception as error:  # noqa: BLE001 - a quota's status (its CRD gone, RBAC) never stops scheduling
+            log.error("status of CellQuota %s not written, retrying next pass: %s", write.name, error)
+            continue
+        outcome.writes += 1
+        memory.quota_shown[write.name] = {k: v for k, v in write.status.items() if k != "usage"}
+        if write.usage is not None:
+            memory.quota_usage[write.name] = write.usage
 
 
 def screen(

@@ -30,6 +30,7 @@ class OperatorSettings(BaseModel):
     default_ttl: float | None = Field(86400.0, ge=0, description="seconds finished RobotJobs are kept when they set no ttlSecondsAfterFinished (none: forever)")
     reconcile_period: float = Field(5.0, gt=0, description="seconds between full reconciles when nothing changes")
     position_refresh: float = Field(5.0, ge=0, description="minimum seconds between queuePosition-only updates of one job")
+    quota_refresh: float = Field(30.0, gt=0, description="seconds between writes of a CellQuota's usage when nothing else in its status changes")
     namespaces: tuple[str, ...] = Field((), description="namespaces to watch for RobotJobs (empty: all)")
     metrics_port: int = Field(8080, ge=0, le=65535, description="port of /metrics (0: off)")
     metrics_address: str = "0.0.0.0"

@@ -66,6 +66,7 @@ class World:
         self.rv = 0
         self.jobs: dict[str, dict[str, Any]] = {}
         self.cells: dict[str, dict[str, Any]] = {}
+        self.quotas: dict[str, dict[str, Any]] = {}
         self.crash_after: int | None = None
         self.events: list[tuple[str, str]] = []
 
@@ -115,8 +116,9 @@ class World:
             if self.crash_after == 0:
                 raise Crash()
             self.crash_after -= 1
-        store = self.cells if patch.target is Target.CELL_STATUS else self.jobs
-        key = patch.name if patch.target is Target.CELL_STATUS else f"{patch.namespace}/{patch.name}"
+        cluster = {Target.CELL_STATUS: self.cells, Target.QUOTA_STATUS: self.quotas}
+        store = cluster.get(patch.target, self.jobs)
+        key = patch.name if patch.target in cluster else f"{patch.namespace}/{patch.name}"
         if key not in store:
             raise NotFound(key)
         obj = store[key]
