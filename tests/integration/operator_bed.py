@@ -147,10 +147,13 @@ def operator_settings(k8s: Any, namespace: str, **overrides: Any) -> Any:
 @contextlib.contextmanager
 def running_operator(k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch, **overrides: Any) -> Iterator[Any]:
     monkeypatch.setenv("KUBECONFIG", str(k8s.kubeconfig))  # kopf's own login
-    registry, controller = build_registry(operator_settings(k8s, namespace, **overrides))
+    settings = operator_settings(k8s, namespace, **overrides)
+    registry, controller = build_registry(settings)
     kopf_settings = kopf.OperatorSettings()
     kopf_settings.watching.server_timeout = 10
-    args = ["run", "--standalone", "--namespace", namespace]
+    args = ["run", "--standalone"]
+    for watched in settings.namespaces:
+        args += ["--namespace", watched]
     with KopfRunner(args, registry=registry, settings=kopf_settings, timeout=120) as runner:
         yield controller
     assert runner.exception is None, runner.output

@@ -1,0 +1,63 @@
+"""CellQuotas applied by the real operator on the real API server: a tenant at its quota waits
+with QuotaExhausted while another tenant binds, the quota's status shows its usage, and a
+restarted operator continues from the usage in the status."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+import pytest
+
+from tests.integration.operator_bed import Bed, G, V, running_operator
+
+pytestmark = pytest.mark.integration
+
+
+def quota(bed: Bed, name: str, namespace: str, nominal: int) -> None:
+    bed.apply({"apiVersion": f"{G}/{V}", "kind": "CellQuota", "metadata": {"name": name},
+               "spec": {"namespace": namespace, "embodiment": bed.embodiment, "nominalCells": nominal}})
+
+
+def quota_status(bed: Bed, name: str) -> dict[str, Any]:
+    return dict(bed.api.get_cluster_custom_object(G, V, "cellquotas", name).get("status") or {})
+
+
+def test_a_tenant_at_its_quota_waits_while_another_binds_and_usage_survives_a_restart(
+        k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    other = k8s.create_namespace("fairshare-b")
+    bed, bed_b = Bed(k8s, namespace), Bed(k8s, other)
+    bed_b.embodiment = bed.embodiment
+    qa, qb = f"a-{namespace}", f"b-{namespace}"
+    try:
+        quota(bed, qa, namespace, 1)
+        quota(bed, qb, other, 1)
+        bed.cell("c1")
+        bed.cell("c2")
+        settings = {"namespaces": (namespace, other), "quota_refresh": 0.5}
+        with running_operator(k8s, namespace, monkeypatch, **settings):
+            bed.job("a1")
+            bed.wait_job("a1", phase="dispatched")
+            bed.job("a2")
+            body = bed.wait_job("a2", phase="queued", queuedReason="QuotaExhausted")
+            assert qa in bed.condition(body, "Queued")["message"]
+            bed_b.job("b1")
+            bed_b.wait_job("b1", phase="dispatched")
+            bed.wait("the quota's status with usage", lambda: (s := quota_status(bed, qa)).get("cellsInUse") == 1
+                     and s.get("waitingJobs") == 1 and s["usage"]["decayedCellSeconds"] > 0)
+        planted = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        bed.api.patch_cluster_custom_object_status(G, V, "cellquotas", qa, {"status": {"usage": {
+            "decayedCellSeconds": 100000, "updatedAt": planted}}})
+        with running_operator(k8s, namespace, monkeypatch, **settings):
+            usage = bed.wait("usage written again after the restart", lambda: (
+                u := quota_status(bed, qa)["usage"])["updatedAt"] > planted and u)
+            assert usage["decayedCellSeconds"] >= 99000  # read back, not restarted from zero
+            assert bed.wait_job("a2", phase="queued")["status"]["queuedReason"] == "QuotaExhausted"
+        header = k8s.kubectl("get", "cellquota", qa).stdout.splitlines()[0].split()
+        assert {"TENANT", "NOMINAL", "INUSE", "WAITING"} <= set(header)
+    finally:
+        bed.close()
+        bed_b.close()
+        for name in (qa, qb):
+            k8s.kubectl("delete", "cellquota", name, "--ignore-not-found", "--wait=false", check=False)
+        k8s.delete_namespace(other)
