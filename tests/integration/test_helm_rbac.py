@@ -159,6 +159,8 @@ def test_operator_account_writes_jobs_cells_their_status_and_only_its_lease(rele
     assert release.as_(release.operator, "get", "robotjobs", "-A").returncode == 0
     assert release.can(release.operator, "patch", "robotjobs", subresource="status")
     assert release.can(release.operator, "patch", "cells", subresource="status")
+    assert release.can(release.operator, "watch", "cellquotas")
+    assert release.can(release.operator, "patch", "cellquotas", subresource="status")
     assert release.can(release.operator, "delete", "robotjobs")
     assert release.can(release.operator, "create", "events")
     assert release.can(release.operator, "create", "leases", release.namespace)
@@ -170,6 +172,7 @@ def test_operator_account_writes_jobs_cells_their_status_and_only_its_lease(rele
 def test_operator_account_cannot_change_cell_specs(release: Release) -> None:
     assert not release.can(release.operator, "patch", "cells")
     assert not release.can(release.operator, "create", "cells")
+    assert not release.can(release.operator, "patch", "cellquotas")  # tenants' shares are the admin's
 
 
 # ---------------------------------------------------------------------------- agent
