@@ -9,7 +9,7 @@ proxy) drives the arm; the SDK's ``Cell`` asks.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -42,16 +42,7 @@ def connector(sim_cell: SimulatedCellProcess, make_connector: Callable[..., Conn
     return make_connector(config, camera_factory=simulated_camera_factory(source=sim_cell))
 
 
-@pytest.fixture
-def bus(connector: Connector, motors: dict[str, Any], calibration: dict[str, Any]) -> Iterator[Any]:
-    from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
-
-    remote = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
-    remote.connect()
-    remote.enable_torque()
-    yield remote
-    if remote.is_connected:
-        remote.disconnect()
+# `bus` is the connector conftest's: LeRobot's bus through this module's `connector`.
 
 
 def drive_to(bus: Any, goal: dict[str, float]) -> None:
