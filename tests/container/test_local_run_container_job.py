@@ -168,3 +168,24 @@ def test_an_exit_burst_read_from_the_log_file_arrives_complete_and_in_order_on_e
         job.remove()
     assert stdout.splitlines() == [f"line {i}" for i in range(lines)]
     assert b"".join(stderr).decode().splitlines() == [f"err {i}" for i in range(0, lines, 100)]
+
+
+def test_the_engine_is_asked_what_it_is_once_per_client_and_reads_its_log_file(podman: Podman) -> None:
+    """Podman answers ``/version`` with a package-manager query per component: once per client."""
+    from armnet_agent.launch import container as launch_container
+
+    asked = Counter[str]()
+    real_version = podman.client.version
+
+    def counted_version() -> dict[str, object]:
+        asked["version"] += 1
+        return dict(real_version())
+
+    podman.client.version = counted_version
+    try:
+        launch_container._ENGINE_KINDS.pop(podman.client, None)
+        kinds = [launch_container._engine_kind(podman.client) for _ in range(3)]
+    finally:
+        del podman.client.version
+    assert kinds == [("podman", "")] * 3
+    assert asked["version"] == 1

@@ -10,11 +10,13 @@ command. It implements the supervisor's ``LaunchedJob``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
 import threading
 import time
+import weakref
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -326,17 +328,40 @@ class ContainerJob:
         _remove_quietly(self._container)
 
 
+_ENGINE_KINDS: weakref.WeakKeyDictionary[Any, str] = weakref.WeakKeyDictionary()
+
+
+def _engine_kind(client: Any) -> tuple[str | None, str]:
+    """``"podman"`` or ``"other"`` for the engine behind ``client``, asked once per client.
+
+    Why once: Podman answers ``/version`` by asking the host's package manager
+    for each component's package (a ``dpkg-query`` per component), a cost every
+    job paid; the engine behind one client does not change. A failure is not
+    remembered: the next job asks again.
+    """
+    known = _ENGINE_KINDS.get(client)
+    if known is not None:
+        return known, ""
+    try:
+        components = client.version().get("Components") or []
+    except Exception as exc:  # noqa: BLE001 - the API follow still works without it
+        return None, str(exc)
+    kind = "podman" if any("podman" in str(c.get("Name", "")).lower() for c in components) else "other"
+    with contextlib.suppress(TypeError):  # a client that takes no weak reference is asked every time
+        _ENGINE_KINDS[client] = kind
+    return kind, ""
+
+
 def _log_file(client: Any, container: Any) -> tuple[Path | None, str]:
     """The container's log file when it can be read here in the CRI format, else None and why.
 
     Podman's Docker API reports its ``k8s-file`` log as ``json-file``, so the
     engine is asked for its name: Docker's own json-file logs are another format.
     """
-    try:
-        components = client.version().get("Components") or []
-    except Exception as exc:  # noqa: BLE001 - the API follow still works without it
-        return None, f"the engine's version is unknown ({exc})"
-    if not any("podman" in str(c.get("Name", "")).lower() for c in components):
+    kind, why_unknown = _engine_kind(client)
+    if kind is None:
+        return None, f"the engine's version is unknown ({why_unknown})"
+    if kind != "podman":
         return None, "the engine is not Podman (its log file is not in the CRI format)"
     path = str(container.attrs.get("LogPath") or "")
     if not path:
