@@ -3,13 +3,15 @@
 Every pass reads the Cells of this node, the RobotJobs and the job containers
 on the engine (by label), and hands each cell's worker what concerns it. Watches
 on Cells and RobotJobs only wake the loop early; correctness comes from the
-pass, so a missed event costs at most one ``pass_period``.
+pass, so a missed event costs at most one ``pass_period``. The engine is listed
+at most once a ``pass_period`` (see ``NodeAgent._containers``).
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,6 +65,8 @@ class NodeAgent:
         )
         self.workers: dict[str, CellWorker] = {}
         self._wake = threading.Event()
+        self._rows: dict[str, Any] | None = None
+        self._rows_listed_at = 0.0
 
     def run(self, stop: threading.Event) -> None:
         log.info("node agent for node %s started", self.settings.node_name)
@@ -132,8 +136,20 @@ class NodeAgent:
         return jobs
 
     def _containers(self) -> dict[str, Any]:
-        """Job uid -> the launcher's row of its container or pod (one list call)."""
-        return self.launcher.running()
+        """Job uid -> the launcher's row of its container or pod; one list call a pass period at most.
+
+        A pass runs on every watch event too, several a second while jobs report, and
+        Podman answers each list by asking the OCI runtime for the state of every running
+        container (a ``runc`` process each): listed on every pass, the engine's lists took
+        a third of a core of the suite's two. The rows serve adoption and orphan removal,
+        which a pass period's delay does not harm: a running job's worker follows its own
+        container, never the list.
+        """
+        now = time.monotonic()
+        if self._rows is None or now - self._rows_listed_at >= self.settings.pass_period:
+            self._rows = self.launcher.running()
+            self._rows_listed_at = now
+        return self._rows
 
     def _remove_orphans(self, jobs: list[Job], containers: dict[str, Any]) -> None:
         """A container of one of this node's cells whose RobotJob no longer exists.
