@@ -78,8 +78,8 @@ def instrument_stages(current: dict[str, float]) -> Callable[[], None]:
     """
     import functools
 
-    from armnet_agent.connector import motion, session
-    from armnet_agent.connector.policed_bus import BusPolicy
+    from armnet_connector import motion, session
+    from armnet_connector.policed_bus import BusPolicy
     from lerobot.motors.feetech import FeetechMotorsBus
 
     originals: list[tuple[Any, str, Any]] = []
@@ -137,7 +137,7 @@ def traced_work(call: Callable[[], Any]) -> dict[str, tuple[int, int]]:
 
     def kind(frame: Any) -> list[int]:
         name = frame.f_code.co_filename
-        return counts["armnet" if "/armnet_agent/" in name or "/armnet_runtime/" in name else "LeRobot and below"]
+        return counts["armnet" if "/armnet_connector/" in name or "/armnet_sim/" in name or "/armnet_runtime/" in name else "LeRobot and below"]
 
     _count_traced(call, kind)
     return {name: (calls, opcodes) for name, (calls, opcodes) in counts.items()}
@@ -180,7 +180,7 @@ class InProcessSocket:
         pass
 
     def sendall(self, line: bytes) -> None:
-        from armnet_agent.connector.server import encode_reply, parse_request
+        from armnet_connector.server import encode_reply, parse_request
 
         self.serving = True
         try:
@@ -220,8 +220,8 @@ def proxy_on_session(session: Any, object_id: str, endpoint: str, bus_kwargs: di
 def hot_pieces(session: Any, object_id: str, goals: dict[str, float], present: dict[str, float],
                calls: int, proxy: tuple[Any, Any] | None = None) -> dict[str, Any]:
     """The connector's and the proxy's own pieces of one ``sync_read`` / ``sync_write``, each alone."""
-    from armnet_agent.connector.server import encode_reply, parse_request
-    from armnet_agent.connector.session import _arguments
+    from armnet_connector.server import encode_reply, parse_request
+    from armnet_connector.session import _arguments
     from armnet_runtime.lerobot.remote_object import encode_args
     from armnet_runtime.wire import decode, dumps_line, encode, loads_json
 
@@ -286,16 +286,16 @@ def main() -> int:
                         help="CPU time of each stage of the connector's handling (wrappers add ~1 us each)")
     args = parser.parse_args()
 
-    from armnet_agent.connector import Connector
-    from armnet_agent.connector.server import encode_reply, parse_request
-    from armnet_agent.connector.session import RobotSession
-    from armnet_agent.launch.cell_spec import plan_layout, resolve_spec
-    from armnet_agent.launch.sim_cell import build_connector_config
-    from armnet_agent.sim import SimulatedCellProcess
-    from armnet_agent.sim.calibration import builtin_calibration, write_calibration
-    from armnet_agent.sim.presets import PRESETS
+    from armnet_connector import Connector
+    from armnet_connector.server import encode_reply, parse_request
+    from armnet_connector.session import RobotSession
+    from armnet_launch.cell_spec import plan_layout, resolve_spec
+    from armnet_launch.sim_cell import build_connector_config
     from armnet_runtime.lerobot.remote_object import encode_args
     from armnet_runtime.wire import decode, dumps_line, encode, loads_json
+    from armnet_sim import SimulatedCellProcess
+    from armnet_sim.calibration import builtin_calibration, write_calibration
+    from armnet_sim.presets import PRESETS
     from lerobot.motors.feetech import FeetechMotorsBus
 
     spec = resolve_spec(embodiment=None, preset="so101", task=None, grace_seconds=None)

@@ -250,10 +250,10 @@ def local_round(client: Any, image: str, script: Any) -> dict[str, float]:
     import tempfile
     from pathlib import Path
 
-    from armnet_agent.launch.cell_spec import build_job_env, resolve_spec
-    from armnet_agent.launch.container import ContainerJob
-    from armnet_agent.launch.sim_cell import LocalCell
-    from armnet_agent.supervise import JobHooks, SupervisorLimits, supervise
+    from armnet_launch.cell_spec import build_job_env, resolve_spec
+    from armnet_launch.container import ContainerJob
+    from armnet_launch.sim_cell import LocalCell
+    from armnet_launch.supervise import JobHooks, SupervisorLimits, supervise
 
     from e2e.agent_bed import DEV_MOUNTS, PYTHONPATH
 
@@ -419,9 +419,9 @@ def start_container(client: Any, image: str, lines: int, read_log_file: bool = T
     """The printing container on the agent's follow path (``ContainerJob``; ``read_log_file=False``:
     the Docker API's follow, the fallback)."""
     try:
-        from armnet_agent.launch.container import ULIMITS, ContainerJob
+        from armnet_launch.container import ULIMITS, ContainerJob
     except ImportError:  # before the launch/ refactor
-        from armnet_agent.local_run.container import ULIMITS, ContainerJob
+        from armnet_local.container import ULIMITS, ContainerJob
     from docker.types import Ulimit
 
     container = client.containers.create(
@@ -437,7 +437,7 @@ def start_container(client: Any, image: str, lines: int, read_log_file: bool = T
 
 def follow(job: Any, on_line: Any) -> None:
     """The agent's reading of a job's output: the supervisor, its line splitting and classification."""
-    from armnet_agent.supervise import JobHooks, SupervisorLimits, supervise
+    from armnet_launch.supervise import JobHooks, SupervisorLimits, supervise
 
     counters: dict[str, int] = {}
 
@@ -477,7 +477,7 @@ def rate(count: int, first_at: float, last_at: float) -> float:
 
 
 def run_nats(client: Any, image: str, lines: int, nats_url: str) -> dict[str, float]:
-    from armnet_agent.node.streams import JobStream, NatsLink, StreamSettings
+    from armnet_node.streams import JobStream, NatsLink, StreamSettings
 
     namespace, uid = "bench", uuid.uuid4().hex
     link = NatsLink(StreamSettings(url=nats_url)).start()

@@ -184,7 +184,7 @@ def read_cli(url: str, namespace: str, name: str, kubeconfig: str, count: int) -
 
 def burst(link: Any, reader: list[str], namespace: str, job_id: str, lines: list[str]) -> dict[str, float]:
     """Publish "running", start ``reader``, then the burst and the terminal status; the reader's figures."""
-    from armnet_agent.node.streams import JobStream
+    from armnet_node.streams import JobStream
 
     stream = JobStream(link, namespace, job_id)
     stream.status("running", {})
@@ -254,7 +254,7 @@ def cli_job(plane: Any, namespace: str, name: str) -> str:
 
 
 def run(args: argparse.Namespace) -> None:
-    from armnet_agent.node.streams import NatsLink, StreamSettings
+    from armnet_node.streams import NatsLink, StreamSettings
 
     modes = ["plain", "armnet logs -f"] + (["armnet logs -f, unbatched"] if args.unbatched else [])
     with services(args) as (nats_url, plane):

@@ -79,13 +79,13 @@ def serve_cell(preset: str) -> None:
     connector sidecar, and the bench's main process is the job. Nothing shares a GIL.
     The socket directory is on a tmpfs (/dev/shm), as a pod's ``emptyDir: {medium: Memory}``.
     """
-    from armnet_agent.connector import Connector
-    from armnet_agent.connector.hardware import simulated_camera_factory
-    from armnet_agent.launch.cell_spec import plan_layout, resolve_spec
-    from armnet_agent.launch.sim_cell import build_connector_config
-    from armnet_agent.sim import SimulatedCellProcess
-    from armnet_agent.sim.calibration import builtin_calibration, write_calibration
-    from armnet_agent.sim.presets import PRESETS
+    from armnet_connector import Connector
+    from armnet_connector.hardware import simulated_camera_factory
+    from armnet_launch.cell_spec import plan_layout, resolve_spec
+    from armnet_launch.sim_cell import build_connector_config
+    from armnet_sim import SimulatedCellProcess
+    from armnet_sim.calibration import builtin_calibration, write_calibration
+    from armnet_sim.presets import PRESETS
 
     spec = resolve_spec(embodiment=None, preset=preset, task=None, grace_seconds=None)
     with tempfile.TemporaryDirectory(prefix="armnet-bench-", dir="/dev/shm") as run_dir:
@@ -172,7 +172,7 @@ def connect_with_retries(bus: Any, attempts: int = 3) -> None:
 
 def direct_client(cell: dict[str, Any], arms: int, cameras: int) -> Client:
     """The bare machine's way: LeRobot's bus on the pty, and cameras drawing the arm the ticks move."""
-    from armnet_agent.sim.camera import SimulatedCamera
+    from armnet_sim.camera import SimulatedCamera
     from lerobot.motors.feetech import FeetechMotorsBus
 
     buses = [FeetechMotorsBus(port=arm["port"], **so101_bus_kwargs(arm["calibration_file"])) for arm in cell["arms"][:arms]]

@@ -85,7 +85,7 @@ class AgentBed:
         # agent's simulator ptys are root's): it runs as root, which the agent does only when told.
         self.agent_args = ["--launcher", "pod", "--connector-image", self.base_image, "--connector-user", "0",
                            "--image-pull-policy", "Never",
-                           "--connector-command", f"{sys.executable} -m armnet_agent.launch.sidecar",
+                           "--connector-command", f"{sys.executable} -m armnet_launch.sidecar",
                            # The pods' observer sockets, under the test node's own kubelet root.
                            "--kubelet-root-dir", str(node.workdir / "kubelet")]
 

@@ -371,7 +371,7 @@ def chart_nats(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 @pytest.fixture(scope="module")
 def published(chart_nats: str) -> Iterator[dict[str, str]]:
     """One job per namespace whose lines the agent's own publisher put in the stream (agent credentials)."""
-    from armnet_agent.node.streams import JobStream, NatsLink, StreamSettings
+    from armnet_node.streams import JobStream, NatsLink, StreamSettings
 
     link = NatsLink(StreamSettings(url=f"nats://agent:agent-pw@{chart_nats}")).start()
     jobs = {"team-a": uuid.uuid4().hex, "team-b": uuid.uuid4().hex}

@@ -16,9 +16,9 @@ import threading
 from pathlib import Path
 
 import pytest
-from armnet_agent.local_run.cli import add_arguments, parse_request, run_local_job
-from armnet_agent.local_run.render import TerminalRenderer
 from armnet_core import JobResult, JobStatus
+from armnet_local.cli import add_arguments, parse_request, run_local_job
+from armnet_local.render import TerminalRenderer
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as visible
 from selenium.webdriver.support.ui import WebDriverWait

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.sim import build_cell
 from armnet_core import JobStatus
+from armnet_sim import build_cell
 
 from e2e.test_local_run import InProcessRun
 

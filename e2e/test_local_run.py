@@ -24,10 +24,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.launch.sim_cell import LocalCell
-from armnet_agent.local_run.cli import add_arguments, parse_request, run_local_job
-from armnet_agent.local_run.render import TerminalRenderer
 from armnet_core import JobResult, JobStatus
+from armnet_launch.sim_cell import LocalCell
+from armnet_local.cli import add_arguments, parse_request, run_local_job
+from armnet_local.render import TerminalRenderer
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
 
@@ -308,7 +308,7 @@ def test_the_interlock_trip_at_the_timeout_names_the_timeout_the_user_gave(
             time.sleep(0.05)
     """)
     run = InProcessRun(str(job), "--timeout", "2", "--grace", "30")
-    with caplog.at_level("WARNING", logger="armnet_agent.connector"):
+    with caplog.at_level("WARNING", logger="armnet_connector"):
         result = run()
     assert result.status is JobStatus.TIMEOUT, str(result)
     assert run.trip == "the job exceeded its timeout of 2 s"
@@ -350,7 +350,7 @@ def test_image_without_a_container_engine_says_so_and_fails(tmp_path: Path) -> N
 
 def completion_cell_file(tmp_path: Path) -> Path:
     """A local cell whose monitor looks for the simulator's end-effector disc on its target pad."""
-    from armnet_agent.sim.render import target_region
+    from armnet_sim.render import target_region
 
     left, top, width, height = target_region(640, 480)
     cell = tmp_path / "cell.json"

@@ -634,8 +634,8 @@ def test_a_deleted_robotjobs_pod_is_collected_by_the_garbage_collector_through_i
 def test_the_kubelet_ends_a_job_pod_at_its_active_deadline_with_the_agent_stopped(
     bed: AgentBed, outage: AgentOutage
 ) -> None:
-    from armnet_agent.launch.pod import job_start_delay_s
-    from armnet_agent.launch.pod_spec import DEADLINE_MARGIN_S, active_deadline_seconds
+    from armnet_launch.pod import job_start_delay_s
+    from armnet_launch.pod_spec import DEADLINE_MARGIN_S, active_deadline_seconds
 
     job, pod = outage.jobs["deadline"], outage.pods["deadline"]
     assert pod is not None, "the job's pod"

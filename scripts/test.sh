@@ -32,7 +32,7 @@ fi
 # and Podman service). Everything that needs the test-bed node (a host-wide lock) or builds
 # the shipped images is in one of them: two sessions holding the node would wait for each
 # other, and two building one image would build it twice. The simulator's serving thread
-# runs real-time (agent/armnet_agent/sim/pty_server.py): without it, sessions side by side
+# runs real-time (agent/armnet_sim/pty_server.py): without it, sessions side by side
 # on two cores starved the simulated servos (missed status packets).
 # One group per line; files separated by spaces; each group is its own session, its files run
 # in the order given. `armnet dev up` (test_dev_up.py) starts a node of its own, so it runs

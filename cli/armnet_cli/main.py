@@ -24,10 +24,10 @@ class Subcommand:
 
 
 SUBCOMMANDS: tuple[Subcommand, ...] = (
-    Subcommand("run", "armnet_agent.local_run.cli", "run a job script locally on a simulated cell"),
-    Subcommand("sim", "armnet_agent.sim.cli", "run the cell simulator (Feetech bus on a pty, cameras)"),
-    Subcommand("connector", "armnet_agent.connector.cli", "run the connector sidecar for one cell"),
-    Subcommand("agent", "armnet_agent.node.cli", "run the node agent: heartbeat this host's Cells, run their jobs"),
+    Subcommand("run", "armnet_local.cli", "run a job script locally on a simulated cell"),
+    Subcommand("sim", "armnet_sim.cli", "run the cell simulator (Feetech bus on a pty, cameras)"),
+    Subcommand("connector", "armnet_connector.cli", "run the connector sidecar for one cell"),
+    Subcommand("agent", "armnet_node.cli", "run the node agent: heartbeat this host's Cells, run their jobs"),
     Subcommand("operator", "armnet_operator.cli", "run the kopf operator that binds RobotJobs to Cells"),
     Subcommand("fms", "armnet_fms.cli", "serve the cell operator's web page: cells, resets, outcomes, stop"),
     Subcommand("dev", "armnet_cli.dev", "developer helpers: `armnet dev up` starts the local test bed"),

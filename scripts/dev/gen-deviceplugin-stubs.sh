@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerate the kubelet device-plugin API stubs (agent/armnet_agent/deviceplugin/v1beta1/).
+# Regenerate the kubelet device-plugin API stubs (agent/armnet_node/deviceplugin/v1beta1/).
 # The proto is k8s.io/kubelet's pkg/apis/deviceplugin/v1beta1/api.proto at the version of our
 # kubelet (K8S_VERSION 1.34.4 -> module v0.34.4), fetched with `go mod download` from the Go
 # module proxy; the stubs come from grpcio-tools in a venv of its own (it pins its protobuf,
@@ -11,7 +11,7 @@ set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 module_version="${KUBELET_MODULE_VERSION:-v0.34.4}"
 tools_venv="${ARMNET_PROTOC_VENV:-$HOME/.cache/armnet/protoc-venv}"
-out="$repo/agent/armnet_agent/deviceplugin/v1beta1"
+out="$repo/agent/armnet_node/deviceplugin/v1beta1"
 
 dir="$(cd "$(mktemp -d)" && go mod download -json "k8s.io/kubelet@$module_version" \
   | python3 -c 'import json, sys; print(json.load(sys.stdin)["Dir"])')"
@@ -23,7 +23,7 @@ header="// Origin: k8s.io/kubelet $module_version, pkg/apis/deviceplugin/v1beta1
 // Copyright The Kubernetes Authors. Licensed under the Apache License, Version 2.0
 // (http://www.apache.org/licenses/LICENSE-2.0); unchanged below this header."
 { echo "$header"; cat "$dir/pkg/apis/deviceplugin/v1beta1/api.proto"; } > "$out/api.proto"
-# -I agent: the generated modules import each other as armnet_agent.deviceplugin.v1beta1.api_pb2.
+# -I agent: the generated modules import each other as armnet_node.deviceplugin.v1beta1.api_pb2.
 "$tools_venv/bin/python" -m grpc_tools.protoc -I "$repo/agent" \
   --python_out="$repo/agent" --pyi_out="$repo/agent" --grpc_python_out="$repo/agent" \
   "$out/api.proto"

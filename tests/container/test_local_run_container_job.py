@@ -17,11 +17,11 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from armnet_agent.launch.cell_spec import build_job_env, resolve_spec
-from armnet_agent.launch.container import ContainerJob
-from armnet_agent.launch.sim_cell import LocalCell
-from armnet_agent.supervise import JobHooks, SupervisorLimits, supervise
 from armnet_core import JobResult, JobStatus
+from armnet_launch.cell_spec import build_job_env, resolve_spec
+from armnet_launch.container import ContainerJob
+from armnet_launch.sim_cell import LocalCell
+from armnet_launch.supervise import JobHooks, SupervisorLimits, supervise
 
 from tests.testbed.plugin import Podman
 
@@ -172,7 +172,7 @@ def test_an_exit_burst_read_from_the_log_file_arrives_complete_and_in_order_on_e
 
 def test_the_engine_is_asked_what_it_is_once_per_client_and_reads_its_log_file(podman: Podman) -> None:
     """Podman answers ``/version`` with a package-manager query per component: once per client."""
-    from armnet_agent.launch import container as launch_container
+    from armnet_launch import container as launch_container
 
     asked = Counter[str]()
     real_version = podman.client.version

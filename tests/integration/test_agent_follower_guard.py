@@ -10,9 +10,9 @@ from collections.abc import Iterator
 
 import nats
 import pytest
-from armnet_agent.node.follower import FollowerGuard, guard_follower
-from armnet_agent.node.publish import NoLink
-from armnet_agent.node.streams import NatsLink, StreamSettings
+from armnet_node.follower import FollowerGuard, guard_follower
+from armnet_node.publish import NoLink
+from armnet_node.streams import NatsLink, StreamSettings
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 

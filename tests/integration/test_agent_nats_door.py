@@ -5,8 +5,8 @@ from __future__ import annotations
 import time
 
 import pytest
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.publish import NoLink, NoOutput, job_output, open_link, register_metrics
+from armnet_node.metrics import AgentMetrics
+from armnet_node.publish import NoLink, NoOutput, job_output, open_link, register_metrics
 from prometheus_client import generate_latest
 
 pytestmark = pytest.mark.integration

@@ -19,16 +19,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.node.kube import AgentKube
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.model import parse_cell
-from armnet_agent.node.plan import HostPaths
-from armnet_agent.node.publish import Link, NoLink
-from armnet_agent.node.runner import RunnerDeps
-from armnet_agent.node.streams import NatsLink, StreamSettings
-from armnet_agent.node.telemetry import TelemetrySettings
-from armnet_agent.node.worker import CellWorker, WorkerSettings
 from armnet_fms.view import build_row
+from armnet_node.kube import AgentKube
+from armnet_node.metrics import AgentMetrics
+from armnet_node.model import parse_cell
+from armnet_node.plan import HostPaths
+from armnet_node.publish import Link, NoLink
+from armnet_node.runner import RunnerDeps
+from armnet_node.streams import NatsLink, StreamSettings
+from armnet_node.telemetry import TelemetrySettings
+from armnet_node.worker import CellWorker, WorkerSettings
 from kubernetes import client
 
 from tests.support.fms_objects import G, V, a_cell, apply, get

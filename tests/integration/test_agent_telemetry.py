@@ -21,13 +21,13 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector import Connector, LocalOperatorInputs
-from armnet_agent.launch.cell_spec import CameraSpec
-from armnet_agent.node.bus_turns import BusTurns
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.streams import NatsLink
-from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
-from armnet_agent.node.telemetry_sources import (
+from armnet_connector import Connector, LocalOperatorInputs
+from armnet_launch.cell_spec import CameraSpec
+from armnet_node.bus_turns import BusTurns
+from armnet_node.metrics import AgentMetrics
+from armnet_node.streams import NatsLink
+from armnet_node.telemetry import CellTelemetry, TelemetrySettings, TelemetrySource
+from armnet_node.telemetry_sources import (
     ArmPort,
     IdleArms,
     IdleCameras,
@@ -35,8 +35,8 @@ from armnet_agent.node.telemetry_sources import (
     InProcessView,
     JobSource,
 )
-from armnet_agent.sim import SimulatedCellProcess
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
+from armnet_sim import SimulatedCellProcess
 
 from tests.support.sim_connector import (
     CALIBRATION,
@@ -336,11 +336,11 @@ def test_a_stopped_cell_worker_ends_its_telemetry_thread(k8s: Any, link: NatsLin
     """A Cell removed from the node (or the agent stopping) stops its worker: its telemetry ends with it."""
     import uuid
 
-    from armnet_agent.node.kube import AgentKube
-    from armnet_agent.node.model import parse_cell
-    from armnet_agent.node.plan import HostPaths
-    from armnet_agent.node.runner import RunnerDeps
-    from armnet_agent.node.worker import CellWorker, WorkerSettings
+    from armnet_node.kube import AgentKube
+    from armnet_node.model import parse_cell
+    from armnet_node.plan import HostPaths
+    from armnet_node.runner import RunnerDeps
+    from armnet_node.worker import CellWorker, WorkerSettings
     from kubernetes import client
 
     from tests.support.fms_objects import G, V, a_cell, apply

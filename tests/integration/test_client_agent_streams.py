@@ -1,4 +1,4 @@
-"""The client reads what the agent's own stream library publishes (``armnet_agent.node.streams``).
+"""The client reads what the agent's own stream library publishes (``armnet_node.streams``).
 
 The other client log tests publish by hand in the documented format; this one
 publishes through the agent's ``NatsLink``/``JobStream`` (h-streams, on main),
@@ -14,10 +14,10 @@ import time
 import uuid
 
 import pytest
-from armnet_agent.node import streams
 from armnet_client.logstream import CaughtUp, FollowSettings, follow_events
 from armnet_client.logwire import LogLine
 from armnet_client.viewer import packet_of
+from armnet_node import streams
 from armnet_runtime.rerun import Entry, Packet, encode_packet
 
 from tests.integration.client_bed import Publisher, stdout_lines

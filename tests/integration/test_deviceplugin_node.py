@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.deviceplugin.decide import cell_device_paths
-from armnet_agent.deviceplugin.server import DevicePlugins
-from armnet_agent.node.metrics import AgentMetrics
+from armnet_node.deviceplugin.decide import cell_device_paths
+from armnet_node.deviceplugin.server import DevicePlugins
+from armnet_node.metrics import AgentMetrics
 
 from tests.testbed.images import BASE_IMAGE
 from tests.testbed.kube import ControlPlane

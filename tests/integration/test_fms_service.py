@@ -19,14 +19,14 @@ from typing import Any
 
 import httpx
 import pytest
-from armnet_agent.connector.cell import RolloutEvent
-from armnet_agent.connector.inputs import LocalOperatorInputs
-from armnet_agent.node.inputs_bridge import OperatorInputsBridge
-from armnet_agent.node.kube import AgentKube
-from armnet_agent.node.model import parse_job
-from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_agent.node.runner import write_progress
-from armnet_agent.node.streams import NatsLink, StreamSettings
+from armnet_connector.cell import RolloutEvent
+from armnet_connector.inputs import LocalOperatorInputs
+from armnet_node.inputs_bridge import OperatorInputsBridge
+from armnet_node.kube import AgentKube
+from armnet_node.model import parse_job
+from armnet_node.rollout_recorder import RolloutRecorder
+from armnet_node.runner import write_progress
+from armnet_node.streams import NatsLink, StreamSettings
 
 from tests.support.fms_objects import (
     a_cell,

@@ -21,7 +21,7 @@ from typing import Any
 
 import pytest
 import yaml
-from armnet_agent.launch.plan import (
+from armnet_launch.plan import (
     LABEL_CELL,
     LABEL_JOB_UID,
     LABEL_MANAGED_BY,
@@ -29,8 +29,8 @@ from armnet_agent.launch.plan import (
     LABEL_NAMESPACE,
     MANAGED_BY_AGENT,
 )
-from armnet_agent.launch.pod_spec import PodInputs, build_pod
-from armnet_agent.node.plan import container_name
+from armnet_launch.pod_spec import PodInputs, build_pod
+from armnet_node.plan import container_name
 
 from tests.support.helm import render
 from tests.testbed.kube import ControlPlane, KubeUser

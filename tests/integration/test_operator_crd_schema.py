@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 import yaml
-from armnet_agent.node import rollout_history as rh
+from armnet_node import rollout_history as rh
 from kubernetes import client
 from kubernetes.client.exceptions import ApiException
 

@@ -12,8 +12,8 @@ import time
 from typing import Any
 
 import pytest
-from armnet_agent.launch.pod import PodJob
-from armnet_agent.launch.pod_spec import active_deadline_seconds, running_deadline_seconds
+from armnet_launch.pod import PodJob
+from armnet_launch.pod_spec import active_deadline_seconds, running_deadline_seconds
 from kubernetes import client
 
 pytestmark = pytest.mark.integration

@@ -22,16 +22,16 @@ from typing import Any
 
 import nats
 import pytest
-from armnet_agent.connector import Connector, LocalOperatorInputs
-from armnet_agent.connector.agent_inputs import AGENT_SOCKET
-from armnet_agent.connector.observer import OBSERVER_SOCKET
-from armnet_agent.node.inputs_bridge import OperatorInputsBridge
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.sidecar_inputs import SidecarInputs
-from armnet_agent.node.sidecar_observer import SidecarObserver
-from armnet_agent.node.streams import NatsLink
-from armnet_agent.sim import SimulatedCellProcess
+from armnet_connector import Connector, LocalOperatorInputs
+from armnet_connector.agent_inputs import AGENT_SOCKET
+from armnet_connector.observer import OBSERVER_SOCKET
+from armnet_node.inputs_bridge import OperatorInputsBridge
+from armnet_node.metrics import AgentMetrics
+from armnet_node.sidecar_inputs import SidecarInputs
+from armnet_node.sidecar_observer import SidecarObserver
+from armnet_node.streams import NatsLink
 from armnet_runtime.context import Cell
+from armnet_sim import SimulatedCellProcess
 
 from tests.support.sim_connector import cell_config, connected_link, request, simulated_so101
 

@@ -22,18 +22,18 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector import Connector, LocalOperatorInputs
-from armnet_agent.connector.observer import OBSERVER_SOCKET
-from armnet_agent.launch.cell_spec import CameraSpec
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.rollout_history import Outcome, as_status, from_status
-from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_agent.node.sidecar_observer import SidecarObserver
-from armnet_agent.node.streams import NatsLink
-from armnet_agent.node.telemetry import CellTelemetry, TelemetrySettings
-from armnet_agent.node.telemetry_sources import JobSource
-from armnet_agent.sim import SimulatedCellProcess
+from armnet_connector import Connector, LocalOperatorInputs
+from armnet_connector.observer import OBSERVER_SOCKET
+from armnet_launch.cell_spec import CameraSpec
+from armnet_node.metrics import AgentMetrics
+from armnet_node.rollout_history import Outcome, as_status, from_status
+from armnet_node.rollout_recorder import RolloutRecorder
+from armnet_node.sidecar_observer import SidecarObserver
+from armnet_node.streams import NatsLink
+from armnet_node.telemetry import CellTelemetry, TelemetrySettings
+from armnet_node.telemetry_sources import JobSource
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
+from armnet_sim import SimulatedCellProcess
 
 from tests.support.sim_connector import (
     cell_config,

@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 import pytest
-from armnet_agent.launch.pod_spec import SIDECAR_ENV, device_path
-from armnet_agent.launch.sidecar import SidecarConfig, parse_record
-from armnet_agent.sim.calibration import builtin_calibration, dump_calibration
+from armnet_launch.pod_spec import SIDECAR_ENV, device_path
+from armnet_launch.sidecar import SidecarConfig, parse_record
+from armnet_sim.calibration import builtin_calibration, dump_calibration
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
@@ -39,7 +39,7 @@ def test_the_sidecar_serves_the_connector_on_its_own_simulator_and_confirms_torq
     run_dir = Path(tempfile.mkdtemp(prefix="armnet-sidecar-"))
     config = sidecar_config(run_dir)
     env = {**os.environ, SIDECAR_ENV: json.dumps(config.as_data())}
-    process = subprocess.Popen([sys.executable, "-m", "armnet_agent.launch.sidecar"], env=env,
+    process = subprocess.Popen([sys.executable, "-m", "armnet_launch.sidecar"], env=env,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 90

@@ -12,11 +12,11 @@ from typing import Any
 
 import nats
 import pytest
-from armnet_agent.connector.cell import RolloutEvent
-from armnet_agent.connector.inputs import LocalOperatorInputs
-from armnet_agent.node.inputs_bridge import MAX_INPUT_BYTES, OperatorInputsBridge
-from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_agent.node.streams import NatsLink, StreamSettings
+from armnet_connector.cell import RolloutEvent
+from armnet_connector.inputs import LocalOperatorInputs
+from armnet_node.inputs_bridge import MAX_INPUT_BYTES, OperatorInputsBridge
+from armnet_node.rollout_recorder import RolloutRecorder
+from armnet_node.streams import NatsLink, StreamSettings
 
 from tests.testbed.natsd import NatsServer
 

@@ -20,16 +20,16 @@ from pathlib import Path
 import nats
 import nats.errors
 import pytest
-from armnet_agent.node.streams import (
+from armnet_client.logstream import FollowSettings, follow_events
+from armnet_client.logwire import LogLine, seq_of
+from armnet_core.logbatch import LINES_HEADER, split_lines
+from armnet_node.streams import (
     MAX_LINE_BYTES,
     JobStream,
     NatsLink,
     StreamSettings,
     line_msg_id,
 )
-from armnet_client.logstream import FollowSettings, follow_events
-from armnet_client.logwire import LogLine, seq_of
-from armnet_core.logbatch import LINES_HEADER, split_lines
 from nats.js.api import ConsumerConfig, DeliverPolicy
 
 from tests.testbed.natsd import NatsServer

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from armnet_agent.launch.pod_spec import serving_gate
+from armnet_launch.pod_spec import serving_gate
 
 from tests.testbed.images import BASE_IMAGE
 from tests.testbed.kube import ControlPlane

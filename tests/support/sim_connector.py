@@ -12,13 +12,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from armnet_agent.connector import ConnectorConfig
-from armnet_agent.node.sidecar_observer import connect_long
-from armnet_agent.node.streams import NatsLink, StreamSettings
-from armnet_agent.sim import SimulatedCellProcess
+from armnet_connector import ConnectorConfig
+from armnet_node.sidecar_observer import connect_long
+from armnet_node.streams import NatsLink, StreamSettings
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
+from armnet_sim import SimulatedCellProcess
 
-CALIBRATION = Path(str(resources.files("armnet_agent.sim.data").joinpath("so101.json")))
+CALIBRATION = Path(str(resources.files("armnet_sim.data").joinpath("so101.json")))
 MOTORS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
 
 

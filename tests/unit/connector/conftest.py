@@ -10,14 +10,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.connector import Connector, ConnectorConfig, LocalOperatorInputs
-from armnet_agent.sim import SimulatedCellProcess
+from armnet_connector import Connector, ConnectorConfig, LocalOperatorInputs
 from armnet_runtime.transport import PersistentConnection
 from armnet_runtime.wire import decode, encode
+from armnet_sim import SimulatedCellProcess
 
 
 def calibration_file(name: str = "so101") -> Path:
-    return Path(str(resources.files("armnet_agent.sim.data").joinpath(f"{name}.json")))
+    return Path(str(resources.files("armnet_sim.data").joinpath(f"{name}.json")))
 
 
 @pytest.fixture

@@ -6,9 +6,9 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
-from armnet_agent.connector import CompletionConfig, ConnectorConfig
-from armnet_agent.connector.completion import build_scorer
-from armnet_agent.connector.scoring import ArucoRegionScorer, ColourRegionScorer
+from armnet_connector import CompletionConfig, ConnectorConfig
+from armnet_connector.completion import build_scorer
+from armnet_connector.scoring import ArucoRegionScorer, ColourRegionScorer
 from pydantic import ValidationError
 
 pytestmark = pytest.mark.unit

@@ -17,13 +17,13 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector.cell import Counters
-from armnet_agent.connector.completion import CameraCompletionMonitor, CameraFrames, Frame
-from armnet_agent.connector.completion_config import CompletionConfig
-from armnet_agent.connector.config import CameraConfig
-from armnet_agent.connector.hardware import simulated_camera_factory
-from armnet_agent.connector.scoring import FrameScore
-from armnet_agent.sim.render import TARGET_POSE, render_arms, target_region
+from armnet_connector.cell import Counters
+from armnet_connector.completion import CameraCompletionMonitor, CameraFrames, Frame
+from armnet_connector.completion_config import CompletionConfig
+from armnet_connector.config import CameraConfig
+from armnet_connector.hardware import simulated_camera_factory
+from armnet_connector.scoring import FrameScore
+from armnet_sim.render import TARGET_POSE, render_arms, target_region
 
 pytestmark = pytest.mark.unit
 

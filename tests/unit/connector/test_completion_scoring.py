@@ -12,7 +12,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector.scoring import (
+from armnet_connector.scoring import (
     ArucoRegionScorer,
     ColourRegionScorer,
     FrameScore,

@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from armnet_agent.connector import motion
-from armnet_agent.connector.errors import RequestError
+from armnet_connector import motion
+from armnet_connector.errors import RequestError
 from armnet_runtime.wire import encode
 from lerobot.motors.feetech import FeetechMotorsBus
 

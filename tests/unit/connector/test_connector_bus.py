@@ -167,8 +167,8 @@ def test_a_camera_the_cell_does_not_have_is_not_allowed(connector, client_for) -
 def test_the_arm_selector_maps_each_bus_to_its_arm_on_a_bimanual_cell(make_connector, motors, calibration_path) -> None:
     import json
 
-    from armnet_agent.connector import ConnectorConfig
-    from armnet_agent.sim import SimulatedCellProcess
+    from armnet_connector import ConnectorConfig
+    from armnet_sim import SimulatedCellProcess
     from lerobot.motors import MotorCalibration
 
     calibration_file = calibration_path
@@ -204,7 +204,7 @@ def test_the_arm_selector_maps_each_bus_to_its_arm_on_a_bimanual_cell(make_conne
 
 
 def test_a_yaml_config_file_loads(tmp_path) -> None:
-    from armnet_agent.connector import load_config
+    from armnet_connector import load_config
 
     path = tmp_path / "cell.yaml"
     path.write_text(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.buscaps import (
+from armnet_connector.buscaps import (
     MAX_BUS_TIMEOUT_MS,
     MAX_NUM_RETRY,
     cap_call,

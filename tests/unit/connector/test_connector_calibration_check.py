@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.calibration_check import CalibrationMismatch, calibration_mismatches
+from armnet_connector.calibration_check import CalibrationMismatch, calibration_mismatches
 
 pytestmark = pytest.mark.unit
 

@@ -14,8 +14,8 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 import pytest
-from armnet_agent.connector.calibration_check import CALIBRATION_REGISTERS, read_calibration
-from armnet_agent.connector.retry import RETRY_DELAY_S, drop_pending_input
+from armnet_connector.calibration_check import CALIBRATION_REGISTERS, read_calibration
+from armnet_connector.retry import RETRY_DELAY_S, drop_pending_input
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 
 pytestmark = pytest.mark.unit
@@ -125,7 +125,7 @@ def test_read_calibration_reports_a_servo_that_does_not_answer_as_none(sim_cell)
 def test_read_calibration_never_loads_lerobot() -> None:
     code = (
         "import sys\n"
-        "from armnet_agent.connector.calibration_check import read_calibration\n"
+        "from armnet_connector.calibration_check import read_calibration\n"
         "try:\n"
         "    read_calibration('/dev/null-armnet-no-such-port', [1])\n"
         "except ConnectionError:\n"

@@ -18,14 +18,14 @@ import time
 from typing import Any
 
 import pytest
-from armnet_agent.connector.allowlist import CALIBRATION_METHODS
-from armnet_agent.connector.cell import Counters
-from armnet_agent.connector.config import ArmConfig, MotorRange
-from armnet_agent.connector.errors import RequestError
-from armnet_agent.connector.hardware import DeviceLock, Handle
-from armnet_agent.connector.interlock import Interlock
-from armnet_agent.connector.motion import MotionGuard, _bound_arguments
-from armnet_agent.connector.safety import (
+from armnet_connector.allowlist import CALIBRATION_METHODS
+from armnet_connector.cell import Counters
+from armnet_connector.config import ArmConfig, MotorRange
+from armnet_connector.errors import RequestError
+from armnet_connector.hardware import DeviceLock, Handle
+from armnet_connector.interlock import Interlock
+from armnet_connector.motion import MotionGuard, _bound_arguments
+from armnet_connector.safety import (
     DEGREES,
     RANGE_0_100,
     GoalScreen,

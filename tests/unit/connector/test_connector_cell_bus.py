@@ -90,7 +90,7 @@ def test_a_job_bus_that_renames_motors_is_refused_and_rest_still_ends_at_the_cel
 def test_reset_after_a_refused_renamed_job_bus_ends_at_the_cells_rest_pose(
     sim_cell, make_connector, cell_config, client_for
 ) -> None:
-    from armnet_agent.connector import LocalOperatorInputs
+    from armnet_connector import LocalOperatorInputs
 
     connector = make_connector(rest_config(cell_config, sim_cell), inputs=LocalOperatorInputs(auto_confirm_reset=True))
     robot = client_for(connector.robot_endpoint)
@@ -117,7 +117,7 @@ def test_a_rest_whose_position_reads_lose_servo_replies_asks_again_and_reaches_r
 
     The connector's own bus, connected first, so the lost replies are the rest's position reads.
     """
-    from armnet_agent.connector.rest import cell_bus, move_to_rest, rest_pose
+    from armnet_connector.rest import cell_bus, move_to_rest, rest_pose
 
     arm, ranges = connector.config.arms["arm"], connector.cell.ranges["arm"]
     lost: list[int] = []

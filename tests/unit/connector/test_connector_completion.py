@@ -13,11 +13,11 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
-from armnet_agent.connector import Connector, ConnectorConfig
-from armnet_agent.connector.hardware import simulated_camera_factory
-from armnet_agent.sim import SimulatedCellProcess
-from armnet_agent.sim.render import TARGET_POSE, target_region
+from armnet_connector import Connector, ConnectorConfig
+from armnet_connector.hardware import simulated_camera_factory
 from armnet_runtime.context import Cell
+from armnet_sim import SimulatedCellProcess
+from armnet_sim.render import TARGET_POSE, target_region
 
 pytestmark = pytest.mark.unit
 

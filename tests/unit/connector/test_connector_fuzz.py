@@ -9,8 +9,8 @@ import sys
 from typing import Any
 
 import pytest
-from armnet_agent.connector import Connector, LocalOperatorInputs
-from armnet_agent.connector.allowlist import FEETECH
+from armnet_connector import Connector, LocalOperatorInputs
+from armnet_connector.allowlist import FEETECH
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -66,11 +66,11 @@ lines = st.one_of(
 
 
 #: The bus itself (a LeRobot subclass): its own attribute use is the bus's, like LeRobot's internals.
-BUS_MODULE = "armnet_agent.connector.policed_bus"
+BUS_MODULE = "armnet_connector.policed_bus"
 
 
 def _connector_code(caller: str) -> bool:
-    return caller.startswith("armnet_agent.connector") and caller != BUS_MODULE
+    return caller.startswith("armnet_connector") and caller != BUS_MODULE
 
 
 class Recorder:

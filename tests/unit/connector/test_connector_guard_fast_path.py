@@ -15,10 +15,10 @@ import random
 from typing import Any
 
 import pytest
-from armnet_agent.connector.config import MotorRange
-from armnet_agent.connector.errors import RequestError
-from armnet_agent.connector.hardware import DeviceLock, Handle
-from armnet_agent.connector.motion import (
+from armnet_connector.config import MotorRange
+from armnet_connector.errors import RequestError
+from armnet_connector.hardware import DeviceLock, Handle
+from armnet_connector.motion import (
     KEEPS_CALIBRATION,
     BadMotorValue,
     _bound_arguments,
@@ -26,7 +26,7 @@ from armnet_agent.connector.motion import (
     _motor_facts,
     write_arguments,
 )
-from armnet_agent.connector.safety import (
+from armnet_connector.safety import (
     DEGREES,
     RANGE_0_100,
     RANGE_M100_100,

@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 
 import pytest
-from armnet_agent.connector.warm_imports import start_warm_imports
+from armnet_connector.warm_imports import start_warm_imports
 from armnet_runtime.wire import decode
 
 pytestmark = pytest.mark.unit

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from armnet_agent.connector.inputs import LocalOperatorInputs, apply_input_line, feed_lines
+from armnet_connector.inputs import LocalOperatorInputs, apply_input_line, feed_lines
 
 pytestmark = pytest.mark.unit
 

@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 
 import pytest
-from armnet_agent.connector.errors import MAX_ERROR_CHARS, failure_reply
-from armnet_agent.connector.server import (
+from armnet_connector.errors import MAX_ERROR_CHARS, failure_reply
+from armnet_connector.server import (
     MAX_BUFFERED_BYTES,
     MAX_LINE_BYTES,
     FramingError,

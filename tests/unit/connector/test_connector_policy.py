@@ -128,7 +128,7 @@ def test_the_real_so101_follower_connects_and_configures(connector, tmp_path, ca
 
 
 def test_under_the_interlock_only_torque_off_is_written(bus, sim_cell, connector) -> None:
-    from armnet_agent.connector.interlock import TripReason
+    from armnet_connector.interlock import TripReason
 
     bus.enable_torque()
     connector.interlock.trip(TripReason.SAFETY, "tripped by the test")
@@ -186,7 +186,7 @@ def test_a_refused_calibration_leaves_the_cell_calibrated_after_a_simulator_rest
     tmp_path, make_connector, cell_config, motors
 ) -> None:
     """A job unlocks EEPROM and rewrites homing and limits: refused, on a named cell whose EEPROM survives restarts."""
-    from armnet_agent.sim import SimulatedCellProcess
+    from armnet_sim import SimulatedCellProcess
 
     with SimulatedCellProcess("so101", state_dir=tmp_path) as sim:
         connector = make_connector(cell_config(sim))
@@ -355,7 +355,7 @@ def _record_ranges(sim_cell, make_connector, cell_config, motors, *, lose_replie
     Returns the arm's start positions, the recorded (mins, maxes) and the connector.
     ``lose_replies_at_poll``: at that poll the simulated wrist loses its next reply.
     """
-    from armnet_agent.connector import LocalOperatorInputs
+    from armnet_connector import LocalOperatorInputs
 
     start = sim_cell.arm.positions()
     polls: list[int] = []

@@ -21,15 +21,15 @@ import os
 from typing import Any
 
 import pytest
-from armnet_agent.connector import Connector, LocalOperatorInputs
-from armnet_agent.connector.allowlist import FEETECH
-from armnet_agent.connector.config import read_calibration_file
-from armnet_agent.connector.identity import cell_motor_table
-from armnet_agent.connector.registers import STS3215
-from armnet_agent.connector.safety import ticks_per_unit
-from armnet_agent.sim.control_table import REGISTERS as SIM_REGISTERS
+from armnet_connector import Connector, LocalOperatorInputs
+from armnet_connector.allowlist import FEETECH
+from armnet_connector.config import read_calibration_file
+from armnet_connector.identity import cell_motor_table
+from armnet_connector.registers import STS3215
+from armnet_connector.safety import ticks_per_unit
 from armnet_runtime.transport import PersistentConnection
 from armnet_runtime.wire import encode
+from armnet_sim.control_table import REGISTERS as SIM_REGISTERS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

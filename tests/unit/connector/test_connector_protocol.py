@@ -7,7 +7,7 @@ import threading
 from pathlib import Path
 
 import pytest
-from armnet_agent.connector.server import MAX_LINE_BYTES
+from armnet_connector.server import MAX_LINE_BYTES
 from armnet_runtime.wire import encode
 
 pytestmark = pytest.mark.unit

@@ -7,7 +7,7 @@ packets, as a loaded machine does when a reply misses LeRobot's ~50 ms timeout.
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.retry import (
+from armnet_connector.retry import (
     MAX_RETRIES,
     is_lost_reply,
     is_read,
@@ -154,9 +154,9 @@ def test_an_index_error_from_the_servo_sdk_is_a_reply_cut_short_and_one_from_els
 
 def test_a_write_retry_is_checked_again_and_an_interlock_tripped_meanwhile_ends_it() -> None:
     """The guard ran before the first attempt; a trip during the wait must hold for the retry too."""
-    from armnet_agent.connector.errors import RequestError
-    from armnet_agent.connector.hardware import DeviceLock, Handle
-    from armnet_agent.connector.retry import with_read_retry
+    from armnet_connector.errors import RequestError
+    from armnet_connector.hardware import DeviceLock, Handle
+    from armnet_connector.retry import with_read_retry
 
     attempts: list[int] = []
     tripped: list[bool] = []

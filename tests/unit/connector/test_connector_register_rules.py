@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 
 import pytest
-from armnet_agent.connector import ConnectorConfig
-from armnet_agent.connector.identity import CellMotor, JobMotor, motors_refusal, protocol_refusal
-from armnet_agent.connector.registers import (
+from armnet_connector import ConnectorConfig
+from armnet_connector.identity import CellMotor, JobMotor, motors_refusal, protocol_refusal
+from armnet_connector.registers import (
     DEFAULT_BOUNDS,
     RESTORE_ORDER,
     STS3215,
@@ -102,8 +102,8 @@ def test_a_degrees_joint_also_takes_lerobots_default_body_unit_but_not_0_to_100(
 
 
 def test_the_cells_limit_is_converted_to_the_jobs_unit_through_ticks() -> None:
-    from armnet_agent.connector.config import MotorRange
-    from armnet_agent.connector.safety import MotorFacts, limit_in_write_units
+    from armnet_connector.config import MotorRange
+    from armnet_connector.safety import MotorFacts, limit_in_write_units
 
     span = MotorRange(3, 1000, 3000)  # 2000 ticks: 10 ticks per -100..100 unit
     fact = MotorFacts("range_m100_100", span, span, limit_norm_mode="degrees")

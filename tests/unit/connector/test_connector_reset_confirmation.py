@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 
 import pytest
-from armnet_agent.connector.inputs import LocalOperatorInputs, feed_lines
+from armnet_connector.inputs import LocalOperatorInputs, feed_lines
 
 pytestmark = pytest.mark.unit
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.restore import (
+from armnet_connector.restore import (
     RegisterLedger,
     Restored,
     judge_restore,

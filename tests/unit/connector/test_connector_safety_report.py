@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.report import SafetyRecorder
+from armnet_connector.report import SafetyRecorder
 
 pytestmark = pytest.mark.unit
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.config import MotorRange
-from armnet_agent.connector.safety import (
+from armnet_connector.config import MotorRange
+from armnet_connector.safety import (
     DEGREES,
     RANGE_0_100,
     RANGE_M100_100,

@@ -74,7 +74,7 @@ def test_the_locked_numpy_import_in_a_thread_deletes_no_key_from_the_environment
 def test_after_it_the_warm_imports_thread_deletes_nothing_while_the_main_thread_walks_the_environment() -> None:
     out = run_fresh(
         """
-        from armnet_agent.connector.warm_imports import DEVICE_MODULES, import_before_threads, start_warm_imports
+        from armnet_connector.warm_imports import DEVICE_MODULES, import_before_threads, start_warm_imports
 
         import_before_threads()
         Recording.deleted.clear()

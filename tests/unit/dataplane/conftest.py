@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.connector import Connector, ConnectorConfig, LocalOperatorInputs
-from armnet_agent.connector.hardware import simulated_camera_factory
+from armnet_connector import Connector, ConnectorConfig, LocalOperatorInputs
+from armnet_connector.hardware import simulated_camera_factory
 
 POSE = {
     "shoulder_pan": 12.0, "shoulder_lift": -30.0, "elbow_flex": 45.0,
@@ -25,7 +25,7 @@ def fixed_pose() -> dict[str, float]:
 
 
 def camera_cell_config(fps: int = 30) -> ConnectorConfig:
-    calibration = Path(str(resources.files("armnet_agent.sim.data").joinpath("so101.json")))
+    calibration = Path(str(resources.files("armnet_sim.data").joinpath("so101.json")))
     return ConnectorConfig.model_validate(
         {
             "arms": {"arm": {"port": "/dev/null-armnet-test", "calibrationFile": str(calibration), "safetyLimit": 30}},

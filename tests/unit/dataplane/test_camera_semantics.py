@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from armnet_agent.connector import Connector
-from armnet_agent.sim.camera import SimulatedCamera
+from armnet_connector import Connector
+from armnet_sim.camera import SimulatedCamera
 from lerobot.cameras.opencv import OpenCVCameraConfig
 from lerobot.utils.errors import DeviceNotConnectedError
 

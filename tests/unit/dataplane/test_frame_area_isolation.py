@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from armnet_agent.connector.frames import FramePublisher
+from armnet_connector.frames import FramePublisher
 from armnet_runtime.frames import MAGIC
 
 pytestmark = pytest.mark.unit

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from armnet_agent.sim.render import render_arms
 from armnet_runtime.frames import FrameOverwritten, FrameReader
+from armnet_sim.render import render_arms
 
 pytestmark = pytest.mark.unit
 
@@ -43,8 +43,8 @@ WRITER = """
 import json, sys, time
 from pathlib import Path
 import numpy as np
-from armnet_agent.connector import frames
-from armnet_agent.connector.frames import FramePublisher
+from armnet_connector import frames
+from armnet_connector.frames import FramePublisher
 frames.SLOTS = 2  # fewer slots than the connector uses, so that the writer laps the reader often
 sys.path.insert(0, {tests!r})
 from test_frame_area_race import expected_frame, simulator_frames

@@ -12,13 +12,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from armnet_agent.connector import Connector
-from armnet_agent.connector.frames import FrameAreas, FramePublisher
-from armnet_agent.sim.camera import SimulatedCamera
+from armnet_connector import Connector
+from armnet_connector.frames import FrameAreas, FramePublisher
 from armnet_runtime.errors import ProtocolError
 from armnet_runtime.frames import FrameReader
 from armnet_runtime.transport import PersistentConnection
 from armnet_runtime.wire import decode, encode
+from armnet_sim.camera import SimulatedCamera
 from lerobot.cameras.opencv import OpenCVCameraConfig
 
 from .conftest import fixed_pose

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.deviceplugin.decide import (
+from armnet_node.deviceplugin.decide import (
     HEALTHY,
     UNHEALTHY,
     AllocationRefused,

@@ -7,8 +7,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from armnet_agent.deviceplugin.decide import DevicePath, MountGrant, allocate
-from armnet_agent.deviceplugin.facts import read_fact
+from armnet_node.deviceplugin.decide import DevicePath, MountGrant, allocate
+from armnet_node.deviceplugin.facts import read_fact
 
 pytestmark = pytest.mark.unit
 

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import grpc
 import pytest
-from armnet_agent.deviceplugin.decide import cell_device_paths, socket_name
-from armnet_agent.deviceplugin.server import DevicePlugins
-from armnet_agent.deviceplugin.v1beta1 import api_pb2, api_pb2_grpc
-from armnet_agent.node.metrics import AgentMetrics
+from armnet_node.deviceplugin.decide import cell_device_paths, socket_name
+from armnet_node.deviceplugin.server import DevicePlugins
+from armnet_node.deviceplugin.v1beta1 import api_pb2, api_pb2_grpc
+from armnet_node.metrics import AgentMetrics
 
 pytestmark = pytest.mark.unit
 

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from armnet_agent.launch.cell_spec import (
+from armnet_launch.cell_spec import (
     LocalCellError,
     LocalCellFile,
     build_job_env,
@@ -100,7 +100,7 @@ def test_a_yaml_cell_file_can_pick_the_bimanual_preset_and_cameras(tmp_path: Pat
 
 
 def test_the_cells_safety_policy_and_calibration_setting_reach_the_connector() -> None:
-    from armnet_agent.launch.sim_cell import build_connector_config
+    from armnet_launch.sim_cell import build_connector_config
 
     spec = spec_for()
     layout = plan_layout(spec, RUN_DIR)
@@ -118,7 +118,7 @@ def test_a_nan_safety_limit_in_the_cell_file_is_refused() -> None:
 
 
 def test_a_cell_file_sets_the_completion_monitor_of_a_local_run(tmp_path: Path) -> None:
-    from armnet_agent.launch.sim_cell import build_connector_config
+    from armnet_launch.sim_cell import build_connector_config
 
     path = tmp_path / "cell.yaml"
     path.write_text(

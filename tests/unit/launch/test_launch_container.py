@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from armnet_agent.launch.container import EngineUnavailable, connect_engine, engine_url
+from armnet_launch.container import EngineUnavailable, connect_engine, engine_url
 
 pytestmark = pytest.mark.unit
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.launch.cri_log import CriStreamDecoder, NotCriLog, parse_record
+from armnet_launch.cri_log import CriStreamDecoder, NotCriLog, parse_record
 
 pytestmark = pytest.mark.unit
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.launch.log_recovery import DeliveredLines, missed_output
+from armnet_launch.log_recovery import DeliveredLines, missed_output
 
 pytestmark = pytest.mark.unit
 

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.launch.plan import LABEL_CELL, LABEL_JOB_UID
-from armnet_agent.launch.pod_spec import (
+from armnet_launch.plan import LABEL_CELL, LABEL_JOB_UID
+from armnet_launch.pod_spec import (
     ANNOTATION_CELL,
     ANNOTATION_JOB,
     CONNECTOR_CONTAINER,
@@ -41,7 +41,7 @@ def inputs(**changes: Any) -> PodInputs:
         "job_name": "pick-1", "job_uid": "uid-1",
         "labels": {LABEL_CELL: "cell-1", LABEL_JOB_UID: "uid-1"},
         "job_image": "registry.example/pick:1", "job_env": {"ARMNET_JOB_ID": "uid-1"},
-        "connector_image": "armnet/connector:1", "connector_command": ("python3", "-m", "armnet_agent.launch.sidecar"),
+        "connector_image": "armnet/connector:1", "connector_command": ("python3", "-m", "armnet_launch.sidecar"),
         "sidecar": {"socket_dir": SOCKETS, "connector": {"arms": {}}, "calibration": {}},
         "socket_dir": SOCKETS, "calibration_dir": "/var/lib/armnet/run/uid-1/calibration",
         "cache_dir": "/var/lib/armnet/cells/cell-1/cache", "volume_dir": "/var/lib/armnet/volumes/team-a",

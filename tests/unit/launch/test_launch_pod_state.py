@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from armnet_agent.launch.pod import container_state, job_start_delay_s, pod_failed_reason
-from armnet_agent.launch.sidecar import parse_record, record_line
+from armnet_launch.pod import container_state, job_start_delay_s, pod_failed_reason
+from armnet_launch.sidecar import parse_record, record_line
 
 pytestmark = pytest.mark.unit
 

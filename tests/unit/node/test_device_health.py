@@ -3,14 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.deviceplugin.decide import (
-    HEALTHY,
-    UNHEALTHY,
-    DeviceFact,
-    DevicePath,
-    cell_device_paths,
-)
-from armnet_agent.node.device_health import (
+from armnet_core import JobStatus
+from armnet_node.device_health import (
     DEBOUNCE_S,
     DEVICE_LOST,
     DEVICE_MISSING,
@@ -21,7 +15,13 @@ from armnet_agent.node.device_health import (
     observe,
     stop_message,
 )
-from armnet_core import JobStatus
+from armnet_node.deviceplugin.decide import (
+    HEALTHY,
+    UNHEALTHY,
+    DeviceFact,
+    DevicePath,
+    cell_device_paths,
+)
 
 pytestmark = pytest.mark.unit
 

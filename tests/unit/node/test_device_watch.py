@@ -6,11 +6,11 @@ import logging
 from pathlib import Path
 
 import pytest
-from armnet_agent.deviceplugin.decide import HEALTHY, UNHEALTHY, DevicePath, cell_device_paths
-from armnet_agent.deviceplugin.server import CellPlugin
-from armnet_agent.node.device_health import DEBOUNCE_S, DeviceState
-from armnet_agent.node.device_watch import FAILURE_LOG_EVERY_S, DeviceWatch
-from armnet_agent.node.metrics import AgentMetrics
+from armnet_node.device_health import DEBOUNCE_S, DeviceState
+from armnet_node.device_watch import FAILURE_LOG_EVERY_S, DeviceWatch
+from armnet_node.deviceplugin.decide import HEALTHY, UNHEALTHY, DevicePath, cell_device_paths
+from armnet_node.deviceplugin.server import CellPlugin
+from armnet_node.metrics import AgentMetrics
 
 pytestmark = pytest.mark.unit
 
@@ -108,7 +108,7 @@ def failing_watch(clock: Clock) -> DeviceWatch:
 def test_a_read_that_keeps_failing_logs_its_traceback_at_most_once_a_minute(caplog: pytest.LogCaptureFixture) -> None:
     clock = Clock()
     watch = failing_watch(clock)
-    with caplog.at_level(logging.WARNING, logger="armnet_agent.node.device_watch"):
+    with caplog.at_level(logging.WARNING, logger="armnet_node.device_watch"):
         for clock.now in (0.0, 0.5, 1.0, 59.5):
             watch.tick()
         assert len(caplog.records) == 1 and caplog.records[0].exc_info is not None

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.node.follower_rule import (
+from armnet_client.mapping import FOLLOWER_ANNOTATION as CLIENT_ANNOTATION
+from armnet_node.follower_rule import (
     DEFAULT_WINDOW_S,
     FOLLOWER_ANNOTATION,
     MAX_WINDOW_S,
@@ -13,8 +14,7 @@ from armnet_agent.node.follower_rule import (
     heartbeat_subject,
     lost_follower_message,
 )
-from armnet_agent.node.model import parse_job
-from armnet_client.mapping import FOLLOWER_ANNOTATION as CLIENT_ANNOTATION
+from armnet_node.model import parse_job
 
 pytestmark = pytest.mark.unit
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 
 import pytest
-from armnet_agent.node.bus_turns import BusTurns
+from armnet_node.bus_turns import BusTurns
 
 pytestmark = pytest.mark.unit
 

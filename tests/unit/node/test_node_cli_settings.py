@@ -10,11 +10,11 @@ from __future__ import annotations
 import argparse
 
 import pytest
-from armnet_agent.node import cli as agent_cli
-from armnet_agent.node.health import STREAMS_CONNECTED, StreamsProbe, streams_condition
-from armnet_agent.node.publish import NoLink, server_of, streams_probe
 from armnet_core.nats_url import nats_url_from
 from armnet_fms import cli as fms_cli
+from armnet_node import cli as agent_cli
+from armnet_node.health import STREAMS_CONNECTED, StreamsProbe, streams_condition
+from armnet_node.publish import NoLink, server_of, streams_probe
 
 pytestmark = pytest.mark.unit
 

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any, cast
 
 import pytest
-from armnet_agent.node.agent import AgentSettings, NodeAgent
-from armnet_agent.node.metrics import AgentMetrics
+from armnet_node.agent import AgentSettings, NodeAgent
+from armnet_node.metrics import AgentMetrics
 
 pytestmark = pytest.mark.unit
 

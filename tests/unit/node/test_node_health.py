@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 
 import pytest
-from armnet_agent.node.health import ArmProbe, CellProbe, cell_health, merge_conditions
+from armnet_node.health import ArmProbe, CellProbe, cell_health, merge_conditions
 
 pytestmark = pytest.mark.unit
 

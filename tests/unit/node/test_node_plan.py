@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.launch.plan import LABEL_CELL, LABEL_JOB_UID
-from armnet_agent.launch.sim_cell import build_connector_config
-from armnet_agent.node.model import parse_cell, parse_job, should_launch
-from armnet_agent.node.plan import HostPaths, LaunchError, plan_launch
+from armnet_launch.plan import LABEL_CELL, LABEL_JOB_UID
+from armnet_launch.sim_cell import build_connector_config
+from armnet_node.model import parse_cell, parse_job, should_launch
+from armnet_node.plan import HostPaths, LaunchError, plan_launch
 from armnet_runtime import env as env_keys
 from armnet_runtime.cell_config import parse_cell_config
 

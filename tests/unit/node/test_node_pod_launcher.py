@@ -8,14 +8,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.connector.inputs import LocalOperatorInputs
-from armnet_agent.launch.pod_spec import CONNECTOR_USER, SIDECAR_ENV, SecretRef, device_path
-from armnet_agent.node.launchers import PodLauncher, PodSettings, SessionRequest
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.model import parse_cell, parse_job
-from armnet_agent.node.plan import HostPaths, plan_launch
-from armnet_agent.sim.presets import SimulatedCell, build_cell
+from armnet_connector.inputs import LocalOperatorInputs
+from armnet_launch.pod_spec import CONNECTOR_USER, SIDECAR_ENV, SecretRef, device_path
+from armnet_node.launchers import PodLauncher, PodSettings, SessionRequest
+from armnet_node.metrics import AgentMetrics
+from armnet_node.model import parse_cell, parse_job
+from armnet_node.plan import HostPaths, plan_launch
 from armnet_runtime import env as env_keys
+from armnet_sim.presets import SimulatedCell, build_cell
 
 pytestmark = pytest.mark.unit
 

@@ -6,9 +6,9 @@ import json
 from pathlib import Path
 
 import pytest
-from armnet_agent.node.probes import probe_arm
-from armnet_agent.sim import SimulatedCellProcess
-from armnet_agent.sim.calibration import builtin_calibration, write_calibration
+from armnet_node.probes import probe_arm
+from armnet_sim import SimulatedCellProcess
+from armnet_sim.calibration import builtin_calibration, write_calibration
 
 pytestmark = pytest.mark.unit
 

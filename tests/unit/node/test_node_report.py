@@ -6,7 +6,8 @@ import json
 from datetime import UTC, datetime
 
 import pytest
-from armnet_agent.node.report import (
+from armnet_core import JobResult, JobStatus
+from armnet_node.report import (
     ERROR_MAX,
     TAIL_MAX,
     ConnectorRecord,
@@ -15,7 +16,6 @@ from armnet_agent.node.report import (
     running_patch,
     terminal_patch,
 )
-from armnet_core import JobResult, JobStatus
 
 pytestmark = pytest.mark.unit
 

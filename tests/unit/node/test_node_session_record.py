@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.launch.cell_spec import resolve_spec
-from armnet_agent.launch.sim_cell import LocalCell
-from armnet_agent.node.launchers import ContainerSession
+from armnet_launch.cell_spec import resolve_spec
+from armnet_launch.sim_cell import LocalCell
+from armnet_node.launchers import ContainerSession
 
 pytestmark = pytest.mark.unit
 

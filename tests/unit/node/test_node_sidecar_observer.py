@@ -7,13 +7,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
-from armnet_agent.connector.cell import RolloutEvent
-from armnet_agent.connector.observer import frame_data, servos_data
-from armnet_agent.connector.telemetry import CameraFrame
-from armnet_agent.connector.telemetry_decode import ServoSample
-from armnet_agent.node import rollout_history as rh
-from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_agent.node.sidecar_observer import (
+from armnet_connector.cell import RolloutEvent
+from armnet_connector.observer import frame_data, servos_data
+from armnet_connector.telemetry import CameraFrame
+from armnet_connector.telemetry_decode import ServoSample
+from armnet_node import rollout_history as rh
+from armnet_node.rollout_recorder import RolloutRecorder
+from armnet_node.sidecar_observer import (
     observer_socket,
     parse_event,
     parse_frame,

@@ -16,8 +16,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.sidecar_observer import SidecarObserver, connect_long
+from armnet_node.metrics import AgentMetrics
+from armnet_node.sidecar_observer import SidecarObserver, connect_long
 
 pytestmark = pytest.mark.unit
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from armnet_agent.node.model import STOPPED_BY_ANNOTATION, cancel_reason, parse_job
+from armnet_node.model import STOPPED_BY_ANNOTATION, cancel_reason, parse_job
 
 pytestmark = pytest.mark.unit
 

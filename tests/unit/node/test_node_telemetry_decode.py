@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 
 import pytest
-from armnet_agent.connector.config import MotorRange
-from armnet_agent.connector.identity import CellMotor
-from armnet_agent.connector.telemetry_decode import ServoSample, feetech_protocol, known_positions
-from armnet_agent.node import cli
-from armnet_agent.node.telemetry import MAX_FRAME_FPS, MAX_SERVO_HZ, TelemetrySettings
-from armnet_agent.node.telemetry_sources import BACKOFF_MAX_S, backoff_s
+from armnet_connector.config import MotorRange
+from armnet_connector.identity import CellMotor
+from armnet_connector.telemetry_decode import ServoSample, feetech_protocol, known_positions
+from armnet_node import cli
+from armnet_node.telemetry import MAX_FRAME_FPS, MAX_SERVO_HZ, TelemetrySettings
+from armnet_node.telemetry_sources import BACKOFF_MAX_S, backoff_s
 
 pytestmark = pytest.mark.unit
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from armnet_agent.connector.telemetry import CameraFrame
-from armnet_agent.node.telemetry import encode_jpeg
+from armnet_connector.telemetry import CameraFrame
+from armnet_node.telemetry import encode_jpeg
 
 pytestmark = pytest.mark.unit
 

@@ -6,8 +6,8 @@ import dataclasses
 import json
 
 import pytest
-from armnet_agent.connector.telemetry_decode import ServoSample, decode_block
-from armnet_agent.node.telemetry_wire import (
+from armnet_connector.telemetry_decode import ServoSample, decode_block
+from armnet_node.telemetry_wire import (
     MAX_MOTORS,
     Cadence,
     camera_subject,

@@ -6,9 +6,10 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from armnet_agent.node.model import parse_job
-from armnet_agent.node.report import progress_patch, terminal_patch
-from armnet_agent.node.rollout_history import (
+from armnet_core import JobResult, JobStatus
+from armnet_node.model import parse_job
+from armnet_node.report import progress_patch, terminal_patch
+from armnet_node.rollout_history import (
     MAX_ENTRIES,
     Begun,
     Ended,
@@ -21,8 +22,7 @@ from armnet_agent.node.rollout_history import (
     as_status,
     from_status,
 )
-from armnet_agent.node.rollout_recorder import RolloutRecorder
-from armnet_core import JobResult, JobStatus
+from armnet_node.rollout_recorder import RolloutRecorder
 
 pytestmark = pytest.mark.unit
 

@@ -6,10 +6,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.model import parse_cell, parse_job
-from armnet_agent.node.plan import HostPaths
-from armnet_agent.node.runner import JobRunner, RunnerDeps
+from armnet_node.metrics import AgentMetrics
+from armnet_node.model import parse_cell, parse_job
+from armnet_node.plan import HostPaths
+from armnet_node.runner import JobRunner, RunnerDeps
 
 pytestmark = pytest.mark.unit
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from armnet_agent.node.stream_outbox import BatchLimits, Outbox, OutMessage
 from armnet_core.logbatch import split_lines
+from armnet_node.stream_outbox import BatchLimits, Outbox, OutMessage
 
 pytestmark = pytest.mark.unit
 

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.connector.inputs import LocalOperatorInputs
-from armnet_agent.node.inputs_bridge import OperatorInputsBridge
-from armnet_agent.node.stream_metrics import StreamsCollector
-from armnet_agent.node.streams import NatsLink, StreamSettings
+from armnet_connector.inputs import LocalOperatorInputs
+from armnet_node.inputs_bridge import OperatorInputsBridge
+from armnet_node.stream_metrics import StreamsCollector
+from armnet_node.streams import NatsLink, StreamSettings
 from prometheus_client import CollectorRegistry, generate_latest
 
 pytestmark = pytest.mark.unit

@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from armnet_agent.node import stream_outbox
-from armnet_agent.node.stream_outbox import Outbox, OutMessage
+from armnet_node import stream_outbox
+from armnet_node.stream_outbox import Outbox, OutMessage
 
 pytestmark = pytest.mark.unit
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.node.streams import fms_subject, line_msg_id, log_subject, teleop_subject
+from armnet_node.streams import fms_subject, line_msg_id, log_subject, teleop_subject
 
 pytestmark = pytest.mark.unit
 

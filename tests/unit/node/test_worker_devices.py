@@ -7,14 +7,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_agent.deviceplugin.decide import DeviceFact, cell_device_paths
-from armnet_agent.node.device_health import DEBOUNCE_S, DEVICE_LOST, DeviceState, observe
-from armnet_agent.node.health import hardware_condition
-from armnet_agent.node.metrics import AgentMetrics
-from armnet_agent.node.model import parse_cell
-from armnet_agent.node.plan import HostPaths
-from armnet_agent.node.runner import RunnerDeps
-from armnet_agent.node.worker import CellWorker, WorkerSettings
+from armnet_node.device_health import DEBOUNCE_S, DEVICE_LOST, DeviceState, observe
+from armnet_node.deviceplugin.decide import DeviceFact, cell_device_paths
+from armnet_node.health import hardware_condition
+from armnet_node.metrics import AgentMetrics
+from armnet_node.model import parse_cell
+from armnet_node.plan import HostPaths
+from armnet_node.runner import RunnerDeps
+from armnet_node.worker import CellWorker, WorkerSettings
 
 pytestmark = pytest.mark.unit
 

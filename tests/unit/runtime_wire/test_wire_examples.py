@@ -23,11 +23,11 @@ from types import ModuleType
 from typing import Any
 
 import pytest
-from armnet_agent.sim import SimulatedCellProcess
-from armnet_agent.sim.calibration import builtin_calibration, write_calibration
 from armnet_runtime.context import build_context
 from armnet_runtime.decorator import _clear_registration
 from armnet_runtime.endpoints import parse_endpoint
+from armnet_sim import SimulatedCellProcess
+from armnet_sim.calibration import builtin_calibration, write_calibration
 
 from tests.support.jsonl_server_objects import ObjectServer
 
@@ -129,7 +129,7 @@ def test_bimanual_on_direct_hardware(
     assert set(result["final_positions"]) == {"left", "right"}
 
 
-#: What the connector gives a job's reads (agent/armnet_agent/connector/retry.py): a read
+#: What the connector gives a job's reads (agent/armnet_connector/retry.py): a read
 #: whose reply a loaded host lost is asked again. This stand-in server has no connector, so
 #: its bus asks LeRobot itself; without it one lost reply failed the job (seen with the
 #: suite's three sessions on two cores).

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
-from armnet_agent.sim import RemoteArm, SimulatedCellProcess
+from armnet_sim import RemoteArm, SimulatedCellProcess
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from armnet_agent.sim import RemoteArm, SimulatedArm
+from armnet_sim import RemoteArm, SimulatedArm
 from lerobot.motors import Motor, MotorCalibration, MotorNormMode
 from lerobot.motors.feetech import FeetechMotorsBus
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.sim.bus_model import ServoBus
-from armnet_agent.sim.protocol import BROADCAST_ID, ErrorBit, Instr, Instruction, encode_status
-from armnet_agent.sim.servo import Servo, ServoFaults
+from armnet_sim.bus_model import ServoBus
+from armnet_sim.protocol import BROADCAST_ID, ErrorBit, Instr, Instruction, encode_status
+from armnet_sim.servo import Servo, ServoFaults
 
 pytestmark = pytest.mark.unit
 

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from armnet_agent.sim import RemoteArm, SimulatedCamera, build_cell
+from armnet_sim import RemoteArm, SimulatedCamera, build_cell
 from lerobot.cameras import ColorMode, Cv2Rotation
 from lerobot.cameras.opencv import OpenCVCameraConfig
 from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
@@ -149,7 +149,7 @@ def test_rotation_backend_and_capture_size_read_as_on_opencv_camera() -> None:
 def test_each_rendered_picture_is_its_own_and_drawing_on_one_leaves_the_next_clean() -> None:
     """render_arms copies one cached background per size: a picture a caller draws on (or one
     arm drawn in place) must never reach the next picture."""
-    from armnet_agent.sim.render import render_arms
+    from armnet_sim.render import render_arms
 
     joints = {"shoulder_lift": 10.0, "elbow_flex": 20.0, "wrist_flex": 5.0, "gripper": 30.0}
     for arms in ({"arm": joints}, {"left": joints, "right": joints}, {}):

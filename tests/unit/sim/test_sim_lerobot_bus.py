@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
-from armnet_agent.sim import RemoteArm
+from armnet_sim import RemoteArm
 from lerobot.motors import MotorCalibration
 from lerobot.motors.feetech import OperatingMode
 

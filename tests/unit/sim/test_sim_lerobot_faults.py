@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
-from armnet_agent.sim import RemoteArm
+from armnet_sim import RemoteArm
 
 from .sim_lerobot_helpers import Steady, a_feetech_bus
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.sim.physics import Drive, JointState, PhysicsParams, step, telemetry
-from armnet_agent.sim.servo import Servo, ServoCalibration
+from armnet_sim.physics import Drive, JointState, PhysicsParams, step, telemetry
+from armnet_sim.servo import Servo, ServoCalibration
 
 pytestmark = pytest.mark.unit
 

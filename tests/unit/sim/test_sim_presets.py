@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from armnet_agent.sim import (
+from armnet_sim import (
     SO101_MOTORS,
     CalibrationError,
     SimulatedCellProcess,

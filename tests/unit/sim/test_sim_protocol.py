@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.sim.protocol import FrameParser, Instr, Instruction, checksum, encode_status
+from armnet_sim.protocol import FrameParser, Instr, Instruction, checksum, encode_status
 
 pytestmark = pytest.mark.unit
 

@@ -6,7 +6,7 @@ import os
 import time
 
 import pytest
-from armnet_agent.sim.pty_server import PtyServer
+from armnet_sim.pty_server import PtyServer
 
 pytestmark = pytest.mark.unit
 

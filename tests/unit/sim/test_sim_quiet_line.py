@@ -12,11 +12,11 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from armnet_agent.sim.bus_model import ServoBus
-from armnet_agent.sim.protocol import BROADCAST_ID, Instr, Instruction, is_lone_sync_write
-from armnet_agent.sim.pty_server import PtyServer
-from armnet_agent.sim.servo import Servo
-from armnet_agent.sim.sim_bus import MAX_DEFERRED_WRITES, SimulatedBus
+from armnet_sim.bus_model import ServoBus
+from armnet_sim.protocol import BROADCAST_ID, Instr, Instruction, is_lone_sync_write
+from armnet_sim.pty_server import PtyServer
+from armnet_sim.servo import Servo
+from armnet_sim.sim_bus import MAX_DEFERRED_WRITES, SimulatedBus
 
 pytestmark = pytest.mark.unit
 

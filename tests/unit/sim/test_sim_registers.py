@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.sim import control_table as ct
-from armnet_agent.sim.servo import Servo, ServoCalibration
+from armnet_sim import control_table as ct
+from armnet_sim.servo import Servo, ServoCalibration
 
 pytestmark = pytest.mark.unit
 
@@ -125,8 +125,8 @@ def test_a_setup_saves_eeprom_only() -> None:
 
 
 def test_the_simulated_so101_is_a_prepared_cell_with_lerobots_gripper_limits() -> None:
-    from armnet_agent.sim.arm import SimulatedArm
-    from armnet_agent.sim.calibration import builtin_calibration
+    from armnet_sim.arm import SimulatedArm
+    from armnet_sim.calibration import builtin_calibration
 
     arm = SimulatedArm(calibration=builtin_calibration("so101"))
     assert arm.register("gripper", "Max_Torque_Limit") == 500

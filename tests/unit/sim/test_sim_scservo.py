@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 import scservo_sdk as scs
-from armnet_agent.sim import ErrorBit, RemoteArm, SimulatedCellProcess
+from armnet_sim import ErrorBit, RemoteArm, SimulatedCellProcess
 
 from .sim_lerobot_helpers import wait_until
 

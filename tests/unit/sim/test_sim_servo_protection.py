@@ -10,9 +10,9 @@ from __future__ import annotations
 import time
 
 import pytest
-from armnet_agent.sim import RemoteArm
-from armnet_agent.sim.physics import Drive, JointState, PhysicsParams, step, telemetry
-from armnet_agent.sim.servo import OVERLOAD_BIT
+from armnet_sim import RemoteArm
+from armnet_sim.physics import Drive, JointState, PhysicsParams, step, telemetry
+from armnet_sim.servo import OVERLOAD_BIT
 
 from .sim_lerobot_helpers import a_feetech_bus, wait_until
 

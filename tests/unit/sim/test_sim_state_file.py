@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from armnet_agent.sim import SimulatedCellProcess
+from armnet_sim import SimulatedCellProcess
 
 from .sim_lerobot_helpers import a_feetech_bus
 

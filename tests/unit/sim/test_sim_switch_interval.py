@@ -10,9 +10,9 @@ from __future__ import annotations
 import sys
 
 import pytest
-from armnet_agent.sim import SimulatedCellProcess
-from armnet_agent.sim.presets import build_cell
-from armnet_agent.sim.pty_server import SERVING_SWITCH_INTERVAL_S
+from armnet_sim import SimulatedCellProcess
+from armnet_sim.presets import build_cell
+from armnet_sim.pty_server import SERVING_SWITCH_INTERVAL_S
 
 pytestmark = pytest.mark.unit
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.supervise.observe import EventKind, OutputObserver, Stream
-from armnet_agent.supervise.supervisor import iter_lines
-from armnet_agent.supervise.tail import BoundedTail
+from armnet_launch.supervise.observe import EventKind, OutputObserver, Stream
+from armnet_launch.supervise.supervisor import iter_lines
+from armnet_launch.supervise.tail import BoundedTail
 from armnet_runtime.markers import format_progress, format_result, format_traceback
 
 pytestmark = pytest.mark.unit

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from armnet_agent.supervise.outcome import RunFacts, assemble_result
 from armnet_core import JobStatus
+from armnet_launch.supervise.outcome import RunFacts, assemble_result
 
 pytestmark = pytest.mark.unit
 

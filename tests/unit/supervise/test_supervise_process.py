@@ -9,9 +9,9 @@ import threading
 import time
 
 import pytest
-from armnet_agent.supervise import JobHooks, SubprocessJob, SupervisorLimits, supervise
-from armnet_agent.supervise.observe import EventKind, OutputEvent
 from armnet_core import JobStatus
+from armnet_launch.supervise import JobHooks, SubprocessJob, SupervisorLimits, supervise
+from armnet_launch.supervise.observe import EventKind, OutputEvent
 from armnet_runtime.markers import format_progress, format_result
 
 pytestmark = pytest.mark.unit
@@ -154,7 +154,7 @@ def test_a_result_printed_right_after_a_burst_of_output_is_kept_however_far_behi
 def test_output_held_open_by_a_silent_leftover_process_ends_the_wait_once_no_line_comes(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from armnet_agent.supervise import supervisor
+    from armnet_launch.supervise import supervisor
 
     monkeypatch.setattr(supervisor, "DRAIN_STALL_S", 0.5)
     # A child in its own session keeps the job's stdout open, silent, after the job exits.

@@ -1,0 +1,226 @@
+"""The Cell and RobotJob as the agent reads them: pydantic at the boundary, frozen inside. Pure.
+
+Only the fields the agent acts on are parsed; everything else in the objects is
+ignored (the operator owns it). A malformed object is a ``ValueError`` naming
+the field, reported on the object rather than crashing the agent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any, Literal
+
+from armnet_connector.completion_config import CompletionConfig, unknown_camera
+from armnet_launch.cell_spec import CameraSpec
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from armnet_node import rollout_history
+from armnet_node.follower_rule import follower_window
+
+ACTIVE_PHASES = ("dispatched", "running")
+TERMINAL_PHASES = ("succeeded", "failed", "timeout", "cancelled")
+#: Set by the FMS's Stop together with ``spec.cancel`` (docs/fms.md).
+STOPPED_BY_ANNOTATION = "armnet.io/stopped-by"
+
+
+class _Loose(BaseModel):
+    model_config = ConfigDict(extra="ignore", populate_by_name=True)
+
+
+class _Arm(_Loose):
+    port: str | None = None
+    robot_id: str | None = Field(default=None, alias="robotId")
+    calibration_dir: str | None = Field(default=None, alias="calibrationDir")
+    safety_limit: float | None = Field(default=None, alias="safetyLimit")
+
+
+class _Camera(_Loose):
+    index_or_path: int | str = Field(alias="indexOrPath")
+    width: int = 640
+    height: int = 480
+    fps: int = 30
+
+
+class _CellSpec(_Loose):
+    embodiment: str
+    task: str | None = None
+    node_name: str = Field(alias="nodeName")
+    simulated: bool = False
+    robot: _Arm | None = None
+    arms: dict[str, _Arm] = Field(default_factory=dict)
+    cameras: dict[str, _Camera] = Field(default_factory=dict)
+    language_instruction: str | None = Field(default=None, alias="languageInstruction")
+    grace_period_seconds: int = Field(default=10, alias="gracePeriodSeconds")
+    reset_timeout_seconds: int = Field(default=300, alias="resetTimeoutSeconds")
+    safety_policy: Literal["clamp", "trip"] = Field(default="clamp", alias="safetyPolicy")
+    allow_calibration_jobs: bool = Field(default=False, alias="allowCalibrationJobs")
+    register_bounds: dict[str, tuple[int, int]] = Field(default_factory=dict, alias="registerBounds")
+    completion: CompletionConfig | None = None
+
+
+class _JobSpec(_Loose):
+    image: str
+    embodiment: str
+    task: str | None = None
+    args: dict[str, Any] = Field(default_factory=dict)
+    timeout_seconds: int = Field(default=120, alias="timeoutSeconds")
+    secrets: dict[str, str] = Field(default_factory=dict)
+    cancel: bool = False
+    detach: bool = False
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    port: str | None = None
+    robot_id: str | None = None
+    calibration_dir: str | None = None
+    safety_limit: float | None = None
+
+
+@dataclass(frozen=True)
+class Cell:
+    name: str
+    node_name: str
+    embodiment: str
+    task: str | None
+    simulated: bool
+    arms: dict[str, ArmSpec]
+    cameras: tuple[CameraSpec, ...]
+    language_instruction: str | None
+    grace_seconds: float
+    reset_timeout_seconds: float
+    #: The cell's safety settings, passed to its connector as they are (docs/connector.md).
+    safety_policy: str = "clamp"
+    allow_calibration_jobs: bool = False
+    register_bounds: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: The cell's completion monitor settings (``spec.completion``), None: operators only.
+    completion: CompletionConfig | None = None
+    current_job: str | None = None
+    annotations: dict[str, str] = field(default_factory=dict)
+    resource_version: str = ""
+
+
+@dataclass(frozen=True)
+class Job:
+    namespace: str
+    name: str
+    uid: str
+    image: str
+    embodiment: str
+    args: dict[str, Any]
+    timeout_seconds: int
+    secrets: dict[str, str]
+    cancel: bool
+    deleting: bool
+    phase: str | None
+    cell_name: str | None
+    started_at: datetime | None
+    resource_version: str = ""
+    #: The cell operator who stopped the job from the FMS (``armnet.io/stopped-by``), if any.
+    stopped_by: str | None = None
+    #: The heartbeat window of a job whose client follows it (``node.follower``); None: not watched.
+    follower_window_s: float | None = None
+    #: ``status.rollouts`` as last written (kept when an agent restart re-adopts the job).
+    rollouts: rollout_history.History = ()
+
+    @property
+    def key(self) -> str:
+        """``namespace/name``, as the Cell's ``status.currentJob`` names it."""
+        return f"{self.namespace}/{self.name}"
+
+    @property
+    def stopping(self) -> bool:
+        return self.cancel or self.deleting
+
+
+def parse_cell(obj: dict[str, Any]) -> Cell:
+    meta = obj.get("metadata") or {}
+    try:
+        spec = _CellSpec.model_validate(obj.get("spec") or {})
+    except ValidationError as exc:
+        raise ValueError(f"Cell {meta.get('name')}: invalid spec: {exc}") from exc
+    camera_problem = unknown_camera(spec.completion, spec.cameras)
+    if camera_problem is not None:
+        raise ValueError(f"Cell {meta.get('name')}: invalid spec: {camera_problem}")
+    arms = {name: _arm(arm) for name, arm in spec.arms.items()}
+    if not arms:
+        arms = {"arm": _arm(spec.robot or _Arm())}
+    status = obj.get("status") or {}
+    return Cell(
+        name=str(meta.get("name", "")),
+        node_name=spec.node_name,
+        embodiment=spec.embodiment,
+        task=spec.task,
+        simulated=spec.simulated,
+        arms=arms,
+        cameras=tuple(
+            CameraSpec(name, c.width, c.height, c.fps, c.index_or_path) for name, c in sorted(spec.cameras.items())
+        ),
+        language_instruction=spec.language_instruction,
+        grace_seconds=float(spec.grace_period_seconds),
+        reset_timeout_seconds=float(spec.reset_timeout_seconds),
+        safety_policy=spec.safety_policy,
+        allow_calibration_jobs=spec.allow_calibration_jobs,
+        register_bounds=dict(spec.register_bounds),
+        completion=spec.completion,
+        current_job=status.get("currentJob"),
+        annotations=dict(meta.get("annotations") or {}),
+        resource_version=str(meta.get("resourceVersion", "")),
+    )
+
+
+def _arm(arm: _Arm) -> ArmSpec:
+    return ArmSpec(arm.port, arm.robot_id, arm.calibration_dir, arm.safety_limit)
+
+
+def parse_job(obj: dict[str, Any]) -> Job:
+    meta = obj.get("metadata") or {}
+    where = f"RobotJob {meta.get('namespace')}/{meta.get('name')}"
+    try:
+        spec = _JobSpec.model_validate(obj.get("spec") or {})
+    except ValidationError as exc:
+        raise ValueError(f"{where}: invalid spec: {exc}") from exc
+    status = obj.get("status") or {}
+    started = status.get("startedAt")
+    return Job(
+        namespace=str(meta.get("namespace", "")),
+        name=str(meta.get("name", "")),
+        uid=str(meta.get("uid", "")),
+        image=spec.image,
+        embodiment=spec.embodiment,
+        args=spec.args,
+        timeout_seconds=spec.timeout_seconds,
+        secrets=spec.secrets,
+        cancel=spec.cancel,
+        deleting=meta.get("deletionTimestamp") is not None,
+        phase=status.get("phase"),
+        cell_name=status.get("cellName"),
+        started_at=datetime.fromisoformat(started.replace("Z", "+00:00")) if started else None,
+        resource_version=str(meta.get("resourceVersion", "")),
+        stopped_by=_operator_name((meta.get("annotations") or {}).get(STOPPED_BY_ANNOTATION)),
+        follower_window_s=follower_window(meta.get("annotations") or {}, spec.detach),
+        rollouts=rollout_history.from_status(status.get("rollouts")),
+    )
+
+
+def _operator_name(value: Any) -> str | None:
+    """The annotation's operator name if it is a plain short name (it lands in the job's result)."""
+    if isinstance(value, str) and 0 < len(value) <= 64 and all(c.isalnum() or c in ".-_@" for c in value):
+        return value
+    return None
+
+
+def cancel_reason(job: Job) -> str | None:
+    """Why a cancelled job ended, when more is known than "cancelled": the FMS's Stop names the operator."""
+    return f"stopped by cell operator {job.stopped_by}" if job.cancel and job.stopped_by else None
+
+
+def should_launch(job: Job, cell: Cell) -> bool:
+    """The operator's contract: dispatched, bound to this cell, and the cell names it back."""
+    return (
+        job.phase == "dispatched"
+        and job.cell_name == cell.name
+        and cell.current_job == job.key
+        and not job.stopping
+    )

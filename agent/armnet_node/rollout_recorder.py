@@ -1,0 +1,130 @@
+"""One running job's rollout history, fed from two threads and written with its progress.
+
+The connector records rollout begins and ends (polled here from the job's
+session); the FMS's verdicts arrive on the NATS bridge's thread. Both go
+through :meth:`RolloutRecorder.verdict` / :meth:`sync` under one lock, and the
+history itself is decided by the pure ``rollout_history.apply``. A verdict
+first catches up with the connector's events, so it lands on the rollout the
+bridge saw active even if the once-a-second poll has not seen its begin yet.
+The runner writes :meth:`unwritten` with its progress patch and the final
+history with the terminal status. A recorder made from a history read back
+after an agent restart takes only events later than that history's latest
+begin or end: a pod's sidecar gives all its events again.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
+from typing import Any, Protocol
+
+from armnet_node import rollout_history as rh
+
+
+class ConnectorRolloutEvent(Protocol):
+    """The connector's record of one ``rollout_begin``/``rollout_end`` (``connector.cell.RolloutEvent``)."""
+
+    @property
+    def kind(self) -> str: ...
+
+    @property
+    def at(self) -> float: ...
+
+    @property
+    def index(self) -> int | None: ...
+
+    @property
+    def total(self) -> int | None: ...
+
+    @property
+    def outcome_controls(self) -> bool | None: ...
+
+
+def change_of(event: ConnectorRolloutEvent) -> rh.RolloutChange | None:
+    """The history change a connector event means (None for one the history does not record)."""
+    at = datetime.fromtimestamp(event.at, UTC)
+    if event.kind == "begin" and event.index is not None:
+        return rh.Begun(index=event.index, total=event.total or 0, at=at,
+                        outcome_controls=event.outcome_controls is not False)
+    if event.kind == "end":
+        return rh.Ended(at=at)
+    return None
+
+
+class RolloutRecorder:
+    """``source`` returns the connector's latest rollout events, oldest first (empty once it stopped)."""
+
+    def __init__(self, source: Callable[[], Sequence[ConnectorRolloutEvent]], history: rh.History = (),
+                 clock: Callable[[], datetime] = lambda: datetime.now(UTC)) -> None:
+        self._source = source
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._history = history
+        self._written = history
+        self._last_seen: Any = None
+        #: The latest begin or end the history already holds (read back after an agent restart): a pod's
+        #: sidecar outlives the agent and gives its events again from the first; those are not new.
+        self._watermark = _latest(history)
+
+    @property
+    def history(self) -> rh.History:
+        with self._lock:
+            return self._history
+
+    def sync(self) -> bool:
+        """Take the connector's events not seen yet; True if the history changed."""
+        events = list(self._source())
+        with self._lock:
+            before = self._history
+            for event in self._new(events):
+                change = change_of(event)
+                if change is not None:
+                    self._history = rh.apply(self._history, change)
+            return self._history is not before
+
+    def verdict(self, success: bool, by: str, rollout: int | None) -> None:
+        """A cell operator's verdict the bridge passed to the job, recorded on its rollout."""
+        self.sync()
+        with self._lock:
+            self._history = rh.apply(self._history, rh.Marked(success, by, self._clock(), rollout))
+
+    def accepts_verdict(self, rollout: int | None) -> bool:
+        """``rollout_history.accepts_verdict`` on the history caught up with the connector."""
+        self.sync()
+        with self._lock:
+            return rh.accepts_verdict(self._history, rollout)
+
+    def unwritten(self) -> rh.History | None:
+        """The history if it changed since :meth:`written` was last told, else None."""
+        with self._lock:
+            return self._history if self._history != self._written else None
+
+    def written(self, history: rh.History) -> None:
+        with self._lock:
+            self._written = history
+
+    def _new(self, events: list[ConnectorRolloutEvent]) -> list[ConnectorRolloutEvent]:
+        """The events after the last one seen (by identity; by time if it fell out of the connector's window)."""
+        if not events:
+            return []
+        last = self._last_seen
+        self._last_seen = events[-1]
+        if last is None:
+            mark = self._watermark
+            return events if mark is None else [e for e in events if _millis(e.at) > mark]
+        for position in range(len(events) - 1, -1, -1):
+            if events[position] is last:
+                return events[position + 1:]
+        return [event for event in events if event.at > last.at]
+
+
+def _millis(at: float) -> datetime:
+    """A connector time as ``status.rollouts`` keeps it (UTC, whole milliseconds)."""
+    moment = datetime.fromtimestamp(at, UTC)
+    return moment.replace(microsecond=moment.microsecond // 1000 * 1000)
+
+
+def _latest(history: rh.History) -> datetime | None:
+    times = [t for entry in history for t in (entry.started_at, entry.ended_at) if t is not None]
+    return max(times) if times else None

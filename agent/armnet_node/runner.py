@@ -1,0 +1,484 @@
+"""Runs one job on one cell, from launch (or adoption after a restart) to its terminal status.
+
+The steps, each safe to repeat after a crash at any point:
+
+1. resolve the job's Secrets (in its namespace only) and plan the launch; a
+   missing Secret or an impossible plan ends ``failed`` before anything starts;
+2. start the cell's connector for this job (in this process, on the cell's
+   simulator) on the job's socket directory;
+3. start the container or pod named after the job's UID (the engine or the API
+   server refuses a second one: a job never runs twice), or adopt the one a
+   previous agent started (``launchers``: container engine or pod);
+4. write ``running`` + ``startedAt``; supervise (``armnet_launch.supervise``):
+   output lines, progress, the deadline and grace window, graceful cancel;
+5. write the terminal status, then remove the container. A container still
+   present is the "not yet reported" fact: a restarted agent re-reads its log
+   from the start and writes the same result.
+
+Every terminal status the runner writes (step 1's failure included) is also
+published on the job's status stream with its error, so a client following the
+job says why it ended.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from armnet_connector.inputs import LocalOperatorInputs
+from armnet_core import JobResult, JobStatus
+from armnet_launch.pod_spec import SecretRef
+from armnet_launch.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
+from armnet_launch.supervise.observe import EventKind, OutputEvent
+from armnet_sim.presets import CellSimulator
+
+from armnet_node import report
+from armnet_node.device_health import LOST_PREFIX, lost_job_error
+from armnet_node.follower import guard_follower
+from armnet_node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
+from armnet_node.launchers import JobLauncher, JobSession, SessionRequest
+from armnet_node.metrics import AgentMetrics
+from armnet_node.model import TERMINAL_PHASES, Cell, Job, cancel_reason, parse_job
+from armnet_node.plan import HostPaths, LaunchError, plan_launch
+from armnet_node.publish import JobOutput, Link, inputs_bridge, job_output
+from armnet_node.rollout_history import as_status
+from armnet_node.rollout_recorder import RolloutRecorder
+
+log = logging.getLogger(__name__)
+
+PROGRESS_FLUSH_S = 1.0
+STATUS_RETRIES = 5
+ADOPTED_TRIP = (
+    "the node agent restarted while this job ran; its connector was re-created with the interlock "
+    "tripped and refuses motion for the rest of the job"
+)
+
+
+@dataclass
+class RunnerDeps:
+    kube: AgentKube
+    launcher: JobLauncher
+    paths: HostPaths
+    metrics: AgentMetrics
+    link: Link
+
+
+class JobRunner:
+    """One job's thread. ``stop()`` asks for the graceful path (cancel, deletion, job gone)."""
+
+    def __init__(
+        self,
+        job: Job,
+        cell: Cell,
+        sim: CellSimulator | None,
+        deps: RunnerDeps,
+        *,
+        container: Any = None,
+        on_done: Callable[[JobRunner], None] | None = None,
+        device_problems: Callable[[], Sequence[str]] | None = None,
+    ) -> None:
+        """``device_problems``: what is wrong with the cell's devices now (the worker's device watch)."""
+        self.job = job
+        self.cell = cell
+        self.sim = sim
+        self.deps = deps
+        self.adopted_container = container
+        self.hooks = JobHooks()
+        self.session: JobSession | None = None
+        self._output: JobOutput = job_output(deps.link, job.namespace, job.uid)
+        self._on_done = on_done
+        self._progress: str | None = None
+        self._rollout: dict[str, int] | None = None
+        #: The job's rollout history (``status.rollouts``), kept across an agent restart.
+        self.rollouts = RolloutRecorder(self._rollout_events, history=job.rollouts)
+        self._progress_dirty = threading.Event()
+        self._finished = threading.Event()
+        self._flush_stop = threading.Event()
+        #: Held for each progress write; once the terminal write begins no progress write follows
+        #: (a late one, without a resourceVersion, would put back an older rollout history).
+        self._status_lock = threading.Lock()
+        self._terminal_begun = False
+        #: The terminal status is written: nothing left to stop.
+        self.reported = False
+        #: Why the agent itself stopped the job (a lost follower), written as the result's error.
+        self._stop_reason: str | None = None
+        #: The cell's device was lost while the job ran (``stop_device_lost``): the job ends failed with this.
+        self._device_lost: str | None = None
+        #: The job's result is its own from here (a cancel's or timeout's grace window opened, or it
+        #: ended): a device lost later is not recorded. Guarded by ``_loss_lock`` with ``_device_lost``.
+        self._loss_closed = False
+        self._loss_lock = threading.Lock()
+        #: A launch refused before anything starts (``start(refuse=...)``): the job's error.
+        self._refused: str | None = None
+        self._device_problems = device_problems or (lambda: ())
+        self._seen_at = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
+        self.hooks.on_deadline = self._deadline_reached
+
+    @property
+    def uid(self) -> str:
+        return self.job.uid
+
+    @property
+    def done(self) -> bool:
+        return self._finished.is_set()
+
+    @property
+    def device_lost(self) -> str | None:
+        """The device loss this job ends ``failed`` for, or None (its own result stands)."""
+        return self._device_lost
+
+    def start(self, *, refuse: str | None = None) -> JobRunner:
+        """Run the job; with ``refuse``, a launch still ours ends ``failed`` with that error before anything starts."""
+        self._refused = refuse
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop like a timeout (interlock, grace window, kill), ending ``cancelled``.
+
+        A cancel that begins before any device loss keeps its result: a loss after it is not recorded.
+        """
+        self._close_device_loss()
+        if not self.hooks.cancel_gracefully.is_set():
+            log.info("stopping job %s (cancel, deletion or gone)", self.job.key)
+        self.hooks.cancel_gracefully.set()
+
+    def stop_follower_lost(self, message: str) -> None:
+        """The job's following client went away (``node.follower``): cancel, saying why."""
+        if self._stop_reason is None and not self.hooks.cancel_gracefully.is_set():
+            self._stop_reason = message
+            self.deps.metrics.follower_cancels.inc()
+        self.stop()
+
+    def stop_device_lost(self, message: str) -> None:
+        """A device of the cell is lost (``node.device_watch``): stop like a timeout; the job ends failed.
+
+        The same path as a cancel (the interlock trips naming ``message``, the grace window
+        runs, then the kill), so a job that honours ``is_shutting_down`` can save its data.
+        Not recorded once the job's own end is under way (a cancel's or a timeout's grace
+        window opened, or the job ended): that job ends cancelled, timeout or as it exited.
+        """
+        with self._loss_lock:
+            if self._loss_closed or self._device_lost is not None:
+                return
+            self._device_lost = message
+        log.warning("job %s: stopping it: %s", self.job.key, message)
+        self.hooks.cancel_gracefully.set()
+
+    def settle_device_loss(self) -> str | None:
+        """The job ended (``supervise`` returned): no loss is recorded from now; the one recorded before, if any."""
+        return self._close_device_loss()
+
+    def _close_device_loss(self) -> str | None:
+        with self._loss_lock:
+            self._loss_closed = True
+            return self._device_lost
+
+    def _deadline_reached(self) -> None:
+        """The job's timeout opened its grace window: it ends ``timeout``; then the connector trips."""
+        self._close_device_loss()
+        session = self.session
+        if session is not None:
+            session.on_deadline()
+
+    def interlock_trip(self) -> str | None:
+        session = self.session
+        return session.interlock_trip() if session is not None else None
+
+    # -- the run -------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            self._run_job()
+        except Exception as exc:  # noqa: BLE001 - an agent bug fails the job, never the agent
+            log.exception("job %s: the agent failed running it", self.job.key)
+            self._publish_end(self._write_terminal(infra_failure(
+                f"the node agent failed: {type(exc).__name__}: {exc}", SupervisorLimits(self.job.timeout_seconds)), None))
+        finally:
+            self._finished.set()
+            if self._on_done is not None:
+                self._on_done(self)
+
+    def _run_job(self) -> None:
+        job, cell = self.job, self.cell
+        adopted = self.adopted_container is not None
+        if not adopted and not self._still_dispatched():
+            return
+        if not adopted and self._refused is not None:
+            self._fail_before_start(self._refused)
+            return
+        launcher = self.deps.launcher
+        try:
+            if launcher.secrets_by_ref:
+                refs = tuple(SecretRef(*key) for key in self.deps.kube.secret_keys(job.namespace, job.secrets))
+                plan = plan_launch(job, cell, self.deps.paths, {})
+            else:
+                refs = ()
+                plan = plan_launch(job, cell, self.deps.paths, self.deps.kube.resolve_secrets(job.namespace, job.secrets))
+        except (SecretMissing, LaunchError) as exc:
+            self._fail_before_start(str(exc))
+            return
+        for directory in (plan.layout.cache_dir, plan.layout.volume_dir, plan.layout.output_dir):
+            directory.mkdir(parents=True, exist_ok=True)
+        inputs = LocalOperatorInputs()
+        output = self._output
+        request = SessionRequest(
+            job=job, cell=cell, plan=plan, sim=self.sim, adopted=self.adopted_container,
+            tripped=ADOPTED_TRIP if adopted else None, inputs=inputs,
+            on_grace_expired=self.hooks.kill_now.set, secret_refs=refs,
+        )
+        bridge = None
+        follower = None
+        try:
+            with launcher.session(request) as session:
+                self.session = session
+                self.hooks.on_cancel = lambda: session.on_cancel(self._device_lost)
+                bridge = inputs_bridge(self.deps.link, session.operator_inputs(), namespace=job.namespace, job_uid=job.uid,
+                                       cell=cell.name, active_rollout=self._active_rollout,
+                                       on_verdict=self._record_verdict,
+                                       accepts_verdict=self.rollouts.accepts_verdict)
+                try:
+                    launched = session.start()
+                except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
+                    self._fail_before_start(_engine_error(exc, job.image))
+                    return
+                self._count_start(adopted)
+                started_at = self._mark_running(adopted)
+                if started_at is None:
+                    launched.kill()
+                    session.remove()
+                    return
+                output.status("running", {"startedAt": report.timestamp(started_at)})
+                follower = guard_follower(self.deps.link, job.namespace, job.uid, job.follower_window_s,
+                                          self.stop_follower_lost)
+                # The job's clock runs from startedAt (also across an agent restart).
+                elapsed = (datetime.now(UTC) - started_at).total_seconds()
+                limits = SupervisorLimits(
+                    timeout_seconds=plan.timeout_seconds, grace_seconds=plan.grace_seconds,
+                    already_elapsed_s=max(elapsed, 0.0),
+                )
+                self.hooks.on_event = self._event_sink(output)
+                flusher = threading.Thread(target=self._flush_progress, daemon=True)
+                flusher.start()
+                result = supervise(launched, limits, self.hooks)
+                device_lost = self.settle_device_loss()  # a loss recorded after this does not change the result
+                failure = session.failure()
+                if failure is not None and result.status not in (JobStatus.TIMEOUT, JobStatus.CANCELLED):
+                    result = infra_failure(failure, limits)
+                elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
+                    result = result.model_copy(update={"error": self._stop_reason})
+                lost = lost_job_error(result.status, device_lost, tuple(self._device_problems()))
+                if lost is not None:
+                    result = result.model_copy(update={"status": JobStatus.FAILED, "error": lost})
+                self.rollouts.sync()  # the last begins and ends, before the connector stops
+                record = session.record()
+                self.rollouts.sync()  # a pod's sidecar may stop before the sync above: its record has the last
+                self._flush_stop.set()  # the last progress write lands before the terminal one
+                flusher.join(PROGRESS_FLUSH_S * 2)
+                with self._status_lock:  # waits out a progress write still in flight
+                    self._terminal_begun = True
+                written = self._write_terminal(result, record)
+                self.reported = True
+                if written is not None:
+                    self._publish_end(written)
+                    self._count(result, record, started_at)
+                session.remove()
+        finally:
+            self._flush_stop.set()
+            if follower is not None:
+                follower.close()
+            if bridge is not None:
+                bridge.close()
+            self.session = None
+            shutil.rmtree(plan.layout.socket_dir.parent, ignore_errors=True)
+            if self.reported:
+                # Nothing uploads the output yet (docs/outputs.md): it goes with the job rather
+                # than fill the robot host. An agent stopped before the status keeps it for the
+                # agent that adopts the job.
+                shutil.rmtree(plan.layout.output_dir, ignore_errors=True)
+
+    def _count_start(self, adopted: bool) -> None:
+        if adopted:
+            self.deps.metrics.jobs_adopted.inc()
+        else:
+            self.deps.metrics.jobs_started.inc()
+            self.deps.metrics.launch_latency.observe(time.monotonic() - self._seen_at)
+
+    def _still_dispatched(self) -> bool:
+        """A fresh read right before launch: a stale list must never start a job twice."""
+        try:
+            current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
+        except Gone:
+            return False
+        return current.uid == self.job.uid and current.phase == "dispatched" and not current.stopping
+
+    def _mark_running(self, adopted: bool) -> datetime | None:
+        """``running`` + ``startedAt`` (kept if already written); None if the job is no longer ours."""
+        for _ in range(STATUS_RETRIES):
+            try:
+                current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
+            except Gone:
+                return None
+            if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
+                return None
+            if current.stopping:
+                self.stop()
+            if current.phase == "running" and current.started_at is not None:
+                return current.started_at
+            now = datetime.now(UTC)
+            try:
+                self.deps.kube.patch_job_status(
+                    current.namespace, current.name, report.running_patch(current.resource_version, now)
+                )
+                return now
+            except Conflict:
+                continue
+        raise KubeError(f"could not mark {self.job.key} running: it kept changing")
+
+    def _event_sink(self, output: Any) -> Callable[[OutputEvent], None]:
+        sequence = {"stdout": 0, "stderr": 0, "progress": 0, "rerun": 0}
+        metrics = self.deps.metrics
+
+        def sink(event: OutputEvent) -> None:
+            kind = "rerun" if event.kind is EventKind.RERUN else (
+                "progress" if event.kind is EventKind.PROGRESS else event.stream.value)
+            sequence[kind] += 1
+            output.line(kind, sequence[kind], event.text)
+            metrics.lines_published.inc()
+            if event.kind is EventKind.PROGRESS:
+                self._progress = event.text
+                self._progress_dirty.set()
+
+        return sink
+
+    def _flush_progress(self) -> None:
+        """At most one progress/rollout write per second, latest value wins."""
+        while not self._flush_stop.wait(PROGRESS_FLUSH_S):
+            rollout = self._latest_rollout()
+            if rollout is not None and rollout != self._rollout:
+                self._rollout = rollout
+                self._progress_dirty.set()
+            force = self._progress_dirty.is_set()
+            self._progress_dirty.clear()  # a progress line arriving during the write sets it again
+            with self._status_lock:
+                if self._terminal_begun:
+                    return
+                written = write_progress(self.deps.kube, self.job, self._progress, self._rollout,
+                                         self.rollouts, force=force)
+            if not written and force:
+                self._progress_dirty.set()  # the write failed: try again on the next pass
+
+    def _latest_rollout(self) -> dict[str, int] | None:
+        session = self.session
+        return session.rollout() if session is not None else None
+
+    def _rollout_events(self) -> list[Any]:
+        session = self.session
+        try:
+            return list(session.rollout_events()) if session is not None else []
+        except RuntimeError:  # the connector's deque changed while copied: the next pass takes them
+            return []
+
+    def _record_verdict(self, success: bool, by: str, rollout: int | None) -> None:
+        """A verdict the bridge passed to the job: into the history, written with the next progress write."""
+        try:
+            self.rollouts.verdict(success, by, rollout)
+            self.deps.metrics.rollout_verdicts.labels(outcome="success" if success else "failure").inc()
+        except Exception:  # noqa: BLE001 - the record must never stop the bridge delivering inputs
+            log.exception("job %s: the verdict by %s was not recorded", self.job.key, by[:128])
+
+    def _active_rollout(self) -> int | None:
+        """The index of the rollout the job is in now (operator verdicts for any other are dropped)."""
+        session = self.session
+        return session.active_rollout() if session is not None else None
+
+    # -- status writes ----------------------------------------------------------------
+
+    def _fail_before_start(self, error: str) -> None:
+        log.warning("job %s failed before start: %s", self.job.key, error)
+        now = datetime.now(UTC)
+        self._publish_end(self._write(lambda current: report.failed_before_start(current.resource_version, error, now)))
+        self.deps.metrics.jobs_finished.labels(outcome="failed").inc()
+
+    def _publish_end(self, written: dict[str, Any] | None) -> None:
+        """The terminal status just written, on the job's status stream (nothing when none was written)."""
+        if written is not None:
+            self._output.status(written["status"]["phase"], report.end_detail(written))
+
+    def _write_terminal(self, result: JobResult, record: report.ConnectorRecord | None) -> dict[str, Any] | None:
+        def body(current: Job) -> dict[str, Any]:
+            reason = cancel_reason(current) if result.status is JobStatus.CANCELLED else None
+            final = result.model_copy(update={"error": reason}) if reason else result
+            return report.terminal_patch(current.resource_version, final, record, as_status(self.rollouts.history))
+
+        return self._write(body)
+
+    def _write(self, body_for: Callable[[Job], dict[str, Any]]) -> dict[str, Any] | None:
+        """A terminal write on the job as it is now; never over another terminal phase. The body written, or None."""
+        for _ in range(STATUS_RETRIES):
+            try:
+                current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
+            except Gone:
+                return None
+            if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
+                return None
+            body = body_for(current)
+            try:
+                self.deps.kube.patch_job_status(current.namespace, current.name, body)
+                return body
+            except Conflict:
+                continue
+            except Gone:
+                return None
+        log.error("job %s: terminal status not written after %d conflicts", self.job.key, STATUS_RETRIES)
+        return None
+
+    def _count(self, result: JobResult, record: report.ConnectorRecord, started_at: datetime) -> None:
+        metrics = self.deps.metrics
+        metrics.jobs_finished.labels(outcome=result.status.value).inc()
+        if result.status is JobStatus.FAILED and (result.error or "").startswith(LOST_PREFIX):
+            metrics.device_lost_jobs.inc()
+        metrics.job_duration.observe(max((datetime.now(UTC) - started_at).total_seconds(), 0.0))
+        if result.status is JobStatus.TIMEOUT:
+            metrics.timeouts.inc()
+        if record.trip_reason is not None:
+            metrics.interlock_trips.labels(reason=record.trip_reason).inc()
+
+
+def write_progress(kube: AgentKube, job: Job, progress: str | None, rollout: dict[str, int] | None,
+                   rollouts: RolloutRecorder, *, force: bool) -> bool:
+    """One progress write: the progress and rollout (when ``force``) and the rollout history if it changed.
+
+    False when there was nothing to write or the write failed (the caller tries again on its next pass).
+    """
+    rollouts.sync()
+    history = rollouts.unwritten()
+    if not force and history is None:
+        return False
+    body = report.progress_patch(progress, rollout, as_status(history) if history is not None else None)
+    try:
+        kube.patch_job_status(job.namespace, job.name, body)
+    except KubeError as exc:
+        log.warning("job %s: progress not written: %s", job.key, exc)
+        return False
+    if history is not None:
+        rollouts.written(history)
+    return True
+
+
+def _engine_error(exc: Exception, image: str) -> str:
+    from docker.errors import ImageNotFound, NotFound
+    from kubernetes.client.exceptions import ApiException
+
+    if isinstance(exc, ImageNotFound | NotFound):
+        return f"image {image} not found on this node; push it to a registry the node can pull from"
+    if isinstance(exc, ApiException):
+        return f"the API server refused the job's pod: {exc.status} {exc.reason}: {str(exc.body)[:300]}"
+    return f"the launcher failed to start the job: {type(exc).__name__}: {str(exc)[:300]}"
