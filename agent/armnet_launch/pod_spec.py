@@ -42,6 +42,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from armnet_core.api import API_VERSION
+
 from armnet_launch.plan import LABEL_CELL, LABEL_NAME, LABEL_NAMESPACE
 
 CONNECTOR_CONTAINER = "connector"
@@ -214,7 +216,7 @@ def build_pod(inputs: PodInputs) -> dict[str, Any]:
                 ANNOTATION_TIMEOUT: str(inputs.timeout_seconds),
             },
             "ownerReferences": [{
-                "apiVersion": "armnet.io/v1alpha1",
+                "apiVersion": API_VERSION,
                 "kind": "RobotJob",
                 "name": inputs.job_name,
                 "uid": inputs.job_uid,

@@ -17,10 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from armnet_core.api import GROUP, VERSION
 from armnet_launch.plan import LABEL_CELL, LABEL_NAMESPACE
 
 from armnet_node.deviceplugin.server import DevicePlugins
-from armnet_node.kube import GROUP, VERSION, AgentKube, KubeError
+from armnet_node.kube import AgentKube, KubeError
 from armnet_node.launchers import JobLauncher, PodLauncher
 from armnet_node.metrics import AgentMetrics
 from armnet_node.model import Cell, Job, parse_cell, parse_job

@@ -13,13 +13,12 @@ import base64
 import logging
 from typing import Any, cast
 
+from armnet_core.api import GROUP, VERSION
 from kubernetes import client, config
 from kubernetes.client.exceptions import ApiException
 
 log = logging.getLogger(__name__)
 
-GROUP = "armnet.io"
-VERSION = "v1alpha1"
 
 
 class KubeError(RuntimeError):

@@ -18,8 +18,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from armnet_node import rollout_history
 from armnet_node.follower_rule import follower_window
 
-ACTIVE_PHASES = ("dispatched", "running")
-TERMINAL_PHASES = ("succeeded", "failed", "timeout", "cancelled")
 #: Set by the FMS's Stop together with ``spec.cancel`` (docs/fms.md).
 STOPPED_BY_ANNOTATION = "armnet.io/stopped-by"
 

@@ -33,6 +33,7 @@ from typing import Any
 
 from armnet_connector.inputs import LocalOperatorInputs
 from armnet_core import JobResult, JobStatus
+from armnet_core.api import TERMINAL_PHASES
 from armnet_launch.pod_spec import SecretRef
 from armnet_launch.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
 from armnet_launch.supervise.observe import EventKind, OutputEvent
@@ -44,7 +45,7 @@ from armnet_node.follower import guard_follower
 from armnet_node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
 from armnet_node.launchers import JobLauncher, JobSession, SessionRequest
 from armnet_node.metrics import AgentMetrics
-from armnet_node.model import TERMINAL_PHASES, Cell, Job, cancel_reason, parse_job
+from armnet_node.model import Cell, Job, cancel_reason, parse_job
 from armnet_node.plan import HostPaths, LaunchError, plan_launch
 from armnet_node.publish import JobOutput, Link, inputs_bridge, job_output
 from armnet_node.rollout_history import as_status

@@ -29,6 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from armnet_core.api import ACTIVE_PHASES, TERMINAL_PHASES
 from armnet_sim.calibration import builtin_calibration, write_calibration
 from armnet_sim.presets import PRESETS, CellSimulator
 from armnet_sim.process import SimulatedCellProcess
@@ -39,8 +40,6 @@ from armnet_node.device_watch import DeviceWatch
 from armnet_node.deviceplugin.decide import DevicePath, cell_device_paths
 from armnet_node.kube import Conflict, Gone, KubeError
 from armnet_node.model import (
-    ACTIVE_PHASES,
-    TERMINAL_PHASES,
     Cell,
     Job,
     parse_cell,

@@ -13,9 +13,10 @@ import socket
 from datetime import UTC, datetime
 from typing import Any, cast
 
+from armnet_core.api import GROUP, VERSION
+
 from .actions import AuditEvent
 
-GROUP, VERSION = "armnet.io", "v1alpha1"
 COMPONENT = "armnet-fms"
 
 

@@ -16,12 +16,12 @@ from collections.abc import Callable
 from typing import Any
 
 import kopf
+from armnet_core.api import GROUP, VERSION
 
 from .controller import Controller
 from .errors import PermanentError
 from .kube import KubeApi, make_client
 from .metrics import Metrics
-from .model import GROUP, VERSION
 from .settings import OperatorSettings
 from .webhook import make_webhook
 

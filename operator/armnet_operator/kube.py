@@ -16,13 +16,14 @@ from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any, cast
 
+from armnet_core.api import GROUP, VERSION
 from kubernetes import client, config
 from kubernetes.client import rest
 from kubernetes.client.exceptions import ApiException
 
 from .errors import Conflict, NotFound, PermanentError, ResourceMissing, TransientError
 from .leader import LeaseMove, LeaseSeen, LeaseView, decide_lease, observe
-from .model import GROUP, VERSION, Cell, Job
+from .model import Cell, Job
 from .patches import Patch, Target
 
 log = logging.getLogger(__name__)

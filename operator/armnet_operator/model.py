@@ -14,8 +14,9 @@ from datetime import datetime, timedelta
 from enum import StrEnum
 from typing import Any
 
-GROUP = "armnet.io"
-VERSION = "v1alpha1"
+from armnet_core.api import ACTIVE_PHASES as _ACTIVE
+from armnet_core.api import TERMINAL_PHASES as _TERMINAL
+
 FINALIZER = "armnet.io/release-cell"
 
 
@@ -32,10 +33,8 @@ class JobPhase(StrEnum):
     CANCELLED = "cancelled"
 
 
-TERMINAL_PHASES = frozenset(
-    {JobPhase.SUCCEEDED, JobPhase.FAILED, JobPhase.TIMEOUT, JobPhase.CANCELLED}
-)
-ACTIVE_PHASES = frozenset({JobPhase.DISPATCHED, JobPhase.RUNNING})
+TERMINAL_PHASES = frozenset(JobPhase(phase) for phase in _TERMINAL)
+ACTIVE_PHASES = frozenset(JobPhase(phase) for phase in _ACTIVE)
 
 
 class CellPhase(StrEnum):

@@ -16,6 +16,8 @@ from collections.abc import Callable, Iterator, Mapping
 from datetime import datetime
 from typing import Any, Optional, TextIO
 
+from armnet_core.api import API_VERSION, CELLS, GROUP, VERSION
+from armnet_core.api import ROBOTJOBS as JOBS
 from armnet_core.models import Job, JobResult, JobSpec
 from armnet_core.nats_url import SHARED_ENV as SHARED_NATS_ENV
 from armnet_core.nats_url import nats_url_from as resolve_nats_url
@@ -45,7 +47,7 @@ from .mapping import (
     robotjob_body,
     view_of,
 )
-from .resources import API_VERSION, CELLS, GROUP, JOBS, VERSION, Cell, RobotJob, RobotJobSpec
+from .resources import Cell, RobotJob, RobotJobSpec
 from .statusfeed import ended, status_events
 
 log = logging.getLogger("armnet_client")

@@ -24,13 +24,13 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal, Optional, Union
 
+from armnet_core.api import TERMINAL_PHASES
 from armnet_core.logbatch import LINES_HEADER, split_lines
 from armnet_runtime.markers import split_timestamp
 
 KINDS = ("stdout", "stderr", "progress", "rerun", "status")
 TEXT_KINDS = frozenset({"stdout", "stderr", "progress"})
 """Kinds whose messages may carry several lines."""
-TERMINAL_PHASES = frozenset({"succeeded", "failed", "timeout", "cancelled"})
 
 Source = Literal["stream", "status"]
 

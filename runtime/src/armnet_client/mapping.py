@@ -13,9 +13,10 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Optional
 
+from armnet_core.api import API_VERSION
 from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
 
-from .resources import API_VERSION, Cell, RobotJob, RolloutRecord
+from .resources import Cell, RobotJob, RolloutRecord
 
 FOLLOWER_ANNOTATION = "armnet.io/follower-timeout-seconds"
 """Declares that this client follows the job and beats (the agent's ``node.follower_rule`` reads it)."""

@@ -13,12 +13,6 @@ from typing import Any, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
-GROUP = "armnet.io"
-VERSION = "v1alpha1"
-API_VERSION = f"{GROUP}/{VERSION}"
-JOBS = "robotjobs"
-CELLS = "cells"
-
 
 class _Body(BaseModel):
     model_config = ConfigDict(extra="ignore", populate_by_name=True, frozen=True)
