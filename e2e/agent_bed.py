@@ -226,6 +226,10 @@ class AgentBed:
         self._images[name] = tag
         return tag
 
+    def release(self, uid: str) -> None:
+        """Let a ``jobs/counts_slowly.py`` job held at its ``hold_at`` line go on (its output dir's ``go``)."""
+        (self.state_dir / "outputs" / uid / "go").write_text("")
+
     def submit(self, name: str, image: str, *, timeout: int = 120, args: dict[str, Any] | None = None,
                embodiment: str = "lerobot/so-101", **spec: Any) -> str:
         body = {"image": image, "embodiment": embodiment, "timeoutSeconds": timeout, "task": self.node,

@@ -396,13 +396,15 @@ def test_a_nats_outage_mid_job_loses_no_line_and_the_result_still_lands_in_statu
     bed: AgentBed, nats_service: Any
 ) -> None:
     image = bed.image("counts", JOBS / "counts_slowly.py")
-    job = bed.submit("through-outage", image, args={"lines": 30, "pause": 0.25}, timeout=200)
+    # Held after line 8 until released: the outage comes mid-job however slowly this test runs.
+    job = bed.submit("through-outage", image, args={"lines": 30, "pause": 0.25, "hold_at": 8}, timeout=200)
     uid = bed.job(job)["metadata"]["uid"]
     bed.wait_phase(job, ("running",), timeout=300)
     bed.wait(lambda: line_number(status(bed.job(job)).get("progress")) >= 5, 180, "the first lines")
     nats_service._proc.stop()  # nats-server goes away mid-job (the store stays on disk)
     try:
         assert line_number(status(bed.job(job)).get("progress")) < 29, "the job ended before the outage"
+        bed.release(uid)
         # The job prints on, finishes and is reported while NATS is down.
         st = status(bed.wait_phase(job, timeout=120))
     finally:

@@ -343,7 +343,9 @@ def test_a_job_pod_ignoring_shutdown_is_killed_after_grace_and_ends_timeout(
     st = status(bed.wait_phase(batch["timeout"], timeout=300))
     assert st["phase"] == "timeout", explain(st)
     assert "killed at the end of the 3 s grace window" in st["result"]["error"]
-    assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 5
+    # Timeout, the 3 s grace, then the kill and the status write: 35.1 s measured at load ~12 in a
+    # clean-clone run (the kubelet's kill, the pod's exit seen, the write), hence 10 s for those.
+    assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 10
 
 
 def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
@@ -468,7 +470,8 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
     image = bed.image("counts", JOBS / "counts_slowly.py")
-    bed.submit("loses-connector", image, args={"lines": 40, "pause": 0.25}, timeout=200)
+    # Held after line 3 until the sidecar is killed: mid-job however slowly the exec comes.
+    bed.submit("loses-connector", image, args={"lines": 40, "pause": 0.25, "hold_at": 3}, timeout=200)
     job = bed.wait_phase("loses-connector", ("running",), timeout=300)
 
     def some_output() -> bool:
@@ -479,6 +482,7 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     # SIGTERM to the sidecar's PID 1 (the kernel ignores SIGKILL to a namespace's init from inside it).
     bed.k8s.kubectl("exec", "-n", bed.namespace, f"armnet-{job['metadata']['uid']}", "-c", "connector", "--",
                     "python3", "-c", "import os, signal; os.kill(1, signal.SIGTERM)")
+    bed.release(job["metadata"]["uid"])
     st = status(bed.wait_phase("loses-connector", timeout=300))
     assert st["phase"] == "failed", explain(st)
     assert "connector sidecar restarted" in st["result"]["error"]
