@@ -82,13 +82,18 @@ class Bed:
                 with contextlib.suppress(Exception):
                     self.beat(cell)
 
-    def agent_sets(self, job: str, phase: str, **extra: Any) -> None:
+    def agent_sets(self, job: str, phase: str, *, precondition: str | None = None, **extra: Any) -> None:
+        """Write the job's status as the agent does; ``precondition`` is the resourceVersion the
+        write was decided on (the real agent always sends one: a 409 means re-read and decide)."""
         status: dict[str, Any] = {"phase": phase, **extra}
         if phase == "running":
             status["startedAt"] = stamp()
         if phase in ("succeeded", "failed", "cancelled", "timeout"):
             status["finishedAt"] = stamp()
-        self.api.patch_namespaced_custom_object_status(G, V, self.ns, "robotjobs", job, {"status": status})
+        body: dict[str, Any] = {"status": status}
+        if precondition is not None:
+            body["metadata"] = {"resourceVersion": precondition}
+        self.api.patch_namespaced_custom_object_status(G, V, self.ns, "robotjobs", job, body)
 
     # ---- looking
     def get_job(self, name: str) -> dict[str, Any] | None:

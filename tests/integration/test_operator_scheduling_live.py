@@ -180,6 +180,7 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
     seen_jobs: dict[str, dict[str, Any]] = {}
     bound_to: dict[str, str] = {}
     seen_claims: dict[str, str] = {}
+    latest: dict[str, tuple[dict[str, Any], str]] = {}
     stop = threading.Event()
 
     def watching(target: Callable[[], None]) -> Callable[[], None]:
@@ -210,12 +211,13 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
         for obj in every_event(bed.api.list_namespaced_custom_object, G, V, bed.ns, "robotjobs"):
             name, status = obj["metadata"]["name"], obj.get("status", {})
             seen_jobs[name] = status
+            latest[name] = (status, obj["metadata"]["resourceVersion"])  # one assignment: never torn
             active = [s["cellName"] for s in seen_jobs.values()
                       if s.get("phase") in ("dispatched", "running") and s.get("cellName")]
             if len(active) != len(set(active)):
                 violations.append(f"two active jobs on one cell: {sorted(active)}")
-            # A phase without a cell is no binding: the simulated agent below writes "running" on
-            # the last status it saw, without a precondition, so it can land on a job just requeued.
+            # A phase without a cell is no binding (kept as a check: the simulated agent writes with
+            # the version it saw, as the real one does, so it cannot land on a job just requeued).
             if status.get("phase") in ("dispatched", "running") and status.get("cellName"):
                 if bound_to.setdefault(name, status["cellName"]) != status["cellName"]:
                     violations.append(f"{name} moved from {bound_to[name]} to {status['cellName']} while active")
@@ -228,14 +230,18 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
                 seen_claims[obj["metadata"]["name"]] = obj.get("status", {}).get("currentJob") or ""
 
     def agent() -> None:
-        """Start each dispatched job, finish each running one: the cells turn over fast."""
+        """Start each dispatched job, finish each running one: the cells turn over fast.
+
+        Each write carries the resourceVersion it was decided on, as the node agent's do: without
+        it, a "running" decided on a dispatched job landed on the same job just requeued (a late
+        heartbeat on a loaded machine), which then ran without a second binding."""
         while not stop.wait(0.2):
-            for name, status in list(seen_jobs.items()):
+            for name, (status, version) in list(latest.items()):
                 with contextlib.suppress(Exception):
                     if status.get("phase") == "dispatched":
-                        bed.agent_sets(name, "running")
+                        bed.agent_sets(name, "running", precondition=version)
                     elif status.get("phase") == "running":
-                        bed.agent_sets(name, "succeeded")
+                        bed.agent_sets(name, "succeeded", precondition=version)
 
     cells = [bed.cell(f"c{i}") for i in range(5)]
     threads = [threading.Thread(target=t, daemon=True) for t in (watching(watch_jobs), watching(watch_cells), agent)]
