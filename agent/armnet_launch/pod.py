@@ -35,6 +35,8 @@ log = logging.getLogger(__name__)
 
 POLL_S = 0.25
 FOLLOW_RETRY_S = 0.5
+#: How often the wait for the job container's start looks at a stop request and at its bound.
+START_POLL_S = 1.0
 #: Seconds to wait after the customer container exits for the connector to stop and print its record.
 RECORD_WAIT_S = 20.0
 
@@ -231,6 +233,24 @@ class PodJob:
     def wait_started(self, timeout: float) -> bool:
         """Until the job container runs (the sidecar served first) or the pod ended; False on timeout."""
         return self._started.wait(timeout)
+
+    def wait_for_job_container(self, stop_requested: Callable[[], bool], bound_s: float,
+                               poll_s: float = START_POLL_S) -> str | None:
+        """Until the job container runs or the pod ended (a failed pull, the kubelet's deadline, a deletion).
+
+        Ends the pod itself, and says why, when ``stop_requested()`` turns true (a job whose
+        code never ran has nothing to save) or after ``bound_s`` (a kubelet that never
+        reports); None when the wait ended on its own.
+        """
+        give_up = time.monotonic() + bound_s
+        while not self._started.wait(poll_s):
+            if stop_requested():
+                self.kill()
+                return "the job was stopped before its container started"
+            if time.monotonic() > give_up:
+                self.kill()
+                return f"its container had not started after {bound_s:g} s"
+        return None
 
     @property
     def connector_restarts(self) -> int:

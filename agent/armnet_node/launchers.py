@@ -38,6 +38,7 @@ from armnet_launch.pod_spec import (
     PodInputs,
     PodResources,
     SecretRef,
+    active_deadline_seconds,
     build_pod,
     device_path,
     running_deadline_seconds,
@@ -65,8 +66,9 @@ from armnet_node.telemetry_sources import InProcessView, JobView
 
 log = logging.getLogger(__name__)
 
-#: How long the runner waits for a job pod's container to start before it marks the job running anyway.
-POD_START_TIMEOUT_S = 120
+#: Beyond the pod's own ``activeDeadlineSeconds`` (the kubelet fails a pod that has not run by then):
+#: the agent's bound on that wait, should the kubelet never report.
+POD_START_MARGIN_S = 60
 CONNECTOR_RESTARTED = (
     "the connector sidecar restarted during the job (the kubelet restarts a sidecar that dies); it came back with "
     "the interlock tripped and the job was failed rather than resumed"
@@ -125,6 +127,8 @@ class SessionRequest:
     inputs: LocalOperatorInputs
     on_grace_expired: Callable[[], None]
     secret_refs: tuple[SecretRef, ...] = ()
+    #: Whether the job was asked to stop (cancel, deletion, device loss): a launch still starting ends.
+    stop_requested: Callable[[], bool] = lambda: False
 
 
 class JobLauncher(Protocol):
@@ -364,7 +368,9 @@ class PodLauncher:
         ports = {arm.name: device_path(arm.name) for arm in layout.arms}
         config = build_connector_config(plan.cell_spec, layout, ports)
         # In a pod the connector runs the job's clock (the agent cannot call into it).
-        config = config.model_copy(update={"timeout_seconds": float(job.timeout_seconds)})
+        # Its clock starts with the job (the agent's job_started notice, or the job's first connection),
+        # not with the sidecar, which runs before the job's image is pulled and its container started.
+        config = config.model_copy(update={"timeout_seconds": float(job.timeout_seconds), "clock_starts_with_job": True})
         shipped = {preset.name: preset.calibration for preset in PRESETS[plan.cell_spec.preset]}
         calibration = {
             str(arm.calibration_file): json.loads(dump_calibration(builtin_calibration(shipped[arm.name])))
@@ -448,10 +454,25 @@ class PodSession:
         self.job = job
         self.observer = SidecarObserver(self._observer_path, metrics)
         self.inputs.watch(self._job_running)  # reset waits, announced to the cell's operator
-        # "running" means the job's code runs: wait for its container (the sidecar is ready first).
-        if not job.wait_started(POD_START_TIMEOUT_S):
-            log.warning("job %s: its pod's container has not started after %d s", request.job.key, POD_START_TIMEOUT_S)
+        self._wait_for_job_container(job)
         return job
+
+    def _wait_for_job_container(self, job: PodJob) -> None:
+        """"running" means the job's code runs, and its timeout counts from there: wait for its container.
+
+        A pod starts slowly when the node is busy or the job's image is pulled (the sidecar is
+        ready first); the job's clock must not run meanwhile (it did, after a fixed 120 s: a
+        loaded test run timed out a job whose code had run for 4 s). The kubelet's own start
+        allowance (``activeDeadlineSeconds``) bounds the wait; a stop request ends it early.
+        """
+        request = self.request
+        bound_s = active_deadline_seconds(request.job.timeout_seconds, request.cell.grace_seconds) + POD_START_MARGIN_S
+        ended = job.wait_for_job_container(request.stop_requested, bound_s)
+        if ended is not None:
+            log.warning("job %s: its pod was ended before its container started: %s", request.job.key, ended)
+        elif job.wait(0) is None and not self.inputs.job_started():
+            # The job's first connection starts the connector's clock then; the agent's own clock runs.
+            log.warning("job %s: the job_started notice did not reach its connector sidecar", request.job.key)
 
     def _own_host_dirs(self) -> None:
         """The cache, volume and output are host directories: the job's non-root user must be able to write them."""

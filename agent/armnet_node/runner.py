@@ -234,6 +234,7 @@ class JobRunner:
             job=job, cell=cell, plan=plan, sim=self.sim, adopted=self.adopted_container,
             tripped=ADOPTED_TRIP if adopted else None, inputs=inputs,
             on_grace_expired=self.hooks.kill_now.set, secret_refs=refs,
+            stop_requested=self.hooks.cancel_gracefully.is_set,
         )
         bridge = None
         follower = None

@@ -52,3 +52,43 @@ def test_the_deadline_is_lowered_to_the_jobs_own_window_once_its_container_runs(
     finally:
         job.delete(grace_seconds=0)
         k8s.delete_namespace(ns)
+
+
+def test_the_wait_for_a_job_container_lasts_while_the_pod_is_pending_and_a_stop_ends_the_pod(k8s: Any) -> None:
+    """A pod still starting (a busy node, a long image pull) is waited for, not timed: the job's clock
+    starts with its code. A stop request ends the wait and the pod (a job that never ran has nothing to save)."""
+    ns = k8s.create_namespace("pod-start-wait")
+    core = client.CoreV1Api(k8s.api_client())
+    core.create_namespaced_pod(ns, _pod("pending-pod"))
+    job = PodJob(core, ns, "pending-pod", poll_s=0.1)
+    stop_at = time.monotonic() + 3
+    try:
+        why = job.wait_for_job_container(lambda: time.monotonic() > stop_at, bound_s=600, poll_s=0.2)
+        assert why == "the job was stopped before its container started"
+        assert time.monotonic() >= stop_at  # pending all along: the wait did not give up by itself
+        assert _deadline(core, ns, "pending-pod") == 1  # the kubelet ends the pod at once
+    finally:
+        job.delete(grace_seconds=0)
+        k8s.delete_namespace(ns)
+
+
+def test_the_wait_for_a_job_container_ends_when_it_runs_and_past_its_bound_ends_the_pod(k8s: Any) -> None:
+    ns = k8s.create_namespace("pod-start-bound")
+    core = client.CoreV1Api(k8s.api_client())
+    for name in ("starts", "never-starts"):
+        core.create_namespaced_pod(ns, _pod(name))
+    starts, never = PodJob(core, ns, "starts", poll_s=0.1), PodJob(core, ns, "never-starts", poll_s=0.1)
+    try:
+        core.patch_namespaced_pod_status("starts", ns, {"status": {
+            "phase": "Running", "startTime": "2026-11-25T06:00:00Z",
+            "containerStatuses": [{"name": "job", "image": "localhost/armnet-test:dev", "imageID": "", "ready": True,
+                                   "restartCount": 0, "state": {"running": {"startedAt": "2026-11-25T06:00:41Z"}}}],
+        }})
+        assert starts.wait_for_job_container(lambda: False, bound_s=60, poll_s=0.2) is None
+        assert never.wait_for_job_container(lambda: False, bound_s=1, poll_s=0.2) == \
+            "its container had not started after 1 s"
+        assert _deadline(core, ns, "never-starts") == 1
+    finally:
+        for handle in (starts, never):
+            handle.delete(grace_seconds=0)
+        k8s.delete_namespace(ns)
