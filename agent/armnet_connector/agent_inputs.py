@@ -5,7 +5,9 @@ outside it, so the agent's NATS inputs bridge (``node.inputs_bridge``) cannot
 hand the cell operator's clicks to the connector's ``OperatorInputs`` object in
 its own process. ``agent.sock`` carries them in: reset confirmations, rollout
 verdicts, teleop, stop, and the cancel that opens the grace window
-(``ctx.is_shutting_down``).
+(``ctx.is_shutting_down``), and the notice that the job's container started
+(``job_started``: a pod's connector starts the job's clock then, or at the job's
+first connection, not at its own start, which precedes the job's image pull).
 
 Why a second socket next to ``observer.sock`` rather than write ops on it: the
 observer stays read-only by construction (its session has no op that changes
@@ -53,7 +55,7 @@ class AgentSession(Session):
         self.ops.update(
             reset_pending=self.op_reset_pending, confirm_reset=self.op_confirm_reset, outcome=self.op_outcome,
             teleop_action=self.op_teleop_action, teleop_event=self.op_teleop_event, stop=self.op_stop,
-            cancel=self.op_cancel,
+            cancel=self.op_cancel, job_started=self.op_job_started,
         )
 
     def handle(self, request: dict[str, Any]) -> Reply:
@@ -138,6 +140,14 @@ class AgentSession(Session):
         else:
             self.cell.deadline.cancel(why)
         return {"ok": True, "applied": True}
+
+
+    def op_job_started(self, request: dict[str, Any]) -> Reply:
+        """The job's container runs (the agent saw it start): the job's clock starts, if its first
+        connection has not started it already (``clock_starts_with_job``; a later notice changes nothing)."""
+        already = self.cell.deadline.started
+        self.cell.deadline.start()
+        return {"ok": True, "applied": True, "already_running": already}
 
 
 def _dropped(why: str) -> Reply:

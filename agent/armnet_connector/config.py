@@ -121,6 +121,12 @@ class ConnectorConfig(_Model):
         default=64, ge=1, le=4096, description="connections each socket serves at once; more are refused"
     )
     timeout_seconds: float | None = Field(default=None, gt=0, description="job deadline; null: none")
+    clock_starts_with_job: bool = Field(
+        default=False,
+        description="start the deadline when the job starts (its first connection, or the agent's job_started "
+        "notice), not when the connector starts: a pod's sidecar is up before the job's container, whose "
+        "image may still be pulled",
+    )
     grace_period_seconds: float = Field(default=10.0, ge=0)
     reset_timeout_seconds: float = Field(default=300.0, gt=0)
     disable_torque_on_shutdown: bool = True

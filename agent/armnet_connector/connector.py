@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType, TracebackType
+from typing import TypeVar
 
 from .agent_inputs import AGENT_SOCKET, AgentSession
 from .cell import CellState, Counters
@@ -27,10 +28,12 @@ from .observer import OBSERVER_SOCKET, ObserverSession
 from .record import ConnectorRecord
 from .report import SafetyReport
 from .server import BufferBudget, ServerLimits, UnixServer
-from .session import OperatorSession, RobotSession
+from .session import OperatorSession, RobotSession, Session
 from .warm_imports import start_warm_imports
 
 log = logging.getLogger(__name__)
+
+S = TypeVar("S", bound=Session)
 
 ROBOT_SOCKET = "robot.sock"
 OPERATOR_SOCKET = "operator.sock"
@@ -97,11 +100,13 @@ class Connector:
         budget = self.request_budget = BufferBudget()
         self._servers = [
             UnixServer(
-                self.socket_dir / ROBOT_SOCKET, lambda: RobotSession(self.cell, self.frames), self.cell.counters,
+                self.socket_dir / ROBOT_SOCKET, self._job_starts(lambda: RobotSession(self.cell, self.frames)),
+                self.cell.counters,
                 limits=limits, budget=budget,
             ),
             UnixServer(
-                self.socket_dir / OPERATOR_SOCKET, lambda: OperatorSession(self.cell), self.cell.counters,
+                self.socket_dir / OPERATOR_SOCKET, self._job_starts(lambda: OperatorSession(self.cell)),
+                self.cell.counters,
                 limits=limits, budget=budget,
             ),
         ]
@@ -118,6 +123,14 @@ class Connector:
             ))
         self._started = False
 
+    def _job_starts(self, make: Callable[[], S]) -> Callable[[], S]:
+        """A session factory for the job's sockets: the job's first connection starts its clock, if not yet
+        (``clock_starts_with_job``: the job cannot move an arm before it connects)."""
+        def session() -> S:
+            self.cell.deadline.start()
+            return make()
+        return session
+
     # -- lifetime ------------------------------------------------------------------
 
     def start(self) -> Connector:
@@ -133,7 +146,8 @@ class Connector:
             for server in started:
                 server.stop()
             raise
-        self.cell.deadline.start()
+        if not self.cell.config.clock_starts_with_job:
+            self.cell.deadline.start()
         if self.monitor is not None:
             self.monitor.start()
         self._started = True

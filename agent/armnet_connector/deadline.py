@@ -43,17 +43,26 @@ class Deadline:
         self._on_grace_expired = on_grace_expired
         self._clock = clock
         self._started_at: float | None = None
+        self._start_lock = threading.Lock()
         self._passed_at: float | None = None
         self._expired = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
-        self._started_at = self._clock()
+        """Start the job's clock; once only (a later call, e.g. a second notice of the job's start, is ignored)."""
+        with self._start_lock:
+            if self._started_at is not None:
+                return
+            self._started_at = self._clock()
         if self.timeout_s is None:
             return
         self._thread = threading.Thread(target=self._run, name="armnet-deadline", daemon=True)
         self._thread.start()
+
+    @property
+    def started(self) -> bool:
+        return self._started_at is not None
 
     def stop(self) -> None:
         self._stop.set()

@@ -106,6 +106,11 @@ class SidecarInputs:
 
     # -- what the pod session calls -----------------------------------------------------
 
+    def job_started(self) -> bool:
+        """Tell the connector the job's container runs: its clock starts now (unless the job's first
+        connection started it already)."""
+        return self._send("job_started", {})
+
     def cancel(self, why: str | None = None) -> bool:
         """Open the connector's grace window now (the job's ``is_shutting_down`` turns true), its
         interlock naming ``why`` (default: cancelled)."""

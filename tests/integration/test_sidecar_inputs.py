@@ -55,11 +55,11 @@ def link(nats_server: str) -> Iterator[NatsLink]:
 class Pod:
     """A connector as the sidecar runs it: the job's sockets in one directory, the agent's in another."""
 
-    def __init__(self, sim: SimulatedCellProcess) -> None:
+    def __init__(self, sim: SimulatedCellProcess, **config: Any) -> None:
         self.top = Path(tempfile.mkdtemp(prefix="ant-in-", dir="/tmp"))
         self.sockets = self.top / "sockets"
         self.agent_dir = self.top / "observer"
-        config = cell_config(sim).model_copy(update={"grace_period_seconds": GRACE_S})
+        config = cell_config(sim).model_copy(update={"grace_period_seconds": GRACE_S, **config})
         self.inputs = LocalOperatorInputs()
         self.connector = Connector(config, self.sockets, inputs=self.inputs, observer_dir=self.agent_dir).start()
         host = self.top / "kubelet" / "pods" / "0f2b7c1e-8d4a-4f3e-9b6a-1c2d3e4f5a6b" / "volumes"
@@ -237,6 +237,29 @@ def test_the_cancel_notice_opens_the_grace_window_the_job_sees(pod: Pod) -> None
     assert "cancel" in (pod.connector.interlock.trip_info.message or "")
 
 
+@pytest.mark.parametrize("starts", ["the agent's notice", "the job's first connection"])
+def test_a_pods_connector_starts_the_jobs_clock_with_the_job_not_with_itself(sim: SimulatedCellProcess,
+                                                                             starts: str) -> None:
+    """The sidecar is up before the job's container (whose image may still be pulled): its clock waits for the
+    job, so a slow start does not eat the job's timeout; whichever of the two comes first starts it, once."""
+    pod = Pod(sim, timeout_seconds=1.0, clock_starts_with_job=True)
+    try:
+        time.sleep(2.0)  # twice the timeout, before the job started
+        assert not pod.connector.cell.deadline.deadline_passed
+        assert not pod.connector.interlock.tripped
+        inputs = SidecarInputs(lambda: pod.agent_path, AgentMetrics())
+        if starts == "the agent's notice":
+            assert inputs.job_started() is True
+        else:
+            operator_op(pod, "shutdown_status")
+        wait_for(lambda: pod.connector.cell.deadline.deadline_passed, timeout=10, what="the job's deadline")
+        assert "exceeded its timeout of 1 s" in (pod.connector.interlock.trip_info.message or "")
+        # A second start (the notice after a connection, an agent that restarted) changes nothing.
+        assert request(pod.agent_path, {"op": "job_started"}) == {"ok": True, "applied": True, "already_running": True}
+    finally:
+        pod.close()
+
+
 def test_a_cancel_for_a_lost_device_names_the_loss_in_the_interlock(pod: Pod) -> None:
     why = "device lost: arm 'arm''s serial port: /dev/serial/by-id/x does not exist"
     assert SidecarInputs(lambda: pod.agent_path, AgentMetrics()).cancel(why) is True
@@ -256,7 +279,7 @@ def test_teleop_and_stop_reach_a_pod_jobs_connector(pod: Pod) -> None:
 
 @pytest.mark.parametrize("op", [
     {"op": "confirm_reset", "wait": 1}, {"op": "outcome", "success": True, "rollout": None},
-    {"op": "cancel"}, {"op": "reset_pending"}, {"op": "stop"},
+    {"op": "cancel"}, {"op": "reset_pending"}, {"op": "stop"}, {"op": "job_started"},
 ])
 def test_the_jobs_sockets_serve_no_agent_input_op(pod: Pod, op: dict[str, Any]) -> None:
     # What the tenant's container can reach (the sockets volume): agent.sock is not in it, and neither of its
