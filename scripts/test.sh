@@ -46,12 +46,15 @@ side_groups=(
   "tests/integration/test_dev_up.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
 )
 # Each session prints its slowest tests (--durations): where the suite's time budget goes.
+# Every session's output is also kept in one directory; a failed run keeps it (its path is
+# printed last, with each session's failures), a passing one removes it.
+logs="$(mktemp -d /tmp/armnet-test-logs.XXXXXX)"
 ignores=()
 side_pids=()
 side_logs=()
 for group in "${side_groups[@]}"; do
   read -r -a files <<<"$group"
-  log="$(mktemp /tmp/armnet-test-side.XXXXXX)"
+  log="$logs/side-${#side_logs[@]}.log"
   side_logs+=("$log")
   "$venv/bin/python" -m pytest --durations=15 "${files[@]}" >"$log" 2>&1 &
   side_pids+=("$!")
@@ -59,12 +62,11 @@ for group in "${side_groups[@]}"; do
 done
 # The linters run beside the sessions too (mypy alone is ~20 s of one core in a fresh
 # clone); their report is printed once the main session has ended.
-lint_log="$(mktemp /tmp/armnet-test-lint.XXXXXX)"
-trap 'rm -f "${side_logs[@]}" "$lint_log"' EXIT
+lint_log="$logs/lint.log"
 lint >"$lint_log" 2>&1 &
 lint_pid=$!
 main_rc=0
-"$venv/bin/python" -m pytest --durations=25 "${ignores[@]}" || main_rc=$?
+"$venv/bin/python" -m pytest --durations=25 "${ignores[@]}" 2>&1 | tee "$logs/main.log" || main_rc=$?
 lint_rc=0
 wait "$lint_pid" || lint_rc=$?
 cat "$lint_log"
@@ -80,9 +82,13 @@ if [ "$lint_rc" -ne 0 ]; then
   echo "lint failed (exit $lint_rc): the linters' report is above" >&2
 fi
 if [ "$main_rc" -ne 0 ] || [ "${#failed[@]}" -gt 0 ]; then
+  # The short summary of every session, last: a CI page that shows only the end shows them all.
+  echo "== failures of every session (pytest -ra lines; full output in $logs) =="
+  grep -h -E '^(FAILED|ERROR) ' "$logs/main.log" "${side_logs[@]}" | cut -c1-600 || true
   echo "pytest failed: suite exit $main_rc; side groups failed: ${failed[*]:-none}" >&2
   exit 1
 fi
 if [ "$lint_rc" -ne 0 ]; then
   exit 1
 fi
+rm -rf "$logs"
