@@ -38,6 +38,15 @@ class _Model(BaseModel):
     model_config = ConfigDict(alias_generator=to_camel, populate_by_name=True, extra="forbid", frozen=True)
 
 
+def _bounded(value: Any, name: str, low: float, high: float, kinds: tuple[type[int] | type[float], ...],
+             span: str) -> Any:
+    """``value`` if finite and, when a number of ``kinds``, within ``low``..``high``; else why, with ``span``."""
+    _finite(value, name)
+    if isinstance(value, kinds) and not low <= value <= high:
+        raise ValueError(f"{name} is {value}; give {span}")
+    return value
+
+
 def _finite(value: Any, what: str) -> Any:
     if isinstance(value, bool):
         raise ValueError(f"{what} must be a number, got {value!r}")
@@ -121,32 +130,21 @@ class CompletionConfig(_Model):
     @field_validator("rate_hz", mode="before")
     @classmethod
     def _rate(cls, value: Any) -> Any:
-        _finite(value, "completion.rateHz")
-        if isinstance(value, int | float) and not MIN_RATE_HZ <= value <= MAX_RATE_HZ:
-            raise ValueError(
-                f"completion.rateHz is {value}; give {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} frames per second "
-                "(the monitor shares the connector's CPU with the job)"
-            )
-        return value
+        return _bounded(value, "completion.rateHz", MIN_RATE_HZ, MAX_RATE_HZ, (int, float),
+                        f"{MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} frames per second "
+                        "(the monitor shares the connector's CPU with the job)")
 
     @field_validator("consecutive_frames", mode="before")
     @classmethod
     def _frames(cls, value: Any) -> Any:
-        _finite(value, "completion.consecutiveFrames")
-        if isinstance(value, int) and not 1 <= value <= MAX_CONSECUTIVE_FRAMES:
-            raise ValueError(
-                f"completion.consecutiveFrames is {value}; give 1 to {MAX_CONSECUTIVE_FRAMES} "
-                "(how many scored frames in a row must show the object in the region)"
-            )
-        return value
+        return _bounded(value, "completion.consecutiveFrames", 1, MAX_CONSECUTIVE_FRAMES, (int,),
+                        f"1 to {MAX_CONSECUTIVE_FRAMES} "
+                        "(how many scored frames in a row must show the object in the region)")
 
     @field_validator("min_pixels", mode="before")
     @classmethod
     def _pixels(cls, value: Any) -> Any:
-        _finite(value, "completion.minPixels")
-        if isinstance(value, int) and not 1 <= value <= 10_000_000:
-            raise ValueError(f"completion.minPixels is {value}; give 1 to 10000000 pixels")
-        return value
+        return _bounded(value, "completion.minPixels", 1, 10_000_000, (int,), "1 to 10000000 pixels")
 
     @field_validator("aruco_dictionary")
     @classmethod
