@@ -51,7 +51,7 @@ JOB_CONTAINER = "job"
 #: Env var carrying the sidecar's whole configuration (``launch.sidecar``).
 SIDECAR_ENV = "ARMNET_SIDECAR"
 ANNOTATION_JOB = "armnet.io/job"
-ANNOTATION_CELL = "armnet.io/cell"
+ANNOTATION_CELL = LABEL_CELL  # the same key: the pod carries its cell as a label and an annotation
 ANNOTATION_TIMEOUT = "armnet.io/timeout-seconds"
 #: Seconds beyond timeout + grace before the kubelet's own deadline ends the pod.
 DEADLINE_MARGIN_S = 30

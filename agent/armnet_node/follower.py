@@ -5,7 +5,7 @@ graceful cancellation. Only the agent can enforce that in a way that survives a
 client crash (``kill -9``, a laptop lid closing), so the client's part is small:
 
 - when it submits a job it will follow (``execute()``, ``armnet submit`` without
-  ``--detach``) it sets the annotation :data:`FOLLOWER_ANNOTATION` (``follower_rule``) on the
+  ``--detach``) it sets the annotation :data:`FOLLOWER_TIMEOUT_ANNOTATION` (``follower_rule``) on the
   RobotJob, whose value is the window in seconds;
 - while it follows, it publishes a heartbeat every 2 s on
   ``clients.<namespace>.<jobId>.heartbeat`` (plain NATS).
@@ -31,8 +31,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from armnet_core.api import FOLLOWER_TIMEOUT_ANNOTATION
+
 from armnet_node.follower_rule import (
-    FOLLOWER_ANNOTATION,
     FollowerClock,
     heartbeat_subject,
     lost_follower_message,
@@ -109,6 +110,6 @@ def guard_follower(
     if isinstance(link, NoLink):
         log.warning("job %s/%s declares a follower (%s) but this agent has no NATS (--nats-url): "
                     "its heartbeats cannot be heard, so it runs as if detached", namespace, job_uid,
-                    FOLLOWER_ANNOTATION)
+                    FOLLOWER_TIMEOUT_ANNOTATION)
         return None
     return FollowerGuard(link, namespace, job_uid, window_s, on_lost).start()

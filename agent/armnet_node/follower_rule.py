@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-FOLLOWER_ANNOTATION = "armnet.io/follower-timeout-seconds"
-"""Set by the client on a job it follows; the value is the heartbeat window in seconds."""
+from armnet_core.api import FOLLOWER_TIMEOUT_ANNOTATION
+
 DEFAULT_WINDOW_S = 30.0
 """The window when the annotation's value is not a number (the annotation still declares a follower)."""
 MIN_WINDOW_S = 5.0
@@ -32,10 +32,10 @@ def follower_window(annotations: Mapping[str, str], detach: bool) -> float | Non
     The annotation is tenant input: a non-number falls back to the default and
     the value is clamped to [MIN_WINDOW_S, MAX_WINDOW_S].
     """
-    if detach or FOLLOWER_ANNOTATION not in annotations:
+    if detach or FOLLOWER_TIMEOUT_ANNOTATION not in annotations:
         return None
     try:
-        window = float(annotations[FOLLOWER_ANNOTATION])
+        window = float(annotations[FOLLOWER_TIMEOUT_ANNOTATION])
     except ValueError:
         return DEFAULT_WINDOW_S
     if not math.isfinite(window):

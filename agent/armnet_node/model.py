@@ -12,14 +12,12 @@ from datetime import datetime
 from typing import Any, Literal
 
 from armnet_connector.completion_config import CompletionConfig, unknown_camera
+from armnet_core.api import STOPPED_BY_ANNOTATION
 from armnet_launch.cell_spec import CameraSpec
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from armnet_node import rollout_history
 from armnet_node.follower_rule import follower_window
-
-#: Set by the FMS's Stop together with ``spec.cancel`` (docs/fms.md).
-STOPPED_BY_ANNOTATION = "armnet.io/stopped-by"
 
 
 class _Loose(BaseModel):

@@ -29,7 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from armnet_core.api import ACTIVE_PHASES, TERMINAL_PHASES
+from armnet_core.api import ACTIVE_PHASES, SIM_UNPLUG_ANNOTATION, TERMINAL_PHASES
 from armnet_sim.calibration import builtin_calibration, write_calibration
 from armnet_sim.presets import PRESETS, CellSimulator
 from armnet_sim.process import SimulatedCellProcess
@@ -61,9 +61,6 @@ from armnet_node.telemetry_sources import (
 
 log = logging.getLogger(__name__)
 
-#: Simulated cells only: ``arm/motor`` (comma-separated) of servos to unplug in the simulator,
-#: so a platform team can watch the cell go unhealthy (fault injection).
-SIM_UNPLUG_ANNOTATION = "armnet.io/sim-unplug"
 VANISHED = "the job's container vanished while the node agent was not watching it (removed, or the host restarted)"
 
 

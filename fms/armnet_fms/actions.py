@@ -14,10 +14,11 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
+from armnet_core.api import STOPPED_BY_ANNOTATION
+
 from .view import CellRow, PendingReset
 
 CELL_NAME = re.compile(r"^[a-z0-9]([-a-z0-9.]{0,251}[a-z0-9])?$")
-STOPPED_BY_ANNOTATION = "armnet.io/stopped-by"
 
 
 class ActionKind(StrEnum):

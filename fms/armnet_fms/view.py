@@ -13,9 +13,9 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-SITE_LABEL = "armnet.io/site"
+from armnet_core.api import ACTIVE_PHASES, SITE_LABEL
+
 INTERLOCK_CONDITION = "InterlockClear"
-ACTIVE_JOB_PHASES = ("dispatched", "running")
 #: The latest verdicts the cell view lists (``status.rollouts`` keeps up to 50).
 VERDICTS_SHOWN = 5
 OUTCOMES = ("success", "failure")
@@ -61,7 +61,7 @@ class JobSummary:
 
     @property
     def active_phase(self) -> bool:
-        return self.phase in ACTIVE_JOB_PHASES
+        return self.phase in ACTIVE_PHASES
 
 
 @dataclass(frozen=True)
@@ -227,7 +227,7 @@ def build_row(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, An
     current = status.get("currentJob")
     job_body = jobs_by_key.get(current) if isinstance(current, str) else None
     job = summarize_job(job_body) if job_body is not None else None
-    if job is None or job.phase not in ACTIVE_JOB_PHASES:
+    if job is None or job.phase not in ACTIVE_PHASES:
         pending = None  # a reset can only wait inside a job that runs here
     elif pending is not None and (pending.job_uid != job.uid or pending.expired(now)):
         pending = None
@@ -288,7 +288,7 @@ def row_json(row: CellRow, now: float) -> dict[str, Any]:
         "job": None if job is None else {
             "namespace": job.namespace, "name": job.name, "tenant": job.namespace, "phase": job.phase,
             "progress": job.progress, "rolloutIndex": job.rollout_index, "rolloutTotal": job.rollout_total,
-            "active": job.phase in ACTIVE_JOB_PHASES, "rolloutActive": job.active_phase and job.rollout_active,
+            "active": job.phase in ACTIVE_PHASES, "rolloutActive": job.active_phase and job.rollout_active,
             "outcomeControls": job.outcome_controls,
             "verdicts": [{"index": v.index, "total": v.total, "outcome": v.outcome, "by": v.by, "at": v.at}
                          for v in job.verdicts],

@@ -15,9 +15,8 @@ from enum import StrEnum
 from typing import Any
 
 from armnet_core.api import ACTIVE_PHASES as _ACTIVE
+from armnet_core.api import RELEASE_CELL_FINALIZER
 from armnet_core.api import TERMINAL_PHASES as _TERMINAL
-
-FINALIZER = "armnet.io/release-cell"
 
 
 class JobPhase(StrEnum):
@@ -97,7 +96,7 @@ class Job:
     resource_version: str = ""
     cancel: bool = False
     deleting: bool = False
-    finalizers: tuple[str, ...] = (FINALIZER,)
+    finalizers: tuple[str, ...] = (RELEASE_CELL_FINALIZER,)
     phase: JobPhase | None = None
     cell_name: str | None = None
     job_id: str | None = None
@@ -116,7 +115,7 @@ class Job:
 
     @property
     def has_finalizer(self) -> bool:
-        return FINALIZER in self.finalizers
+        return RELEASE_CELL_FINALIZER in self.finalizers
 
     @property
     def key(self) -> str:

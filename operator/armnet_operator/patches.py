@@ -17,9 +17,10 @@ from datetime import datetime
 from enum import StrEnum
 from typing import Any
 
+from armnet_core.api import RELEASE_CELL_FINALIZER
+
 from .conditions import format_time, set_condition
 from .model import (
-    FINALIZER,
     BoundReason,
     Cell,
     CellPhase,
@@ -166,7 +167,7 @@ def request_cancel(job: Job, now: datetime) -> Patch:
 
 
 def add_finalizer(job: Job) -> Patch:
-    """Add ``FINALIZER`` with a JSON Patch: no resourceVersion, no clobbering, no duplicate.
+    """Add ``RELEASE_CELL_FINALIZER`` with a JSON Patch: no resourceVersion, no clobbering, no duplicate.
 
     The agent writes the job's status right after its bind, so a merge patch of
     the whole list with a resourceVersion often lost that race for nothing:
@@ -179,16 +180,16 @@ def add_finalizer(job: Job) -> Patch:
     path = "/metadata/finalizers"
     if job.finalizers:
         test: dict[str, Any] = {"op": "test", "path": path, "value": list(job.finalizers)}
-        add: dict[str, Any] = {"op": "add", "path": f"{path}/-", "value": FINALIZER}
+        add: dict[str, Any] = {"op": "add", "path": f"{path}/-", "value": RELEASE_CELL_FINALIZER}
     else:
         test = {"op": "test", "path": path, "value": None}
-        add = {"op": "add", "path": path, "value": [FINALIZER]}
+        add = {"op": "add", "path": path, "value": [RELEASE_CELL_FINALIZER]}
     return Patch(Target.JOB, job.name, job.namespace, {}, (test, add))
 
 
 def set_finalizer(job: Job, present: bool) -> Patch:
-    finalizers = [f for f in job.finalizers if f != FINALIZER]
+    finalizers = [f for f in job.finalizers if f != RELEASE_CELL_FINALIZER]
     if present:
-        finalizers.append(FINALIZER)
+        finalizers.append(RELEASE_CELL_FINALIZER)
     body = {"metadata": {"resourceVersion": job.resource_version, "finalizers": finalizers}}
     return Patch(Target.JOB, job.name, job.namespace, body)

@@ -306,9 +306,9 @@ def test_with_a_shared_lease_only_the_leader_binds(
 
 def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_absent_list(bed: Bed) -> None:
     """Against the real server: append keeps others; a list that appeared since the read is a Conflict."""
+    from armnet_core.api import RELEASE_CELL_FINALIZER
     from armnet_operator.errors import Conflict
     from armnet_operator.kube import KubeApi, make_client
-    from armnet_operator.model import FINALIZER
     from armnet_operator.parsing import parse_job
     from armnet_operator.patches import add_finalizer
 
@@ -317,7 +317,7 @@ def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_abs
         bed.job("bare")
         bare = parse_job(bed.wait("the job", lambda: bed.get_job("bare")))
         written = api.patch(add_finalizer(bare))
-        assert written["metadata"]["finalizers"] == [FINALIZER]
+        assert written["metadata"]["finalizers"] == [RELEASE_CELL_FINALIZER]
 
         bed.job("stale")
         stale = parse_job(bed.wait("the job", lambda: bed.get_job("stale")))
@@ -328,7 +328,7 @@ def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_abs
             api.patch(add_finalizer(stale))  # the test op sees the list that appeared
         fresh = parse_job(api.read_job(bed.ns, "stale"))
         written = api.patch(add_finalizer(fresh))
-        assert written["metadata"]["finalizers"] == ["other.io/keep", FINALIZER]
+        assert written["metadata"]["finalizers"] == ["other.io/keep", RELEASE_CELL_FINALIZER]
         with pytest.raises(Conflict):
             api.patch(add_finalizer(fresh))  # the list is no longer as seen: never a duplicate
 
@@ -336,7 +336,7 @@ def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_abs
         raced = parse_job(bed.wait("the job", lambda: bed.get_job("raced")))
         bed.agent_sets("raced", "succeeded")  # the agent writes after our read
         written = api.patch(add_finalizer(raced))  # no resourceVersion: no conflict
-        assert (written["metadata"]["finalizers"], written["status"]["phase"]) == ([FINALIZER], "succeeded")
+        assert (written["metadata"]["finalizers"], written["status"]["phase"]) == ([RELEASE_CELL_FINALIZER], "succeeded")
     finally:
         for name in ("bare", "stale", "raced"):
             with contextlib.suppress(Exception):

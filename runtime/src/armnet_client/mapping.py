@@ -13,13 +13,10 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Optional
 
-from armnet_core.api import API_VERSION
+from armnet_core.api import API_VERSION, FOLLOWER_TIMEOUT_ANNOTATION
 from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
 
 from .resources import Cell, RobotJob, RolloutRecord
-
-FOLLOWER_ANNOTATION = "armnet.io/follower-timeout-seconds"
-"""Declares that this client follows the job and beats (the agent's ``node.follower_rule`` reads it)."""
 
 _NAME_CHARS = re.compile(r"[^a-z0-9-]+")
 _GENERATED_PREFIX_MAX = 40
@@ -59,7 +56,7 @@ def follower_metadata(detach: bool, window_s: Optional[float]) -> dict[str, Any]
     """The annotation that declares a following client (nothing for a detached job or no follower)."""
     if detach or window_s is None:
         return {}
-    return {"annotations": {FOLLOWER_ANNOTATION: f"{window_s:g}"}}
+    return {"annotations": {FOLLOWER_TIMEOUT_ANNOTATION: f"{window_s:g}"}}
 
 
 def generated_name_prefix(image: str) -> str:

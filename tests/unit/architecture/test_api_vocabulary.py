@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -43,3 +44,21 @@ def test_active_and_terminal_phases_are_disjoint_phases() -> None:
     assert api.ACTIVE_PHASES | api.TERMINAL_PHASES <= set(api.PHASES)
     assert not api.ACTIVE_PHASES & api.TERMINAL_PHASES
     assert api.TERMINAL_PHASES == {"succeeded", "failed", "timeout", "cancelled"}
+
+
+PACKAGES = [CRDS.parent / p for p in ("runtime/src", "operator", "agent", "cli", "fms")]
+
+
+def test_each_armnet_io_key_is_spelled_in_one_module_only() -> None:
+    """A label, annotation or finalizer two processes share was spelled in each (and could drift apart):
+    a key has one module that spells it; the others import its name (``armnet_core.api`` for keys on
+    RobotJobs and Cells)."""
+    spelled: dict[str, set[str]] = {}
+    for root in PACKAGES:
+        for path in root.rglob("*.py"):
+            if "_pb2" in path.name:
+                continue
+            for key in re.findall(r"""["'](armnet\.io/[a-z][a-z0-9.-]*)["']""", path.read_text()):
+                spelled.setdefault(key, set()).add(str(path.relative_to(CRDS.parent)))
+    twice = {key: sorted(paths) for key, paths in spelled.items() if len(paths) > 1}
+    assert twice == {}, f"keys spelled in more than one module: {twice}"

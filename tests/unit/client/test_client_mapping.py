@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 from armnet_client.mapping import (
-    FOLLOWER_ANNOTATION,
+    FOLLOWER_TIMEOUT_ANNOTATION,
     cancel_patch,
     cell_view_of,
     generated_name_prefix,
@@ -168,7 +168,7 @@ def test_a_cell_the_operator_never_saw_is_unknown() -> None:
 
 def test_a_job_submitted_to_be_followed_declares_its_follower_window() -> None:
     body = robotjob_body(full_spec().model_copy(update={"detach": False}), namespace="a", follower_window_s=12)
-    assert body["metadata"]["annotations"] == {FOLLOWER_ANNOTATION: "12"}
+    assert body["metadata"]["annotations"] == {FOLLOWER_TIMEOUT_ANNOTATION: "12"}
 
 
 def test_a_job_submitted_without_a_follower_has_no_follower_annotation() -> None:

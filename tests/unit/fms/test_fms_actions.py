@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 
 import pytest
-from armnet_fms.actions import STOPPED_BY_ANNOTATION, ActionKind, Refused, plan_action
+from armnet_core.api import STOPPED_BY_ANNOTATION
+from armnet_fms.actions import ActionKind, Refused, plan_action
 from armnet_fms.view import build_fleet, pending_from_notice
 
 from tests.unit.fms.fms_builders import NOW, a_cell, a_job, a_notice, a_rollout

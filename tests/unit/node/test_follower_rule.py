@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from armnet_client.mapping import FOLLOWER_ANNOTATION as CLIENT_ANNOTATION
+from armnet_core.api import FOLLOWER_TIMEOUT_ANNOTATION
 from armnet_node.follower_rule import (
     DEFAULT_WINDOW_S,
-    FOLLOWER_ANNOTATION,
     MAX_WINDOW_S,
     MIN_WINDOW_S,
     FollowerClock,
@@ -24,30 +23,26 @@ def test_a_job_without_the_annotation_is_not_watched_even_when_not_detached() ->
 
 
 def test_a_detached_job_is_never_watched_whatever_its_annotations() -> None:
-    assert follower_window({FOLLOWER_ANNOTATION: "30"}, detach=True) is None
+    assert follower_window({FOLLOWER_TIMEOUT_ANNOTATION: "30"}, detach=True) is None
 
 
 def test_the_annotation_value_is_the_window_in_seconds() -> None:
-    assert follower_window({FOLLOWER_ANNOTATION: "12.5"}, detach=False) == 12.5
+    assert follower_window({FOLLOWER_TIMEOUT_ANNOTATION: "12.5"}, detach=False) == 12.5
 
 
 @pytest.mark.parametrize("value", ["soon", "", "nan", "inf"])
 def test_a_window_that_is_not_a_finite_number_falls_back_to_the_default(value: str) -> None:
-    assert follower_window({FOLLOWER_ANNOTATION: value}, detach=False) == DEFAULT_WINDOW_S
+    assert follower_window({FOLLOWER_TIMEOUT_ANNOTATION: value}, detach=False) == DEFAULT_WINDOW_S
 
 
 @pytest.mark.parametrize(("value", "window"), [("0", MIN_WINDOW_S), ("-3", MIN_WINDOW_S), ("1e9", MAX_WINDOW_S)])
 def test_the_window_is_clamped_so_a_tenant_cannot_set_a_hair_trigger_or_forever(value: str, window: float) -> None:
-    assert follower_window({FOLLOWER_ANNOTATION: value}, detach=False) == window
-
-
-def test_the_client_and_the_agent_agree_on_the_annotation() -> None:
-    assert CLIENT_ANNOTATION == FOLLOWER_ANNOTATION
+    assert follower_window({FOLLOWER_TIMEOUT_ANNOTATION: value}, detach=False) == window
 
 
 def test_the_parsed_job_carries_its_window() -> None:
     obj = {"metadata": {"name": "j", "namespace": "team-a", "uid": "u1",
-                        "annotations": {FOLLOWER_ANNOTATION: "8"}},
+                        "annotations": {FOLLOWER_TIMEOUT_ANNOTATION: "8"}},
            "spec": {"image": "localhost/x:dev", "embodiment": "lerobot/so-101", "detach": False}}
     assert parse_job(obj).follower_window_s == 8.0
     obj["spec"]["detach"] = True

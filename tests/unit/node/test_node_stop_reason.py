@@ -5,7 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from armnet_node.model import STOPPED_BY_ANNOTATION, cancel_reason, parse_job
+from armnet_core.api import STOPPED_BY_ANNOTATION
+from armnet_node.model import cancel_reason, parse_job
 
 pytestmark = pytest.mark.unit
 

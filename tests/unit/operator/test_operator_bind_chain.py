@@ -16,7 +16,8 @@ from datetime import timedelta
 from typing import Any
 
 import pytest
-from armnet_operator.model import FINALIZER, Timing
+from armnet_core.api import RELEASE_CELL_FINALIZER
+from armnet_operator.model import Timing
 from armnet_operator.patches import Patch, Target
 from armnet_operator.reconcile import Limits, Memory, reconcile_once
 from operator_world import World
@@ -71,7 +72,7 @@ def test_a_new_job_gets_claim_bind_and_finalizer_in_that_order_in_one_pass() -> 
     assert world.writes == [(Target.CELL_STATUS, "c0"), (Target.JOB_STATUS, "j"), (Target.JOB, "j")]
     job = world.jobs["t/j"]
     assert (job["status"]["phase"], job["status"]["cellName"]) == ("dispatched", "c0")
-    assert job["metadata"]["finalizers"] == [FINALIZER]
+    assert job["metadata"]["finalizers"] == [RELEASE_CELL_FINALIZER]
     assert world.cells["c0"]["status"]["currentJob"] == "t/j"
 
 
@@ -82,7 +83,7 @@ def test_the_agents_status_write_does_not_make_the_finalizer_write_fail() -> Non
     world.before_write = lambda: world.agent_set_phase("t/j", "running")  # the agent is quicker
     one_pass(world)
     job = world.jobs["t/j"]
-    assert (job["status"]["phase"], job["metadata"].get("finalizers")) == ("running", [FINALIZER])
+    assert (job["status"]["phase"], job["metadata"].get("finalizers")) == ("running", [RELEASE_CELL_FINALIZER])
     assert world.cells["c0"]["status"]["currentJob"] == "t/j"
     world.writes.clear()
     one_pass(world)
@@ -101,7 +102,7 @@ def test_a_finalizer_list_that_appeared_meanwhile_is_kept_and_the_add_retried_on
     world.before_write = another_controller_adds_its_finalizer
     one_pass(world)
     assert world.writes == [(Target.CELL_STATUS, "c0"), (Target.JOB_STATUS, "j"), (Target.JOB, "j"), (Target.JOB, "j")]
-    assert world.jobs["t/j"]["metadata"]["finalizers"] == ["other.io/keep", FINALIZER]
+    assert world.jobs["t/j"]["metadata"]["finalizers"] == ["other.io/keep", RELEASE_CELL_FINALIZER]
 
 
 def test_a_terminal_job_without_the_finalizer_gets_none_and_still_frees_its_cell_and_expires() -> None:
@@ -166,7 +167,7 @@ def test_a_job_deleted_inside_its_chain_frees_its_cell_and_the_next_job_gets_it(
     assert bound_after == (grace if held else 1)
     nxt = world.jobs["t/next"]
     assert (nxt["status"]["phase"], nxt["status"]["cellName"]) == ("dispatched", "c0")
-    assert nxt["metadata"]["finalizers"] == [FINALIZER]
+    assert nxt["metadata"]["finalizers"] == [RELEASE_CELL_FINALIZER]
     assert world.cells["c0"]["status"]["currentJob"] == "t/next"
 
 
@@ -176,7 +177,7 @@ def test_a_job_that_waits_gets_its_finalizer_before_its_queue_status() -> None:
     one_pass(world)
     assert world.writes == [(Target.JOB, "j"), (Target.JOB_STATUS, "j")]
     job = world.jobs["t/j"]
-    assert (job["status"]["phase"], job["metadata"]["finalizers"]) == ("queued", [FINALIZER])
+    assert (job["status"]["phase"], job["metadata"]["finalizers"]) == ("queued", [RELEASE_CELL_FINALIZER])
 
 
 def test_a_burst_binds_every_job_with_its_finalizer_in_parallel() -> None:
@@ -186,7 +187,7 @@ def test_a_burst_binds_every_job_with_its_finalizer_in_parallel() -> None:
     one_pass(world, parallel=8)
     bound = [b for b in world.jobs.values() if b["status"].get("phase") == "dispatched"]
     assert len(bound) == 20
-    assert all(b["metadata"].get("finalizers") == [FINALIZER] for b in world.jobs.values())
+    assert all(b["metadata"].get("finalizers") == [RELEASE_CELL_FINALIZER] for b in world.jobs.values())
     claims = [c["status"].get("currentJob") for c in world.cells.values()]
     assert sorted(claims) == sorted(f"t/{b['metadata']['name']}" for b in bound)
 
@@ -205,7 +206,7 @@ def test_a_claim_that_lost_to_another_claim_is_not_retried() -> None:
     world = a_world(cells=1)
     world.submit("j", "so-101", None, 0)
     world.submit("other", "so-101", None, 0)
-    world.jobs["t/other"]["metadata"]["finalizers"] = [FINALIZER]
+    world.jobs["t/other"]["metadata"]["finalizers"] = [RELEASE_CELL_FINALIZER]
 
     def someone_else_claims() -> None:
         cell = world.cells["c0"]

@@ -5,9 +5,10 @@ from __future__ import annotations
 from datetime import timedelta
 
 import pytest
+from armnet_core.api import RELEASE_CELL_FINALIZER
 from armnet_operator.errors import PermanentError
 from armnet_operator.leader import LeaseMove, LeaseSeen, LeaseView, decide_lease, observe
-from armnet_operator.model import FINALIZER, CellPhase, JobPhase, QueuedReason
+from armnet_operator.model import CellPhase, JobPhase, QueuedReason
 from armnet_operator.parsing import parse_cell, parse_job
 from armnet_operator.patches import (
     Target,
@@ -27,7 +28,7 @@ pytestmark = pytest.mark.unit
 def test_a_robotjob_body_parses_into_the_model() -> None:
     job = parse_job({
         "metadata": {"name": "j", "namespace": "t", "uid": "u", "resourceVersion": "7",
-                     "creationTimestamp": "2026-01-01T12:00:00Z", "finalizers": [FINALIZER]},
+                     "creationTimestamp": "2026-01-01T12:00:00Z", "finalizers": [RELEASE_CELL_FINALIZER]},
         "spec": {"embodiment": "lerobot/so-101", "task": "fold", "priority": 3, "cancel": False},
         "status": {"phase": "dispatched", "cellName": "c", "conditions": [
             {"type": "Bound", "status": "True", "lastTransitionTime": "2026-01-01T12:00:05Z"}]},
@@ -77,7 +78,7 @@ def test_releasing_deletes_the_claim_fields() -> None:
 
 
 def test_finalizer_patches_keep_other_finalizers() -> None:
-    job = a_job()._with(finalizers=("other.io/keep", FINALIZER)).queued()
+    job = a_job()._with(finalizers=("other.io/keep", RELEASE_CELL_FINALIZER)).queued()
     assert set_finalizer(job, False).body["metadata"]["finalizers"] == ["other.io/keep"]
 
 
@@ -87,7 +88,7 @@ def test_adding_the_finalizer_appends_to_the_list_as_seen_with_a_json_patch_and_
     assert (patch.target, patch.name, patch.body) == (Target.JOB, "j", {})
     assert patch.operations == (
         {"op": "test", "path": "/metadata/finalizers", "value": ["other.io/keep"]},
-        {"op": "add", "path": "/metadata/finalizers/-", "value": FINALIZER},
+        {"op": "add", "path": "/metadata/finalizers/-", "value": RELEASE_CELL_FINALIZER},
     )
 
 
@@ -96,7 +97,7 @@ def test_adding_the_first_finalizer_tests_that_the_list_is_still_absent() -> Non
     assert patch.body == {}
     assert patch.operations == (
         {"op": "test", "path": "/metadata/finalizers", "value": None},
-        {"op": "add", "path": "/metadata/finalizers", "value": [FINALIZER]},
+        {"op": "add", "path": "/metadata/finalizers", "value": [RELEASE_CELL_FINALIZER]},
     )
 
 
