@@ -32,6 +32,7 @@ __all__ = [
     "cell",
     "completion_config",
     "config",
+    "fast_exit",
     "hardware",
     "inputs",
     "interlock",

@@ -18,6 +18,7 @@ from types import FrameType
 
 from .config import load_config
 from .connector import Connector, stop_budget_s
+from .fast_exit import exit_after_clean_stop
 from .inputs import InputFeeder, LocalOperatorInputs, terminal_prompt
 
 
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         while not stop.wait(SIGNAL_POLL_S):
             pass
         stopping.set()
-    return 0
+    exit_after_clean_stop(0)  # torque is off and the sockets are gone: skip the interpreter's slow teardown
 
 
 SIGNAL_POLL_S = 0.1

@@ -100,6 +100,7 @@ def parse_record(log_text: str) -> dict[str, Any] | None:
 
 def main() -> int:
     from armnet_connector import Connector, ConnectorConfig
+    from armnet_connector.fast_exit import exit_after_clean_stop
     from armnet_connector.interlock import TripReason
     from armnet_connector.warm_imports import import_before_threads
 
@@ -153,7 +154,7 @@ def main() -> int:
         print(record_line(record), flush=True)
         if sim is not None:
             sim.stop()
-    return 0
+    exit_after_clean_stop(0)  # the record is out and torque off: skip the interpreter's slow teardown
 
 
 def _start_simulator(simulator: Mapping[str, Any], connector_config: Any) -> Any:
