@@ -37,8 +37,10 @@ POLL_S = 0.25
 FOLLOW_RETRY_S = 0.5
 #: How often the wait for the job container's start looks at a stop request and at its bound.
 START_POLL_S = 1.0
-#: Seconds to wait after the customer container exits for the connector to stop and print its record.
-RECORD_WAIT_S = 20.0
+#: Beyond the pod's own termination grace, how long the kubelet may take to notice the job
+#: container's exit, stop the sidecar and publish that in the pod's status (a loaded node
+#: took over 20 s, and a record read before the connector printed it is lost).
+RECORD_MARGIN_S = 60.0
 
 
 class PodExists(RuntimeError):
@@ -107,6 +109,12 @@ def pod_failed_reason(pod: dict[str, Any]) -> str | None:
     if status.get("phase") == "Failed" and job.exit_code is None:
         return str(status.get("reason") or status.get("message") or "the pod failed before the job started")
     return None
+
+
+def record_wait_s(pod: dict[str, Any]) -> float:
+    """Pure: how long the connector's record may take to appear once the job container has exited."""
+    grace = (pod.get("spec") or {}).get("terminationGracePeriodSeconds")
+    return (grace if isinstance(grace, int) and grace >= 0 else 30) + RECORD_MARGIN_S
 
 
 class PodJob:
@@ -316,9 +324,15 @@ class PodJob:
 
     # -- after the job -------------------------------------------------------------------
 
-    def connector_record(self, wait_s: float = RECORD_WAIT_S) -> dict[str, Any] | None:
-        """The connector's record line, once it has stopped (it prints the line at stop)."""
-        deadline = time.monotonic() + wait_s
+    def connector_record(self, wait_s: float | None = None) -> dict[str, Any] | None:
+        """The connector's record line, once it has stopped (it prints the line at stop).
+
+        After the job container exits the kubelet stops the sidecar within the pod's
+        ``terminationGracePeriodSeconds``; the wait is bounded by that plus
+        :data:`RECORD_MARGIN_S` (``wait_s`` overrides), and ends as soon as the connector's
+        exit shows in the pod's status: a normal stop is read at once, however busy the node.
+        """
+        deadline = time.monotonic() + (record_wait_s(self.last_pod) if wait_s is None else wait_s)
         while True:
             try:
                 pod = self._read()
@@ -328,7 +342,8 @@ class PodJob:
                 return None
             self.last_pod = pod
             stopped = container_state(pod, CONNECTOR_CONTAINER).exit_code is not None
-            if stopped or time.monotonic() > deadline:
+            ended = (pod.get("status") or {}).get("phase") in ("Succeeded", "Failed")
+            if stopped or ended or time.monotonic() > deadline:
                 break
             time.sleep(self._poll_s)
         try:

@@ -8,11 +8,12 @@ pod's status as a kubelet would (``startTime``, the job container running since
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
 import pytest
-from armnet_launch.pod import PodJob
+from armnet_launch.pod import RECORD_MARGIN_S, PodJob, record_wait_s
 from armnet_launch.pod_spec import active_deadline_seconds, running_deadline_seconds
 from kubernetes import client
 
@@ -91,4 +92,42 @@ def test_the_wait_for_a_job_container_ends_when_it_runs_and_past_its_bound_ends_
     finally:
         for handle in (starts, never):
             handle.delete(grace_seconds=0)
+        k8s.delete_namespace(ns)
+
+
+def test_the_connectors_record_is_waited_for_until_the_sidecar_stops_not_for_a_fixed_time(k8s: Any) -> None:
+    """After the job container exits, the kubelet stops the sidecar (which prints its record then):
+    the agent reads the record when the connector's exit shows, however long a busy node takes
+    within the pod's termination grace (a fixed 20 s lost the record of a loaded run)."""
+    ns = k8s.create_namespace("pod-record-wait")
+    core = client.CoreV1Api(k8s.api_client())
+    pod = _pod("job-ended")
+    pod["spec"]["terminationGracePeriodSeconds"] = 40
+    pod["spec"]["initContainers"] = [{"name": "connector", "image": "localhost/armnet-test:dev",
+                                      "restartPolicy": "Always"}]
+    core.create_namespaced_pod(ns, pod)
+
+    def sidecar(state: dict[str, Any]) -> dict[str, Any]:
+        return {"status": {
+            "phase": "Running", "startTime": "2026-11-25T06:00:00Z",
+            "initContainerStatuses": [{"name": "connector", "image": "localhost/armnet-test:dev", "imageID": "",
+                                       "ready": True, "restartCount": 0, "state": state}],
+            "containerStatuses": [{"name": "job", "image": "localhost/armnet-test:dev", "imageID": "", "ready": False,
+                                   "restartCount": 0, "state": {"terminated": {"exitCode": 0}}}],
+        }}
+
+    core.patch_namespaced_pod_status("job-ended", ns, sidecar({"running": {"startedAt": "2026-11-25T06:00:01Z"}}))
+    job = PodJob(core, ns, "job-ended", poll_s=0.1)
+    try:
+        assert job.wait(30) == 0
+        stops_at = time.monotonic() + 4
+        threading.Timer(4, lambda: core.patch_namespaced_pod_status(
+            "job-ended", ns, sidecar({"terminated": {"exitCode": 0}}))).start()
+        assert job.connector_record() is None  # no kubelet serves the log: no record to read
+        waited = time.monotonic()
+        assert waited >= stops_at  # the running sidecar was waited for...
+        assert waited < stops_at + 10  # ...until its exit showed, not to the bound (40 + 60 s)
+        assert record_wait_s(job.last_pod) == 40 + RECORD_MARGIN_S
+    finally:
+        job.delete(grace_seconds=0)
         k8s.delete_namespace(ns)
