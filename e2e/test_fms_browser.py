@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -140,8 +140,19 @@ def deadline_trips(bed: AgentBed) -> float:
                if line.startswith('armnet_agent_interlock_trips_total{reason="deadline"}'))
 
 
-def wait_text(driver: Any, element_id: str, text: str, timeout: float = 60) -> None:
-    WebDriverWait(driver, timeout).until(visible.text_to_be_present_in_element((By.ID, element_id), text))
+def wait_text(driver: Any, element_id: str, text: str, timeout: float = 60,
+              context: Callable[[], str] | None = None) -> None:
+    """Wait for ``text`` in the element; on a timeout, say what it shows instead (and ``context``: the job's status)."""
+    try:
+        WebDriverWait(driver, timeout).until(visible.text_to_be_present_in_element((By.ID, element_id), text))
+    except TimeoutException as exc:
+        shown = driver.execute_script(f"return document.getElementById({element_id!r})?.textContent ?? '(absent)';")
+        raise AssertionError(f"#{element_id} did not show {text!r} within {timeout} s; it shows {shown!r}"
+                             + (f"\n{context()}" if context is not None else "")) from exc
+
+
+def job_status(bed: AgentBed, name: str) -> Callable[[], str]:
+    return lambda: f"job {name}: " + json.dumps(bed.job(name).get("status") or {})[:3000]
 
 
 def tap_and_see_the_answer(driver: Any, element_id: str, answer: str) -> None:
@@ -169,8 +180,8 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
     on_a_tablet(browser)
     log_in(browser, fms.url)
     # Live: the page was loaded before the job ran; it shows the job without a reload.
-    wait_text(browser, f"cell-{cell}", jobs["reset"], timeout=180)
-    wait_text(browser, f"cell-{cell}", "reset waiting", timeout=180)
+    wait_text(browser, f"cell-{cell}", jobs["reset"], timeout=180, context=job_status(bed, jobs["reset"]))
+    wait_text(browser, f"cell-{cell}", "reset waiting", timeout=180, context=job_status(bed, jobs["reset"]))
     assert filter_labels(browser) == {"filter-q": "Cell name", "filter-site": "Site"}
     screenshot(browser, "fms-fleet")
     # The whole card opens the cell, not only its name; and so does the keyboard (Tab, Enter).

@@ -26,7 +26,7 @@ from armnet_core.models import BIMANUAL_SO101_EMBODIMENT, SO101_EMBODIMENT, Embo
 from armnet_runtime import env as env_keys
 from armnet_runtime.cell_config import CellConfig, build_camera_configs, parse_cell_config
 from armnet_runtime.endpoints import looks_like_connector_endpoint, with_arm
-from armnet_runtime.transport import PersistentConnection, connector_request
+from armnet_runtime.transport import REST_TIMEOUT_S, PersistentConnection, connector_request
 
 logger = logging.getLogger(__name__)
 
@@ -233,7 +233,7 @@ class Cell:
         """
         self._report_progress("Waiting for workspace reset...")
         if self.robot_port and _looks_like_connector_endpoint(self.robot_port):
-            response = _connector_request(self.robot_port, {"op": "return_to_rest"})
+            response = _connector_request(self.robot_port, {"op": "return_to_rest"}, read_timeout=REST_TIMEOUT_S)
             if not response.get("ok"):
                 raise RuntimeError(response.get("error", "robot return-to-rest failed"))
         endpoint = self._operator_endpoint()

@@ -40,6 +40,12 @@ first, and on a busy or small robot host that import alone took over 30 s. The j
 timeout bounds it all the same; a connector that is gone still fails at once (the socket
 closes)."""
 
+REST_TIMEOUT_S = CREATE_TIMEOUT_S
+"""How long ``ctx.cell.reset``'s rest move may take: the connector opens the cell's own bus
+for it, which, early in a job, waits for the same LeRobot import as a first ``create``
+(a loaded host failed a reset at the 30 s call timeout), and then walks every arm at the
+cell's rest speed."""
+
 MAX_LINE_BYTES = 64 * 1024 * 1024
 """Longest reply line accepted; matches the connector's request limit."""
 
