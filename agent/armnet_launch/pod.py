@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
+from armnet_core.times import parse_time
+
 from .log_recovery import DeliveredLines, missed_output
 from .pod_spec import CONNECTOR_CONTAINER, JOB_CONTAINER
 from .sidecar import parse_record
@@ -89,14 +91,7 @@ def job_start_delay_s(pod: dict[str, Any], name: str = JOB_CONTAINER) -> float |
 
 
 def _timestamp(value: Any) -> datetime | None:
-    if isinstance(value, datetime):
-        return value
-    if not isinstance(value, str) or not value:
-        return None
-    try:
-        return datetime.fromisoformat(value.replace("Z", "+00:00"))
-    except ValueError:
-        return None
+    return parse_time(value)
 
 
 def pod_failed_reason(pod: dict[str, Any]) -> str | None:

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
+from armnet_core.times import kube_time
+
 AGENT_CONNECTED = "AgentConnected"
 HARDWARE_READY = "HardwareReady"
 CALIBRATION_PRESENT = "CalibrationPresent"
@@ -203,7 +205,7 @@ def merge_conditions(
 
     Conditions the agent does not own (none today) are kept as they are.
     """
-    stamp = now.strftime("%Y-%m-%dT%H:%M:%SZ")
+    stamp = kube_time(now)
     by_type = {str(c.get("type")): c for c in current}
     merged = [dict(c) for c in current if c.get("type") not in {f.type for f in fresh}]
     for condition in fresh:

@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from armnet_connector.completion_config import CompletionConfig, unknown_camera
 from armnet_core.api import STOPPED_BY_ANNOTATION
+from armnet_core.times import parse_time
 from armnet_launch.cell_spec import CameraSpec
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -192,7 +193,7 @@ def parse_job(obj: dict[str, Any]) -> Job:
         deleting=meta.get("deletionTimestamp") is not None,
         phase=status.get("phase"),
         cell_name=status.get("cellName"),
-        started_at=datetime.fromisoformat(started.replace("Z", "+00:00")) if started else None,
+        started_at=parse_time(started),
         resource_version=str(meta.get("resourceVersion", "")),
         stopped_by=_operator_name((meta.get("annotations") or {}).get(STOPPED_BY_ANNOTATION)),
         follower_window_s=follower_window(meta.get("annotations") or {}, spec.detach),

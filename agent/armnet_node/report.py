@@ -12,10 +12,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from datetime import datetime
 from typing import Any
 
 from armnet_core import JobResult, JobStatus
+from armnet_core.times import status_time
 
 TAIL_MAX = 16384
 ERROR_MAX = 8192
@@ -54,7 +55,7 @@ def json_safe(value: Any) -> Any:
 
 def timestamp(moment: datetime) -> str:
     """RFC 3339 in UTC with milliseconds: ``startedAt``/``finishedAt`` measure kill latency."""
-    return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+    return status_time(moment)
 
 
 def _keep_end(text: str | None, limit: int) -> str | None:

@@ -30,9 +30,11 @@ from __future__ import annotations
 import unicodedata
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from datetime import UTC, datetime
+from datetime import datetime
 from enum import StrEnum
 from typing import Any
+
+from armnet_core.times import parse_time, status_time
 
 #: The newest entries kept in ``status.rollouts`` (the CRD's ``maxItems``).
 MAX_ENTRIES = 50
@@ -159,7 +161,7 @@ def _count(value: int) -> int:
 
 def timestamp(moment: datetime) -> str:
     """RFC 3339 in UTC with milliseconds, as the agent's other status times."""
-    return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+    return status_time(moment)
 
 
 def as_status(history: History) -> list[dict[str, Any]]:
@@ -204,10 +206,4 @@ def _entry(row: Any) -> RolloutEntry | None:
 
 
 def _time(value: Any) -> datetime | None:
-    if not isinstance(value, str):
-        return None
-    try:
-        moment = datetime.fromisoformat(value.replace("Z", "+00:00"))
-    except ValueError:
-        return None
-    return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
+    return parse_time(value) if isinstance(value, str) else None

@@ -14,6 +14,7 @@ from datetime import UTC, datetime
 from typing import Any, cast
 
 from armnet_core.api import GROUP, VERSION
+from armnet_core.times import kube_time
 
 from .actions import AuditEvent
 
@@ -59,7 +60,7 @@ class KubeGateway:
         self.custom.patch_namespaced_custom_object(GROUP, VERSION, namespace, "robotjobs", name, patch)
 
     def post_event(self, event: AuditEvent) -> None:
-        now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        now = kube_time(datetime.now(UTC))
         involved = {"apiVersion": f"{GROUP}/{VERSION}", "kind": event.kind, "name": event.name, "uid": event.uid}
         if event.kind == "RobotJob":
             involved["namespace"] = event.namespace

@@ -20,6 +20,8 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
 
+from armnet_core.times import kube_time
+
 from .actions import AuditEvent
 from .auth import AuthSettings
 from .telemetry import TelemetryStore
@@ -31,7 +33,7 @@ LOCAL_OPERATOR = "local-operator"
 
 
 def _now() -> str:
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return kube_time(datetime.now(UTC))
 
 
 class LocalFleet:

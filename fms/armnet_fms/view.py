@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from datetime import datetime
 from typing import Any
 
 from armnet_core.api import ACTIVE_PHASES, SITE_LABEL
+from armnet_core.times import parse_time as core_time
 
 INTERLOCK_CONDITION = "InterlockClear"
 #: The latest verdicts the cell view lists (``status.rollouts`` keeps up to 50).
@@ -102,12 +102,8 @@ class CellRow:
 
 def parse_time(value: Any) -> float | None:
     """Epoch seconds of an RFC 3339 timestamp, or None for anything else."""
-    if not isinstance(value, str) or not value:
-        return None
-    try:
-        return datetime.fromisoformat(value.replace("Z", "+00:00")).timestamp()
-    except ValueError:
-        return None
+    moment = core_time(value) if isinstance(value, str) else None
+    return None if moment is None else moment.timestamp()
 
 
 def reset_request_id(job_uid: str, announced_at: str) -> str:

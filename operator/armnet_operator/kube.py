@@ -17,6 +17,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any, cast
 
 from armnet_core.api import GROUP, VERSION
+from armnet_core.times import kube_time, micro_time
 from kubernetes import client, config
 from kubernetes.client import rest
 from kubernetes.client.exceptions import ApiException
@@ -263,8 +264,7 @@ class KubeApi:
             "type": type_, "reason": reason, "message": message[:1024],
             "source": {"component": self.component},
             "reportingComponent": self.component, "reportingInstance": self.identity,
-            "firstTimestamp": now.strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "lastTimestamp": now.strftime("%Y-%m-%dT%H:%M:%SZ"), "count": 1,
+            "firstTimestamp": kube_time(now), "lastTimestamp": kube_time(now), "count": 1,
         }
         try:
             # A plain dict: building the client's model objects costs more CPU than the request.
@@ -340,7 +340,7 @@ class KubeApi:
         move = decide_lease(seen, self.identity, ticks)
         if move is LeaseMove.FOLLOW:
             return False
-        stamp = now.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        stamp = micro_time(now)
         patch: dict[str, Any] = {
             "metadata": {"resourceVersion": lease.metadata.resource_version if lease.metadata else None},
             "spec": {"holderIdentity": self.identity, "renewTime": stamp,
@@ -358,7 +358,7 @@ class KubeApi:
         return True
 
     def _create_lease(self, namespace: str, name: str, duration: timedelta, now: datetime) -> bool:
-        stamp = now.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        stamp = micro_time(now)
         body = {
             "metadata": {"name": name, "namespace": namespace},
             "spec": {"holderIdentity": self.identity, "acquireTime": stamp, "renewTime": stamp,

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from armnet_core.times import micro_time
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import PermanentError
@@ -91,7 +92,7 @@ def parse_usage(body: Mapping[str, Any]) -> Usage:
 def usage_status(usage: Usage) -> dict[str, Any]:
     """``status.usage`` as the operator writes it back."""
     def stamp(value: Any) -> str | None:
-        return None if value is None else value.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        return None if value is None else micro_time(value)
 
     return {"decayedCellSeconds": round(usage.decayed_cell_seconds, 3),
             "periodCellSeconds": round(usage.period_cell_seconds, 3),

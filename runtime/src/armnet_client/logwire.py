@@ -26,6 +26,7 @@ from typing import Any, Literal, Optional, Union
 
 from armnet_core.api import TERMINAL_PHASES
 from armnet_core.logbatch import LINES_HEADER, split_lines
+from armnet_core.times import parse_time
 from armnet_runtime.markers import split_timestamp
 
 KINDS = ("stdout", "stderr", "progress", "rerun", "status")
@@ -116,12 +117,7 @@ def seq_of(msg_id: Optional[str]) -> Optional[int]:
 
 
 def _parse_time(value: Any) -> Optional[datetime]:
-    if not isinstance(value, str):
-        return None
-    try:
-        return datetime.fromisoformat(value.replace("Z", "+00:00"))
-    except ValueError:
-        return None
+    return parse_time(value) if isinstance(value, str) else None
 
 
 def decode(

@@ -21,8 +21,10 @@ import binascii
 import json
 import re
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime
 from typing import Any, Literal, Optional
+
+from armnet_core.times import micro_time
 
 PROGRESS_MARKER = "[armnet:progress]"
 RESULT_MARKER_JSON = "[armnet:result]:json"
@@ -56,8 +58,7 @@ class Marker:
 
 def format_timestamp(moment: datetime) -> str:
     """ISO-8601 UTC with microseconds and a ``Z`` suffix: ``2026-01-02T03:04:05.123456Z``."""
-    utc = moment.astimezone(timezone.utc)  # noqa: UP017 - the SDK supports Python 3.10
-    return utc.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    return micro_time(moment)
 
 
 def split_timestamp(line: str) -> tuple[Optional[datetime], str]:
