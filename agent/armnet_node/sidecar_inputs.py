@@ -21,7 +21,6 @@ a failed delivery is logged (rate-limited) and never raises into the bridge.
 
 from __future__ import annotations
 
-import json
 import logging
 import socket
 import threading
@@ -34,7 +33,7 @@ from armnet_connector.agent_inputs import AGENT_SOCKET, MAX_CANCEL_WHY
 from armnet_connector.ratelog import RateLimitedLog
 
 from armnet_node.metrics import AgentMetrics
-from armnet_node.sidecar_observer import connect_long
+from armnet_node.sidecar_socket import connect_long, exchange
 
 log = logging.getLogger(__name__)
 
@@ -186,21 +185,7 @@ class SidecarInputs:
             with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
                 sock.settimeout(self._timeout_s)
                 connect_long(sock, path)
-                sock.sendall(json.dumps(request).encode() + b"\n")
-                data = b""
-                while not data.endswith(b"\n"):
-                    # The whole reply by the deadline: a peer trickling a byte at a time holds nothing.
-                    left = deadline - time.monotonic()
-                    if left <= 0:
-                        raise TimeoutError("the reply did not arrive in time")
-                    sock.settimeout(left)
-                    chunk = sock.recv(1 << 14)
-                    if not chunk:
-                        raise ConnectionError("the connector closed the connection")
-                    data += chunk
-                    if len(data) > MAX_REPLY_BYTES:
-                        raise ValueError(f"a reply over {MAX_REPLY_BYTES} bytes")
-            reply = json.loads(data)
+                reply = exchange(sock, request, deadline, MAX_REPLY_BYTES)
         except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
             self._problems.warning("the sidecar connector's %s: %s: %s", AGENT_SOCKET, type(exc).__name__, exc)
             return None

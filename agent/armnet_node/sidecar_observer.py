@@ -25,12 +25,9 @@ and retried at most once a second.
 from __future__ import annotations
 
 import base64
-import json
 import logging
-import os
 import re
 import socket
-import stat
 import threading
 import time
 from collections import deque
@@ -46,6 +43,7 @@ from armnet_connector.telemetry_decode import ServoSample
 from armnet_launch.pod_spec import OBSERVER_VOLUME
 
 from armnet_node.metrics import AgentMetrics
+from armnet_node.sidecar_socket import connect_long, exchange
 from armnet_node.telemetry_wire import MAX_CAMERAS
 
 log = logging.getLogger(__name__)
@@ -66,30 +64,6 @@ def observer_socket(kubelet_root: Path, pod_uid: str) -> Path | None:
     if not _POD_UID.match(pod_uid):
         return None
     return kubelet_root / "pods" / pod_uid / "volumes" / "kubernetes.io~empty-dir" / OBSERVER_VOLUME / OBSERVER_SOCKET
-
-
-def connect_long(sock: socket.socket, path: Path) -> None:
-    """``sock.connect(path)`` for a path longer than a unix socket address holds (108 bytes).
-
-    The kubelet's path of a pod's volume is longer than that (113 bytes with the
-    default root). The directory is opened (``O_PATH``) and the socket reached
-    through the short ``/proc/self/fd/<fd>/<name>``, which is safe from other
-    threads (unlike a ``chdir``).
-    The socket itself is opened ``O_NOFOLLOW`` and must be a socket: a symlink put in
-    its place (by whoever could write into the volume) would otherwise lead the agent
-    to another pod's observer under the same mounted directory, or the kubelet's.
-    """
-    directory = os.open(path.parent, os.O_PATH | os.O_DIRECTORY)
-    try:
-        target = os.open(path.name, os.O_PATH | os.O_NOFOLLOW, dir_fd=directory)
-    finally:
-        os.close(directory)
-    try:
-        if not stat.S_ISSOCK(os.fstat(target).st_mode):
-            raise ConnectionRefusedError(f"{path} is not a socket (a symlink or a file put in its place?)")
-        sock.connect(f"/proc/self/fd/{target}")
-    finally:
-        os.close(target)
 
 
 def parse_servos(data: Any) -> dict[str, Mapping[str, ServoSample | None] | str] | None:
@@ -243,8 +217,7 @@ class SidecarObserver:
             if sock is None:
                 return None
             try:
-                sock.sendall(json.dumps(request).encode() + b"\n")
-                reply = json.loads(self._read_line(sock, time.monotonic() + self._timeout_s))
+                reply = exchange(sock, request, time.monotonic() + self._timeout_s, MAX_REPLY_BYTES)
             except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
                 self._drop()
                 self._retry_at = time.monotonic() + self._retry_s
@@ -282,26 +255,6 @@ class SidecarObserver:
         sock, self._sock = self._sock, None
         if sock is not None:
             sock.close()
-
-    @staticmethod
-    def _read_line(sock: socket.socket, deadline: float) -> bytes:
-        """One reply line, by ``deadline`` as a whole: a peer trickling a byte at a time holds nothing."""
-        chunks: list[bytes] = []
-        size = 0
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise TimeoutError("the observer's reply did not arrive in time")
-            sock.settimeout(left)
-            chunk = sock.recv(1 << 16)
-            if not chunk:
-                raise ConnectionError("the connector closed the observer connection")
-            chunks.append(chunk)
-            size += len(chunk)
-            if chunk.endswith(b"\n"):
-                return b"".join(chunks)
-            if size > MAX_REPLY_BYTES:
-                raise ValueError(f"an observer reply over {MAX_REPLY_BYTES} bytes")
 
     def _count(self, result: str, problem: str) -> None:
         self._metrics.observer_requests.labels(result=result).inc()

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_connector import ConnectorConfig
-from armnet_node.sidecar_observer import connect_long
+from armnet_node.sidecar_socket import connect_long
 from armnet_node.streams import NatsLink, StreamSettings
 from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 from armnet_sim import SimulatedCellProcess

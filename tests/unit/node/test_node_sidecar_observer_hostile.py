@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 from armnet_node.metrics import AgentMetrics
-from armnet_node.sidecar_observer import SidecarObserver, connect_long
+from armnet_node.sidecar_observer import SidecarObserver
+from armnet_node.sidecar_socket import connect_long
 
 pytestmark = pytest.mark.unit
 
