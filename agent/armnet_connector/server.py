@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from armnet_core.backoff import BackoffPolicy
 from armnet_runtime.wire import dumps_line, line_codec
 
 from .cell import Counters
@@ -39,7 +40,8 @@ MAX_BUFFERED_BYTES = 32 << 20
 MAX_CONNECTIONS = 64
 """Connections per socket; a job needs a handful (one per thread or process)."""
 _ACCEPT_POLL_S = 0.2
-_ACCEPT_BACKOFF_MAX_S = 1.0
+#: ``accept`` failing (out of file descriptors): retried after 10 ms, doubling, at most 1 s apart.
+_ACCEPT_BACKOFF = BackoffPolicy(first_s=0.01, max_s=1.0)
 _REFUSAL_SEND_TIMEOUT_S = 0.5
 _RECV_CHUNK = 1 << 16
 _STOP_JOIN_S = 3.0  # stop() waits this long in all for the threads of one socket
@@ -224,7 +226,7 @@ class UnixServer:
 
     def _accept_loop(self) -> None:
         assert self._listener is not None
-        backoff_s = 0.0
+        backoff = _ACCEPT_BACKOFF.start()
         while not self._stop.is_set():
             try:
                 conn, _ = self._listener.accept()
@@ -234,11 +236,11 @@ class UnixServer:
                 if self._stop.is_set():
                     return
                 self._counters.accept_errors += 1
-                backoff_s = min(_ACCEPT_BACKOFF_MAX_S, max(0.01, backoff_s * 2))
-                self._accept_log.warning("accept on %s failed (%s); retrying in %.2f s", self.path.name, exc, backoff_s)
-                self._stop.wait(backoff_s)
+                delay = backoff.failed()
+                self._accept_log.warning("accept on %s failed (%s); retrying in %.2f s", self.path.name, exc, delay)
+                self._stop.wait(delay)
                 continue
-            backoff_s = 0.0
+            backoff.succeeded()
             try:
                 self._admit(conn)
             except Exception as exc:  # noqa: BLE001 — nothing a peer does may end the accept loop

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_connector.ratelog import RateLimitedLog
+from armnet_core.backoff import Backoff, BackoffPolicy
 from armnet_core.logbatch import batch_headers
 
 from .stream_outbox import BatchLimits, Outbox, OutMessage
@@ -310,11 +311,15 @@ class NatsLink:
             except Exception:  # noqa: BLE001 - closing a broken connection
                 log.debug("closing the NATS connection failed", exc_info=True)
 
+    def _backoff(self) -> Backoff:
+        """Retries of the connection and of the stream's setup: 0.2 s, doubling, at most ``max_backoff_s``."""
+        return BackoffPolicy(first_s=min(0.2, self.settings.max_backoff_s), max_s=self.settings.max_backoff_s).start()
+
     async def _connect(self) -> bool:
         """Connect, retrying with a bounded backoff until it works or the link stops."""
         import nats
 
-        delay = 0.2
+        backoff = self._backoff()
         while not self._stopping:
             try:
                 self._nc = await nats.connect(
@@ -325,9 +330,9 @@ class NatsLink:
                     error_cb=self._on_error,
                 )
             except Exception as exc:  # noqa: BLE001 - any failure to connect is retried
+                delay = backoff.failed()
                 log.warning("cannot connect to NATS at %s (%s); retrying in %.1f s", self.settings.url, exc, delay)
                 await self._sleep(delay)
-                delay = min(delay * 2, self.settings.max_backoff_s)
                 continue
             log.info("connected to NATS at %s", self.settings.url)
             with self._lock:
@@ -414,17 +419,16 @@ class NatsLink:
     async def _send_until_stopped(self) -> None:
         assert self._wake is not None
         js = self._nc.jetstream()
-        delay = 0.2
+        backoff = self._backoff()
         while True:
             if self._stopping and (not len(self._outbox) or time.monotonic() >= self._stop_deadline):
                 return
             if not self._ready:
                 if self._nc.is_connected and await self._ensure_stream(js):
                     self._ready = True
-                    delay = 0.2
+                    backoff.succeeded()
                     continue
-                await self._sleep(delay)
-                delay = min(delay * 2, self.settings.max_backoff_s)
+                await self._sleep(backoff.failed())
                 continue
             batch = self._outbox.peek(self.settings.window, self.settings.window_bytes)
             if not batch:

@@ -29,6 +29,7 @@ from armnet_connector.config import DEFAULT_MOTOR_MODEL, read_calibration_file
 from armnet_connector.telemetry import ArmReader, CameraFrame, job_servos, latest_frames
 from armnet_connector.telemetry_decode import ServoSample, feetech_protocol, name_samples
 from armnet_core import BIMANUAL_SO101_EMBODIMENT, SO101_EMBODIMENT
+from armnet_core.backoff import BackoffPolicy
 from armnet_launch.cell_spec import CameraSpec
 from armnet_sim.presets import CellSimulator
 
@@ -80,14 +81,8 @@ def simulated_frames(sim: CellSimulator, cameras: tuple[CameraSpec, ...]) -> dic
 
 
 CAMERA_READ_TIMEOUT_MS = 500
-BACKOFF_FIRST_S = 1.0
-BACKOFF_MAX_S = 60.0
+CAMERA_BACKOFF = BackoffPolicy(first_s=1.0, max_s=60.0)
 """A failing camera is retried after 1, 2, 4 ... s, at most a minute apart (not reopened every tick)."""
-
-
-def backoff_s(failures: int) -> float:
-    """Seconds before retrying a camera that failed ``failures`` times in a row. Pure."""
-    return float(min(BACKOFF_MAX_S, BACKOFF_FIRST_S * 2.0 ** max(0, failures - 1)))
 
 
 class IdleCameras:
@@ -136,7 +131,7 @@ class IdleCameras:
             frame = CameraFrame(camera.async_read(timeout_ms=CAMERA_READ_TIMEOUT_MS))
         except Exception as exc:  # noqa: BLE001 - one failing camera must not stop the others
             self._close(spec)
-            self._failures[spec] = (failures + 1, self._clock() + backoff_s(failures + 1))
+            self._failures[spec] = (failures + 1, self._clock() + CAMERA_BACKOFF.delay(failures + 1))
             return f"{type(exc).__name__}: {str(exc)[:200]}"
         self._failures.pop(spec, None)
         return frame

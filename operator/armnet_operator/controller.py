@@ -15,6 +15,8 @@ from collections.abc import Callable, Mapping
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from armnet_core.backoff import BackoffPolicy
+
 from .errors import PermanentError, ResourceMissing, ResourcesReplaced
 from .kube import WRITERS, KubeApi
 from .metrics import Metrics
@@ -29,6 +31,8 @@ log = logging.getLogger(__name__)
 DEBOUNCE_SECONDS = 0.05
 OVERLAY_SECONDS = 10.0
 MAX_BACKOFF_SECONDS = 30.0
+#: Retrying a pass whose resources (CRDs) are gone: 1, 2, 4 ... s, at most 30 s apart.
+RESOURCES_BACKOFF = BackoffPolicy(first_s=1.0, max_s=MAX_BACKOFF_SECONDS)
 QUEUE_SECONDS_PER_PASS = 0.5
 """Queue writes a pass starts within this budget; the rest go next pass, so a burst never holds a bind long."""
 STOP_GRACE_SECONDS = 5.0
@@ -231,10 +235,10 @@ class Controller:
 
     async def _run(self) -> None:
         period = self.settings.reconcile_period
-        backoff = 0.0
+        backoff = RESOURCES_BACKOFF.start()
         while True:
             try:
-                await asyncio.wait_for(self.cache.changed.wait(), timeout=max(period, backoff))
+                await asyncio.wait_for(self.cache.changed.wait(), timeout=max(period, backoff.current_s))
                 await asyncio.sleep(DEBOUNCE_SECONDS)  # let a burst of events land in one pass
             except TimeoutError:
                 pass
@@ -257,9 +261,9 @@ class Controller:
                 self._crds_replaced = False
             except ResourceMissing as error:
                 self.metrics.errors.inc()
-                backoff = min(MAX_BACKOFF_SECONDS, max(1.0, backoff * 2))
-                log.error("%s; retrying in %.0fs", error, backoff)
-                await asyncio.sleep(backoff)
+                delay = backoff.failed()
+                log.error("%s; retrying in %.0fs", error, delay)
+                await asyncio.sleep(delay)
                 continue
             except PermanentError as error:
                 self.metrics.errors.inc()
@@ -269,8 +273,8 @@ class Controller:
                 self.metrics.errors.inc()
                 log.exception("reconcile pass failed, retrying")
                 await asyncio.sleep(min(1.0, period))
-            if backoff:
-                backoff = 0.0
+            if backoff.failing:
+                backoff.succeeded()
                 if self.on_resources_back is not None:
                     # kopf looks for served resources again only when a CRD changes; the last
                     # change (Established) can come before discovery serves the resource, and

@@ -10,7 +10,7 @@ from armnet_connector.identity import CellMotor
 from armnet_connector.telemetry_decode import ServoSample, feetech_protocol, known_positions
 from armnet_node import cli
 from armnet_node.telemetry import MAX_FRAME_FPS, MAX_SERVO_HZ, TelemetrySettings
-from armnet_node.telemetry_sources import BACKOFF_MAX_S, backoff_s
+from armnet_node.telemetry_sources import CAMERA_BACKOFF
 
 pytestmark = pytest.mark.unit
 
@@ -51,8 +51,8 @@ def test_only_feetech_motor_models_have_a_protocol_the_agent_reads(model: str | 
 
 
 def test_a_failing_camera_is_retried_ever_later_up_to_a_minute() -> None:
-    assert [backoff_s(n) for n in (1, 2, 3, 4)] == [1.0, 2.0, 4.0, 8.0]
-    assert backoff_s(50) == BACKOFF_MAX_S == 60.0
+    assert [CAMERA_BACKOFF.delay(n) for n in (1, 2, 3, 4)] == [1.0, 2.0, 4.0, 8.0]
+    assert CAMERA_BACKOFF.delay(50) == CAMERA_BACKOFF.max_s == 60.0
 
 
 @pytest.mark.parametrize(("servo_hz", "frame_fps"), [(MAX_SERVO_HZ + 1, 2), (4, MAX_FRAME_FPS + 1), (-1, 2)])
