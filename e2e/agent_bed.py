@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -27,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from tests.testbed.procs import free_port
+
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "runtime" / "examples"
 #: The job scripts the e2e beds share (each becomes /job/main.py of a job image: ``AgentBed.image``).
@@ -35,12 +36,6 @@ PYTHONPATH = ":".join(str(REPO / p) for p in ("runtime/src", "agent", "operator"
 DEV_MOUNTS = sorted({sys.prefix, sys.base_prefix, str(REPO)})
 TERMINAL = ("succeeded", "failed", "timeout", "cancelled")
 GROUP, VERSION = "armnet.io", "v1alpha1"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class AgentBed:

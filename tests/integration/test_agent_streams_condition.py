@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import shutil
-import socket
 import tempfile
 import time
 import uuid
@@ -33,6 +32,7 @@ from kubernetes import client
 
 from tests.support.fms_objects import G, V, a_cell, apply, get
 from tests.support.sim_connector import connected_link
+from tests.testbed.procs import free_port
 
 pytestmark = pytest.mark.integration
 
@@ -86,9 +86,7 @@ def test_an_agent_with_a_connected_link_marks_its_cells_connected(k8s: Any, nats
 
 
 def test_an_agent_whose_nats_does_not_answer_names_the_server_it_tries(k8s: Any, tmp_path: Path) -> None:
-    with socket.socket() as probe:  # a loopback port nothing listens on
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = free_port()  # a loopback port nothing listens on (claimed: no other service is started on it)
     link = NatsLink(StreamSettings(url=f"nats://agent:pw@127.0.0.1:{port}", spool_dir=tmp_path)).start()
     try:
         with heartbeating_cell(k8s, link) as name:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -19,13 +18,9 @@ import pytest
 import yaml
 from kubernetes import client
 
+from tests.testbed.procs import free_port
+
 pytestmark = pytest.mark.integration
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def test_the_armnet_operator_command_binds_a_job_exports_metrics_and_exits_0_at_sigterm(

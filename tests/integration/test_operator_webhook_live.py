@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import base64
 import json
-import socket
 import time
 import urllib.request
 from collections.abc import Iterator
@@ -34,15 +33,10 @@ from armnet_operator.handlers import build_registry
 from kopf.testing import KopfRunner
 
 from tests.integration.operator_bed import Bed, G, V, operator_settings
+from tests.testbed.procs import free_port
 
 pytestmark = pytest.mark.integration
 WEBHOOK_NAME = "robotjobs.armnet.io"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def deep_json(levels: int) -> str:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -19,16 +18,12 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from tests.testbed.procs import free_port
+
 REPO = Path(__file__).resolve().parents[2]
 PYTHONPATH = ":".join(str(REPO / p) for p in ("runtime/src", "agent", "operator", "cli", "fms")) + f":{REPO}"
 OPERATOR, TOKEN = "maria", "maria-token-0123456789"
 ARTIFACTS = REPO / "test-artifacts"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class FmsServer:

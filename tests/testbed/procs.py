@@ -1,4 +1,4 @@
-"""Child processes, free ports and polling: the plumbing every test-bed service shares.
+"""Child processes, ports and polling: the plumbing every test-bed service shares.
 
 A service is a real process started by us, logging to a file in its temp dir, and
 stopped by us (SIGTERM, then SIGKILL). Nothing here knows what the process is.
@@ -6,12 +6,15 @@ stopped by us (SIGTERM, then SIGKILL). Nothing here knows what the process is.
 
 from __future__ import annotations
 
+import fcntl
 import os
+import random
 import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -24,11 +27,46 @@ def progress(message: str) -> None:
     print(f"[testbed] {message}", file=sys.stderr, flush=True)
 
 
+#: Where test-bed processes claim ports: one lock file per port, held for the process's life.
+PORT_CLAIMS = Path(tempfile.gettempdir()) / "armnet-testbed-ports"
+#: How many ports below the kernel's ephemeral range the test beds draw from.
+PORT_SPAN = 12_000
+_claimed: list[int] = []  # open lock files: closing one would free its port for another process
+
+
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago (bind port 0, read, close)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+    """A TCP port on 127.0.0.1 for a service this process is about to start, and no one else's.
+
+    "Bind port 0, read it, close" handed the same port twice: to the second of two picks
+    in a row (etcd's client and peer ports: "bind: address already in use"), to another
+    test session starting a control plane at the same moment, or to any process's
+    outgoing connection, which takes its local port from the same ephemeral range. So
+    the port is drawn from below that range (no ``bind(0)`` or ``connect`` takes it), claimed
+    with a lock file that this process holds until it exits (no other test-bed process
+    takes it), and checked free to bind now.
+    """
+    low, _ = (int(v) for v in Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
+    first = max(1024, low - PORT_SPAN)
+    PORT_CLAIMS.mkdir(mode=0o1777, parents=True, exist_ok=True)
+    span = low - first
+    start = random.randrange(span)
+    for offset in range(span):
+        port = first + (start + offset) % span
+        fd = os.open(PORT_CLAIMS / str(port), os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue  # another test-bed process holds it
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                os.close(fd)  # something outside the test beds listens there
+                continue
+        _claimed.append(fd)
+        return port
+    raise TestbedSetupError(f"no free port in {first}-{low - 1} on 127.0.0.1 (claims in {PORT_CLAIMS})")
 
 
 def require_tool(name: str, path: Path | None = None) -> str:
