@@ -26,6 +26,7 @@ from .errors import Conflict, NotFound, PermanentError, ResourceMissing, Transie
 from .leader import LeaseMove, LeaseSeen, LeaseView, decide_lease, observe
 from .model import Cell, Job
 from .patches import Patch, Target
+from .quota import QuotaObject
 
 log = logging.getLogger(__name__)
 EVENT_MAX_DELAY = 5.0
@@ -108,7 +109,7 @@ class KubeApi:
         self.monotonic = monotonic
         """The clock a Lease's expiry is measured on (a test's may be stepped by hand)."""
         self._leases_seen: dict[tuple[str, str], LeaseSeen] = {}
-        self._events: queue.SimpleQueue[tuple[Job | Cell, str, str, str, datetime] | None] = queue.SimpleQueue()
+        self._events: queue.SimpleQueue[tuple[Job | Cell | QuotaObject, str, str, str, datetime] | None] = queue.SimpleQueue()
         self._quiet = threading.Event()
         self._quiet.set()
         self._closed = False
@@ -228,7 +229,7 @@ class KubeApi:
         except ApiException as error:
             raise _translate(error, f"delete robotjob {namespace}/{name}") from error
 
-    def post_event(self, subject: Job | Cell, type_: str, reason: str, message: str) -> None:
+    def post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None:
         """Queue the Event: a slow Events write must never delay a binding."""
         if self._closed:
             self._dropped += 1
@@ -251,11 +252,12 @@ class KubeApi:
             except Exception as error:  # noqa: BLE001 - events are best effort; keep the poster alive
                 log.debug("event %s for %s not posted: %s", reason, job, error)
 
-    def _post_event(self, subject: Job | Cell, type_: str, reason: str, message: str, now: datetime) -> None:
-        # Events of a cluster-scoped Cell live in "default", as kubectl describe expects.
+    def _post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str,
+                    now: datetime) -> None:
+        # Events of a cluster-scoped Cell or CellQuota live in "default", as kubectl describe expects.
         namespace = subject.namespace if isinstance(subject, Job) else "default"
-        involved = {"apiVersion": f"{GROUP}/{VERSION}", "kind": "RobotJob" if isinstance(subject, Job) else "Cell",
-                    "name": subject.name, "uid": subject.uid}
+        kind = "RobotJob" if isinstance(subject, Job) else "Cell" if isinstance(subject, Cell) else "CellQuota"
+        involved = {"apiVersion": f"{GROUP}/{VERSION}", "kind": kind, "name": subject.name, "uid": subject.uid}
         if isinstance(subject, Job):
             involved["namespace"] = namespace
         body = {

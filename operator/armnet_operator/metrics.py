@@ -47,6 +47,9 @@ class Metrics:
             "Objects a pass could not handle and skipped (each pass counts each such object)", ["kind"], registry=r,
         )
         self.failing = Gauge("armnet_objects_failing", "Objects the last pass skipped", ["kind"], registry=r)
+        self.quotas_ignored = Gauge(
+            "armnet_cellquotas_ignored", "CellQuotas the last pass did not apply (malformed, or a duplicate scope)",
+            registry=r)
         self.leader = Gauge("armnet_operator_leader", "1 while this replica holds the Lease", registry=r)
         self.pass_seconds = Histogram("armnet_reconcile_seconds", "Duration of one reconcile pass", registry=r)
         self.admission_requests = Counter(
@@ -102,3 +105,4 @@ class Metrics:
         for labels, count in depth.items():
             self.queue_depth.labels(*labels).set(count)
         self._queue_labels = set(depth)
+        self.quotas_ignored.set(outcome.quotas_ignored)

@@ -68,6 +68,8 @@ class QuotaObject:
     problem: str | None = None
     namespace: str | None = None
     resource_version: str = ""
+    uid: str = ""
+    """The object's uid, for the Events about it (``kubectl describe cellquota`` matches on it)."""
 
 
 @dataclass(frozen=True)

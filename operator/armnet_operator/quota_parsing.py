@@ -113,7 +113,7 @@ def read_quota(body: Mapping[str, Any]) -> QuotaObject:
     return QuotaObject(
         name=str(meta.get("name") or ""), quota=quota, usage=parse_usage(body), problem=problem,
         namespace=namespace if isinstance(namespace, str) else None,
-        resource_version=str(meta.get("resourceVersion") or ""),
+        resource_version=str(meta.get("resourceVersion") or ""), uid=str(meta.get("uid") or ""),
     )
 
 

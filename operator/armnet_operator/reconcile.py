@@ -67,7 +67,7 @@ class Api(Protocol):
     def read_job(self, namespace: str, name: str) -> dict[str, Any]:
         """The RobotJob as the server has it now; raise NotFound if gone."""
 
-    def post_event(self, subject: Job | Cell, type_: str, reason: str, message: str) -> None: ...
+    def post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None: ...
 
 
 @dataclass
@@ -114,6 +114,8 @@ class Outcome:
     failed: dict[str, Failure] = field(default_factory=dict)
     more: bool = False
     """Queue writes were left for the next pass (``Limits.max_queue_tasks``): run it soon."""
+    quotas_ignored: int = 0
+    """CellQuotas in scope that this pass did not apply (malformed, or duplicating another's scope)."""
 
     def merge(self, other: Outcome) -> None:
         self.bound.extend(other.bound)
@@ -233,11 +235,17 @@ def _write_quotas(jobs: Iterable[Job], cells: Iterable[Cell], quotas: Sequence[Q
     forbidden one: an RBAC without ``cellquotas/status``) is logged and retried
     next pass; it never stops scheduling.
     """
-    problems = {f"quota:{name}": problem for name, problem in quotas_in_force(quotas)[1].items()}
-    for key, problem in problems.items():
+    ignored = quotas_in_force(quotas)[1]
+    outcome.quotas_ignored = len(ignored)
+    by_name = {q.name: q for q in quotas}
+    problems = {f"quota:{name}": problem for name, problem in ignored.items()}
+    for name, problem in ignored.items():
+        key = f"quota:{name}"
         if memory.failing.get(key) != problem:
             memory.failing[key] = problem
             log.error("%s", problem)
+            # Once per distinct problem: where `kubectl describe cellquota` shows it.
+            _event(api, by_name[name], "Warning", "QuotaIgnored", problem)
     for key in [k for k in memory.failing if k.startswith("quota:") and k not in problems]:
         del memory.failing[key]
     known = {q.name for q in quotas}
@@ -702,7 +710,7 @@ def _count(error: TransientError, outcome: Outcome) -> None:
         log.warning("write failed, retrying next pass: %s", error)
 
 
-def _event(api: Api, subject: Job | Cell, type_: str, reason: str, message: str) -> None:
+def _event(api: Api, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None:
     try:
         api.post_event(subject, type_, reason, message)
     except Exception as error:  # noqa: BLE001 - events are best effort by design

@@ -462,7 +462,8 @@ def test_prometheus_rule_has_the_alerts_the_platform_team_watches() -> None:
     alerts = {r["alert"]: r["expr"] for g in rule["spec"]["groups"] for r in g["rules"]}
 
     assert set(alerts) >= {"ArmnetCellOffline", "ArmnetInterlockTripped", "ArmnetJobStuckDispatched",
-                           "ArmnetQueueWaitHigh", "ArmnetCellHeartbeatStale", "ArmnetAgentNatsDisconnected"}
+                           "ArmnetQueueWaitHigh", "ArmnetCellHeartbeatStale", "ArmnetAgentNatsDisconnected",
+                           "ArmnetCellQuotaIgnored"}
 
 
 def test_prometheus_rule_uses_only_metrics_that_exist() -> None:

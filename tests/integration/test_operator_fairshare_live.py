@@ -61,3 +61,33 @@ def test_a_tenant_at_its_quota_waits_while_another_binds_and_usage_survives_a_re
         for name in (qa, qb):
             k8s.kubectl("delete", "cellquota", name, "--ignore-not-found", "--wait=false", check=False)
         k8s.delete_namespace(other)
+
+
+def test_a_quota_the_operator_ignores_says_why_in_a_warning_event_on_it(
+        k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A second CellQuota for the same scope is valid to the schema but ignored: `kubectl describe
+    cellquota` shows why (an Event on it, once), not only the operator's log."""
+    bed = Bed(k8s, namespace)
+    kept, duplicate = f"a-{namespace}", f"z-{namespace}"
+    try:
+        quota(bed, kept, namespace, 1)
+        quota(bed, duplicate, namespace, 5)
+        with running_operator(k8s, namespace, monkeypatch, namespaces=(namespace,), quota_refresh=0.5):
+            bed.wait("the duplicate's status", lambda: "ignored" in quota_status(bed, duplicate).get("message", ""))
+            uid = bed.api.get_cluster_custom_object(G, V, "cellquotas", duplicate)["metadata"]["uid"]
+
+            def events() -> list[dict[str, Any]]:
+                return [e for e in bed.core.list_namespaced_event(
+                    "default", field_selector=f"involvedObject.kind=CellQuota,involvedObject.name={duplicate}",
+                ).to_dict()["items"]]
+
+            found = bed.wait("a QuotaIgnored event", lambda: events())
+            assert [(e["type"], e["reason"], e["involved_object"]["uid"]) for e in found] == [
+                ("Warning", "QuotaIgnored", uid)]
+            assert kept in found[0]["message"] and "delete one of them" in found[0]["message"]
+        described = k8s.kubectl("describe", "cellquota", duplicate).stdout
+        assert "QuotaIgnored" in described
+    finally:
+        bed.close()
+        for name in (kept, duplicate):
+            k8s.kubectl("delete", "cellquota", name, "--ignore-not-found", "--wait=false", check=False)

@@ -17,6 +17,7 @@ from armnet_operator.errors import Conflict, NotFound
 from armnet_operator.model import Cell, Job
 from armnet_operator.parsing import parse_cell, parse_job
 from armnet_operator.patches import Patch, Target
+from armnet_operator.quota import QuotaObject
 
 
 class Crash(BaseException):
@@ -160,7 +161,7 @@ class World:
         else:
             del self.jobs[key]
 
-    def post_event(self, subject: Job | Cell, type_: str, reason: str, message: str) -> None:
+    def post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None:
         self.events.append((subject.key if isinstance(subject, Job) else subject.name, reason))
 
     # ---- snapshots

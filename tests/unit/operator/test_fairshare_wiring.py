@@ -8,7 +8,7 @@ from typing import Any
 
 from armnet_operator.model import Timing
 from armnet_operator.quota_parsing import read_quota
-from armnet_operator.reconcile import Limits, Memory, reconcile_once
+from armnet_operator.reconcile import Limits, Memory, Outcome, reconcile_once
 
 from tests.unit.operator.operator_world import World
 
@@ -39,14 +39,14 @@ def a_world() -> World:
     return world
 
 
-def run(world: World, memory: Memory, quotas: list[dict[str, Any]]) -> None:
+def run(world: World, memory: Memory, quotas: list[dict[str, Any]]) -> Outcome:
     for body in quotas:
         world.quotas.setdefault(body["metadata"]["name"], body)
     for cell in world.cells:
         world.heartbeat(cell)
     objects = [read_quota(b) for b in world.quotas.values()]
     jobs, cells = world.snapshot()
-    reconcile_once(jobs, cells, world.now, TIMING, world, memory, LIMITS, objects)
+    return reconcile_once(jobs, cells, world.now, TIMING, world, memory, LIMITS, objects)
 
 
 def test_a_tenant_at_its_quota_waits_with_quota_exhausted_and_the_other_tenant_binds() -> None:
@@ -80,6 +80,20 @@ def test_a_duplicate_quota_is_ignored_and_says_why_in_its_status() -> None:
     assert "ignored" in world.quotas["z"]["status"]["message"]
     assert world.quotas["a"]["status"]["message"] == ""
     assert world.jobs["t/a2"]["status"]["queuedReason"] == "QuotaExhausted"
+    assert ("z", "QuotaIgnored") in world.events and ("a", "QuotaIgnored") not in world.events
+
+
+def test_an_ignored_quota_gets_one_warning_event_per_problem_and_is_counted() -> None:
+    world, memory = a_world(), Memory()
+    bad = {"metadata": {"name": "bad", "uid": "u-bad"},
+           "spec": {"namespace": "t", "embodiment": "so101", "nominalCells": -3}}
+    outcome = run(world, memory, [bad])
+    run(world, memory, [bad])  # the same problem: no second Event
+    assert world.events.count(("bad", "QuotaIgnored")) == 1
+    assert outcome.quotas_ignored == 1
+    world.quotas["bad"]["spec"] = {**bad["spec"], "nominalCells": 1, "weight": 0}
+    run(world, memory, [])  # another problem: another Event
+    assert world.events.count(("bad", "QuotaIgnored")) == 2
 
 
 def test_a_malformed_quota_never_stops_the_pass() -> None:
