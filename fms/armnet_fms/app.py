@@ -206,7 +206,7 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
             return JSONResponse({"error": str(error)}, status_code=503)
         metrics.actions.labels(kind.value, "ok").inc()
         log.info("cell %s: %s by cell operator %s", name, plan.done, who.operator)
-        await state.refresh()
+        state.refresh_soon()
         return JSONResponse({"ok": True, "message": plan.done})
 
     async def _decide(kind: ActionKind, name: str, operator: str, request_id: str) -> tuple[Plan, str]:

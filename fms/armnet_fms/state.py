@@ -69,6 +69,18 @@ class FleetState:
     kube_ok: bool = False
     kube_errors: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event)
+    _refreshing: asyncio.Task[None] | None = field(default=None, repr=False)
+
+    def refresh_soon(self) -> None:
+        """Re-read the fleet in the background, one re-read at a time.
+
+        An action's answer does not wait for it: on a busy host the answer to a tap
+        waited behind a full list of cells and jobs, and the page keeps the verdict
+        buttons disabled until the answer comes. The page learns the new state from
+        the live stream when the re-read lands (or from the next poll).
+        """
+        if self._refreshing is None or self._refreshing.done():
+            self._refreshing = asyncio.get_running_loop().create_task(self.refresh())
 
     async def refresh(self) -> None:
         try:
