@@ -191,6 +191,14 @@ class FalseCondition:
 
 
 @dataclass(frozen=True)
+class CompletionView:
+    """A cell's completion monitor as ``armnet cells -o wide`` shows it: which scorer watches which camera."""
+
+    scorer: str
+    camera: str
+
+
+@dataclass(frozen=True)
 class CellView:
     """What ``armnet cells`` shows: phase, holder, the health conditions that fail, heartbeat."""
 
@@ -203,6 +211,8 @@ class CellView:
     last_heartbeat: Optional[datetime]
     false_conditions: tuple[FalseCondition, ...]
     unschedulable: bool
+    completion: Optional[CompletionView] = None
+    """The cell's completion monitor, None when only an operator's outcome completes an episode."""
 
 
 def cell_view_of(cell: Cell) -> CellView:
@@ -221,4 +231,19 @@ def cell_view_of(cell: Cell) -> CellView:
             if c.status == "False"
         ),
         unschedulable=cell.spec.unschedulable,
+        completion=completion_view_of(cell.spec.completion),
     )
+
+
+def completion_view_of(spec: Any) -> Optional[CompletionView]:
+    """The scorer and camera of ``spec.completion``; a value of another shape shows as ``?``, never fails the list."""
+    if spec is None:
+        return None
+    if not isinstance(spec, dict):
+        return CompletionView(scorer="?", camera="?")
+
+    def text(key: str) -> str:
+        value = spec.get(key)
+        return value[:63] if isinstance(value, str) and value else "?"
+
+    return CompletionView(scorer=text("scorer"), camera=text("camera"))

@@ -92,7 +92,7 @@ def _when(moment: Optional[datetime]) -> Optional[str]:
 def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False) -> str:
     headers = ["NAME", "PHASE", "EMBODIMENT", "TASK", "JOB", "FAILING", "HEARTBEAT"]
     if wide:
-        headers += ["NODE"]
+        headers += ["NODE", "COMPLETION"]
     rows = []
     for cell in cells:
         failing = ",".join(f"{c.type}({c.reason})" if c.reason else c.type
@@ -101,7 +101,8 @@ def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False)
                cell.current_job or "-", failing,
                age(cell.last_heartbeat, now) + (" ago" if cell.last_heartbeat else "")]
         if wide:
-            row.append(cell.node)
+            monitor = cell.completion
+            row += [cell.node, f"{monitor.scorer}({monitor.camera})" if monitor else "operator"]
         rows.append(row)
     return table(headers, rows)
 
@@ -127,6 +128,7 @@ def cell_document(cell: CellView) -> dict[str, Any]:
     return {
         "name": cell.name, "phase": cell.phase, "embodiment": cell.embodiment, "task": cell.task,
         "node": cell.node, "currentJob": cell.current_job, "unschedulable": cell.unschedulable,
+        "completion": {"scorer": cell.completion.scorer, "camera": cell.completion.camera} if cell.completion else None,
         "lastHeartbeatTime": cell.last_heartbeat.isoformat() if cell.last_heartbeat else None,
         "failingConditions": [{"type": c.type, "reason": c.reason, "message": c.message}
                               for c in cell.false_conditions],

@@ -101,6 +101,8 @@ class CellSpec(_Body):
     task: Optional[str] = None
     unschedulable: bool = False
     simulated: bool = False
+    completion: Any = None
+    """The completion monitor's configuration as written (read leniently: only its scorer and camera are shown)."""
 
 
 class CellStatus(_Body):

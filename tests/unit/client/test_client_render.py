@@ -252,3 +252,18 @@ def test_tail_keeps_a_finished_jobs_status_from_the_backlog() -> None:
 
     assert [x.text for x in tail(events, 1)] == ["2", "status: cancelled"]
     assert [x.text for x in tail([*events, CaughtUp()], 0)] == ["status: cancelled"]
+
+
+def test_wide_cells_name_the_completion_monitor_and_a_malformed_one_never_fails_the_list() -> None:
+    body = a_cell(phase="Ready")
+    body["spec"]["completion"] = {"scorer": "region", "camera": "front", "colour": {"hueMin": 0}}
+    plain, odd = a_cell("cell-2", phase="Ready"), a_cell("cell-3", phase="Ready")
+    odd["spec"]["completion"] = "yes please"
+    cells = [cell_view_of(Cell.model_validate(b)) for b in (body, plain, odd)]
+
+    rows = [r.split() for r in cells_table(cells, NOW, wide=True).splitlines()]
+
+    assert rows[0][-2:] == ["NODE", "COMPLETION"]
+    assert [r[-1] for r in rows[1:]] == ["region(front)", "operator", "?(?)"]
+    assert cell_document(cells[0])["completion"] == {"scorer": "region", "camera": "front"}
+    assert cell_document(cells[1])["completion"] is None
