@@ -172,6 +172,26 @@ def test_cells_lists_phase_job_failing_conditions_and_heartbeat(k8s: Any, tenant
     assert (cell.phase, cell.embodiment) == ("Faulted", "test/client")
     assert [c.type for c in cell.false_conditions] == ["HardwareReady"]
     assert cell.last_heartbeat is not None
+    assert cell.completion is None
+
+
+def test_wide_cells_show_the_completion_monitor_the_cell_was_given(
+    k8s: Any, tenant: Tenant, capsys: pytest.CaptureFixture[str]
+) -> None:
+    name = f"cell-{uuid.uuid4().hex[:6]}"
+    api = kclient.CustomObjectsApi(k8s.api_client())
+    api.create_cluster_custom_object(G, V, "cells", {  # the CRD's own validation accepts it
+        "apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name},
+        "spec": {"embodiment": "test/client", "nodeName": "host-1", "cameras": {"top": {"indexOrPath": 0}},
+                 "completion": {"scorer": "region", "camera": "top", "arucoId": 7,
+                                "region": {"left": 0.1, "top": 0.1, "width": 0.5, "height": 0.5}}}})
+    try:
+        capsys.readouterr()
+        assert tenant.cli("cells", "-o", "wide") == 0
+        row = next(line.split() for line in capsys.readouterr().out.splitlines() if line.startswith(name))
+    finally:
+        api.delete_cluster_custom_object(G, V, "cells", name)
+    assert row[-2:] == ["host-1", "region(top)"]
 
 
 def test_the_cli_submits_gets_and_cancels_with_kubectl_like_exit_codes(
