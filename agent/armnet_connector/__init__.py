@@ -9,7 +9,8 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from .completion_config import CompletionConfig  # noqa: E402
+from armnet_core.cell_completion import CompletionConfig  # noqa: E402
+
 from .config import ArmConfig, CameraConfig, ConnectorConfig, load_config  # noqa: E402
 from .connector import Connector  # noqa: E402
 from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, OperatorInputs  # noqa: E402
@@ -30,7 +31,6 @@ __all__ = [
     "block_read",
     "calibration_check",
     "cell",
-    "completion_config",
     "config",
     "fast_exit",
     "hardware",

@@ -22,7 +22,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from .completion_config import CompletionConfig
+from armnet_core.cell_completion import CompletionConfig
+
 from .config import CameraConfig
 from .ratelog import RateLimitedLog
 from .scoring import (

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic.alias_generators import to_camel
 
-from .completion_config import CompletionConfig, unknown_camera
 from .identity import NORM_MODES
 from .registers import valid_bounds
 

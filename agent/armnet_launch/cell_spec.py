@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from armnet_connector.completion_config import CompletionConfig, unknown_camera
 from armnet_core import BIMANUAL_SO101_EMBODIMENT, SO101_EMBODIMENT
+from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from armnet_runtime import env as env_keys
 from armnet_runtime.endpoints import with_arm
 from pydantic import BaseModel, ConfigDict, Field, ValidationError

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal
 
-from armnet_connector.completion_config import CompletionConfig, unknown_camera
 from armnet_core.api import STOPPED_BY_ANNOTATION
+from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from armnet_core.times import parse_time
 from armnet_launch.cell_spec import CameraSpec
 from pydantic import BaseModel, ConfigDict, Field, ValidationError

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from datetime import UTC, datetime
 from typing import Annotated, Any, TypeVar
 
+from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from .args import args_problem
@@ -254,6 +255,9 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         problem = "; ".join(f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in error.errors())
         bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
         spec = _CellSpec.model_validate({"embodiment": "", **{k: v for k, v in fields.items() if k not in bad}})
+    completion = _completion_problem(raw_spec)
+    if completion is not None:
+        problem = f"{problem}; {completion}" if problem else completion
     raw_status = body.get("status") or {}
     scalars = {k: _plain(v) for k, v in raw_status.items() if k != "conditions"}
     status, _defects = _lenient(_CellStatus, scalars, "status")
@@ -279,6 +283,25 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         message=status.message or None,
         spec_problem=problem,
     )
+
+
+def _completion_problem(spec: Mapping[str, Any]) -> str | None:
+    """Why ``spec.completion`` cannot run (the connector's own model says), None when it can or is absent.
+
+    The CRD refuses these at apply; a Cell stored before the schema, or with
+    validation off, would otherwise be bound and its job's connector refuse to start.
+    """
+    raw = spec.get("completion")
+    if raw is None:
+        return None
+    try:
+        completion = CompletionConfig.model_validate(_plain(raw))
+    except ValidationError as error:
+        return "; ".join(
+            f"spec.completion{''.join(f'.{part}' for part in e['loc'])}: {e['msg']}" for e in error.errors())
+    cameras = spec.get("cameras")
+    why = unknown_camera(completion, cameras if isinstance(cameras, Mapping) else {})
+    return f"spec.{why}" if why else None
 
 
 def _arms(spec: Mapping[str, Any]) -> tuple[Arm, ...]:

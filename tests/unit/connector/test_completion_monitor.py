@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from armnet_connector.cell import Counters
 from armnet_connector.completion import CameraCompletionMonitor, CameraFrames, Frame
-from armnet_connector.completion_config import CompletionConfig
 from armnet_connector.config import CameraConfig
 from armnet_connector.hardware import simulated_camera_factory
 from armnet_connector.scoring import FrameScore
+from armnet_core.cell_completion import CompletionConfig
 from armnet_sim.render import TARGET_POSE, render_arms, target_region
 
 pytestmark = pytest.mark.unit

@@ -224,3 +224,30 @@ def test_a_cell_with_an_unreadable_spec_field_stays_in_view_and_is_invalid_namin
                        "spec": {"embodiment": "lerobot/so-101", "nodeName": "h", "unschedulable": "perhaps"}})
     [checked] = check_cells([cell])
     assert checked.name == "c" and "spec.unschedulable" in (checked.invalid or "")
+
+
+HALF = {"left": 0.0, "top": 0.0, "width": 0.5, "height": 0.5}
+
+
+@pytest.mark.parametrize(("completion", "says"), [
+    ({"scorer": "region", "camera": "top", "arucoId": 7,
+      "region": {"left": 0.5, "top": 0.0, "width": 0.9, "height": 0.5}}, "spec.completion"),
+    ({"scorer": "crystal-ball", "camera": "top", "arucoId": 7}, "spec.completion.scorer"),
+    ({"scorer": "region", "camera": "side", "arucoId": 7, "region": HALF}, "spec.completion.camera 'side'"),
+    ("yes", "spec.completion"),
+])
+def test_a_completion_monitor_that_slipped_past_the_crd_makes_the_cell_invalid_naming_it(
+        completion: object, says: str) -> None:
+    """The connector would refuse to start it: the cell is Invalid (never bound, see above) until fixed."""
+    cell = parse_cell({"metadata": {"name": "c"}, "spec": {
+        "embodiment": "lerobot/so-101", "nodeName": "h", "cameras": {"top": {"indexOrPath": 0}},
+        "completion": completion}})
+    [checked] = check_cells([cell])
+    assert says in (checked.invalid or ""), checked.invalid
+
+
+def test_a_sound_completion_monitor_leaves_the_cell_valid() -> None:
+    cell = parse_cell({"metadata": {"name": "c"}, "spec": {
+        "embodiment": "lerobot/so-101", "nodeName": "h", "cameras": {"top": {"indexOrPath": 0}},
+        "completion": {"scorer": "region", "camera": "top", "arucoId": 7, "region": HALF}}})
+    assert cell.spec_problem is None and check_cells([cell])[0].invalid is None

@@ -1,9 +1,9 @@
 """A cell's ``completion`` settings: which camera the monitor watches and how it scores (pydantic, pure).
 
-The Cell spec (``spec.completion``), a local run's cell file and the connector's
-config all load this one model (plain data: it imports no OpenCV, so the pure
-modules that read a connector config stay free of it), so a setting is checked the same way wherever
-it comes from. Every refusal says what to change: a cell owner's typo (an empty
+The Cell spec (``spec.completion``) as the operator and the node agent read it, a
+local run's cell file and the connector's config all load this one model (plain
+data: it imports no OpenCV, so the pure modules that read it stay free of it), so a
+setting is checked the same way wherever it comes from. Every refusal says what to change: a cell owner's typo (an empty
 region, a rate of 10 000 Hz, zero frames) must be an error on the cell, never a
 monitor that silently scores nothing or burns the connector's CPU.
 """
