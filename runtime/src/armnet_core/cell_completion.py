@@ -47,6 +47,13 @@ def _bounded(value: Any, name: str, low: float, high: float, kinds: tuple[type[i
     return value
 
 
+def _one_of(value: str, name: str, known: Any, what: str) -> str:
+    """``value`` if it is one of ``known``; else why, listing them."""
+    if value not in known:
+        raise ValueError(f"{name} {value[:40]!r} {what}; use one of {list(known)}")
+    return value
+
+
 def _finite(value: Any, what: str) -> Any:
     if isinstance(value, bool):
         raise ValueError(f"{what} must be a number, got {value!r}")
@@ -123,9 +130,7 @@ class CompletionConfig(_Model):
     @field_validator("scorer")
     @classmethod
     def _known_scorer(cls, value: str) -> str:
-        if value not in SCORERS:
-            raise ValueError(f"completion.scorer {value[:40]!r} is not available; use one of {list(SCORERS)}")
-        return value
+        return _one_of(value, "completion.scorer", SCORERS, "is not available")
 
     @field_validator("rate_hz", mode="before")
     @classmethod
@@ -149,9 +154,7 @@ class CompletionConfig(_Model):
     @field_validator("aruco_dictionary")
     @classmethod
     def _dictionary(cls, value: str) -> str:
-        if value not in ARUCO_DICTIONARIES:
-            raise ValueError(f"completion.arucoDictionary {value[:40]!r} is unknown; use one of {list(ARUCO_DICTIONARIES)}")
-        return value
+        return _one_of(value, "completion.arucoDictionary", ARUCO_DICTIONARIES, "is unknown")
 
     @model_validator(mode="after")
     def _one_object(self) -> CompletionConfig:
