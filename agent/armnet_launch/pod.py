@@ -24,7 +24,6 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from datetime import datetime
 from typing import Any
 
 from armnet_core.times import parse_time
@@ -78,20 +77,16 @@ def container_state(pod: dict[str, Any], name: str) -> ContainerState:
 def job_start_delay_s(pod: dict[str, Any], name: str = JOB_CONTAINER) -> float | None:
     """Pure: seconds from the pod's ``startTime`` to container ``name``'s ``startedAt`` (kubelet times), or None."""
     status = pod.get("status") or {}
-    started_pod = _timestamp(status.get("startTime"))
+    started_pod = parse_time(status.get("startTime"))
     for entry in status.get("containerStatuses") or []:
         if entry.get("name") != name:
             continue
         state = entry.get("state") or {}
         running = state.get("running") or state.get("terminated") or {}
-        started_job = _timestamp(running.get("startedAt"))
+        started_job = parse_time(running.get("startedAt"))
         if started_pod is not None and started_job is not None:
             return max(0.0, (started_job - started_pod).total_seconds())
     return None
-
-
-def _timestamp(value: Any) -> datetime | None:
-    return parse_time(value)
 
 
 def pod_failed_reason(pod: dict[str, Any]) -> str | None:

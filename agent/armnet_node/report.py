@@ -53,11 +53,6 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def timestamp(moment: datetime) -> str:
-    """RFC 3339 in UTC with milliseconds: ``startedAt``/``finishedAt`` measure kill latency."""
-    return status_time(moment)
-
-
 def _keep_end(text: str | None, limit: int) -> str | None:
     if text is None or len(text) <= limit:
         return text
@@ -68,7 +63,7 @@ def _keep_end(text: str | None, limit: int) -> str | None:
 def running_patch(resource_version: str, started_at: datetime) -> dict[str, Any]:
     return {
         "metadata": {"resourceVersion": resource_version},
-        "status": {"phase": JobStatus.RUNNING.value, "startedAt": timestamp(started_at)},
+        "status": {"phase": JobStatus.RUNNING.value, "startedAt": status_time(started_at)},
     }
 
 
@@ -114,7 +109,7 @@ def terminal_patch(
         body["safety"] = json_safe(record.safety)
     status: dict[str, Any] = {
         "phase": result.status.value,
-        "finishedAt": timestamp(result.finished_at) if result.finished_at else None,
+        "finishedAt": status_time(result.finished_at) if result.finished_at else None,
         "result": {k: v for k, v in body.items() if v is not None},
     }
     if record.rollout_index is not None:
@@ -140,7 +135,7 @@ def failed_before_start(resource_version: str, error: str, now: datetime) -> dic
         "metadata": {"resourceVersion": resource_version},
         "status": {
             "phase": JobStatus.FAILED.value,
-            "finishedAt": timestamp(now),
+            "finishedAt": status_time(now),
             "result": {"error": _keep_end(error, ERROR_MAX)},
         },
     }

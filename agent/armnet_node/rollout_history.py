@@ -159,23 +159,18 @@ def _count(value: int) -> int:
     return min(max(int(value), 0), COUNT_MAX)
 
 
-def timestamp(moment: datetime) -> str:
-    """RFC 3339 in UTC with milliseconds, as the agent's other status times."""
-    return status_time(moment)
-
-
 def as_status(history: History) -> list[dict[str, Any]]:
     """``status.rollouts``: one object per entry, oldest first, absent fields left out."""
     rows = []
     for entry in history:
         row: dict[str, Any] = {"index": entry.index, "total": entry.total, "outcome": entry.outcome.value,
-                               "startedAt": timestamp(entry.started_at), "outcomeControls": entry.outcome_controls}
+                               "startedAt": status_time(entry.started_at), "outcomeControls": entry.outcome_controls}
         if entry.marked_by is not None:
             row["markedBy"] = entry.marked_by
         if entry.marked_at is not None:
-            row["markedAt"] = timestamp(entry.marked_at)
+            row["markedAt"] = status_time(entry.marked_at)
         if entry.ended_at is not None:
-            row["endedAt"] = timestamp(entry.ended_at)
+            row["endedAt"] = status_time(entry.ended_at)
         rows.append(row)
     return rows
 

@@ -34,6 +34,7 @@ from typing import Any
 from armnet_connector.inputs import LocalOperatorInputs
 from armnet_core import JobResult, JobStatus
 from armnet_core.api import TERMINAL_PHASES
+from armnet_core.times import status_time
 from armnet_launch.pod_spec import SecretRef
 from armnet_launch.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
 from armnet_launch.supervise.observe import EventKind, OutputEvent
@@ -257,7 +258,7 @@ class JobRunner:
                     launched.kill()
                     session.remove()
                     return
-                output.status("running", {"startedAt": report.timestamp(started_at)})
+                output.status("running", {"startedAt": status_time(started_at)})
                 follower = guard_follower(self.deps.link, job.namespace, job.uid, job.follower_window_s,
                                           self.stop_follower_lost)
                 # The job's clock runs from startedAt (also across an agent restart).

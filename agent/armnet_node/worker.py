@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_core.api import ACTIVE_PHASES, SIM_UNPLUG_ANNOTATION, TERMINAL_PHASES
+from armnet_core.times import status_time
 from armnet_sim.calibration import builtin_calibration, write_calibration
 from armnet_sim.presets import PRESETS, CellSimulator
 from armnet_sim.process import SimulatedCellProcess
@@ -386,7 +387,7 @@ class CellWorker:
             body = {
                 "metadata": {"resourceVersion": raw["metadata"]["resourceVersion"]},
                 "status": {
-                    "lastHeartbeatTime": report.timestamp(now),
+                    "lastHeartbeatTime": status_time(now),
                     "conditions": health.merge_conditions(current, conditions, now),
                 },
             }

@@ -16,10 +16,6 @@ from armnet_core.times import kube_time
 MAX_MESSAGE = 1024
 
 
-def format_time(moment: datetime) -> str:
-    return kube_time(moment)
-
-
 def find_condition(conditions: list[dict[str, Any]], type_: str) -> dict[str, Any] | None:
     return next((c for c in conditions if c.get("type") == type_), None)
 
@@ -44,11 +40,11 @@ def set_condition(
         wanted["observedGeneration"] = observed_generation
     current = find_condition(conditions, type_)
     if current is None:
-        conditions.append({**wanted, "lastTransitionTime": format_time(now)})
+        conditions.append({**wanted, "lastTransitionTime": kube_time(now)})
         return True
     changed = False
     if current.get("status") != wanted["status"]:
-        current["lastTransitionTime"] = format_time(now)
+        current["lastTransitionTime"] = kube_time(now)
         changed = True
     for field, value in wanted.items():
         if current.get(field) != value:

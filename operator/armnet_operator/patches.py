@@ -18,8 +18,9 @@ from enum import StrEnum
 from typing import Any
 
 from armnet_core.api import RELEASE_CELL_FINALIZER
+from armnet_core.times import kube_time
 
-from .conditions import format_time, set_condition
+from .conditions import set_condition
 from .model import (
     BoundReason,
     Cell,
@@ -69,7 +70,7 @@ def quota_status(name: str, status: dict[str, Any]) -> Patch:
 
 
 def claim_cell(cell: Cell, job: Job, now: datetime) -> Patch:
-    status = {"currentJob": job.key, "claimedAt": format_time(now), "phase": CellPhase.BUSY.value}
+    status = {"currentJob": job.key, "claimedAt": kube_time(now), "phase": CellPhase.BUSY.value}
     return _cell_status(cell, status)
 
 
@@ -149,7 +150,7 @@ def finish_job(job: Job, phase: JobPhase, reason: str, error: str | None, now: d
     set_condition(conditions, JobConditionType.QUEUED, False, reason, error or reason, now)
     status: dict[str, Any] = {
         "phase": phase.value,
-        "finishedAt": format_time(now),
+        "finishedAt": kube_time(now),
         "queuedReason": None,
         "queuePosition": None,
         "conditions": conditions,

@@ -238,7 +238,6 @@ def _write_quotas(jobs: Iterable[Job], cells: Iterable[Cell], quotas: Sequence[Q
     ignored = quotas_in_force(quotas)[1]
     outcome.quotas_ignored = len(ignored)
     by_name = {q.name: q for q in quotas}
-    problems = {f"quota:{name}": problem for name, problem in ignored.items()}
     for name, problem in ignored.items():
         key = f"quota:{name}"
         if memory.failing.get(key) != problem:
@@ -246,7 +245,7 @@ def _write_quotas(jobs: Iterable[Job], cells: Iterable[Cell], quotas: Sequence[Q
             log.error("%s", problem)
             # Once per distinct problem: where `kubectl describe cellquota` shows it.
             _event(api, by_name[name], "Warning", "QuotaIgnored", problem)
-    for key in [k for k in memory.failing if k.startswith("quota:") and k not in problems]:
+    for key in [k for k in memory.failing if k.startswith("quota:") and k.removeprefix("quota:") not in ignored]:
         del memory.failing[key]
     known = {q.name for q in quotas}
     for stale in [n for n in memory.quota_shown if n not in known]:

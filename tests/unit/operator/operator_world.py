@@ -12,7 +12,7 @@ import copy
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from armnet_operator.conditions import format_time
+from armnet_core.times import kube_time
 from armnet_operator.errors import Conflict, NotFound
 from armnet_operator.model import Cell, Job
 from armnet_operator.parsing import parse_cell, parse_job
@@ -84,7 +84,7 @@ class World:
         if task:
             spec["task"] = task
         meta = {"name": name, "namespace": "t", "uid": f"uid-{name}", "resourceVersion": self._next_rv(),
-                "creationTimestamp": format_time(self.now)}
+                "creationTimestamp": kube_time(self.now)}
         self.jobs[f"t/{name}"] = {"metadata": meta, "spec": spec, "status": {}}
 
     def add_cell(self, name: str, embodiment: str, task: str | None) -> None:
@@ -96,7 +96,7 @@ class World:
 
     def heartbeat(self, name: str) -> None:
         cell = self.cells[name]
-        cell["status"]["lastHeartbeatTime"] = format_time(self.now)
+        cell["status"]["lastHeartbeatTime"] = kube_time(self.now)
         cell["metadata"]["resourceVersion"] = self._next_rv()
 
     def user_patch_job(self, key: str, spec: dict[str, Any]) -> None:
@@ -108,7 +108,7 @@ class World:
         body = self.jobs[key]
         body["status"]["phase"] = phase
         if phase in ("succeeded", "failed", "cancelled", "timeout"):
-            body["status"]["finishedAt"] = format_time(self.now)
+            body["status"]["finishedAt"] = kube_time(self.now)
         body["metadata"]["resourceVersion"] = self._next_rv()
 
     # ---- the operator's Api
@@ -156,7 +156,7 @@ class World:
         if key not in self.jobs:
             raise NotFound(key)
         if self.jobs[key]["metadata"].get("finalizers"):
-            self.jobs[key]["metadata"]["deletionTimestamp"] = format_time(self.now)
+            self.jobs[key]["metadata"]["deletionTimestamp"] = kube_time(self.now)
             self.jobs[key]["metadata"]["resourceVersion"] = self._next_rv()
         else:
             del self.jobs[key]
