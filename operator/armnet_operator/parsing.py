@@ -285,6 +285,23 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
     )
 
 
+#: How deep a ``spec.completion`` may nest (it holds ``region`` and ``colour`` objects: 2).
+COMPLETION_DEPTH = 4
+
+
+def _deeper_than(value: Any, limit: int) -> bool:
+    """Whether ``value`` nests mappings or lists more than ``limit`` deep (iterative: any depth is safe)."""
+    stack = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, Mapping | list | tuple):
+            if depth >= limit:
+                return True
+            children = item.values() if isinstance(item, Mapping) else item
+            stack.extend((child, depth + 1) for child in children)
+    return False
+
+
 def _completion_problem(spec: Mapping[str, Any]) -> str | None:
     """Why ``spec.completion`` cannot run (the connector's own model says), None when it can or is absent.
 
@@ -294,6 +311,8 @@ def _completion_problem(spec: Mapping[str, Any]) -> str | None:
     raw = spec.get("completion")
     if raw is None:
         return None
+    if _deeper_than(raw, COMPLETION_DEPTH):
+        return f"spec.completion: nested deeper than {COMPLETION_DEPTH} levels; it holds a region and a colour at most"
     try:
         completion = CompletionConfig.model_validate(_plain(raw))
     except ValidationError as error:

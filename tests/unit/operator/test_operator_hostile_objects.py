@@ -251,3 +251,16 @@ def test_a_sound_completion_monitor_leaves_the_cell_valid() -> None:
         "embodiment": "lerobot/so-101", "nodeName": "h", "cameras": {"top": {"indexOrPath": 0}},
         "completion": {"scorer": "region", "camera": "top", "arucoId": 7, "region": HALF}}})
     assert cell.spec_problem is None and check_cells([cell])[0].invalid is None
+
+
+def test_a_completion_nested_10000_deep_or_1_mib_long_is_an_invalid_cell_not_a_crash() -> None:
+    deep: dict[str, object] = {}
+    inner = deep
+    for _ in range(10_000):
+        inner["a"] = {}
+        inner = inner["a"]  # type: ignore[assignment]
+    spec = {"embodiment": "lerobot/so-101", "nodeName": "h", "cameras": {"top": {"indexOrPath": 0}}}
+    nested = parse_cell({"metadata": {"name": "c"}, "spec": {**spec, "completion": deep}})
+    assert "nested deeper than" in (nested.spec_problem or "")
+    long = parse_cell({"metadata": {"name": "c"}, "spec": {**spec, "completion": {"scorer": "x" * (1 << 20)}}})
+    assert "spec.completion.scorer" in (long.spec_problem or "") and len(long.spec_problem or "") < 4096
