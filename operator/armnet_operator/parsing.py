@@ -14,7 +14,7 @@ from typing import Annotated, Any, TypeVar
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
-from .args import args_problem
+from .args import args_problem, measure
 from .model import Arm, Cell, CellConditionType, CellPhase, Job, JobConditionType, JobPhase
 
 
@@ -285,21 +285,10 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
     )
 
 
-#: How deep a ``spec.completion`` may nest (it holds ``region`` and ``colour`` objects: 2).
+#: How deep a ``spec.completion`` may nest (it holds ``region`` and ``colour`` objects: 2) and
+#: how large it may be as JSON: far above any real setting, far below what parsing it costs.
 COMPLETION_DEPTH = 4
-
-
-def _deeper_than(value: Any, limit: int) -> bool:
-    """Whether ``value`` nests mappings or lists more than ``limit`` deep (iterative: any depth is safe)."""
-    stack = [(value, 0)]
-    while stack:
-        item, depth = stack.pop()
-        if isinstance(item, Mapping | list | tuple):
-            if depth >= limit:
-                return True
-            children = item.values() if isinstance(item, Mapping) else item
-            stack.extend((child, depth + 1) for child in children)
-    return False
+COMPLETION_BYTES = 64 * 1024
 
 
 def _completion_problem(spec: Mapping[str, Any]) -> str | None:
@@ -311,8 +300,11 @@ def _completion_problem(spec: Mapping[str, Any]) -> str | None:
     raw = spec.get("completion")
     if raw is None:
         return None
-    if _deeper_than(raw, COMPLETION_DEPTH):
+    depth, size = measure(raw, COMPLETION_DEPTH, COMPLETION_BYTES)  # iterative: any depth is safe to measure
+    if depth > COMPLETION_DEPTH:
         return f"spec.completion: nested deeper than {COMPLETION_DEPTH} levels; it holds a region and a colour at most"
+    if size > COMPLETION_BYTES:
+        return f"spec.completion: larger than {COMPLETION_BYTES} bytes as JSON; a completion setting is a few hundred"
     try:
         completion = CompletionConfig.model_validate(_plain(raw))
     except ValidationError as error:

@@ -263,4 +263,4 @@ def test_a_completion_nested_10000_deep_or_1_mib_long_is_an_invalid_cell_not_a_c
     nested = parse_cell({"metadata": {"name": "c"}, "spec": {**spec, "completion": deep}})
     assert "nested deeper than" in (nested.spec_problem or "")
     long = parse_cell({"metadata": {"name": "c"}, "spec": {**spec, "completion": {"scorer": "x" * (1 << 20)}}})
-    assert "spec.completion.scorer" in (long.spec_problem or "") and len(long.spec_problem or "") < 4096
+    assert "larger than 65536 bytes" in (long.spec_problem or "") and len(long.spec_problem or "") < 4096
