@@ -140,6 +140,9 @@ def test_a_rest_that_ends_outside_its_tolerance_is_reported_not_ok(connector, cl
             sim_cell.arm.move_by_hand("wrist_roll", held_at)
             time.sleep(0.01)
 
+    # Held before the move starts: a holder thread not yet scheduled on a loaded host left the
+    # arm at rest, and the move reached it (this test failed so once).
+    sim_cell.arm.move_by_hand("wrist_roll", held_at)
     holder = threading.Thread(target=hold, daemon=True)
     holder.start()
     try:
