@@ -2,15 +2,15 @@
 # One idempotent setup for development and CI: runs every scripts/setup.d/NN-*.sh in
 # order, stops at the first failure, and prints each step with its duration.
 #
-# The `go` builds of the Kubernetes binaries and Helm (30-k8s, 35-helm: CPU-bound, ~15 min
-# cold on 2 cores, seconds warm) run in the background from the moment the system packages
+# The `go` builds of the Kubernetes binaries, Helm and SeaweedFS (30-k8s, 35-helm, 37-seaweedfs:
+# CPU-bound, ~15 min and more cold on 2 cores, seconds warm) run in the background from the moment the system packages
 # are in, while the other steps (downloads, debootstrap, image builds: mostly disk and
 # network) go on; their output is printed when they end. Nothing after step 20 needs them.
 # ARMNET_SETUP_IMAGES=1 (the test command sets it) adds step 50: the shipped images.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 total_start=$SECONDS
-background_steps=(30-k8s.sh 35-helm.sh)
+background_steps=(30-k8s.sh 35-helm.sh 37-seaweedfs.sh)
 background_pids=()
 background_names=()
 background_logs=()

@@ -7,6 +7,8 @@ Fixtures (all start lazily, only when a test asks for them, and stop at session 
 - ``nats_server`` -> ``str``: the ``nats://`` URL of a JetStream-enabled nats-server.
 - ``nats_service`` -> :class:`NatsServer` (``.url``, ``.restart()``); not named ``nats``
   so it never shadows the ``nats`` package in a test.
+- ``object_store`` -> :class:`SeaweedS3`: SeaweedFS's S3 gateway (``.endpoint``,
+  ``.access_key``, ``.secret_key``, ``.client()``).
 - ``podman`` -> :class:`Podman`: the Docker client on Podman's API socket.
 - ``base_image`` -> ``str``: the base image reference (``localhost/armnet-base:bookworm``).
 - ``k8s_node`` -> :class:`Node`: containerd + a kubelet registered with ``k8s`` as a
@@ -31,6 +33,7 @@ from tests.testbed.images import BASE_IMAGE, require_base_image
 from tests.testbed.kube import ControlPlane, KubeUser
 from tests.testbed.natsd import NatsServer
 from tests.testbed.node import Node
+from tests.testbed.objstore import SeaweedS3
 from tests.testbed.podman import PodmanService, ulimits
 
 K8s = ControlPlane  # the `k8s` fixture's type: .kubeconfig .url .admin_token .user() .kubectl()
@@ -106,6 +109,16 @@ def nats_server(nats_service: NatsServer) -> str:
 
 
 @pytest.fixture(scope="session")
+def object_store(request: pytest.FixtureRequest) -> Iterator[SeaweedS3]:
+    server = SeaweedS3()
+    _start("SeaweedFS S3 object store", server.start, request)
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture(scope="session")
 def podman(request: pytest.FixtureRequest) -> Iterator[Podman]:
     service = PodmanService()
     _start("Podman Docker-compatible API", service.start, request)
@@ -122,4 +135,4 @@ def base_image(podman: Podman, request: pytest.FixtureRequest) -> str:
     return BASE_IMAGE
 
 
-__all__ = ["K8s", "KubeUser", "Node", "Podman"]
+__all__ = ["K8s", "KubeUser", "Node", "Podman", "SeaweedS3"]

@@ -103,14 +103,14 @@ class ManagedProcess:
     """One child process with its log file; ``stop()`` is safe to call twice."""
 
     def __init__(self, name: str, argv: Sequence[str], log_path: Path,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, cwd: Path | None = None) -> None:
         self.name = name
         self.argv = list(argv)
         self.log_path = log_path
         self._log = open(log_path, "ab")  # noqa: SIM115 - lives as long as the process
         self.proc = subprocess.Popen(
             self.argv, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            env=env, start_new_session=True,  # Ctrl-C in `armnet dev up` reaches us, not them
+            env=env, cwd=cwd, start_new_session=True,  # Ctrl-C in `armnet dev up` reaches us, not them
         )
 
     def log_tail(self, lines: int = 30) -> str:

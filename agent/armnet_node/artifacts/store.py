@@ -1,0 +1,177 @@
+"""The object store, through boto3: the few S3 calls an upload needs, and their errors mapped.
+
+Any S3-compatible server works (SeaweedFS in the test bed and ``armnet dev up``, AWS S3,
+an operator's own): path-style addressing, and checksums only where S3 requires them
+(boto3 >= 1.36 adds CRC checksums to every upload by default, which some compatible
+servers refuse). The file's SHA-256 travels in the object's metadata
+(``x-amz-meta-sha256``); that is what a resumed upload compares, not the ETag (an MD5,
+or a digest of digests for a multipart upload).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import IO, Any
+
+from armnet_node.artifacts.keys import SHA256_METADATA
+from armnet_node.artifacts.model import StoreMisconfigured, StoreUnavailable
+
+#: Env vars of the agent's store settings (the chart fills them from a ConfigMap and a Secret).
+ENV_ENDPOINT = "ARMNET_ARTIFACTS_ENDPOINT"
+ENV_BUCKET = "ARMNET_ARTIFACTS_BUCKET"
+ENV_REGION = "ARMNET_ARTIFACTS_REGION"
+ENV_ACCESS_KEY = "ARMNET_ARTIFACTS_ACCESS_KEY_ID"
+ENV_SECRET_KEY = "ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"
+
+#: S3 error codes an operator must fix (a retry cannot help).
+_MISCONFIGURED = frozenset({
+    "AccessDenied", "InvalidAccessKeyId", "SignatureDoesNotMatch", "NoSuchBucket", "InvalidBucketName",
+    "AllAccessDisabled", "AccountProblem",
+})
+
+
+@dataclass(frozen=True)
+class StoreConfig:
+    """Where the agent stores job outputs. ``endpoint_url`` None is AWS S3 itself."""
+
+    bucket: str
+    access_key_id: str
+    secret_access_key: str
+    endpoint_url: str | None = None
+    region: str = "us-east-1"
+
+    def __repr__(self) -> str:  # never the secret in a log line
+        return f"StoreConfig(bucket={self.bucket!r}, endpoint_url={self.endpoint_url!r}, region={self.region!r})"
+
+    @property
+    def location(self) -> str:
+        return f"s3://{self.bucket}/"
+
+    @classmethod
+    def from_env(cls, environ: Mapping[str, str] | None = None) -> StoreConfig | None:
+        """The settings from the agent's env; None when no bucket is set (uploads are off)."""
+        env = os.environ if environ is None else environ
+        bucket = env.get(ENV_BUCKET, "").strip()
+        if not bucket:
+            return None
+        missing = [name for name in (ENV_ACCESS_KEY, ENV_SECRET_KEY) if not env.get(name)]
+        if missing:
+            raise StoreMisconfigured(
+                f"{ENV_BUCKET} is set but {', '.join(missing)} is not: give the agent the store's keys "
+                "(the chart reads them from the Secret named by artifacts.credentialsSecret)"
+            )
+        return cls(
+            bucket=bucket, access_key_id=env[ENV_ACCESS_KEY], secret_access_key=env[ENV_SECRET_KEY],
+            endpoint_url=env.get(ENV_ENDPOINT) or None, region=env.get(ENV_REGION) or "us-east-1",
+        )
+
+
+class ObjectStore:
+    """One bucket. Every method raises :class:`StoreMisconfigured` or :class:`StoreUnavailable`."""
+
+    def __init__(self, config: StoreConfig, *, max_attempts: int = 5) -> None:
+        import boto3
+        from botocore.config import Config
+
+        self.config = config
+        self.bucket = config.bucket
+        self._s3: Any = boto3.client(
+            "s3",
+            endpoint_url=config.endpoint_url,
+            region_name=config.region,
+            aws_access_key_id=config.access_key_id,
+            aws_secret_access_key=config.secret_access_key,
+            config=Config(
+                s3={"addressing_style": "path"},
+                retries={"mode": "standard", "max_attempts": max_attempts},
+                request_checksum_calculation="when_required",
+                response_checksum_validation="when_required",
+                connect_timeout=10,
+                read_timeout=60,
+            ),
+        )
+
+    def ensure_bucket(self) -> None:
+        """Create the bucket when absent (development stores; a production bucket is the operator's)."""
+        try:
+            self._s3.head_bucket(Bucket=self.bucket)
+            return
+        except Exception as exc:  # noqa: BLE001 - mapped below; a missing bucket is created
+            if _code(exc) not in ("404", "NoSuchBucket", "NotFound"):
+                raise self._mapped(exc, "check the bucket") from exc
+        self._call("create the bucket", self._s3.create_bucket, Bucket=self.bucket)
+
+    def sizes(self, prefix: str) -> dict[str, int]:
+        """Key -> size of every object under ``prefix``."""
+        found: dict[str, int] = {}
+        pages = self._s3.get_paginator("list_objects_v2").paginate(Bucket=self.bucket, Prefix=prefix)
+        try:
+            for page in pages:
+                for item in page.get("Contents", ()):
+                    found[str(item["Key"])] = int(item["Size"])
+        except Exception as exc:  # noqa: BLE001 - botocore's errors, mapped
+            raise self._mapped(exc, f"list {prefix}") from exc
+        return found
+
+    def stored_sha256(self, key: str) -> str | None:
+        """The SHA-256 in the object's metadata; None when the object or the entry is missing."""
+        try:
+            head = self._s3.head_object(Bucket=self.bucket, Key=key)
+        except Exception as exc:  # noqa: BLE001 - botocore's errors, mapped
+            if _code(exc) in ("404", "NoSuchKey", "NotFound"):
+                return None
+            raise self._mapped(exc, f"read {key}") from exc
+        value = (head.get("Metadata") or {}).get(SHA256_METADATA)
+        return str(value) if value else None
+
+    def put_file(self, key: str, body: IO[bytes], sha256: str) -> None:
+        """Upload an open file (multipart when large); its SHA-256 goes into the object's metadata."""
+        self._call(f"upload {key}", self._s3.upload_fileobj, body, self.bucket, key,
+                   ExtraArgs={"Metadata": {SHA256_METADATA: sha256}})
+
+    def put_bytes(self, key: str, data: bytes, content_type: str = "application/json") -> None:
+        self._call(f"upload {key}", self._s3.put_object, Bucket=self.bucket, Key=key, Body=data,
+                   ContentType=content_type)
+
+    def get_bytes(self, key: str) -> bytes:
+        response = self._call(f"read {key}", self._s3.get_object, Bucket=self.bucket, Key=key)
+        return bytes(response["Body"].read())
+
+    def delete(self, key: str) -> None:
+        self._call(f"delete {key}", self._s3.delete_object, Bucket=self.bucket, Key=key)
+
+    def _call(self, what: str, method: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return method(*args, **kwargs)
+        except Exception as exc:  # noqa: BLE001 - botocore's errors, mapped
+            raise self._mapped(exc, what) from exc
+
+    def _mapped(self, exc: Exception, what: str) -> Exception:
+        where = f"{self.config.location} at {self.config.endpoint_url or 'AWS S3'}"
+        code = _code(exc)
+        if code in _MISCONFIGURED:
+            return StoreMisconfigured(
+                f"the object store {where} refused to {what}: {code}; check the agent's bucket and keys "
+                f"({ENV_BUCKET}, {ENV_ACCESS_KEY})"
+            )
+        if not code and not _is_botocore(exc):
+            return exc  # not the store's: an agent bug stays visible as itself
+        return StoreUnavailable(f"the object store {where} failed to {what}: {code or type(exc).__name__}: {exc}")
+
+
+def _code(exc: BaseException) -> str:
+    """The S3 error code of ``exc`` or of the error it wraps (boto3's transfer errors wrap the client's)."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        response = getattr(seen, "response", None)
+        if isinstance(response, dict):
+            return str((response.get("Error") or {}).get("Code") or "")
+        seen = seen.__cause__ or seen.__context__
+    return ""
+
+
+def _is_botocore(exc: Exception) -> bool:
+    module = type(exc).__module__
+    return module.startswith(("botocore", "boto3", "s3transfer", "urllib3"))

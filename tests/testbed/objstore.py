@@ -1,0 +1,147 @@
+"""A real S3-compatible object store: SeaweedFS's ``weed server -s3`` on free loopback ports.
+
+One process runs a master, a volume server, a filer and the S3 gateway, each on its own
+free port (HTTP and gRPC chosen explicitly: SeaweedFS would otherwise take HTTP + 10000),
+with its data in a temporary directory and one S3 identity (access and secret key,
+admin on every bucket) from a config file. Telemetry, Iceberg and Lance endpoints are
+off, so nothing leaves loopback. ``weed`` is built by scripts/setup.d/37-seaweedfs.sh.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+from tests.testbed.errors import TestbedSetupError
+from tests.testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
+
+SEAWEEDFS_CACHE = Path(os.environ.get("ARMNET_SEAWEEDFS_DIR", Path.home() / ".cache/armnet/seaweedfs"))
+ACCESS_KEY = "armnet-testbed"
+#: The bucket the readiness check writes to (tests use buckets of their own).
+READY_BUCKET = "armnet-testbed-ready"
+#: A cold start on a loaded 2-core machine (master election, first volume) takes a while.
+START_TIMEOUT_S = 120
+
+
+def weed_binary() -> Path:
+    """``~/.cache/armnet/seaweedfs/<version>/bin/weed`` of the version setup built last."""
+    override = os.environ.get("ARMNET_WEED")
+    if override:
+        return Path(override)
+    current = SEAWEEDFS_CACHE / "current"
+    if not current.is_file():
+        raise TestbedSetupError(f"no SeaweedFS built yet ({current} is missing): run scripts/setup.sh")
+    return SEAWEEDFS_CACHE / current.read_text().strip() / "bin" / "weed"
+
+
+class SeaweedS3:
+    """SeaweedFS with its S3 gateway; ``endpoint`` is ``http://127.0.0.1:<port>``."""
+
+    def __init__(self, workdir: Path | None = None) -> None:
+        self._owns_workdir = workdir is None
+        self.workdir = workdir or Path(tempfile.mkdtemp(prefix="armnet-s3-"))
+        self.s3_port = free_port()
+        self.endpoint = f"http://127.0.0.1:{self.s3_port}"
+        self.access_key = ACCESS_KEY
+        self.secret_key = secrets.token_hex(20)
+        self.region = "us-east-1"
+        self.data_dir = self.workdir / "data"
+        self._ports = {name: free_port() for name in (
+            "master.port", "master.port.grpc", "volume.port", "volume.port.grpc",
+            "filer.port", "filer.port.grpc", "s3.port.grpc",
+        )}
+        self._proc: ManagedProcess | None = None
+
+    def start(self) -> SeaweedS3:
+        binary = require_tool("weed", weed_binary())
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        config = self.workdir / "s3.json"
+        config.write_text(json.dumps({"identities": [{
+            "name": "armnet-testbed",
+            "credentials": [{"accessKey": self.access_key, "secretKey": self.secret_key}],
+            "actions": ["Admin", "Read", "List", "Tagging", "Write"],
+        }]}))
+        config.chmod(0o600)
+        # SeaweedFS makes each bucket a collection and gives a new collection 7 volumes at its
+        # first write (master.toml's copy_1); with -volume.max=32 the fifth bucket's first write
+        # failed with InternalError ("no free volumes left"). One volume per bucket is plenty
+        # here (volumes are sparse files of at most 64 MB); the master reads master.toml from
+        # its working directory.
+        (self.workdir / "master.toml").write_text("[master.volume_growth]\ncopy_1 = 1\n")
+        started = time.monotonic()
+        argv = [
+            binary, "server", f"-dir={self.data_dir}", "-ip=127.0.0.1", "-ip.bind=127.0.0.1",
+            "-filer", "-s3", f"-s3.port={self.s3_port}", f"-s3.config={config}",
+            "-s3.port.iceberg=0", "-s3.port.lance=0", "-master.telemetry=false",
+            "-master.volumeSizeLimitMB=64", "-volume.max=100", "-volume.preStopSeconds=0",
+            f"-filer.localSocket={self.workdir / 'filer.sock'}", f"-s3.localSocket={self.workdir / 's3.sock'}",
+            *(f"-{name}={port}" for name, port in self._ports.items()),
+        ]
+        self._proc = ManagedProcess("weed-server", argv, self.workdir / "weed.log", cwd=self.workdir)
+        proc = self._proc
+        wait_until(self._serves_s3, timeout=START_TIMEOUT_S, what=f"SeaweedFS S3 on {self.endpoint}",
+                   interval=0.5, alive=proc.ensure_running)
+        # The gateway answers before the master has a writable volume: ready once a write lands.
+        wait_until(self._accepts_writes, timeout=START_TIMEOUT_S, what=f"a first write to {self.endpoint}",
+                   interval=0.5, alive=proc.ensure_running)
+        progress(f"SeaweedFS S3 ready at {self.endpoint} in {time.monotonic() - started:.1f} s")
+        return self
+
+    def _serves_s3(self) -> bool:
+        # An unsigned ListBuckets: the gateway answers 403 (AccessDenied) once it serves requests.
+        try:
+            with urllib.request.urlopen(self.endpoint + "/", timeout=2):
+                return True
+        except urllib.error.HTTPError as exc:
+            return exc.code in (403, 200)
+        except (urllib.error.URLError, TimeoutError):
+            return False
+
+    def client(self) -> Any:
+        """A boto3 S3 client with the identity's keys (path-style, as the agent's)."""
+        import boto3
+        from botocore.config import Config
+
+        return boto3.client(
+            "s3", endpoint_url=self.endpoint, region_name=self.region, aws_access_key_id=self.access_key,
+            aws_secret_access_key=self.secret_key,
+            config=Config(s3={"addressing_style": "path"}, retries={"mode": "standard", "max_attempts": 1},
+                          request_checksum_calculation="when_required",
+                          response_checksum_validation="when_required"),
+        )
+
+    def _accepts_writes(self) -> bool:
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        s3 = self.client()
+        try:
+            try:
+                s3.create_bucket(Bucket=READY_BUCKET)
+            except ClientError as exc:
+                if exc.response.get("Error", {}).get("Code") not in ("BucketAlreadyOwnedByYou", "BucketAlreadyExists"):
+                    raise
+            s3.put_object(Bucket=READY_BUCKET, Key="ready", Body=b"ready")
+            return bool(s3.get_object(Bucket=READY_BUCKET, Key="ready")["Body"].read() == b"ready")
+        except (BotoCoreError, ClientError):
+            return False
+
+    def stop(self) -> None:
+        if self._proc is not None:
+            self._proc.stop(timeout=20)
+            self._proc = None
+        if self._owns_workdir:
+            shutil.rmtree(self.workdir, ignore_errors=True)
+
+    def __enter__(self) -> SeaweedS3:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
