@@ -55,6 +55,8 @@ class AgentBed:
         self._agent_starts = 0
         #: Extra ``armnet agent`` arguments (the pod launcher's beds pass ``--launcher pod`` ...).
         self.agent_args: list[str] = []
+        #: Extra env of the agent process (the object store's ARMNET_ARTIFACTS_*).
+        self.agent_env: dict[str, str] = {}
         self.operator_args: list[str] = []
         #: Extra Containerfile lines for job images (before the COPY).
         self.image_lines: list[str] = []
@@ -113,7 +115,7 @@ class AgentBed:
             argv += ["--telemetry-servo-hz", "0", "--telemetry-frame-fps", "0"]
         argv += self.agent_args
         log = open(self.log_dir / f"agent-{self._agent_starts}.log", "ab")  # noqa: SIM115
-        self.agent = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self._env())
+        self.agent = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env={**self._env(), **self.agent_env})
 
     def kill_agent(self) -> None:
         assert self.agent is not None

@@ -9,6 +9,7 @@ side on the bed's cells) and each test then checks its own job's status.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from collections.abc import Callable, Iterator
@@ -62,9 +63,16 @@ RESETS = """
 
 
 @pytest.fixture(scope="module")
-def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
+def outputs_bucket(object_store: Any) -> str:
+    return str(object_store.create_bucket("agent-e2e-outputs"))
+
+
+@pytest.fixture(scope="module")
+def bed(k8s: Any, podman: Any, base_image: str, nats_server: str, object_store: Any,
+        outputs_bucket: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("agent-e2e")
     bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
+    bed.agent_env = object_store.agent_env(outputs_bucket)
     bed.cells = [bed.add_cell("so101-a"), bed.add_cell("so101-b")]  # type: ignore[attr-defined]
     bed.bimanual = bed.add_cell("bimanual", bimanual=True)  # type: ignore[attr-defined]
     bed.start_operator()
@@ -108,6 +116,7 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
         "failure": bed.submit("raises", bed.image("raises", JOBS / "raises.py"), timeout=120),
         "missing-secret": bed.submit("no-secret", bed.image("echo", JOBS / "echo.py"), secrets={"API_TOKEN": "absent"}),
+        "output": bed.submit("writes-output", bed.image("writes-output", JOBS / "writes_output.py"), timeout=120),
         "secret": bed.submit("with-secret", bed.image("echo", JOBS / "echo.py"), args={"size": "x" * 60_000},
                              secrets={"API_TOKEN": "api-token"}),
         "timeout-ignored": bed.submit("ignores", bed.image("ignores", JOBS / "ignores_shutdown.py"), timeout=JOB_TIMEOUT),
@@ -144,9 +153,34 @@ def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, 
     assert len(progress) == len(printed) - len(plain) > 0
     phases = [json.loads(text)["phase"] for text in stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.status", 2)]
     assert phases[0] == "running" and phases[-1] == "succeeded", phases
-    # The job's output directory leaves the robot host with the job (until its upload to an
-    # object store is built, nothing else would ever remove it).
+    # The job wrote nothing to its output directory: the store says so (a manifest of no files),
+    # and the directory leaves the robot host.
     bed.wait(lambda: not (bed.state_dir / "outputs" / uid).exists(), 60, "the job's output directory removed")
+    artifacts = status(bed.job(batch["success"]))["artifacts"]
+    assert (artifacts["phase"], artifacts["files"], artifacts["complete"]) == ("Uploaded", 0, True), artifacts
+
+
+def test_what_a_job_writes_to_its_output_directory_is_stored_with_its_checksums(
+    bed: AgentBed, batch: dict[str, str], object_store: Any, outputs_bucket: str,
+) -> None:
+    st = status(bed.wait_phase(batch["output"], timeout=300))
+    assert st["phase"] == "succeeded", json.dumps(st, indent=1)
+    uid = st["jobId"]
+    bed.wait(lambda: (status(bed.job(batch["output"])).get("artifacts") or {}).get("phase") == "Uploaded", 120,
+             "the job's output uploaded")
+    artifacts = status(bed.job(batch["output"]))["artifacts"]
+    prefix = f"{bed.namespace}/{uid}/"
+    assert artifacts["location"] == f"s3://{outputs_bucket}/{prefix}"
+    assert (artifacts["files"], artifacts["bytes"], artifacts["leftOut"]) == (2, 4096 + 26, 1), artifacts
+    assert "host-hostname: a symbolic link that leads out of the output directory" in artifacts["message"]
+    s3 = object_store.client()
+    manifest = json.loads(s3.get_object(Bucket=outputs_bucket, Key=prefix + "manifest.json")["Body"].read())
+    episode = s3.get_object(Bucket=outputs_bucket, Key=prefix + "files/data/chunk-000/episode_000000.parquet")
+    data = episode["Body"].read()
+    assert data == bytes(range(256)) * 16
+    [entry] = [f for f in manifest["files"] if f["path"] == "data/chunk-000/episode_000000.parquet"]
+    assert entry["sha256"] == hashlib.sha256(data).hexdigest() == episode["Metadata"]["sha256"]
+    assert not (bed.state_dir / "outputs" / uid).exists()
 
 
 def test_a_job_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:

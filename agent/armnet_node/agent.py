@@ -20,6 +20,7 @@ from typing import Any
 from armnet_core.api import GROUP, VERSION
 from armnet_launch.plan import LABEL_CELL, LABEL_NAMESPACE
 
+from armnet_node.artifacts import ObjectStore
 from armnet_node.deviceplugin.server import DevicePlugins
 from armnet_node.kube import AgentKube, KubeError
 from armnet_node.launchers import JobLauncher, PodLauncher
@@ -29,6 +30,7 @@ from armnet_node.plan import HostPaths
 from armnet_node.publish import Link
 from armnet_node.runner import RunnerDeps
 from armnet_node.telemetry import TelemetrySettings
+from armnet_node.uploads import UploadQueue
 from armnet_node.worker import CellWorker, WorkerSettings
 
 log = logging.getLogger(__name__)
@@ -49,8 +51,9 @@ class AgentSettings:
 class NodeAgent:
     def __init__(
         self, settings: AgentSettings, kube: AgentKube, launcher: JobLauncher, metrics: AgentMetrics, link: Link,
-        device_plugins: DevicePlugins | None = None,
+        device_plugins: DevicePlugins | None = None, store: ObjectStore | None = None,
     ) -> None:
+        """``store``: where ended jobs' outputs go (None: they are removed with the job)."""
         self.settings = settings
         #: The kubelet device plugins of the cells (pod launcher), kept in step with the workers each pass.
         self.device_plugins = device_plugins
@@ -58,13 +61,10 @@ class NodeAgent:
         self.launcher = launcher
         self.metrics = metrics
         self.link = link
-        self.deps = RunnerDeps(
-            kube=kube,
-            launcher=launcher,
-            paths=HostPaths(settings.state_dir, settings.dev_mounts, settings.dev_env or None),
-            metrics=metrics,
-            link=link,
-        )
+        paths = HostPaths(settings.state_dir, settings.dev_mounts, settings.dev_env or None)
+        self.uploads = UploadQueue(store, paths, kube, metrics)
+        self.deps = RunnerDeps(kube=kube, launcher=launcher, paths=paths, metrics=metrics, link=link,
+                               uploads=self.uploads)
         self.workers: dict[str, CellWorker] = {}
         self._wake = threading.Event()
         self._rows: dict[str, Any] | None = None
@@ -75,6 +75,7 @@ class NodeAgent:
         for plural in ("cells", "robotjobs"):
             threading.Thread(target=self._watch, args=(plural, stop), name=f"armnet-watch-{plural}",
                              daemon=True).start()
+        threading.Thread(target=self.uploads.run, args=(stop,), name="armnet-uploads", daemon=True).start()
         while not stop.is_set():
             try:
                 self.pass_once()

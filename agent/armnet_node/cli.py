@@ -25,6 +25,8 @@ from armnet_launch.container import EngineUnavailable, connect_engine
 from armnet_launch.pod_spec import CONNECTOR_USER
 
 from armnet_node.agent import AgentSettings, NodeAgent
+from armnet_node.artifacts import ObjectStore, StoreConfig, StoreMisconfigured
+from armnet_node.artifacts.store import ENV_BUCKET
 from armnet_node.deviceplugin.server import DEVICE_PLUGIN_DIR, DevicePlugins
 from armnet_node.kube import AgentKube, make_client
 from armnet_node.launchers import ContainerLauncher, JobLauncher, PodLauncher, PodSettings
@@ -153,6 +155,14 @@ def run(args: argparse.Namespace) -> int:
         dev_mounts=tuple(args.dev_mount),
         dev_env=dev_env,
     )
+    try:
+        store_config = StoreConfig.from_env()
+    except StoreMisconfigured as exc:
+        logging.error("%s", exc)
+        return 2
+    if store_config is None:
+        logging.warning("no object store for job outputs (%s is not set): what a job writes to its output "
+                        "directory is removed when it ends (docs/outputs.md)", ENV_BUCKET)
     metrics = AgentMetrics()
     metrics.serve(args.metrics_port, args.metrics_address)
     link = open_link(args.nats_url, state_dir / "spool")
@@ -196,7 +206,8 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    agent = NodeAgent(settings, kube, launcher, metrics, link, device_plugins)
+    store = ObjectStore(store_config) if store_config is not None else None
+    agent = NodeAgent(settings, kube, launcher, metrics, link, device_plugins, store)
     try:
         agent.run(stop)
     finally:

@@ -53,6 +53,26 @@ class AgentMetrics:
             "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
         )
 
+        self.outputs = Counter(
+            "armnet_agent_job_outputs_total",
+            "ended jobs' output directories: uploaded (whole), incomplete (a file changed while it was sent), "
+            "too_large (over the cap: nothing stored), discarded (no object store configured), empty",
+            ["outcome"], registry=r,
+        )
+        self.output_bytes = Counter(
+            "armnet_agent_job_output_bytes_uploaded_total", "bytes of job outputs sent to the object store",
+            registry=r,
+        )
+        self.output_upload_failures = Counter(
+            "armnet_agent_job_output_upload_failures_total",
+            "job output uploads that failed and wait for a retry: unavailable (the store did not answer), "
+            "misconfigured (bucket or keys refused), error (the agent's own)", ["reason"], registry=r,
+        )
+        self.outputs_pending = Gauge(
+            "armnet_agent_job_outputs_pending",
+            "ended jobs whose output is still on the robot host, waiting for its upload", registry=r,
+        )
+
         self.pod_start_latency = Histogram(
             "armnet_agent_pod_start_latency_seconds",
             "pod launcher: pod created -> the job container started (connector sidecar ready first)",

@@ -51,6 +51,7 @@ from armnet_node.plan import HostPaths, LaunchError, plan_launch
 from armnet_node.publish import JobOutput, Link, inputs_bridge, job_output
 from armnet_node.rollout_history import as_status
 from armnet_node.rollout_recorder import RolloutRecorder
+from armnet_node.uploads import TrackedJob, UploadQueue
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +70,8 @@ class RunnerDeps:
     paths: HostPaths
     metrics: AgentMetrics
     link: Link
+    #: Takes each job's output directory to the object store once the job ended (docs/outputs.md).
+    uploads: UploadQueue
 
 
 class JobRunner:
@@ -227,6 +230,8 @@ class JobRunner:
         except (SecretMissing, LaunchError) as exc:
             self._fail_before_start(str(exc))
             return
+        # Tracked before the directory exists: an agent killed from here on still uploads it.
+        self.deps.uploads.track(TrackedJob(job.namespace, job.name, job.uid))
         for directory in (plan.layout.cache_dir, plan.layout.volume_dir, plan.layout.output_dir):
             directory.mkdir(parents=True, exist_ok=True)
         inputs = LocalOperatorInputs()
@@ -302,10 +307,10 @@ class JobRunner:
             self.session = None
             shutil.rmtree(plan.layout.socket_dir.parent, ignore_errors=True)
             if self.reported:
-                # Nothing uploads the output yet (docs/outputs.md): it goes with the job rather
-                # than fill the robot host. An agent stopped before the status keeps it for the
-                # agent that adopts the job.
-                shutil.rmtree(plan.layout.output_dir, ignore_errors=True)
+                # The output is final: to the object store (or removed without one). An agent
+                # stopped before the status keeps it for the agent that adopts the job; the
+                # upload queue's sweep takes it if no runner ever does.
+                self.deps.uploads.ready(job.uid)
 
     def _count_start(self, adopted: bool) -> None:
         if adopted:

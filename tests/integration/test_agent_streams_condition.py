@@ -44,7 +44,7 @@ def heartbeating_cell(k8s: Any, link: Link) -> Iterator[str]:
     cell = parse_cell(apply(k8s, a_cell(name)))
     state_dir = Path(tempfile.mkdtemp(prefix="ant-", dir="/tmp"))
     deps = RunnerDeps(kube=AgentKube(k8s.api_client()), launcher=None,  # type: ignore[arg-type]  # no job here
-                      paths=HostPaths(state_dir), metrics=AgentMetrics(), link=link)
+                      paths=HostPaths(state_dir), metrics=AgentMetrics(), link=link, uploads=None)
     no_telemetry = TelemetrySettings(servo_hz=0, frame_fps=0)
     worker = CellWorker(cell, deps, WorkerSettings(heartbeat_period=1, telemetry=no_telemetry)).start()
     try:

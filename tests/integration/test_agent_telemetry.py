@@ -349,7 +349,7 @@ def test_a_stopped_cell_worker_ends_its_telemetry_thread(k8s: Any, link: NatsLin
     cell = parse_cell(apply(k8s, a_cell(name)))
     state_dir = Path(tempfile.mkdtemp(prefix="ant-", dir="/tmp"))
     deps = RunnerDeps(kube=AgentKube(k8s.api_client()), launcher=None,  # type: ignore[arg-type]  # no job here
-                      paths=HostPaths(state_dir), metrics=AgentMetrics(), link=link)
+                      paths=HostPaths(state_dir), metrics=AgentMetrics(), link=link, uploads=None)
     worker = CellWorker(cell, deps, WorkerSettings(heartbeat_period=5, telemetry=TelemetrySettings(servo_hz=10)))
     try:
         got = heard(nats_server, [f"telemetry.{name}.servos"], worker.start)

@@ -378,6 +378,21 @@ def test_agent_nats_url_comes_from_a_value_or_a_secret() -> None:
     assert from_secret["ARMNET_AGENT_NATS_URL"] == {"secretKeyRef": {"name": "nats-creds", "key": "url"}}
 
 
+def test_agent_stores_job_outputs_in_the_bucket_with_keys_from_a_secret() -> None:
+    values = {"artifacts": {"bucket": "robot-outputs", "endpoint": "http://s3.storage:8333",
+                            "credentialsSecret": "outputs-writer"}}
+    env = env_of(find(render(values=values), "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
+    without = env_of(find(render(), "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
+
+    assert (env["ARMNET_ARTIFACTS_BUCKET"], env["ARMNET_ARTIFACTS_ENDPOINT"]) == ("robot-outputs", "http://s3.storage:8333")
+    assert env["ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"] == {
+        "secretKeyRef": {"name": "outputs-writer", "key": "secretAccessKey"}}
+    assert not [name for name in without if name.startswith("ARMNET_ARTIFACTS_")]
+    result = helm("template", "armnet", str(CHART), "--values", "-",
+                  input=yaml.safe_dump({"artifacts": {"bucket": "robot-outputs"}}), check=False)
+    assert result.returncode != 0 and "artifacts.credentialsSecret" in result.stderr, result.stderr
+
+
 def test_agent_uses_the_bundled_nats_with_its_own_password() -> None:
     objects = render("robots", "ops", values_files=[ALL_OPTIONS])
     env = env_of(find(objects, "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
@@ -452,9 +467,8 @@ def test_job_pod_policy_can_be_turned_off() -> None:
 
 # ---------------------------------------------------------------------------- monitoring
 OPERATOR_METRICS = REPO_ROOT / "operator" / "armnet_operator" / "metrics.py"
-# The agent's metrics (docs/agent.md): the alerts use these names.
-AGENT_METRICS = {"armnet_agent_interlock_trips_total", "armnet_agent_heartbeat_age_seconds",
-                 "armnet_agent_nats_connected"}
+# The agent's metrics are defined in these two modules (docs/agent.md).
+AGENT_METRICS = (REPO_ROOT / "agent" / "armnet_node" / "metrics.py", REPO_ROOT / "agent" / "armnet_node" / "stream_metrics.py")
 
 
 def test_prometheus_rule_has_the_alerts_the_platform_team_watches() -> None:
@@ -463,7 +477,7 @@ def test_prometheus_rule_has_the_alerts_the_platform_team_watches() -> None:
 
     assert set(alerts) >= {"ArmnetCellOffline", "ArmnetInterlockTripped", "ArmnetJobStuckDispatched",
                            "ArmnetQueueWaitHigh", "ArmnetCellHeartbeatStale", "ArmnetAgentNatsDisconnected",
-                           "ArmnetCellQuotaIgnored"}
+                           "ArmnetCellQuotaIgnored", "ArmnetJobOutputsNotUploaded"}
 
 
 def test_prometheus_rule_uses_only_metrics_that_exist() -> None:
@@ -471,7 +485,10 @@ def test_prometheus_rule_uses_only_metrics_that_exist() -> None:
     used = {m for g in rule["spec"]["groups"] for r in g["rules"]
             for m in re.findall(r"armnet_[a-z_]+", r["expr"])}
     operator_metrics = set(re.findall(r'"(armnet_[a-z_]+)"', OPERATOR_METRICS.read_text()))
-    known = operator_metrics | {f"{m}_bucket" for m in operator_metrics} | AGENT_METRICS
+    agent_metrics = {m for path in AGENT_METRICS for m in re.findall(r'"(armnet_[a-z_]+)"', path.read_text())}
+    known = operator_metrics | {f"{m}_bucket" for m in operator_metrics} | agent_metrics
+
+    assert {"armnet_agent_interlock_trips_total", "armnet_agent_job_outputs_pending"} <= agent_metrics
 
     assert used <= known, f"alerts use unknown metrics: {used - known}"
 

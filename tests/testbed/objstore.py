@@ -118,6 +118,16 @@ class SeaweedS3:
                           response_checksum_validation="when_required"),
         )
 
+    def agent_env(self, bucket: str) -> dict[str, str]:
+        """The node agent's env for storing job outputs in ``bucket`` here (docs/outputs.md)."""
+        return {"ARMNET_ARTIFACTS_ENDPOINT": self.endpoint, "ARMNET_ARTIFACTS_BUCKET": bucket,
+                "ARMNET_ARTIFACTS_REGION": self.region, "ARMNET_ARTIFACTS_ACCESS_KEY_ID": self.access_key,
+                "ARMNET_ARTIFACTS_SECRET_ACCESS_KEY": self.secret_key}
+
+    def create_bucket(self, name: str) -> str:
+        self.client().create_bucket(Bucket=name)
+        return name
+
     def _accepts_writes(self) -> bool:
         from botocore.exceptions import BotoCoreError, ClientError
 

@@ -8,11 +8,13 @@
 - ``store``: the object store through boto3 (list, head, put, delete).
 - ``upload``: one job's upload, resumable (a re-run skips what is stored with the same
   checksum; the manifest is written last).
+- ``summary`` (pure): ``status.artifacts``, what the job's user reads about its output.
 
 The package never reads the job's env, the Kubernetes API or the connector: the agent
 hands it a directory, a job's identity and a store.
 """
 
+from armnet_node.artifacts import summary
 from armnet_node.artifacts.model import (
     Artifact,
     ArtifactError,
@@ -37,5 +39,6 @@ __all__ = [
     "StoreMisconfigured",
     "StoreUnavailable",
     "UploadReport",
+    "summary",
     "upload_output",
 ]

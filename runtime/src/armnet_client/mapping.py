@@ -16,7 +16,7 @@ from typing import Any, Optional
 from armnet_core.api import API_VERSION, FOLLOWER_TIMEOUT_ANNOTATION
 from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
 
-from .resources import Cell, RobotJob, RolloutRecord
+from .resources import Cell, JobArtifacts, RobotJob, RolloutRecord
 
 _NAME_CHARS = re.compile(r"[^a-z0-9-]+")
 _GENERATED_PREFIX_MAX = 40
@@ -152,6 +152,8 @@ class JobView:
     image: str
     #: The rollout history the node agent recorded (oldest first, at most 50).
     rollouts: tuple[RolloutRecord, ...] = ()
+    #: Where the job's output went (None until the node agent wrote it, after the job).
+    artifacts: Optional[JobArtifacts] = None
 
 
 def view_of(job: RobotJob) -> JobView:
@@ -175,6 +177,7 @@ def view_of(job: RobotJob) -> JobView:
         finished_at=job.status.finished_at,
         image=job.spec.image,
         rollouts=tuple(job.status.rollouts),
+        artifacts=job.status.artifacts,
     )
 
 

@@ -63,7 +63,7 @@ def _queue_note(job: JobView) -> str:
 def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) -> str:
     headers = ["NAME", "STATUS", "CELL", "EMBODIMENT", "QUEUE", "AGE"]
     if wide:
-        headers += ["TASK", "PRIORITY", "IMAGE", "PROGRESS"]
+        headers += ["TASK", "PRIORITY", "IMAGE", "PROGRESS", "OUTPUT"]
     rows = []
     for job in jobs:
         status = job.status.value + (" (cancelling)" if job.cancel_requested
@@ -73,7 +73,7 @@ def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) ->
         if wide:
             rollout = f" [rollout {job.rollout[0]}/{job.rollout[1]}]" if job.rollout else ""
             row += [job.task or "<any>", str(job.priority), job.image,
-                    ((job.progress or "") + rollout + verdict_counts(job)).strip() or "-"]
+                    ((job.progress or "") + rollout + verdict_counts(job)).strip() or "-", output_note(job)]
         rows.append(row)
     return table(headers, rows)
 
@@ -83,6 +83,29 @@ def verdict_counts(job: JobView) -> str:
     success = sum(1 for r in job.rollouts if r.outcome == "success")
     failure = sum(1 for r in job.rollouts if r.outcome == "failure")
     return f" [marked: {success} success, {failure} failure]" if success or failure else ""
+
+
+def output_note(job: JobView) -> str:
+    """The OUTPUT column: ``12 files, 3.4 MB`` once stored, else the upload's phase (``-`` before one)."""
+    artifacts = job.artifacts
+    if artifacts is None or not artifacts.phase:
+        return "-"
+    if artifacts.phase != "Uploaded":
+        return artifacts.phase
+    note = f"{artifacts.files or 0} files, {_size(artifacts.bytes or 0)}"
+    return note if artifacts.complete is not False else note + " (incomplete)"
+
+
+def _size(count: int) -> str:
+    """Bytes as a person reads them (decimal units, as S3 consoles show them)."""
+    if count < 1000:
+        return f"{count} B"
+    value = count / 1000
+    for unit in ("kB", "MB"):
+        if value < 1000:
+            return f"{value:.1f} {unit}"
+        value /= 1000
+    return f"{value:.1f} GB"
 
 
 def _when(moment: Optional[datetime]) -> Optional[str]:
@@ -120,6 +143,7 @@ def job_document(job: Job, view: JobView) -> dict[str, Any]:
                       "markedAt": _when(r.marked_at), "startedAt": _when(r.started_at), "endedAt": _when(r.ended_at)}
                      for r in view.rollouts],
         "cancelRequested": view.cancel_requested,
+        "artifacts": view.artifacts.model_dump(mode="json", by_alias=True, exclude_none=True) if view.artifacts else None,
     })
     return document
 

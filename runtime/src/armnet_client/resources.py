@@ -74,6 +74,19 @@ class RobotJobResult(_Body):
     stderr_tail: str = Field(default="", alias="stderrTail")
 
 
+class JobArtifacts(_Body):
+    """Where the job's output directory went (``status.artifacts``, written by the node agent after the job)."""
+
+    phase: Optional[str] = None  # Uploading | Uploaded | Retrying | Failed | Discarded
+    location: Optional[str] = None
+    manifest: Optional[str] = None
+    files: Optional[int] = None
+    bytes: Optional[int] = None
+    complete: Optional[bool] = None
+    left_out: Optional[int] = Field(default=None, alias="leftOut")
+    message: Optional[str] = None
+
+
 class RobotJobStatus(_Body):
     phase: Optional[str] = None
     job_id: Optional[str] = Field(default=None, alias="jobId")
@@ -86,6 +99,7 @@ class RobotJobStatus(_Body):
     rollout: Optional[Rollout] = None
     rollouts: list[RolloutRecord] = Field(default_factory=list)
     result: Optional[RobotJobResult] = None
+    artifacts: Optional[JobArtifacts] = None
     conditions: list[Condition] = Field(default_factory=list)
 
 

@@ -63,12 +63,36 @@ def test_a_running_job_shows_its_cell_and_no_queue() -> None:
     assert row.split() == ["pick-1", "running", "cell-a", "lerobot/so-101", "-", "5m"]
 
 
-def test_wide_adds_task_priority_image_and_progress_with_rollout() -> None:
+def test_wide_adds_task_priority_image_progress_with_rollout_and_output() -> None:
     rows = jobs_table([view_of(job(phase="running", progress="grasp", rollout={"index": 3, "total": 10}))],
                       NOW, wide=True).splitlines()
 
-    assert rows[0].split()[-4:] == ["TASK", "PRIORITY", "IMAGE", "PROGRESS"]
-    assert rows[1].endswith("grasp [rollout 3/10]")
+    assert rows[0].split()[-5:] == ["TASK", "PRIORITY", "IMAGE", "PROGRESS", "OUTPUT"]
+    assert rows[1].endswith("grasp [rollout 3/10]   -")
+
+
+@pytest.mark.parametrize(("artifacts", "shown"), [
+    ({"phase": "Uploaded", "files": 12, "bytes": 3_400_000, "complete": True}, "12 files, 3.4 MB"),
+    ({"phase": "Uploaded", "files": 1, "bytes": 999, "complete": False}, "1 files, 999 B (incomplete)"),
+    ({"phase": "Uploaded", "files": 2, "bytes": 5 * 10**12, "complete": True}, "2 files, 5000.0 GB"),
+    ({"phase": "Retrying", "message": "the store did not answer"}, "Retrying"),
+    ({"phase": "Discarded"}, "Discarded"),
+])
+def test_wide_shows_where_the_output_went(artifacts: dict[str, object], shown: str) -> None:
+    rows = jobs_table([view_of(job(phase="succeeded", artifacts=artifacts))], NOW, wide=True).splitlines()
+
+    assert rows[1].endswith(shown)
+
+
+def test_the_job_json_carries_the_output_location_and_manifest() -> None:
+    body = job(phase="succeeded", artifacts={"phase": "Uploaded", "location": "s3://b/team/u/",
+                                             "manifest": "s3://b/team/u/manifest.json", "files": 2, "bytes": 10,
+                                             "complete": True, "leftOut": 1, "message": "1 entries were not stored"})
+
+    document = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))
+
+    assert document["artifacts"]["manifest"] == "s3://b/team/u/manifest.json"
+    assert document["artifacts"]["leftOut"] == 1
 
 
 def test_wide_counts_the_rollouts_the_cell_operator_marked() -> None:
@@ -77,7 +101,7 @@ def test_wide_counts_the_rollouts_the_cell_operator_marked() -> None:
     rows = jobs_table([view_of(job(phase="running", progress="grasp", rollout={"index": 3, "total": 3},
                                    rollouts=marked))], NOW, wide=True).splitlines()
 
-    assert rows[1].endswith("grasp [rollout 3/3] [marked: 1 success, 1 failure]")
+    assert rows[1].endswith("grasp [rollout 3/3] [marked: 1 success, 1 failure]   -")
 
 
 def test_the_job_json_lists_the_rollout_history_with_who_marked_each() -> None:
@@ -104,7 +128,7 @@ def test_the_job_json_shape_is_the_sdk_job_plus_queue_and_progress() -> None:
     document = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))
 
     assert set(document) == {"id", "spec", "status", "created_at", "updated_at", "cell_id", "result",
-                             "namespace", "jobId", "queue", "progress", "rollout", "rollouts", "cancelRequested"}
+                             "namespace", "jobId", "queue", "progress", "rollout", "rollouts", "cancelRequested", "artifacts"}
     assert document["status"] == "queued"
     assert document["queue"] == {"reason": "AllCellsBusy", "position": 1}
     assert document["spec"]["embodiment"] == "lerobot/so-101"

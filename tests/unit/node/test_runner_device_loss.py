@@ -26,7 +26,7 @@ def runner(tmp_path: Path) -> JobRunner:
                            "spec": {"image": "localhost/pick:1", "embodiment": "lerobot/so-101", "timeoutSeconds": 60},
                            "status": {"phase": "running", "cellName": "cell-1"}}
     deps = RunnerDeps(kube=None, launcher=None, paths=HostPaths(tmp_path), metrics=AgentMetrics(),
-                      link=None)
+                      link=None, uploads=None)
     return JobRunner(parse_job(job), parse_cell(cell), None, deps)
 
 

@@ -27,7 +27,7 @@ def worker(state_dir: Path) -> CellWorker:
                                      "task": "pick", "robot": {"robotId": "follower-1", "safetyLimit": 7.5}},
                             "status": {}}
     deps = RunnerDeps(kube=None, launcher=None, paths=HostPaths(state_dir), metrics=AgentMetrics(),
-                      link=None)
+                      link=None, uploads=None)
     return CellWorker(parse_cell(cell), deps, WorkerSettings())
 
 

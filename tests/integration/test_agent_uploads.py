@@ -1,0 +1,210 @@
+"""The node agent's upload queue: a real API server, a real S3 store (SeaweedFS), no runner.
+
+What must hold whatever happens to the agent: an ended job's output reaches the store
+once, the job's ``status.artifacts`` says where, and the directory leaves the robot host
+only after that. The queue is driven the way the agent drives it (``track`` at launch,
+``ready`` after the terminal status, ``run`` in a thread) or, for a crash, by a second
+queue on the same state directory that never heard of the job.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from armnet_node.artifacts import ObjectStore, OutputLimits, StoreConfig
+from armnet_node.kube import AgentKube
+from armnet_node.metrics import AgentMetrics
+from armnet_node.plan import HostPaths
+from armnet_node.uploads import TrackedJob, UploadQueue
+
+from tests.support.fms_objects import a_job, apply, get, patch_status
+from tests.testbed.objstore import SeaweedS3
+from tests.testbed.procs import free_port, wait_until
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture
+def bucket_store(object_store: SeaweedS3) -> ObjectStore:
+    store = ObjectStore(StoreConfig(bucket=f"up-{uuid.uuid4().hex[:12]}", access_key_id=object_store.access_key,
+                                    secret_access_key=object_store.secret_key, endpoint_url=object_store.endpoint))
+    store.ensure_bucket()
+    return store
+
+
+@pytest.fixture
+def kube(k8s: Any) -> AgentKube:
+    return AgentKube(k8s.api_client())
+
+
+def a_tracked_job(k8s: Any, namespace: str, phase: str | None = None) -> TrackedJob:
+    created = apply(k8s, a_job(f"out-{uuid.uuid4().hex[:6]}", namespace))
+    meta = created["metadata"]
+    if phase is not None:
+        patch_status(k8s, "job", meta["name"], {"phase": phase}, namespace)
+    return TrackedJob(namespace, meta["name"], meta["uid"])
+
+
+def write_output(paths: HostPaths, job: TrackedJob, files: dict[str, bytes]) -> Path:
+    out = paths.output_dir(job.uid)
+    for name, data in files.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_bytes(data)
+    return out
+
+
+def stored(object_store: SeaweedS3, bucket: str, prefix: str) -> dict[str, bytes]:
+    s3 = object_store.client()
+    keys = [item["Key"] for page in s3.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=prefix)
+            for item in page.get("Contents", ())]
+    return {key: s3.get_object(Bucket=bucket, Key=key)["Body"].read() for key in keys}
+
+
+def artifacts_of(k8s: Any, job: TrackedJob) -> dict[str, Any]:
+    return dict((get(k8s, "job", job.name, job.namespace).get("status") or {}).get("artifacts") or {})
+
+
+@pytest.fixture
+def running_queue() -> Iterator[list[threading.Event]]:
+    """Stop events of the queues a test started; each is stopped after it."""
+    stops: list[threading.Event] = []
+    yield stops
+    for stop in stops:
+        stop.set()
+
+
+def start(queue: UploadQueue, stops: list[threading.Event]) -> None:
+    stop = threading.Event()
+    stops.append(stop)
+    threading.Thread(target=queue.run, args=(stop,), daemon=True).start()
+
+
+def test_an_ended_job_s_output_is_stored_and_its_status_says_where(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3,
+    tmp_path: Path, running_queue: list[threading.Event],
+) -> None:
+    paths = HostPaths(tmp_path)
+    metrics = AgentMetrics()
+    queue = UploadQueue(bucket_store, paths, kube, metrics)
+    job = a_tracked_job(k8s, namespace)
+    queue.track(job)
+    out = write_output(paths, job, {"data/episode_000.parquet": b"p" * 5000, "meta/info.json": b'{"fps": 30}'})
+    (out / "escape").symlink_to("/etc/hostname")
+    start(queue, running_queue)
+    patch_status(k8s, "job", job.name, {"phase": "succeeded"}, namespace)
+    queue.ready(job.uid)
+
+    wait_until(lambda: not out.exists(), timeout=60, what="the output directory removed after its upload")
+    artifacts = artifacts_of(k8s, job)
+    prefix = f"{namespace}/{job.uid}/"
+    assert artifacts["phase"] == "Uploaded", artifacts
+    assert artifacts["location"] == f"s3://{bucket_store.bucket}/{prefix}"
+    assert (artifacts["files"], artifacts["bytes"], artifacts["complete"], artifacts["leftOut"]) == (2, 5011, True, 1)
+    assert "escape: a symbolic link that leads out of the output directory" in artifacts["message"]
+    objects = stored(object_store, bucket_store.bucket, prefix)
+    assert objects[prefix + "files/data/episode_000.parquet"] == b"p" * 5000
+    assert json.loads(objects[prefix + "manifest.json"])["complete"] is True
+    assert not (paths.state_dir / "uploads" / f"{job.uid}.json").exists()
+    assert metrics.outputs.labels(outcome="uploaded")._value.get() == 1
+    assert metrics.output_bytes._value.get() == 5011
+
+
+def test_an_agent_killed_before_the_upload_leaves_it_to_the_next_agent(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3,
+    tmp_path: Path, running_queue: list[threading.Event],
+) -> None:
+    paths = HostPaths(tmp_path)
+    first = UploadQueue(bucket_store, paths, kube, AgentMetrics())
+    ended, deleted, running = (a_tracked_job(k8s, namespace, phase) for phase in ("failed", "succeeded", "running"))
+    for job in (ended, deleted, running):
+        first.track(job)
+        write_output(paths, job, {"result.txt": job.name.encode()})
+    k8s.kubectl("delete", "robotjob", deleted.name, "-n", namespace)
+    # The first agent dies here: nobody called ready(). The next one only has the state directory.
+    start(UploadQueue(bucket_store, paths, kube, AgentMetrics()), running_queue)
+
+    for job in (ended, deleted):
+        wait_until(lambda job=job: not paths.output_dir(job.uid).exists(), timeout=60,  # type: ignore[misc]
+                   what=f"{job.name}'s output uploaded by the next agent")
+        key = f"{namespace}/{job.uid}/files/result.txt"
+        assert stored(object_store, bucket_store.bucket, key) == {key: job.name.encode()}
+    assert artifacts_of(k8s, ended)["phase"] == "Uploaded"
+    # A job still running keeps its directory: its output is not final.
+    assert paths.output_dir(running.uid).exists()
+    assert (paths.state_dir / "uploads" / f"{running.uid}.json").exists()
+
+
+def test_a_store_that_does_not_answer_keeps_the_output_and_the_next_agent_stores_it(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3,
+    tmp_path: Path, running_queue: list[threading.Event],
+) -> None:
+    paths = HostPaths(tmp_path)
+    metrics = AgentMetrics()
+    nothing_there = ObjectStore(StoreConfig(
+        bucket=bucket_store.bucket, access_key_id=object_store.access_key, secret_access_key=object_store.secret_key,
+        endpoint_url=f"http://127.0.0.1:{free_port()}"), max_attempts=1)
+    queue = UploadQueue(nothing_there, paths, kube, metrics)
+    job = a_tracked_job(k8s, namespace, "succeeded")
+    queue.track(job)
+    out = write_output(paths, job, {"a.bin": b"kept"})
+    queue.ready(job.uid)
+    queue.process_ready()
+
+    artifacts = artifacts_of(k8s, job)
+    assert artifacts["phase"] == "Retrying", artifacts
+    assert "the output is kept on the robot host and the upload is retried" in artifacts["message"]
+    assert out.exists()
+    assert metrics.output_upload_failures.labels(reason="unavailable")._value.get() == 1
+    assert metrics.outputs_pending._value.get() == 1
+
+    start(UploadQueue(bucket_store, paths, kube, AgentMetrics()), running_queue)  # restarted with the store back
+    wait_until(lambda: not out.exists(), timeout=60, what="the kept output uploaded")
+    assert artifacts_of(k8s, job)["phase"] == "Uploaded"
+
+
+def test_an_output_over_the_cap_is_not_stored_and_the_job_is_told_why(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3,
+    tmp_path: Path,
+) -> None:
+    paths = HostPaths(tmp_path)
+    metrics = AgentMetrics()
+    queue = UploadQueue(bucket_store, paths, kube, metrics, OutputLimits(max_files=10))
+    job = a_tracked_job(k8s, namespace, "succeeded")
+    queue.track(job)
+    write_output(paths, job, {f"f{i}": b"x" for i in range(50)})
+    queue.ready(job.uid)
+    queue.process_ready()
+
+    artifacts = artifacts_of(k8s, job)
+    assert artifacts["phase"] == "Failed"
+    assert "more than 10 entries" in artifacts["message"] and "nothing was stored" in artifacts["message"]
+    assert not paths.output_dir(job.uid).exists()
+    assert stored(object_store, bucket_store.bucket, f"{namespace}/{job.uid}/") == {}
+    assert metrics.outputs.labels(outcome="too_large")._value.get() == 1
+
+
+def test_without_a_store_the_output_is_removed_and_a_job_that_wrote_something_is_told(
+    k8s: Any, namespace: str, kube: AgentKube, tmp_path: Path,
+) -> None:
+    paths = HostPaths(tmp_path)
+    queue = UploadQueue(None, paths, kube, AgentMetrics())
+    wrote, silent = a_tracked_job(k8s, namespace, "succeeded"), a_tracked_job(k8s, namespace, "succeeded")
+    for job in (wrote, silent):
+        queue.track(job)
+        paths.output_dir(job.uid).mkdir(parents=True)
+        queue.ready(job.uid)
+    write_output(paths, wrote, {"episode.parquet": b"lost"})
+    queue.process_ready()
+
+    assert not paths.output_dir(wrote.uid).exists() and not paths.output_dir(silent.uid).exists()
+    artifacts = artifacts_of(k8s, wrote)
+    assert artifacts["phase"] == "Discarded"
+    assert "artifacts.bucket" in artifacts["message"]
+    assert artifacts_of(k8s, silent) == {}
+    assert queue.tracked() == []
