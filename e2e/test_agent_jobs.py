@@ -62,6 +62,19 @@ RESETS = """
 """
 
 
+def target_completion() -> dict[str, Any]:
+    """The cell's monitor looks for the simulator's end-effector disc on its target pad."""
+    from armnet_sim.render import target_region
+
+    left, top, width, height = target_region(640, 480)
+    return {"camera": "front", "region": {"left": left, "top": top, "width": width, "height": height},
+            "colour": {"hueMin": 170, "hueMax": 8, "saturationMin": 120, "valueMin": 80},
+            "consecutiveFrames": 3, "rateHz": 15}
+
+
+TARGET_COMPLETION = target_completion()
+
+
 @pytest.fixture(scope="module")
 def outputs_bucket(object_store: Any) -> str:
     return str(object_store.create_bucket("agent-e2e-outputs"))
@@ -75,10 +88,14 @@ def bed(k8s: Any, podman: Any, base_image: str, nats_server: str, object_store: 
     bed.agent_env = object_store.agent_env(outputs_bucket)
     bed.cells = [bed.add_cell("so101-a"), bed.add_cell("so101-b")]  # type: ignore[attr-defined]
     bed.bimanual = bed.add_cell("bimanual", bimanual=True)  # type: ignore[attr-defined]
+    # Its own task, so only the evaluation lands on it (its monitor scores frames all along).
+    bed.monitored = bed.add_cell(  # type: ignore[attr-defined]
+        "monitored", task="evaluation", completion=TARGET_COMPLETION,
+        cameras={"front": {"indexOrPath": 0, "width": 640, "height": 480, "fps": 30}})
     bed.start_operator()
     bed.start_agent()
     try:
-        for cell in [*bed.cells, bed.bimanual]:  # type: ignore[attr-defined]
+        for cell in [*bed.cells, bed.bimanual, bed.monitored]:  # type: ignore[attr-defined]
             bed.wait_ready(cell, timeout=90)
         yield bed
     finally:
@@ -116,6 +133,8 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "success": bed.submit("bus-loop", bus_loop, timeout=240, args={"degrees": 4}),
         "failure": bed.submit("raises", bed.image("raises", JOBS / "raises.py"), timeout=120),
         "missing-secret": bed.submit("no-secret", bed.image("echo", JOBS / "echo.py"), secrets={"API_TOKEN": "absent"}),
+        "evaluation": bed.submit("evaluates", bed.image("evaluates", JOBS / "evaluates.py", (EXAMPLES / "_so101_moves.py",)),
+                                 task="evaluation", timeout=300),
         "output": bed.submit("writes-output", bed.image("writes-output", JOBS / "writes_output.py"), timeout=120),
         "secret": bed.submit("with-secret", bed.image("echo", JOBS / "echo.py"), args={"size": "x" * 60_000},
                              secrets={"API_TOKEN": "api-token"}),
@@ -181,6 +200,20 @@ def test_what_a_job_writes_to_its_output_directory_is_stored_with_its_checksums(
     [entry] = [f for f in manifest["files"] if f["path"] == "data/chunk-000/episode_000000.parquet"]
     assert entry["sha256"] == hashlib.sha256(data).hexdigest() == episode["Metadata"]["sha256"]
     assert not (bed.state_dir / "outputs" / uid).exists()
+
+
+def test_an_evaluation_nobody_watches_is_judged_by_the_cells_monitor_in_its_status(
+    bed: AgentBed, batch: dict[str, str],
+) -> None:
+    st = status(bed.wait_phase(batch["evaluation"], timeout=420))
+    assert st["phase"] == "succeeded", json.dumps(st, indent=1)
+    assert st["result"]["returnValue"] == {"complete": [True, False]}
+    rollouts = st["rollouts"]
+    assert [(r["index"], r["outcome"], r.get("markedBy")) for r in rollouts] == [
+        (1, "success", "monitor"), (2, "failure", "monitor")], rollouts
+    reached, short = (r["monitor"] for r in rollouts)
+    assert (reached["outcome"], short["outcome"]) == ("success", "failure")
+    assert reached["score"] > 0 and reached["frameAt"] <= reached["at"] <= rollouts[0]["endedAt"]
 
 
 def test_a_job_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:

@@ -79,11 +79,15 @@ class Counters:
 
 @dataclass(frozen=True)
 class RolloutEvent:
-    kind: str  # "begin" | "end"
+    kind: str  # "begin" | "end" | "verdict" (the completion monitor's, on the open rollout)
     at: float
     index: int | None = None
     total: int | None = None
     outcome_controls: bool | None = None
+    #: A verdict's outcome, score and the wall-clock time its newest frame was scored.
+    success: bool | None = None
+    score: float | None = None
+    frame_at: float | None = None
 
 
 MAX_ROLLOUT_EVENTS = 1024
@@ -127,6 +131,8 @@ class CellState:
         self.ledgers: dict[str, RegisterLedger] = {name: RegisterLedger() for name in self.config.arms}
         self._live_lock = threading.Lock()
         self._reset_lock = threading.Lock()
+        #: One verdict per rollout: the check and the append happen together.
+        self._rollout_lock = threading.Lock()
 
     # -- the live objects of every connection ---------------------------------------
 
@@ -383,6 +389,32 @@ class CellState:
     def record_rollout(self, event: RolloutEvent) -> None:
         self.rollouts.append(event)
         log.info("rollout %s index=%s total=%s", event.kind, event.index, event.total)
+
+    def record_monitor_verdict(self, *, at_end: bool) -> None:
+        """Record the completion monitor's verdict on the open rollout, once per rollout.
+
+        Called when the monitor told the job "complete" (the answer the job acts on), and
+        at the rollout's end (the monitor's last word: complete is a success, anything
+        else a failure). Nothing on a cell without a monitor, outside a rollout, or when
+        this rollout already has its verdict: the first one the job could act on stands.
+        """
+        audit = self.completion.audit()
+        if audit is None or not (audit.complete or at_end):
+            return
+        with self._rollout_lock:
+            index = None
+            for event in reversed(self.rollouts):
+                if event.kind in ("end", "verdict"):
+                    return
+                if event.kind == "begin":
+                    index = event.index
+                    break
+            if index is None:
+                return
+            self.rollouts.append(RolloutEvent("verdict", self.now(), index=index, success=audit.complete,
+                                              score=audit.score, frame_at=audit.frame_at))
+        log.info("rollout %s: the completion monitor's verdict is %s (score %.3f)", index,
+                 "success" if audit.complete else "failure", audit.score)
 
     @staticmethod
     def now() -> float:

@@ -25,6 +25,7 @@ from typing import Any, Protocol
 from armnet_core.cell_completion import CompletionConfig
 
 from .config import CameraConfig
+from .inputs import MonitorVerdict
 from .ratelog import RateLimitedLog
 from .scoring import (
     ArucoRegionScorer,
@@ -165,6 +166,8 @@ class CameraCompletionMonitor:
         self._cond = threading.Condition()
         self._streak = Streak(config.consecutive_frames)
         self._scored_stamp = float("-inf")
+        #: Wall-clock time of the latest score (the record's ``frameAt``; the source's clock may be another).
+        self._scored_at: float | None = None
         self._scoring_since: float | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -216,6 +219,12 @@ class CameraCompletionMonitor:
         self._counters.completion_block_timeouts += 1
         self._warn_block.warning("completion: no frame newer than the call was scored in time; answering not complete")
         return False, False
+
+    def audit(self) -> MonitorVerdict:
+        """The verdict now with its score and when its newest frame was scored, for the rollout's record."""
+        with self._cond:
+            verdict = self._verdict_locked()
+            return MonitorVerdict(verdict.complete, verdict.score, self._scored_at)
 
     def _verdict_locked(self) -> Verdict:
         since = self._scoring_since
@@ -292,5 +301,6 @@ class CameraCompletionMonitor:
             self._streak = self._streak.advance(result) if failure is None and result is not None \
                 else self._streak.miss(failure or "")
             self._scored_stamp = frame.stamp
+            self._scored_at = time.time()
             self._counters.completion_frames_scored += 1
             self._cond.notify_all()

@@ -40,10 +40,25 @@ class OperatorInputs(Protocol):
     def wait_reset_pending(self, timeout_s: float | None) -> bool: ...
 
 
+@dataclass(frozen=True)
+class MonitorVerdict:
+    """What an automated monitor says now, for the record (``status.rollouts``): auditable later."""
+
+    complete: bool
+    #: The scorer's score of the frames the verdict rests on (the lowest of the streak).
+    score: float
+    #: Wall-clock time the newest of those frames was scored (None before any frame was).
+    frame_at: float | None
+
+
 class CompletionMonitor(Protocol):
     """The cell's automated episode scoring (``is_complete`` on robot.sock)."""
 
     def is_complete(self, *, block: bool) -> tuple[bool, bool]: ...
+
+    def audit(self) -> MonitorVerdict | None:
+        """The verdict to record on the rollout; None for a cell that scores nothing."""
+        ...
 
 
 class NeverComplete:
@@ -55,6 +70,9 @@ class NeverComplete:
 
     def is_complete(self, *, block: bool) -> tuple[bool, bool]:
         return False, False
+
+    def audit(self) -> MonitorVerdict | None:
+        return None
 
 
 class LocalOperatorInputs:

@@ -10,7 +10,7 @@ connector in its own process. ``observer.sock`` carries that knowledge out:
 - ``frames``: the latest frame of each camera the job opened
   (``telemetry.latest_frames``), subsampled to at most ``MAX_SENT_WIDTH`` pixels
   wide (the agent scales and encodes them as for an in-process connector);
-- ``rollouts``: the rollout begins and ends recorded after a given time.
+- ``rollouts``: the rollout begins, ends and monitor verdicts recorded after a given time.
 
 Why a socket of its own, in a directory of its own: the customer container
 shares the pod's network namespace and the sockets volume, so anything served
@@ -106,6 +106,7 @@ class ObserverSession(Session):
         events = [e for e in list(self.cell.rollouts) if after is None or e.at > after]
         more = len(events) > MAX_EVENTS_PER_REPLY
         return {"ok": True, "more": more, "events": [
-            {"kind": e.kind, "at": e.at, "index": e.index, "total": e.total, "outcome_controls": e.outcome_controls}
+            {"kind": e.kind, "at": e.at, "index": e.index, "total": e.total, "outcome_controls": e.outcome_controls,
+             "success": e.success, "score": e.score, "frame_at": e.frame_at}
             for e in events[:MAX_EVENTS_PER_REPLY]
         ]}

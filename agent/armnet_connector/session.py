@@ -409,6 +409,8 @@ class RobotSession(Session):
     def op_is_complete(self, request: dict[str, Any]) -> Reply:
         block = _field(request, "block", bool, default=False)
         complete, success = self.cell.completion.is_complete(block=bool(block))
+        if complete:
+            self.cell.record_monitor_verdict(at_end=False)
         return {"ok": True, "complete": bool(complete), "success": bool(success)}
 
     def close(self) -> None:
@@ -484,6 +486,7 @@ class OperatorSession(Session):
         return {"ok": True}
 
     def op_rollout_end(self, request: dict[str, Any]) -> Reply:
+        self.cell.record_monitor_verdict(at_end=True)
         self.cell.record_rollout(RolloutEvent("end", self.cell.now()))
         return {"ok": True}
 

@@ -49,6 +49,11 @@ class AgentMetrics:
             "cell operators' rollout verdicts passed to jobs and recorded in status.rollouts", ["outcome"],
             registry=r,
         )
+        self.completion_overrules = Counter(
+            "armnet_completion_overrules_total",
+            "rollouts whose cell operator's outcome differs from the completion monitor's verdict (status.rollouts: "
+            "markedBy an operator, monitor.outcome the other): the monitor's misses, kept for retraining", registry=r,
+        )
         self.lines_dropped = Counter(
             "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
         )

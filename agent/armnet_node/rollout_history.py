@@ -1,9 +1,9 @@
 """A job's rollout history (``status.rollouts``): what it becomes given one event. Pure.
 
-The agent sees three kinds of event about a running job's rollouts: the
+The agent sees four kinds of event about a running job's rollouts: the
 connector recorded a begin or an end (``ctx.cell.rollout_begin`` /
-``rollout_end``), and a cell operator's verdict arrived from the FMS
-(``fms.<cell>.outcome``, naming the operator). :func:`apply` folds one event
+``rollout_end``) or its completion monitor's verdict, and a cell operator's
+verdict arrived from the FMS (``fms.<cell>.outcome``, naming the operator). :func:`apply` folds one event
 into the history; the agent writes :func:`as_status` of the result as
 ``status.rollouts`` (the whole list: a JSON merge patch replaces lists, so
 writing the same history twice changes nothing).
@@ -20,6 +20,12 @@ The rules, each so that a replayed or late event cannot rewrite the record:
   rollout marks the open one; with no such entry it changes nothing (a job
   without ``rollout_begin`` has no rollout to record it in). A second verdict
   on one rollout replaces the first: the job reads the latest too.
+- the cell's completion monitor's verdict (``Judged``: the connector records
+  one per rollout, when it told the job "complete" or at the rollout's end) is
+  kept in the entry's ``monitor`` whatever else happens, and becomes the
+  entry's outcome (``markedBy: monitor``) unless a cell operator marked it:
+  a person's mark always stands. An entry whose operator's outcome differs
+  from its monitor's is an overrule (:func:`overruled`).
 
 At most :data:`MAX_ENTRIES` entries are kept, the newest (a job may run
 thousands of rollouts; the CRD's ``maxItems`` says the same number).
@@ -49,6 +55,21 @@ class Outcome(StrEnum):
     UNMARKED = "unmarked"
 
 
+#: ``markedBy`` of an outcome the cell's completion monitor decided.
+MONITOR = "monitor"
+
+
+@dataclass(frozen=True)
+class MonitorMark:
+    """The completion monitor's verdict on one rollout, kept for audit even when an operator overrules it."""
+
+    success: bool
+    score: float
+    at: datetime
+    #: When the newest frame the verdict rests on was scored.
+    frame_at: datetime | None = None
+
+
 @dataclass(frozen=True)
 class RolloutEntry:
     index: int
@@ -60,10 +81,15 @@ class RolloutEntry:
     ended_at: datetime | None = None
     #: The job asked for the cell operator's Success/Fail buttons (``rollout_begin(outcome_controls=...)``).
     outcome_controls: bool = True
+    monitor: MonitorMark | None = None
 
     @property
     def open(self) -> bool:
         return self.ended_at is None
+
+    @property
+    def marked_by_operator(self) -> bool:
+        return self.marked_by is not None and self.marked_by != MONITOR
 
 
 @dataclass(frozen=True)
@@ -88,14 +114,22 @@ class Marked:
     rollout: int | None = None
 
 
-RolloutChange = Begun | Ended | Marked
+@dataclass(frozen=True)
+class Judged:
+    """The cell's completion monitor judged ``rollout`` (the connector's ``verdict`` event)."""
+
+    rollout: int
+    mark: MonitorMark
+
+
+RolloutChange = Begun | Ended | Marked | Judged
 History = tuple[RolloutEntry, ...]
 
 
 def operator_name(name: str) -> str:
     """``name`` as it may be recorded: control and format characters removed, at most 128 characters."""
-    cleaned = "".join(c for c in name if unicodedata.category(c)[0] != "C")
-    return cleaned[:OPERATOR_MAX]
+    cleaned = "".join(c for c in name if unicodedata.category(c)[0] != "C")[:OPERATOR_MAX]
+    return cleaned if cleaned != MONITOR else f"{MONITOR} (operator)"  # a person is never taken for the monitor
 
 
 def apply(history: History, change: RolloutChange, limit: int = MAX_ENTRIES) -> History:
@@ -106,6 +140,8 @@ def apply(history: History, change: RolloutChange, limit: int = MAX_ENTRIES) -> 
         if history and history[-1].open:
             return (*history[:-1], replace(history[-1], ended_at=change.at))
         return history
+    if isinstance(change, Judged):
+        return _judged(history, change)
     return _marked(history, change)
 
 
@@ -140,6 +176,24 @@ def _marked(history: History, change: Marked) -> History:
     return (*history[:position], marked, *history[position + 1:])
 
 
+def _judged(history: History, change: Judged) -> History:
+    position = _target(history, change.rollout)
+    if position is None:
+        return history
+    entry = replace(history[position], monitor=change.mark)
+    if not entry.marked_by_operator:
+        entry = replace(entry, outcome=Outcome.SUCCESS if change.mark.success else Outcome.FAILURE,
+                        marked_by=MONITOR, marked_at=change.mark.at)
+    return (*history[:position], entry, *history[position + 1:])
+
+
+def overruled(entry: RolloutEntry) -> bool:
+    """A cell operator's outcome that differs from the monitor's verdict on the same rollout."""
+    if entry.monitor is None or not entry.marked_by_operator:
+        return False
+    return (entry.outcome is Outcome.SUCCESS) != entry.monitor.success
+
+
 def accepts_verdict(history: History, rollout: int | None) -> bool:
     """Whether a cell operator's verdict for ``rollout`` may reach the job.
 
@@ -171,8 +225,29 @@ def as_status(history: History) -> list[dict[str, Any]]:
             row["markedAt"] = status_time(entry.marked_at)
         if entry.ended_at is not None:
             row["endedAt"] = status_time(entry.ended_at)
+        if entry.monitor is not None:
+            row["monitor"] = _monitor_status(entry.monitor)
         rows.append(row)
     return rows
+
+
+def _monitor_status(mark: MonitorMark) -> dict[str, Any]:
+    row: dict[str, Any] = {"outcome": (Outcome.SUCCESS if mark.success else Outcome.FAILURE).value,
+                           "score": round(mark.score, 4), "at": status_time(mark.at)}
+    if mark.frame_at is not None:
+        row["frameAt"] = status_time(mark.frame_at)
+    return row
+
+
+def _monitor_mark(value: Any) -> MonitorMark | None:
+    if not isinstance(value, Mapping):
+        return None
+    outcome, score, at = value.get("outcome"), value.get("score"), _time(value.get("at"))
+    if outcome not in (Outcome.SUCCESS.value, Outcome.FAILURE.value) or at is None:
+        return None
+    if isinstance(score, bool) or not isinstance(score, int | float):
+        return None
+    return MonitorMark(outcome == Outcome.SUCCESS.value, float(score), at, _time(value.get("frameAt")))
 
 
 def from_status(value: Any, limit: int = MAX_ENTRIES) -> History:
@@ -197,6 +272,7 @@ def _entry(row: Any) -> RolloutEntry | None:
         marked_by=operator_name(by) if isinstance(by, str) else None,
         marked_at=_time(row.get("markedAt")), ended_at=_time(row.get("endedAt")),
         outcome_controls=row.get("outcomeControls") is not False,
+        monitor=_monitor_mark(row.get("monitor")),
     )
 
 

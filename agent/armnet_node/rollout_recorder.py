@@ -1,7 +1,7 @@
 """One running job's rollout history, fed from two threads and written with its progress.
 
-The connector records rollout begins and ends (polled here from the job's
-session); the FMS's verdicts arrive on the NATS bridge's thread. Both go
+The connector records rollout begins and ends and its completion monitor's
+verdicts (polled here from the job's session); the FMS's verdicts arrive on the NATS bridge's thread. Both go
 through :meth:`RolloutRecorder.verdict` / :meth:`sync` under one lock, and the
 history itself is decided by the pure ``rollout_history.apply``. A verdict
 first catches up with the connector's events, so it lands on the rollout the
@@ -14,6 +14,7 @@ begin or end: a pod's sidecar gives all its events again.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
@@ -40,6 +41,15 @@ class ConnectorRolloutEvent(Protocol):
     @property
     def outcome_controls(self) -> bool | None: ...
 
+    @property
+    def success(self) -> bool | None: ...
+
+    @property
+    def score(self) -> float | None: ...
+
+    @property
+    def frame_at(self) -> float | None: ...
+
 
 def change_of(event: ConnectorRolloutEvent) -> rh.RolloutChange | None:
     """The history change a connector event means (None for one the history does not record)."""
@@ -49,6 +59,10 @@ def change_of(event: ConnectorRolloutEvent) -> rh.RolloutChange | None:
                         outcome_controls=event.outcome_controls is not False)
     if event.kind == "end":
         return rh.Ended(at=at)
+    if event.kind == "verdict" and event.index is not None and event.success is not None:
+        score = event.score if event.score is not None and math.isfinite(event.score) else 0.0
+        frame_at = datetime.fromtimestamp(event.frame_at, UTC) if event.frame_at is not None else None
+        return rh.Judged(event.index, rh.MonitorMark(event.success, score, at, frame_at))
     return None
 
 
@@ -56,11 +70,16 @@ class RolloutRecorder:
     """``source`` returns the connector's latest rollout events, oldest first (empty once it stopped)."""
 
     def __init__(self, source: Callable[[], Sequence[ConnectorRolloutEvent]], history: rh.History = (),
-                 clock: Callable[[], datetime] = lambda: datetime.now(UTC)) -> None:
+                 clock: Callable[[], datetime] = lambda: datetime.now(UTC),
+                 on_overrule: Callable[[], None] | None = None) -> None:
+        """``on_overrule`` is called once for each rollout whose operator's outcome came to differ from its monitor's."""
         self._source = source
         self._clock = clock
+        self._on_overrule = on_overrule
         self._lock = threading.Lock()
         self._history = history
+        #: The rollouts already counted as overruled (a history read back after a restart is not counted again).
+        self._overruled = _overruled(history)
         self._written = history
         self._last_seen: Any = None
         #: The latest begin or end the history already holds (read back after an agent restart): a pod's
@@ -81,13 +100,26 @@ class RolloutRecorder:
                 change = change_of(event)
                 if change is not None:
                     self._history = rh.apply(self._history, change)
-            return self._history is not before
+            changed = self._history is not before
+        if changed:
+            self._count_overrules()
+        return changed
 
     def verdict(self, success: bool, by: str, rollout: int | None) -> None:
         """A cell operator's verdict the bridge passed to the job, recorded on its rollout."""
         self.sync()
         with self._lock:
             self._history = rh.apply(self._history, rh.Marked(success, by, self._clock(), rollout))
+        self._count_overrules()
+
+    def _count_overrules(self) -> None:
+        with self._lock:
+            now = _overruled(self._history)
+            new = now - self._overruled
+            self._overruled |= now
+        if self._on_overrule is not None:
+            for _ in new:
+                self._on_overrule()
 
     def accepts_verdict(self, rollout: int | None) -> bool:
         """``rollout_history.accepts_verdict`` on the history caught up with the connector."""
@@ -117,6 +149,10 @@ class RolloutRecorder:
             if events[position] is last:
                 return events[position + 1:]
         return [event for event in events if event.at > last.at]
+
+
+def _overruled(history: rh.History) -> set[tuple[int, datetime]]:
+    return {(entry.index, entry.started_at) for entry in history if rh.overruled(entry)}
 
 
 def _millis(at: float) -> datetime:

@@ -101,7 +101,8 @@ class JobRunner:
         self._progress: str | None = None
         self._rollout: dict[str, int] | None = None
         #: The job's rollout history (``status.rollouts``), kept across an agent restart.
-        self.rollouts = RolloutRecorder(self._rollout_events, history=job.rollouts)
+        self.rollouts = RolloutRecorder(self._rollout_events, history=job.rollouts,
+                                        on_overrule=deps.metrics.completion_overrules.inc)
         self._progress_dirty = threading.Event()
         self._finished = threading.Event()
         self._flush_stop = threading.Event()

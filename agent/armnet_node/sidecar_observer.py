@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import base64
 import logging
+import math
 import re
 import socket
 import threading
@@ -110,8 +111,8 @@ def parse_frame(data: Any) -> CameraFrame:
 
 def parse_event(data: Any) -> RolloutEvent:
     """One rollout event of the observer's ``rollouts`` reply; ValueError when it is not one."""
-    if not isinstance(data, dict) or data.get("kind") not in ("begin", "end"):
-        raise ValueError("a rollout event is an object of kind begin or end")
+    if not isinstance(data, dict) or data.get("kind") not in ("begin", "end", "verdict"):
+        raise ValueError("a rollout event is an object of kind begin, end or verdict")
     at = data.get("at")
     if isinstance(at, bool) or not isinstance(at, int | float):
         raise ValueError("a rollout event's time is a number")
@@ -121,7 +122,15 @@ def parse_event(data: Any) -> RolloutEvent:
             raise ValueError(f"a rollout event's {name} is an integer")
     if controls is not None and not isinstance(controls, bool):
         raise ValueError("a rollout event's outcome_controls is a boolean")
-    return RolloutEvent(data["kind"], float(at), index, total, controls)
+    success, score, frame_at = data.get("success"), data.get("score"), data.get("frame_at")
+    if success is not None and not isinstance(success, bool):
+        raise ValueError("a rollout event's success is a boolean")
+    for name, value in (("score", score), ("frame_at", frame_at)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)
+                                  or not math.isfinite(value)):
+            raise ValueError(f"a rollout event's {name} is a finite number")
+    return RolloutEvent(data["kind"], float(at), index, total, controls, success,
+                        None if score is None else float(score), None if frame_at is None else float(frame_at))
 
 
 class SidecarObserver:

@@ -101,3 +101,56 @@ def test_a_cell_without_completion_settings_never_completes_on_its_own(
     plain = make_connector(cell_config(sim_cell), camera_factory=simulated_camera_factory(source=sim_cell))
     assert plain.monitor is None
     assert a_job_cell(plain).is_complete(block=True) == (False, False)
+
+
+def verdicts(connector: Connector) -> list[Any]:
+    return [e for e in connector.cell.rollouts if e.kind == "verdict"]
+
+
+def test_the_monitor_s_complete_is_recorded_once_on_the_open_rollout_with_its_score(
+    connector: Connector, bus: Any,
+) -> None:
+    cell = a_job_cell(connector)
+    cell.rollout_begin(index=1, total=2)
+    drive_to(bus, dict(TARGET_POSE))
+    deadline = time.monotonic() + 30
+    while not cell.is_complete(block=True) and time.monotonic() < deadline:
+        pass
+    assert cell.is_complete(block=True).complete  # asked again: still one verdict
+    cell.rollout_end()
+
+    [verdict] = verdicts(connector)
+    assert (verdict.index, verdict.success) == (1, True)
+    assert 0.0 < verdict.score <= 1.0 and verdict.frame_at is not None
+    assert verdict.frame_at <= verdict.at  # the frame was scored before the job was told
+    assert [e.kind for e in connector.cell.rollouts] == ["begin", "verdict", "end"]
+
+
+def test_a_rollout_the_monitor_never_saw_complete_ends_judged_a_failure(connector: Connector, bus: Any) -> None:
+    cell = a_job_cell(connector)
+    drive_to(bus, {**TARGET_POSE, "elbow_flex": TARGET_POSE["elbow_flex"] - 15.0})
+    cell.rollout_begin(index=1, total=1)
+    assert cell.is_complete(block=True) == (False, False)
+    cell.rollout_end()
+    cell.rollout_end()  # no rollout open: no second verdict
+
+    [verdict] = verdicts(connector)
+    assert (verdict.index, verdict.success) == (1, False)
+
+
+def test_no_verdict_is_recorded_outside_a_rollout_or_on_a_cell_without_a_monitor(
+    sim_cell: SimulatedCellProcess, make_connector: Callable[..., Connector],
+    cell_config: Callable[..., ConnectorConfig], connector: Connector, bus: Any,
+) -> None:
+    drive_to(bus, dict(TARGET_POSE))
+    cell = a_job_cell(connector)
+    deadline = time.monotonic() + 30
+    while not cell.is_complete(block=True) and time.monotonic() < deadline:
+        pass
+    assert verdicts(connector) == []  # complete, but the job began no rollout
+
+    plain = make_connector(cell_config(sim_cell), camera_factory=simulated_camera_factory(source=sim_cell))
+    plain_cell = a_job_cell(plain)
+    plain_cell.rollout_begin(index=1, total=1)
+    plain_cell.rollout_end()
+    assert verdicts(plain) == []

@@ -70,10 +70,18 @@ def test_a_frame_that_is_not_an_rgb_picture_of_its_stated_size_is_refused(change
 
 @pytest.mark.parametrize("bad", [{"kind": "begin", "at": True}, {"kind": "reset", "at": 1.0},
                                  {"kind": "begin", "at": 1.0, "index": "3"},
-                                 {"kind": "begin", "at": 1.0, "outcome_controls": "yes"}])
+                                 {"kind": "begin", "at": 1.0, "outcome_controls": "yes"},
+                                 {"kind": "verdict", "at": 1.0, "index": 1, "success": "yes"},
+                                 {"kind": "verdict", "at": 1.0, "index": 1, "success": True, "score": float("inf")},
+                                 {"kind": "verdict", "at": 1.0, "index": 1, "success": True, "frame_at": "now"}])
 def test_a_rollout_event_of_another_shape_is_refused(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):
         parse_event(bad)
+
+
+def test_a_monitor_verdict_crosses_the_observer_socket_whole() -> None:
+    event = parse_event({"kind": "verdict", "at": 5.0, "index": 2, "success": False, "score": 0.25, "frame_at": 4})
+    assert (event.kind, event.index, event.success, event.score, event.frame_at) == ("verdict", 2, False, 0.25, 4.0)
 
 
 def test_a_recorder_made_from_a_read_back_history_skips_the_events_it_already_holds() -> None:

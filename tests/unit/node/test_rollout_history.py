@@ -11,16 +11,20 @@ from armnet_node.model import parse_job
 from armnet_node.report import progress_patch, terminal_patch
 from armnet_node.rollout_history import (
     MAX_ENTRIES,
+    MONITOR,
     Begun,
     Ended,
     History,
+    Judged,
     Marked,
+    MonitorMark,
     Outcome,
     RolloutChange,
     accepts_verdict,
     apply,
     as_status,
     from_status,
+    overruled,
 )
 from armnet_node.rollout_recorder import RolloutRecorder
 
@@ -172,6 +176,9 @@ class Event:
     index: int | None = None
     total: int | None = None
     outcome_controls: bool | None = None
+    success: bool | None = None
+    score: float | None = None
+    frame_at: float | None = None
 
 
 class Connector:
@@ -252,3 +259,86 @@ def test_a_rollout_with_outcome_controls_accepts_a_verdict_and_so_does_a_job_wit
 
     assert accepts_verdict(history, 2) and accepts_verdict(history, None)
     assert accepts_verdict((), 1) and accepts_verdict((), None)
+
+
+# -- the completion monitor's verdicts --------------------------------------------------------
+
+def judged(index: int, success: bool, seconds: float, score: float = 0.9) -> Judged:
+    return Judged(index, MonitorMark(success, score, at(seconds), at(seconds - 0.1)))
+
+
+def test_the_monitor_s_verdict_is_the_outcome_of_an_unmarked_rollout_and_kept_beside_it() -> None:
+    [entry] = fold(Begun(1, 2, at(0)), judged(1, True, 5), Ended(at(6)))
+    assert (entry.outcome, entry.marked_by, entry.marked_at) == (Outcome.SUCCESS, MONITOR, at(5))
+    assert entry.monitor == MonitorMark(True, 0.9, at(5), at(4.9))
+    assert not overruled(entry)
+
+
+def test_an_operator_s_mark_stands_against_a_later_monitor_verdict_and_is_an_overrule() -> None:
+    [entry] = fold(Begun(1, 2, at(0)), Marked(False, "ana", at(3)), judged(1, True, 5))
+    assert (entry.outcome, entry.marked_by) == (Outcome.FAILURE, "ana")
+    assert entry.monitor is not None and entry.monitor.success is True
+    assert overruled(entry)
+
+
+def test_an_operator_overrules_the_monitor_after_it_judged_and_its_verdict_stays_on_record() -> None:
+    [entry] = fold(Begun(1, 2, at(0)), judged(1, False, 5, score=0.1), Ended(at(6)), Marked(True, "ana", at(7), 1))
+    assert (entry.outcome, entry.marked_by) == (Outcome.SUCCESS, "ana")
+    assert entry.monitor is not None and (entry.monitor.success, entry.monitor.score) == (False, 0.1)
+    assert overruled(entry)
+    [agreeing] = fold(Begun(1, 2, at(0)), judged(1, True, 5), Marked(True, "ana", at(7)))
+    assert not overruled(agreeing)
+
+
+def test_an_operator_named_monitor_is_never_taken_for_the_monitor() -> None:
+    [entry] = fold(Begun(1, 2, at(0)), Marked(True, "monitor", at(3)), judged(1, False, 5))
+    assert (entry.outcome, entry.marked_by) == (Outcome.SUCCESS, "monitor (operator)")
+
+
+def test_a_monitor_verdict_for_a_rollout_never_begun_changes_nothing() -> None:
+    history = fold(Begun(1, 2, at(0)))
+    assert apply(history, judged(7, True, 5)) is history
+
+
+def test_the_monitor_s_verdict_reads_back_from_the_status() -> None:
+    history = fold(Begun(1, 2, at(0)), judged(1, False, 5, score=0.123456), Marked(True, "ana", at(7)))
+    [row] = as_status(history)
+    assert row["monitor"] == {"outcome": "failure", "score": 0.1235, "at": "2026-03-01T12:00:05.000Z",
+                              "frameAt": "2026-03-01T12:00:04.900Z"}
+    [entry] = from_status(as_status(history))
+    assert entry.monitor == MonitorMark(False, 0.1235, at(5), at(4.9))
+    assert overruled(entry)
+    [malformed] = from_status([{**row, "monitor": {"outcome": "maybe", "score": "high"}}])
+    assert malformed.monitor is None
+
+
+def test_the_recorder_counts_each_overrule_once_in_either_order_and_not_again_after_a_restart() -> None:
+    connector = Connector()
+    overrules: list[int] = []
+    recorder = RolloutRecorder(connector, clock=lambda: at(9), on_overrule=lambda: overrules.append(1))
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2),
+                         Event("verdict", at(5).timestamp(), 1, success=False, score=0.2, frame_at=at(4).timestamp()),
+                         Event("end", at(6).timestamp()), Event("begin", at(7).timestamp(), 2, 2)]
+    recorder.sync()
+    assert [(e.outcome, e.marked_by) for e in recorder.history] == [(Outcome.FAILURE, MONITOR), (Outcome.UNMARKED, None)]
+    recorder.verdict(True, "ana", 1)  # the operator disagrees after the monitor judged
+    recorder.verdict(True, "ana", 1)  # the same mark again is not a second overrule
+    recorder.verdict(False, "ana", 2)  # the operator judges first ...
+    connector.events += [Event("verdict", at(8).timestamp(), 2, success=True, score=1.0)]  # ... the monitor differs
+    recorder.sync()
+    assert len(overrules) == 2
+
+    restarted = RolloutRecorder(Connector(), history=from_status(as_status(recorder.history)),
+                                on_overrule=lambda: overrules.append(1))
+    restarted.sync()
+    assert len(overrules) == 2
+
+
+def test_a_verdict_event_with_a_score_that_is_not_a_number_records_zero() -> None:
+    connector = Connector()
+    recorder = RolloutRecorder(connector)
+    connector.events += [Event("begin", at(0).timestamp(), 1, 1),
+                         Event("verdict", at(1).timestamp(), 1, success=True, score=float("nan"))]
+    recorder.sync()
+    [entry] = recorder.history
+    assert entry.monitor is not None and entry.monitor.score == 0.0
