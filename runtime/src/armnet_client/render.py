@@ -79,10 +79,17 @@ def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) ->
 
 
 def verdict_counts(job: JobView) -> str:
-    """`` [marked: 3 success, 1 failure]`` from the job's rollout history; empty when nothing was marked."""
+    """`` [marked: 3 success, 1 failure; 1 overruled]`` from the job's rollout history; empty when nothing was marked.
+
+    Overruled: a cell operator's outcome that differs from the cell's completion monitor's verdict.
+    """
     success = sum(1 for r in job.rollouts if r.outcome == "success")
     failure = sum(1 for r in job.rollouts if r.outcome == "failure")
-    return f" [marked: {success} success, {failure} failure]" if success or failure else ""
+    overruled = sum(1 for r in job.rollouts
+                    if r.monitor is not None and r.marked_by not in (None, "monitor") and r.monitor.outcome != r.outcome)
+    if not (success or failure):
+        return ""
+    return f" [marked: {success} success, {failure} failure" + (f"; {overruled} overruled]" if overruled else "]")
 
 
 def output_note(job: JobView) -> str:
@@ -140,7 +147,8 @@ def job_document(job: Job, view: JobView) -> dict[str, Any]:
         "progress": view.progress,
         "rollout": {"index": view.rollout[0], "total": view.rollout[1]} if view.rollout else None,
         "rollouts": [{"index": r.index, "total": r.total, "outcome": r.outcome, "markedBy": r.marked_by,
-                      "markedAt": _when(r.marked_at), "startedAt": _when(r.started_at), "endedAt": _when(r.ended_at)}
+                      "markedAt": _when(r.marked_at), "startedAt": _when(r.started_at), "endedAt": _when(r.ended_at),
+                      "monitor": r.monitor.model_dump(mode="json", by_alias=True) if r.monitor else None}
                      for r in view.rollouts],
         "cancelRequested": view.cancel_requested,
         "artifacts": view.artifacts.model_dump(mode="json", by_alias=True, exclude_none=True) if view.artifacts else None,

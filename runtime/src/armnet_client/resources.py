@@ -53,6 +53,15 @@ class Rollout(_Body):
     total: int = 0
 
 
+class MonitorVerdict(_Body):
+    """The cell's completion monitor's verdict on one rollout, kept even when an operator overruled it."""
+
+    outcome: str = "failure"  # success | failure
+    score: float = 0.0
+    at: Optional[datetime] = None
+    frame_at: Optional[datetime] = Field(default=None, alias="frameAt")
+
+
 class RolloutRecord(_Body):
     """One rollout as the node agent recorded it (``status.rollouts``): begin, end, the operator's verdict."""
 
@@ -63,6 +72,7 @@ class RolloutRecord(_Body):
     marked_at: Optional[datetime] = Field(default=None, alias="markedAt")
     started_at: Optional[datetime] = Field(default=None, alias="startedAt")
     ended_at: Optional[datetime] = Field(default=None, alias="endedAt")
+    monitor: Optional[MonitorVerdict] = None
 
 
 class RobotJobResult(_Body):

@@ -104,6 +104,20 @@ def test_wide_counts_the_rollouts_the_cell_operator_marked() -> None:
     assert rows[1].endswith("grasp [rollout 3/3] [marked: 1 success, 1 failure]   -")
 
 
+def test_wide_counts_the_operator_s_overrules_of_the_completion_monitor() -> None:
+    monitor = {"outcome": "failure", "score": 0.1, "at": "2026-03-01T12:00:01.000Z"}
+    marked = [{"index": 1, "total": 2, "outcome": "success", "markedBy": "ana", "monitor": monitor,
+               "startedAt": "2026-03-01T12:00:00.000Z"},
+              {"index": 2, "total": 2, "outcome": "failure", "markedBy": "monitor", "monitor": monitor,
+               "startedAt": "2026-03-01T12:00:02.000Z"}]
+    view = view_of(job(phase="succeeded", rollouts=marked))
+
+    assert jobs_table([view], NOW, wide=True).splitlines()[1].endswith(
+        "[marked: 1 success, 1 failure; 1 overruled]   -")
+    rows = json.loads(json.dumps(job_document(job_from_robotjob(job(phase="succeeded", rollouts=marked)), view)))
+    assert rows["rollouts"][0]["monitor"]["outcome"] == "failure"
+
+
 def test_the_job_json_lists_the_rollout_history_with_who_marked_each() -> None:
     body = job(phase="running", rollouts=[{"index": 1, "total": 2, "outcome": "failure", "markedBy": "ana",
                                            "markedAt": "2026-03-01T12:00:01.500Z",
