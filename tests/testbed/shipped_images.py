@@ -191,7 +191,8 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
         try:
             image, _logs = client.images.build(
                 path=str(context), dockerfile="Containerfile", tag=tag, rm=True, forcerm=True,
-                buildargs={**args, **labels, "LOCK": lock_label}, labels={HASH_LABEL: tag.rsplit(":", 1)[1]},
+                buildargs={**args, **labels, "LOCK": lock_label},
+                labels={HASH_LABEL: tag.rsplit(":", 1)[1], LOCK_LABEL: lock_label},
                 network_mode="none", timeout=3600,
             )
         except docker.errors.BuildError as exc:
@@ -213,7 +214,11 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str, lock: str) ->
     sibling image reuses: the agent and runtime-lerobot share their ~5 GB dependency
     stage); an image a container still uses stays (Podman refuses, and we go on). A stage
     labelled with another version of this build's lock (``LOCK_LABEL``: ``<lock>-<digest>``)
-    is never reused, so it goes at once: three lock changes in a day filled the disk.
+    is never reused, so it goes at once: three lock changes in a day filled the disk. So
+    does every image built on such a lock, whatever its repository: a lock change rebuilds
+    all of them, and the sibling built later (runtime-lerobot after the agent) and the test
+    images made from it held the old ~5 GB dependency layers while the first one built: a
+    lock change then ran out of disk in the agent's build (it needs ~30 GB at its peak).
     """
     import docker
 
@@ -225,13 +230,23 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str, lock: str) ->
         except docker.errors.APIError as exc:
             progress(f"kept an earlier build of {repository} ({image.id[:19]}): {exc}")
     name = lock.rsplit("-", 1)[0] + "-"
-    for image in client.images.list(filters={"dangling": True, "label": LOCK_LABEL}):
-        held = str((image.labels or {}).get(LOCK_LABEL, ""))
-        if held.startswith(name) and held != lock:
+    stale = {image.id: str((image.labels or {}).get(LOCK_LABEL, ""))
+             for image in client.images.list(all=True, filters={"label": LOCK_LABEL})}
+    stale = {image_id: held for image_id, held in stale.items() if held.startswith(name) and held != lock}
+    while stale:  # children before their parents: a round removes what nothing else builds on
+        refused: dict[str, str] = {}
+        for image_id, held in stale.items():
             try:
-                client.images.remove(image.id, force=True)
+                client.images.remove(image_id, force=True)
+            except docker.errors.ImageNotFound:
+                pass
             except docker.errors.APIError as exc:
-                progress(f"kept a build stage of lock {held} ({image.id[:19]}): {exc}")
+                refused[image_id] = f"{held}: {exc}"
+        if len(refused) == len(stale):
+            for image_id, why in refused.items():
+                progress(f"kept an image of an earlier lock ({image_id[:19]}, {why})")
+            break
+        stale = {image_id: stale[image_id] for image_id in refused}
     try:
         client.images.prune(filters={"dangling": True, "until": "24h"})
     except docker.errors.APIError as exc:
