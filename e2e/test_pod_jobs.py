@@ -68,6 +68,8 @@ LOOKS_AROUND = """
 
     @main
     def run(ctx: Context):
+        with open(os.path.join(os.environ["ARMNET_OUTPUT_DIR"], "seen.txt"), "w") as out:  # as the job's user
+            out.write("looked around")
         return {"socket_at_start": socket_at_start, "uid": os.getuid(), "devices": char_devices(),
                 "secret_length": len(ctx.secrets.get("API_TOKEN", "")),
                 "root_writable": os.access("/", os.W_OK)}
@@ -130,9 +132,17 @@ SECRET_VALUE = "s3cr3t-pod-value-42"
 
 
 @pytest.fixture(scope="module")
-def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[AgentBed]:
+@pytest.fixture(scope="module")
+def pod_outputs(object_store: Any) -> str:
+    return str(object_store.create_bucket("pod-e2e-outputs"))
+
+
+@pytest.fixture(scope="module")
+def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str, object_store: Any,
+        pod_outputs: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("pod-e2e")
     bed = AgentBed(k8s, podman, base_image, namespace, nats_url=nats_server)
+    bed.agent_env = object_store.agent_env(pod_outputs)
     bed.use_pod_launcher(k8s_node)
     bed.image_prefix = "armnet-pod-e2e"
     bed.agent_args += ["--telemetry-servo-hz", "2", "--telemetry-frame-fps", "1"]
@@ -319,7 +329,7 @@ def test_a_safety_violation_in_a_pod_fails_the_job_with_the_sidecars_record_and_
 
 
 def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_and_sees_no_device(
-    bed: AgentBed, batch: dict[str, str]
+    bed: AgentBed, batch: dict[str, str], object_store: Any, pod_outputs: str,
 ) -> None:
     job = bed.wait_phase(batch["shape"], timeout=300)
     st = status(job)
@@ -335,6 +345,11 @@ def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_
     assert not host_devices, seen
     assert seen["secret_length"] == len(SECRET_VALUE)
     assert SECRET_VALUE not in json.dumps(job)
+    # What the non-root job wrote to its output directory is stored by the agent.
+    bed.wait(lambda: (status(bed.job(batch["shape"])).get("artifacts") or {}).get("phase") == "Uploaded", 120,
+             "the pod job's output uploaded")
+    key = f"{bed.namespace}/{st['jobId']}/files/seen.txt"
+    assert object_store.client().get_object(Bucket=pod_outputs, Key=key)["Body"].read() == b"looked around"
 
 
 def test_a_job_pod_ignoring_shutdown_is_killed_after_grace_and_ends_timeout(
