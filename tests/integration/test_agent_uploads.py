@@ -59,13 +59,6 @@ def write_output(paths: HostPaths, job: TrackedJob, files: dict[str, bytes]) -> 
     return out
 
 
-def stored(object_store: SeaweedS3, bucket: str, prefix: str) -> dict[str, bytes]:
-    s3 = object_store.client()
-    keys = [item["Key"] for page in s3.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=prefix)
-            for item in page.get("Contents", ())]
-    return {key: s3.get_object(Bucket=bucket, Key=key)["Body"].read() for key in keys}
-
-
 def artifacts_of(k8s: Any, job: TrackedJob) -> dict[str, Any]:
     return dict((get(k8s, "job", job.name, job.namespace).get("status") or {}).get("artifacts") or {})
 
@@ -107,7 +100,7 @@ def test_an_ended_job_s_output_is_stored_and_its_status_says_where(
     assert artifacts["location"] == f"s3://{bucket_store.bucket}/{prefix}"
     assert (artifacts["files"], artifacts["bytes"], artifacts["complete"], artifacts["leftOut"]) == (2, 5011, True, 1)
     assert "escape: a symbolic link that leads out of the output directory" in artifacts["message"]
-    objects = stored(object_store, bucket_store.bucket, prefix)
+    objects = object_store.objects(bucket_store.bucket, prefix)
     assert objects[prefix + "files/data/episode_000.parquet"] == b"p" * 5000
     assert json.loads(objects[prefix + "manifest.json"])["complete"] is True
     assert not (paths.state_dir / "uploads" / f"{job.uid}.json").exists()
@@ -133,7 +126,7 @@ def test_an_agent_killed_before_the_upload_leaves_it_to_the_next_agent(
         wait_until(lambda job=job: not paths.output_dir(job.uid).exists(), timeout=60,  # type: ignore[misc]
                    what=f"{job.name}'s output uploaded by the next agent")
         key = f"{namespace}/{job.uid}/files/result.txt"
-        assert stored(object_store, bucket_store.bucket, key) == {key: job.name.encode()}
+        assert object_store.objects(bucket_store.bucket, key) == {key: job.name.encode()}
     assert artifacts_of(k8s, ended)["phase"] == "Uploaded"
     # A job still running keeps its directory: its output is not final.
     assert paths.output_dir(running.uid).exists()
@@ -185,7 +178,7 @@ def test_an_output_over_the_cap_is_not_stored_and_the_job_is_told_why(
     assert artifacts["phase"] == "Failed"
     assert "more than 10 entries" in artifacts["message"] and "nothing was stored" in artifacts["message"]
     assert not paths.output_dir(job.uid).exists()
-    assert stored(object_store, bucket_store.bucket, f"{namespace}/{job.uid}/") == {}
+    assert object_store.objects(bucket_store.bucket, f"{namespace}/{job.uid}/") == {}
     assert metrics.outputs.labels(outcome="too_large")._value.get() == 1
 
 

@@ -60,13 +60,6 @@ def _tree(root: Path, files: dict[str, bytes]) -> Path:
     return root
 
 
-def _objects(object_store: SeaweedS3, bucket: str, prefix: str) -> dict[str, bytes]:
-    s3 = object_store.client()
-    keys = [item["Key"] for page in s3.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=prefix)
-            for item in page.get("Contents", ())]
-    return {key: s3.get_object(Bucket=bucket, Key=key)["Body"].read() for key in keys}
-
-
 def _dataset(root: Path, episodes: int = 6) -> dict[str, bytes]:
     files = {f"data/chunk-000/episode_{i:06d}.parquet": os.urandom(1000 + i) for i in range(episodes)}
     files["meta/info.json"] = b'{"fps": 30}'
@@ -82,7 +75,7 @@ def test_every_file_is_stored_with_its_checksum_and_the_manifest_lists_them(
     uid = _uid()
     report = upload_output(tmp_path, store, NAMESPACE, uid)
 
-    stored = _objects(object_store, store.bucket, f"{NAMESPACE}/{uid}/")
+    stored = object_store.objects(store.bucket, f"{NAMESPACE}/{uid}/")
     prefix = f"{NAMESPACE}/{uid}/"
     assert {key: data for key, data in stored.items() if key != prefix + "manifest.json"} == {
         f"{prefix}files/{path}": data for path, data in files.items()}
@@ -106,7 +99,7 @@ def test_a_second_run_sends_nothing_and_stores_nothing_twice(
     again = upload_output(tmp_path, store, NAMESPACE, uid)
     assert again.uploaded_bytes == 0
     assert again.already_stored == len(files)
-    assert len(_objects(object_store, store.bucket, f"{NAMESPACE}/{uid}/")) == len(files) + 1
+    assert len(object_store.objects(store.bucket, f"{NAMESPACE}/{uid}/")) == len(files) + 1
 
 
 def test_an_agent_killed_mid_upload_resumes_without_losing_or_repeating_a_file(
@@ -144,13 +137,13 @@ def test_an_agent_killed_mid_upload_resumes_without_losing_or_repeating_a_file(
         agent.send_signal(signal.SIGKILL)
         agent.wait(timeout=30)
     prefix = f"{NAMESPACE}/{uid}/"
-    assert prefix + "manifest.json" not in _objects(object_store, store.bucket, prefix)  # an unfinished upload
+    assert prefix + "manifest.json" not in object_store.objects(store.bucket, prefix)  # an unfinished upload
 
     report = upload_output(out, store, NAMESPACE, uid)
 
     assert report.already_stored == 5
     assert report.uploaded_bytes == sum(len(d) for d in list(files.values())[5:])
-    stored = _objects(object_store, store.bucket, prefix)
+    stored = object_store.objects(store.bucket, prefix)
     assert len(stored) == len(files) + 1
     assert {key.removeprefix(prefix + "files/"): data for key, data in stored.items()
             if key != prefix + "manifest.json"} == files
@@ -172,7 +165,7 @@ def test_an_object_with_another_checksum_under_the_key_is_replaced(
                                      Metadata={"sha256": "0" * 64})
     report = upload_output(tmp_path, store, NAMESPACE, uid)
     assert report.already_stored == 0
-    assert _objects(object_store, store.bucket, key)[key] == b"the job's bytes"
+    assert object_store.objects(store.bucket, key)[key] == b"the job's bytes"
 
 
 def test_a_file_that_grows_after_the_walk_is_not_stored_and_is_reported(
@@ -191,7 +184,7 @@ def test_a_file_that_grows_after_the_walk_is_not_stored_and_is_reported(
     assert "size went from 7 to 14 bytes" in report.changed[0].reason
     assert not report.complete
     prefix = f"{NAMESPACE}/{uid}/"
-    stored = _objects(object_store, store.bucket, prefix)
+    stored = object_store.objects(store.bucket, prefix)
     assert prefix + "files/log.txt" not in stored
     assert json.loads(stored[prefix + "manifest.json"])["complete"] is False
 
@@ -209,7 +202,7 @@ def test_a_symlink_out_and_a_dot_dot_never_reach_the_store(
 
     report = upload_output(out, store, NAMESPACE, uid)
 
-    stored = _objects(object_store, store.bucket, "")  # the whole bucket
+    stored = object_store.objects(store.bucket, "")  # the whole bucket
     assert all(b"SECRET-TOKEN" not in data for data in stored.values())
     assert all(".." not in key.split("/") for key in stored)
     assert sorted(a.path for a in report.artifacts) == ["ok.txt", "sub/a..b"]
@@ -224,7 +217,7 @@ def test_ten_thousand_tiny_files_over_the_cap_store_nothing(
     uid = _uid()
     with pytest.raises(OutputTooLarge, match="more than 2000 entries"):
         upload_output(tmp_path, store, NAMESPACE, uid, OutputLimits(max_files=2000))
-    assert _objects(object_store, store.bucket, f"{NAMESPACE}/{uid}/") == {}
+    assert object_store.objects(store.bucket, f"{NAMESPACE}/{uid}/") == {}
 
 
 def test_wrong_keys_are_a_clear_misconfiguration(tmp_path: Path, store: ObjectStore, object_store: SeaweedS3) -> None:

@@ -124,6 +124,13 @@ class SeaweedS3:
                 "ARMNET_ARTIFACTS_REGION": self.region, "ARMNET_ARTIFACTS_ACCESS_KEY_ID": self.access_key,
                 "ARMNET_ARTIFACTS_SECRET_ACCESS_KEY": self.secret_key}
 
+    def objects(self, bucket: str, prefix: str = "") -> dict[str, bytes]:
+        """Every object under ``prefix`` in ``bucket``, read back whole: what a test checks the store holds."""
+        s3 = self.client()
+        keys = [item["Key"] for page in s3.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=prefix)
+                for item in page.get("Contents", ())]
+        return {key: s3.get_object(Bucket=bucket, Key=key)["Body"].read() for key in keys}
+
     def create_bucket(self, name: str) -> str:
         self.client().create_bucket(Bucket=name)
         return name
