@@ -10,6 +10,7 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
     ("cancel", "armnet_client.cli.cancel", "cancel a RobotJob (queued: at once; running: within grace)"),
     ("logs", "armnet_client.cli.logs", "print a job's output from its first line; -f to follow"),
     ("teleop", "armnet_client.cli.teleop", "drive a running job's arm from a leader arm (or --leader sim)"),
+    ("artifacts", "armnet_client.cli.artifacts", "where a job's output went; --files lists it, --download DIR fetches it"),
     ("view", "armnet_client.cli.view", "replay a job's Rerun data into a viewer, an .rrd (--save) or JSON (--dump)"),
 )
 """(name, module, one-line help) of each client subcommand."""
