@@ -557,6 +557,11 @@ class Node:
                 wanted[image] = image_id
         if not wanted:
             return []
+        # The names' earlier images go first: the import needs room for the new one, its archive
+        # and, unpacked, its snapshots (~20 GB for the agent), and the old one held ~13 GB of it.
+        for image in wanted:
+            self.ctr("images", "rm", "--sync", image, check=False)
+        self.drop_unnamed_images()
         assert self.workdir is not None
         key = hashlib.sha256(" ".join(sorted(wanted)).encode()).hexdigest()[:12]
         archive = self.workdir / f"images-{key}.tar"
@@ -570,7 +575,6 @@ class Node:
             archive.unlink(missing_ok=True)
         for image, image_id in wanted.items():
             self.ctr("images", "label", image, f"{SOURCE_LABEL}={image_id}")
-        self.drop_unnamed_images()  # the names' earlier images, if this import replaced any
         return list(wanted)
 
     def drop_unnamed_images(self) -> list[str]:
@@ -582,7 +586,7 @@ class Node:
         """
         orphans = orphan_image_ids(self.ctr("images", "ls").stdout)
         for ref in orphans:
-            self.ctr("images", "rm", ref, check=False)
+            self.ctr("images", "rm", "--sync", ref, check=False)  # --sync: the space is free on return
         return orphans
 
     def ctr(self, *args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess[str]:
