@@ -132,7 +132,6 @@ SECRET_VALUE = "s3cr3t-pod-value-42"
 
 
 @pytest.fixture(scope="module")
-@pytest.fixture(scope="module")
 def pod_outputs(object_store: Any) -> str:
     return str(object_store.create_bucket("pod-e2e-outputs"))
 

@@ -387,23 +387,26 @@ class CellState:
         return self.inputs.wait_reset_confirmation(timeout_s)
 
     def record_rollout(self, event: RolloutEvent) -> None:
-        self.rollouts.append(event)
+        with self._rollout_lock:
+            self.rollouts.append(event)
         log.info("rollout %s index=%s total=%s", event.kind, event.index, event.total)
 
-    def record_monitor_verdict(self, *, at_end: bool) -> None:
+    def record_monitor_verdict(self, *, told_complete: bool) -> None:
         """Record the completion monitor's verdict on the open rollout, once per rollout.
 
-        Called when the monitor told the job "complete" (the answer the job acts on), and
-        at the rollout's end (the monitor's last word: complete is a success, anything
-        else a failure). Nothing on a cell without a monitor, outside a rollout, or when
-        this rollout already has its verdict: the first one the job could act on stands.
+        Called when the monitor told the job "complete" (``told_complete``: the answer the
+        job acts on is the verdict, whatever the streak says by now), and at the rollout's
+        end (the monitor's last word: complete is a success, anything else a failure).
+        Nothing on a cell without a monitor, outside a rollout, or when this rollout
+        already has its verdict: the first one the job could act on stands.
         """
         audit = self.completion.audit()
-        if audit is None or not (audit.complete or at_end):
+        if audit is None:
             return
-        with self._rollout_lock:
+        success = told_complete or audit.complete
+        with self._rollout_lock:  # the check and the append together; appends take it too
             index = None
-            for event in reversed(self.rollouts):
+            for event in reversed(list(self.rollouts)):
                 if event.kind in ("end", "verdict"):
                     return
                 if event.kind == "begin":
@@ -411,10 +414,10 @@ class CellState:
                     break
             if index is None:
                 return
-            self.rollouts.append(RolloutEvent("verdict", self.now(), index=index, success=audit.complete,
+            self.rollouts.append(RolloutEvent("verdict", self.now(), index=index, success=success,
                                               score=audit.score, frame_at=audit.frame_at))
         log.info("rollout %s: the completion monitor's verdict is %s (score %.3f)", index,
-                 "success" if audit.complete else "failure", audit.score)
+                 "success" if success else "failure", audit.score)
 
     @staticmethod
     def now() -> float:

@@ -410,7 +410,7 @@ class RobotSession(Session):
         block = _field(request, "block", bool, default=False)
         complete, success = self.cell.completion.is_complete(block=bool(block))
         if complete:
-            self.cell.record_monitor_verdict(at_end=False)
+            self.cell.record_monitor_verdict(told_complete=True)
         return {"ok": True, "complete": bool(complete), "success": bool(success)}
 
     def close(self) -> None:
@@ -486,7 +486,7 @@ class OperatorSession(Session):
         return {"ok": True}
 
     def op_rollout_end(self, request: dict[str, Any]) -> Reply:
-        self.cell.record_monitor_verdict(at_end=True)
+        self.cell.record_monitor_verdict(told_complete=False)
         self.cell.record_rollout(RolloutEvent("end", self.cell.now()))
         return {"ok": True}
 

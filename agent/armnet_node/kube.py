@@ -107,6 +107,25 @@ class AgentKube:
         except ApiException as exc:
             raise _error(exc, f"robotjob {namespace}/{name} status") from exc
 
+    def set_job_status_field(self, namespace: str, name: str, uid: str, field: str, value: Any) -> None:
+        """``status.<field>`` of the job ``uid`` only; :class:`Gone` when ``name`` is another job now.
+
+        A JSON patch whose first operation tests the uid: a merge patch's ``metadata.uid`` is
+        no precondition (measured: the apiserver applied it to a job re-created under the
+        name), and a job deleted and re-created meanwhile must not get the old one's field.
+        """
+        ops = [{"op": "test", "path": "/metadata/uid", "value": uid},
+               {"op": "add", "path": f"/status/{field}", "value": value}]
+        what = f"robotjob {namespace}/{name} status.{field}"
+        try:
+            self.custom.patch_namespaced_custom_object_status(GROUP, VERSION, namespace, "robotjobs", name, ops,
+                                                              _content_type="application/json-patch+json")
+        except ApiException as exc:
+            # A failed test is a bare 422 ("rejected ... an error in our request"): the uid tells.
+            if exc.status == 422 and (self.read_job(namespace, name).get("metadata") or {}).get("uid") != uid:
+                raise Gone(f"{what}: the name is another job's now") from exc
+            raise _error(exc, what) from exc
+
     def patch_cell_status(self, name: str, body: dict[str, Any]) -> dict[str, Any]:
         try:
             return cast(dict[str, Any], self.custom.patch_cluster_custom_object_status(

@@ -269,7 +269,7 @@ def _entry(row: Any) -> RolloutEntry | None:
     return RolloutEntry(
         index=_count(index), total=_count(total), started_at=started,
         outcome=Outcome(outcome) if outcome in tuple(Outcome) else Outcome.UNMARKED,
-        marked_by=operator_name(by) if isinstance(by, str) else None,
+        marked_by=(by if by == MONITOR else operator_name(by)) if isinstance(by, str) else None,
         marked_at=_time(row.get("markedAt")), ended_at=_time(row.get("endedAt")),
         outcome_controls=row.get("outcomeControls") is not False,
         monitor=_monitor_mark(row.get("monitor")),

@@ -308,10 +308,13 @@ class JobRunner:
             self.session = None
             shutil.rmtree(plan.layout.socket_dir.parent, ignore_errors=True)
             if self.reported:
-                # The output is final: to the object store (or removed without one). An agent
-                # stopped before the status keeps it for the agent that adopts the job; the
-                # upload queue's sweep takes it if no runner ever does.
+                # The output is final: to the object store (or removed without one).
                 self.deps.uploads.ready(job.uid)
+            else:
+                # No terminal status from here (the agent stops, or the job failed before it
+                # started): the agent that adopts the job takes it, or the queue's sweep once
+                # the job is terminal or gone.
+                self.deps.uploads.released(job.uid)
 
     def _count_start(self, adopted: bool) -> None:
         if adopted:

@@ -6,8 +6,10 @@ job can write a byte. A tracked job's output is taken when its runner says the t
 status is written (``ready``), or when a sweep finds the RobotJob terminal or gone (the
 agent was killed between the status and the upload, or in the middle of an upload, or
 the job ended without this agent: the sweep runs at start and every ``SWEEP_PERIOD_S``).
-The record and the directory are removed only after the output is stored (or could never
-be: over the cap), so nothing a job wrote is lost to a crash; the upload itself resumes
+A job a runner of this agent still runs is never taken (one deleted while its container is
+in its grace window still writes). The record and the directory are removed only after the
+output is stored and the job's status says so (or could never be: over the cap), so nothing
+a job wrote is lost to a crash; the upload itself resumes
 (a re-run skips what is stored with the same checksum).
 
 Without an object store the output is removed once the job ended (it would fill the robot
@@ -77,6 +79,9 @@ class UploadQueue:
         self.limits = limits or OutputLimits()
         self.records = paths.state_dir / "uploads"
         self._lock = threading.Lock()
+        #: Jobs a runner of this agent still runs: never taken, whatever the API says (a job deleted
+        #: while its container is in its grace window still writes).
+        self._live: set[str] = set()
         self._ready: set[str] = set()
         self._retry: dict[str, tuple[Backoff, float]] = {}  # uid -> (its backoff, not before this monotonic time)
         self._last_status: dict[str, dict[str, Any]] = {}
@@ -89,38 +94,63 @@ class UploadQueue:
         self.records.mkdir(parents=True, exist_ok=True)
         record = self._record(job.uid)
         temporary = record.with_suffix(".tmp")
-        temporary.write_text(json.dumps({"namespace": job.namespace, "name": job.name, "uid": job.uid}))
+        with temporary.open("w") as file:
+            file.write(json.dumps({"namespace": job.namespace, "name": job.name, "uid": job.uid}))
+            file.flush()
+            os.fsync(file.fileno())  # the record must survive a crash right after the job starts
         os.replace(temporary, record)
+        with self._lock:
+            self._live.add(job.uid)
 
     def ready(self, uid: str) -> None:
         """The job's terminal status is written: its output is final."""
         with self._lock:
-            self._ready.add(uid)
+            self._live.discard(uid)
+            if self._record(uid).exists():  # the sweep may have taken it already
+                self._ready.add(uid)
         self._wake.set()
+
+    def released(self, uid: str) -> None:
+        """The runner let go without a terminal status (the agent stops): the sweep decides."""
+        with self._lock:
+            self._live.discard(uid)
 
     # -- the queue's thread ---------------------------------------------------------------
 
     def run(self, stop: threading.Event) -> None:
         next_sweep = 0.0
+        for stale in self.records.glob("*.tmp") if self.records.is_dir() else ():
+            stale.unlink(missing_ok=True)  # a record half-written when the agent died: its job never started
         while not stop.is_set():
             now = time.monotonic()
-            if now >= next_sweep:
-                self._sweep()
-                next_sweep = now + SWEEP_PERIOD_S
-            self.process_ready(stop)
+            try:
+                if now >= next_sweep:
+                    self._sweep()
+                    next_sweep = now + SWEEP_PERIOD_S
+                self.process_ready(stop)
+            except Exception:  # noqa: BLE001 - the queue never dies of one pass (an API server away)
+                log.warning("upload queue pass failed; retried", exc_info=True)
+                next_sweep = min(next_sweep, now + RETRY.first_s)
             self._wake.wait(min(SWEEP_PERIOD_S, self._next_retry_in()))
             self._wake.clear()
 
     def process_ready(self, stop: threading.Event | None = None) -> None:
         """Take every ready job whose retry delay has passed, one at a time."""
-        for job in self.tracked():
+        tracked = self.tracked()
+        with self._lock:  # forget what has no record any more (taken, or removed by hand)
+            uids = {job.uid for job in tracked}
+            self._ready &= uids
+            self._retry = {uid: due for uid, due in self._retry.items() if uid in uids}
+        for job in tracked:
             if stop is not None and stop.is_set():
-                return
+                break
             with self._lock:
-                due = job.uid in self._ready and time.monotonic() >= self._retry.get(job.uid, (None, 0.0))[1]
+                due = (job.uid in self._ready and job.uid not in self._live
+                       and time.monotonic() >= self._retry.get(job.uid, (None, 0.0))[1])
             if due:
                 self._take(job)
-        self.metrics.outputs_pending.set(len(self._ready))
+        with self._lock:
+            self.metrics.outputs_pending.set(len(self._ready))
 
     def tracked(self) -> list[TrackedJob]:
         """Every job with a record, oldest first; a record that cannot be read is removed with a warning."""
@@ -139,8 +169,9 @@ class UploadQueue:
     def _sweep(self) -> None:
         """Mark ready every tracked job that the API shows ended or gone."""
         for job in self.tracked():
-            if job.uid in self._ready:
-                continue
+            with self._lock:
+                if job.uid in self._ready or job.uid in self._live:
+                    continue
             try:
                 current = self.kube.read_job(job.namespace, job.name)
             except Gone:
@@ -184,14 +215,19 @@ class UploadQueue:
             self._retry_later(job, prefix, f"the agent could not upload the output ({type(exc).__name__}: {exc})",
                               "error")
             return
-        self._write_status(job, summary.uploaded(report))
+        if not self._write_status(job, summary.uploaded(report)):
+            # Stored, but the job does not say so yet: kept, and taken again (what is stored is skipped).
+            self._retry_later(job, prefix, "the upload finished but status.artifacts could not be written",
+                              "error", write_status=False)
+            return
         self._done(job, directory)
         self.metrics.outputs.labels(outcome="uploaded" if report.complete else "incomplete").inc()
         self.metrics.output_bytes.inc(report.uploaded_bytes)
         log.info("job %s/%s: %d files (%d bytes) stored under %s", job.namespace, job.name,
                  len(report.artifacts), report.total_bytes, summary.location(report.bucket, report.prefix))
 
-    def _retry_later(self, job: TrackedJob, prefix: str, error: str, reason: str) -> None:
+    def _retry_later(self, job: TrackedJob, prefix: str, error: str, reason: str, *,
+                     write_status: bool = True) -> None:
         assert self.store is not None
         with self._lock:
             backoff = self._retry.get(job.uid, (RETRY.start(), 0.0))[0]
@@ -200,7 +236,8 @@ class UploadQueue:
         self.metrics.output_upload_failures.labels(reason=reason).inc()
         log.warning("job %s/%s: upload failed, retried in %.0f s: %s", job.namespace, job.name,
                     wait_s, error)
-        self._write_status(job, summary.retrying(self.store.bucket, prefix, error))
+        if write_status:
+            self._write_status(job, summary.retrying(self.store.bucket, prefix, error))
 
     def _done(self, job: TrackedJob, directory: Path) -> None:
         shutil.rmtree(directory, ignore_errors=True)
@@ -210,20 +247,24 @@ class UploadQueue:
             self._retry.pop(job.uid, None)
         self._last_status.pop(job.uid, None)
 
-    def _write_status(self, job: TrackedJob, artifacts: dict[str, Any]) -> None:
-        """``status.artifacts`` of the job, when it changed; a job deleted meanwhile is fine."""
+    def _write_status(self, job: TrackedJob, artifacts: dict[str, Any]) -> bool:
+        """``status.artifacts`` of the job, when it changed; False only when it could not be written.
+
+        The field is replaced whole (an earlier phase's message does not stay), and only on
+        this job: a job deleted, or re-created under the same name meanwhile, is not this
+        job's status any more, so either counts as done.
+        """
         if self._last_status.get(job.uid) == artifacts:
-            return
+            return True
         try:
-            current = self.kube.read_job(job.namespace, job.name)
-            if (current.get("metadata") or {}).get("uid") != job.uid:
-                return  # deleted and re-created under the same name: not this job's status
-            self.kube.patch_job_status(job.namespace, job.name, {"status": {"artifacts": artifacts}})
-            self._last_status[job.uid] = artifacts
+            self.kube.set_job_status_field(job.namespace, job.name, job.uid, "artifacts", artifacts)
         except Gone:
-            return
+            return True
         except KubeError as exc:
             log.warning("job %s/%s: status.artifacts not written: %s", job.namespace, job.name, exc)
+            return False
+        self._last_status[job.uid] = artifacts
+        return True
 
     def _next_retry_in(self) -> float:
         with self._lock:

@@ -201,3 +201,65 @@ def test_without_a_store_the_output_is_removed_and_a_job_that_wrote_something_is
     assert "artifacts.bucket" in artifacts["message"]
     assert artifacts_of(k8s, silent) == {}
     assert queue.tracked() == []
+
+
+def test_a_job_its_runner_still_runs_is_not_taken_even_deleted(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3, tmp_path: Path,
+) -> None:
+    paths = HostPaths(tmp_path)
+    queue = UploadQueue(bucket_store, paths, kube, AgentMetrics())
+    job = a_tracked_job(k8s, namespace)
+    queue.track(job)  # the runner's: the container may still write in its grace window
+    out = write_output(paths, job, {"partial.bin": b"half"})
+    k8s.kubectl("delete", "robotjob", job.name, "-n", namespace)
+    queue._sweep()
+    queue.process_ready()
+    assert out.exists() and object_store.objects(bucket_store.bucket, f"{namespace}/{job.uid}/") == {}
+
+    queue.released(job.uid)  # the runner let go without a status: the next sweep decides
+    queue._sweep()
+    queue.process_ready()
+    assert not out.exists()
+    assert f"{namespace}/{job.uid}/files/partial.bin" in object_store.objects(bucket_store.bucket, f"{namespace}/")
+
+
+def test_a_job_re_created_under_the_same_name_never_gets_the_old_job_s_status(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, tmp_path: Path,
+) -> None:
+    paths = HostPaths(tmp_path)
+    metrics = AgentMetrics()
+    queue = UploadQueue(bucket_store, paths, kube, metrics)
+    old = a_tracked_job(k8s, namespace, "succeeded")
+    queue.track(old)
+    write_output(paths, old, {"a.txt": b"old job"})
+    k8s.kubectl("delete", "robotjob", old.name, "-n", namespace)
+    apply(k8s, a_job(old.name, namespace))  # the same name, another uid
+    queue.ready(old.uid)
+    queue.process_ready()
+
+    assert artifacts_of(k8s, old) == {}  # `old` names the new job now
+    assert not paths.output_dir(old.uid).exists()  # the old job's output is stored all the same
+    assert metrics.outputs.labels(outcome="uploaded")._value.get() == 1
+    assert metrics.outputs_pending._value.get() == 0
+
+
+def test_a_later_phase_replaces_every_field_of_the_earlier_one(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3, tmp_path: Path,
+) -> None:
+    paths = HostPaths(tmp_path)
+    job = a_tracked_job(k8s, namespace, "succeeded")
+    nothing_there = ObjectStore(StoreConfig(
+        bucket=bucket_store.bucket, access_key_id=object_store.access_key, secret_access_key=object_store.secret_key,
+        endpoint_url=f"http://127.0.0.1:{free_port()}"), max_attempts=1)
+    first = UploadQueue(nothing_there, paths, kube, AgentMetrics())
+    first.track(job)
+    write_output(paths, job, {"a.txt": b"x"})
+    first.ready(job.uid)
+    first.process_ready()
+    assert "message" in artifacts_of(k8s, job)  # Retrying, with the store's error
+
+    second = UploadQueue(bucket_store, paths, kube, AgentMetrics())
+    second.ready(job.uid)
+    second.process_ready()
+    artifacts = artifacts_of(k8s, job)
+    assert artifacts["phase"] == "Uploaded" and "message" not in artifacts  # nothing left out, no stale message

@@ -230,20 +230,23 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str, lock: str) ->
         except docker.errors.APIError as exc:
             progress(f"kept an earlier build of {repository} ({image.id[:19]}): {exc}")
     name = lock.rsplit("-", 1)[0] + "-"
-    stale = {image.id: str((image.labels or {}).get(LOCK_LABEL, ""))
-             for image in client.images.list(all=True, filters={"label": LOCK_LABEL})}
-    stale = {image_id: held for image_id, held in stale.items() if held.startswith(name) and held != lock}
+    images = client.images.list(all=True, filters={"label": LOCK_LABEL})
+    stale = {image.id: (str((image.labels or {}).get(LOCK_LABEL, "")), tuple(image.tags)) for image in images}
+    stale = {image_id: (held, tags) for image_id, (held, tags) in stale.items()
+             if held.startswith(name) and held != lock}
     while stale:  # children before their parents: a round removes what nothing else builds on
-        refused: dict[str, str] = {}
-        for image_id, held in stale.items():
+        refused: dict[str, tuple[str, tuple[str, ...]]] = {}
+        for image_id, (held, tags) in stale.items():
+            # Never forced: Podman's Docker API would remove a container still running on it.
             try:
-                client.images.remove(image_id, force=True)
+                for ref in tags or (image_id,):
+                    client.images.remove(ref)
             except docker.errors.ImageNotFound:
                 pass
             except docker.errors.APIError as exc:
-                refused[image_id] = f"{held}: {exc}"
+                refused[image_id] = (f"{held}: {exc}", tags)
         if len(refused) == len(stale):
-            for image_id, why in refused.items():
+            for image_id, (why, _) in refused.items():
                 progress(f"kept an image of an earlier lock ({image_id[:19]}, {why})")
             break
         stale = {image_id: stale[image_id] for image_id in refused}

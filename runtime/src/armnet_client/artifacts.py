@@ -177,9 +177,20 @@ def download(store: OutputStore, manifest: Manifest, destination: Path) -> Downl
                 f"{stored.path}: the stored bytes do not match the manifest's SHA-256 "
                 f"({digest.hexdigest()[:16]}... != {stored.sha256[:16]}...); not written. The object was changed "
                 "after the upload: tell the cluster's operator")
-        os.replace(part.name, target)
+        try:
+            os.chmod(part.name, 0o666 & ~_umask())  # as an ordinary new file, not mkstemp's 0600
+            os.replace(part.name, target)
+        except OSError:
+            Path(part.name).unlink(missing_ok=True)
+            raise
         written.append(stored.path)
     return Downloaded(tuple(written), tuple(unchanged))
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _sha256_of(path: Path) -> str:

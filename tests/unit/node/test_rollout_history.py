@@ -308,6 +308,8 @@ def test_the_monitor_s_verdict_reads_back_from_the_status() -> None:
     [entry] = from_status(as_status(history))
     assert entry.monitor == MonitorMark(False, 0.1235, at(5), at(4.9))
     assert overruled(entry)
+    [by_monitor] = from_status(as_status(fold(Begun(1, 2, at(0)), judged(1, True, 5))))
+    assert by_monitor.marked_by == MONITOR and not by_monitor.marked_by_operator  # still the monitor's after a restart
     [malformed] = from_status([{**row, "monitor": {"outcome": "maybe", "score": "high"}}])
     assert malformed.monitor is None
 
