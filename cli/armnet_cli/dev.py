@@ -1,4 +1,4 @@
-"""``armnet dev up``: the test bed's control plane, node, NATS and Podman API for manual use.
+"""``armnet dev up``: the test bed's control plane, node, NATS, object store and Podman API for manual use.
 
 Starts exactly what the pytest fixtures start (the library lives in
 ``tests/testbed`` of a checkout), prints the variables to export, and stops
@@ -20,7 +20,7 @@ from typing import Any
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="dev_action", metavar="ACTION", required=True)
     up = actions.add_parser("up", help="start kube-apiserver+etcd, a node (containerd + "
-                                       "kubelet), NATS and the Podman API; Ctrl-C stops them")
+                                       "kubelet), NATS, an S3 store and the Podman API; Ctrl-C stops them")
     up.add_argument("--no-k8s", action="store_true",
                     help="do not start etcd + kube-apiserver (nor the node)")
     up.add_argument("--no-node", action="store_true",
@@ -31,8 +31,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          "(without them a Deployment or DaemonSet, e.g. the Helm chart's, makes no pods)")
     up.add_argument("--no-nats", action="store_true", help="do not start nats-server")
     up.add_argument("--no-podman", action="store_true", help="do not start the Podman API service")
+    up.add_argument("--no-store", action="store_true",
+                    help="do not start the S3-compatible object store (SeaweedFS) for job outputs")
     up.add_argument("--repo", type=Path, default=None,
                     help="repository checkout holding tests/testbed (default: found from cwd)")
+
+
+#: The bucket `armnet dev up` makes for job outputs.
+DEV_BUCKET = "armnet-outputs"
 
 
 def _find_checkout(start: Path) -> Path | None:
@@ -106,6 +112,14 @@ def _start_all(testbed: Any, args: argparse.Namespace, stack: contextlib.ExitSta
     if not args.no_nats:
         nats = stack.enter_context(testbed.NatsServer())
         lines.append(f"export NATS_URL={nats.url}")
+    if not args.no_store:
+        store = stack.enter_context(testbed.SeaweedS3())
+        bucket = store.create_bucket(DEV_BUCKET)
+        agent_env = " ".join(f"{key}={value}" for key, value in store.agent_env(bucket).items())
+        lines.append(f"# object store for job outputs (docs/outputs.md): start the agent with {agent_env}")
+        lines.append(f"# read them back: AWS_ACCESS_KEY_ID={store.access_key} AWS_SECRET_ACCESS_KEY={store.secret_key} "
+                     f"armnet artifacts JOB --endpoint {store.endpoint}")
+        lines.append(f"export ARMNET_ARTIFACTS_ENDPOINT={store.endpoint}")
     if not args.no_podman:
         podman = stack.enter_context(testbed.PodmanService())
         lines.append(f"export DOCKER_HOST={podman.base_url}")

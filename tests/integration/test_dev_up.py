@@ -1,7 +1,7 @@
 """``armnet dev up`` gives what docs/helm.md's install on the test bed needs, with nothing
 started by hand: a control plane, a Ready node, kube-controller-manager and
 kube-scheduler (a Deployment makes a pod that is scheduled and runs), the kubelet's
-root dir for ``agent.kubeletRootDir``, and ``NATS_URL``. Ctrl-C stops it all.
+root dir for ``agent.kubeletRootDir``, ``NATS_URL`` and the object store's settings. Ctrl-C stops it all.
 
 The real command in its own process; its printed lines are what a user pastes.
 """
@@ -98,6 +98,25 @@ def test_dev_up_prints_the_nats_url_and_the_kubelet_root_dir(dev_up) -> None:
     assert printed(lines, r"^export NATS_URL=(nats://127\.0\.0\.1:\d+)$")
     root = Path(printed(lines, r"agent\.kubeletRootDir\): (\S+)$"))
     assert (root / "pods").is_dir()  # the kubelet keeps its pods there: the agent mounts <root>/pods
+
+
+def test_dev_up_starts_an_object_store_with_a_bucket_for_job_outputs(dev_up) -> None:
+    import boto3
+    from botocore.config import Config
+
+    _proc, lines = dev_up
+    endpoint = printed(lines, r"^export ARMNET_ARTIFACTS_ENDPOINT=(http://127\.0\.0\.1:\d+)$")
+    agent_line = next(line for line in lines if line.startswith("# object store for job outputs"))
+    settings = dict(item.split("=", 1) for item in agent_line.split("start the agent with ", 1)[1].split())
+    assert settings["ARMNET_ARTIFACTS_ENDPOINT"] == endpoint
+    s3 = boto3.session.Session().client(
+        "s3", endpoint_url=endpoint, region_name="us-east-1", aws_access_key_id=settings["ARMNET_ARTIFACTS_ACCESS_KEY_ID"],
+        aws_secret_access_key=settings["ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"],
+        config=Config(s3={"addressing_style": "path"}, request_checksum_calculation="when_required",
+                      response_checksum_validation="when_required"))
+    bucket = settings["ARMNET_ARTIFACTS_BUCKET"]
+    s3.put_object(Bucket=bucket, Key="team-a/some-uid/manifest.json", Body=b"{}")
+    assert s3.get_object(Bucket=bucket, Key="team-a/some-uid/manifest.json")["Body"].read() == b"{}"
 
 
 def test_a_deployment_on_dev_up_makes_a_pod_that_runs_on_its_node(dev_up) -> None:

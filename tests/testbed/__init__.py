@@ -12,6 +12,7 @@ from tests.testbed.images import BASE_IMAGE, build_wheels, require_base_image
 from tests.testbed.kube import ControlPlane, KubeUser
 from tests.testbed.natsd import NatsServer
 from tests.testbed.node import Node
+from tests.testbed.objstore import SeaweedS3
 from tests.testbed.podman import PodmanService
 
 __all__ = [
@@ -21,6 +22,7 @@ __all__ = [
     "NatsServer",
     "Node",
     "PodmanService",
+    "SeaweedS3",
     "TestbedSetupError",
     "WorkloadControllers",
     "build_wheels",
