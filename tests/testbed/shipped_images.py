@@ -173,7 +173,7 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
     except docker.errors.ImageNotFound:
         pass
     # The earlier builds are stale now: free their space before this build needs it (a
-    # ~6 GB agent image and its ~9 GB build stage commit through /var/tmp).
+    # ~6 GB agent image commits its dependency layer through /var/tmp).
     lock_label = f"{spec.lock}-{_lock_digest(spec.lock)}"
     _drop_older_builds(client, spec.repository, keep="", lock=lock_label)
     started = time.monotonic()
