@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -176,6 +177,7 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
     # ~6 GB agent image commits its dependency layer through /var/tmp).
     lock_label = f"{spec.lock}-{_lock_digest(spec.lock)}"
     _drop_older_builds(client, spec.repository, keep="", lock=lock_label)
+    _drop_stale_build_dirs()
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix=f"armnet-{spec.name}-") as tmp:
         context = Path(tmp) / "context"
@@ -202,6 +204,35 @@ def ensure_image(spec: ImageSpec, *, client: Any, base_image: str = BASE_IMAGE,
     progress(f"built {tag} in {time.monotonic() - started:.0f} s")
     _drop_older_builds(client, spec.repository, keep=str(image.id), lock=lock_label)
     return tag
+
+
+#: Podman's temporary build directories in /var/tmp (the context, the commit's blobs): a prefix and digits.
+BUILD_TMP_NAME = re.compile(r"(libpod_builder|buildah|storage)\d+")
+#: Older than this, a build directory is a leftover: our builds take minutes.
+STALE_BUILD_DIR_S = 3 * 3600
+
+
+def _drop_stale_build_dirs(tmp: Path = Path("/var/tmp"), now: float | None = None) -> list[Path]:
+    """Remove Podman's build directories a failed or killed build left behind; return them.
+
+    Why: a build that fails leaves its context (GBs with LeRobot's wheels) in /var/tmp for
+    good; one such leftover of 2.2 GB was found beside a build that came within 3 GB of a
+    full disk. Only directories untouched for hours go: a running build's are fresh.
+    """
+    now = time.time() if now is None else now
+    removed = []
+    for path in tmp.iterdir() if tmp.is_dir() else ():
+        if not BUILD_TMP_NAME.fullmatch(path.name):
+            continue
+        try:
+            if path.is_dir() and not path.is_symlink() and now - path.stat().st_mtime > STALE_BUILD_DIR_S:
+                shutil.rmtree(path, ignore_errors=True)
+                removed.append(path)
+        except OSError:
+            continue
+    if removed:
+        progress(f"removed {len(removed)} build directories a failed build left in {tmp}")
+    return removed
 
 
 def _drop_older_builds(client: Any, repository: str, *, keep: str, lock: str) -> None:
