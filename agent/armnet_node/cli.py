@@ -20,13 +20,13 @@ from dataclasses import replace
 from pathlib import Path
 
 from armnet_connector.warm_imports import import_before_threads
+from armnet_core.api import ARTIFACTS_BUCKET_ENV
 from armnet_core.nats_url import nats_url_from
 from armnet_launch.container import EngineUnavailable, connect_engine
 from armnet_launch.pod_spec import CONNECTOR_USER
 
 from armnet_node.agent import AgentSettings, NodeAgent
 from armnet_node.artifacts import ObjectStore, StoreConfig, StoreMisconfigured
-from armnet_node.artifacts.store import ENV_BUCKET
 from armnet_node.deviceplugin.server import DEVICE_PLUGIN_DIR, DevicePlugins
 from armnet_node.kube import AgentKube, make_client
 from armnet_node.launchers import ContainerLauncher, JobLauncher, PodLauncher, PodSettings
@@ -162,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if store_config is None:
         logging.warning("no object store for job outputs (%s is not set): what a job writes to its output "
-                        "directory is removed when it ends (docs/outputs.md)", ENV_BUCKET)
+                        "directory is removed when it ends (docs/outputs.md)", ARTIFACTS_BUCKET_ENV)
     metrics = AgentMetrics()
     metrics.serve(args.metrics_port, args.metrics_address)
     link = open_link(args.nats_url, state_dir / "spool")

@@ -120,9 +120,11 @@ class SeaweedS3:
 
     def agent_env(self, bucket: str) -> dict[str, str]:
         """The node agent's env for storing job outputs in ``bucket`` here (docs/outputs.md)."""
-        return {"ARMNET_ARTIFACTS_ENDPOINT": self.endpoint, "ARMNET_ARTIFACTS_BUCKET": bucket,
-                "ARMNET_ARTIFACTS_REGION": self.region, "ARMNET_ARTIFACTS_ACCESS_KEY_ID": self.access_key,
-                "ARMNET_ARTIFACTS_SECRET_ACCESS_KEY": self.secret_key}
+        from armnet_core import api
+
+        return {api.ARTIFACTS_ENDPOINT_ENV: self.endpoint, api.ARTIFACTS_BUCKET_ENV: bucket,
+                api.ARTIFACTS_REGION_ENV: self.region, api.ARTIFACTS_ACCESS_KEY_ENV: self.access_key,
+                api.ARTIFACTS_SECRET_KEY_ENV: self.secret_key}
 
     def objects(self, bucket: str, prefix: str = "") -> dict[str, bytes]:
         """Every object under ``prefix`` in ``bucket``, read back whole: what a test checks the store holds."""

@@ -15,15 +15,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import IO, Any
 
+from armnet_core.api import (
+    ARTIFACTS_ACCESS_KEY_ENV,
+    ARTIFACTS_BUCKET_ENV,
+    ARTIFACTS_ENDPOINT_ENV,
+    ARTIFACTS_REGION_ENV,
+    ARTIFACTS_SECRET_KEY_ENV,
+)
+
 from armnet_node.artifacts.keys import SHA256_METADATA
 from armnet_node.artifacts.model import StoreMisconfigured, StoreUnavailable
-
-#: Env vars of the agent's store settings (the chart fills them from a ConfigMap and a Secret).
-ENV_ENDPOINT = "ARMNET_ARTIFACTS_ENDPOINT"
-ENV_BUCKET = "ARMNET_ARTIFACTS_BUCKET"
-ENV_REGION = "ARMNET_ARTIFACTS_REGION"
-ENV_ACCESS_KEY = "ARMNET_ARTIFACTS_ACCESS_KEY_ID"
-ENV_SECRET_KEY = "ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"
 
 #: S3 error codes an operator must fix (a retry cannot help).
 _MISCONFIGURED = frozenset({
@@ -53,18 +54,18 @@ class StoreConfig:
     def from_env(cls, environ: Mapping[str, str] | None = None) -> StoreConfig | None:
         """The settings from the agent's env; None when no bucket is set (uploads are off)."""
         env = os.environ if environ is None else environ
-        bucket = env.get(ENV_BUCKET, "").strip()
+        bucket = env.get(ARTIFACTS_BUCKET_ENV, "").strip()
         if not bucket:
             return None
-        missing = [name for name in (ENV_ACCESS_KEY, ENV_SECRET_KEY) if not env.get(name)]
+        missing = [name for name in (ARTIFACTS_ACCESS_KEY_ENV, ARTIFACTS_SECRET_KEY_ENV) if not env.get(name)]
         if missing:
             raise StoreMisconfigured(
-                f"{ENV_BUCKET} is set but {', '.join(missing)} is not: give the agent the store's keys "
+                f"{ARTIFACTS_BUCKET_ENV} is set but {', '.join(missing)} is not: give the agent the store's keys "
                 "(the chart reads them from the Secret named by artifacts.credentialsSecret)"
             )
         return cls(
-            bucket=bucket, access_key_id=env[ENV_ACCESS_KEY], secret_access_key=env[ENV_SECRET_KEY],
-            endpoint_url=env.get(ENV_ENDPOINT) or None, region=env.get(ENV_REGION) or "us-east-1",
+            bucket=bucket, access_key_id=env[ARTIFACTS_ACCESS_KEY_ENV], secret_access_key=env[ARTIFACTS_SECRET_KEY_ENV],
+            endpoint_url=env.get(ARTIFACTS_ENDPOINT_ENV) or None, region=env.get(ARTIFACTS_REGION_ENV) or "us-east-1",
         )
 
 
@@ -154,7 +155,7 @@ class ObjectStore:
         if code in _MISCONFIGURED:
             return StoreMisconfigured(
                 f"the object store {where} refused to {what}: {code}; check the agent's bucket and keys "
-                f"({ENV_BUCKET}, {ENV_ACCESS_KEY})"
+                f"({ARTIFACTS_BUCKET_ENV}, {ARTIFACTS_ACCESS_KEY_ENV})"
             )
         if not code and not _is_botocore(exc):
             return exc  # not the store's: an agent bug stays visible as itself

@@ -24,11 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Optional
 
+from armnet_core.api import ARTIFACTS_ENDPOINT_ENV, ARTIFACTS_REGION_ENV
+
 from .errors import ClientError
 
-#: Env vars read for the store when no option is given (the agent's own names, docs/outputs.md).
-ENV_ENDPOINT = "ARMNET_ARTIFACTS_ENDPOINT"
-ENV_REGION = "ARMNET_ARTIFACTS_REGION"
 CHUNK = 1 << 20
 #: A manifest larger than this is not read (10,000 files of long names are ~3 MB).
 MAX_MANIFEST_BYTES = 32 * 1024 * 1024
@@ -99,11 +98,11 @@ class OutputStore:
             raise ArtifactsError("reading job outputs needs boto3: pip install 'armnet-runtime[client]'") from exc
         env = os.environ if environ is None else environ
         self.bucket = bucket
-        self.endpoint_url = endpoint_url or env.get(ENV_ENDPOINT) or None
+        self.endpoint_url = endpoint_url or env.get(ARTIFACTS_ENDPOINT_ENV) or None
         # A session of its own: boto3's default one keeps the first credentials it found for the process.
         self._s3: Any = boto3.session.Session().client(
             "s3", endpoint_url=self.endpoint_url,
-            region_name=region or env.get(ENV_REGION) or env.get("AWS_DEFAULT_REGION") or "us-east-1",
+            region_name=region or env.get(ARTIFACTS_REGION_ENV) or env.get("AWS_DEFAULT_REGION") or "us-east-1",
             config=Config(s3={"addressing_style": "path"}, retries={"mode": "standard", "max_attempts": 3},
                           request_checksum_calculation="when_required",
                           response_checksum_validation="when_required"),
@@ -131,7 +130,7 @@ class OutputStore:
                 raise ArtifactsError(
                     f"the object store refused to read {where} ({code}): give your read credentials "
                     "(AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY) and the store's URL (--endpoint or "
-                    f"${ENV_ENDPOINT})") from exc
+                    f"${ARTIFACTS_ENDPOINT_ENV})") from exc
             if code in ("NoSuchKey", "404", "NoSuchBucket"):
                 raise ArtifactsError(f"{where} does not exist ({code}): the output was removed, or this is "
                                      "another store (--endpoint)") from exc

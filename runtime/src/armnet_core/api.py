@@ -39,7 +39,20 @@ SITE_LABEL = f"{GROUP}/site"
 #: simulator, so a platform team can watch the cell go unhealthy (fault injection).
 SIM_UNPLUG_ANNOTATION = f"{GROUP}/sim-unplug"
 
+#: The object store of job outputs, as the node agent reads it from its env (the chart's
+#: ``artifacts`` values) and the client too (``armnet artifacts``; docs/outputs.md).
+ARTIFACTS_ENDPOINT_ENV = "ARMNET_ARTIFACTS_ENDPOINT"
+ARTIFACTS_BUCKET_ENV = "ARMNET_ARTIFACTS_BUCKET"
+ARTIFACTS_REGION_ENV = "ARMNET_ARTIFACTS_REGION"
+ARTIFACTS_ACCESS_KEY_ENV = "ARMNET_ARTIFACTS_ACCESS_KEY_ID"
+ARTIFACTS_SECRET_KEY_ENV = "ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"
+
 __all__ = [
+    "ARTIFACTS_ACCESS_KEY_ENV",
+    "ARTIFACTS_BUCKET_ENV",
+    "ARTIFACTS_ENDPOINT_ENV",
+    "ARTIFACTS_REGION_ENV",
+    "ARTIFACTS_SECRET_KEY_ENV",
     "ACTIVE_PHASES",
     "API_VERSION",
     "CELLQUOTAS",
