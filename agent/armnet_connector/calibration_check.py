@@ -12,10 +12,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from .block_read import read_block
-from .reply_window import LEROBOT_REPLY_WINDOW_MS
+from .reply_window import use_lerobot_reply_window
 
 #: The EEPROM registers that hold a servo's calibration, in tuple order.
 CALIBRATION_REGISTERS = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
@@ -111,21 +110,6 @@ def read_calibration(
         return held
     finally:
         handler.closePort()
-
-
-def use_lerobot_reply_window(handler: Any) -> None:
-    """Give each reply the window LeRobot's bus gives it (50 ms plus the bytes' time).
-
-    Why: the SDK's own window (~34 ms at 1 Mbaud) is shorter than the one LeRobot
-    patches in, and a servo (or a loaded machine's simulator) answering within
-    LeRobot's window must read the same here as through LeRobot.
-    """
-
-    def set_packet_timeout(packet_length: int) -> None:
-        handler.packet_start_time = handler.getCurrentTime()
-        handler.packet_timeout = handler.tx_time_per_byte * (packet_length + 3.0) + LEROBOT_REPLY_WINDOW_MS
-
-    handler.setPacketTimeout = set_packet_timeout
 
 
 def _word(block: list[int], offset: int) -> int:

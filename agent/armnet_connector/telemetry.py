@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from .reply_window import LATE_REPLY_WAIT_S, use_lerobot_reply_window
 from .telemetry_decode import (
     TELEMETRY_LENGTH,
     TELEMETRY_START,
@@ -71,13 +73,22 @@ def read_block(port_handler: Any, packet_handler: Any, ids: Iterable[int]) -> di
 
 
 class ArmReader:
-    """The agent's own handle on an idle arm's port: opened at the first read, kept open until ``close``."""
+    """The agent's own handle on an idle arm's port: opened at the first read, kept open until ``close``.
 
-    def __init__(self, port: str, protocol: int) -> None:
+    Its reads give each reply LeRobot's window, and a read asked for soon after a
+    cut-short one first waits past that window (``reply_window``): the servos after
+    the silent one may still be answering the last read.
+    """
+
+    def __init__(self, port: str, protocol: int, *, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.port = port
         self.protocol = protocol
         self._lock = threading.Lock()
         self._handles: tuple[Any, Any] | None = None
+        self._clock = clock
+        self._sleep = sleep
+        self._cut_short_at: float | None = None
 
     @property
     def is_open(self) -> bool:
@@ -89,11 +100,20 @@ class ArmReader:
             if self._handles is None:
                 self._handles = self._open()
             port_handler, packet_handler = self._handles
+            self._wait_out_late_replies()
             try:
-                return read_block(port_handler, packet_handler, ids)
+                samples = read_block(port_handler, packet_handler, ids)
             except OSError:
                 self._close()
                 raise
+            self._cut_short_at = self._clock() if None in samples.values() else None
+            return samples
+
+    def _wait_out_late_replies(self) -> None:
+        if self._cut_short_at is not None:
+            left = self._cut_short_at + LATE_REPLY_WAIT_S - self._clock()
+            if left > 0:
+                self._sleep(left)
 
     def _open(self) -> tuple[Any, Any]:
         from scservo_sdk import PacketHandler, PortHandler
@@ -102,6 +122,7 @@ class ArmReader:
         if not handler.openPort():
             raise OSError(f"cannot open {self.port}")
         handler.setBaudRate(BAUD_RATE)
+        use_lerobot_reply_window(handler)
         return handler, PacketHandler(self.protocol)
 
     def close(self) -> None:

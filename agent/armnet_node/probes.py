@@ -22,9 +22,9 @@ from armnet_connector.calibration_check import (
     READ_RETRIES,
     calibration_mismatches,
     read_calibration,
-    use_lerobot_reply_window,
 )
 from armnet_connector.config import MotorRange, read_calibration_file
+from armnet_connector.reply_window import use_lerobot_reply_window
 
 from armnet_node.health import ArmProbe
 

@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 import pytest
 from armnet_connector import Connector, LocalOperatorInputs
+from armnet_connector.reply_window import LATE_REPLY_WAIT_S
+from armnet_connector.telemetry import ArmReader
 from armnet_launch.cell_spec import CameraSpec
 from armnet_node.bus_turns import BusTurns
 from armnet_node.metrics import AgentMetrics
@@ -229,6 +231,24 @@ def test_the_read_after_a_cut_short_idle_read_answers_with_every_servo(sim: Simu
     positions = sim.arm.positions()
     assert all(sample is not None for sample in after_arm.values())
     assert {m: s.position for m, s in after_arm.items() if s is not None} == pytest.approx(positions, abs=3)
+
+
+def test_a_read_soon_after_a_cut_short_one_first_waits_past_the_reply_window(sim: SimulatedCellProcess) -> None:
+    waits: list[float] = []
+    reader = ArmReader(sim.arm.port, 0, sleep=lambda s: (waits.append(s), time.sleep(s)) and None)
+    ids = range(1, 7)
+    try:
+        whole = reader.read(ids)
+        again = reader.read(ids)
+        sim.arm.drop_replies("elbow_flex", 1)
+        cut = reader.read(ids)
+        after = reader.read(ids)
+    finally:
+        sim.arm.clear_faults()
+        reader.close()
+    assert None not in whole.values() and None not in again.values()
+    assert cut[3] is None and None not in after.values()
+    assert len(waits) == 1 and 0 < waits[0] <= LATE_REPLY_WAIT_S  # only the read after the cut one waited
 
 
 def test_an_idle_arm_of_a_non_feetech_motor_model_is_not_read_and_says_why(sim: SimulatedCellProcess) -> None:
