@@ -14,6 +14,7 @@ import json
 import os
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -136,6 +137,13 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "evaluation": bed.submit("evaluates", bed.image("evaluates", JOBS / "evaluates.py", (EXAMPLES / "_so101_moves.py",)),
                                  task="evaluation", timeout=300),
         "output": bed.submit("writes-output", bed.image("writes-output", JOBS / "writes_output.py"), timeout=120),
+        # On the cell with a camera (the evaluation's), after or before the evaluation.
+        "recording": bed.submit("records", bed.image("records", EXAMPLES / "record.py"), task="evaluation",
+                                timeout=300, args={"episodes": 2, "episode_seconds": 2, "fps": 10}),
+        # No camera on the cells of the default task: the episodes' parquet only.
+        "recording-timeout": bed.submit("records-until-timeout", bed.image("records", EXAMPLES / "record.py"),
+                                        timeout=90, args={"episodes": 1000, "episode_seconds": 2,
+                                                          "reset_seconds": 0.5, "fps": 10}),
         "secret": bed.submit("with-secret", bed.image("echo", JOBS / "echo.py"), args={"size": "x" * 60_000},
                              secrets={"API_TOKEN": "api-token"}),
         "timeout-ignored": bed.submit("ignores", bed.image("ignores", JOBS / "ignores_shutdown.py"), timeout=JOB_TIMEOUT),
@@ -200,6 +208,63 @@ def test_what_a_job_writes_to_its_output_directory_is_stored_with_its_checksums(
     [entry] = [f for f in manifest["files"] if f["path"] == "data/chunk-000/episode_000000.parquet"]
     assert entry["sha256"] == hashlib.sha256(data).hexdigest() == episode["Metadata"]["sha256"]
     assert not (bed.state_dir / "outputs" / uid).exists()
+
+
+def downloaded_dataset(bed: AgentBed, name: str, repo_id: str, object_store: Any, out: Path,
+                       monkeypatch: pytest.MonkeyPatch) -> Any:
+    """The job's recorded LeRobot dataset, once stored, fetched with ``armnet artifacts`` and loaded by LeRobot."""
+    from armnet_cli.main import main as armnet
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    bed.wait(lambda: (status(bed.job(name)).get("artifacts") or {}).get("phase") == "Uploaded", 180,
+             f"{name}'s output uploaded")
+    monkeypatch.setenv("AWS_ACCESS_KEY_ID", object_store.access_key)
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", object_store.secret_key)
+    monkeypatch.setenv("ARMNET_ARTIFACTS_ENDPOINT", object_store.endpoint)
+    assert armnet(["artifacts", name, "--download", str(out),
+                   "--kubeconfig", str(bed.k8s.kubeconfig), "-n", bed.namespace]) == 0
+    # torchcodec does not load here (docs/lerobot-compatibility.md): video frames are read with PyAV.
+    return LeRobotDataset(repo_id, root=out / "lerobot" / repo_id, video_backend="pyav")
+
+
+def test_lerobots_own_recording_in_a_job_downloads_with_armnet_artifacts_as_a_dataset_lerobot_loads(
+    bed: AgentBed, batch: dict[str, str], object_store: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import av
+
+    st = status(bed.wait_phase(batch["recording"], timeout=600))
+    assert st["phase"] == "succeeded", json.dumps(st, indent=1)
+    recorded = st["result"]["returnValue"]
+    assert (recorded["episodes"], recorded["cameras"]) == (2, ["observation.images.front"]), recorded
+    dataset = downloaded_dataset(bed, batch["recording"], recorded["repo_id"], object_store, tmp_path, monkeypatch)
+    assert (dataset.num_episodes, dataset.num_frames) == (2, recorded["frames"])
+    lengths = list(dataset.meta.episodes["length"])
+    assert len(lengths) == 2 and all(n > 0 for n in lengths) and sum(lengths) == recorded["frames"]
+    assert len(dataset.hf_dataset[0]["action"]) == 6 and len(dataset.hf_dataset[0]["observation.state"]) == 6
+    [video] = (dataset.root / "videos" / "observation.images.front").rglob("*.mp4")
+    with av.open(str(video)) as container:
+        frames = list(container.decode(video=0))
+    assert len(frames) == recorded["frames"] and (frames[0].width, frames[0].height) == (640, 480)
+
+
+def test_a_recording_stopped_at_its_timeout_keeps_every_finished_episode(
+    bed: AgentBed, batch: dict[str, str], object_store: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import re
+
+    st = status(bed.wait_phase(batch["recording-timeout"], timeout=600))
+    assert st["phase"] == "timeout", json.dumps(st, indent=1)
+    # At the deadline the interlock refuses the next action; record() closes the dataset on its way out.
+    assert "ShuttingDown" in st["result"]["traceback"]
+    started = [int(n) for n in re.findall(r"Recording episode (\d+)", st["result"]["stderrTail"])]
+    assert started, st["result"]["stderrTail"][-2000:]
+    dataset = downloaded_dataset(bed, batch["recording-timeout"], "armnet/recording", object_store, tmp_path,
+                                 monkeypatch)
+    cut_short = max(started)  # the episode the deadline cut: LeRobot never saved it
+    assert dataset.num_episodes == cut_short >= 1
+    lengths = list(dataset.meta.episodes["length"])
+    assert list(dataset.meta.episodes["episode_index"]) == list(range(cut_short))
+    assert all(n > 0 for n in lengths) and sum(lengths) == dataset.num_frames == len(dataset.hf_dataset)
 
 
 def test_an_evaluation_nobody_watches_is_judged_by_the_cells_monitor_in_its_status(
