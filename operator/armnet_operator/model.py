@@ -107,6 +107,10 @@ class Job:
     cancel_requested_at: datetime | None = None
     finished_at: datetime | None = None
     ttl_seconds_after_finished: int | None = None
+    timeout_seconds: int = 120
+    started_at: datetime | None = None
+    estimated_start: datetime | None = None
+    """``status.estimatedStart`` as last written (``estimate``: the latest start while it waits)."""
     conditions: tuple[Mapping[str, Any], ...] = ()
     spec_problem: str | None = None
     """Why this job can never start (args too deep or too large, an unreadable spec): it fails."""
@@ -161,6 +165,7 @@ class Cell:
     resource_version: str = ""
     node_name: str = ""
     unschedulable: bool = False
+    grace_period: timedelta = timedelta(seconds=10)
     phase: CellPhase | None = None
     current_job: str | None = None
     claimed_at: datetime | None = None

@@ -8,7 +8,7 @@ status). Unknown fields are ignored so the agent can add its own.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Annotated, Any, TypeVar
 
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
@@ -56,6 +56,7 @@ class _JobSpec(_Lenient):
     priority: int = 0
     cancel: bool = False
     ttl_seconds_after_finished: int | None = Field(default=None, alias="ttlSecondsAfterFinished")
+    timeout_seconds: int = Field(default=120, ge=1, alias="timeoutSeconds")
 
 
 class _JobStatus(_Lenient):
@@ -65,6 +66,8 @@ class _JobStatus(_Lenient):
     queued_reason: str | None = Field(default=None, alias="queuedReason")
     queue_position: int | None = Field(default=None, alias="queuePosition")
     finished_at: Timestamp | None = Field(default=None, alias="finishedAt")
+    started_at: Timestamp | None = Field(default=None, alias="startedAt")
+    estimated_start: Timestamp | None = Field(default=None, alias="estimatedStart")
 
 
 class _CellSpec(_Lenient):
@@ -72,6 +75,7 @@ class _CellSpec(_Lenient):
     task: str | None = None
     node_name: str = Field(default="", alias="nodeName")
     unschedulable: bool = False
+    grace_period_seconds: int = Field(default=10, ge=0, alias="gracePeriodSeconds")
 
 
 class _Arm(_Lenient):
@@ -150,8 +154,10 @@ class _JobBody(_Lenient):
     status: _JobStatusFull = Field(default_factory=_JobStatusFull)
 
 
-_JOB_SPEC_FIELDS = ("embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished")
-_JOB_STATUS_FIELDS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "conditions")
+_JOB_SPEC_FIELDS = ("embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds")
+_JOB_STATUS_SCALARS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "startedAt",
+                       "estimatedStart")
+_JOB_STATUS_FIELDS = (*_JOB_STATUS_SCALARS, "conditions")
 
 
 def parse_job(body: Mapping[str, Any]) -> Job:
@@ -202,8 +208,7 @@ def _parse_job_leniently(body: Mapping[str, Any]) -> Job:
             problems.append(too_big)
     raw_status = body.get("status") or {}
     raw_status = raw_status if isinstance(raw_status, Mapping) else {}
-    scalars = {k: _plain(v) for k, v in raw_status.items()
-               if k in ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt")}
+    scalars = {k: _plain(v) for k, v in raw_status.items() if k in _JOB_STATUS_SCALARS}
     status, defects = _lenient(_JobStatus, scalars, "status")
     conditions, plain_conditions, bad_conditions = _conditions(raw_status.get("conditions"), "status.conditions")
     return _job(meta, spec, status, conditions, tuple(plain_conditions),
@@ -237,6 +242,9 @@ def _job(
         cancel_requested_at=_true_since(conditions, JobConditionType.CANCEL_REQUESTED),
         finished_at=status.finished_at,
         ttl_seconds_after_finished=spec.ttl_seconds_after_finished,
+        timeout_seconds=spec.timeout_seconds,
+        started_at=status.started_at,
+        estimated_start=status.estimated_start,
         conditions=plain_conditions,
         spec_problem=spec_problem,
         status_defects=status_defects,
@@ -246,7 +254,8 @@ def _job(
 def parse_cell(body: Mapping[str, Any]) -> Cell:
     meta = _Meta.model_validate(_metadata(body))
     raw_spec = body.get("spec") or {}
-    fields = _plain({k: v for k, v in raw_spec.items() if k in ("embodiment", "task", "nodeName", "unschedulable")})
+    fields = _plain({k: v for k, v in raw_spec.items()
+                     if k in ("embodiment", "task", "nodeName", "unschedulable", "gracePeriodSeconds")})
     problem = None
     try:
         spec = _CellSpec.model_validate(fields)
@@ -272,6 +281,7 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         resource_version=meta.resource_version,
         node_name=spec.node_name,
         unschedulable=spec.unschedulable,
+        grace_period=timedelta(seconds=spec.grace_period_seconds),
         phase=status.phase,
         current_job=status.current_job or None,
         claimed_at=status.claimed_at,

@@ -114,6 +114,7 @@ def bind_job(job: Job, cell: Cell, now: datetime) -> Patch:
         "jobId": job.job_id or job.uid or job.key,
         "queuedReason": None,
         "queuePosition": None,
+        "estimatedStart": None,
         "conditions": conditions,
     }
     return _job_status(job, status)
@@ -127,6 +128,7 @@ def queue_job(job: Job, entry: QueueEntry, now: datetime) -> Patch:
         "jobId": job.job_id or job.uid or job.key,
         "queuedReason": entry.reason.value,
         "queuePosition": entry.position,
+        "estimatedStart": kube_time(entry.latest_start) if entry.latest_start is not None else None,
         "conditions": conditions,
     }
     return _job_status(job, status)
@@ -140,6 +142,7 @@ def requeue_job(job: Job, message: str, now: datetime) -> Patch:
         "phase": JobPhase.QUEUED.value,
         "cellName": None,
         "queuedReason": BoundReason.REQUEUED.value,
+        "estimatedStart": None,
         "conditions": conditions,
     }
     return _job_status(job, status)
@@ -153,6 +156,7 @@ def finish_job(job: Job, phase: JobPhase, reason: str, error: str | None, now: d
         "finishedAt": kube_time(now),
         "queuedReason": None,
         "queuePosition": None,
+        "estimatedStart": None,
         "conditions": conditions,
     }
     if error is not None:

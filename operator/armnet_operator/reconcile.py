@@ -683,12 +683,27 @@ def _append_finalizer(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | 
 def _queue_write_due(
     job: Job, entry: QueueEntry, last: datetime | None, now: datetime, limits: Limits
 ) -> bool:
-    """Phase and reason changes go out at once; position-only changes are rate limited."""
+    """Phase and reason changes go out at once; position and estimate changes are rate limited.
+
+    An estimate counts as changed when it moved by ``ESTIMATE_STEP`` or more, or
+    appeared or vanished: an overdue job ahead moves every estimate behind it a
+    little each pass.
+    """
     if job.phase is not JobPhase.QUEUED or job.queued_reason != entry.reason:
         return True
-    if job.queue_position == entry.position:
+    if job.queue_position == entry.position and not _estimate_moved(job.estimated_start, entry.latest_start):
         return False
     return last is None or now - last >= limits.position_refresh
+
+
+#: How far ``status.estimatedStart`` may drift from the plan before it is written again.
+ESTIMATE_STEP = timedelta(seconds=60)
+
+
+def _estimate_moved(written: datetime | None, planned: datetime | None) -> bool:
+    if written is None or planned is None:
+        return written is not planned
+    return abs(planned - written) >= ESTIMATE_STEP
 
 
 def _write(api: Api, patch: patches.Patch, outcome: Outcome) -> dict[str, Any] | None:

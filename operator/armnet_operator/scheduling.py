@@ -19,9 +19,10 @@ from __future__ import annotations
 import heapq
 from collections import defaultdict, deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 
+from .estimate import latest_starts, seats
 from .fairshare import Ledger, holds_cell
 from .health import derive_cell_phase, is_available
 from .model import Cell, CellPhase, Job, QueuedReason
@@ -39,6 +40,8 @@ class QueueEntry:
     reason: QueuedReason
     position: int
     message: str
+    latest_start: datetime | None = None
+    """When the job starts at the latest (``estimate``); None when it waits on no busy cell."""
 
 
 @dataclass(frozen=True)
@@ -179,7 +182,26 @@ def plan_bindings(
         if head + 1 < len(queue):
             heapq.heappush(turns, (ledger.rank(tenant), order_key(queue[head + 1]), tenant))
     exhausted.sort(key=lambda entry: order_key(entry[0]))
-    return SchedulePlan(tuple(bindings), _positions(entries + exhausted))
+    positions = _positions(entries + exhausted)
+    starts = _latest_starts(entries, bindings, jobs, phases, now)
+    return SchedulePlan(tuple(bindings), {
+        key: replace(entry, latest_start=starts.get(key)) if key in starts else entry
+        for key, entry in positions.items()
+    })
+
+
+def _latest_starts(
+    entries: list[tuple[Job, QueuedReason, str]], bindings: list[Binding], jobs: list[Job],
+    phases: Mapping[str, tuple[Cell, CellPhase]], now: datetime,
+) -> dict[str, datetime]:
+    """The latest start of each job that waits for busy cells (``estimate``), after this pass's bindings."""
+    busy = [job for job, reason, _ in entries if reason is QueuedReason.ALL_CELLS_BUSY]
+    if not busy:
+        return {}
+    holders = {job.cell_name: job for job in jobs if job.active and job.cell_name}
+    holders.update({b.cell.name: replace(b.job, bound_at=now) for b in bindings})
+    available = [cell for cell, phase in phases.values() if is_available(phase)]
+    return latest_starts(busy, seats(available, holders, now))
 
 
 def _quota_entry(job: Job, census: _Census, problem: str) -> tuple[Job, QueuedReason, str]:

@@ -49,6 +49,29 @@ def test_higher_priority_binds_first_and_the_rest_wait_with_a_position(bed: Bed,
     assert bed.wait_job("low-2", queuePosition=2)["status"]["queuedReason"] == "AllCellsBusy"
 
 
+def test_a_job_waiting_for_busy_cells_says_when_it_starts_at_the_latest(bed: Bed, operator: Any) -> None:
+    from datetime import datetime
+
+    def when(body: dict[str, Any], field: str) -> datetime:
+        return datetime.fromisoformat(body["status"][field].replace("Z", "+00:00"))
+
+    cell = bed.cell("c1")  # the CRD's default grace period: 10 s
+    bed.job("running", timeoutSeconds=300)
+    bound = bed.wait_job("running", phase="dispatched", cellName=cell)
+    bed.job("first", timeoutSeconds=60)
+    bed.job("second", timeoutSeconds=60)  # created in the same second: the name breaks the tie
+    second = bed.wait("the second job's estimate", lambda: (
+        (body := bed.get_job("second")) and body.get("status", {}).get("estimatedStart") and body))
+    first = bed.get_job("first")
+    bound_at = datetime.fromisoformat(bed.condition(bound, "Bound")["lastTransitionTime"].replace("Z", "+00:00"))
+    # Bound but not started: the running job holds the cell from its binding for its timeout and grace.
+    assert abs((when(first, "estimatedStart") - bound_at).total_seconds() - (300 + 10)) <= 1
+    assert (when(second, "estimatedStart") - when(first, "estimatedStart")).total_seconds() == 60 + 10
+    # Bound: the estimate is gone.
+    bed.agent_sets("running", "succeeded")
+    assert bed.wait_job("first", phase="dispatched", cellName=cell)["status"].get("estimatedStart") is None
+
+
 def test_queue_reasons_say_why_a_job_waits(bed: Bed, operator: Any) -> None:
     bed.cell("cordoned", task="fold", unschedulable=True)
     bed.job("no-embodiment", embodiment="test/nobody-has-this")

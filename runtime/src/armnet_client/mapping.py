@@ -143,6 +143,8 @@ class JobView:
     cell: Optional[str]
     queued_reason: Optional[str]
     queue_position: Optional[int]
+    #: While it waits for busy cells: when it starts at the latest (the operator's ``status.estimatedStart``).
+    estimated_start: Optional[datetime]
     progress: Optional[str]
     rollout: Optional[tuple[int, int]]
     cancel_requested: bool
@@ -169,6 +171,7 @@ def view_of(job: RobotJob) -> JobView:
         cell=job.status.cell_name,
         queued_reason=job.status.queued_reason,
         queue_position=job.status.queue_position,
+        estimated_start=job.status.estimated_start,
         progress=job.status.progress,
         rollout=(rollout.index, rollout.total) if rollout else None,
         cancel_requested=job.spec.cancel,

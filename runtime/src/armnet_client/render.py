@@ -53,11 +53,13 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
-def _queue_note(job: JobView) -> str:
+def _queue_note(job: JobView, now: datetime) -> str:
+    """``AllCellsBusy #2, starts within 12m``: why it waits, its place, and its latest start when it has one."""
     if job.status not in (JobStatus.QUEUED, JobStatus.SUBMITTED) or not job.queued_reason:
         return ""
     position = f" #{job.queue_position}" if job.queue_position else ""
-    return f"{job.queued_reason}{position}"
+    starts = f", starts within {age(now, job.estimated_start)}" if job.estimated_start is not None else ""
+    return f"{job.queued_reason}{position}{starts}"
 
 
 def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) -> str:
@@ -68,7 +70,7 @@ def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) ->
     for job in jobs:
         status = job.status.value + (" (cancelling)" if job.cancel_requested
                                      and job.status not in TerminalStatus else "")
-        row = [job.name, status, job.cell or "<none>", job.embodiment, _queue_note(job) or "-",
+        row = [job.name, status, job.cell or "<none>", job.embodiment, _queue_note(job, now) or "-",
                age(job.created_at, now)]
         if wide:
             rollout = f" [rollout {job.rollout[0]}/{job.rollout[1]}]" if job.rollout else ""
@@ -143,7 +145,8 @@ def job_document(job: Job, view: JobView) -> dict[str, Any]:
     document.update({
         "namespace": view.namespace,
         "jobId": view.job_id,
-        "queue": {"reason": view.queued_reason, "position": view.queue_position},
+        "queue": {"reason": view.queued_reason, "position": view.queue_position,
+                  "estimatedStart": _when(view.estimated_start)},
         "progress": view.progress,
         "rollout": {"index": view.rollout[0], "total": view.rollout[1]} if view.rollout else None,
         "rollouts": [{"index": r.index, "total": r.total, "outcome": r.outcome, "markedBy": r.marked_by,

@@ -103,6 +103,7 @@ class RobotJobStatus(_Body):
     cell_name: Optional[str] = Field(default=None, alias="cellName")
     queued_reason: Optional[str] = Field(default=None, alias="queuedReason")
     queue_position: Optional[int] = Field(default=None, alias="queuePosition")
+    estimated_start: Optional[datetime] = Field(default=None, alias="estimatedStart")
     started_at: Optional[datetime] = Field(default=None, alias="startedAt")
     finished_at: Optional[datetime] = Field(default=None, alias="finishedAt")
     progress: Optional[str] = None

@@ -58,6 +58,12 @@ class JobBuilder:
     def with_priority(self, priority: int) -> JobBuilder:
         return self._with(priority=priority)
 
+    def with_timeout(self, seconds: int) -> JobBuilder:
+        return self._with(timeout_seconds=seconds)
+
+    def started_ago(self, seconds: float) -> JobBuilder:
+        return self._with(started_at=ago(seconds))
+
     def submitted_ago(self, seconds: float) -> JobBuilder:
         return self._with(created=ago(seconds))
 
@@ -117,6 +123,9 @@ class CellBuilder:
 
     def with_task(self, task: str) -> CellBuilder:
         return self._with(task=task)
+
+    def with_grace(self, seconds: int) -> CellBuilder:
+        return self._with(grace_period=timedelta(seconds=seconds))
 
     def cordoned(self) -> CellBuilder:
         return self._with(unschedulable=True)
