@@ -138,10 +138,10 @@ def batch(bed: AgentBed) -> dict[str, str]:
                                  task="evaluation", timeout=300),
         "output": bed.submit("writes-output", bed.image("writes-output", JOBS / "writes_output.py"), timeout=120),
         # On the cell with a camera (the evaluation's), after or before the evaluation.
-        "recording": bed.submit("records", bed.image("records", EXAMPLES / "record.py"), task="evaluation",
+        "recording": bed.submit("records", bed.image("records", EXAMPLES / "record.py", (EXAMPLES / "_so101_moves.py",)), task="evaluation",
                                 timeout=300, args={"episodes": 2, "episode_seconds": 2, "fps": 10}),
         # No camera on the cells of the default task: the episodes' parquet only.
-        "recording-timeout": bed.submit("records-until-timeout", bed.image("records", EXAMPLES / "record.py"),
+        "recording-timeout": bed.submit("records-until-timeout", bed.image("records", EXAMPLES / "record.py", (EXAMPLES / "_so101_moves.py",)),
                                         timeout=90, args={"episodes": 1000, "episode_seconds": 2,
                                                           "reset_seconds": 0.5, "fps": 10}),
         "secret": bed.submit("with-secret", bed.image("echo", JOBS / "echo.py"), args={"size": "x" * 60_000},

@@ -38,6 +38,7 @@ __all__ = [
     "interlock",
     "observer",
     "ratelog",
+    "reply_window",
     "telemetry",
     "telemetry_decode",
     "warm_imports",

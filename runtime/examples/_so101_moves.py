@@ -21,6 +21,24 @@ GRIPPER = "gripper"
 TOLERANCE = 0.75  # degrees (gripper: percent) counted as "arrived"
 
 
+def follower_config(ctx: Context) -> Any:
+    """LeRobot's ``SO101FollowerConfig`` with the cell's facts in place of the command-line flags.
+
+    The port is the cell's connector endpoint, the calibration the cell's (read-only),
+    the cameras the cell's, and LeRobot's ``max_relative_target`` the cell's safety
+    limit, so LeRobot clamps each step before the connector ever sees it.
+    """
+    from lerobot.robots.so_follower import SO101FollowerConfig
+
+    return SO101FollowerConfig(
+        port=ctx.cell.robot_port,
+        id=ctx.cell.robot_id,
+        calibration_dir=ctx.cell.calibration_dir,
+        cameras=dict(ctx.camera_configs),
+        max_relative_target=ctx.cell.safety_limit,
+    )
+
+
 def so101_motors() -> dict[str, Any]:
     """The six STS3215 servos of an SO-101 arm, as LeRobot's SO follower declares them."""
     from lerobot.motors import Motor, MotorNormMode

@@ -1,8 +1,8 @@
 """Record a LeRobot dataset on the cell with LeRobot's own ``record()``, teleoperated through armnet.
 
 This is ``lerobot-record`` as a LeRobot user runs it beside a real arm, with the
-cell's facts in place of the command-line flags (the port, calibration, cameras
-and safety limit are the cell's) and armnet's teleop relay as the leader arm.
+cell's facts in place of the command-line flags (``_so101_moves.follower_config``:
+the port, calibration, cameras and safety limit are the cell's) and armnet's teleop relay as the leader arm.
 Until the operator moves the leader (``armnet teleop JOB``, or the cell operator's
 page), the follower holds the pose it started in, so an unattended recording still
 makes a whole dataset. The dataset lands in the job's output directory
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from _so101_moves import follower_config
 from armnet_runtime import Context, main
 from armnet_runtime.lerobot.teleop import ArmnetRelayConfig
 from lerobot.robots.so_follower import SO101Follower, SO101FollowerConfig
@@ -36,13 +37,7 @@ def starting_pose(config: SO101FollowerConfig) -> dict[str, float]:
 
 @main
 def run(ctx: Context) -> dict[str, Any]:
-    robot = SO101FollowerConfig(
-        port=ctx.cell.robot_port,
-        id=ctx.cell.robot_id,
-        calibration_dir=ctx.cell.calibration_dir,
-        cameras=dict(ctx.camera_configs),
-        max_relative_target=ctx.cell.safety_limit,
-    )
+    robot = follower_config(ctx)
     dataset = record(RecordConfig(
         robot=robot,
         teleop=ArmnetRelayConfig.for_cell(ctx.cell, hold=starting_pose(robot)),

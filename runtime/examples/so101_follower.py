@@ -14,22 +14,16 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from _so101_moves import follower_config
 from armnet_runtime import Context, main
-from lerobot.robots.so_follower import SO101Follower, SO101FollowerConfig
+from lerobot.robots.so_follower import SO101Follower
 
 JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
 
 
 @main
 def run(ctx: Context) -> dict[str, Any]:
-    config = SO101FollowerConfig(
-        port=ctx.cell.robot_port,
-        id=ctx.cell.robot_id,
-        calibration_dir=ctx.cell.calibration_dir,
-        cameras=dict(ctx.camera_configs),
-        max_relative_target=ctx.cell.safety_limit,
-    )
-    robot = SO101Follower(config)
+    robot = SO101Follower(follower_config(ctx))
     robot.connect()
     try:
         first = robot.get_observation()
