@@ -8,8 +8,8 @@ drops it from the port's input buffer (else the next transaction would take it
 as its own answer) and repeats the call.
 
 Register writes that wait for an acknowledgement are asked again too: ``write``
-(one register of one motor) and the torque switches (``enable_torque`` /
-``disable_torque``) set absolute values, so a write applied twice leaves the servo
+(one register of one motor), the torque switches (``enable_torque`` /
+``disable_torque``) and ``configure_motors`` set absolute values, so a write applied twice leaves the servo
 exactly as applied once, and the device lock keeps every other request off the bus
 between the attempts. The write's policy check ran once, before the first attempt,
 on the same arguments. Loaded hosts failed jobs on "Failed to write 'Torque_Enable'
@@ -70,7 +70,9 @@ READ_METHODS: dict[str, frozenset[str]] = {
 #: Calls that write absolute register values and wait for the servo's acknowledgement:
 #: running one again after a lost acknowledgement leaves the servo as running it once.
 IDEMPOTENT_CALLS: dict[str, frozenset[str]] = {
-    "FeetechMotorsBus": frozenset({"write", "enable_torque", "disable_torque"}),
+    # configure_motors (LeRobot's robots call it in connect): Return_Delay_Time, Maximum_Acceleration
+    # and Acceleration set to fixed values, one write each per motor, so all of it may run again.
+    "FeetechMotorsBus": frozenset({"write", "enable_torque", "disable_torque", "configure_motors"}),
 }
 #: Properties that read the servos when they are read.
 READ_PROPERTIES: dict[str, frozenset[str]] = {

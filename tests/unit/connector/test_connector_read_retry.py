@@ -119,7 +119,21 @@ def test_a_torque_switch_that_lost_an_acknowledgement_is_asked_again_and_torque_
     assert all(sim_cell.arm.register(m, "Torque_Enable") == 1 for m in sim_cell.arm.motors)
 
 
+def test_configure_motors_that_lost_an_acknowledgement_is_run_again_and_configures_every_motor(
+        remote, sim_cell, connector) -> None:
+    """LeRobot's SO follower calls it in connect, with no retry of its own: a loaded CI run failed a job on it."""
+    remote.connect()
+    before = connector.counters.bus_retries
+    # The read of the value a write replaces has its own 2 retries: three lost replies fail the call once.
+    sim_cell.arm.drop_replies("shoulder_pan", 3)
+    remote.configure_motors()
+    assert connector.counters.bus_retries - before >= 1
+    assert all(sim_cell.arm.register(m, "Return_Delay_Time") == 0 for m in sim_cell.arm.motors)
+    assert all(sim_cell.arm.register(m, "Acceleration") == 254 for m in sim_cell.arm.motors)
+
+
 def test_which_calls_and_failures_are_retried() -> None:
+    assert is_retried("FeetechMotorsBus", "configure_motors")
     assert is_retried("FeetechMotorsBus", "enable_torque")
     assert is_retried("FeetechMotorsBus", "disable_torque")
     assert is_retried("FeetechMotorsBus", "sync_read")
