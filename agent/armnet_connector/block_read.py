@@ -10,7 +10,8 @@ reply window after a miss (``reply_window``).
 
 This module owns that read (plain ``scservo_sdk`` calls, no LeRobot): the calibration
 check reads the calibration block with it, the connector the block of the registers
-it restores. It never writes.
+it restores and the value an EEPROM write would replace (``read_register``). It never
+writes.
 """
 
 from __future__ import annotations
@@ -22,6 +23,12 @@ from typing import Any, TypeVar
 from .reply_window import LATE_REPLY_WAIT_S
 
 T = TypeVar("T")
+
+#: The length of ``read_register``'s window. No other read of the bus asks for 3 bytes
+#: (LeRobot's reads ask for 1 or 2, the telemetry block 8, the restore block 9, the
+#: calibration block 24): a late write acknowledgement, or a late answer to another
+#: register's read, cannot pass for its answer.
+REGISTER_READ_LENGTH = 3
 
 #: ``scservo_sdk``'s COMM_SUCCESS (the module is not imported here: the probe loads it lazily).
 COMM_SUCCESS = 0
@@ -48,6 +55,25 @@ def read_block(
         return None
 
     return ask_until_answered(handler, read, 1 + retries, deadline=deadline)
+
+
+def read_register(packets: Any, handler: Any, motor_id: int, address: int, size: int, *,
+                  retries: int) -> int | None:
+    """The raw unsigned value the servo holds in the ``size`` bytes at ``address``, or None when it stays silent.
+
+    Read as the end of a ``REGISTER_READ_LENGTH``-byte window (from address 0 when the
+    register sits lower), so the window never runs past the register into addresses a
+    servo may not have. Little-endian: the STS series' byte order. A reply whose error
+    byte reports the servo's state still carries the value.
+    """
+    if not 0 < size <= REGISTER_READ_LENGTH:
+        raise ValueError(f"a register of {size} bytes does not fit a {REGISTER_READ_LENGTH}-byte read")
+    start = max(0, address + size - REGISTER_READ_LENGTH)
+    data = read_block(packets, handler, motor_id, start, REGISTER_READ_LENGTH, retries=retries,
+                      ignore_status_bits=True)
+    if data is None:
+        return None
+    return int.from_bytes(bytes(data[address - start:address - start + size]), "little")
 
 
 def ask_until_answered(handler: Any, ask: Callable[[], T | None], tries: int, *,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from .block_read import read_block
 from .reply_window import use_lerobot_reply_window
@@ -97,19 +98,25 @@ def read_calibration(
         handler.setBaudRate(baudrate)
         use_lerobot_reply_window(handler)
         packets = PacketHandler(0)
-        held: dict[int, tuple[int, int, int] | None] = {}
-        for motor_id in sorted(set(motor_ids)):
-            block = read_block(packets, handler, motor_id, CALIBRATION_BLOCK_START, CALIBRATION_BLOCK_LENGTH,
-                               retries=READ_RETRIES)
-            if block is None:  # a servo that does not answer is a mismatch on every register
-                held[motor_id] = None
-                continue
-            homing, low, high = (_word(block, CALIBRATION_ADDRESSES[r] - CALIBRATION_BLOCK_START)
-                                 for r in CALIBRATION_REGISTERS)
-            held[motor_id] = (_sign_magnitude(homing, HOMING_OFFSET_SIGN_BIT), low, high)
-        return held
+        return {motor_id: read_servo_calibration(packets, handler, motor_id) for motor_id in sorted(set(motor_ids))}
     finally:
         handler.closePort()
+
+
+def read_servo_calibration(packets: Any, handler: Any, motor_id: int) -> tuple[int, int, int] | None:
+    """One servo's calibration registers, in ``CALIBRATION_REGISTERS`` order, or None when it does not answer.
+
+    One block read of a length no other read asks for (``block_read``): a late reply to
+    an earlier read cannot pass for a calibration value. The connector's check of a
+    calibration job's servos reads through it too.
+    """
+    block = read_block(packets, handler, motor_id, CALIBRATION_BLOCK_START, CALIBRATION_BLOCK_LENGTH,
+                       retries=READ_RETRIES)
+    if block is None:
+        return None
+    homing, low, high = (_word(block, CALIBRATION_ADDRESSES[r] - CALIBRATION_BLOCK_START)
+                         for r in CALIBRATION_REGISTERS)
+    return _sign_magnitude(homing, HOMING_OFFSET_SIGN_BIT), low, high
 
 
 def _word(block: list[int], offset: int) -> int:

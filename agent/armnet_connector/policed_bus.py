@@ -23,8 +23,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
-from .block_read import read_block
-from .calibration_check import calibration_mismatches
+from .block_read import read_block, read_register
+from .calibration_check import CALIBRATION_REGISTERS as CALIBRATION_ORDER
+from .calibration_check import calibration_mismatches, read_servo_calibration
 from .errors import RequestError
 from .identity import CellMotor
 from .interlock import Interlock
@@ -36,8 +37,6 @@ from .retry import retry_lost_replies
 
 log = logging.getLogger(__name__)
 
-#: The calibration registers, in the order of ``BusPolicy.calibration``'s tuples.
-CALIBRATION_ORDER = ("Homing_Offset", "Min_Position_Limit", "Max_Position_Limit")
 #: How long ``record_ranges_of_motion`` waits at most for the operator to end it.
 RANGE_RECORDING_MAX_S = 300.0
 #: How often it reads the positions while the operator moves the joints.
@@ -156,9 +155,16 @@ def policed_bus_class() -> type:
 
         def _write(self, addr: int, length: int, motor_id: int, value: int, **kwargs: Any) -> Any:
             def current() -> int:
-                held, _comm, _error = self._read(addr, length, motor_id, num_retry=2, raise_on_error=True,
-                                                 err_msg="reading the value a write would replace failed.")
-                return int(held)
+                # Not LeRobot's ``_read``: its 1- or 2-byte answer can be a late write
+                # acknowledgement's checksum byte, and a legitimate write would be refused.
+                held = read_register(self.packet_handler, self.port_handler, motor_id, addr, length,
+                                     retries=READ_RETRIES)
+                if held is None:
+                    raise ConnectionError(
+                        f"servo {motor_id} did not answer the read of the value this write would replace; "
+                        "nothing was written. Retry"
+                    )
+                return held
 
             self._armnet_policy.check(self._register_at, addr, motor_id, int(value), current)
             if addr in self._armnet_restored_at:
@@ -258,15 +264,9 @@ def policed_bus_class() -> type:
             )
 
         def _armnet_eeprom(self) -> dict[int, tuple[int, int, int] | None]:
-            held: dict[int, tuple[int, int, int] | None] = {}
-            for name, motor in self.motors.items():
-                try:
-                    values = [self.read(reg, name, normalize=False, num_retry=2) for reg in CALIBRATION_ORDER]
-                except (ConnectionError, RuntimeError):  # a silent servo is a mismatch, reported
-                    held[motor.id] = None
-                    continue
-                held[motor.id] = (int(values[0]), int(values[1]), int(values[2]))
-            return held
+            """Each servo's calibration registers (None: silent, a mismatch), one block read per servo."""
+            return {motor.id: read_servo_calibration(self.packet_handler, self.port_handler, motor.id)
+                    for motor in self.motors.values()}
 
         def _armnet_check_calibration(self, when: str) -> bool:
             policy = self._armnet_policy

@@ -214,6 +214,14 @@ class SimulatedArm(StartStop):
         """Lose this servo's next ``count`` replies (it still obeys the requests)."""
         self._update_faults(motor, drop_next=count)
 
+    def send_stale_acks(self, motor: str, count: int = 1) -> None:
+        """Put a late write acknowledgement (an empty status packet) before this servo's next ``count`` replies.
+
+        It is what a loaded host's bus delivers when a write's reply came after its
+        writer gave up: the next read's first answer, carrying no data.
+        """
+        self._update_faults(motor, stale_ack_next=count)
+
     def set_error_bits(self, motor: str, bits: int) -> None:
         """ERR byte of every status packet, e.g. ``ErrorBit.OVERHEAT``."""
         self._update_faults(motor, error_bits=bits)

@@ -106,7 +106,8 @@ class ServoBus:
 
 
 def _status(servo: Servo, data: bytes) -> bytes:
+    stale = encode_status(servo.servo_id, 0) if servo.take_stale_ack() else b""
     drop, corrupt = servo.take_reply_faults()
     if drop:
-        return b""
-    return encode_status(servo.servo_id, servo.status_error(), data, corrupt=corrupt)
+        return stale
+    return stale + encode_status(servo.servo_id, servo.status_error(), data, corrupt=corrupt)

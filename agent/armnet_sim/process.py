@@ -40,6 +40,7 @@ REMOTE_METHODS = frozenset(
         "plug",
         "corrupt_replies",
         "drop_replies",
+        "send_stale_acks",
         "set_error_bits",
         "overload",
         "clear_faults",

@@ -33,6 +33,9 @@ class ServoFaults:
     error_bits: int = 0  # ORed into the ERR byte of every reply (e.g. ErrorBit.OVERLOAD)
     corrupt_next: int = 0  # the next N replies carry a wrong checksum (transient noise)
     drop_next: int = 0  # the next N replies are lost (requests are still obeyed)
+    #: the next N replies each follow an empty status packet of this servo: the write
+    #: acknowledgement that a loaded host's bus delivered after its writer gave up
+    stale_ack_next: int = 0
     blocked: bool = False  # an obstacle holds the joint where it is (the drive pushes, nothing moves)
 
 
@@ -174,6 +177,13 @@ class Servo:
             self.faults = replace(faults, corrupt_next=faults.corrupt_next - 1)
             return False, True
         return False, faults.corrupt_checksum
+
+    def take_stale_ack(self) -> bool:
+        """True when a late write acknowledgement goes out before the reply about to be sent."""
+        if self.faults.stale_ack_next <= 0:
+            return False
+        self.faults = replace(self.faults, stale_ack_next=self.faults.stale_ack_next - 1)
+        return True
 
     def status_error(self) -> int:
         return (self.faults.error_bits | (OVERLOAD_BIT if self.overloaded else 0)) & 0x7F

@@ -95,6 +95,20 @@ def test_lerobots_configure_sequence_succeeds_on_the_cell(bus, sim_cell) -> None
     assert bus.is_calibrated
 
 
+
+def test_a_late_write_acknowledgement_is_not_taken_for_the_value_an_eeprom_write_would_replace(bus, sim_cell) -> None:
+    """A loaded host refused LeRobot's configure(): "Maximum_Acceleration ... the servo holds 251".
+
+    The write before it was acknowledged late, and the one-byte read of the held value
+    took that empty acknowledgement's checksum byte as its answer.
+    """
+    held = sim_cell.arm.register("wrist_flex", "Maximum_Acceleration")
+    sim_cell.arm.send_stale_acks("wrist_flex", 1)
+    bus.write("Maximum_Acceleration", "wrist_flex", held, normalize=False)
+    assert sim_cell.arm.register("wrist_flex", "Maximum_Acceleration") == held
+    assert bus.read("Maximum_Acceleration", "wrist_flex", normalize=False) == held  # the line was left clean
+
+
 SO101_JOB = """
 import sys
 from pathlib import Path

@@ -7,6 +7,7 @@ packets, as a loaded machine does when a reply misses LeRobot's ~50 ms timeout.
 from __future__ import annotations
 
 import pytest
+from armnet_connector.restore import READ_RETRIES
 from armnet_connector.retry import (
     MAX_RETRIES,
     is_lost_reply,
@@ -124,8 +125,8 @@ def test_configure_motors_that_lost_an_acknowledgement_is_run_again_and_configur
     """LeRobot's SO follower calls it in connect, with no retry of its own: a loaded CI run failed a job on it."""
     remote.connect()
     before = connector.counters.bus_retries
-    # The read of the value a write replaces has its own 2 retries: three lost replies fail the call once.
-    sim_cell.arm.drop_replies("shoulder_pan", 3)
+    # The read of the value a write replaces has its own retries: one more lost reply fails the call once.
+    sim_cell.arm.drop_replies("shoulder_pan", READ_RETRIES + 1)
     remote.configure_motors()
     assert connector.counters.bus_retries - before >= 1
     assert all(sim_cell.arm.register(m, "Return_Delay_Time") == 0 for m in sim_cell.arm.motors)
