@@ -1,7 +1,8 @@
-"""The Cell and RobotJob as the agent reads them: pydantic at the boundary, frozen inside. Pure.
+"""The Cell and RobotJob as the agent reads them: the platform's models at the boundary, frozen inside. Pure.
 
-Only the fields the agent acts on are parsed; everything else in the objects is
-ignored (the operator owns it). A malformed object is a ``ValueError`` naming
+The spec is validated with ``armnet_core.resources`` (the one set of models every
+reader uses); only the fields the agent acts on are kept, everything else in the
+objects is ignored (the operator owns it). A malformed object is a ``ValueError`` naming
 the field, reported on the object rather than crashing the agent.
 """
 
@@ -9,62 +10,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any, Literal
+from typing import Any
 
 from armnet_core.api import STOPPED_BY_ANNOTATION
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
+from armnet_core.resources import CellArm, CellSpec, RobotJobSpec
 from armnet_core.times import parse_time
 from armnet_launch.cell_spec import CameraSpec
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ValidationError
 
 from armnet_node import rollout_history
 from armnet_node.follower_rule import follower_window
-
-
-class _Loose(BaseModel):
-    model_config = ConfigDict(extra="ignore", populate_by_name=True)
-
-
-class _Arm(_Loose):
-    port: str | None = None
-    robot_id: str | None = Field(default=None, alias="robotId")
-    calibration_dir: str | None = Field(default=None, alias="calibrationDir")
-    safety_limit: float | None = Field(default=None, alias="safetyLimit")
-
-
-class _Camera(_Loose):
-    index_or_path: int | str = Field(alias="indexOrPath")
-    width: int = 640
-    height: int = 480
-    fps: int = 30
-
-
-class _CellSpec(_Loose):
-    embodiment: str
-    task: str | None = None
-    node_name: str = Field(alias="nodeName")
-    simulated: bool = False
-    robot: _Arm | None = None
-    arms: dict[str, _Arm] = Field(default_factory=dict)
-    cameras: dict[str, _Camera] = Field(default_factory=dict)
-    language_instruction: str | None = Field(default=None, alias="languageInstruction")
-    grace_period_seconds: int = Field(default=10, alias="gracePeriodSeconds")
-    reset_timeout_seconds: int = Field(default=300, alias="resetTimeoutSeconds")
-    safety_policy: Literal["clamp", "trip"] = Field(default="clamp", alias="safetyPolicy")
-    allow_calibration_jobs: bool = Field(default=False, alias="allowCalibrationJobs")
-    register_bounds: dict[str, tuple[int, int]] = Field(default_factory=dict, alias="registerBounds")
-    completion: CompletionConfig | None = None
-
-
-class _JobSpec(_Loose):
-    image: str
-    embodiment: str
-    task: str | None = None
-    args: dict[str, Any] = Field(default_factory=dict)
-    timeout_seconds: int = Field(default=120, alias="timeoutSeconds")
-    secrets: dict[str, str] = Field(default_factory=dict)
-    cancel: bool = False
-    detach: bool = False
 
 
 @dataclass(frozen=True)
@@ -134,15 +90,16 @@ class Job:
 def parse_cell(obj: dict[str, Any]) -> Cell:
     meta = obj.get("metadata") or {}
     try:
-        spec = _CellSpec.model_validate(obj.get("spec") or {})
+        spec = CellSpec.model_validate(obj.get("spec") or {})
+        completion = None if spec.completion is None else CompletionConfig.model_validate(spec.completion)
     except ValidationError as exc:
         raise ValueError(f"Cell {meta.get('name')}: invalid spec: {exc}") from exc
-    camera_problem = unknown_camera(spec.completion, spec.cameras)
+    camera_problem = unknown_camera(completion, spec.cameras)
     if camera_problem is not None:
         raise ValueError(f"Cell {meta.get('name')}: invalid spec: {camera_problem}")
     arms = {name: _arm(arm) for name, arm in spec.arms.items()}
     if not arms:
-        arms = {"arm": _arm(spec.robot or _Arm())}
+        arms = {"arm": _arm(spec.robot or CellArm())}
     status = obj.get("status") or {}
     return Cell(
         name=str(meta.get("name", "")),
@@ -160,14 +117,14 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
         safety_policy=spec.safety_policy,
         allow_calibration_jobs=spec.allow_calibration_jobs,
         register_bounds=dict(spec.register_bounds),
-        completion=spec.completion,
+        completion=completion,
         current_job=status.get("currentJob"),
         annotations=dict(meta.get("annotations") or {}),
         resource_version=str(meta.get("resourceVersion", "")),
     )
 
 
-def _arm(arm: _Arm) -> ArmSpec:
+def _arm(arm: CellArm) -> ArmSpec:
     return ArmSpec(arm.port, arm.robot_id, arm.calibration_dir, arm.safety_limit)
 
 
@@ -175,7 +132,7 @@ def parse_job(obj: dict[str, Any]) -> Job:
     meta = obj.get("metadata") or {}
     where = f"RobotJob {meta.get('namespace')}/{meta.get('name')}"
     try:
-        spec = _JobSpec.model_validate(obj.get("spec") or {})
+        spec = RobotJobSpec.model_validate(obj.get("spec") or {})
     except ValidationError as exc:
         raise ValueError(f"{where}: invalid spec: {exc}") from exc
     status = obj.get("status") or {}

@@ -1,99 +1,57 @@
 """The boundary: RobotJob and Cell bodies from the API server into frozen models.
 
-Pydantic validates the parts the operator relies on (the CRD schema already
-rejected most bad input; this guards against older objects and hand-written
-status). Unknown fields are ignored so the agent can add its own.
+The platform's models (``armnet_core.resources``, the one set every reader uses)
+validate the parts the operator relies on (the CRD schema already rejected most bad
+input; this guards against older objects and hand-written status). Unknown fields
+are ignored so the agent can add its own. A bad status field is read as absent and
+repaired; a bad spec field fails the job, or keeps the cell from being bound.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from datetime import UTC, datetime, timedelta
-from typing import Annotated, Any, TypeVar
+from typing import Any, TypeVar
 
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from armnet_core.resources import (
+    CellArm,
+    CellSpec,
+    CellStatus,
+    Condition,
+    Metadata,
+    RobotJobSpec,
+    RobotJobStatus,
+    Wire,
+)
+from pydantic import BaseModel, Field, ValidationError
 
 from .args import args_problem, measure
 from .model import Arm, Cell, CellConditionType, CellPhase, Job, JobConditionType, JobPhase
 
-
-def _aware(value: datetime) -> datetime:
-    """A timestamp without a zone is read as UTC: naive and aware datetimes cannot be compared."""
-    return value if value.tzinfo is not None else value.replace(tzinfo=UTC)
-
-
-Timestamp = Annotated[datetime, AfterValidator(_aware)]
 _Model = TypeVar("_Model", bound=BaseModel)
 MAX_REPAIR_ROUNDS = 32
 
 _HEALTH_TYPES = frozenset(CellConditionType)
 
 
-class _Lenient(BaseModel):
-    model_config = ConfigDict(extra="ignore", populate_by_name=True)
+class _JobStatus(RobotJobStatus):
+    """The platform's model, with the phase narrowed to the operator's: an unknown phase is a defect to repair."""
 
-
-class _Condition(_Lenient):
-    type: str
-    status: str = "Unknown"
-    last_transition_time: Timestamp | None = Field(default=None, alias="lastTransitionTime")
-
-
-class _Meta(_Lenient):
-    name: str
-    namespace: str = ""
-    uid: str = ""
-    resource_version: str = Field(default="", alias="resourceVersion")
-    creation_timestamp: Timestamp | None = Field(default=None, alias="creationTimestamp")
-    deletion_timestamp: Timestamp | None = Field(default=None, alias="deletionTimestamp")
-    finalizers: list[str] = Field(default_factory=list)
-
-
-class _JobSpec(_Lenient):
-    embodiment: str
-    task: str | None = None
-    priority: int = 0
-    cancel: bool = False
-    ttl_seconds_after_finished: int | None = Field(default=None, alias="ttlSecondsAfterFinished")
-    timeout_seconds: int = Field(default=120, ge=1, alias="timeoutSeconds")
-
-
-class _JobStatus(_Lenient):
     phase: JobPhase | None = None
-    cell_name: str | None = Field(default=None, alias="cellName")
-    job_id: str | None = Field(default=None, alias="jobId")
-    queued_reason: str | None = Field(default=None, alias="queuedReason")
-    queue_position: int | None = Field(default=None, alias="queuePosition")
-    finished_at: Timestamp | None = Field(default=None, alias="finishedAt")
-    started_at: Timestamp | None = Field(default=None, alias="startedAt")
-    estimated_start: Timestamp | None = Field(default=None, alias="estimatedStart")
 
 
-class _CellSpec(_Lenient):
-    embodiment: str
-    task: str | None = None
-    node_name: str = Field(default="", alias="nodeName")
-    unschedulable: bool = False
-    grace_period_seconds: int = Field(default=10, ge=0, alias="gracePeriodSeconds")
-
-
-class _Arm(_Lenient):
-    port: str | None = None
-    robot_id: str | None = Field(default=None, alias="robotId")
-    calibration_dir: str | None = Field(default=None, alias="calibrationDir")
-    safety_limit: float | None = Field(default=None, alias="safetyLimit")
-
-
-class _CellStatus(_Lenient):
+class _CellStatus(CellStatus):
     phase: CellPhase | None = None
-    current_job: str | None = Field(default=None, alias="currentJob")
-    claimed_at: Timestamp | None = Field(default=None, alias="claimedAt")
-    last_heartbeat_time: Timestamp | None = Field(default=None, alias="lastHeartbeatTime")
-    message: str | None = None
 
 
-def _true_since(conditions: list[_Condition], type_: str) -> datetime | None:
+class _JobBody(Wire):
+    metadata: Metadata
+    spec: RobotJobSpec
+    status: _JobStatus = Field(default_factory=_JobStatus)
+
+
+def _true_since(conditions: list[Condition], type_: str) -> datetime | None:
     for condition in conditions:
         if condition.type == type_ and condition.status == "True":
             return condition.last_transition_time
@@ -127,16 +85,16 @@ def _alias_of(model: type[BaseModel], key: str) -> str | None:
     return next((name for name, f in model.model_fields.items() if f.alias == key), None)
 
 
-def _conditions(raw: Any, section: str) -> tuple[list[_Condition], list[dict[str, Any]], list[str]]:
+def _conditions(raw: Any, section: str) -> tuple[list[Condition], list[dict[str, Any]], list[str]]:
     """Each condition on its own: a bad one is dropped and named, the rest kept."""
     if not isinstance(raw, list | tuple):
         return [], [], [] if raw is None else [section]
-    parsed: list[_Condition] = []
+    parsed: list[Condition] = []
     plain: list[dict[str, Any]] = []
     defects: list[str] = []
     for index, item in enumerate(raw):
         try:
-            parsed.append(_Condition.model_validate(_plain(item)))
+            parsed.append(Condition.model_validate(_plain(item)))
         except ValidationError:
             defects.append(f"{section}[{index}]")
             continue
@@ -144,17 +102,7 @@ def _conditions(raw: Any, section: str) -> tuple[list[_Condition], list[dict[str
     return parsed, plain, defects
 
 
-class _JobStatusFull(_JobStatus):
-    conditions: list[_Condition] = Field(default_factory=list)
-
-
-class _JobBody(_Lenient):
-    metadata: _Meta
-    spec: _JobSpec
-    status: _JobStatusFull = Field(default_factory=_JobStatusFull)
-
-
-_JOB_SPEC_FIELDS = ("embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds")
+_JOB_SPEC_FIELDS = ("image", "embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds")
 _JOB_STATUS_SCALARS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "startedAt",
                        "estimatedStart")
 _JOB_STATUS_FIELDS = (*_JOB_STATUS_SCALARS, "conditions")
@@ -191,17 +139,17 @@ def _parse_job_leniently(body: Mapping[str, Any]) -> Job:
     that fails with the reason; a status field that cannot be read is treated
     as absent and named in ``status_defects`` so it gets repaired.
     """
-    meta = _Meta.model_validate(_metadata(body))
+    meta = Metadata.model_validate(_metadata(body))
     raw_spec = body.get("spec") or {}
     spec_fields = {k: _plain(raw_spec[k]) for k in _JOB_SPEC_FIELDS if isinstance(raw_spec, Mapping) and k in raw_spec}
     problems: list[str] = []
     try:
-        spec = _JobSpec.model_validate(spec_fields)
+        spec = RobotJobSpec.model_validate(spec_fields)
     except ValidationError as error:
         problems.append("; ".join(f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in error.errors()))
         bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
         good = {k: v for k, v in spec_fields.items() if k not in bad}
-        spec = _JobSpec.model_validate({"embodiment": "", **good})
+        spec = RobotJobSpec.model_validate({"image": "", "embodiment": "", **good})
     if isinstance(raw_spec, Mapping) and "args" in raw_spec:
         too_big = args_problem(raw_spec["args"])
         if too_big:
@@ -221,14 +169,14 @@ def _job(
 ) -> Job:
     """The frozen ``Job`` from parsed metadata, spec and status (both parsing paths end here)."""
     return Job(
-        namespace=meta.namespace,
+        namespace=meta.namespace or "",
         name=meta.name,
         created=meta.creation_timestamp or datetime.now(UTC),
         embodiment=spec.embodiment,
         task=spec.task or None,
         priority=spec.priority,
-        uid=meta.uid,
-        resource_version=meta.resource_version,
+        uid=meta.uid or "",
+        resource_version=meta.resource_version or "",
         cancel=spec.cancel,
         deleting=meta.deletion_timestamp is not None,
         finalizers=tuple(meta.finalizers),
@@ -252,18 +200,18 @@ def _job(
 
 
 def parse_cell(body: Mapping[str, Any]) -> Cell:
-    meta = _Meta.model_validate(_metadata(body))
+    meta = Metadata.model_validate(_metadata(body))
     raw_spec = body.get("spec") or {}
     fields = _plain({k: v for k, v in raw_spec.items()
                      if k in ("embodiment", "task", "nodeName", "unschedulable", "gracePeriodSeconds")})
     problem = None
     try:
-        spec = _CellSpec.model_validate(fields)
+        spec = CellSpec.model_validate(fields)
     except ValidationError as error:
         # Still in view (so its claim and phase are handled), but never bound until fixed.
         problem = "; ".join(f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in error.errors())
         bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
-        spec = _CellSpec.model_validate({"embodiment": "", **{k: v for k, v in fields.items() if k not in bad}})
+        spec = CellSpec.model_validate({"embodiment": "", "nodeName": "", **{k: v for k, v in fields.items() if k not in bad}})
     completion = _completion_problem(raw_spec)
     if completion is not None:
         problem = f"{problem}; {completion}" if problem else completion
@@ -278,7 +226,7 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         name=meta.name,
         embodiment=spec.embodiment,
         task=spec.task or None,
-        resource_version=meta.resource_version,
+        resource_version=meta.resource_version or "",
         node_name=spec.node_name,
         unschedulable=spec.unschedulable,
         grace_period=timedelta(seconds=spec.grace_period_seconds),
@@ -287,7 +235,7 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         claimed_at=status.claimed_at,
         last_heartbeat=status.last_heartbeat_time,
         failing_conditions=failing,
-        uid=meta.uid,
+        uid=meta.uid or "",
         created=meta.creation_timestamp,
         arms=_arms(raw_spec),
         message=status.message or None,
@@ -334,7 +282,7 @@ def _arms(spec: Mapping[str, Any]) -> tuple[Arm, ...]:
         raw.update({f"arms.{name}": arm for name, arm in spec["arms"].items() if isinstance(arm, Mapping)})
     arms = []
     for name, body in sorted(raw.items()):
-        arm, _ = _lenient(_Arm, _plain(body), f"spec.{name}")
+        arm, _ = _lenient(CellArm, _plain(body), f"spec.{name}")
         arms.append(Arm(name, arm.port, arm.robot_id, arm.calibration_dir, arm.safety_limit))
     return tuple(arms)
 

@@ -12,12 +12,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from armnet_core.resources import Timestamp
 from armnet_core.times import micro_time
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import PermanentError
 from .fairshare import Standing
-from .parsing import Timestamp
 from .quota import CellQuota, QuotaObject, QuotaPeriod, Usage
 
 

@@ -80,7 +80,7 @@ class World:
 
     # ---- what users and agents do
     def submit(self, name: str, embodiment: str, task: str | None, priority: int) -> None:
-        spec: dict[str, Any] = {"embodiment": embodiment, "priority": priority}
+        spec: dict[str, Any] = {"image": "localhost/job:dev", "embodiment": embodiment, "priority": priority}
         if task:
             spec["task"] = task
         meta = {"name": name, "namespace": "t", "uid": f"uid-{name}", "resourceVersion": self._next_rv(),
@@ -88,7 +88,7 @@ class World:
         self.jobs[f"t/{name}"] = {"metadata": meta, "spec": spec, "status": {}}
 
     def add_cell(self, name: str, embodiment: str, task: str | None) -> None:
-        spec: dict[str, Any] = {"embodiment": embodiment}
+        spec: dict[str, Any] = {"embodiment": embodiment, "nodeName": f"host-{name}"}
         if task:
             spec["task"] = task
         meta = {"name": name, "resourceVersion": self._next_rv()}

@@ -1,0 +1,217 @@
+"""The RobotJob and Cell as the API server stores them: one set of models for every reader.
+
+The operator, the node agent and the customer's client all read these objects; each
+used to declare its own pydantic models of them, and the copies drifted (a default
+here, a required field there). They validate with these models now, each the part it
+acts on, and turn them into their own frozen dataclasses inside
+(``armnet_operator.parsing``, ``armnet_node.model``, ``armnet_client.mapping``).
+
+The models accept what the API server sends: camelCase aliases, fields the operator or
+the agent has not written yet, unknown fields ignored (the CRDs in ``crds/`` grow), a
+timestamp without a zone read as UTC (naive and aware times cannot be compared).
+``tests/unit/architecture/test_api_models.py`` keeps their fields in step with the CRDs.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Annotated, Any, Literal, Optional
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+
+
+def _aware(value: datetime) -> datetime:
+    return value if value.tzinfo is not None else value.replace(tzinfo=UTC)
+
+
+#: A time as the API server writes it (RFC 3339); without a zone, UTC.
+Timestamp = Annotated[datetime, AfterValidator(_aware)]
+
+
+class Wire(BaseModel):
+    """The base of every model here: aliases or field names, unknown fields ignored, frozen."""
+
+    model_config = ConfigDict(extra="ignore", populate_by_name=True, frozen=True)
+
+
+class Metadata(Wire):
+    name: str = ""
+    namespace: Optional[str] = None
+    uid: Optional[str] = None
+    resource_version: Optional[str] = Field(default=None, alias="resourceVersion")
+    creation_timestamp: Optional[Timestamp] = Field(default=None, alias="creationTimestamp")
+    deletion_timestamp: Optional[Timestamp] = Field(default=None, alias="deletionTimestamp")
+    finalizers: list[str] = Field(default_factory=list)
+    annotations: dict[str, str] = Field(default_factory=dict)
+
+
+class Condition(Wire):
+    type: str
+    status: str = "Unknown"
+    reason: Optional[str] = None
+    message: Optional[str] = None
+    last_transition_time: Optional[Timestamp] = Field(default=None, alias="lastTransitionTime")
+
+
+# -- RobotJob --------------------------------------------------------------------------------
+
+
+class RobotJobSpec(Wire):
+    image: str
+    embodiment: str
+    args: dict[str, Any] = Field(default_factory=dict)
+    task: Optional[str] = None
+    timeout_seconds: int = Field(default=120, ge=1, alias="timeoutSeconds")
+    secrets: dict[str, str] = Field(default_factory=dict)
+    detach: bool = False
+    priority: int = 0
+    cancel: bool = False
+    ttl_seconds_after_finished: Optional[int] = Field(default=None, alias="ttlSecondsAfterFinished")
+
+
+class Rollout(Wire):
+    index: int = 0
+    total: int = 0
+
+
+class MonitorVerdict(Wire):
+    """The cell's completion monitor's verdict on one rollout, kept even when an operator overruled it."""
+
+    outcome: str = "failure"  # success | failure
+    score: float = 0.0
+    at: Optional[Timestamp] = None
+    frame_at: Optional[Timestamp] = Field(default=None, alias="frameAt")
+
+
+class RolloutRecord(Wire):
+    """One rollout as the node agent recorded it (``status.rollouts``): begin, end, the operator's verdict."""
+
+    index: int = 0
+    total: int = 0
+    outcome: str = "unmarked"  # success | failure | unmarked
+    marked_by: Optional[str] = Field(default=None, alias="markedBy")
+    marked_at: Optional[Timestamp] = Field(default=None, alias="markedAt")
+    started_at: Optional[Timestamp] = Field(default=None, alias="startedAt")
+    ended_at: Optional[Timestamp] = Field(default=None, alias="endedAt")
+    monitor: Optional[MonitorVerdict] = None
+
+
+class RobotJobResult(Wire):
+    exit_code: Optional[int] = Field(default=None, alias="exitCode")
+    return_value: Any = Field(default=None, alias="returnValue")
+    error: Optional[str] = None
+    traceback: Optional[str] = None
+    stdout_tail: str = Field(default="", alias="stdoutTail")
+    stderr_tail: str = Field(default="", alias="stderrTail")
+
+
+class JobArtifacts(Wire):
+    """Where the job's output directory went (``status.artifacts``, written by the node agent after the job)."""
+
+    phase: Optional[str] = None  # Uploading | Uploaded | Retrying | Failed | Discarded
+    location: Optional[str] = None
+    manifest: Optional[str] = None
+    files: Optional[int] = None
+    bytes: Optional[int] = None
+    complete: Optional[bool] = None
+    left_out: Optional[int] = Field(default=None, alias="leftOut")
+    message: Optional[str] = None
+
+
+class RobotJobStatus(Wire):
+    phase: Optional[str] = None
+    job_id: Optional[str] = Field(default=None, alias="jobId")
+    cell_name: Optional[str] = Field(default=None, alias="cellName")
+    queued_reason: Optional[str] = Field(default=None, alias="queuedReason")
+    queue_position: Optional[int] = Field(default=None, alias="queuePosition")
+    estimated_start: Optional[Timestamp] = Field(default=None, alias="estimatedStart")
+    started_at: Optional[Timestamp] = Field(default=None, alias="startedAt")
+    finished_at: Optional[Timestamp] = Field(default=None, alias="finishedAt")
+    progress: Optional[str] = None
+    rollout: Optional[Rollout] = None
+    rollouts: list[RolloutRecord] = Field(default_factory=list)
+    result: Optional[RobotJobResult] = None
+    artifacts: Optional[JobArtifacts] = None
+    conditions: list[Condition] = Field(default_factory=list)
+
+
+class RobotJob(Wire):
+    metadata: Metadata
+    spec: RobotJobSpec
+    status: RobotJobStatus = Field(default_factory=RobotJobStatus)
+
+
+# -- Cell ------------------------------------------------------------------------------------
+
+
+class CellArm(Wire):
+    """One arm of a cell (``spec.robot``, or an entry of ``spec.arms``): facts of the cell, never of a job."""
+
+    port: Optional[str] = None
+    robot_id: Optional[str] = Field(default=None, alias="robotId")
+    calibration_dir: Optional[str] = Field(default=None, alias="calibrationDir")
+    safety_limit: Optional[float] = Field(default=None, alias="safetyLimit")
+
+
+class CellCamera(Wire):
+    index_or_path: int | str = Field(alias="indexOrPath")
+    width: int = 640
+    height: int = 480
+    fps: int = 30
+
+
+class CellSpec(Wire):
+    embodiment: str
+    node_name: str = Field(alias="nodeName")
+    task: Optional[str] = None
+    unschedulable: bool = False
+    simulated: bool = False
+    robot: Optional[CellArm] = None
+    arms: dict[str, CellArm] = Field(default_factory=dict)
+    cameras: dict[str, CellCamera] = Field(default_factory=dict)
+    language_instruction: Optional[str] = Field(default=None, alias="languageInstruction")
+    grace_period_seconds: int = Field(default=10, ge=0, alias="gracePeriodSeconds")
+    reset_timeout_seconds: int = Field(default=300, ge=0, alias="resetTimeoutSeconds")
+    safety_policy: Literal["clamp", "trip"] = Field(default="clamp", alias="safetyPolicy")
+    allow_calibration_jobs: bool = Field(default=False, alias="allowCalibrationJobs")
+    register_bounds: dict[str, tuple[int, int]] = Field(default_factory=dict, alias="registerBounds")
+    completion: Any = None
+    """The completion monitor's settings as written: a reader that runs or checks them validates them
+    with ``armnet_core.cell_completion.CompletionConfig`` (the node agent, the operator), one that
+    only shows them reads them leniently (the client)."""
+
+
+class CellStatus(Wire):
+    phase: Optional[str] = None
+    current_job: Optional[str] = Field(default=None, alias="currentJob")
+    claimed_at: Optional[Timestamp] = Field(default=None, alias="claimedAt")
+    last_heartbeat_time: Optional[Timestamp] = Field(default=None, alias="lastHeartbeatTime")
+    message: Optional[str] = None
+    conditions: list[Condition] = Field(default_factory=list)
+
+
+class Cell(Wire):
+    metadata: Metadata
+    spec: CellSpec
+    status: CellStatus = Field(default_factory=CellStatus)
+
+
+__all__ = [
+    "Cell",
+    "CellArm",
+    "CellCamera",
+    "CellSpec",
+    "CellStatus",
+    "Condition",
+    "JobArtifacts",
+    "Metadata",
+    "MonitorVerdict",
+    "RobotJob",
+    "RobotJobResult",
+    "RobotJobSpec",
+    "RobotJobStatus",
+    "Rollout",
+    "RolloutRecord",
+    "Timestamp",
+    "Wire",
+]
