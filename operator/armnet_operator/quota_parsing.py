@@ -12,44 +12,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from armnet_core.resources import Timestamp
+from armnet_core.resources import CellQuotaSpec, QuotaUsage
 from armnet_core.times import micro_time
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import ValidationError
 
 from .errors import PermanentError
 from .fairshare import Standing
 from .quota import CellQuota, QuotaObject, QuotaPeriod, Usage
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="ignore", populate_by_name=True)
-
-
-class _QuotaSpec(_Strict):
-    namespace: str = Field(min_length=1, max_length=63, pattern=r"^[a-z0-9]([-a-z0-9]*[a-z0-9])?$")
-    embodiment: str = Field(min_length=1, max_length=253)
-    task: str | None = Field(default=None, min_length=1, max_length=253)
-    nominal_cells: int = Field(alias="nominalCells", ge=0, le=100_000)
-    borrowing_limit: int | None = Field(default=None, alias="borrowingLimit", ge=0, le=100_000)
-    weight: float = Field(default=1.0, gt=0, le=1000)
-    cohort: str | None = Field(default=None, min_length=1, max_length=63)
-    credits_cell_hours: float | None = Field(default=None, alias="creditsCellHours", ge=0)
-    period: QuotaPeriod | None = None
-
-    @model_validator(mode="after")
-    def _credits_need_a_period(self) -> _QuotaSpec:
-        if (self.credits_cell_hours is None) != (self.period is None):
-            raise ValueError("creditsCellHours and period go together (credits are granted per period)")
-        if self.borrowing_limit is not None and self.cohort is None:
-            raise ValueError("borrowingLimit needs a cohort to borrow from")
-        return self
-
-
-class _Usage(_Strict):
-    decayed_cell_seconds: float = Field(default=0.0, alias="decayedCellSeconds", ge=0)
-    period_cell_seconds: float = Field(default=0.0, alias="periodCellSeconds", ge=0)
-    period_start: Timestamp | None = Field(default=None, alias="periodStart")
-    updated_at: Timestamp | None = Field(default=None, alias="updatedAt")
 
 
 def parse_cell_quota(body: Mapping[str, Any]) -> CellQuota:
@@ -62,7 +31,7 @@ def parse_cell_quota(body: Mapping[str, Any]) -> CellQuota:
     if not isinstance(raw, Mapping):
         raise PermanentError(f"CellQuota {name!r} has no spec; it was ignored")
     try:
-        spec = _QuotaSpec.model_validate(dict(raw))
+        spec = CellQuotaSpec.model_validate(dict(raw))
     except ValidationError as error:
         fields = "; ".join(
             f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else f"spec: {e['msg']}"
@@ -71,7 +40,7 @@ def parse_cell_quota(body: Mapping[str, Any]) -> CellQuota:
     return CellQuota(
         name=name, namespace=spec.namespace, embodiment=spec.embodiment, nominal_cells=spec.nominal_cells,
         task=spec.task, borrowing_limit=spec.borrowing_limit, weight=spec.weight, cohort=spec.cohort,
-        credits_cell_hours=spec.credits_cell_hours, period=spec.period,
+        credits_cell_hours=spec.credits_cell_hours, period=None if spec.period is None else QuotaPeriod(spec.period),
         resource_version=str(meta.get("resourceVersion") or ""),
     )
 
@@ -83,7 +52,7 @@ def parse_usage(body: Mapping[str, Any]) -> Usage:
     if not isinstance(raw, Mapping):
         return Usage()
     try:
-        usage = _Usage.model_validate(dict(raw))
+        usage = QuotaUsage.model_validate(dict(raw))
     except ValidationError:
         return Usage()
     return Usage(usage.decayed_cell_seconds, usage.period_cell_seconds, usage.period_start, usage.updated_at)

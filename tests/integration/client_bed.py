@@ -24,7 +24,7 @@ STREAM = "ARMNET_LOGS"
 
 
 def grant_tenant(k8s: Any, namespace: str, user: str) -> None:
-    """What a cluster admin gives a tenant: RobotJobs in its namespace, read-only Cells."""
+    """What a cluster admin gives a tenant (the chart's roles): RobotJobs in its namespace, read-only Cells and CellQuotas."""
     k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump_all([
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "Role",
          "metadata": {"name": "armnet-tenant", "namespace": namespace},
@@ -36,14 +36,14 @@ def grant_tenant(k8s: Any, namespace: str, user: str) -> None:
          "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRole",
          "metadata": {"name": "armnet-cell-reader"},
-         "rules": [{"apiGroups": [G], "resources": ["cells"], "verbs": ["get", "list", "watch"]}]},
+         "rules": [{"apiGroups": [G], "resources": ["cells", "cellquotas"], "verbs": ["get", "list", "watch"]}]},
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRoleBinding",
          "metadata": {"name": f"armnet-cell-reader-{user}"},
          "roleRef": {"apiGroup": "rbac.authorization.k8s.io", "kind": "ClusterRole",
                      "name": "armnet-cell-reader"},
          "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
     ]))
-    wait_authorized(k8s, user, ("create", f"robotjobs.{G}", "-n", namespace), ("list", f"cells.{G}"))
+    wait_authorized(k8s, user, ("create", f"robotjobs.{G}", "-n", namespace), ("list", f"cells.{G}"), ("list", f"cellquotas.{G}"))
 
 
 def wait_authorized(k8s: Any, user: str, *checks: tuple[str, ...], timeout_s: float = 20.0) -> None:

@@ -307,11 +307,12 @@ def test_tenant_cannot_patch_a_robotjobs_status(release: Release) -> None:
     assert stored.get("status", {}).get("phase") != "succeeded"
 
 
-def test_tenant_reads_cells_but_cannot_edit_them(release: Release) -> None:
-    assert release.as_(release.tenant_a, "get", "cells").returncode == 0
+@pytest.mark.parametrize("resource", ["cells", "cellquotas"])
+def test_tenant_reads_cells_and_quotas_but_cannot_edit_them(release: Release, resource: str) -> None:
+    assert release.as_(release.tenant_a, "get", resource).returncode == 0
     for verb in ("create", "patch", "update", "delete"):
-        assert not release.can(release.tenant_a, verb, "cells")
-    assert not release.can(release.tenant_a, "patch", "cells", subresource="status")
+        assert not release.can(release.tenant_a, verb, resource)
+    assert not release.can(release.tenant_a, "patch", resource, subresource="status")
 
 
 def test_the_chart_tenant_role_grants_no_pods_so_no_way_into_a_job_pod(release: Release) -> None:

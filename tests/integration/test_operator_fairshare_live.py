@@ -4,11 +4,13 @@ restarted operator continues from the usage in the status."""
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime
 from typing import Any
 
 import pytest
 
+from tests.integration.client_bed import Tenant
 from tests.integration.operator_bed import Bed, G, V, running_operator
 
 pytestmark = pytest.mark.integration
@@ -24,7 +26,7 @@ def quota_status(bed: Bed, name: str) -> dict[str, Any]:
 
 
 def test_a_tenant_at_its_quota_waits_while_another_binds_and_usage_survives_a_restart(
-        k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch) -> None:
+        k8s: Any, namespace: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     other = k8s.create_namespace("fairshare-b")
     bed, bed_b = Bed(k8s, namespace), Bed(k8s, other)
     bed_b.embodiment = bed.embodiment
@@ -45,6 +47,12 @@ def test_a_tenant_at_its_quota_waits_while_another_binds_and_usage_survives_a_re
             bed_b.wait_job("b1", phase="dispatched")
             bed.wait("the quota's status with usage", lambda: (s := quota_status(bed, qa)).get("cellsInUse") == 1
                      and s.get("waitingJobs") == 1 and s["usage"]["decayedCellSeconds"] > 0)
+        # The tenant's own view (KopfRunner swaps sys.stdout while it runs: asked once it stopped).
+        capsys.readouterr()
+        assert Tenant(k8s, namespace).cli("quota", "-o", "json") == 0
+        standing = json.loads(capsys.readouterr().out)["items"]
+        assert [(q["name"], q["cellsInUse"], q["waitingJobs"]) for q in standing] == [(qa, 1, 1)]  # not qb's tenant
+        assert standing[0]["decayedUsageCellHours"] > 0
         planted = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
         bed.api.patch_cluster_custom_object_status(G, V, "cellquotas", qa, {"status": {"usage": {
             "decayedCellSeconds": 100000, "updatedAt": planted}}})

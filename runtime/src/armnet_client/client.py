@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator, Mapping
 from datetime import datetime
 from typing import Any, Optional, TextIO
 
-from armnet_core.api import API_VERSION, CELLS, GROUP, VERSION
+from armnet_core.api import API_VERSION, CELLQUOTAS, CELLS, GROUP, VERSION
 from armnet_core.api import ROBOTJOBS as JOBS
 from armnet_core.models import Job, JobResult, JobSpec
 from armnet_core.nats_url import SHARED_ENV as SHARED_NATS_ENV
@@ -38,11 +38,13 @@ from .logwire import LogLine
 from .mapping import (
     CellView,
     JobView,
+    QuotaView,
     cancel_patch,
     cell_view_of,
     follower_metadata,
     generated_name_prefix,
     job_from_robotjob,
+    quota_view_of,
     result_from_robotjob,
     robotjob_body,
     view_of,
@@ -210,6 +212,18 @@ class Client:
             GROUP, VERSION, CELLS), namespace=None)
         return sorted((cell_view_of(Cell.model_validate(i)) for i in found.get("items", [])),
                       key=lambda c: c.name)
+
+    def quotas(self, *, all_tenants: bool = False) -> list[QuotaView]:
+        """The CellQuotas of this client's namespace (every tenant's with ``all_tenants``), by name.
+
+        CellQuotas are cluster-scoped: reading them takes the chart's cell-reader role
+        (``rbac.tenants.cellReaderGroups``), as reading Cells does; without it the
+        error says so (``Forbidden``).
+        """
+        found = self._call("list", "cellquotas", lambda: self._api().list_cluster_custom_object(
+            GROUP, VERSION, CELLQUOTAS), namespace=None)
+        views = (quota_view_of(item) for item in found.get("items", []) if isinstance(item, Mapping))
+        return sorted((v for v in views if all_tenants or v.tenant == self.namespace), key=lambda v: v.name)
 
     def cancel(self, name: str) -> Job:
         """Ask for the job to stop (``spec.cancel: true``): at once if queued, within the cell's grace if running."""

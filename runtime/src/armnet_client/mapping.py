@@ -9,14 +9,16 @@ its Kubernetes identity, so a client-supplied name could only lie. No I/O here.
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Optional
 
 from armnet_core.api import API_VERSION, FOLLOWER_TIMEOUT_ANNOTATION
 from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
+from pydantic import ValidationError
 
-from .resources import Cell, JobArtifacts, RobotJob, RolloutRecord
+from .resources import Cell, CellQuota, JobArtifacts, RobotJob, RolloutRecord
 
 _NAME_CHARS = re.compile(r"[^a-z0-9-]+")
 _GENERATED_PREFIX_MAX = 40
@@ -253,3 +255,53 @@ def completion_view_of(spec: Any) -> Optional[CompletionView]:
         return value[:63] if isinstance(value, str) and value else "?"
 
     return CompletionView(scorer=text("scorer"), camera=text("camera"))
+
+
+@dataclass(frozen=True)
+class QuotaView:
+    """What ``armnet quota`` shows of one CellQuota: the share, what the tenant holds and waits for, credits.
+
+    ``problem`` is set (and the share left empty) when the object cannot be read as a
+    CellQuota: it is still listed, so a tenant sees that a quota exists but rations nothing.
+    """
+
+    name: str
+    tenant: str
+    embodiment: str = ""
+    task: Optional[str] = None
+    nominal: int = 0
+    borrowing_limit: Optional[int] = None
+    weight: float = 1.0
+    cohort: Optional[str] = None
+    in_use: int = 0
+    borrowed: int = 0
+    waiting: int = 0
+    credits_cell_hours: Optional[float] = None
+    period: Optional[str] = None
+    period_used_cell_hours: float = 0.0
+    decayed_cell_hours: float = 0.0
+    message: Optional[str] = None
+    problem: Optional[str] = None
+
+
+def quota_view_of(body: Mapping[str, Any]) -> QuotaView:
+    """One CellQuota body as ``armnet quota`` shows it; a malformed one is a row with its problem, never an error."""
+    meta, spec = body.get("metadata"), body.get("spec")
+    meta, spec = (meta if isinstance(meta, Mapping) else {}), (spec if isinstance(spec, Mapping) else {})
+    name, tenant = str(meta.get("name") or ""), str(spec.get("namespace") or "")
+    try:
+        quota = CellQuota.model_validate(body)
+    except ValidationError as exc:
+        where = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors()[:3])
+        return QuotaView(name=name, tenant=tenant, problem=f"cannot be read ({where}); the operator ignores it")
+    usage = quota.status.usage
+    return QuotaView(
+        name=quota.metadata.name, tenant=quota.spec.namespace, embodiment=quota.spec.embodiment,
+        task=quota.spec.task, nominal=quota.spec.nominal_cells, borrowing_limit=quota.spec.borrowing_limit,
+        weight=quota.spec.weight, cohort=quota.spec.cohort, in_use=quota.status.cells_in_use,
+        borrowed=quota.status.borrowed_cells, waiting=quota.status.waiting_jobs,
+        credits_cell_hours=quota.spec.credits_cell_hours, period=quota.spec.period,
+        period_used_cell_hours=(usage.period_cell_seconds if usage else 0.0) / 3600,
+        decayed_cell_hours=(usage.decayed_cell_seconds if usage else 0.0) / 3600,
+        message=quota.status.message or None,
+    )

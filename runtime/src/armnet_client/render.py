@@ -15,7 +15,7 @@ from typing import Any, Optional
 from armnet_core.models import Job, JobResult, JobStatus, TerminalStatus
 
 from .logwire import LogLine
-from .mapping import CellView, JobView
+from .mapping import CellView, JobView, QuotaView
 
 EXIT_SUCCEEDED = 0
 EXIT_OTHER_TERMINAL = 1
@@ -137,6 +137,56 @@ def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False)
             row += [cell.node, f"{monitor.scorer}({monitor.camera})" if monitor else "operator"]
         rows.append(row)
     return table(headers, rows)
+
+
+def _hours(value: float) -> str:
+    return f"{value:.1f}h"
+
+
+def _credits(quota: QuotaView) -> str:
+    """``3.5h/40h per Week``: cell-hours used this period of those granted; ``-`` without credits."""
+    if quota.credits_cell_hours is None:
+        return "-"
+    return f"{_hours(quota.period_used_cell_hours)}/{_hours(quota.credits_cell_hours)} per {quota.period}"
+
+
+def quotas_table(quotas: Sequence[QuotaView], *, wide: bool = False) -> str:
+    """``armnet quota``: each quota's share, what its tenant holds, borrows and waits for, and its credits.
+
+    NOTE says why the operator ignores a quota (it then rations nothing), ``-`` while it is in force.
+    """
+    headers = ["NAME", "TENANT", "EMBODIMENT", "TASK", "NOMINAL", "IN-USE", "BORROWED", "WAITING", "CREDITS", "NOTE"]
+    if wide:
+        headers += ["COHORT", "BORROW-LIMIT", "WEIGHT", "USAGE"]
+    rows = []
+    for quota in quotas:
+        if quota.problem:
+            row = [quota.name, quota.tenant or "?", "?", "?", "-", "-", "-", "-", "-", quota.problem]
+            rows.append(row + (["-", "-", "-", "-"] if wide else []))
+            continue
+        row = [quota.name, quota.tenant, quota.embodiment, quota.task or "<any>", str(quota.nominal),
+               str(quota.in_use), str(quota.borrowed), str(quota.waiting), _credits(quota), quota.message or "-"]
+        if wide:
+            limit = "-" if quota.cohort is None else ("<idle>" if quota.borrowing_limit is None
+                                                       else str(quota.borrowing_limit))
+            row += [quota.cohort or "-", limit, f"{quota.weight:g}", _hours(quota.decayed_cell_hours)]
+        rows.append(row)
+    return table(headers, rows)
+
+
+def quota_document(quota: QuotaView) -> dict[str, Any]:
+    """The ``-o json`` shape of one quota (cell-hours rounded to the second's precision)."""
+    return {
+        "name": quota.name, "tenant": quota.tenant, "embodiment": quota.embodiment or None, "task": quota.task,
+        "nominalCells": quota.nominal if not quota.problem else None, "borrowingLimit": quota.borrowing_limit,
+        "weight": quota.weight, "cohort": quota.cohort,
+        "cellsInUse": quota.in_use, "borrowedCells": quota.borrowed, "waitingJobs": quota.waiting,
+        "credits": None if quota.credits_cell_hours is None else {
+            "cellHours": quota.credits_cell_hours, "period": quota.period,
+            "usedCellHours": round(quota.period_used_cell_hours, 4)},
+        "decayedUsageCellHours": round(quota.decayed_cell_hours, 4),
+        "message": quota.message, "problem": quota.problem,
+    }
 
 
 def job_document(job: Job, view: JobView) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""The RobotJob and Cell bodies the client reads: the platform's one set of models (``armnet_core.resources``).
+"""The RobotJob, Cell and CellQuota bodies the client reads: the platform's one set of models (``armnet_core.resources``).
 
 The client's boundary with the CRDs: the models accept what the API server sends
 (camelCase, fields missing while the operator or the agent has not written them yet,
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from armnet_core.resources import (
     Cell,
+    CellQuota,
     CellSpec,
     CellStatus,
     Condition,
@@ -26,6 +27,7 @@ from armnet_core.resources import (
 
 __all__ = [
     "Cell",
+    "CellQuota",
     "CellSpec",
     "CellStatus",
     "Condition",

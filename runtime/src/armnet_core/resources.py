@@ -1,4 +1,4 @@
-"""The RobotJob and Cell as the API server stores them: one set of models for every reader.
+"""The RobotJob, Cell and CellQuota as the API server stores them: one set of models for every reader.
 
 The operator, the node agent and the customer's client all read these objects; each
 used to declare its own pydantic models of them, and the copies drifted (a default
@@ -17,7 +17,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Annotated, Any, Literal, Optional
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 
 def _aware(value: datetime) -> datetime:
@@ -196,16 +196,68 @@ class Cell(Wire):
     status: CellStatus = Field(default_factory=CellStatus)
 
 
+# -- CellQuota -------------------------------------------------------------------------------
+
+
+class CellQuotaSpec(Wire):
+    """A tenant's share of one embodiment's cells, with the CRD's rules (an object stored before them still parses)."""
+
+    namespace: str = Field(min_length=1, max_length=63, pattern=r"^[a-z0-9]([-a-z0-9]*[a-z0-9])?$")
+    embodiment: str = Field(min_length=1, max_length=253)
+    task: Optional[str] = Field(default=None, min_length=1, max_length=253)
+    nominal_cells: int = Field(alias="nominalCells", ge=0, le=100_000)
+    borrowing_limit: Optional[int] = Field(default=None, alias="borrowingLimit", ge=0, le=100_000)
+    weight: float = Field(default=1.0, gt=0, le=1000)
+    cohort: Optional[str] = Field(default=None, min_length=1, max_length=63)
+    credits_cell_hours: Optional[float] = Field(default=None, alias="creditsCellHours", ge=0)
+    period: Optional[Literal["Day", "Week"]] = None
+
+    @model_validator(mode="after")
+    def _the_crds_rules(self) -> CellQuotaSpec:
+        if (self.credits_cell_hours is None) != (self.period is None):
+            raise ValueError("creditsCellHours and period go together (credits are granted per period)")
+        if self.borrowing_limit is not None and self.cohort is None:
+            raise ValueError("borrowingLimit needs a cohort to borrow from")
+        return self
+
+
+class QuotaUsage(Wire):
+    """Cell time a tenant used (``status.usage``), kept in the object so it survives operator restarts."""
+
+    decayed_cell_seconds: float = Field(default=0.0, alias="decayedCellSeconds", ge=0)
+    period_cell_seconds: float = Field(default=0.0, alias="periodCellSeconds", ge=0)
+    period_start: Optional[Timestamp] = Field(default=None, alias="periodStart")
+    updated_at: Optional[Timestamp] = Field(default=None, alias="updatedAt")
+
+
+class CellQuotaStatus(Wire):
+    cells_in_use: int = Field(default=0, alias="cellsInUse")
+    borrowed_cells: int = Field(default=0, alias="borrowedCells")
+    waiting_jobs: int = Field(default=0, alias="waitingJobs")
+    usage: Optional[QuotaUsage] = None
+    message: Optional[str] = None
+
+
+class CellQuota(Wire):
+    metadata: Metadata
+    spec: CellQuotaSpec
+    status: CellQuotaStatus = Field(default_factory=CellQuotaStatus)
+
+
 __all__ = [
     "Cell",
     "CellArm",
     "CellCamera",
+    "CellQuota",
+    "CellQuotaSpec",
+    "CellQuotaStatus",
     "CellSpec",
     "CellStatus",
     "Condition",
     "JobArtifacts",
     "Metadata",
     "MonitorVerdict",
+    "QuotaUsage",
     "RobotJob",
     "RobotJobResult",
     "RobotJobSpec",

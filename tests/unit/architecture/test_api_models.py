@@ -1,4 +1,4 @@
-"""``armnet_core.resources`` models the RobotJob and Cell the CRDs in ``crds/`` define, field by field.
+"""``armnet_core.resources`` models the RobotJob, Cell and CellQuota the CRDs in ``crds/`` define, field by field.
 
 Every reader validates with these models; a field the CRD renames or drops, or one a
 model invents, would be read as absent without an error. Each model field (by its
@@ -49,6 +49,9 @@ PLACES = [
     (api.CELLS, ("spec", "arms", "*"), resources.CellArm),
     (api.CELLS, ("spec", "cameras", "*"), resources.CellCamera),
     (api.CELLS, ("status",), resources.CellStatus),
+    (api.CELLQUOTAS, ("spec",), resources.CellQuotaSpec),
+    (api.CELLQUOTAS, ("status",), resources.CellQuotaStatus),
+    (api.CELLQUOTAS, ("status", "usage"), resources.QuotaUsage),
 ]
 
 
