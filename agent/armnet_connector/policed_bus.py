@@ -129,6 +129,14 @@ def policed_bus_class() -> type:
     """The subclass, built on first use (LeRobot is imported lazily: the connector starts without it)."""
     from lerobot.motors.feetech import FeetechMotorsBus
 
+    if FeetechMotorsBus.__module__.startswith("armnet_runtime"):
+        # The job's import swap, in the process that must drive the real bus.
+        raise RuntimeError(
+            "the connector found LeRobot's FeetechMotorsBus replaced by armnet's remote proxy: "
+            "ARMNET_LEROBOT_TOOLS=remote is set in its environment, and it belongs to job containers only. "
+            "Start the connector without it"
+        )
+
     class PolicedFeetechBus(FeetechMotorsBus):  # type: ignore[misc]  # LeRobot is untyped
         """A ``FeetechMotorsBus`` that refuses register writes outside the cell's policy."""
 

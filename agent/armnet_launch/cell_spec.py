@@ -322,6 +322,10 @@ def build_job_env(
         env_keys.OUTPUT_DIR: str(layout.output_dir),
         # LeRobot's datasets (``LeRobotDataset.create``, ``lerobot-record``) land in the output directory.
         env_keys.HF_LEROBOT_HOME: str(layout.output_dir / LEROBOT_DIR),
+        # LeRobot's own commands started in the job reach the cell through the connector, and the
+        # cell-owned ones (lerobot-calibrate unless the cell allows it) are refused at once.
+        env_keys.LEROBOT_TOOLS: "remote",
+        env_keys.CALIBRATION_JOBS: "1" if spec.allow_calibration_jobs else "0",
     }
     if not spec.is_bimanual:
         env[env_keys.CALIBRATION_FILE_PATH] = str(layout.arms[0].calibration_file)

@@ -91,6 +91,27 @@ def test_runtime_lerobot_variant_imports_lerobots_robot_classes_as_uid_65532(
     assert output.strip().splitlines()[-1] == "65532 imported"
 
 
+def test_in_a_job_lerobots_own_commands_use_the_connector_and_lerobot_calibrate_is_refused(
+        podman: Podman, runtime_lerobot_image: str) -> None:
+    """The image's .pth installs the import swap in every interpreter of a job's container."""
+    job_env = {"ARMNET_LEROBOT_TOOLS": "remote", "ARMNET_CALIBRATION_JOBS": "0"}
+    code, output = run_image(podman, runtime_lerobot_image, ["python", "-c", (
+        "from lerobot.motors.feetech import FeetechMotorsBus; print(FeetechMotorsBus.__module__)")],
+        environment=job_env)
+    assert code == 0, output
+    assert output.strip().splitlines()[-1] == "armnet_runtime.lerobot.remote_feetech"
+
+    code, output = run_image(podman, runtime_lerobot_image, [
+        "lerobot-calibrate", "--robot.type=so101_follower", "--robot.port=/dev/null", "--robot.id=arm"],
+        environment=job_env)
+    assert code == 1, output
+    assert "lerobot-calibrate is refused in this job" in output and "EOFError" not in output
+
+    code, output = run_image(podman, runtime_lerobot_image, ["python", "-c", (
+        "from lerobot.motors.feetech import FeetechMotorsBus; print(FeetechMotorsBus.__module__)")])
+    assert output.strip().splitlines()[-1] == "lerobot.motors.feetech.feetech"  # outside a job: untouched
+
+
 def test_runtime_image_runs_jobs_as_uid_65532(podman: Podman, runtime_image: str) -> None:
     code, output = run_image(podman, runtime_image, ID)
 

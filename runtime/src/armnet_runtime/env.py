@@ -27,6 +27,11 @@ OUTPUT_DIR = "ARMNET_OUTPUT_DIR"
 HF_LEROBOT_HOME = "HF_LEROBOT_HOME"
 """LeRobot's dataset root, inside the output directory: a recorded dataset is kept with the job."""
 SECRETS = "ARMNET_SECRETS"
+LEROBOT_TOOLS = "ARMNET_LEROBOT_TOOLS"
+"""``remote`` in a job's container (and in no other process): LeRobot's own commands started in it
+reach the cell through the connector (``armnet_runtime.lerobot.in_job``)."""
+CALIBRATION_JOBS = "ARMNET_CALIBRATION_JOBS"
+"""``1`` when the cell's owner allows calibration jobs (``spec.allowCalibrationJobs``), else ``0``."""
 
 RERUN_QUEUE_MAXSIZE = "ARMNET_RERUN_QUEUE_MAXSIZE"
 """Bound of the Rerun streamer's queue (oldest frames are dropped beyond it)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -56,6 +57,13 @@ def test_the_env_holds_exactly_the_cell_keys() -> None:
     assert env[env_keys.HF_LEROBOT_HOME] == "/tmp/armnet-run-x/output/lerobot"  # LeRobot's datasets are kept
     assert all(key.startswith(("ARMNET_", "REMOTEROBOT_", "HF_")) for key in env)
     assert "PATH" not in env
+
+
+def test_lerobots_tools_in_the_job_reach_the_cell_and_calibrate_only_where_the_cell_allows_it() -> None:
+    spec = spec_for()
+    assert env_for(spec)[env_keys.LEROBOT_TOOLS] == "remote"
+    assert env_for(spec)[env_keys.CALIBRATION_JOBS] == "0"
+    assert env_for(dataclasses.replace(spec, allow_calibration_jobs=True))[env_keys.CALIBRATION_JOBS] == "1"
 
 
 def test_the_bimanual_preset_selects_each_arm_on_the_one_robot_socket() -> None:
