@@ -36,6 +36,7 @@ from .scoring import (
     Streak,
     Verdict,
 )
+from .service_scorer import ServiceScorer
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +57,10 @@ def block_wait_s(rate_hz: float) -> float:
 
 def build_scorer(config: CompletionConfig) -> FrameScorer:
     """The scorer a cell's completion settings describe."""
+    if config.service is not None:
+        return ServiceScorer(config.service, camera=config.camera)
     r = config.region
+    assert r is not None  # a region scorer's config holds its region
     region = Region(r.left, r.top, r.width, r.height)
     c = config.colour
     if c is not None:

@@ -168,7 +168,30 @@ def test_a_cell_with_a_completion_monitor_is_accepted_with_its_defaults(k8s: Any
         k8s.kubectl("delete", "cell", cell["metadata"]["name"], "--wait=false")
 
 
+def test_a_cell_with_a_scoring_service_is_accepted_with_its_defaults(k8s: Any) -> None:
+    cell = a_cell(a_completion(scorer="service", region=None, colour=None,
+                               service={"url": "http://judge.lab.internal:8080/score"}))
+    apply(k8s, cell)
+    try:
+        stored = json.loads(k8s.kubectl("get", "cell", cell["metadata"]["name"], "-o", "json").stdout)
+        service = stored["spec"]["completion"]["service"]
+        assert (service["timeoutSeconds"], service["threshold"]) == (0.5, 0.5)
+    finally:
+        k8s.kubectl("delete", "cell", cell["metadata"]["name"], "--wait=false")
+
+
+SERVICE = {"url": "http://judge.lab.internal:8080/score"}
+
+
 @pytest.mark.parametrize(("completion", "says"), [
+    (a_completion(region=None), "scorer region needs region"),
+    (a_completion(scorer="service", region=None, colour=None), "scorer service needs service"),
+    (a_completion(scorer="service", service=SERVICE), "a service scorer scores with its endpoint alone"),
+    (a_completion(service=SERVICE), "service is for scorer service only"),
+    (a_completion(scorer="service", region=None, colour=None, service={"url": "file:///etc/passwd"}),
+     "spec.completion.service.url"),
+    (a_completion(scorer="service", region=None, colour=None, service={**SERVICE, "timeoutSeconds": 5}),
+     "spec.completion.service.timeoutSeconds"),
     (a_completion(camera="wrist"), "spec.completion.camera must name one of spec.cameras"),
     (a_completion(region={"left": 0.5, "top": 0.5, "width": 0, "height": 0.1}), "spec.completion.region.width"),
     (a_completion(region={"left": -0.1, "top": 0.5, "width": 0.1, "height": 0.1}), "spec.completion.region.left"),

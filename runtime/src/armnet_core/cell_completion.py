@@ -30,8 +30,12 @@ MAX_RATE_HZ = 30.0
 #: The slowest: ``block=True`` waits a few periods, which must stay well under a call's timeout.
 MIN_RATE_HZ = 0.5
 MAX_CONSECUTIVE_FRAMES = 300
-#: Scorers this connector has; ``classifier`` and ``service`` are not built yet.
-SCORERS = ("region",)
+#: Scorers this connector has; ``classifier`` is not built yet.
+SCORERS = ("region", "service")
+#: The longest a ``service`` scorer may take to answer: the monitor counts a score slower than
+#: its limit (``SLOW_SCORE_S`` in the connector, 1 s) as "not complete" anyway.
+MAX_SERVICE_TIMEOUT_S = 1.0
+MIN_SERVICE_TIMEOUT_S = 0.05
 
 
 class _Model(BaseModel):
@@ -114,12 +118,39 @@ class ColourConfig(_Model):
         return self
 
 
+class ServiceConfig(_Model):
+    """An external scorer: the monitor POSTs each frame it scores (JPEG) and reads ``{"score": 0..1}`` back.
+
+    The URL is the cell owner's (in the Cell, never a job's); a service that is slow
+    (past ``timeoutSeconds``), down or answers anything else counts as "not complete"
+    and is reported, never waited for beyond the timeout.
+    """
+
+    url: str = Field(min_length=8, max_length=2048, pattern=r"^https?://[^\s]+$",
+                     description="http(s) endpoint that scores one JPEG frame")
+    timeout_seconds: float = Field(default=0.5, description="how long one score may take")
+    threshold: float = Field(default=0.5, ge=0, le=1, description="a frame scored at least this is a hit")
+
+    @field_validator("timeout_seconds", mode="before")
+    @classmethod
+    def _timeout(cls, value: Any) -> Any:
+        return _bounded(value, "completion.service.timeoutSeconds", MIN_SERVICE_TIMEOUT_S, MAX_SERVICE_TIMEOUT_S,
+                        (int, float), f"{MIN_SERVICE_TIMEOUT_S:g} to {MAX_SERVICE_TIMEOUT_S:g} seconds "
+                        "(a slower score counts as not complete)")
+
+    @field_validator("threshold", mode="before")
+    @classmethod
+    def _threshold(cls, value: Any) -> Any:
+        return _finite(value, "completion.service.threshold")
+
+
 class CompletionConfig(_Model):
     """How the cell's completion monitor scores an episode (docs/connector.md, "Completion monitor")."""
 
     camera: str = Field(min_length=1, max_length=253, description="the cell camera the monitor watches")
     scorer: str = "region"
-    region: RegionConfig
+    region: RegionConfig | None = Field(default=None, description="region scorer: where the object must be")
+    service: ServiceConfig | None = Field(default=None, description="service scorer: the endpoint that scores")
     colour: ColourConfig | None = Field(default=None, description="the object is a blob of this HSV range")
     aruco_id: int | None = Field(default=None, description="the object is the ArUco marker of this id")
     aruco_dictionary: str = "DICT_4X4_50"
@@ -158,6 +189,18 @@ class CompletionConfig(_Model):
 
     @model_validator(mode="after")
     def _one_object(self) -> CompletionConfig:
+        if self.scorer == "service":
+            if self.service is None:
+                raise ValueError("completion.scorer service needs completion.service (its url)")
+            if self.region is not None or self.colour is not None or self.aruco_id is not None:
+                raise ValueError(
+                    "completion.scorer service scores with its endpoint alone: leave out region, colour and arucoId"
+                )
+            return self
+        if self.service is not None:
+            raise ValueError("completion.service is for scorer service; this completion's scorer is region")
+        if self.region is None:
+            raise ValueError("completion.scorer region needs completion.region (where the object must be)")
         if (self.colour is None) == (self.aruco_id is None):
             raise ValueError(
                 "completion needs exactly one object to look for: a colour (an HSV range) or an arucoId"

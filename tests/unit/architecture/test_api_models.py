@@ -8,26 +8,19 @@ required fields and the same bounds where the model has one.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 from armnet_core import api, resources
 from pydantic import BaseModel
 
+from tests.unit.architecture.crds import crd
+
 pytestmark = pytest.mark.unit
 
-CRDS = Path(__file__).resolve().parents[3] / "crds"
-
-
 def schema(plural: str) -> dict[str, Any]:
-    for path in CRDS.glob("*.yaml"):
-        body: dict[str, Any] = yaml.safe_load(path.read_text())
-        if body["spec"]["names"]["plural"] == plural:
-            version = next(v for v in body["spec"]["versions"] if v["name"] == api.VERSION)
-            return version["schema"]["openAPIV3Schema"]
-    raise AssertionError(f"no CRD in crds/ serves {plural}")
+    version = next(v for v in crd(plural)["spec"]["versions"] if v["name"] == api.VERSION)
+    return dict(version["schema"]["openAPIV3Schema"])
 
 
 def at(root: dict[str, Any], *path: str) -> dict[str, Any]:

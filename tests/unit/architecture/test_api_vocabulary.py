@@ -3,26 +3,14 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
-from typing import Any
 
 import pytest
-import yaml
 from armnet_core import api
 from armnet_core.models import JobStatus
 
+from tests.unit.architecture.crds import CRDS, crd
+
 pytestmark = pytest.mark.unit
-
-CRDS = Path(__file__).resolve().parents[3] / "crds"
-
-
-def crd(plural: str) -> dict[str, Any]:
-    for path in CRDS.glob("*.yaml"):
-        body: dict[str, Any] = yaml.safe_load(path.read_text())
-        if body["spec"]["names"]["plural"] == plural:
-            return body
-    raise AssertionError(f"no CRD in crds/ serves {plural}")
-
 
 @pytest.mark.parametrize("plural", [api.ROBOTJOBS, api.CELLS, api.CELLQUOTAS])
 def test_every_crd_serves_the_group_and_version_the_packages_use(plural: str) -> None:

@@ -9,6 +9,7 @@ import pytest
 from armnet_connector import CompletionConfig, ConnectorConfig
 from armnet_connector.completion import build_scorer
 from armnet_connector.scoring import ArucoRegionScorer, ColourRegionScorer
+from armnet_connector.service_scorer import ServiceScorer
 from pydantic import ValidationError
 
 pytestmark = pytest.mark.unit
@@ -38,6 +39,14 @@ def test_an_aruco_completion_builds_the_aruco_scorer() -> None:
     assert isinstance(build_scorer(config), ArucoRegionScorer)
 
 
+def test_a_service_completion_builds_the_service_scorer_with_its_defaults() -> None:
+    config = CompletionConfig.model_validate(a_completion(
+        scorer="service", region=None, colour=None, service={"url": "https://judge.lab/score"}))
+    scorer = build_scorer(config)
+    assert isinstance(scorer, ServiceScorer)
+    assert (scorer.config.timeout_seconds, scorer.config.threshold, scorer.camera) == (0.5, 0.5, "front")
+
+
 HOSTILE: list[tuple[str, dict[str, Any], str]] = [
     ("an empty region", {"region": {"left": 0.5, "top": 0.5, "width": 0, "height": 0.1}}, "region is empty"),
     ("a negative region", {"region": {"left": -0.2, "top": 0.1, "width": 0.1, "height": 0.1}}, "leaves the picture"),
@@ -52,7 +61,19 @@ HOSTILE: list[tuple[str, dict[str, Any], str]] = [
     ("two objects", {"arucoId": 3}, "exactly one object"),
     ("an ArUco id the dictionary lacks", {"colour": None, "arucoId": 50}, "holds ids 0 to 49"),
     ("an unknown dictionary", {"colour": None, "arucoId": 1, "arucoDictionary": "DICT_ARUCO_ORIGINAL"}, "use one of"),
-    ("a scorer not built yet", {"scorer": "classifier"}, "use one of ['region']"),
+    ("a scorer not built yet", {"scorer": "classifier"}, "use one of ['region', 'service']"),
+    ("a region scorer without its region", {"region": None}, "scorer region needs completion.region"),
+    ("a region scorer given a service", {"service": {"url": "http://judge.lab:8080/score"}}, "is for scorer service"),
+    ("a service scorer without its service", {"scorer": "service"}, "needs completion.service (its url)"),
+    ("a service scorer with a region", {"scorer": "service", "service": {"url": "http://judge.lab:8080/score"}},
+     "leave out region, colour and arucoId"),
+    ("a service on another scheme", {"scorer": "service", "region": None, "colour": None,
+                                     "service": {"url": "file:///etc/passwd"}}, "String should match pattern"),
+    ("a service slower than the monitor waits", {"scorer": "service", "region": None, "colour": None,
+                                                 "service": {"url": "http://j:1/s", "timeoutSeconds": 5}},
+     "give 0.05 to 1 seconds"),
+    ("a threshold past 1", {"scorer": "service", "region": None, "colour": None,
+                            "service": {"url": "http://j:1/s", "threshold": 2}}, "less than or equal to 1"),
     ("a hue past 179", {"colour": {"hueMin": 0, "hueMax": 200}}, "colour.hueMax\n  Input should be less than or equal to 179"),
     ("a reversed saturation range", {"colour": {"hueMin": 0, "hueMax": 8, "saturationMin": 200,
                                                 "saturationMax": 100}}, "must not exceed"),

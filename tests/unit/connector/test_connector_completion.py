@@ -3,21 +3,27 @@
 The simulator's camera draws a red disc on the arm's end effector and a blue
 target pad where the disc lands at ``TARGET_POSE``; the cell's completion
 monitor looks for the disc inside the pad's region. LeRobot's bus (the SDK's
-proxy) drives the arm; the SDK's ``Cell`` asks.
+proxy) drives the arm; the SDK's ``Cell`` asks. The main cases run twice: with the
+region scorer in the connector, and with the service scorer asking a judge over HTTP.
 """
 
 from __future__ import annotations
 
+import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
+import numpy as np
 import pytest
-from armnet_connector import Connector, ConnectorConfig
+from armnet_connector import CompletionConfig, Connector, ConnectorConfig
+from armnet_connector.completion import build_scorer
 from armnet_connector.hardware import simulated_camera_factory
 from armnet_runtime.context import Cell
 from armnet_sim import SimulatedCellProcess
 from armnet_sim.render import TARGET_POSE, target_region
+
+from tests.support.scoring_service import ScoringService
 
 pytestmark = pytest.mark.unit
 
@@ -35,11 +41,35 @@ def completion_of_the_target() -> dict[str, Any]:
     }
 
 
+def region_judge(completion: dict[str, Any]) -> ScoringService:
+    """A scoring service that judges each JPEG it is sent with the region scorer.
+
+    It stands for an external judge (a VLM, a team's model): the frames cross HTTP as
+    JPEG, and the verdict comes back as ``{"score": ...}``.
+    """
+    judge = build_scorer(CompletionConfig.model_validate(completion))
+
+    def answer(_headers: dict[str, str], body: bytes) -> tuple[int, bytes]:
+        import cv2
+
+        verdict = judge.score(cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR))
+        return 200, json.dumps({"score": 1.0 if verdict.hit else 0.0, "detail": verdict.detail}).encode()
+
+    return ScoringService(answer)
+
+
 @pytest.fixture
-def connector(sim_cell: SimulatedCellProcess, make_connector: Callable[..., Connector],
-              cell_config: Callable[..., ConnectorConfig]) -> Connector:
-    config = cell_config(sim_cell, completion=completion_of_the_target())
-    return make_connector(config, camera_factory=simulated_camera_factory(source=sim_cell))
+def connector(request: pytest.FixtureRequest, sim_cell: SimulatedCellProcess,
+              make_connector: Callable[..., Connector], cell_config: Callable[..., ConnectorConfig]) -> Iterator[Connector]:
+    """The cell's monitor with the region scorer, or (``"service"``) a service that judges with it over HTTP."""
+    completion = completion_of_the_target()
+    if getattr(request, "param", "region") == "service":
+        judge = region_judge(completion)
+        request.addfinalizer(judge.close)
+        completion = {"camera": "front", "scorer": "service", "service": {"url": judge.url, "timeoutSeconds": 1},
+                      "consecutiveFrames": completion["consecutiveFrames"], "rateHz": completion["rateHz"]}
+    config = cell_config(sim_cell, completion=completion)
+    yield make_connector(config, camera_factory=simulated_camera_factory(source=sim_cell))
 
 
 # `bus` is the connector conftest's: LeRobot's bus through this module's `connector`.
@@ -62,6 +92,7 @@ def a_job_cell(connector: Connector) -> Cell:
     return Cell(robot_port=connector.robot_endpoint, operator_call_endpoint=connector.operator_endpoint)
 
 
+@pytest.mark.parametrize("connector", ["region", "service"], indirect=True)
 def test_a_job_that_drives_the_arm_onto_the_target_is_scored_complete(connector: Connector, bus: Any) -> None:
     cell = a_job_cell(connector)
     assert not cell.is_complete(block=True)
@@ -75,6 +106,7 @@ def test_a_job_that_drives_the_arm_onto_the_target_is_scored_complete(connector:
     assert connector.record().counters["completion_frames_scored"] >= 3
 
 
+@pytest.mark.parametrize("connector", ["region", "service"], indirect=True)
 def test_a_job_that_stops_short_of_the_target_is_not_complete(connector: Connector, bus: Any) -> None:
     short = {**TARGET_POSE, "elbow_flex": TARGET_POSE["elbow_flex"] - 15.0}
     drive_to(bus, short)
