@@ -14,6 +14,7 @@ import time
 
 import pytest
 from armnet_operator.controller import Controller
+from armnet_operator.errors import TransientError
 from armnet_operator.metrics import Metrics
 from armnet_operator.settings import load_settings
 
@@ -76,4 +77,32 @@ def test_a_pass_that_outlasts_the_grace_does_not_hold_the_stop() -> None:
 
     took = asyncio.run(asyncio.wait_for(run(), 10))
     assert took < 1.0
+    assert not controller.dead
+
+
+def test_a_pass_that_outlasts_the_grace_and_then_fails_on_the_closed_api_ends_quietly() -> None:
+    """kopf re-raises the exception of every task it finds done when it ends: the exit was a crash."""
+    controller = a_controller()
+    release = threading.Event()
+    started = threading.Event()
+
+    def reconcile() -> None:
+        started.set()
+        release.wait(10)
+        raise TransientError("the operator is stopping; request not sent")
+
+    controller.reconcile = reconcile  # type: ignore[method-assign]
+
+    async def run() -> BaseException | None:
+        controller.start()
+        while not started.is_set():
+            await asyncio.sleep(0.005)
+        await controller.stop(grace=0.1)
+        release.set()
+        running = controller._pass
+        assert running is not None
+        await asyncio.wait({running}, timeout=5)
+        return running.exception()
+
+    assert asyncio.run(asyncio.wait_for(run(), 10)) is None
     assert not controller.dead
