@@ -54,7 +54,11 @@ def test_a_stop_waits_for_the_pass_in_flight_and_starts_no_other() -> None:
     assert not controller.dead
 
 
-def test_a_pass_that_outlasts_the_grace_does_not_hold_the_stop() -> None:
+def stop_during_a_hanging_pass(*, then_fail: bool) -> tuple[Controller, float, BaseException | None]:
+    """Stop (0.1 s grace) while a pass hangs; then let the pass end, raising as on the closed API if asked.
+
+    Returns the controller, how long the stop took, and what the pass's task ended with.
+    """
     controller = a_controller()
     release = threading.Event()
     started = threading.Event()
@@ -62,47 +66,36 @@ def test_a_pass_that_outlasts_the_grace_does_not_hold_the_stop() -> None:
     def reconcile() -> None:
         started.set()
         release.wait(10)
+        if then_fail:
+            raise TransientError("the operator is stopping; request not sent")
 
     controller.reconcile = reconcile  # type: ignore[method-assign]
 
-    async def run() -> float:
+    async def run() -> tuple[float, BaseException | None]:
         controller.start()
         while not started.is_set():
             await asyncio.sleep(0.005)
         begin = time.monotonic()
         await controller.stop(grace=0.1)
         took = time.monotonic() - begin
-        release.set()  # asyncio.run joins the worker thread before it returns
-        return took
+        release.set()
+        running = controller._pass
+        assert running is not None
+        await asyncio.wait({running}, timeout=5)
+        return took, running.exception()
 
-    took = asyncio.run(asyncio.wait_for(run(), 10))
+    took, ended_with = asyncio.run(asyncio.wait_for(run(), 10))
+    return controller, took, ended_with
+
+
+def test_a_pass_that_outlasts_the_grace_does_not_hold_the_stop() -> None:
+    controller, took, _ = stop_during_a_hanging_pass(then_fail=False)
     assert took < 1.0
     assert not controller.dead
 
 
 def test_a_pass_that_outlasts_the_grace_and_then_fails_on_the_closed_api_ends_quietly() -> None:
     """kopf re-raises the exception of every task it finds done when it ends: the exit was a crash."""
-    controller = a_controller()
-    release = threading.Event()
-    started = threading.Event()
-
-    def reconcile() -> None:
-        started.set()
-        release.wait(10)
-        raise TransientError("the operator is stopping; request not sent")
-
-    controller.reconcile = reconcile  # type: ignore[method-assign]
-
-    async def run() -> BaseException | None:
-        controller.start()
-        while not started.is_set():
-            await asyncio.sleep(0.005)
-        await controller.stop(grace=0.1)
-        release.set()
-        running = controller._pass
-        assert running is not None
-        await asyncio.wait({running}, timeout=5)
-        return running.exception()
-
-    assert asyncio.run(asyncio.wait_for(run(), 10)) is None
+    controller, _, ended_with = stop_during_a_hanging_pass(then_fail=True)
+    assert ended_with is None
     assert not controller.dead
