@@ -35,15 +35,16 @@ fi
 # runs real-time (agent/armnet_sim/pty_server.py): without it, sessions side by side
 # on two cores starved the simulated servos (missed status packets).
 # One group per line; files separated by spaces; each group is its own session, its files run
-# in the order given. `armnet dev up` (test_dev_up.py) starts a node of its own, so it runs
-# before the session's node fixture takes the host's node lock and keeps it to the end.
+# in the order given. `armnet dev up` (test_dev_up.py) starts a node of its own and
+# test_node_store.py runs setup's import into the node's store, so both run before the
+# session's node fixture takes the host's node lock and keeps it to the end.
 # Balanced by measurement (2026-11-25, warm): the main session alone ran 6 minutes at half
 # the CPU after the side sessions ended, so the container tier and the local-run e2e moved
 # into them; on 2026-11-28 the main session still ended 2 minutes after the other two, so
 # the Helm chart's rendering, RBAC and lifecycle tests moved beside the agent's scenarios.
 side_groups=(
   "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container tests/integration/test_helm_chart.py tests/integration/test_helm_rbac.py tests/integration/test_helm_lifecycle.py"
-  "tests/integration/test_dev_up.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
+  "tests/integration/test_dev_up.py tests/integration/test_node_store.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
 )
 # Each session prints its slowest tests (--durations): where the suite's time budget goes.
 # Every session's output is also kept in one directory; a failed run keeps it (its path is

@@ -46,6 +46,7 @@ from tests.testbed.kube import ControlPlane
 from tests.testbed.node import Node
 from tests.testbed.plugin import Podman
 from tests.testbed.procs import free_port
+from tests.testbed.release_images import forget_superseded_tags, release_images, repository
 
 pytestmark = [pytest.mark.node, pytest.mark.container, pytest.mark.timeout(1800)]
 
@@ -119,67 +120,17 @@ def get_json(k8s: ControlPlane, kind: str, *args: str) -> Any:
     return json.loads(response.data)
 
 
-def common_tag(podman: Podman, images: list[str]) -> str:
-    """One tag on every image (the chart has one image.tag): the joined content hashes."""
-    tag = "it-" + "".join(image.rsplit(":", 1)[1][:6] for image in images)
-    for image in images:
-        podman.client.images.get(image).tag(image.rsplit(":", 1)[0], tag)
-    return tag
-
-
-def forget_earlier_tags(podman: Podman, node: Node, images: list[str], tag: str) -> None:
-    """Untag earlier runs' ``it-<hashes>`` tags of these repositories, in Podman and in the node's containerd.
-
-    Each holds its own build (the agent image is ~6 GB) after the content-hash builds
-    it came from were replaced: without this every source change left one on the disk.
-    """
-    repositories = {image.rsplit(":", 1)[0] for image in images}
-    keep = {f"{repository}:{tag}" for repository in repositories}
-
-    def stale(name: str) -> bool:
-        repository, _, its_tag = name.rpartition(":")
-        return repository in repositories and its_tag.startswith("it-") and name not in keep
-
-    for image in podman.client.images.list():
-        for name in filter(stale, image.tags):
-            try:
-                podman.client.images.remove(name)
-            except Exception as exc:  # noqa: BLE001 - in use by a container: the next run tries again
-                print(f"[helm-install] could not untag {name}: {exc}")
-    for name in filter(stale, node.ctr("images", "ls", "-q").stdout.split()):
-        node.ctr("images", "rm", name, check=False)
-    node.drop_unnamed_images()
-
-
-def build_bus_loop_image(podman: Podman, runtime_lerobot_image: str) -> str:
-    """The bus-loop example as a customer would ship it: on the runtime's LeRobot variant."""
-    examples = CHART.parents[1] / "runtime" / "examples"
-    context = Path(tempfile.mkdtemp(prefix="armnet-bus-loop-"))
-    try:
-        shutil.copy(examples / "bus_loop.py", context / "main.py")
-        shutil.copy(examples / "_so101_moves.py", context / "_so101_moves.py")
-        (context / "Containerfile").write_text("ARG RUNTIME\nFROM ${RUNTIME}\nCOPY main.py _so101_moves.py /app/\n")
-        tag = "localhost/armnet-bus-loop:it"
-        podman.client.images.build(path=str(context), tag=tag, rm=True, dockerfile="Containerfile",
-                                   buildargs={"RUNTIME": runtime_lerobot_image}, network_mode="none")
-        return tag
-    finally:
-        shutil.rmtree(context, ignore_errors=True)
-
-
 @pytest.fixture(scope="module")
-def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: str,
-            agent_image: str, runtime_image: str, runtime_lerobot_image: str) -> Iterator[dict[str, Any]]:
-    """The chart installed, its pods running on the node; everything removed afterwards."""
-    tag = common_tag(podman, [operator_image, agent_image])
-    forget_earlier_tags(podman, k8s_node, [operator_image, agent_image], tag)
-    job_image = "localhost/armnet-example-job:it"
-    podman.client.images.build(path=str(CHART.parents[1] / "images" / "example-job"), tag=job_image,
-                               rm=True, dockerfile="Containerfile", buildargs={"RUNTIME": runtime_image},
-                               network_mode="none")
-    bus_loop_image = build_bus_loop_image(podman, runtime_lerobot_image)
-    k8s_node.import_images(f"{operator_image.rsplit(':', 1)[0]}:{tag}", f"{agent_image.rsplit(':', 1)[0]}:{tag}",
-                           job_image, bus_loop_image)
+def release(k8s: ControlPlane, k8s_node: Node, podman: Podman) -> Iterator[dict[str, Any]]:
+    """The chart installed, its pods running on the node; everything removed afterwards.
+
+    Its images are in the node's store already when setup ran (tests/testbed/release_images.py):
+    the import here then finds nothing to do.
+    """
+    images = release_images(podman.client)
+    forget_superseded_tags(podman.client, images)
+    k8s_node.forget_images(images.is_superseded)
+    k8s_node.import_images(*images.all())
     system = k8s.create_namespace("armnet-system")
     tenant = k8s.create_namespace("tenant")
     name = f"it-{uuid.uuid4().hex[:6]}"
@@ -187,8 +138,8 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
     to_api = {"KUBERNETES_SERVICE_HOST": api.hostname, "KUBERNETES_SERVICE_PORT": str(api.port)}
     host = Path(tempfile.mkdtemp(prefix="armnet-it-"))
     values = {
-        "image": {"operatorRepository": operator_image.rsplit(":", 1)[0],
-                  "agentRepository": agent_image.rsplit(":", 1)[0], "tag": tag, "pullPolicy": "Never"},
+        "image": {"operatorRepository": repository(images.operator),
+                  "agentRepository": repository(images.agent), "tag": images.tag, "pullPolicy": "Never"},
         "jobNamespaces": [{"name": tenant}],
         # With hostNetwork the operator's ports are host ports: free ones, changed on upgrade (one node).
         "admissionWebhook": {"port": free_port()},
@@ -209,9 +160,9 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman, operator_image: s
     }
     k8s.kubectl("label", "node", k8s_node.name, f"{ROBOT_HOST_LABEL}=true", "--overwrite")
     controllers = WorkloadControllers(plane=k8s).start()
-    state = {"job_image": job_image, "bus_loop_image": bus_loop_image, "k8s": k8s, "node": k8s_node, "system": system, "tenant": tenant, "name": name,
-             "values": values, "controllers": controllers, "host": host, "connector_image":
-             f"{agent_image.rsplit(':', 1)[0]}:{tag}"}
+    state = {"job_image": images.example_job, "bus_loop_image": images.bus_loop, "k8s": k8s,
+             "node": k8s_node, "system": system, "tenant": tenant, "name": name, "values": values,
+             "controllers": controllers, "host": host, "connector_image": images.agent}
     try:
         # The test bed applied the CRDs; the release adopts them as docs/helm.md says (its uninstall must keep them).
         adopt_crds(k8s, name, system)

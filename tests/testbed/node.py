@@ -44,8 +44,6 @@ from __future__ import annotations
 
 import base64
 import contextlib
-import fcntl
-import hashlib
 import json
 import os
 import shutil
@@ -55,33 +53,35 @@ import subprocess
 import tempfile
 import time
 import urllib.request
-from collections.abc import Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
 import yaml
 
+from tests.testbed.containerd import (
+    CONTAINERD_ROOT,
+    PAUSE_IMAGE,
+    Containerd,
+    hold_node_lock,
+    proc_cmdline,
+    release_node_lock,
+    shim_pids,
+)
 from tests.testbed.errors import TestbedSetupError
 from tests.testbed.images import BASE_IMAGE
 from tests.testbed.kube import KUBELET_CLIENT_USER, ControlPlane, k8s_bin_dir
 from tests.testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
 
-PAUSE_IMAGE = "localhost/armnet-pause:testbed"
 NODE_NAME = "armnet-node"
 # RFC 2544 benchmarking range: never routed on the internet, put on `lo` here.
 NODE_IP = "198.18.0.10"
 CNI_NETWORK = "armnet-node"
 POD_BRIDGE = "armnet-node0"
 POD_SUBNET = "198.18.128.0/24"
-CONTAINERD_ROOT = Path(os.environ.get("ARMNET_NODE_CONTAINERD_ROOT",
-                                     Path.home() / ".cache/armnet/node/containerd"))
-# Experiment overrides (module docstring); unset by default.
-CONTAINERD_ENV = "ARMNET_TESTBED_CONTAINERD"
+# Experiment override (module docstring); unset by default.
 FEATURE_GATES_ENV = "ARMNET_TESTBED_KUBELET_FEATURE_GATES"
-# Label on an imported image: the Podman image id it came from (re-import on change).
-SOURCE_LABEL = "armnet.io/podman-image-id"
-LOCK_PATH = Path("/run/lock/armnet-testbed-node.lock")
 # What the kubelet changes with protectKernelDefaults=false (pkg/kubelet/cm
 # setupKernelTunables); saved before it starts, restored after it stops.
 KUBELET_SYSCTLS = (
@@ -100,121 +100,6 @@ DEVICE_PLUGIN_DIR = KUBELET_HOST_DIR / "device-plugins"
 
 
 # ---------------------------------------------------------------------- config files
-def containerd_major(version_output: str) -> int:
-    """The major version in ``containerd --version`` output.
-
-    ``containerd github.com/containerd/containerd 1.6.20~ds1 ...`` -> 1,
-    ``containerd github.com/containerd/containerd/v2 2.2.1+unknown`` -> 2.
-    """
-    fields = version_output.split()
-    if len(fields) < 3 or not fields[2].lstrip("v").split(".")[0].isdigit():
-        raise TestbedSetupError(f"unrecognised `containerd --version` output: {version_output!r}")
-    return int(fields[2].lstrip("v").split(".")[0])
-
-
-def containerd_root(major: int, *, overridden: bool, env: Mapping[str, str] | None = None) -> Path:
-    """The persistent root: a containerd 2 from the override gets its own unless one is set."""
-    if not overridden or major < 2 or "ARMNET_NODE_CONTAINERD_ROOT" in (os.environ if env is None else env):
-        return CONTAINERD_ROOT
-    return CONTAINERD_ROOT.with_name(f"{CONTAINERD_ROOT.name}-v{major}")
-
-
-def containerd_config(workdir: Path, root: Path, cni_conf_dir: Path, *, major: int = 1,
-                      shim: Path | None = None) -> str:
-    """containerd's config: state under ``workdir``, CRI as docs/reference/testbed-host.md says.
-
-    Schema 2 for containerd 1.6; for containerd 2 (``major``) the same settings in
-    schema 3, with ``shim`` as the runc shim if given.
-    """
-    if major >= 2:
-        return _containerd_config_v3(workdir, root, cni_conf_dir, shim)
-    return f"""version = 2
-root = "{root}"
-state = "{workdir / 'state'}"
-oom_score = 0
-disabled_plugins = ["io.containerd.snapshotter.v1.aufs", "io.containerd.snapshotter.v1.btrfs",
-  "io.containerd.snapshotter.v1.devmapper", "io.containerd.snapshotter.v1.zfs",
-  "io.containerd.tracing.processor.v1.otlp", "io.containerd.internal.v1.tracing"]
-
-{_sockets_and_opt(workdir)}  [plugins."io.containerd.grpc.v1.cri"]
-    # Required here: without CAP_SYS_RESOURCE runc cannot apply the negative
-    # oom_score_adj the kubelet asks for (every pod fails otherwise).
-    restrict_oom_score_adj = true
-    sandbox_image = "{PAUSE_IMAGE}"
-    stream_server_address = "127.0.0.1"
-    stream_server_port = "0"
-    enable_selinux = false
-    [plugins."io.containerd.grpc.v1.cri".cni]
-      bin_dir = "/usr/lib/cni"
-      conf_dir = "{cni_conf_dir}"
-      max_conf_num = 1
-    [plugins."io.containerd.grpc.v1.cri".containerd]
-      snapshotter = "overlayfs"
-      default_runtime_name = "runc"
-      [plugins."io.containerd.grpc.v1.cri".containerd.runtimes.runc]
-        runtime_type = "io.containerd.runc.v2"
-        [plugins."io.containerd.grpc.v1.cri".containerd.runtimes.runc.options]
-          SystemdCgroup = false
-          Root = "{workdir / 'state' / 'runc'}"
-"""
-
-
-def _sockets_and_opt(workdir: Path) -> str:
-    """The sections both schemas write alike: the sockets under ``workdir``, no debug or metrics, ``opt``."""
-    return f"""[grpc]
-  address = "{workdir / 'containerd.sock'}"
-
-[ttrpc]
-  address = "{workdir / 'containerd.sock.ttrpc'}"
-
-[debug]
-  address = ""
-
-[metrics]
-  address = ""
-
-[plugins]
-  [plugins."io.containerd.internal.v1.opt"]
-    path = "{workdir / 'opt'}"
-"""
-
-
-def _containerd_config_v3(workdir: Path, root: Path, cni_conf_dir: Path, shim: Path | None) -> str:
-    runtime = '[plugins."io.containerd.cri.v1.runtime".containerd.runtimes.runc]'
-    return f"""version = 3
-root = "{root}"
-state = "{workdir / 'state'}"
-oom_score = 0
-# NRI would serve /var/run/nri/nri.sock and read /etc/nri; CDI reads /etc/cdi.
-disabled_plugins = ["io.containerd.tracing.processor.v1.otlp", "io.containerd.internal.v1.tracing",
-  "io.containerd.nri.v1.nri"]
-
-{_sockets_and_opt(workdir)}  [plugins."io.containerd.cri.v1.images"]
-    snapshotter = "overlayfs"
-    [plugins."io.containerd.cri.v1.images".pinned_images]
-      sandbox = "{PAUSE_IMAGE}"
-  [plugins."io.containerd.cri.v1.runtime"]
-    restrict_oom_score_adj = true
-    enable_selinux = false
-    enable_cdi = false
-    [plugins."io.containerd.cri.v1.runtime".cni]
-      bin_dirs = ["/usr/lib/cni"]
-      conf_dir = "{cni_conf_dir}"
-      max_conf_num = 1
-    [plugins."io.containerd.cri.v1.runtime".containerd]
-      default_runtime_name = "runc"
-      {runtime}
-        runtime_type = "io.containerd.runc.v2"
-        runtime_path = "{shim or ''}"
-        [plugins."io.containerd.cri.v1.runtime".containerd.runtimes.runc.options]
-          SystemdCgroup = false
-          Root = "{workdir / 'state' / 'runc'}"
-  [plugins."io.containerd.grpc.v1.cri"]
-    stream_server_address = "127.0.0.1"
-    stream_server_port = "0"
-"""
-
-
 def feature_gates(value: str) -> dict[str, bool]:
     """``--feature-gates`` syntax (``A=true,B=false``) as the config's ``featureGates`` map."""
     gates = {}
@@ -280,14 +165,6 @@ def kubelet_config(*, socket: Path, node_ip: str, port: int, healthz_port: int,
     return config
 
 
-# ---------------------------------------------------------------------- images
-def orphan_image_ids(listing: str) -> list[str]:
-    """The ``sha256:<id>`` references in a ``ctr images ls`` listing whose target no named image has."""
-    rows = [line.split() for line in listing.splitlines()[1:] if line.strip()]
-    named_targets = {row[2] for row in rows if len(row) > 2 and not row[0].startswith("sha256:")}
-    return [row[0] for row in rows if len(row) > 2 and row[0].startswith("sha256:") and row[2] not in named_targets]
-
-
 # ---------------------------------------------------------------------- host state
 def read_sysctls() -> dict[str, str]:
     return {name: (Path("/proc/sys") / name).read_text().strip() for name in KUBELET_SYSCTLS}
@@ -342,24 +219,6 @@ def remove_empty_dirs(top: Path) -> None:
             os.rmdir(dirpath)
 
 
-def _proc_cmdline(pid: int) -> list[str]:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")
-    except OSError:
-        return []
-
-
-def shim_pids(containerd_socket: Path) -> list[int]:
-    """containerd-shim processes started by the containerd listening on ``containerd_socket``."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            argv = _proc_cmdline(int(entry.name))
-            if argv and "containerd-shim" in argv[0] and str(containerd_socket) in argv:
-                pids.append(int(entry.name))
-    return pids
-
-
 # ---------------------------------------------------------------------- the node
 @dataclass
 class Node:
@@ -373,10 +232,8 @@ class Node:
     ready_timeout: float = 60.0
     lock_timeout: float = 600.0
 
-    socket: Path = Path()
-    containerd_root: Path = CONTAINERD_ROOT
     kubelet_log: Path = Path()
-    containerd_log: Path = Path()
+    containerd: Containerd | None = None
     _procs: list[ManagedProcess] = field(default_factory=list)
     _lock: TextIO | None = None
     _host: dict[str, Any] = field(default_factory=dict)
@@ -390,9 +247,6 @@ class Node:
                                   "run the node tests / armnet dev up as root, or --no-node")
         bins = k8s_bin_dir()
         kubelet = require_tool("kubelet", bins / "kubelet")
-        containerd = (require_tool("containerd", Path(os.environ[CONTAINERD_ENV]))
-                      if os.environ.get(CONTAINERD_ENV) else require_tool("containerd"))
-        require_tool("ctr")
         require_tool("runc")
         require_tool("podman")
         if not Path("/usr/lib/cni/loopback").is_file():
@@ -400,19 +254,19 @@ class Node:
         for image in (PAUSE_IMAGE, *self.images):
             if subprocess.run(["podman", "image", "exists", image], check=False).returncode:
                 raise TestbedSetupError(f"image {image} is not in podman")
-        self._acquire_lock()
+        self._lock = hold_node_lock(self.lock_timeout)
         if self.workdir is None:
             self.workdir = Path(tempfile.mkdtemp(prefix="armnet-node-"))
             self._owns_workdir = True
         try:
-            self._start(containerd, kubelet)
+            self._start(kubelet)
         except BaseException:
             self.stop()
             raise
         progress(f"node {self.name} Ready in {time.monotonic() - started:.1f} s")
         return self
 
-    def _start(self, containerd: str, kubelet: str) -> None:
+    def _start(self, kubelet: str) -> None:
         assert self.workdir is not None and self.plane.pki is not None
         w = self.workdir
         self._save_host_state()
@@ -421,28 +275,9 @@ class Node:
         cni_dir.mkdir()
         (cni_dir / "10-armnet-node.conflist").write_text(
             json.dumps(pod_network_config(w / "cni-ipam")))
-        overridden = bool(os.environ.get(CONTAINERD_ENV))
-        major = 1
-        if overridden:
-            major = containerd_major(subprocess.run([containerd, "--version"], capture_output=True,
-                                                    text=True, check=False).stdout)
-        self.containerd_root = containerd_root(major, overridden=overridden)
-        self._host["containerd_root"] = str(self.containerd_root)
+        self.containerd = Containerd(w).start(cni_dir, track=self._track)
+        self._host["containerd_root"] = str(self.containerd.root)
         HOST_STATE.write_text(json.dumps(self._host))
-        shim = Path(containerd).parent / "containerd-shim-runc-v2"
-        self.containerd_root.mkdir(parents=True, exist_ok=True)
-        (w / "containerd.toml").write_text(containerd_config(
-            w, self.containerd_root, cni_dir, major=major,
-            shim=shim if overridden and shim.is_file() else None))
-        self.socket = w / "containerd.sock"
-        self.containerd_log = w / "containerd.log"
-        t0 = time.monotonic()
-        proc = ManagedProcess("containerd", [containerd, "--config", str(w / "containerd.toml")],
-                              self.containerd_log)
-        self._track(proc)
-        wait_until(lambda: self.ctr("version", check=False).returncode == 0, timeout=30,
-                   what="containerd", alive=proc.ensure_running)
-        progress(f"containerd up in {time.monotonic() - t0:.1f} s")
 
         t0 = time.monotonic()
         imported = self.import_images(PAUSE_IMAGE, *self.images)
@@ -480,20 +315,20 @@ class Node:
             if self._procs:
                 self._drain()
                 for proc in reversed(self._procs):
-                    if proc.name == "containerd":
-                        self._remove_containers()
-                        for pid in shim_pids(self.socket):
-                            with contextlib.suppress(OSError):
-                                os.kill(pid, signal.SIGKILL)
+                    if self.containerd is not None and proc is self.containerd.process:
+                        self.containerd.stop()
                     proc.stop()
                 self._procs.clear()
             self._restore_host_state()
-            unmount_all(self.containerd_root)
+            if self.containerd is not None:
+                unmount_all(self.containerd.root)
             if self._owns_workdir and self.workdir is not None:
                 unmount_all(self.workdir)
                 shutil.rmtree(self.workdir, ignore_errors=True)
         finally:
-            self._release_lock()
+            if self._lock is not None:
+                release_node_lock(self._lock)
+                self._lock = None
 
     def __enter__(self) -> Node:
         return self.start()
@@ -531,6 +366,17 @@ class Node:
         assert self.workdir is not None
         return self.workdir / "kubelet"
 
+    @property
+    def socket(self) -> Path:
+        """containerd's API socket (``ctr --address``)."""
+        assert self.containerd is not None, "the node is not started"
+        return self.containerd.socket
+
+    @property
+    def containerd_log(self) -> Path:
+        assert self.containerd is not None, "the node is not started"
+        return self.containerd.log
+
     def import_image(self, image: str) -> bool:
         """Make a Podman image available to pods (``imagePullPolicy: Never``), same name.
 
@@ -540,62 +386,23 @@ class Node:
         return bool(self.import_images(image))
 
     def import_images(self, *images: str) -> list[str]:
-        """Import the images the node lacks in ONE archive; return those imported.
-
-        Why one archive: the agent image and the runtime's LeRobot variant share a ~5 GB
-        dependency layer. Saved one by one, each archive carries it and containerd unpacks
-        it twice; a multi-image archive carries each layer once.
-        """
-        wanted: dict[str, str] = {}
-        for image in images:
-            inspect = subprocess.run(["podman", "image", "inspect", "--format", "{{.Id}}", image],
-                                     capture_output=True, text=True, check=False)
-            if inspect.returncode:
-                raise TestbedSetupError(f"image {image} is not in podman: {inspect.stderr.strip()}")
-            image_id = inspect.stdout.strip()
-            if f"{SOURCE_LABEL}={image_id}" not in self.ctr("images", "ls", f"name=={image}").stdout:
-                wanted[image] = image_id
-        if not wanted:
-            return []
-        # The names' earlier images go first: the import needs room for the new one, its archive
-        # and, unpacked, its snapshots (~20 GB for the agent), and the old one held ~13 GB of it.
-        for image in wanted:
-            self.ctr("images", "rm", "--sync", image, check=False)
-        self.drop_unnamed_images()
-        assert self.workdir is not None
-        key = hashlib.sha256(" ".join(sorted(wanted)).encode()).hexdigest()[:12]
-        archive = self.workdir / f"images-{key}.tar"
-        try:
-            saved = subprocess.run(["podman", "save", "--multi-image-archive", "--format", "docker-archive",
-                                    "-o", str(archive), *wanted], capture_output=True, text=True, check=False)
-            if saved.returncode:
-                raise RuntimeError(f"podman save {' '.join(wanted)} failed: {saved.stderr.strip()}")
-            self.ctr("images", "import", str(archive), timeout=1200)
-        finally:
-            archive.unlink(missing_ok=True)
-        for image, image_id in wanted.items():
-            self.ctr("images", "label", image, f"{SOURCE_LABEL}={image_id}")
-        return list(wanted)
+        """Import the images the node lacks (in one archive: tests/testbed/containerd.py); return those imported."""
+        assert self.containerd is not None, "the node is not started"
+        return self.containerd.import_images(*images)
 
     def drop_unnamed_images(self) -> list[str]:
-        """Remove the CRI's image-id references that no named image shares any more; return them.
+        assert self.containerd is not None, "the node is not started"
+        return self.containerd.drop_unnamed_images()
 
-        The CRI names every image it sees by its id too (``sha256:<id>``). Re-importing or
-        untagging a name leaves that reference holding the old image's content and snapshots
-        for good: 12 GB per superseded agent image, until a build ran out of disk.
-        """
-        orphans = orphan_image_ids(self.ctr("images", "ls").stdout)
-        for ref in orphans:
-            self.ctr("images", "rm", "--sync", ref, check=False)  # --sync: the space is free on return
-        return orphans
+    def forget_images(self, stale: Callable[[str], bool]) -> list[str]:
+        """Remove the named images ``stale`` picks, and the content only they held."""
+        assert self.containerd is not None, "the node is not started"
+        return self.containerd.forget_images(stale)
 
     def ctr(self, *args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess[str]:
         """``ctr`` against this node's containerd, namespace ``k8s.io`` (the CRI's)."""
-        argv = ["ctr", "--address", str(self.socket), "--namespace", "k8s.io", *args]
-        result = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, check=False)
-        if check and result.returncode:
-            raise RuntimeError(f"{' '.join(argv)} failed: {result.stderr.strip()}")
-        return result
+        assert self.containerd is not None, "the node is not started"
+        return self.containerd.ctr(*args, check=check, timeout=timeout)
 
     # ------------------------------------------------------------------ status
     def api_get(self, path: str) -> dict[str, Any] | None:
@@ -661,38 +468,6 @@ class Node:
         path.chmod(0o600)
         return path
 
-    def _acquire_lock(self) -> None:
-        LOCK_PATH.parent.mkdir(parents=True, exist_ok=True)
-        lock = open(LOCK_PATH, "a+")  # noqa: SIM115 - held until stop()
-        deadline = time.monotonic() + self.lock_timeout
-        announced = False
-        while True:
-            try:
-                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if time.monotonic() > deadline:
-                    lock.close()
-                    raise TimeoutError(
-                        f"another test-bed node holds {LOCK_PATH} (see `cat {LOCK_PATH}`) "
-                        f"for more than {self.lock_timeout:.0f} s; stop it (armnet dev up / "
-                        "a pytest session) and retry") from None
-                if not announced:
-                    progress(f"waiting for another test-bed node to stop ({LOCK_PATH})")
-                    announced = True
-                time.sleep(1)
-        lock.seek(0)
-        lock.truncate()
-        lock.write(f"pid {os.getpid()}: {' '.join(_proc_cmdline(os.getpid()))[:200]}\n")
-        lock.flush()
-        self._lock = lock
-
-    def _release_lock(self) -> None:
-        if self._lock is not None:
-            fcntl.flock(self._lock, fcntl.LOCK_UN)
-            self._lock.close()
-            self._lock = None
-
     def _save_host_state(self) -> None:
         """Record what the node changes; a state file left by a crashed run wins."""
         if HOST_STATE.is_file():
@@ -734,7 +509,7 @@ class Node:
     def _clean_up_after_crash(self) -> None:
         """Processes and mounts a killed run left: only those it recorded as its own."""
         for pid, argv in self._host.get("procs", []):
-            if _proc_cmdline(pid)[:len(argv)] == argv:
+            if proc_cmdline(pid)[:len(argv)] == argv:
                 with contextlib.suppress(OSError):
                     os.kill(pid, signal.SIGKILL)
         old_workdir = self._host.get("workdir")
@@ -793,19 +568,6 @@ class Node:
                 self.plane.kubectl("delete", "pod", meta["name"], "-n", meta["namespace"],
                                    "--grace-period=1", "--wait=false", check=False, timeout=20)
             if pods:
-                wait_until(lambda: not self._running_tasks(), timeout=20, interval=0.5,
+                wait_until(lambda: not self.containerd or not self.containerd.running_tasks(), timeout=20,
+                           interval=0.5,
                            what="pods on the node to stop")
-
-    def _running_tasks(self) -> list[str]:
-        result = self.ctr("tasks", "list", "-q", check=False)
-        return [t for t in result.stdout.split() if t] if result.returncode == 0 else []
-
-    def _remove_containers(self) -> None:
-        """Whatever the kubelet left: kill and delete every task and container."""
-        with contextlib.suppress(Exception):
-            for task in self._running_tasks():
-                self.ctr("tasks", "kill", "-s", "SIGKILL", task, check=False)
-                self.ctr("tasks", "delete", "-f", task, check=False)
-            listed = self.ctr("containers", "list", "-q", check=False).stdout.split()
-            for container in listed:
-                self.ctr("containers", "delete", container, check=False)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.testbed.node import orphan_image_ids
+from tests.testbed.containerd import orphan_image_ids
 
 pytestmark = pytest.mark.unit
 

@@ -8,16 +8,15 @@ from typing import Any
 
 import pytest
 
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.node import (
+from tests.testbed.containerd import (
     CONTAINERD_ROOT,
     PAUSE_IMAGE,
     containerd_config,
     containerd_major,
     containerd_root,
-    feature_gates,
-    kubelet_config,
 )
+from tests.testbed.errors import TestbedSetupError
+from tests.testbed.node import feature_gates, kubelet_config
 
 pytestmark = pytest.mark.unit
 
