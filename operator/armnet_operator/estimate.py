@@ -1,10 +1,17 @@
-"""When a waiting RobotJob will start at the latest. Pure.
+"""When a waiting RobotJob will start: at the latest, and likely. Pure.
 
-The bound is the one a batch scheduler gives from time limits (Slurm's expected
-start): every running job and every job ahead in the queue is assumed to use its
-whole ``timeoutSeconds`` plus its cell's grace period, and each waiting job, in
+The latest start is the bound a batch scheduler gives from time limits (Slurm's
+expected start): every running job and every job ahead in the queue is assumed to use
+its whole ``timeoutSeconds`` plus its cell's grace period, and each waiting job, in
 queue order, takes the matching cell that frees first. A job that ends early only
 makes the start earlier, so the time is a promise the queue can keep, not a guess.
+
+The likely start is the same walk with each job ahead taking its embodiment's typical
+run instead (the median of its ``RECENT_RUNS`` latest finished runs, read from the
+finished RobotJobs still in the cluster, so it survives an operator restart), never
+more than its timeout and grace: a job that has already run longer than typical is
+counted as ending now. With no finished run of the embodiment yet, the likely start
+is the latest one.
 
 Only jobs that wait for busy cells get one: a job waiting for its quota, for a cell
 that is offline, faulted or cordoned, or for a cell that does not exist has no
@@ -17,14 +24,19 @@ job costs O(log cells) amortised, like the scheduling pass it follows.
 from __future__ import annotations
 
 import heapq
+import statistics
 from collections import defaultdict
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 from .model import Cell, Job
 
 _PoolKey = tuple[str, str | None] | str
+#: How long a job holds a cell, by the job and the cell.
+Occupancy = Callable[[Job, Cell], timedelta]
+#: How many of an embodiment's latest finished runs its typical run is the median of.
+RECENT_RUNS = 20
 
 
 @dataclass(frozen=True)
@@ -35,13 +47,16 @@ class Seat:
     free_at: datetime
 
 
-def seats(cells: Iterable[Cell], holders: Mapping[str, Job], now: datetime) -> list[Seat]:
-    """Each available cell with the latest moment its job (``holders``, by cell name) leaves it.
+def seats(cells: Iterable[Cell], holders: Mapping[str, Job], now: datetime,
+          occupancy: Occupancy | None = None) -> list[Seat]:
+    """Each available cell with the moment its job (``holders``, by cell name) leaves it.
 
-    A job that has started leaves at its start plus timeout plus grace; one bound but
-    not started yet at its binding plus the same (it starts at once on a ready cell).
-    A job past that moment is already overdue: the cell is counted free now.
+    A job that has started leaves at its start plus its ``occupancy`` (by default the
+    longest: timeout plus grace); one bound but not started yet at its binding plus the
+    same (it starts at once on a ready cell). A job past that moment is counted as
+    leaving now.
     """
+    occupancy = occupancy or longest_occupancy
     result = []
     for cell in cells:
         job = holders.get(cell.name)
@@ -53,17 +68,44 @@ def seats(cells: Iterable[Cell], holders: Mapping[str, Job], now: datetime) -> l
     return result
 
 
-def occupancy(job: Job, cell: Cell) -> timedelta:
+def longest_occupancy(job: Job, cell: Cell) -> timedelta:
     """The longest a job holds a cell: its timeout, then the cell's grace period."""
     return timedelta(seconds=job.timeout_seconds) + cell.grace_period
 
 
-def latest_starts(queue: Iterable[Job], available: Iterable[Seat]) -> dict[str, datetime]:
-    """Job key -> the latest moment it starts, for ``queue`` in its order (the first starts first).
+def typical_runs(jobs: Iterable[Job], recent: int = RECENT_RUNS) -> dict[str, timedelta]:
+    """Embodiment -> the median of its ``recent`` latest finished runs (started to finished)."""
+    runs: dict[str, list[tuple[datetime, timedelta]]] = defaultdict(list)
+    for job in jobs:
+        if job.terminal and job.started_at is not None and job.finished_at is not None \
+                and job.finished_at >= job.started_at:
+            runs[job.embodiment].append((job.finished_at, job.finished_at - job.started_at))
+    typical = {}
+    for embodiment, finished in runs.items():
+        latest = heapq.nlargest(recent, finished, key=lambda run: run[0])
+        typical[embodiment] = statistics.median_low(duration for _, duration in latest)
+    return typical
 
-    A job with a task draws from the cells of its (embodiment, task); one without, from
-    every cell of its embodiment. A job no seat matches gets no entry.
+
+def likely_occupancy(typical: Mapping[str, timedelta]) -> Occupancy:
+    """A job's embodiment's typical run, never more than the longest it may hold the cell."""
+    def occupancy(job: Job, cell: Cell) -> timedelta:
+        longest = longest_occupancy(job, cell)
+        return min(longest, typical.get(job.embodiment, longest))
+
+    return occupancy
+
+
+def latest_starts(queue: Iterable[Job], available: Iterable[Seat],
+                  occupancy: Occupancy | None = None) -> dict[str, datetime]:
+    """Job key -> the moment it starts, for ``queue`` in its order (the first starts first).
+
+    Each job takes the matching seat that frees first and holds it for its ``occupancy``
+    (by default the longest, which makes the moments the latest starts). A job with a
+    task draws from the cells of its (embodiment, task); one without, from every cell
+    of its embodiment. A job no seat matches gets no entry.
     """
+    occupancy = occupancy or longest_occupancy
     free_at: dict[str, datetime] = {}
     version: dict[str, int] = defaultdict(int)
     cells: dict[str, Cell] = {}

@@ -111,6 +111,8 @@ class Job:
     started_at: datetime | None = None
     estimated_start: datetime | None = None
     """``status.estimatedStart`` as last written (``estimate``: the latest start while it waits)."""
+    likely_start: datetime | None = None
+    """``status.likelyStart`` as last written (``estimate``: the likely start, from recent runs)."""
     conditions: tuple[Mapping[str, Any], ...] = ()
     spec_problem: str | None = None
     """Why this job can never start (args too deep or too large, an unreadable spec): it fails."""

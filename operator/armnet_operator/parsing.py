@@ -104,7 +104,7 @@ def _conditions(raw: Any, section: str) -> tuple[list[Condition], list[dict[str,
 
 _JOB_SPEC_FIELDS = ("image", "embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds")
 _JOB_STATUS_SCALARS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "startedAt",
-                       "estimatedStart")
+                       "estimatedStart", "likelyStart")
 _JOB_STATUS_FIELDS = (*_JOB_STATUS_SCALARS, "conditions")
 
 
@@ -193,6 +193,7 @@ def _job(
         timeout_seconds=spec.timeout_seconds,
         started_at=status.started_at,
         estimated_start=status.estimated_start,
+        likely_start=status.likely_start,
         conditions=plain_conditions,
         spec_problem=spec_problem,
         status_defects=status_defects,

@@ -115,6 +115,7 @@ def bind_job(job: Job, cell: Cell, now: datetime) -> Patch:
         "queuedReason": None,
         "queuePosition": None,
         "estimatedStart": None,
+        "likelyStart": None,
         "conditions": conditions,
     }
     return _job_status(job, status)
@@ -129,6 +130,7 @@ def queue_job(job: Job, entry: QueueEntry, now: datetime) -> Patch:
         "queuedReason": entry.reason.value,
         "queuePosition": entry.position,
         "estimatedStart": kube_time(entry.latest_start) if entry.latest_start is not None else None,
+        "likelyStart": kube_time(entry.likely_start) if entry.likely_start is not None else None,
         "conditions": conditions,
     }
     return _job_status(job, status)
@@ -143,6 +145,7 @@ def requeue_job(job: Job, message: str, now: datetime) -> Patch:
         "cellName": None,
         "queuedReason": BoundReason.REQUEUED.value,
         "estimatedStart": None,
+        "likelyStart": None,
         "conditions": conditions,
     }
     return _job_status(job, status)
@@ -157,6 +160,7 @@ def finish_job(job: Job, phase: JobPhase, reason: str, error: str | None, now: d
         "queuedReason": None,
         "queuePosition": None,
         "estimatedStart": None,
+        "likelyStart": None,
         "conditions": conditions,
     }
     if error is not None:

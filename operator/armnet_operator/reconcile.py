@@ -691,12 +691,13 @@ def _queue_write_due(
     """
     if job.phase is not JobPhase.QUEUED or job.queued_reason != entry.reason:
         return True
-    if job.queue_position == entry.position and not _estimate_moved(job.estimated_start, entry.latest_start):
+    if job.queue_position == entry.position and not _estimate_moved(job.estimated_start, entry.latest_start) \
+            and not _estimate_moved(job.likely_start, entry.likely_start):
         return False
     return last is None or now - last >= limits.position_refresh
 
 
-#: How far ``status.estimatedStart`` may drift from the plan before it is written again.
+#: How far ``status.estimatedStart`` or ``likelyStart`` may drift from the plan before it is written again.
 ESTIMATE_STEP = timedelta(seconds=60)
 
 

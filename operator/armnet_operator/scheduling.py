@@ -22,7 +22,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 
-from .estimate import latest_starts, seats
+from .estimate import latest_starts, likely_occupancy, seats, typical_runs
 from .fairshare import Ledger, holds_cell
 from .health import derive_cell_phase, is_available
 from .model import Cell, CellPhase, Job, QueuedReason
@@ -42,6 +42,8 @@ class QueueEntry:
     message: str
     latest_start: datetime | None = None
     """When the job starts at the latest (``estimate``); None when it waits on no busy cell."""
+    likely_start: datetime | None = None
+    """When it likely starts, from its cells' recent runs (``estimate``); None with ``latest_start``."""
 
 
 @dataclass(frozen=True)
@@ -183,25 +185,28 @@ def plan_bindings(
             heapq.heappush(turns, (ledger.rank(tenant), order_key(queue[head + 1]), tenant))
     exhausted.sort(key=lambda entry: order_key(entry[0]))
     positions = _positions(entries + exhausted)
-    starts = _latest_starts(entries, bindings, jobs, phases, now)
+    latest, likely = _start_estimates(entries, bindings, jobs, phases, now)
     return SchedulePlan(tuple(bindings), {
-        key: replace(entry, latest_start=starts.get(key)) if key in starts else entry
+        key: replace(entry, latest_start=latest[key], likely_start=likely.get(key, latest[key]))
+        if key in latest else entry
         for key, entry in positions.items()
     })
 
 
-def _latest_starts(
+def _start_estimates(
     entries: list[tuple[Job, QueuedReason, str]], bindings: list[Binding], jobs: list[Job],
     phases: Mapping[str, tuple[Cell, CellPhase]], now: datetime,
-) -> dict[str, datetime]:
-    """The latest start of each job that waits for busy cells (``estimate``), after this pass's bindings."""
+) -> tuple[dict[str, datetime], dict[str, datetime]]:
+    """The latest and the likely start of each job that waits for busy cells (``estimate``), after this pass's bindings."""
     busy = [job for job, reason, _ in entries if reason is QueuedReason.ALL_CELLS_BUSY]
     if not busy:
-        return {}
+        return {}, {}
     holders = {job.cell_name: job for job in jobs if job.active and job.cell_name}
     holders.update({b.cell.name: replace(b.job, bound_at=now) for b in bindings})
     available = [cell for cell, phase in phases.values() if is_available(phase)]
-    return latest_starts(busy, seats(available, holders, now))
+    likely = likely_occupancy(typical_runs(jobs))
+    return (latest_starts(busy, seats(available, holders, now)),
+            latest_starts(busy, seats(available, holders, now, likely), likely))
 
 
 def _quota_entry(job: Job, census: _Census, problem: str) -> tuple[Job, QueuedReason, str]:

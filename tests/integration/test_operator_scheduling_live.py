@@ -72,6 +72,36 @@ def test_a_job_waiting_for_busy_cells_says_when_it_starts_at_the_latest(bed: Bed
     assert bed.wait_job("first", phase="dispatched", cellName=cell)["status"].get("estimatedStart") is None
 
 
+def test_a_job_waiting_behind_an_embodiment_with_finished_runs_says_when_it_likely_starts(
+        bed: Bed, operator: Any) -> None:
+    from datetime import UTC, datetime, timedelta
+
+    def when(body: dict[str, Any], field: str) -> datetime:
+        return datetime.fromisoformat(body["status"][field].replace("Z", "+00:00"))
+
+    def stamp(moment: datetime) -> str:
+        return moment.strftime("%Y-%m-%dT%H:%M:%SZ")
+
+    cell = bed.cell("c1")  # the CRD's default grace period: 10 s
+    bed.job("ran", timeoutSeconds=300)
+    bed.wait_job("ran", phase="dispatched", cellName=cell)
+    # The agent's record of a finished run: 40 s from its start to its end.
+    ended = datetime.now(UTC).replace(microsecond=0)
+    bed.api.patch_namespaced_custom_object_status(G, V, bed.ns, "robotjobs", "ran", {"status": {
+        "phase": "succeeded", "startedAt": stamp(ended - timedelta(seconds=40)), "finishedAt": stamp(ended)}})
+    bed.job("running", timeoutSeconds=300)
+    bound = bed.wait_job("running", phase="dispatched", cellName=cell)
+    bed.job("waiting", timeoutSeconds=60)
+    waiting = bed.wait("the waiting job's estimates", lambda: (
+        (body := bed.get_job("waiting")) and body.get("status", {}).get("likelyStart") and body))
+    bound_at = datetime.fromisoformat(bed.condition(bound, "Bound")["lastTransitionTime"].replace("Z", "+00:00"))
+    # At the latest the running job uses its whole timeout and grace; likely, the embodiment's typical run.
+    assert abs((when(waiting, "estimatedStart") - bound_at).total_seconds() - (300 + 10)) <= 1
+    assert abs((when(waiting, "likelyStart") - bound_at).total_seconds() - 40) <= 1
+    header, row = bed.k8s.kubectl("get", "rj", "waiting", "-n", bed.ns, "-o", "wide").stdout.splitlines()
+    assert "LIKELY-START" in header.split() and waiting["status"]["likelyStart"] in row.split()
+
+
 def test_queue_reasons_say_why_a_job_waits(bed: Bed, operator: Any) -> None:
     bed.cell("cordoned", task="fold", unschedulable=True)
     bed.job("no-embodiment", embodiment="test/nobody-has-this")

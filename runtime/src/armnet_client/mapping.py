@@ -154,6 +154,8 @@ class JobView:
     started_at: Optional[datetime]
     finished_at: Optional[datetime]
     image: str
+    #: While it waits for busy cells: when it likely starts, from recent runs (``status.likelyStart``).
+    likely_start: Optional[datetime] = None
     #: The rollout history the node agent recorded (oldest first, at most 50).
     rollouts: tuple[RolloutRecord, ...] = ()
     #: Where the job's output went (None until the node agent wrote it, after the job).
@@ -174,6 +176,7 @@ def view_of(job: RobotJob) -> JobView:
         queued_reason=job.status.queued_reason,
         queue_position=job.status.queue_position,
         estimated_start=job.status.estimated_start,
+        likely_start=job.status.likely_start,
         progress=job.status.progress,
         rollout=(rollout.index, rollout.total) if rollout else None,
         cancel_requested=job.spec.cancel,

@@ -54,11 +54,16 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 
 def _queue_note(job: JobView, now: datetime) -> str:
-    """``AllCellsBusy #2, starts within 12m``: why it waits, its place, and its latest start when it has one."""
+    """``AllCellsBusy #2, likely in 4m, within 12m``: why it waits, its place, its likely and latest start."""
     if job.status not in (JobStatus.QUEUED, JobStatus.SUBMITTED) or not job.queued_reason:
         return ""
     position = f" #{job.queue_position}" if job.queue_position else ""
-    starts = f", starts within {age(now, job.estimated_start)}" if job.estimated_start is not None else ""
+    starts = ""
+    if job.estimated_start is not None:
+        likely = job.likely_start
+        if likely is not None and age(now, likely) != age(now, job.estimated_start):
+            starts = f", likely in {age(now, likely)}"
+        starts += f", starts within {age(now, job.estimated_start)}"
     return f"{job.queued_reason}{position}{starts}"
 
 
@@ -196,7 +201,7 @@ def job_document(job: Job, view: JobView) -> dict[str, Any]:
         "namespace": view.namespace,
         "jobId": view.job_id,
         "queue": {"reason": view.queued_reason, "position": view.queue_position,
-                  "estimatedStart": _when(view.estimated_start)},
+                  "estimatedStart": _when(view.estimated_start), "likelyStart": _when(view.likely_start)},
         "progress": view.progress,
         "rollout": {"index": view.rollout[0], "total": view.rollout[1]} if view.rollout else None,
         "rollouts": [{"index": r.index, "total": r.total, "outcome": r.outcome, "markedBy": r.marked_by,

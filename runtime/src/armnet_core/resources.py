@@ -125,6 +125,7 @@ class RobotJobStatus(Wire):
     queued_reason: Optional[str] = Field(default=None, alias="queuedReason")
     queue_position: Optional[int] = Field(default=None, alias="queuePosition")
     estimated_start: Optional[Timestamp] = Field(default=None, alias="estimatedStart")
+    likely_start: Optional[Timestamp] = Field(default=None, alias="likelyStart")
     started_at: Optional[Timestamp] = Field(default=None, alias="startedAt")
     finished_at: Optional[Timestamp] = Field(default=None, alias="finishedAt")
     progress: Optional[str] = None

@@ -63,6 +63,13 @@ def test_a_job_waiting_for_busy_cells_shows_when_it_starts_at_the_latest() -> No
     assert "AllCellsBusy #1, starts within 12m" in row
 
 
+def test_a_job_likely_to_start_before_its_latest_start_shows_both() -> None:
+    body = job(phase="queued", queuedReason="AllCellsBusy", queuePosition=1, estimatedStart="2026-11-24T10:17:00Z",
+               likelyStart="2026-11-24T10:09:00Z")
+    row = jobs_table([view_of(body)], NOW).splitlines()[1]
+    assert "AllCellsBusy #1, likely in 4m, starts within 12m" in row
+
+
 def test_a_running_job_shows_its_cell_and_no_queue() -> None:
     row = jobs_table([view_of(job(phase="running", cellName="cell-a"))], NOW).splitlines()[1]
 
@@ -144,14 +151,15 @@ def test_columns_are_aligned() -> None:
 
 def test_the_job_json_shape_is_the_sdk_job_plus_queue_and_progress() -> None:
     body = job(phase="queued", jobId="0f3c-uid", queuedReason="AllCellsBusy", queuePosition=1,
-               estimatedStart="2026-01-01T12:10:00Z")
+               estimatedStart="2026-01-01T12:10:00Z", likelyStart="2026-01-01T12:04:00Z")
 
     document = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))
 
     assert set(document) == {"id", "spec", "status", "created_at", "updated_at", "cell_id", "result",
                              "namespace", "jobId", "queue", "progress", "rollout", "rollouts", "cancelRequested", "artifacts"}
     assert document["status"] == "queued"
-    assert document["queue"] == {"reason": "AllCellsBusy", "position": 1, "estimatedStart": "2026-01-01T12:10:00+00:00"}
+    assert document["queue"] == {"reason": "AllCellsBusy", "position": 1, "estimatedStart": "2026-01-01T12:10:00+00:00",
+                                 "likelyStart": "2026-01-01T12:04:00+00:00"}
     assert document["spec"]["embodiment"] == "lerobot/so-101"
 
 

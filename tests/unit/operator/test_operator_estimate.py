@@ -1,12 +1,20 @@
-"""The latest start of a waiting job: every job running and ahead uses its whole timeout and grace."""
+"""The start of a waiting job: at the latest (every job running and ahead uses its whole timeout and
+grace) and likely (each takes its embodiment's typical recent run, never more)."""
 
 from __future__ import annotations
 
 from datetime import timedelta
 
 import pytest
-from armnet_operator.estimate import Seat, latest_starts, seats
-from armnet_operator.model import QueuedReason
+from armnet_operator.estimate import (
+    RECENT_RUNS,
+    Seat,
+    latest_starts,
+    likely_occupancy,
+    seats,
+    typical_runs,
+)
+from armnet_operator.model import JobPhase, QueuedReason
 from armnet_operator.scheduling import plan_bindings
 from operator_builders import NOW, TIMING, a_cell, a_job
 
@@ -80,3 +88,57 @@ def test_a_cell_bound_in_this_pass_holds_its_new_job_for_its_whole_timeout():
     plan = plan_bindings([first, second], [free], NOW, HB)
     assert [b.job.name for b in plan.bindings] == ["first"]
     assert plan.queued[second.key].latest_start == at(60 + 10)
+
+
+def a_run(name: str, seconds: float, *, ended_ago: float = 10, embodiment: str = "lerobot/so-101",
+          phase: JobPhase = JobPhase.SUCCEEDED):  # noqa: ANN201 - a finished Job
+    """A finished job that ran ``seconds``, ending ``ended_ago`` seconds before NOW."""
+    return a_job().named(name).with_embodiment(embodiment).started_ago(ended_ago + seconds).finished(
+        phase, seconds_ago=ended_ago)
+
+
+def test_an_embodiment_s_typical_run_is_the_median_of_its_latest_finished_runs_whatever_their_outcome():
+    runs = [a_run("a", 30), a_run("b", 90, phase=JobPhase.FAILED), a_run("c", 60, phase=JobPhase.TIMEOUT),
+            a_run("other", 999, embodiment="lerobot/bimanual_so101")]
+    unfinished = a_job().named("running").started_ago(5000).running_on("c")
+    typical = typical_runs([*runs, unfinished, a_job().named("q").queued()])
+    assert typical == {"lerobot/so-101": timedelta(seconds=60),
+                       "lerobot/bimanual_so101": timedelta(seconds=999)}
+
+
+def test_only_the_latest_runs_count_so_a_job_that_got_faster_is_seen_as_faster():
+    old = [a_run(f"old-{i}", 600, ended_ago=10_000 + i) for i in range(RECENT_RUNS)]
+    new = [a_run(f"new-{i}", 60, ended_ago=100 + i) for i in range(RECENT_RUNS // 2 + 1)]
+    assert typical_runs([*old, *new]) == {"lerobot/so-101": timedelta(seconds=60)}
+
+
+def test_a_likely_occupancy_is_the_typical_run_never_more_than_timeout_and_grace():
+    cell = a_cell().named("c").with_grace(10).build()
+    likely = likely_occupancy({"lerobot/so-101": timedelta(seconds=60)})
+    assert likely(a_job().named("long").with_timeout(300).queued(), cell) == timedelta(seconds=60)
+    assert likely(a_job().named("short").with_timeout(20).queued(), cell) == timedelta(seconds=20 + 10)
+    assert likely(a_job().named("unknown").with_embodiment("x/y").with_timeout(300).queued(), cell) == \
+        timedelta(seconds=300 + 10)
+
+
+def test_the_plan_gives_a_likely_start_from_recent_runs_and_the_latest_start_from_timeouts():
+    busy = a_cell().named("busy").with_grace(10).claimed_by("tenant-a/run").build()
+    running = a_job().named("run").with_timeout(600).started_ago(50).running_on("busy")
+    first = a_job().named("first").with_timeout(600).submitted_ago(300).queued()
+    second = a_job().named("second").with_timeout(600).submitted_ago(200).queued()
+    history = [a_run(f"ran-{i}", 120) for i in range(3)]
+    plan = plan_bindings([running, first, second, *history], [busy], NOW, HB)
+    assert plan.queued[first.key].latest_start == at(600 + 10 - 50)
+    assert plan.queued[first.key].likely_start == at(120 - 50)
+    assert plan.queued[second.key].latest_start == at(600 + 10 - 50 + 600 + 10)
+    assert plan.queued[second.key].likely_start == at(120 - 50 + 120)
+
+
+def test_a_running_job_past_its_typical_run_counts_as_ending_now_and_no_history_means_the_latest_start():
+    busy = a_cell().named("busy").with_grace(10).claimed_by("tenant-a/run").build()
+    running = a_job().named("run").with_timeout(600).started_ago(500).running_on("busy")
+    waiting = a_job().named("waiting").with_timeout(600).submitted_ago(300).queued()
+    plan = plan_bindings([running, waiting, a_run("ran", 120)], [busy], NOW, HB)
+    assert plan.queued[waiting.key].likely_start == NOW
+    plan = plan_bindings([running, waiting], [busy], NOW, HB)
+    assert plan.queued[waiting.key].likely_start == plan.queued[waiting.key].latest_start == at(600 + 10 - 500)
