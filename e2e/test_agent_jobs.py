@@ -19,7 +19,9 @@ from typing import Any
 
 import pytest
 
+from e2e import scenarios
 from e2e.agent_bed import EXAMPLES, JOBS, AgentBed
+from e2e.scenarios import seconds_between, status
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
 
@@ -104,10 +106,6 @@ def bed(k8s: Any, podman: Any, base_image: str, nats_server: str, object_store: 
         k8s.delete_namespace(namespace)
 
 
-def status(job: dict[str, Any]) -> dict[str, Any]:
-    return job.get("status") or {}
-
-
 def report_time(moment: datetime) -> str:
     """A local clock reading in the status's timestamp format (the agent runs on this host)."""
     return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
@@ -117,11 +115,6 @@ def streamed_end(bed: AgentBed, name: str, messages: int) -> dict[str, Any]:
     """The last of the job's ``messages`` status messages on its stream: the agent says there why it ended."""
     uid = bed.job(name)["metadata"]["uid"]
     return json.loads(stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.status", messages)[-1])
-
-
-def seconds_between(start: str, end: str) -> float:
-    parse = lambda s: datetime.fromisoformat(s.replace("Z", "+00:00"))  # noqa: E731
-    return (parse(end) - parse(start)).total_seconds()
 
 
 @pytest.fixture(scope="module")
@@ -160,13 +153,7 @@ def batch(bed: AgentBed) -> dict[str, str]:
 
 
 def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, batch: dict[str, str]) -> None:
-    job = bed.wait_phase(batch["success"], timeout=300)
-    st = status(job)
-    assert st["phase"] == "succeeded", json.dumps(st, indent=1)
-    finals = st["result"]["returnValue"]["final_positions"]
-    assert set(finals) >= {"shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"}
-    assert st["result"]["exitCode"] == 0
-    assert st["startedAt"] <= st["finishedAt"]
+    st = scenarios.a_bus_loop_job_succeeds_with_its_return_value(bed, batch["success"])
     assert st["progress"]
     # Every output line also went to the job's log subject on NATS, once and in order.
     uid = st["jobId"]
@@ -285,19 +272,13 @@ def test_an_evaluation_nobody_watches_is_judged_by_the_cells_monitor_in_its_stat
 
 
 def test_a_job_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:
-    st = status(bed.wait_phase(batch["failure"], timeout=300))
-    assert st["phase"] == "failed"
-    assert "ValueError: the gripper saw no cube" in st["result"]["traceback"]
-    assert "about to fail" in st["result"]["stdoutTail"]
+    scenarios.a_job_that_raises_fails_with_its_traceback(bed, batch["failure"])
 
 
 def test_a_missing_secret_fails_the_job_before_it_starts_naming_the_secret(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    st = status(bed.wait_phase(batch["missing-secret"], timeout=300))
-    assert st["phase"] == "failed"
-    assert "'absent'" in st["result"]["error"] and bed.namespace in st["result"]["error"]
-    assert "startedAt" not in st
+    st = status(scenarios.a_missing_secret_fails_the_job_before_it_starts(bed, batch["missing-secret"]))
     end = streamed_end(bed, batch["missing-secret"], 1)
     assert (end["phase"], end["detail"]) == ("failed", {"error": st["result"]["error"]})
 
@@ -318,13 +299,11 @@ def test_secrets_and_a_large_args_object_reach_the_job_and_no_secret_value_reach
 def test_a_job_ignoring_shutdown_is_killed_at_the_end_of_grace_and_ends_timeout(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    st = status(bed.wait_phase(batch["timeout-ignored"], timeout=300))
-    assert st["phase"] == "timeout"
-    assert "killed at the end of the 3 s grace window" in st["result"]["error"]
+    # The clock runs from the container start: killed within grace (3 s) + 1 s after the deadline.
+    st = scenarios.a_job_ignoring_shutdown_is_killed_at_the_end_of_grace(bed, batch["timeout-ignored"],
+                                                                         job_timeout=JOB_TIMEOUT, end_seen_s=1)
     end = streamed_end(bed, batch["timeout-ignored"], 2)
     assert (end["phase"], end["detail"]["error"]) == ("timeout", st["result"]["error"])
-    # The clock runs from the container start: killed within grace (3 s) + 1 s after the deadline.
-    assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 1
 
 
 def test_a_job_honouring_shutdown_ends_timeout_with_its_return_value(bed: AgentBed, batch: dict[str, str]) -> None:
@@ -336,17 +315,11 @@ def test_a_job_honouring_shutdown_ends_timeout_with_its_return_value(bed: AgentB
 def test_a_safety_violation_fails_the_job_with_the_connectors_record_and_the_interlock_clears(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    job = bed.wait_phase(batch["safety"], timeout=300)
-    st = status(job)
-    assert st["phase"] == "failed"
-    assert "SafetyViolation" in st["result"]["traceback"]
-    bed.assert_safety_violation_then_interlock_clears(st)
+    scenarios.a_safety_violation_fails_the_job_and_the_interlock_clears(bed, batch["safety"])
 
 
 def test_a_bimanual_job_runs_on_the_bimanual_cell(bed: AgentBed, batch: dict[str, str]) -> None:
-    st = status(bed.wait_phase(batch["bimanual"], timeout=300))
-    assert st["phase"] == "succeeded", json.dumps(st)[:3000]
-    assert st["cellName"] == bed.bimanual  # type: ignore[attr-defined]
+    scenarios.a_bimanual_job_runs_on_the_bimanual_cell(bed, batch["bimanual"])
 
 
 def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next_job(
@@ -409,23 +382,7 @@ def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, 
 def test_an_agent_killed_mid_job_readopts_it_and_reports_every_line_once(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", JOBS / "counts_slowly.py")
-    bed.submit("survives", image, args={"lines": 60, "pause": 0.25}, timeout=200)
-    bed.wait_phase("survives", ("running",), timeout=300)
-
-    def some_output() -> bool:
-        progress = status(bed.job("survives")).get("progress") or ""
-        return progress.startswith("line ") and int(progress.split()[1]) >= 5
-
-    bed.wait(some_output, 60, "some output")
-    bed.kill_agent()
-    bed.start_agent()
-    st = status(bed.wait_phase("survives", timeout=300))
-    assert st["phase"] == "succeeded", json.dumps(st)[:3000]
-    assert st["result"]["returnValue"] == {"lines": 60}
-    lines = [line.split(" ", 1)[-1] for line in st["result"]["stdoutTail"].splitlines() if "line " in line
-             and "[armnet:" not in line]
-    assert lines == [f"line {i:03d}" for i in range(60)]
+    scenarios.an_agent_killed_mid_job_readopts_it_and_reports_every_line_once(bed, lines=60, output_within_s=60)
 
 
 def test_an_unplugged_servo_makes_the_cell_not_ready_with_a_reason_and_no_job_is_bound(

@@ -28,7 +28,9 @@ from typing import Any
 
 import pytest
 
+from e2e import scenarios
 from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, TERMINAL, AgentBed, JobWatch
+from e2e.scenarios import explain, status
 
 pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
 
@@ -268,22 +270,6 @@ def batch(bed: AgentBed, telemetry: TelemetryHeard, job_watch: JobWatch) -> dict
     }
 
 
-def status(job: dict[str, Any]) -> dict[str, Any]:
-    return job.get("status") or {}
-
-
-def explain(st: dict[str, Any]) -> str:
-    """The parts of a status that say why a job ended (error, traceback, the output's end)."""
-    result = st.get("result") or {}
-    return (f"phase {st.get('phase')}\nerror: {result.get('error')}\ntraceback: {result.get('traceback')}\n"
-            f"stdout tail: {(result.get('stdoutTail') or '')[-4000:]}")
-
-
-def seconds_between(start: str, end: str) -> float:
-    parse = lambda s: datetime.fromisoformat(s.replace("Z", "+00:00"))  # noqa: E731
-    return (parse(end) - parse(start)).total_seconds()
-
-
 def pod_of(bed: AgentBed, job: dict[str, Any]) -> dict[str, Any] | None:
     return bed.pod(f"armnet-{job['metadata']['uid']}")
 
@@ -291,40 +277,26 @@ def pod_of(bed: AgentBed, job: dict[str, Any]) -> dict[str, Any] | None:
 def test_a_bus_loop_job_in_a_pod_moves_the_arm_through_the_sidecar_and_succeeds(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    st = status(bed.wait_phase(batch["success"], timeout=300))
-    assert st["phase"] == "succeeded", explain(st)
-    finals = st["result"]["returnValue"]["final_positions"]
-    assert set(finals) >= {"shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"}
-    assert st["result"]["exitCode"] == 0
+    st = scenarios.a_bus_loop_job_succeeds_with_its_return_value(bed, batch["success"])
     assert st["result"]["safety"]["policy"] == "clamp"  # the sidecar's record reached the status
 
 
 def test_a_job_pod_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:
-    st = status(bed.wait_phase(batch["failure"], timeout=300))
-    assert st["phase"] == "failed", explain(st)
-    assert "ValueError: the gripper saw no cube" in st["result"]["traceback"]
-    assert "about to fail" in st["result"]["stdoutTail"]
+    scenarios.a_job_that_raises_fails_with_its_traceback(bed, batch["failure"])
 
 
 def test_a_missing_secret_fails_the_job_before_it_starts_naming_the_secret_and_no_pod_is_made(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    job = bed.wait_phase(batch["missing-secret"], timeout=300)
-    st = status(job)
-    assert st["phase"] == "failed", explain(st)
-    assert "'absent'" in st["result"]["error"] and bed.namespace in st["result"]["error"]
-    assert "startedAt" not in st
+    job = scenarios.a_missing_secret_fails_the_job_before_it_starts(bed, batch["missing-secret"])
     assert pod_of(bed, job) is None
 
 
 def test_a_safety_violation_in_a_pod_fails_the_job_with_the_sidecars_record_and_the_interlock_clears(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    st = status(bed.wait_phase(batch["safety"], timeout=400))
-    assert st["phase"] == "failed", explain(st)
-    assert "SafetyViolation" in st["result"]["traceback"]
     # The interlock's reason comes from the sidecar connector's record (its log), not from the exit code.
-    bed.assert_safety_violation_then_interlock_clears(st)
+    scenarios.a_safety_violation_fails_the_job_and_the_interlock_clears(bed, batch["safety"], within_s=400)
 
 
 def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_and_sees_no_device(
@@ -354,12 +326,10 @@ def test_the_customer_container_starts_after_the_connector_serves_runs_non_root_
 def test_a_job_pod_ignoring_shutdown_is_killed_after_grace_and_ends_timeout(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    st = status(bed.wait_phase(batch["timeout"], timeout=300))
-    assert st["phase"] == "timeout", explain(st)
-    assert "killed at the end of the 3 s grace window" in st["result"]["error"]
     # Timeout, the 3 s grace, then the kill and the status write: 35.1 s measured at load ~12 in a
     # clean-clone run (the kubelet's kill, the pod's exit seen, the write), hence 10 s for those.
-    assert seconds_between(st["startedAt"], st["finishedAt"]) <= JOB_TIMEOUT + 3 + 10
+    scenarios.a_job_ignoring_shutdown_is_killed_at_the_end_of_grace(bed, batch["timeout"], job_timeout=JOB_TIMEOUT,
+                                                                    end_seen_s=10)
 
 
 def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
@@ -443,9 +413,7 @@ def test_the_agent_registered_a_healthy_device_plugin_per_cell_and_the_kubelet_a
 def test_a_bimanual_job_pod_drives_both_arms_through_its_cells_device_plugin(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    st = status(bed.wait_phase(batch["bimanual"], timeout=400))
-    assert st["phase"] == "succeeded", explain(st)
-    assert st["cellName"] == bed.bimanual  # type: ignore[attr-defined]
+    st = scenarios.a_bimanual_job_runs_on_the_bimanual_cell(bed, batch["bimanual"], within_s=400)
     moved = st["result"]["returnValue"]["moved"]
     assert set(moved) == {"left", "right"}, moved
     for arm in moved.values():  # each arm went about 2 degrees out, then back
@@ -461,23 +429,7 @@ def test_a_bimanual_job_pod_drives_both_arms_through_its_cells_device_plugin(
 def test_an_agent_killed_mid_job_readopts_the_pod_and_reports_every_line_once(
     bed: AgentBed, batch: dict[str, str]
 ) -> None:
-    image = bed.image("counts", JOBS / "counts_slowly.py")
-    bed.submit("survives", image, args={"lines": 40, "pause": 0.25}, timeout=200)
-    bed.wait_phase("survives", ("running",), timeout=300)
-
-    def some_output() -> bool:
-        progress = status(bed.job("survives")).get("progress") or ""
-        return progress.startswith("line ") and int(progress.split()[1]) >= 5
-
-    bed.wait(some_output, 240, "some output")
-    bed.kill_agent()
-    bed.start_agent()
-    st = status(bed.wait_phase("survives", timeout=300))
-    assert st["phase"] == "succeeded", explain(st)
-    assert st["result"]["returnValue"] == {"lines": 40}
-    printed = [line.split(" ", 1)[-1] for line in st["result"]["stdoutTail"].splitlines()]  # after the timestamp
-    lines = [line for line in printed if line.startswith("line ")]
-    assert lines == [f"line {i:03d}" for i in range(40)]
+    scenarios.an_agent_killed_mid_job_readopts_it_and_reports_every_line_once(bed, lines=40, output_within_s=240)
 
 
 def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails_with_the_reason(
