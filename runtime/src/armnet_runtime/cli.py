@@ -166,12 +166,10 @@ def run(argv: Sequence[str] | None = None) -> int:
 
 
 def _run_script(script: str) -> int:
-    from armnet_runtime.lerobot import install_lerobot_remote_mode
-    from armnet_runtime.lerobot.in_job import in_a_job, install_tool_refusals
+    from armnet_runtime.lerobot.in_job import activate
 
-    install_lerobot_remote_mode()
-    if in_a_job():
-        install_tool_refusals()  # LeRobot's calibrate/setup-motors called from the job's own code
+    # The swap, and in a job LeRobot's calibrate/setup-motors refused when the job's own code calls them.
+    activate(swap_outside_a_job=True)
 
     _clear_registration()  # a fresh registry per run, so in-process callers can run scripts again
     try:

@@ -57,15 +57,22 @@ def in_a_job(environ: Mapping[str, str] = os.environ) -> bool:
     return environ.get(env.LEROBOT_TOOLS) == REMOTE and not environ.get(env.LOCAL_CONTAINER)
 
 
-def activate(environ: Mapping[str, str] = os.environ) -> bool:
-    """In a job's container: install the import swap and the refusals; True when it did."""
-    if not in_a_job(environ):
+def activate(environ: Mapping[str, str] = os.environ, *, swap_outside_a_job: bool = False) -> bool:
+    """In a job's container: install the import swap and the refusals; True when in a job.
+
+    ``swap_outside_a_job``: install the swap anyway (``armnet-runtime``, whose every run is
+    a job's, also where an older launcher did not set ``ARMNET_LEROBOT_TOOLS``); the
+    refusals stay for a job's container, whose cell they protect.
+    """
+    job = in_a_job(environ)
+    if not (job or swap_outside_a_job):
         return False
     from armnet_runtime.lerobot.import_swap import install_lerobot_remote_mode
 
     install_lerobot_remote_mode()
-    install_tool_refusals(environ)
-    return True
+    if job:
+        install_tool_refusals(environ)
+    return job
 
 
 def install_tool_refusals(environ: Mapping[str, str] = os.environ) -> list[str]:
