@@ -367,15 +367,19 @@ class Node:
         return self.workdir / "kubelet"
 
     @property
+    def started_containerd(self) -> Containerd:
+        """The node's containerd; an error before ``start()``."""
+        assert self.containerd is not None, "the node is not started"
+        return self.containerd
+
+    @property
     def socket(self) -> Path:
         """containerd's API socket (``ctr --address``)."""
-        assert self.containerd is not None, "the node is not started"
-        return self.containerd.socket
+        return self.started_containerd.socket
 
     @property
     def containerd_log(self) -> Path:
-        assert self.containerd is not None, "the node is not started"
-        return self.containerd.log
+        return self.started_containerd.log
 
     def import_image(self, image: str) -> bool:
         """Make a Podman image available to pods (``imagePullPolicy: Never``), same name.
@@ -387,22 +391,18 @@ class Node:
 
     def import_images(self, *images: str) -> list[str]:
         """Import the images the node lacks (in one archive: tests/testbed/containerd.py); return those imported."""
-        assert self.containerd is not None, "the node is not started"
-        return self.containerd.import_images(*images)
+        return self.started_containerd.import_images(*images)
 
     def drop_unnamed_images(self) -> list[str]:
-        assert self.containerd is not None, "the node is not started"
-        return self.containerd.drop_unnamed_images()
+        return self.started_containerd.drop_unnamed_images()
 
     def forget_images(self, stale: Callable[[str], bool]) -> list[str]:
         """Remove the named images ``stale`` picks, and the content only they held."""
-        assert self.containerd is not None, "the node is not started"
-        return self.containerd.forget_images(stale)
+        return self.started_containerd.forget_images(stale)
 
     def ctr(self, *args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess[str]:
         """``ctr`` against this node's containerd, namespace ``k8s.io`` (the CRI's)."""
-        assert self.containerd is not None, "the node is not started"
-        return self.containerd.ctr(*args, check=check, timeout=timeout)
+        return self.started_containerd.ctr(*args, check=check, timeout=timeout)
 
     # ------------------------------------------------------------------ status
     def api_get(self, path: str) -> dict[str, Any] | None:
