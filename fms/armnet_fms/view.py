@@ -1,6 +1,8 @@
 """The fleet as the cell operator sees it: rows built from Cells, RobotJobs and pending resets.
 
-Pure: plain dicts in (the API objects as listed), frozen dataclasses and JSON
+Pure: the API objects as listed in, read part by part with the core models
+(``armnet_core.lenient``: a malformed part of a Cell hides only that part, for
+this is the page an operator opens in an incident), frozen dataclasses and JSON
 out, the clock passed in. Never shows what an operator does not need: no job
 args, no secrets, no logs, no result tails.
 """
@@ -8,17 +10,29 @@ args, no secrets, no logs, no result tails.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from armnet_core.api import ACTIVE_PHASES, SITE_LABEL
+from armnet_core.lenient import read_leniently
+from armnet_core.resources import (
+    CellSpec,
+    CellStatus,
+    Condition,
+    Metadata,
+    RobotJobStatus,
+    RolloutRecord,
+)
 from armnet_core.times import parse_time as core_time
+from armnet_core.times import status_time
 
 INTERLOCK_CONDITION = "InterlockClear"
 #: The latest verdicts the cell view lists (``status.rollouts`` keeps up to 50).
 VERDICTS_SHOWN = 5
 OUTCOMES = ("success", "failure")
+#: A Cell's ``spec.resetTimeoutSeconds`` when its spec cannot be read (the CRD's default).
+DEFAULT_RESET_TIMEOUT_S = CellSpec.model_fields["reset_timeout_seconds"].default
 
 
 @dataclass(frozen=True)
@@ -145,16 +159,14 @@ def _seconds_waited(elapsed: Any, most: float) -> float:
     return min(seconds, most)
 
 
-def _int(value: Any) -> int | None:
-    return value if type(value) is int else None
+def _job_parts(job: Mapping[str, Any]) -> tuple[Metadata, RobotJobStatus]:
+    """A listed job's metadata and status, read with the core models (a malformed part read as empty)."""
+    meta = read_leniently(Metadata, job.get("metadata")) or Metadata()
+    status = read_leniently(RobotJobStatus, job.get("status") or {}) or RobotJobStatus()
+    return meta, status
 
 
-def _history(status: Mapping[str, Any]) -> list[Mapping[str, Any]]:
-    rows = status.get("rollouts")
-    return [row for row in rows if isinstance(row, Mapping)] if isinstance(rows, list) else []
-
-
-def rollout_active(index: int | None, history: list[Mapping[str, Any]]) -> bool:
+def rollout_active(index: int | None, history: Sequence[RolloutRecord]) -> bool:
     """Whether rollout ``index`` still runs: it began and the agent has not recorded its end.
 
     An agent that keeps no history (older, or the pod launcher) leaves only
@@ -164,81 +176,85 @@ def rollout_active(index: int | None, history: list[Mapping[str, Any]]) -> bool:
     if index is None:
         return False
     for row in reversed(history):
-        if _int(row.get("index")) == index:
-            return not row.get("endedAt")
+        if row.index == index:
+            return row.ended_at is None
     return True
 
 
-def outcome_controls(index: int | None, history: list[Mapping[str, Any]]) -> bool:
+def outcome_controls(index: int | None, history: Sequence[RolloutRecord]) -> bool:
     """Whether rollout ``index`` asked for the operator's verdict (True unless the agent recorded it did not)."""
     for row in reversed(history):
-        if _int(row.get("index")) == index:
-            return row.get("outcomeControls") is not False
+        if row.index == index:
+            return row.outcome_controls
     return True
 
 
-def verdicts(history: list[Mapping[str, Any]], limit: int = VERDICTS_SHOWN) -> tuple[Verdict, ...]:
-    """The latest marked rollouts, newest first (malformed rows skipped, texts bounded)."""
+def verdicts(history: Sequence[RolloutRecord], limit: int = VERDICTS_SHOWN) -> tuple[Verdict, ...]:
+    """The latest marked rollouts, newest first (texts bounded)."""
     found = []
     for row in reversed(history):
-        index, total, outcome = _int(row.get("index")), _int(row.get("total")), row.get("outcome")
-        if index is None or outcome not in OUTCOMES:
+        if row.outcome not in OUTCOMES:
             continue
-        found.append(Verdict(index=index, total=total or 0, outcome=str(outcome),
-                             by=str(row.get("markedBy") or "")[:128], at=str(row.get("markedAt") or "")[:40]))
+        found.append(Verdict(index=row.index, total=row.total, outcome=row.outcome,
+                             by=(row.marked_by or "")[:128],
+                             at=status_time(row.marked_at) if row.marked_at is not None else ""))
         if len(found) >= limit:
             break
     return tuple(found)
 
 
 def summarize_job(job: Mapping[str, Any]) -> JobSummary:
-    meta, status = job.get("metadata") or {}, job.get("status") or {}
-    rollout = status.get("rollout") or {}
-    history = _history(status)
-    index = _int(rollout.get("index"))
+    meta, status = _job_parts(job)
+    index = status.rollout.index if status.rollout is not None else None
     return JobSummary(
-        namespace=str(meta.get("namespace", "")), name=str(meta.get("name", "")),
-        uid=str(status.get("jobId") or meta.get("uid", "")), phase=str(status.get("phase", "")),
-        progress=str(status.get("progress") or "")[:300],
+        namespace=meta.namespace or "", name=meta.name,
+        uid=status.job_id or meta.uid or "", phase=status.phase or "",
+        progress=(status.progress or "")[:300],
         rollout_index=index,
-        rollout_total=_int(rollout.get("total")),
-        rollout_active=rollout_active(index, history),
-        outcome_controls=outcome_controls(index, history),
-        verdicts=verdicts(history),
+        rollout_total=status.rollout.total if status.rollout is not None else None,
+        rollout_active=rollout_active(index, status.rollouts),
+        outcome_controls=outcome_controls(index, status.rollouts),
+        verdicts=verdicts(status.rollouts),
     )
 
 
-def _interlock(conditions: Iterable[Mapping[str, Any]]) -> str:
+def _interlock(conditions: Iterable[Condition]) -> str:
     for condition in conditions:
-        if condition.get("type") == INTERLOCK_CONDITION:
-            return {"True": "clear", "False": "tripped"}.get(str(condition.get("status")), "unknown")
+        if condition.type == INTERLOCK_CONDITION:
+            return {"True": "clear", "False": "tripped"}.get(condition.status, "unknown")
     return "unknown"
+
+
+def _cell_parts(cell: Mapping[str, Any]) -> tuple[Metadata, CellSpec | None, CellStatus]:
+    """A listed Cell's metadata, spec and status, read with the core models (a malformed part read as empty)."""
+    meta = read_leniently(Metadata, cell.get("metadata")) or Metadata()
+    spec = read_leniently(CellSpec, cell.get("spec"))
+    status = read_leniently(CellStatus, cell.get("status") or {}) or CellStatus()
+    return meta, spec, status
 
 
 def build_row(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, Any]],
               pending: PendingReset | None, now: float) -> CellRow:
-    meta, spec, status = cell.get("metadata") or {}, cell.get("spec") or {}, cell.get("status") or {}
-    conditions = [c for c in status.get("conditions") or [] if isinstance(c, Mapping)]
-    heartbeat = parse_time(status.get("lastHeartbeatTime"))
-    current = status.get("currentJob")
-    job_body = jobs_by_key.get(current) if isinstance(current, str) else None
+    meta, spec, status = _cell_parts(cell)
+    heartbeat = status.last_heartbeat_time
+    job_body = jobs_by_key.get(status.current_job) if status.current_job is not None else None
     job = summarize_job(job_body) if job_body is not None else None
     if job is None or job.phase not in ACTIVE_PHASES:
         pending = None  # a reset can only wait inside a job that runs here
     elif pending is not None and (pending.job_uid != job.uid or pending.expired(now)):
         pending = None
     return CellRow(
-        name=str(meta.get("name", "")),
-        site=str((meta.get("labels") or {}).get(SITE_LABEL, "")),
-        phase=str(status.get("phase") or "Unknown"),
-        unschedulable=bool(spec.get("unschedulable", False)),
+        name=meta.name,
+        site=meta.labels.get(SITE_LABEL, ""),
+        phase=status.phase or "Unknown",
+        unschedulable=spec.unschedulable if spec is not None else False,
         false_conditions=tuple(
-            FalseCondition(str(c.get("type")), str(c.get("reason", "")), str(c.get("message", ""))[:300])
-            for c in conditions if c.get("status") == "False"
+            FalseCondition(c.type, c.reason or "", (c.message or "")[:300])
+            for c in status.conditions if c.status == "False"
         ),
-        interlock=_interlock(conditions),
-        heartbeat_age_s=max(0.0, now - heartbeat) if heartbeat is not None else None,
-        reset_timeout_s=int(spec.get("resetTimeoutSeconds") or 300),
+        interlock=_interlock(status.conditions),
+        heartbeat_age_s=max(0.0, now - heartbeat.timestamp()) if heartbeat is not None else None,
+        reset_timeout_s=spec.reset_timeout_seconds if spec is not None else DEFAULT_RESET_TIMEOUT_S,
         job=job,
         reset=pending,
     )
@@ -246,16 +262,18 @@ def build_row(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, An
 
 def jobs_by_key(jobs: Iterable[Mapping[str, Any]]) -> dict[str, Mapping[str, Any]]:
     """The jobs by ``namespace/name``, the key a Cell's ``status.currentJob`` holds."""
-    return {f"{(j.get('metadata') or {}).get('namespace')}/{(j.get('metadata') or {}).get('name')}": j
-            for j in jobs}
+    keyed = {}
+    for job in jobs:
+        meta = read_leniently(Metadata, job.get("metadata")) or Metadata()
+        keyed[f"{meta.namespace}/{meta.name}"] = job
+    return keyed
 
 
 def current_job_uid(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, Any]]) -> str | None:
     """The uid of the job the cell's ``status.currentJob`` names, if it is among the jobs read."""
-    current = (cell.get("status") or {}).get("currentJob")
-    job = jobs_by_key.get(current) if isinstance(current, str) else None
-    uid = (job.get("metadata") or {}).get("uid") if job is not None else None
-    return uid if isinstance(uid, str) else None
+    current = (read_leniently(CellStatus, cell.get("status") or {}) or CellStatus()).current_job
+    job = jobs_by_key.get(current) if current is not None else None
+    return (read_leniently(Metadata, job.get("metadata")) or Metadata()).uid if job is not None else None
 
 
 def build_fleet(cells: Iterable[Mapping[str, Any]], jobs: Iterable[Mapping[str, Any]],
@@ -265,7 +283,8 @@ def build_fleet(cells: Iterable[Mapping[str, Any]], jobs: Iterable[Mapping[str, 
     by_key = jobs_by_key(jobs)
     rows = []
     for cell in cells:
-        row = build_row(cell, by_key, pending.get(str((cell.get("metadata") or {}).get("name"))), now)
+        name = (read_leniently(Metadata, cell.get("metadata")) or Metadata()).name
+        row = build_row(cell, by_key, pending.get(name), now)
         if (site and row.site != site) or (query and query.lower() not in row.name.lower()):
             continue
         rows.append(row)

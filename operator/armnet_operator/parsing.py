@@ -14,6 +14,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any, TypeVar
 
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
+from armnet_core.lenient import read_parts
 from armnet_core.resources import (
     CellArm,
     CellSpec,
@@ -30,7 +31,6 @@ from .args import args_problem, measure
 from .model import Arm, Cell, CellConditionType, CellPhase, Job, JobConditionType, JobPhase
 
 _Model = TypeVar("_Model", bound=BaseModel)
-MAX_REPAIR_ROUNDS = 32
 
 _HEALTH_TYPES = frozenset(CellConditionType)
 
@@ -65,24 +65,11 @@ def _lenient(model: type[_Model], raw: Mapping[str, Any], section: str) -> tuple
     timestamp must not hide the whole object from the operator (its finalizer
     could then never be removed). The caller repairs the named fields.
     """
-    data = dict(raw)
-    defects: list[str] = []
-    for _ in range(MAX_REPAIR_ROUNDS):
-        try:
-            return model.model_validate(data), defects
-        except ValidationError as error:
-            bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
-            keys = {k for k in data if k in bad or _alias_of(model, k) in bad}
-            if not keys:
-                raise
-            for key in sorted(keys):
-                defects.append(f"{section}.{key}")
-                del data[key]
-    return model.model_validate({}), defects + [section]
-
-
-def _alias_of(model: type[BaseModel], key: str) -> str | None:
-    return next((name for name, f in model.model_fields.items() if f.alias == key), None)
+    reading = read_parts(model, dict(raw))
+    defects = [f"{section}.{part}" for part in reading.dropped]
+    if reading.value is None:
+        return model.model_validate({}), defects + [section]
+    return reading.value, defects
 
 
 def _conditions(raw: Any, section: str) -> tuple[list[Condition], list[dict[str, Any]], list[str]]:

@@ -42,12 +42,13 @@ class Metadata(Wire):
     creation_timestamp: Optional[Timestamp] = Field(default=None, alias="creationTimestamp")
     deletion_timestamp: Optional[Timestamp] = Field(default=None, alias="deletionTimestamp")
     finalizers: list[str] = Field(default_factory=list)
+    labels: dict[str, str] = Field(default_factory=dict)
     annotations: dict[str, str] = Field(default_factory=dict)
 
 
 class Condition(Wire):
     type: str
-    status: str = "Unknown"
+    status: Literal["True", "False", "Unknown"]
     reason: Optional[str] = None
     message: Optional[str] = None
     last_transition_time: Optional[Timestamp] = Field(default=None, alias="lastTransitionTime")
@@ -77,22 +78,24 @@ class Rollout(Wire):
 class MonitorVerdict(Wire):
     """The cell's completion monitor's verdict on one rollout, kept even when an operator overruled it."""
 
-    outcome: str = "failure"  # success | failure
-    score: float = 0.0
-    at: Optional[Timestamp] = None
+    outcome: Literal["success", "failure"]
+    score: float
+    at: Timestamp
     frame_at: Optional[Timestamp] = Field(default=None, alias="frameAt")
 
 
 class RolloutRecord(Wire):
     """One rollout as the node agent recorded it (``status.rollouts``): begin, end, the operator's verdict."""
 
-    index: int = 0
-    total: int = 0
-    outcome: str = "unmarked"  # success | failure | unmarked
+    index: int = Field(ge=0)
+    total: int = Field(ge=0)
+    outcome: Literal["success", "failure", "unmarked"]
     marked_by: Optional[str] = Field(default=None, alias="markedBy")
     marked_at: Optional[Timestamp] = Field(default=None, alias="markedAt")
-    started_at: Optional[Timestamp] = Field(default=None, alias="startedAt")
+    started_at: Timestamp = Field(alias="startedAt")
     ended_at: Optional[Timestamp] = Field(default=None, alias="endedAt")
+    #: The job asked for the cell operator's Success/Fail buttons (``rollout_begin(outcome_controls=...)``).
+    outcome_controls: bool = Field(default=True, alias="outcomeControls")
     monitor: Optional[MonitorVerdict] = None
 
 

@@ -24,10 +24,10 @@ def schema(plural: str) -> dict[str, Any]:
 
 
 def at(root: dict[str, Any], *path: str) -> dict[str, Any]:
-    """The schema node at ``path``: ``*`` steps into a map's values (additionalProperties)."""
+    """The schema node at ``path``: ``*`` steps into a map's values (additionalProperties), ``[]`` into a list's items."""
     node = root
     for step in path:
-        node = node["additionalProperties"] if step == "*" else node["properties"][step]
+        node = {"*": node.get("additionalProperties"), "[]": node.get("items")}.get(step) or node["properties"][step]
     return node
 
 
@@ -35,6 +35,9 @@ PLACES = [
     (api.ROBOTJOBS, ("spec",), resources.RobotJobSpec),
     (api.ROBOTJOBS, ("status",), resources.RobotJobStatus),
     (api.ROBOTJOBS, ("status", "rollout"), resources.Rollout),
+    (api.ROBOTJOBS, ("status", "rollouts", "[]"), resources.RolloutRecord),
+    (api.ROBOTJOBS, ("status", "rollouts", "[]", "monitor"), resources.MonitorVerdict),
+    (api.ROBOTJOBS, ("status", "conditions", "[]"), resources.Condition),
     (api.ROBOTJOBS, ("status", "result"), resources.RobotJobResult),
     (api.ROBOTJOBS, ("status", "artifacts"), resources.JobArtifacts),
     (api.CELLS, ("spec",), resources.CellSpec),
@@ -42,6 +45,7 @@ PLACES = [
     (api.CELLS, ("spec", "arms", "*"), resources.CellArm),
     (api.CELLS, ("spec", "cameras", "*"), resources.CellCamera),
     (api.CELLS, ("status",), resources.CellStatus),
+    (api.CELLS, ("status", "conditions", "[]"), resources.Condition),
     (api.CELLQUOTAS, ("spec",), resources.CellQuotaSpec),
     (api.CELLQUOTAS, ("status",), resources.CellQuotaStatus),
     (api.CELLQUOTAS, ("status", "usage"), resources.QuotaUsage),

@@ -21,7 +21,8 @@ def a_cell(name: str = "so101-a", *, phase: str = "Busy", job: str | None = "tea
     if heartbeat:
         status["lastHeartbeatTime"] = heartbeat
     return {"metadata": {"name": name, "uid": f"uid-{name}", "labels": {"armnet.io/site": site} if site else {}},
-            "spec": {"unschedulable": unschedulable, "resetTimeoutSeconds": reset_timeout},
+            "spec": {"embodiment": "so101", "nodeName": "robot-host-1", "unschedulable": unschedulable,
+                     "resetTimeoutSeconds": reset_timeout},
             "status": status}
 
 

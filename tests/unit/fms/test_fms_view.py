@@ -55,7 +55,7 @@ def test_the_latest_verdicts_are_listed_newest_first_with_who_marked_them() -> N
     assert verdicts[0]["at"] == "2027-01-15T07:58:30.000Z" and verdicts[0]["total"] == 9
 
 
-@pytest.mark.parametrize("rows", ["x", [None, "x", {"index": "1", "outcome": "success"},
+@pytest.mark.parametrize("rows", ["x", [None, "x", {"index": "one", "outcome": "success"},
                                         {"index": 1, "outcome": "<b>won</b>"}, a_rollout(1)]])
 def test_a_malformed_history_shows_no_verdicts(rows: object) -> None:
     job = a_job(rollout={"index": 1, "total": 2}, rollouts=rows)  # type: ignore[arg-type]
