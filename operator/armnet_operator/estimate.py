@@ -96,7 +96,7 @@ def likely_occupancy(typical: Mapping[str, timedelta]) -> Occupancy:
     return occupancy
 
 
-def latest_starts(queue: Iterable[Job], available: Iterable[Seat],
+def queue_starts(queue: Iterable[Job], available: Iterable[Seat],
                   occupancy: Occupancy | None = None) -> dict[str, datetime]:
     """Job key -> the moment it starts, for ``queue`` in its order (the first starts first).
 

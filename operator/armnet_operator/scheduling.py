@@ -22,7 +22,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 
-from .estimate import latest_starts, likely_occupancy, seats, typical_runs
+from .estimate import queue_starts, likely_occupancy, seats, typical_runs
 from .fairshare import Ledger, holds_cell
 from .health import derive_cell_phase, is_available
 from .model import Cell, CellPhase, Job, QueuedReason
@@ -205,8 +205,8 @@ def _start_estimates(
     holders.update({b.cell.name: replace(b.job, bound_at=now) for b in bindings})
     available = [cell for cell, phase in phases.values() if is_available(phase)]
     likely = likely_occupancy(typical_runs(jobs))
-    return (latest_starts(busy, seats(available, holders, now)),
-            latest_starts(busy, seats(available, holders, now, likely), likely))
+    return (queue_starts(busy, seats(available, holders, now)),
+            queue_starts(busy, seats(available, holders, now, likely), likely))
 
 
 def _quota_entry(job: Job, census: _Census, problem: str) -> tuple[Job, QueuedReason, str]:

@@ -9,7 +9,7 @@ import pytest
 from armnet_operator.estimate import (
     RECENT_RUNS,
     Seat,
-    latest_starts,
+    queue_starts,
     likely_occupancy,
     seats,
     typical_runs,
@@ -45,27 +45,27 @@ def test_a_job_bound_but_not_started_counts_from_its_binding_and_an_overdue_one_
 def test_each_waiting_job_takes_the_cell_that_frees_first_in_queue_order():
     a, b = a_cell().named("a").with_grace(0).build(), a_cell().named("b").with_grace(0).build()
     first, second, third = (a_job().named(n).with_timeout(100).queued() for n in ("first", "second", "third"))
-    starts = latest_starts([first, second, third], [Seat(a, at(50)), Seat(b, at(20))])
+    starts = queue_starts([first, second, third], [Seat(a, at(50)), Seat(b, at(20))])
     assert starts == {first.key: at(20), second.key: at(50), third.key: at(120)}
 
 
 def test_a_job_with_a_task_waits_only_for_the_cells_of_its_task():
     plain, tasked = a_cell().named("plain").build(), a_cell().named("tasked").with_task("pick").build()
     job = a_job().named("j").with_task("pick").queued()
-    assert latest_starts([job], [Seat(plain, NOW), Seat(tasked, at(300))]) == {job.key: at(300)}
+    assert queue_starts([job], [Seat(plain, NOW), Seat(tasked, at(300))]) == {job.key: at(300)}
 
 
 def test_a_job_without_a_task_takes_a_tasked_cell_and_the_tasked_job_behind_it_waits_for_that_cell_again():
     tasked = a_cell().named("tasked").with_task("pick").with_grace(5).build()
     untasked = a_job().named("any").with_timeout(60).queued()
     picker = a_job().named("picker").with_task("pick").queued()
-    starts = latest_starts([untasked, picker], [Seat(tasked, at(10))])
+    starts = queue_starts([untasked, picker], [Seat(tasked, at(10))])
     assert starts == {untasked.key: at(10), picker.key: at(10 + 60 + 5)}
 
 
 def test_a_job_no_cell_matches_gets_no_estimate():
     job = a_job().named("j").with_embodiment("nobody/has-this").queued()
-    assert latest_starts([job], [Seat(a_cell().named("c").build(), NOW)]) == {}
+    assert queue_starts([job], [Seat(a_cell().named("c").build(), NOW)]) == {}
 
 
 def test_the_plan_gives_jobs_waiting_for_busy_cells_their_latest_start_and_the_rest_none():
