@@ -22,7 +22,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 
-from .estimate import queue_starts, likely_occupancy, seats, typical_runs
+from .estimate import likely_occupancy, queue_starts, seats, typical_runs
 from .fairshare import Ledger, holds_cell
 from .health import derive_cell_phase, is_available
 from .model import Cell, CellPhase, Job, QueuedReason

@@ -9,8 +9,8 @@ import pytest
 from armnet_operator.estimate import (
     RECENT_RUNS,
     Seat,
-    queue_starts,
     likely_occupancy,
+    queue_starts,
     seats,
     typical_runs,
 )
