@@ -47,4 +47,9 @@ if [ "$(cat "$editable_stamp" 2>/dev/null)" != "$editable_key" ]; then
 else
   echo "[setup/python] armnet already installed (editable) from $here"
 fi
+# The runtime image's interpreter start hook, in this venv too: a local run's job that starts
+# LeRobot's own commands (lerobot-record ...) reaches the cell through its connector, and
+# lerobot-calibrate is refused, as in a job's container (armnet_runtime/lerobot/in_job.py).
+# Inert outside a job; rewritten each time (one small file), so a venv synced earlier gets it.
+"$venv/bin/python" -c "from armnet_runtime.lerobot.in_job import write_pth; write_pth()"
 echo "[setup/python] ready: $venv"

@@ -59,6 +59,16 @@ def test_in_a_job_lerobots_bus_is_the_connector_proxy_and_setup_motors_is_refuse
     assert done.returncode == 1 and SETUP_MOTORS_REFUSAL in done.stderr
 
 
+def test_a_local_runs_job_in_the_dev_venv_gets_the_same_start_hook(tmp_path: Path) -> None:
+    """The console script as a job's subprocess runs it, with no site directory added by hand."""
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("ARMNET_")}
+    calibrate = Path(sys.executable).parent / "lerobot-calibrate"
+    done = subprocess.run([str(calibrate), "--robot.type=so101_follower", "--robot.port=/dev/null", "--robot.id=arm"],
+                          env={**environ, **IN_A_JOB}, capture_output=True, text=True, timeout=120, check=False)
+    assert CALIBRATE_REFUSAL in done.stderr, f"no start hook in {sys.prefix}: run scripts/setup.sh\n{done.stderr}"
+    assert done.returncode == 1
+
+
 def test_outside_a_job_lerobot_is_untouched(tmp_path: Path) -> None:
     done = interpreter(tmp_path, "from lerobot.motors.feetech import FeetechMotorsBus; print(FeetechMotorsBus.__module__)")
     assert done.returncode == 0, done.stderr
