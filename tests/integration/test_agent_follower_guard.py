@@ -6,25 +6,14 @@ import asyncio
 import threading
 import time
 import uuid
-from collections.abc import Iterator
 
 import nats
 import pytest
 from armnet_node.follower import FollowerGuard, guard_follower
 from armnet_node.publish import NoLink
-from armnet_node.streams import NatsLink, StreamSettings
+from armnet_node.streams import NatsLink
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
-
-
-@pytest.fixture(scope="module")
-def link(nats_server: str) -> Iterator[NatsLink]:
-    link = NatsLink(StreamSettings(url=nats_server)).start()
-    deadline = time.monotonic() + 20
-    while not link.connected and time.monotonic() < deadline:
-        time.sleep(0.05)
-    yield link
-    link.stop()
 
 
 def beat(url: str, subject: str, times: int, every_s: float) -> None:

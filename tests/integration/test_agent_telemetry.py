@@ -44,24 +44,11 @@ from tests.support.sim_connector import (
     CALIBRATION,
     MOTORS,
     cell_config,
-    connected_link,
     heard,
     job_bus,
-    simulated_so101,
 )
 
 pytestmark = pytest.mark.integration
-
-@pytest.fixture(scope="module")
-def sim() -> Iterator[SimulatedCellProcess]:
-    with simulated_so101() as cell:
-        yield cell
-
-
-@pytest.fixture(scope="module")
-def link(nats_server: str) -> Iterator[NatsLink]:
-    with connected_link(nats_server) as connected:
-        yield connected
 
 
 @pytest.fixture

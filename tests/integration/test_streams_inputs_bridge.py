@@ -60,13 +60,6 @@ class Job:
 
 
 @pytest.fixture
-def link(nats_server: str) -> Iterator[NatsLink]:
-    link = NatsLink(StreamSettings(url=nats_server)).start()
-    yield link
-    link.stop()
-
-
-@pytest.fixture
 def job(link: NatsLink, nats_server: str) -> Iterator[Job]:
     namespace, uid, cell = f"t{uuid.uuid4().hex[:8]}", "uid-1", f"cell-{uuid.uuid4().hex[:6]}"
     inputs = LocalOperatorInputs()

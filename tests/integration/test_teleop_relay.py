@@ -18,17 +18,11 @@ from armnet_runtime.lerobot.teleop import ArmnetRelay, ArmnetRelayConfig
 from armnet_sim import SimulatedCellProcess
 from lerobot.teleoperators.utils import make_teleoperator_from_config
 
-from tests.support.sim_connector import cell_config, simulated_so101
+from tests.support.sim_connector import cell_config
 
 pytestmark = pytest.mark.integration
 
 HOLD = {"shoulder_pan.pos": 1.0, "elbow_flex.pos": 2.0, "gripper.pos": 30.0}
-
-
-@pytest.fixture(scope="module")
-def sim() -> Iterator[SimulatedCellProcess]:
-    with simulated_so101() as cell:
-        yield cell
 
 
 @pytest.fixture
