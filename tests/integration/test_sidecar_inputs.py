@@ -12,83 +12,33 @@ from __future__ import annotations
 
 import asyncio
 import json
-import shutil
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 
 import nats
 import pytest
-from armnet_connector import Connector, LocalOperatorInputs
-from armnet_connector.agent_inputs import AGENT_SOCKET
-from armnet_connector.observer import OBSERVER_SOCKET
 from armnet_node.inputs_bridge import OperatorInputsBridge
 from armnet_node.metrics import AgentMetrics
 from armnet_node.sidecar_inputs import SidecarInputs
 from armnet_node.sidecar_observer import SidecarObserver
 from armnet_node.streams import NatsLink
-from armnet_runtime.context import Cell
 from armnet_sim import SimulatedCellProcess
 
-from tests.support.sim_connector import cell_config, connected_link, request, simulated_so101
+from tests.support.sidecar_pod import Pod
+from tests.support.sim_connector import request
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
 GRACE_S = 30.0
 
 
-@pytest.fixture(scope="module")
-def sim() -> Iterator[SimulatedCellProcess]:
-    with simulated_so101() as cell:
-        yield cell
-
-
-@pytest.fixture(scope="module")
-def link(nats_server: str) -> Iterator[NatsLink]:
-    with connected_link(nats_server) as connected:
-        yield connected
-
-
-class Pod:
-    """A connector as the sidecar runs it: the job's sockets in one directory, the agent's in another."""
-
-    def __init__(self, sim: SimulatedCellProcess, **config: Any) -> None:
-        self.top = Path(tempfile.mkdtemp(prefix="ant-in-", dir="/tmp"))
-        self.sockets = self.top / "sockets"
-        self.agent_dir = self.top / "observer"
-        config = cell_config(sim).model_copy(update={"grace_period_seconds": GRACE_S, **config})
-        self.inputs = LocalOperatorInputs()
-        self.connector = Connector(config, self.sockets, inputs=self.inputs, observer_dir=self.agent_dir).start()
-        host = self.top / "kubelet" / "pods" / "0f2b7c1e-8d4a-4f3e-9b6a-1c2d3e4f5a6b" / "volumes"
-        volume = host / "kubernetes.io~empty-dir"
-        volume.mkdir(parents=True)
-        (volume / "observer").symlink_to(self.agent_dir)
-        self.agent_path = volume / "observer" / AGENT_SOCKET
-        self.observer_path = volume / "observer" / OBSERVER_SOCKET
-        assert len(str(self.agent_path).encode()) > 108  # longer than a unix socket address holds
-
-    def job_cell(self) -> Cell:
-        """The customer SDK's cell handle, as the job's context builds it in the pod."""
-        return Cell(operator_call_endpoint=self.connector.operator_endpoint)
-
-    def close(self) -> None:
-        self.connector.stop()
-        shutil.rmtree(self.top, ignore_errors=True)
-
-
 @pytest.fixture
 def pod(sim: SimulatedCellProcess) -> Iterator[Pod]:
-    pod = Pod(sim)
+    pod = Pod(sim, grace_period_seconds=GRACE_S)
     yield pod
     pod.close()
-
-
-def operator_op(pod: Pod, op: str, **fields: Any) -> dict[str, Any]:
-    """What the job's SDK sends on its operator socket (``ctx.cell.rollout_begin`` ...)."""
-    return request(pod.sockets / "operator.sock", {"op": op, **fields})
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 20, what: str = "condition") -> None:
@@ -211,9 +161,9 @@ def test_the_pages_verdict_reaches_a_pod_jobs_is_complete(pod: Pod, link: NatsLi
 def test_a_verdict_for_a_rollout_that_ended_never_ends_the_next_one(pod: Pod) -> None:
     metrics = AgentMetrics()
     inputs = SidecarInputs(lambda: pod.agent_path, metrics, active_rollout=lambda: 0)  # the agent's view lags
-    operator_op(pod, "rollout_begin", index=0, total=2, outcome_controls=True)
-    operator_op(pod, "rollout_end")
-    operator_op(pod, "rollout_begin", index=1, total=2, outcome_controls=True)
+    pod.operator_op("rollout_begin", index=0, total=2, outcome_controls=True)
+    pod.operator_op("rollout_end")
+    pod.operator_op("rollout_begin", index=1, total=2, outcome_controls=True)
     inputs.report_outcome(False)
     assert pod.job_cell().is_complete().complete is False
     assert metrics.registry.get_sample_value("armnet_agent_sidecar_inputs_total",
@@ -222,7 +172,7 @@ def test_a_verdict_for_a_rollout_that_ended_never_ends_the_next_one(pod: Pod) ->
 
 def test_a_verdict_for_a_rollout_begun_without_outcome_controls_is_dropped(pod: Pod) -> None:
     inputs = SidecarInputs(lambda: pod.agent_path, AgentMetrics(), active_rollout=lambda: 0)
-    operator_op(pod, "rollout_begin", index=0, total=1, outcome_controls=False)
+    pod.operator_op("rollout_begin", index=0, total=1, outcome_controls=False)
     inputs.report_outcome(True)
     assert pod.job_cell().is_complete().complete is False
 
@@ -232,7 +182,7 @@ def test_the_cancel_notice_opens_the_grace_window_the_job_sees(pod: Pod) -> None
     assert cell.is_shutting_down() is False
     assert SidecarInputs(lambda: pod.agent_path, AgentMetrics()).cancel() is True
     assert cell.is_shutting_down() is True
-    status = operator_op(pod, "shutdown_status")
+    status = pod.operator_op("shutdown_status")
     assert 0 < status["grace_remaining_s"] <= GRACE_S
     assert "cancel" in (pod.connector.interlock.trip_info.message or "")
 
@@ -242,7 +192,7 @@ def test_a_pods_connector_starts_the_jobs_clock_with_the_job_not_with_itself(sim
                                                                              starts: str) -> None:
     """The sidecar is up before the job's container (whose image may still be pulled): its clock waits for the
     job, so a slow start does not eat the job's timeout; whichever of the two comes first starts it, once."""
-    pod = Pod(sim, timeout_seconds=1.0, clock_starts_with_job=True)
+    pod = Pod(sim, grace_period_seconds=GRACE_S, timeout_seconds=1.0, clock_starts_with_job=True)
     try:
         time.sleep(2.0)  # twice the timeout, before the job started
         assert not pod.connector.cell.deadline.deadline_passed
@@ -251,7 +201,7 @@ def test_a_pods_connector_starts_the_jobs_clock_with_the_job_not_with_itself(sim
         if starts == "the agent's notice":
             assert inputs.job_started() is True
         else:
-            operator_op(pod, "shutdown_status")
+            pod.operator_op("shutdown_status")
         wait_for(lambda: pod.connector.cell.deadline.deadline_passed, timeout=10, what="the job's deadline")
         assert "exceeded its timeout of 1 s" in (pod.connector.interlock.trip_info.message or "")
         # A second start (the notice after a connection, an agent that restarted) changes nothing.
@@ -315,9 +265,9 @@ def test_a_verdict_the_sidecar_drops_is_not_recorded_in_the_history(pod: Pod, li
     bridge = OperatorInputsBridge(link, inputs, namespace="ns", job_uid="uid-1", cell="cell-d",
                                   on_verdict=lambda *verdict: recorded.append(verdict)).start()
     assert bridge.wait_active(20)
-    operator_op(pod, "rollout_begin", index=0, total=2, outcome_controls=True)
-    operator_op(pod, "rollout_end")
-    operator_op(pod, "rollout_begin", index=1, total=2, outcome_controls=True)
+    pod.operator_op("rollout_begin", index=0, total=2, outcome_controls=True)
+    pod.operator_op("rollout_end")
+    pod.operator_op("rollout_begin", index=1, total=2, outcome_controls=True)
 
     async def click() -> None:
         nc = await nats.connect(nats_server)

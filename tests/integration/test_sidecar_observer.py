@@ -12,18 +12,12 @@ and the operator socket's ``rollout_begin``/``rollout_end``.
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 import time
 from collections.abc import Iterator
-from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 import pytest
-from armnet_connector import Connector, LocalOperatorInputs
-from armnet_connector.observer import OBSERVER_SOCKET
 from armnet_launch.cell_spec import CameraSpec
 from armnet_node.metrics import AgentMetrics
 from armnet_node.rollout_history import Outcome, as_status, from_status
@@ -35,62 +29,14 @@ from armnet_node.telemetry_sources import JobSource
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 from armnet_sim import SimulatedCellProcess
 
+from tests.support.sidecar_pod import Pod
 from tests.support.sim_connector import (
-    cell_config,
-    connected_link,
     heard,
     job_bus,
     request,
-    simulated_so101,
 )
 
 pytestmark = pytest.mark.integration
-
-
-@pytest.fixture(scope="module")
-def sim() -> Iterator[SimulatedCellProcess]:
-    with simulated_so101() as cell:
-        yield cell
-
-
-@pytest.fixture(scope="module")
-def link(nats_server: str) -> Iterator[NatsLink]:
-    with connected_link(nats_server) as connected:
-        yield connected
-
-
-class Pod:
-    """A connector as the sidecar runs it: the job's sockets in one directory, the observer in another."""
-
-    def __init__(self, sim: SimulatedCellProcess) -> None:
-        self.top = Path(tempfile.mkdtemp(prefix="ant-obs-", dir="/tmp"))
-        self.sockets = self.top / "sockets"
-        self.observer_dir = self.top / "observer"
-        self.connector = Connector(cell_config(sim), self.sockets, inputs=LocalOperatorInputs(),
-                                   observer_dir=self.observer_dir).start()
-
-    @property
-    def observer_path(self) -> Path:
-        """The socket as the agent finds it on the host: through the kubelet's long volume path."""
-        host = self.top / "kubelet" / "pods" / "0f2b7c1e-8d4a-4f3e-9b6a-1c2d3e4f5a6b" / "volumes"
-        host.mkdir(parents=True, exist_ok=True)
-        volume = host / "kubernetes.io~empty-dir"
-        if not volume.exists():
-            volume.mkdir()
-            (volume / "observer").symlink_to(self.observer_dir)
-        path = volume / "observer" / OBSERVER_SOCKET
-        assert len(str(path).encode()) > 108  # longer than a unix socket address holds
-        return path
-
-    def restart(self, sim: SimulatedCellProcess) -> None:
-        """The kubelet restarts the sidecar: a new connector serves the same volumes."""
-        self.connector.stop()
-        self.connector = Connector(cell_config(sim), self.sockets, inputs=LocalOperatorInputs(),
-                                   observer_dir=self.observer_dir).start()
-
-    def close(self) -> None:
-        self.connector.stop()
-        shutil.rmtree(self.top, ignore_errors=True)
 
 
 @pytest.fixture
@@ -99,11 +45,6 @@ def pod(sim: SimulatedCellProcess, monkeypatch: pytest.MonkeyPatch) -> Iterator[
     monkeypatch.setenv("ARMNET_CELL_SOCKET", pod.connector.robot_endpoint)
     yield pod
     pod.close()
-
-
-def operator_op(pod: Pod, op: str, **fields: Any) -> dict[str, Any]:
-    """What the job's SDK sends on its operator socket (``ctx.cell.rollout_begin`` ...)."""
-    return request(pod.sockets / "operator.sock", {"op": op, **fields})
 
 
 def test_a_pod_jobs_reads_and_camera_reach_nats_through_the_observer_socket(
@@ -141,10 +82,10 @@ def test_a_pod_jobs_rollouts_are_recorded_from_the_observer_socket(pod: Pod) -> 
     observer = SidecarObserver(lambda: pod.observer_path, AgentMetrics())
     recorder = RolloutRecorder(observer.rollout_events)
     try:
-        operator_op(pod, "rollout_begin", index=0, total=2, outcome_controls=True)
-        operator_op(pod, "rollout_end")
+        pod.operator_op("rollout_begin", index=0, total=2, outcome_controls=True)
+        pod.operator_op("rollout_end")
         recorder.sync()
-        operator_op(pod, "rollout_begin", index=1, total=2, outcome_controls=False)
+        pod.operator_op("rollout_begin", index=1, total=2, outcome_controls=False)
         recorder.sync()
     finally:
         observer.close()
@@ -154,15 +95,15 @@ def test_a_pod_jobs_rollouts_are_recorded_from_the_observer_socket(pod: Pod) -> 
 
 
 def test_a_restarted_agent_does_not_record_the_sidecars_earlier_rollouts_twice(pod: Pod) -> None:
-    operator_op(pod, "rollout_begin", index=0, total=3, outcome_controls=True)
-    operator_op(pod, "rollout_end")
+    pod.operator_op("rollout_begin", index=0, total=3, outcome_controls=True)
+    pod.operator_op("rollout_end")
     first_agent = SidecarObserver(lambda: pod.observer_path, AgentMetrics())
     before = RolloutRecorder(first_agent.rollout_events)
     before.sync()
     first_agent.close()
     written = as_status(before.history)  # what the first agent wrote to status.rollouts
 
-    operator_op(pod, "rollout_begin", index=1, total=3, outcome_controls=True)
+    pod.operator_op("rollout_begin", index=1, total=3, outcome_controls=True)
     second_agent = SidecarObserver(lambda: pod.observer_path, AgentMetrics())
     after = RolloutRecorder(second_agent.rollout_events, history=from_status(written))
     after.sync()
@@ -170,12 +111,12 @@ def test_a_restarted_agent_does_not_record_the_sidecars_earlier_rollouts_twice(p
     assert [(e.index, e.open) for e in after.history] == [(0, False), (1, True)]
 
 
-def test_the_observer_finds_a_restarted_sidecars_socket_again(pod: Pod, sim: SimulatedCellProcess) -> None:
+def test_the_observer_finds_a_restarted_sidecars_socket_again(pod: Pod) -> None:
     metrics = AgentMetrics()
     observer = SidecarObserver(lambda: pod.observer_path, metrics, retry_s=0.0)
     try:
         assert observer.servos() is not None
-        pod.restart(sim)
+        pod.restart()
         first_try = observer.servos()  # the old connection is gone: counted, then reconnected
         again = observer.servos()
     finally:
