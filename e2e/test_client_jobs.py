@@ -18,7 +18,6 @@ import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 import urllib.request
 import uuid
@@ -32,6 +31,7 @@ from armnet_client.logwire import LogLine
 from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
 
 from e2e.agent_bed import EXAMPLES, JOBS, PYTHONPATH, TERMINAL, AgentBed
+from tests.support.pty_screen import Screen
 from tests.testbed.natsd import NatsServer
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
@@ -298,29 +298,6 @@ def test_a_followed_job_is_cancelled_when_its_client_is_killed_and_a_detached_on
 # ------------------------------------------------------------------ teleop
 
 
-class Screen:
-    """What a terminal shows: everything the process writes to the pty, drained so it never blocks."""
-
-    def __init__(self, master: int) -> None:
-        self.master = master
-        self.text = b""
-        self._thread = threading.Thread(target=self._drain, daemon=True)
-
-    def start(self) -> Screen:
-        self._thread.start()
-        return self
-
-    def _drain(self) -> None:
-        while True:
-            try:
-                chunk = os.read(self.master, 4096)
-            except OSError:
-                return
-            if not chunk:
-                return
-            self.text += chunk
-
-
 def test_teleop_with_the_simulated_leader_moves_the_follower_and_keys_reach_the_job(bed: AgentBed) -> None:
     client = client_of(bed)
     job = client.submit(spec(bed, bed.image("teleop", TELEOP_FOLLOWER), args={"seconds": 90},
@@ -331,7 +308,7 @@ def test_teleop_with_the_simulated_leader_moves_the_follower_and_keys_reach_the_
     leader = armnet(bed, "teleop", job.id, "--leader", "sim", "--rate", "30",
                     stdin=slave, stdout=slave, stderr=slave, close_fds=True)
     os.close(slave)
-    screen = Screen(master).start()
+    screen = Screen(master)
     try:
         bed.wait(lambda: b"actions sent" in screen.text, 120, "armnet teleop to send actions")
         time.sleep(4)  # half a period of the simulated leader's sines

@@ -15,9 +15,7 @@ import os
 import pty
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import nats
@@ -26,6 +24,7 @@ from armnet_core.models import JobSpec
 from armnet_runtime.rerun import Entry, Packet, encode_packet
 
 from tests.integration.client_bed import Publisher, Tenant
+from tests.support.pty_screen import Screen
 
 pytestmark = pytest.mark.integration
 
@@ -80,30 +79,6 @@ def test_teleop_publishes_sampled_actions_and_key_events_then_esc_ends_it(
     assert set(actions[0]) == {"shoulder_pan.pos", "shoulder_lift.pos", "elbow_flex.pos",
                                "wrist_flex.pos", "wrist_roll.pos", "gripper.pos"}
     assert len({a["shoulder_pan.pos"] for a in actions}) > 1
-
-
-class Screen:
-    """Everything the process writes to the pty, drained in a thread so it never blocks on output."""
-
-    def __init__(self, master: int) -> None:
-        self.master, self.text = master, b""
-        threading.Thread(target=self._drain, daemon=True).start()
-
-    def _drain(self) -> None:
-        while True:
-            try:
-                chunk = os.read(self.master, 4096)
-            except OSError:
-                return
-            if not chunk:
-                return
-            self.text += chunk
-
-    def wait_for(self, seen: Callable[[bytes], bool], what: str, timeout: float = 20) -> None:
-        deadline = time.monotonic() + timeout
-        while not seen(self.text):
-            assert time.monotonic() < deadline, f"{what} not on screen: {self.text[-1500:]!r}"
-            time.sleep(0.05)
 
 
 def test_teleop_shows_the_followers_state_from_the_jobs_rerun_packets(
