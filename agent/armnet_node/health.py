@@ -7,26 +7,27 @@ do not touch it, and the hardware facts come from the last idle probe and the
 connector (interlock) instead. Whether the cell's devices are there at all is
 the device watch's verdict (``node.device_health``), the one the device plugin
 reports to the kubelet too: it comes first in ``HardwareReady``, job or not.
+
+The condition types are the API's (``armnet_core.api``, the operator reads the same
+names); ``merge_conditions`` is the core's (``armnet_core.conditions``), the rule the
+operator writes its own conditions by.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from datetime import datetime
-from typing import Any
 
-from armnet_core.times import kube_time
+from armnet_core.api import STREAMS_CONNECTED_CONDITION as STREAMS_CONNECTED
+from armnet_core.api import CellConditionType
+from armnet_core.conditions import merge_conditions as merge_conditions
 
-AGENT_CONNECTED = "AgentConnected"
-HARDWARE_READY = "HardwareReady"
-CALIBRATION_PRESENT = "CalibrationPresent"
-CAMERAS_READY = "CamerasReady"
-INTERLOCK_CLEAR = "InterlockClear"
-HEALTH_CONDITIONS = (AGENT_CONNECTED, HARDWARE_READY, CALIBRATION_PRESENT, CAMERAS_READY, INTERLOCK_CLEAR)
-STREAMS_CONNECTED = "StreamsConnected"
-"""Not a health condition (the operator still binds: jobs run without NATS). It tells the person
-at the cell and the platform team why the cell operator's buttons and live logs do nothing."""
+AGENT_CONNECTED = CellConditionType.AGENT_CONNECTED
+HARDWARE_READY = CellConditionType.HARDWARE_READY
+CALIBRATION_PRESENT = CellConditionType.CALIBRATION_PRESENT
+CAMERAS_READY = CellConditionType.CAMERAS_READY
+INTERLOCK_CLEAR = CellConditionType.INTERLOCK_CLEAR
+HEALTH_CONDITIONS = tuple(CellConditionType)
 
 
 @dataclass(frozen=True)
@@ -196,28 +197,3 @@ def streams_condition(probe: StreamsProbe) -> Condition:
             f"{INPUTS_NEED_NATS}: check the server and the agent's URL and credentials",
         )
     return _ok(STREAMS_CONNECTED, "Connected", f"the node agent's NATS link to {probe.server} is up")
-
-
-def merge_conditions(
-    current: Sequence[Mapping[str, Any]], fresh: Sequence[Condition], now: datetime
-) -> list[dict[str, Any]]:
-    """The Cell's new condition list: ``lastTransitionTime`` moves only when a status changes.
-
-    Conditions the agent does not own (none today) are kept as they are.
-    """
-    stamp = kube_time(now)
-    by_type = {str(c.get("type")): c for c in current}
-    merged = [dict(c) for c in current if c.get("type") not in {f.type for f in fresh}]
-    for condition in fresh:
-        old = by_type.get(condition.type)
-        changed = old is None or old.get("status") != condition.status
-        merged.append(
-            {
-                "type": condition.type,
-                "status": condition.status,
-                "reason": condition.reason,
-                "message": condition.message,
-                "lastTransitionTime": stamp if changed else old.get("lastTransitionTime", stamp),  # type: ignore[union-attr]
-            }
-        )
-    return merged

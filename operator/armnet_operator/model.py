@@ -1,8 +1,9 @@
 """The operator's view of RobotJobs and Cells: plain frozen data, no I/O.
 
 Everything the decision modules (``scheduling``, ``lifecycle``) reason about is
-defined here, together with the condition types and reasons that sit next to
-it. Parsing from Kubernetes bodies lives in ``parsing``; this module must never
+defined here, together with the condition types and reasons the operator owns;
+the phases and the Cell's health condition types are the API's (``armnet_core.api``,
+re-exported here). Parsing from Kubernetes bodies lives in ``parsing``; this module must never
 import kopf, kubernetes or the agent.
 """
 
@@ -15,36 +16,11 @@ from enum import StrEnum
 from typing import Any
 
 from armnet_core.api import ACTIVE_PHASES as _ACTIVE
-from armnet_core.api import RELEASE_CELL_FINALIZER
+from armnet_core.api import RELEASE_CELL_FINALIZER, CellConditionType, CellPhase, JobPhase
 from armnet_core.api import TERMINAL_PHASES as _TERMINAL
-
-
-class JobPhase(StrEnum):
-    """``RobotJob.status.phase``: the values of ``armnet_core.JobStatus``."""
-
-    SUBMITTED = "submitted"
-    QUEUED = "queued"
-    DISPATCHED = "dispatched"
-    RUNNING = "running"
-    SUCCEEDED = "succeeded"
-    FAILED = "failed"
-    TIMEOUT = "timeout"
-    CANCELLED = "cancelled"
-
 
 TERMINAL_PHASES = frozenset(JobPhase(phase) for phase in _TERMINAL)
 ACTIVE_PHASES = frozenset(JobPhase(phase) for phase in _ACTIVE)
-
-
-class CellPhase(StrEnum):
-    """``Cell.status.phase``, derived by the operator from spec, heartbeat and conditions."""
-
-    READY = "Ready"
-    BUSY = "Busy"
-    OFFLINE = "Offline"
-    FAULTED = "Faulted"
-    CORDONED = "Cordoned"
-    INVALID = "Invalid"
 
 
 class JobConditionType(StrEnum):
@@ -70,16 +46,6 @@ class QueuedReason(StrEnum):
 class BoundReason(StrEnum):
     CLAIMED_CELL = "ClaimedCell"
     REQUEUED = "Requeued"
-
-
-class CellConditionType(StrEnum):
-    """Health conditions the agent reports on a Cell; any ``False`` one faults the cell."""
-
-    AGENT_CONNECTED = "AgentConnected"
-    HARDWARE_READY = "HardwareReady"
-    CALIBRATION_PRESENT = "CalibrationPresent"
-    CAMERAS_READY = "CamerasReady"
-    INTERLOCK_CLEAR = "InterlockClear"
 
 
 @dataclass(frozen=True)
@@ -202,3 +168,21 @@ def job_key(namespace: str, name: str) -> str:
 def split_key(key: str) -> tuple[str, str]:
     namespace, _, name = key.partition("/")
     return namespace, name
+
+
+__all__ = [
+    "ACTIVE_PHASES",
+    "TERMINAL_PHASES",
+    "Arm",
+    "BoundReason",
+    "Cell",
+    "CellConditionType",
+    "CellPhase",
+    "Job",
+    "JobConditionType",
+    "JobPhase",
+    "QueuedReason",
+    "Timing",
+    "job_key",
+    "split_key",
+]

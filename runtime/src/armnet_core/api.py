@@ -2,14 +2,31 @@
 
 The operator, the node agent, the launch library, the FMS and the customer's client
 all read and write RobotJobs and Cells; each used to declare the group, the version,
-the phases and the annotations it shares with another itself. They import them from here, and
-``tests/unit/architecture/test_api_vocabulary.py`` keeps this module in step with
-the CRDs in ``crds/`` (group, version, plurals, the phase enum).
+the phases, the condition types, the labels and the annotations it shares with another
+itself. They import them from here, and ``tests/unit/architecture/test_api_vocabulary.py``
+keeps this module in step with the CRDs in ``crds/`` (group, version, plurals, the phase
+enums) and fails when a package spells one of these values again.
 """
 
 from __future__ import annotations
 
+from enum import Enum
+
 from armnet_core.models import JobStatus, TerminalStatus
+
+
+class _Name(str, Enum):  # noqa: UP042 - the SDK runs on Python 3.10, which has no enum.StrEnum
+    """A name on the wire: a member is its plain string value, in ``str()`` and f-strings too.
+
+    This is what ``enum.StrEnum`` does on Python 3.11, so ``f"{CellPhase.READY}"`` writes ``Ready``.
+    """
+
+    def __str__(self) -> str:
+        return str.__str__(self)
+
+    def __format__(self, format_spec: str) -> str:
+        return str.__format__(self, format_spec)
+
 
 GROUP = "armnet.io"
 VERSION = "v1alpha1"
@@ -19,12 +36,55 @@ ROBOTJOBS = "robotjobs"
 CELLS = "cells"
 CELLQUOTAS = "cellquotas"
 
+
+class JobPhase(_Name):
+    """``RobotJob.status.phase``: the SDK's ``JobStatus`` values, as names that print as themselves
+    (``str(JobStatus.RUNNING)`` stays ``JobStatus.RUNNING`` for the SDK's users)."""
+
+    SUBMITTED = JobStatus.SUBMITTED.value
+    QUEUED = JobStatus.QUEUED.value
+    DISPATCHED = JobStatus.DISPATCHED.value
+    RUNNING = JobStatus.RUNNING.value
+    SUCCEEDED = JobStatus.SUCCEEDED.value
+    FAILED = JobStatus.FAILED.value
+    TIMEOUT = JobStatus.TIMEOUT.value
+    CANCELLED = JobStatus.CANCELLED.value
+
+
 #: ``RobotJob.status.phase`` values, as plain strings (the SDK's ``JobStatus``).
 PHASES: tuple[str, ...] = tuple(status.value for status in JobStatus)
 #: A job in one of these phases holds its cell: the agent runs it.
-ACTIVE_PHASES: frozenset[str] = frozenset({JobStatus.DISPATCHED.value, JobStatus.RUNNING.value})
+ACTIVE_PHASES: frozenset[str] = frozenset({JobPhase.DISPATCHED.value, JobPhase.RUNNING.value})
 #: A job in one of these phases has ended; nothing changes its phase again.
 TERMINAL_PHASES: frozenset[str] = frozenset(status.value for status in TerminalStatus)
+
+
+class CellPhase(_Name):
+    """``Cell.status.phase``: the operator derives it from the spec, the heartbeat and the conditions."""
+
+    READY = "Ready"
+    BUSY = "Busy"
+    OFFLINE = "Offline"
+    FAULTED = "Faulted"
+    CORDONED = "Cordoned"
+    INVALID = "Invalid"
+
+
+class CellConditionType(_Name):
+    """The health conditions the node agent reports on a Cell; any ``False`` one faults the cell
+    (the operator binds no job to it)."""
+
+    AGENT_CONNECTED = "AgentConnected"
+    HARDWARE_READY = "HardwareReady"
+    CALIBRATION_PRESENT = "CalibrationPresent"
+    CAMERAS_READY = "CamerasReady"
+    INTERLOCK_CLEAR = "InterlockClear"
+
+
+#: Not a health condition (the operator still binds: jobs run without NATS). The node agent
+#: reports it on a Cell to tell the person at the cell and the platform team why the cell
+#: operator's buttons and live logs do nothing.
+STREAMS_CONNECTED_CONDITION = "StreamsConnected"
 
 #: Keys on RobotJobs and Cells that one process writes and another reads.
 #: The cell operator's page (FMS) writes who stopped a job; the node agent puts it in the job's error.
@@ -38,6 +98,22 @@ SITE_LABEL = f"{GROUP}/site"
 #: Simulated cells only: ``arm/motor`` (comma-separated) of servos the node agent unplugs in the
 #: simulator, so a platform team can watch the cell go unhealthy (fault injection).
 SIM_UNPLUG_ANNOTATION = f"{GROUP}/sim-unplug"
+
+#: Labels tying a job's container or pod to its cell and job (``armnet_launch.plan`` sets them):
+#: the node agent finds and re-adopts what it started by them, after a restart too.
+CELL_LABEL = f"{GROUP}/cell"
+JOB_UID_LABEL = f"{GROUP}/job-uid"
+NAMESPACE_LABEL = f"{GROUP}/namespace"
+NAME_LABEL = f"{GROUP}/name"
+MANAGED_BY_LABEL = f"{GROUP}/managed-by"
+#: A local run's container (``armnet run``): the run's job id, to find it with ``docker ps``.
+JOB_ID_LABEL = f"{GROUP}/job-id"
+#: On a job's pod (the pod launcher): its RobotJob's ``namespace/name`` and its timeout in seconds.
+JOB_ANNOTATION = f"{GROUP}/job"
+TIMEOUT_ANNOTATION = f"{GROUP}/timeout-seconds"
+#: A cell's extended resource is this prefix and the cell's name: the node agent's device plugin
+#: serves it, a job's pod requests it, so the kubelet starts the pod on the cell's node only.
+CELL_RESOURCE_PREFIX = f"{GROUP}/cell-"
 
 #: The object store of job outputs, as the node agent reads it from its env (the chart's
 #: ``artifacts`` values) and the client too (``armnet artifacts``; docs/outputs.md).
@@ -57,14 +133,27 @@ __all__ = [
     "API_VERSION",
     "CELLQUOTAS",
     "CELLS",
+    "CELL_LABEL",
+    "CELL_RESOURCE_PREFIX",
+    "CellConditionType",
+    "CellPhase",
     "FOLLOWER_TIMEOUT_ANNOTATION",
     "GROUP",
+    "JOB_ANNOTATION",
+    "JOB_ID_LABEL",
+    "JOB_UID_LABEL",
+    "JobPhase",
+    "MANAGED_BY_LABEL",
+    "NAMESPACE_LABEL",
+    "NAME_LABEL",
     "PHASES",
     "RELEASE_CELL_FINALIZER",
     "ROBOTJOBS",
     "SIM_UNPLUG_ANNOTATION",
     "SITE_LABEL",
     "STOPPED_BY_ANNOTATION",
+    "STREAMS_CONNECTED_CONDITION",
     "TERMINAL_PHASES",
+    "TIMEOUT_ANNOTATION",
     "VERSION",
 ]
