@@ -39,6 +39,7 @@ from urllib.parse import urlparse
 
 import pytest
 import yaml
+from armnet_core.api import CELLS, GROUP, ROBOTJOBS, VERSION
 
 from tests.support.helm import CHART, CRDS, adopt_crds, helm_binary, helm_on
 from tests.testbed.controllers import WorkloadControllers
@@ -103,16 +104,16 @@ def get_json(k8s: ControlPlane, kind: str, *args: str) -> Any:
         elif kind == "deployment":
             response = client.AppsV1Api(api).read_namespaced_deployment(name, namespace, **raw)
         elif kind == "cell" and name:
-            response = client.CustomObjectsApi(api).get_cluster_custom_object("armnet.io", "v1alpha1", "cells",
+            response = client.CustomObjectsApi(api).get_cluster_custom_object(GROUP, VERSION, CELLS,
                                                                              name, **raw)
         elif kind == "cell":
-            response = client.CustomObjectsApi(api).list_cluster_custom_object("armnet.io", "v1alpha1", "cells", **raw)
+            response = client.CustomObjectsApi(api).list_cluster_custom_object(GROUP, VERSION, CELLS, **raw)
         elif kind == "robotjob" and name:
             response = client.CustomObjectsApi(api).get_namespaced_custom_object(
-                "armnet.io", "v1alpha1", namespace, "robotjobs", name, **raw)
+                GROUP, VERSION, namespace, ROBOTJOBS, name, **raw)
         elif kind == "robotjob":
             response = client.CustomObjectsApi(api).list_namespaced_custom_object(
-                "armnet.io", "v1alpha1", namespace, "robotjobs", **raw)
+                GROUP, VERSION, namespace, ROBOTJOBS, **raw)
         else:
             raise ValueError(f"get_json does not read {kind!r}: add it")
     except ApiException:

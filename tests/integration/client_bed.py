@@ -17,9 +17,9 @@ import nats
 import yaml
 from armnet_cli.main import main as armnet
 from armnet_client import Client
+from armnet_core.api import CELLQUOTAS, CELLS, GROUP, ROBOTJOBS
 from nats.js.api import StreamConfig
 
-G, V = "armnet.io", "v1alpha1"
 STREAM = "ARMNET_LOGS"
 
 
@@ -28,7 +28,7 @@ def grant_tenant(k8s: Any, namespace: str, user: str) -> None:
     k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump_all([
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "Role",
          "metadata": {"name": "armnet-tenant", "namespace": namespace},
-         "rules": [{"apiGroups": [G], "resources": ["robotjobs"],
+         "rules": [{"apiGroups": [GROUP], "resources": ["robotjobs"],
                     "verbs": ["get", "list", "watch", "create", "patch", "delete"]}]},
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "RoleBinding",
          "metadata": {"name": f"armnet-tenant-{user}", "namespace": namespace},
@@ -36,14 +36,14 @@ def grant_tenant(k8s: Any, namespace: str, user: str) -> None:
          "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRole",
          "metadata": {"name": "armnet-cell-reader"},
-         "rules": [{"apiGroups": [G], "resources": ["cells", "cellquotas"], "verbs": ["get", "list", "watch"]}]},
+         "rules": [{"apiGroups": [GROUP], "resources": ["cells", "cellquotas"], "verbs": ["get", "list", "watch"]}]},
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRoleBinding",
          "metadata": {"name": f"armnet-cell-reader-{user}"},
          "roleRef": {"apiGroup": "rbac.authorization.k8s.io", "kind": "ClusterRole",
                      "name": "armnet-cell-reader"},
          "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
     ]))
-    wait_authorized(k8s, user, ("create", f"robotjobs.{G}", "-n", namespace), ("list", f"cells.{G}"), ("list", f"cellquotas.{G}"))
+    wait_authorized(k8s, user, ("create", f"{ROBOTJOBS}.{GROUP}", "-n", namespace), ("list", f"{CELLS}.{GROUP}"), ("list", f"{CELLQUOTAS}.{GROUP}"))
 
 
 def wait_authorized(k8s: Any, user: str, *checks: tuple[str, ...], timeout_s: float = 20.0) -> None:

@@ -19,16 +19,16 @@ from typing import Any
 import kopf
 import pytest
 import yaml
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, TERMINAL_PHASES, VERSION
+from armnet_core.times import kube_time
 from armnet_operator.handlers import build_registry
 from armnet_operator.settings import load_settings
 from kopf.testing import KopfRunner
 from kubernetes import client
 
-G, V = "armnet.io", "v1alpha1"
-
 
 def stamp() -> str:
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return kube_time(datetime.now(UTC))
 
 
 class Bed:
@@ -56,7 +56,7 @@ class Bed:
                                 "unschedulable": unschedulable}
         if task:
             spec["task"] = task
-        self.apply({"apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name}, "spec": spec})
+        self.apply({"apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": name}, "spec": spec})
         self.cells.append(name)
         if alive:
             self.beat(name)
@@ -65,13 +65,13 @@ class Bed:
 
     def job(self, name: str, embodiment: str | None = None, **spec: Any) -> str:
         body = {"image": "localhost/armnet-test:dev", "embodiment": embodiment or self.embodiment, **spec}
-        self.apply({"apiVersion": f"{G}/{V}", "kind": "RobotJob",
+        self.apply({"apiVersion": API_VERSION, "kind": "RobotJob",
                     "metadata": {"name": name, "namespace": self.ns}, "spec": body})
         return name
 
     # ---- the agent's part
     def beat(self, cell: str) -> None:
-        self.api.patch_cluster_custom_object_status(G, V, "cells", cell, {"status": {
+        self.api.patch_cluster_custom_object_status(GROUP, VERSION, CELLS, cell, {"status": {
             "lastHeartbeatTime": stamp(),
             "conditions": [{"type": "AgentConnected", "status": "True", "reason": "Heartbeat",
                             "message": "", "lastTransitionTime": stamp()}]}})
@@ -88,24 +88,24 @@ class Bed:
         status: dict[str, Any] = {"phase": phase, **extra}
         if phase == "running":
             status["startedAt"] = stamp()
-        if phase in ("succeeded", "failed", "cancelled", "timeout"):
+        if phase in TERMINAL_PHASES:
             status["finishedAt"] = stamp()
         body: dict[str, Any] = {"status": status}
         if precondition is not None:
             body["metadata"] = {"resourceVersion": precondition}
-        self.api.patch_namespaced_custom_object_status(G, V, self.ns, "robotjobs", job, body)
+        self.api.patch_namespaced_custom_object_status(GROUP, VERSION, self.ns, ROBOTJOBS, job, body)
 
     # ---- looking
     def get_job(self, name: str) -> dict[str, Any] | None:
         try:
-            return self.api.get_namespaced_custom_object(G, V, self.ns, "robotjobs", name)
+            return self.api.get_namespaced_custom_object(GROUP, VERSION, self.ns, ROBOTJOBS, name)
         except client.ApiException as error:
             if error.status == 404:
                 return None
             raise
 
     def get_cell(self, name: str) -> dict[str, Any]:
-        return self.api.get_cluster_custom_object(G, V, "cells", name)
+        return self.api.get_cluster_custom_object(GROUP, VERSION, CELLS, name)
 
     def wait(self, what: str, check: Callable[[], Any], timeout: float = 30) -> Any:
         deadline = time.monotonic() + timeout

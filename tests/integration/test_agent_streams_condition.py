@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from armnet_core.api import CELLS, GROUP, VERSION
 from armnet_fms.view import build_row
 from armnet_node.kube import AgentKube
 from armnet_node.metrics import AgentMetrics
@@ -30,7 +31,7 @@ from armnet_node.telemetry import TelemetrySettings
 from armnet_node.worker import CellWorker, WorkerSettings
 from kubernetes import client
 
-from tests.support.fms_objects import G, V, a_cell, apply, get
+from tests.support.fms_objects import a_cell, apply, get
 from tests.support.sim_connector import connected_link
 from tests.testbed.procs import free_port
 
@@ -52,7 +53,7 @@ def heartbeating_cell(k8s: Any, link: Link) -> Iterator[str]:
     finally:
         worker.stop()
         shutil.rmtree(state_dir, ignore_errors=True)
-        client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object(G, V, "cells", name)
+        client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object(GROUP, VERSION, CELLS, name)
 
 
 def streams_condition(k8s: Any, name: str, status: str, timeout: float = 60) -> dict[str, Any]:

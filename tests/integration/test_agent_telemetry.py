@@ -24,6 +24,7 @@ import pytest
 from armnet_connector import Connector, LocalOperatorInputs
 from armnet_connector.reply_window import LATE_REPLY_WAIT_S
 from armnet_connector.telemetry import ArmReader
+from armnet_core.api import CELLS, GROUP, VERSION
 from armnet_launch.cell_spec import CameraSpec
 from armnet_node.bus_turns import BusTurns
 from armnet_node.metrics import AgentMetrics
@@ -350,7 +351,7 @@ def test_a_stopped_cell_worker_ends_its_telemetry_thread(k8s: Any, link: NatsLin
     from armnet_node.worker import CellWorker, WorkerSettings
     from kubernetes import client
 
-    from tests.support.fms_objects import G, V, a_cell, apply
+    from tests.support.fms_objects import a_cell, apply
 
     name = f"telemetry-{uuid.uuid4().hex[:8]}"
     cell = parse_cell(apply(k8s, a_cell(name)))
@@ -364,6 +365,6 @@ def test_a_stopped_cell_worker_ends_its_telemetry_thread(k8s: Any, link: NatsLin
     finally:
         worker.stop()
         shutil.rmtree(state_dir, ignore_errors=True)
-        client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object(G, V, "cells", name)
+        client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object(GROUP, VERSION, CELLS, name)
     telemetry = worker.telemetry
     assert telemetry is not None and telemetry.join(5)

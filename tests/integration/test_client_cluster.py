@@ -26,11 +26,12 @@ from armnet_client import (
     NoClusterConfigured,
 )
 from armnet_client.kube import translate
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, VERSION
 from armnet_core.models import JobSpec, JobStatus
 from kubernetes import client as kclient
 from kubernetes.client.exceptions import ApiException
 
-from tests.integration.client_bed import G, Tenant, V
+from tests.integration.client_bed import Tenant
 
 pytestmark = pytest.mark.integration
 
@@ -49,7 +50,7 @@ def test_submit_creates_the_robotjob_with_the_spec_mapped_one_to_one(k8s: Any, t
     job = tenant.client().submit(SPEC, name="pick-1")
 
     stored = kclient.CustomObjectsApi(k8s.api_client()).get_namespaced_custom_object(
-        G, V, tenant.namespace, "robotjobs", "pick-1")
+        GROUP, VERSION, tenant.namespace, ROBOTJOBS, "pick-1")
     assert job.id == "pick-1" and job.status is JobStatus.SUBMITTED
     assert {k: stored["spec"][k] for k in ("image", "embodiment", "task", "args", "timeoutSeconds",
                                            "secrets", "detach")} == {
@@ -77,7 +78,7 @@ def test_cancel_sets_spec_cancel_once(k8s: Any, tenant: Tenant) -> None:
     client.cancel("to-cancel")
 
     stored = kclient.CustomObjectsApi(k8s.api_client()).get_namespaced_custom_object(
-        G, V, tenant.namespace, "robotjobs", "to-cancel")
+        GROUP, VERSION, tenant.namespace, ROBOTJOBS, "to-cancel")
     assert stored["spec"]["cancel"] is True
 
 
@@ -140,7 +141,7 @@ def test_an_empty_namespace_that_exists_still_lists_no_jobs(
 def test_a_resource_the_cluster_does_not_serve_is_crds_missing(k8s: Any) -> None:
     api = kclient.CustomObjectsApi(k8s.api_client())
     with pytest.raises(ApiException) as refused:
-        api.list_namespaced_custom_object("absent.armnet.io", V, "default", "robotjobs")
+        api.list_namespaced_custom_object(f"absent.{GROUP}", VERSION, "default", "robotjobs")
 
     error = translate(refused.value.status or 0, refused.value.body, verb="list", resource="robotjobs",
                       namespace="default")
@@ -156,17 +157,17 @@ def test_an_explicit_missing_kubeconfig_is_no_cluster_configured(tmp_path: Path)
 def test_cells_lists_phase_job_failing_conditions_and_heartbeat(k8s: Any, tenant: Tenant) -> None:
     name = f"cell-{uuid.uuid4().hex[:6]}"
     api = kclient.CustomObjectsApi(k8s.api_client())
-    api.create_cluster_custom_object(G, V, "cells", {
-        "apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name},
+    api.create_cluster_custom_object(GROUP, VERSION, CELLS, {
+        "apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": name},
         "spec": {"embodiment": "test/client", "nodeName": "host-1"}})
-    api.patch_cluster_custom_object_status(G, V, "cells", name, {"status": {
+    api.patch_cluster_custom_object_status(GROUP, VERSION, CELLS, name, {"status": {
         "phase": "Faulted", "lastHeartbeatTime": "2026-11-24T10:00:00Z", "conditions": [
             {"type": "AgentConnected", "status": "True", "reason": "Heartbeat"},
             {"type": "HardwareReady", "status": "False", "reason": "DeviceLost"}]}})
     try:
         cells = {c.name: c for c in tenant.client().cells()}
     finally:
-        api.delete_cluster_custom_object(G, V, "cells", name)
+        api.delete_cluster_custom_object(GROUP, VERSION, CELLS, name)
 
     cell = cells[name]
     assert (cell.phase, cell.embodiment) == ("Faulted", "test/client")
@@ -180,8 +181,8 @@ def test_wide_cells_show_the_completion_monitor_the_cell_was_given(
 ) -> None:
     name = f"cell-{uuid.uuid4().hex[:6]}"
     api = kclient.CustomObjectsApi(k8s.api_client())
-    api.create_cluster_custom_object(G, V, "cells", {  # the CRD's own validation accepts it
-        "apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name},
+    api.create_cluster_custom_object(GROUP, VERSION, CELLS, {  # the CRD's own validation accepts it
+        "apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": name},
         "spec": {"embodiment": "test/client", "nodeName": "host-1", "cameras": {"top": {"indexOrPath": 0}},
                  "completion": {"scorer": "region", "camera": "top", "arucoId": 7,
                                 "region": {"left": 0.1, "top": 0.1, "width": 0.5, "height": 0.5}}}})
@@ -190,7 +191,7 @@ def test_wide_cells_show_the_completion_monitor_the_cell_was_given(
         assert tenant.cli("cells", "-o", "wide") == 0
         row = next(line.split() for line in capsys.readouterr().out.splitlines() if line.startswith(name))
     finally:
-        api.delete_cluster_custom_object(G, V, "cells", name)
+        api.delete_cluster_custom_object(GROUP, VERSION, CELLS, name)
     assert row[-2:] == ["host-1", "region(top)"]
 
 
@@ -223,13 +224,13 @@ def test_submit_from_a_manifest_keeps_fields_the_sdk_spec_lacks(
 ) -> None:
     manifest = tmp_path / "job.yaml"
     manifest.write_text(yaml.safe_dump({
-        "apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": "from-file"},
+        "apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": "from-file"},
         "spec": {"image": "localhost/pick:dev", "embodiment": "test/client", "priority": 5}}))
 
     assert tenant.cli("submit", "-f", str(manifest), "--detach") == 0
 
     stored = kclient.CustomObjectsApi(k8s.api_client()).get_namespaced_custom_object(
-        G, V, tenant.namespace, "robotjobs", "from-file")
+        GROUP, VERSION, tenant.namespace, ROBOTJOBS, "from-file")
     assert (stored["spec"]["priority"], stored["spec"]["detach"]) == (5, True)
     assert capsys.readouterr().out.strip() == "from-file"
 

@@ -21,6 +21,8 @@ import httpx
 import pytest
 from armnet_connector.cell import RolloutEvent
 from armnet_connector.inputs import LocalOperatorInputs
+from armnet_core.api import STOPPED_BY_ANNOTATION
+from armnet_core.times import kube_time
 from armnet_node.inputs_bridge import OperatorInputsBridge
 from armnet_node.kube import AgentKube
 from armnet_node.model import parse_job
@@ -62,7 +64,7 @@ class Bed:
         apply(k8s, a_cell(self.cell, reset_timeout=3))
         job = apply(k8s, a_job("eval-1", namespace))
         self.job_id = running_on(k8s, self.cell, job, rollout={"index": 2, "total": 5})
-        cell_busy(k8s, self.cell, f"{namespace}/eval-1", heartbeat=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"))
+        cell_busy(k8s, self.cell, f"{namespace}/eval-1", heartbeat=kube_time(datetime.now(UTC)))
         self.inputs = LocalOperatorInputs()
         #: The connector's rollout record: the job is in rollout 2 of 5.
         self.rollout_events = [RolloutEvent("begin", time.time(), 2, 5, True)]
@@ -184,7 +186,7 @@ def test_stop_cancels_the_job_and_names_the_operator(bed: Bed) -> None:
     assert bed.act("stop").status_code == 200
     job = get(bed.k8s, "robotjob", "eval-1", bed.namespace)
     assert job["spec"]["cancel"] is True
-    assert job["metadata"]["annotations"]["armnet.io/stopped-by"] == OPERATOR
+    assert job["metadata"]["annotations"][STOPPED_BY_ANNOTATION] == OPERATOR
     events = wait_for(lambda: events_about(bed.k8s, bed.namespace, "eval-1"), what="the audit event")
     assert (events[0]["type"], events[0]["message"]) == ("Warning", f"stopped by cell operator {OPERATOR}")
 

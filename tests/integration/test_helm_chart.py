@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_core.api import GROUP, RELEASE_CELL_FINALIZER, ROBOTJOBS
 
 from tests.support.helm import ALL_OPTIONS, CHART, REPO_ROOT, env_of, find, helm, notes, render
 from tests.testbed.kube import ControlPlane
@@ -262,7 +263,7 @@ def test_the_chart_readme_is_what_helm_show_readme_prints_and_names_only_real_va
     values = yaml.safe_load((CHART / "values.yaml").read_text())
 
     assert readme.startswith("# armnet")
-    assert "helm uninstall" in readme and "armnet.io/release-cell" in readme
+    assert "helm uninstall" in readme and RELEASE_CELL_FINALIZER in readme
     named = set(re.findall(r"`((?:operator|agent|fms|nats|rbac|crds|metrics|admissionWebhook)\.[A-Za-z.]+)`", readme))
     assert {"operator.podSecurityContext", "fms.podSecurityContext", "agent.connectorImage"} <= named
     for path in named:
@@ -446,7 +447,7 @@ def test_tenant_roles_aggregate_into_edit_admin_and_view() -> None:
     assert edit["metadata"]["labels"]["rbac.authorization.k8s.io/aggregate-to-edit"] == "true"
     assert edit["metadata"]["labels"]["rbac.authorization.k8s.io/aggregate-to-admin"] == "true"
     assert view["metadata"]["labels"]["rbac.authorization.k8s.io/aggregate-to-view"] == "true"
-    assert edit["rules"] == [{"apiGroups": ["armnet.io"], "resources": ["robotjobs"],
+    assert edit["rules"] == [{"apiGroups": [GROUP], "resources": [ROBOTJOBS],
                               "verbs": ["create", "get", "list", "watch", "patch", "delete"]}]
 
 

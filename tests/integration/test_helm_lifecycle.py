@@ -14,6 +14,7 @@ import json
 import uuid
 
 import pytest
+from armnet_core.api import GROUP, ROBOTJOBS
 
 from tests.support.helm import CHART, CRDS, adopt_crds, helm_on
 from tests.testbed.kube import ControlPlane
@@ -36,7 +37,7 @@ def test_install_upgrade_uninstall_keeps_crds_and_robotjobs(k8s: ControlPlane, n
                 values={**values, "operator": {"replicas": 3}, "commonLabels": {"armnet.io/upgraded": "yes"}})
         deployment = json.loads(k8s.kubectl("get", "deployment", f"{release}-armnet-operator", "-n", namespace,
                                             "-o", "json").stdout)
-        crd = json.loads(k8s.kubectl("get", "crd", "robotjobs.armnet.io", "-o", "json").stdout)
+        crd = json.loads(k8s.kubectl("get", "crd", f"{ROBOTJOBS}.{GROUP}", "-o", "json").stdout)
 
         assert deployment["spec"]["replicas"] == 3
         assert crd["metadata"]["labels"]["armnet.io/upgraded"] == "yes"  # the upgrade applied the CRD

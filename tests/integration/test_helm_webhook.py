@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_core.api import GROUP, ROBOTJOBS, VERSION
 from armnet_operator.admission import WEBHOOK_PATH
 from armnet_operator.metrics import Metrics
 from armnet_operator.webhook import AdmissionWebhook
@@ -38,9 +39,9 @@ def webhook_of(objects: list[dict[str, Any]]) -> dict[str, Any]:
 def test_the_webhook_is_on_by_default_for_robotjob_creates_only_failing_open() -> None:
     webhook = webhook_of(render())
 
-    assert webhook["name"] == "robotjobs.armnet.io"
-    assert webhook["rules"] == [{"apiGroups": ["armnet.io"], "apiVersions": ["v1alpha1"], "operations": ["CREATE"],
-                                 "resources": ["robotjobs"], "scope": "Namespaced"}]
+    assert webhook["name"] == f"{ROBOTJOBS}.{GROUP}"
+    assert webhook["rules"] == [{"apiGroups": [GROUP], "apiVersions": [VERSION], "operations": ["CREATE"],
+                                 "resources": [ROBOTJOBS], "scope": "Namespaced"}]
     assert webhook["failurePolicy"] == "Ignore"
     assert webhook["sideEffects"] == "None"
     assert webhook["admissionReviewVersions"] == ["v1"]

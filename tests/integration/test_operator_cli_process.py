@@ -16,6 +16,8 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, VERSION
+from armnet_core.times import kube_time
 from kubernetes import client
 
 from tests.testbed.procs import free_port
@@ -34,7 +36,7 @@ def test_the_armnet_operator_command_binds_a_job_exports_metrics_and_exits_0_at_
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env={**os.environ, "KUBECONFIG": str(k8s.kubeconfig)})
     try:
-        now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        now = kube_time(datetime.now(UTC))
         k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump({
             "apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": cell},
             "spec": {"embodiment": embodiment, "nodeName": "host-1"}}))
@@ -89,7 +91,7 @@ def test_a_sigterm_during_a_binding_pass_lets_the_pass_end_posts_its_events_and_
     api = client.CustomObjectsApi(k8s.api_client())
     core = client.CoreV1Api(k8s.api_client())
     cells = [f"sigterm-{i}-{namespace}" for i in range(burst)]
-    now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    now = kube_time(datetime.now(UTC))
     log = tmp_path / "operator.log"
     argv = [sys.executable, "-m", "armnet_cli.main", "operator", "--kubeconfig", str(k8s.kubeconfig),
             "--namespaces", namespace, "--lease-namespace", namespace, "--metrics-port", "0",
@@ -97,10 +99,10 @@ def test_a_sigterm_during_a_binding_pass_lets_the_pass_end_posts_its_events_and_
     proc: subprocess.Popen[str] | None = None
     try:
         for cell in cells:
-            api.create_cluster_custom_object("armnet.io", "v1alpha1", "cells", {
-                "apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": cell},
+            api.create_cluster_custom_object(GROUP, VERSION, CELLS, {
+                "apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": cell},
                 "spec": {"embodiment": embodiment, "nodeName": "host-1"}})
-            api.patch_cluster_custom_object_status("armnet.io", "v1alpha1", "cells", cell,
+            api.patch_cluster_custom_object_status(GROUP, VERSION, CELLS, cell,
                                                    {"status": {"lastHeartbeatTime": now}})
         with log.open("w") as out:
             proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, text=True,
@@ -110,12 +112,12 @@ def test_a_sigterm_during_a_binding_pass_lets_the_pass_end_posts_its_events_and_
             assert proc.poll() is None and time.monotonic() < deadline, log.read_text()[-3000:]
             time.sleep(0.1)
         for i in range(burst):
-            api.create_namespaced_custom_object("armnet.io", "v1alpha1", namespace, "robotjobs", {
-                "apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": f"burst-{i}"},
+            api.create_namespaced_custom_object(GROUP, VERSION, namespace, ROBOTJOBS, {
+                "apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": f"burst-{i}"},
                 "spec": {"image": "localhost/armnet-test:dev", "embodiment": embodiment}})
 
         def dispatched() -> set[str]:
-            jobs = api.list_namespaced_custom_object("armnet.io", "v1alpha1", namespace, "robotjobs")["items"]
+            jobs = api.list_namespaced_custom_object(GROUP, VERSION, namespace, ROBOTJOBS)["items"]
             return {j["metadata"]["name"] for j in jobs if (j.get("status") or {}).get("phase") == "dispatched"}
 
         deadline = time.monotonic() + 60
@@ -134,4 +136,4 @@ def test_a_sigterm_during_a_binding_pass_lets_the_pass_end_posts_its_events_and_
             proc.wait()
         for cell in cells:
             with contextlib.suppress(client.ApiException):
-                api.delete_cluster_custom_object("armnet.io", "v1alpha1", "cells", cell)
+                api.delete_cluster_custom_object(GROUP, VERSION, CELLS, cell)

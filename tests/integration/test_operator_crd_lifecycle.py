@@ -18,12 +18,15 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_core.api import GROUP, ROBOTJOBS
+from armnet_core.times import kube_time
 
 from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 
 CRD = Path(__file__).resolve().parents[2] / "crds" / "robotjob.yaml"
+CRD_NAME = f"{ROBOTJOBS}.{GROUP}"
 
 
 @pytest.fixture
@@ -60,7 +63,7 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
             k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump(doc))
 
         def beat() -> None:
-            now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+            now = kube_time(datetime.now(UTC))
             k8s.kubectl("patch", "cell", "c1", "--subresource=status", "--type=merge",
                         "-p", json.dumps({"status": {"lastHeartbeatTime": now}}))
 
@@ -81,11 +84,11 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
         wait("the cell released", lambda: not k8s.kubectl(
             "get", "cell", "c1", "-o", "jsonpath={.status.currentJob}").stdout, proc, log)
 
-        k8s.kubectl("delete", "crd", "robotjobs.armnet.io", "--timeout=60s")
-        wait("the operator saying the CRD is missing", lambda: "robotjobs.armnet.io are not served" in log.read_text(),
+        k8s.kubectl("delete", "crd", CRD_NAME, "--timeout=60s")
+        wait("the operator saying the CRD is missing", lambda: f"{CRD_NAME} are not served" in log.read_text(),
              proc, log)
         k8s.kubectl("apply", "--server-side", "-f", str(CRD))
-        k8s.wait_established("crd/robotjobs.armnet.io")
+        k8s.wait_established(f"crd/{CRD_NAME}")
         beat()
         wait("the CRD served again", lambda: k8s.kubectl("get", "rj", "-n", ns, check=False).returncode == 0, proc, log)
         job("after")
@@ -106,7 +109,7 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
             "get", "cell", "c1", "-o", "jsonpath={.status.currentJob}").stdout, proc, log)
         restarts = log.read_text().count("reconcile loop again")
         k8s.kubectl("replace", "--force", "-f", str(CRD))
-        k8s.wait_established("crd/robotjobs.armnet.io")
+        k8s.wait_established(f"crd/{CRD_NAME}")
         wait("the CRD served once more", lambda: k8s.kubectl("get", "rj", "-n", ns, check=False).returncode == 0,
              proc, log)
         wait("the watches restarted for the replaced CRD",

@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_core.api import GROUP, ROBOTJOBS, VERSION
 from armnet_node import rollout_history as rh
 from kubernetes import client
 from kubernetes.client.exceptions import ApiException
@@ -133,7 +134,7 @@ def test_the_rollout_history_holds_the_agents_fifty_newest_and_refuses_more(k8s:
     rows = rh.as_status(history)
     apply(k8s, job(namespace, "history"))
     custom = client.CustomObjectsApi(k8s.api_client())
-    args = ("armnet.io", "v1alpha1", namespace, "robotjobs", "history")
+    args = (GROUP, VERSION, namespace, ROBOTJOBS, "history")
     custom.patch_namespaced_custom_object_status(*args, {"status": {"rollouts": rows}})
     assert get(k8s, namespace, "history")["status"]["rollouts"] == rows
     with pytest.raises(ApiException) as refused:

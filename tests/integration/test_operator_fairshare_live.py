@@ -9,20 +9,22 @@ from datetime import UTC, datetime
 from typing import Any
 
 import pytest
+from armnet_core.api import API_VERSION, CELLQUOTAS, GROUP, VERSION
+from armnet_core.times import micro_time
 
 from tests.integration.client_bed import Tenant
-from tests.integration.operator_bed import Bed, G, V, running_operator
+from tests.integration.operator_bed import Bed, running_operator
 
 pytestmark = pytest.mark.integration
 
 
 def quota(bed: Bed, name: str, namespace: str, nominal: int) -> None:
-    bed.apply({"apiVersion": f"{G}/{V}", "kind": "CellQuota", "metadata": {"name": name},
+    bed.apply({"apiVersion": API_VERSION, "kind": "CellQuota", "metadata": {"name": name},
                "spec": {"namespace": namespace, "embodiment": bed.embodiment, "nominalCells": nominal}})
 
 
 def quota_status(bed: Bed, name: str) -> dict[str, Any]:
-    return dict(bed.api.get_cluster_custom_object(G, V, "cellquotas", name).get("status") or {})
+    return dict(bed.api.get_cluster_custom_object(GROUP, VERSION, CELLQUOTAS, name).get("status") or {})
 
 
 def test_a_tenant_at_its_quota_waits_while_another_binds_and_usage_survives_a_restart(
@@ -53,8 +55,8 @@ def test_a_tenant_at_its_quota_waits_while_another_binds_and_usage_survives_a_re
         standing = json.loads(capsys.readouterr().out)["items"]
         assert [(q["name"], q["cellsInUse"], q["waitingJobs"]) for q in standing] == [(qa, 1, 1)]  # not qb's tenant
         assert standing[0]["decayedUsageCellHours"] > 0
-        planted = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-        bed.api.patch_cluster_custom_object_status(G, V, "cellquotas", qa, {"status": {"usage": {
+        planted = micro_time(datetime.now(UTC))
+        bed.api.patch_cluster_custom_object_status(GROUP, VERSION, CELLQUOTAS, qa, {"status": {"usage": {
             "decayedCellSeconds": 100000, "updatedAt": planted}}})
         with running_operator(k8s, namespace, monkeypatch, **settings):
             usage = bed.wait("usage written again after the restart", lambda: (
@@ -82,7 +84,7 @@ def test_a_quota_the_operator_ignores_says_why_in_a_warning_event_on_it(
         quota(bed, duplicate, namespace, 5)
         with running_operator(k8s, namespace, monkeypatch, namespaces=(namespace,), quota_refresh=0.5):
             bed.wait("the duplicate's status", lambda: "ignored" in quota_status(bed, duplicate).get("message", ""))
-            uid = bed.api.get_cluster_custom_object(G, V, "cellquotas", duplicate)["metadata"]["uid"]
+            uid = bed.api.get_cluster_custom_object(GROUP, VERSION, CELLQUOTAS, duplicate)["metadata"]["uid"]
 
             def events() -> list[dict[str, Any]]:
                 return [e for e in bed.core.list_namespaced_event(

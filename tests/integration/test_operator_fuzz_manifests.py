@@ -17,11 +17,12 @@ import time
 from typing import Any
 
 import pytest
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, VERSION
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from kubernetes.client import ApiException
 
-from tests.integration.operator_bed import Bed, G, V, running_operator
+from tests.integration.operator_bed import Bed, running_operator
 
 pytestmark = [
     pytest.mark.integration,
@@ -149,17 +150,17 @@ def test_hostile_manifests_never_stop_the_operator_and_a_good_cell_keeps_binding
             name = f"fz-{index}"
             try:
                 if manifest["kind"] == "RobotJob":
-                    doc = {"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": name},
+                    doc = {"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": name},
                            "spec": manifest["spec"]}
-                    bed.api.create_namespaced_custom_object(G, V, bed.ns, "robotjobs", doc)
+                    bed.api.create_namespaced_custom_object(GROUP, VERSION, bed.ns, ROBOTJOBS, doc)
                     if manifest["status"] and manifest["status_target"]:
                         bed.api.patch_namespaced_custom_object_status(
-                            G, V, bed.ns, "robotjobs", name, {"status": manifest["status"]})
+                            GROUP, VERSION, bed.ns, ROBOTJOBS, name, {"status": manifest["status"]})
                 else:
                     cell = f"{name}-{bed.ns}"
-                    doc = {"apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": cell},
+                    doc = {"apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": cell},
                            "spec": manifest["spec"]}
-                    bed.api.create_cluster_custom_object(G, V, "cells", doc)
+                    bed.api.create_cluster_custom_object(GROUP, VERSION, CELLS, doc)
                     created_cells.append(cell)
             except ApiException as error:
                 assert error.status == 422, f"{error.status}: {error.body}"

@@ -13,8 +13,9 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_core.api import API_VERSION, GROUP, ROBOTJOBS, VERSION
 
-from tests.integration.operator_bed import Bed, G, V
+from tests.integration.operator_bed import Bed
 
 pytestmark = pytest.mark.integration
 
@@ -31,7 +32,7 @@ def rejected(bed: Bed, doc: dict[str, Any]) -> str:
 
 
 def cell_doc(name: str, **spec: Any) -> dict[str, Any]:
-    return {"apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name},
+    return {"apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": name},
             "spec": {"embodiment": "lerobot/so-101", "nodeName": "h", **spec}}
 
 
@@ -44,7 +45,7 @@ def cell_doc(name: str, **spec: Any) -> dict[str, Any]:
 def test_job_numbers_beyond_their_maximum_are_rejected_naming_the_field(
     bed: Bed, spec: dict[str, Any], says: str
 ) -> None:
-    doc = {"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": "big", "namespace": bed.ns},
+    doc = {"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": "big", "namespace": bed.ns},
            "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment, **spec}}
     assert says in rejected(bed, doc)
 
@@ -73,7 +74,7 @@ def test_bad_cells_are_rejected_naming_the_field(bed: Bed, spec: dict[str, Any],
 # ---------------------------------------------------------------- deep and huge args
 def test_args_a_thousand_levels_deep_fail_the_job_and_the_operator_keeps_binding(bed: Bed, operator: Any) -> None:
     cell = bed.cell("c1")
-    head = json.dumps({"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": "deep", "namespace": bed.ns},
+    head = json.dumps({"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": "deep", "namespace": bed.ns},
                        "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}})
     doc = head[:-2] + ', "args": ' + deep_json(1000) + "}}"
     bed.k8s.kubectl("create", "-f", "-", input=doc)
@@ -88,8 +89,8 @@ def test_args_a_thousand_levels_deep_fail_the_job_and_the_operator_keeps_binding
 
 def test_a_megabyte_of_args_fails_the_job_saying_the_limit(bed: Bed, operator: Any) -> None:
     # Created, not applied: kubectl apply would keep a copy in an annotation (256 KiB at most).
-    bed.api.create_namespaced_custom_object(G, V, bed.ns, "robotjobs", {
-        "apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": "huge"},
+    bed.api.create_namespaced_custom_object(GROUP, VERSION, bed.ns, ROBOTJOBS, {
+        "apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": "huge"},
         "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment, "args": {"blob": "x" * (1 << 20)}}})
     body = bed.wait_job("huge", phase="failed")
     assert "larger than 65536 bytes" in bed.condition(body, "Queued")["message"]
@@ -138,7 +139,7 @@ def test_a_status_timestamp_no_datetime_can_hold_is_repaired_and_the_finalizer_s
     # The API server accepts year 0 as a date-time; Python's datetime starts at year 1.
     bed.agent_sets("odd", "running")
     bed.agent_sets("odd", "succeeded")
-    bed.api.patch_namespaced_custom_object_status(G, V, bed.ns, "robotjobs", "odd",
+    bed.api.patch_namespaced_custom_object_status(GROUP, VERSION, bed.ns, ROBOTJOBS, "odd",
                                                   {"status": {"finishedAt": "0000-01-01T00:00:00Z"}})
     bed.wait("the StatusRepaired event", lambda: "StatusRepaired" in bed.events("odd"))
     assert "finishedAt" not in bed.get_job("odd")["status"]

@@ -13,12 +13,15 @@ import contextlib
 import json
 import threading
 from collections.abc import Callable, Iterator
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import pytest
+from armnet_core.api import API_VERSION, CELLS, GROUP, RELEASE_CELL_FINALIZER, ROBOTJOBS, VERSION
+from armnet_core.times import kube_time, micro_time, parse_time
 from kubernetes import watch
 
-from tests.integration.operator_bed import Bed, G, V, running_operator
+from tests.integration.operator_bed import Bed, running_operator
 
 pytestmark = pytest.mark.integration
 
@@ -33,7 +36,7 @@ def test_a_job_binds_to_a_ready_cell_which_names_it(bed: Bed, operator: Any) -> 
     # The finalizer is written after the bind, off the submit->bound path.
     bed.wait(
         "the finalizer",
-        lambda: "armnet.io/release-cell" in (bed.get_job("pick") or {}).get("metadata", {}).get("finalizers", []),
+        lambda: RELEASE_CELL_FINALIZER in (bed.get_job("pick") or {}).get("metadata", {}).get("finalizers", []),
     )
     bed.wait("a Bound event", lambda: "Bound" in bed.events("pick"))
 
@@ -49,12 +52,21 @@ def test_higher_priority_binds_first_and_the_rest_wait_with_a_position(bed: Bed,
     assert bed.wait_job("low-2", queuePosition=2)["status"]["queuedReason"] == "AllCellsBusy"
 
 
+def when(body: dict[str, Any], field: str) -> datetime:
+    """The moment a job's status field names (it must name one)."""
+    moment = parse_time(body["status"][field])
+    assert moment is not None, body["status"]
+    return moment
+
+
+def bound_moment(bed: Bed, job: dict[str, Any]) -> datetime:
+    """When the operator bound the job: its Bound condition's transition."""
+    moment = parse_time(bed.condition(job, "Bound")["lastTransitionTime"])
+    assert moment is not None, job["status"]
+    return moment
+
+
 def test_a_job_waiting_for_busy_cells_says_when_it_starts_at_the_latest(bed: Bed, operator: Any) -> None:
-    from datetime import datetime
-
-    def when(body: dict[str, Any], field: str) -> datetime:
-        return datetime.fromisoformat(body["status"][field].replace("Z", "+00:00"))
-
     cell = bed.cell("c1")  # the CRD's default grace period: 10 s
     bed.job("running", timeoutSeconds=300)
     bound = bed.wait_job("running", phase="dispatched", cellName=cell)
@@ -63,7 +75,7 @@ def test_a_job_waiting_for_busy_cells_says_when_it_starts_at_the_latest(bed: Bed
     second = bed.wait("the second job's estimate", lambda: (
         (body := bed.get_job("second")) and body.get("status", {}).get("estimatedStart") and body))
     first = bed.get_job("first")
-    bound_at = datetime.fromisoformat(bed.condition(bound, "Bound")["lastTransitionTime"].replace("Z", "+00:00"))
+    bound_at = bound_moment(bed, bound)
     # Bound but not started: the running job holds the cell from its binding for its timeout and grace.
     assert abs((when(first, "estimatedStart") - bound_at).total_seconds() - (300 + 10)) <= 1
     assert (when(second, "estimatedStart") - when(first, "estimatedStart")).total_seconds() == 60 + 10
@@ -74,27 +86,19 @@ def test_a_job_waiting_for_busy_cells_says_when_it_starts_at_the_latest(bed: Bed
 
 def test_a_job_waiting_behind_an_embodiment_with_finished_runs_says_when_it_likely_starts(
         bed: Bed, operator: Any) -> None:
-    from datetime import UTC, datetime, timedelta
-
-    def when(body: dict[str, Any], field: str) -> datetime:
-        return datetime.fromisoformat(body["status"][field].replace("Z", "+00:00"))
-
-    def stamp(moment: datetime) -> str:
-        return moment.strftime("%Y-%m-%dT%H:%M:%SZ")
-
     cell = bed.cell("c1")  # the CRD's default grace period: 10 s
     bed.job("ran", timeoutSeconds=300)
     bed.wait_job("ran", phase="dispatched", cellName=cell)
     # The agent's record of a finished run: 40 s from its start to its end.
     ended = datetime.now(UTC).replace(microsecond=0)
-    bed.api.patch_namespaced_custom_object_status(G, V, bed.ns, "robotjobs", "ran", {"status": {
-        "phase": "succeeded", "startedAt": stamp(ended - timedelta(seconds=40)), "finishedAt": stamp(ended)}})
+    bed.api.patch_namespaced_custom_object_status(GROUP, VERSION, bed.ns, ROBOTJOBS, "ran", {"status": {
+        "phase": "succeeded", "startedAt": kube_time(ended - timedelta(seconds=40)), "finishedAt": kube_time(ended)}})
     bed.job("running", timeoutSeconds=300)
     bound = bed.wait_job("running", phase="dispatched", cellName=cell)
     bed.job("waiting", timeoutSeconds=60)
     waiting = bed.wait("the waiting job's estimates", lambda: (
         (body := bed.get_job("waiting")) and body.get("status", {}).get("likelyStart") and body))
-    bound_at = datetime.fromisoformat(bed.condition(bound, "Bound")["lastTransitionTime"].replace("Z", "+00:00"))
+    bound_at = bound_moment(bed, bound)
     # At the latest the running job uses its whole timeout and grace; likely, the embodiment's typical run.
     assert abs((when(waiting, "estimatedStart") - bound_at).total_seconds() - (300 + 10)) <= 1
     assert abs((when(waiting, "likelyStart") - bound_at).total_seconds() - 40) <= 1
@@ -170,12 +174,12 @@ def test_finished_jobs_lose_their_finalizer_so_they_delete_at_once_after_the_ope
     ``kept`` finishes under the operator; ``legacy`` finished with the finalizer on
     before this operator started (as an older one left it): both lose it, level-based.
     """
-    finalizer = "armnet.io/release-cell"
+    finalizer = RELEASE_CELL_FINALIZER
 
     def finalizers(name: str) -> list[str]:
         return list((bed.get_job(name) or {}).get("metadata", {}).get("finalizers") or [])
 
-    bed.apply({"apiVersion": f"{G}/{V}", "kind": "RobotJob",
+    bed.apply({"apiVersion": API_VERSION, "kind": "RobotJob",
                "metadata": {"name": "legacy", "namespace": bed.ns, "finalizers": [finalizer]},
                "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}})
     bed.agent_sets("legacy", "succeeded")
@@ -261,7 +265,7 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
             version = w.resource_version
 
     def watch_jobs() -> None:
-        for obj in every_event(bed.api.list_namespaced_custom_object, G, V, bed.ns, "robotjobs"):
+        for obj in every_event(bed.api.list_namespaced_custom_object, GROUP, VERSION, bed.ns, ROBOTJOBS):
             name, status = obj["metadata"]["name"], obj.get("status", {})
             seen_jobs[name] = status
             latest[name] = (status, obj["metadata"]["resourceVersion"])  # one assignment: never torn
@@ -278,7 +282,7 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
                 bound_to.pop(name, None)
 
     def watch_cells() -> None:
-        for obj in every_event(bed.api.list_cluster_custom_object, G, V, "cells"):
+        for obj in every_event(bed.api.list_cluster_custom_object, GROUP, VERSION, CELLS):
             if obj["metadata"]["name"] in bed.cells:
                 seen_claims[obj["metadata"]["name"]] = obj.get("status", {}).get("currentJob") or ""
 
@@ -304,7 +308,7 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
     # only the resourceVersion preconditions keep them apart (the worst case on purpose).
     with running_operator(k8s, namespace, monkeypatch, lease_name="replica-a") as a, \
             running_operator(k8s, namespace, monkeypatch, lease_name="replica-b") as b:
-        docs = [{"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": f"j{i:02d}", "namespace": bed.ns},
+        docs = [{"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": f"j{i:02d}", "namespace": bed.ns},
                  "spec": {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}} for i in range(50)]
         bed.k8s.kubectl("apply", "-f", "-", input="\n---\n".join(json.dumps(d) for d in docs))
         def all_succeeded() -> bool:
@@ -359,7 +363,6 @@ def test_with_a_shared_lease_only_the_leader_binds(
 
 def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_absent_list(bed: Bed) -> None:
     """Against the real server: append keeps others; a list that appeared since the read is a Conflict."""
-    from armnet_core.api import RELEASE_CELL_FINALIZER
     from armnet_operator.errors import Conflict
     from armnet_operator.kube import KubeApi, make_client
     from armnet_operator.parsing import parse_job
@@ -375,7 +378,7 @@ def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_abs
         bed.job("stale")
         stale = parse_job(bed.wait("the job", lambda: bed.get_job("stale")))
         bed.api.patch_namespaced_custom_object(
-            G, V, bed.ns, "robotjobs", "stale", {"metadata": {"finalizers": ["other.io/keep"]}}
+            GROUP, VERSION, bed.ns, ROBOTJOBS, "stale", {"metadata": {"finalizers": ["other.io/keep"]}}
         )
         with pytest.raises(Conflict):
             api.patch(add_finalizer(stale))  # the test op sees the list that appeared
@@ -393,7 +396,7 @@ def test_the_finalizer_json_patch_keeps_other_finalizers_and_refuses_a_stale_abs
     finally:
         for name in ("bare", "stale", "raced"):
             with contextlib.suppress(Exception):
-                bed.api.patch_namespaced_custom_object(G, V, bed.ns, "robotjobs", name, {"metadata": {"finalizers": None}})
+                bed.api.patch_namespaced_custom_object(GROUP, VERSION, bed.ns, ROBOTJOBS, name, {"metadata": {"finalizers": None}})
 
 
 def test_closing_the_api_posts_the_queued_events_joins_the_poster_and_sends_nothing_more(bed: Bed) -> None:
@@ -427,8 +430,6 @@ def test_a_lease_held_by_a_replica_with_a_skewed_clock_expires_on_our_own_clock(
     """Against the real server: the holder's renewTime is hours off our clock. While it renews, it keeps
     the Lease however far its clock is; once it stops, we take over after leaseDurationSeconds of our own
     (stepped by hand, so nothing here waits on the machine's speed)."""
-    from datetime import UTC, datetime, timedelta
-
     from armnet_operator.kube import KubeApi, make_client
     from kubernetes import client
 
@@ -436,7 +437,7 @@ def test_a_lease_held_by_a_replica_with_a_skewed_clock_expires_on_our_own_clock(
     theirs = datetime.now(UTC) + timedelta(hours=skew_hours)
 
     def holder_writes(at: datetime, create: bool = False) -> None:
-        spec = {"holderIdentity": "other", "renewTime": at.strftime("%Y-%m-%dT%H:%M:%S.%fZ"), "leaseDurationSeconds": 15}
+        spec = {"holderIdentity": "other", "renewTime": micro_time(at), "leaseDurationSeconds": 15}
         if create:
             leases.create_namespaced_lease(bed.ns, client.V1Lease.from_dict(  # type: ignore[no-untyped-call]
                 {"metadata": {"name": "skewed", "namespace": bed.ns},

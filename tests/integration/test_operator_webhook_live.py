@@ -27,16 +27,17 @@ from typing import Any
 import kopf
 import pytest
 import yaml
+from armnet_core.api import API_VERSION, GROUP, ROBOTJOBS, VERSION
 from armnet_operator.admission import WEBHOOK_PATH
 from armnet_operator.args import MAX_ARGS_BYTES, MAX_ARGS_DEPTH
 from armnet_operator.handlers import build_registry
 from kopf.testing import KopfRunner
 
-from tests.integration.operator_bed import Bed, G, V, operator_settings
+from tests.integration.operator_bed import Bed, operator_settings
 from tests.testbed.procs import free_port
 
 pytestmark = pytest.mark.integration
-WEBHOOK_NAME = "robotjobs.armnet.io"
+WEBHOOK_NAME = f"{ROBOTJOBS}.{GROUP}"
 
 
 def deep_json(levels: int) -> str:
@@ -51,8 +52,8 @@ def webhook_configuration(name: str, namespace: str, url: str, ca: Path, failure
         "webhooks": [{
             "name": WEBHOOK_NAME,
             "clientConfig": {"url": url, "caBundle": base64.b64encode(ca.read_bytes()).decode()},
-            "rules": [{"apiGroups": [G], "apiVersions": [V], "operations": ["CREATE"],
-                       "resources": ["robotjobs"], "scope": "Namespaced"}],
+            "rules": [{"apiGroups": [GROUP], "apiVersions": [VERSION], "operations": ["CREATE"],
+                       "resources": [ROBOTJOBS], "scope": "Namespaced"}],
             "namespaceSelector": {"matchLabels": {"kubernetes.io/metadata.name": namespace}},
             "failurePolicy": failure_policy, "sideEffects": "None", "admissionReviewVersions": ["v1"],
             "timeoutSeconds": 5,
@@ -64,7 +65,7 @@ def job_doc(bed: Bed, name: str, args: Any = None) -> dict[str, Any]:
     spec: dict[str, Any] = {"image": "localhost/armnet-test:dev", "embodiment": bed.embodiment}
     if args is not None:
         spec["args"] = args
-    return {"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": name, "namespace": bed.ns},
+    return {"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": name, "namespace": bed.ns},
             "spec": spec}
 
 

@@ -5,13 +5,12 @@ from __future__ import annotations
 from typing import Any
 
 import yaml
-
-G, V = "armnet.io", "v1alpha1"
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, SITE_LABEL, VERSION
 
 #: What `armnet fms` needs from the API, no more: the chart's ClusterRole should match.
 FMS_RULES = [
-    {"apiGroups": [G], "resources": ["cells"], "verbs": ["get", "list", "watch", "patch"]},
-    {"apiGroups": [G], "resources": ["robotjobs"], "verbs": ["get", "list", "watch", "patch"]},
+    {"apiGroups": [GROUP], "resources": ["cells"], "verbs": ["get", "list", "watch", "patch"]},
+    {"apiGroups": [GROUP], "resources": ["robotjobs"], "verbs": ["get", "list", "watch", "patch"]},
     {"apiGroups": [""], "resources": ["events"], "verbs": ["create"]},
 ]
 
@@ -37,23 +36,23 @@ def apply(k8s: Any, obj: dict[str, Any]) -> dict[str, Any]:
     """Create the Cell or RobotJob (through the API, not kubectl: a process per call is slow on a busy machine)."""
     custom, _ = _api(k8s)
     if obj["kind"] == "Cell":
-        return dict(custom.create_cluster_custom_object(G, V, "cells", obj))
-    return dict(custom.create_namespaced_custom_object(G, V, obj["metadata"]["namespace"], "robotjobs", obj))
+        return dict(custom.create_cluster_custom_object(GROUP, VERSION, CELLS, obj))
+    return dict(custom.create_namespaced_custom_object(GROUP, VERSION, obj["metadata"]["namespace"], ROBOTJOBS, obj))
 
 
 def patch_status(k8s: Any, kind: str, name: str, status: dict[str, Any], namespace: str | None = None) -> None:
     custom, _ = _api(k8s)
     if kind == "cell":
-        custom.patch_cluster_custom_object_status(G, V, "cells", name, {"status": status})
+        custom.patch_cluster_custom_object_status(GROUP, VERSION, CELLS, name, {"status": status})
     else:
-        custom.patch_namespaced_custom_object_status(G, V, namespace, "robotjobs", name, {"status": status})
+        custom.patch_namespaced_custom_object_status(GROUP, VERSION, namespace, ROBOTJOBS, name, {"status": status})
 
 
 def get(k8s: Any, kind: str, name: str, namespace: str | None = None) -> dict[str, Any]:
     custom, _ = _api(k8s)
     if kind == "cell":
-        return dict(custom.get_cluster_custom_object(G, V, "cells", name))
-    return dict(custom.get_namespaced_custom_object(G, V, namespace, "robotjobs", name))
+        return dict(custom.get_cluster_custom_object(GROUP, VERSION, CELLS, name))
+    return dict(custom.get_namespaced_custom_object(GROUP, VERSION, namespace, ROBOTJOBS, name))
 
 
 def events_about(k8s: Any, namespace: str, name: str) -> list[dict[str, Any]]:
@@ -63,13 +62,13 @@ def events_about(k8s: Any, namespace: str, name: str) -> list[dict[str, Any]]:
 
 
 def a_cell(name: str, *, site: str = "lab-1", reset_timeout: int = 30) -> dict[str, Any]:
-    return {"apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name, "labels": {"armnet.io/site": site}},
+    return {"apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": name, "labels": {SITE_LABEL: site}},
             "spec": {"nodeName": "fms-node", "simulated": True, "embodiment": "lerobot/so-101", "task": "fms",
                      "robot": {"robotId": f"{name}-arm", "safetyLimit": 10}, "resetTimeoutSeconds": reset_timeout}}
 
 
 def a_job(name: str, namespace: str) -> dict[str, Any]:
-    return {"apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": name, "namespace": namespace},
+    return {"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": name, "namespace": namespace},
             "spec": {"image": "localhost/tenant-image:1", "embodiment": "lerobot/so-101", "task": "fms",
                      "args": {"api_key": "tenant-secret-arg"}}}
 
