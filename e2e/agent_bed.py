@@ -20,11 +20,12 @@ import textwrap
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
 import yaml
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, TERMINAL_PHASES, VERSION
 
 from tests.testbed.procs import free_port
 
@@ -34,8 +35,6 @@ EXAMPLES = REPO / "runtime" / "examples"
 JOBS = REPO / "e2e" / "jobs"
 PYTHONPATH = ":".join(str(REPO / p) for p in ("runtime/src", "agent", "operator", "cli")) + f":{REPO}"
 DEV_MOUNTS = sorted({sys.prefix, sys.base_prefix, str(REPO)})
-TERMINAL = ("succeeded", "failed", "timeout", "cancelled")
-GROUP, VERSION = "armnet.io", "v1alpha1"
 
 
 class AgentBed:
@@ -154,7 +153,7 @@ class AgentBed:
         else:
             spec.update(embodiment="lerobot/so-101", robot={"robotId": f"{name}-arm", "safetyLimit": 10})
         spec.update(extra)
-        self.apply({"apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": name}, "spec": spec},
+        self.apply({"apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": name}, "spec": spec},
                    namespaced=False)
         return name
 
@@ -169,12 +168,12 @@ class AgentBed:
         return self._objects
 
     def cell(self, name: str) -> dict[str, Any]:
-        cell: dict[str, Any] = self.objects.get_cluster_custom_object(GROUP, VERSION, "cells", name)
+        cell: dict[str, Any] = self.objects.get_cluster_custom_object(GROUP, VERSION, CELLS, name)
         return cell
 
     def job(self, name: str) -> dict[str, Any]:
         job: dict[str, Any] = self.objects.get_namespaced_custom_object(GROUP, VERSION, self.namespace,
-                                                                        "robotjobs", name)
+                                                                        ROBOTJOBS, name)
         return job
 
     def job_exists(self, name: str) -> bool:
@@ -231,7 +230,7 @@ class AgentBed:
                embodiment: str = "lerobot/so-101", **spec: Any) -> str:
         body = {"image": image, "embodiment": embodiment, "timeoutSeconds": timeout, "task": self.node,
                 "args": args or {}, **spec}
-        self.apply({"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name},
+        self.apply({"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": name},
                     "spec": body})
         return name
 
@@ -244,7 +243,7 @@ class AgentBed:
             time.sleep(every)
         raise AssertionError(f"timed out after {timeout} s waiting for {what}\n{self.logs()}")
 
-    def wait_phase(self, name: str, phases: tuple[str, ...] = TERMINAL, timeout: float = 180) -> dict[str, Any]:
+    def wait_phase(self, name: str, phases: Collection[str] = TERMINAL_PHASES, timeout: float = 180) -> dict[str, Any]:
         def reached() -> dict[str, Any] | None:
             job = self.job(name)
             return job if (job.get("status") or {}).get("phase") in phases else None
@@ -299,8 +298,8 @@ class JobWatch:
         while not self._stop.is_set():
             stream = watch.Watch()
             try:
-                for event in stream.stream(self._api.list_namespaced_custom_object, "armnet.io", "v1alpha1",
-                                           self._namespace, "robotjobs", timeout_seconds=20):
+                for event in stream.stream(self._api.list_namespaced_custom_object, GROUP, VERSION,
+                                           self._namespace, ROBOTJOBS, timeout_seconds=20):
                     obj = event["object"]
                     if event["type"] in ("ADDED", "MODIFIED", "DELETED") and isinstance(obj, dict):
                         with self._lock:

@@ -16,6 +16,8 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
+from armnet_core.times import parse_time
+
 from e2e.agent_bed import JOBS, AgentBed
 
 
@@ -30,11 +32,15 @@ def explain(st: dict[str, Any]) -> str:
             f"stdout tail: {(result.get('stdoutTail') or '')[-4000:]}")
 
 
-def seconds_between(start: str, end: str) -> float:
-    def parse(value: str) -> datetime:
-        return datetime.fromisoformat(value.replace("Z", "+00:00"))
+def moment_of(value: str) -> datetime:
+    """The moment a status's timestamp names; a status time that is not one fails the test."""
+    moment = parse_time(value)
+    assert moment is not None, f"not a time: {value!r}"
+    return moment
 
-    return (parse(end) - parse(start)).total_seconds()
+
+def seconds_between(start: str, end: str) -> float:
+    return (moment_of(end) - moment_of(start)).total_seconds()
 
 
 def a_bus_loop_job_succeeds_with_its_return_value(bed: AgentBed, name: str, *,

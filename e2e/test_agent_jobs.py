@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from armnet_core.api import ACTIVE_PHASES, SIM_UNPLUG_ANNOTATION
+from armnet_core.times import status_time
 
 from e2e import scenarios
 from e2e.agent_bed import EXAMPLES, JOBS, AgentBed
@@ -106,11 +108,6 @@ def bed(k8s: Any, podman: Any, base_image: str, nats_server: str, object_store: 
         k8s.delete_namespace(namespace)
 
 
-def report_time(moment: datetime) -> str:
-    """A local clock reading in the status's timestamp format (the agent runs on this host)."""
-    return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
-
-
 def streamed_end(bed: AgentBed, name: str, messages: int) -> dict[str, Any]:
     """The last of the job's ``messages`` status messages on its stream: the agent says there why it ended."""
     uid = bed.job(name)["metadata"]["uid"]
@@ -134,9 +131,9 @@ def batch(bed: AgentBed) -> dict[str, str]:
         "recording": bed.submit("records", bed.image("records", EXAMPLES / "record.py", (EXAMPLES / "_so101_moves.py",)), task="evaluation",
                                 timeout=300, args={"episodes": 2, "episode_seconds": 2, "fps": 10}),
         # No camera on the cells of the default task: the episodes' parquet only. 1000 episodes:
-        # the timeout always cuts one. 180 s, not 90: on a loaded host (2026-11-29 14:00, a clean-clone
-        # run) the job was still in SO101Follower.configure() at a 90 s deadline, its LeRobot import
-        # and record() setup having taken it all; at least one episode must finish before the cut.
+        # the timeout always cuts one. 180 s, not 90: on a loaded host the LeRobot import and
+        # record()'s setup can take 90 s, leaving the job in SO101Follower.configure() at such a
+        # deadline; at least one episode must finish before the cut.
         "recording-timeout": bed.submit("records-until-timeout", bed.image("records", EXAMPLES / "record.py", (EXAMPLES / "_so101_moves.py",)),
                                         timeout=180, args={"episodes": 1000, "episode_seconds": 2,
                                                           "reset_seconds": 0.5, "fps": 10}),
@@ -341,8 +338,8 @@ def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next
     # within grace + 1 s of the window opening (finishedAt of a killed job is when the kill was
     # sent), and the window opens once the agent has seen the cancel (a watch event, then a
     # pass: 0.1-0.5 s on a quiet VM, up to 1.4 s measured at load average 35).
-    assert seconds_between(report_time(asked), st["finishedAt"]) >= 3
-    assert seconds_between(report_time(stored), st["finishedAt"]) <= 3 + 1 + CANCEL_SEEN_S, st
+    assert seconds_between(status_time(asked), st["finishedAt"]) >= 3
+    assert seconds_between(status_time(stored), st["finishedAt"]) <= 3 + 1 + CANCEL_SEEN_S, st
     bed.submit("after-cancel", image, args={"lines": 2, "pause": 0.0}, timeout=120)
     after = status(bed.wait_phase("after-cancel", timeout=300))
     assert after["phase"] == "succeeded"
@@ -361,7 +358,7 @@ def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, 
         active: dict[str, list[str]] = {}
         for job in listed:
             st = status(job)
-            if st.get("phase") in ("dispatched", "running"):
+            if st.get("phase") in ACTIVE_PHASES:
                 active.setdefault(st.get("cellName", ""), []).append(job["metadata"]["name"])
         assert all(len(v) == 1 for v in active.values()), f"two jobs on one cell: {active}"
         # Strict FIFO: no job has left the queue while one created before it still waits.
@@ -391,7 +388,7 @@ def test_an_unplugged_servo_makes_the_cell_not_ready_with_a_reason_and_no_job_is
     task = f"sick-{bed.node}"
     cell = bed.add_cell("sick", task=task)
     bed.wait_ready(cell, timeout=60)
-    bed.k8s.kubectl("annotate", "cell", cell, "armnet.io/sim-unplug=arm/elbow_flex", "--overwrite")
+    bed.k8s.kubectl("annotate", "cell", cell, f"{SIM_UNPLUG_ANNOTATION}=arm/elbow_flex", "--overwrite")
 
     def hardware_down() -> dict[str, Any] | None:
         conditions = {c["type"]: c for c in (bed.cell(cell).get("status") or {}).get("conditions", [])}
@@ -445,7 +442,7 @@ def test_a_vanished_device_fails_the_running_job_with_device_lost_and_the_cell_r
     assert (end["phase"], end["detail"]["error"]) == ("failed", st["result"]["error"])
     # Debounce 1.5 s + a 0.5 s read + the cell's 3 s grace (the job ignores shutdown: killed at its
     # end), not the job's 300 s timeout; the rest is slack for the loaded 2-core VM.
-    assert seconds_between(report_time(unplugged), st["finishedAt"]) <= 1.5 + 0.5 + 3 + 10, st
+    assert seconds_between(status_time(unplugged), st["finishedAt"]) <= 1.5 + 0.5 + 3 + 10, st
     bed.wait(hardware_ready(bed, cell, "True"), 20, "HardwareReady True again with the device back")
     text = urllib.request.urlopen(f"http://127.0.0.1:{bed.metrics_port}/metrics", timeout=10).read().decode()
     assert "armnet_agent_jobs_device_lost_total 1.0" in text

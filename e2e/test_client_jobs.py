@@ -28,9 +28,10 @@ import pytest
 from armnet_client import Client, NatsForbidden
 from armnet_client.logstream import FollowSettings, follow_events
 from armnet_client.logwire import LogLine
+from armnet_core.api import FOLLOWER_TIMEOUT_ANNOTATION, TERMINAL_PHASES
 from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
 
-from e2e.agent_bed import EXAMPLES, JOBS, PYTHONPATH, TERMINAL, AgentBed
+from e2e.agent_bed import EXAMPLES, JOBS, PYTHONPATH, AgentBed
 from tests.support.pty_screen import Screen
 from tests.testbed.natsd import NatsServer
 
@@ -173,7 +174,7 @@ def spec(bed: AgentBed, image: str, **fields: Any) -> JobSpec:
 def ready_or_ended(bed: AgentBed, name: str) -> dict[str, Any] | None:
     """The job's status once its progress says it is ready, or once it ended (then the test fails on it)."""
     st = bed.job(name).get("status") or {}
-    return st if st.get("progress") == "teleop ready" or st.get("phase") in TERMINAL else None
+    return st if st.get("progress") == "teleop ready" or st.get("phase") in TERMINAL_PHASES else None
 
 
 def phase(bed: AgentBed, name: str) -> str | None:
@@ -268,7 +269,7 @@ def test_a_followed_job_is_cancelled_when_its_client_is_killed_and_a_detached_on
     try:
         # The followed client runs beside the detached one: on a loaded host it may create its job later.
         bed.wait(lambda: bed.job_exists("followed"), timeout=60, what="the followed client to create its job")
-        assert bed.job("followed")["metadata"]["annotations"]["armnet.io/follower-timeout-seconds"] == "5"
+        assert bed.job("followed")["metadata"]["annotations"][FOLLOWER_TIMEOUT_ANNOTATION] == "5"
         assert "annotations" not in bed.job("detached")["metadata"]
         for name in ("followed", "detached"):
             bed.wait_phase(name, ("running",), timeout=180)

@@ -27,10 +27,11 @@ from datetime import UTC, datetime
 from typing import Any
 
 import pytest
+from armnet_core.api import API_VERSION, TERMINAL_PHASES
 
 from e2e import scenarios
-from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, TERMINAL, AgentBed, JobWatch
-from e2e.scenarios import explain, status
+from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, AgentBed, JobWatch
+from e2e.scenarios import explain, moment_of, status
 
 pytestmark = [pytest.mark.node, pytest.mark.e2e, pytest.mark.timeout(900)]
 
@@ -219,10 +220,6 @@ def telemetry(bed: AgentBed) -> Iterator[TelemetryHeard]:
     heard = TelemetryHeard(bed.nats_url)
     yield heard
     heard.close()
-
-
-def parse_time(value: str) -> datetime:
-    return datetime.fromisoformat(value.replace("Z", "+00:00"))
 
 
 @pytest.fixture(scope="module")
@@ -472,12 +469,12 @@ def test_a_job_beyond_the_free_cells_waits_queued_and_runs_once_a_cell_is_free_n
     for name, st in finals.items():
         if "startedAt" in st:  # the missing secret's job never started
             by_cell.setdefault(st["cellName"], []).append(
-                (parse_time(st["startedAt"]), parse_time(st["finishedAt"]), name))
+                (moment_of(st["startedAt"]), moment_of(st["finishedAt"]), name))
     for cell, runs in by_cell.items():
         runs.sort()
         for before, after in zip(runs, runs[1:], strict=False):
             assert before[1] <= after[0], f"{after[2]} started on {cell} before {before[2]} finished: {runs}"
-    started = parse_time(finals[last]["startedAt"])
+    started = moment_of(finals[last]["startedAt"])
     ahead = [name for _, finished, name in by_cell[finals[last]["cellName"]] if name != last and finished <= started]
     assert ahead, by_cell
 
@@ -492,7 +489,7 @@ def test_a_running_pod_jobs_servo_reads_and_camera_reach_nats_and_its_rollouts_r
     assert st["phase"] == "succeeded", explain(st)
     cell = st["cellName"]
     # While it ran (between its two rollouts' begin and end): its reads and its camera, from the pod.
-    begun, ended = (parse_time(st["rollouts"][0]["startedAt"]), parse_time(st["rollouts"][-1]["endedAt"]))
+    begun, ended = (moment_of(st["rollouts"][0]["startedAt"]), moment_of(st["rollouts"][-1]["endedAt"]))
     readings = [json.loads(data) for at, data in telemetry.of(f"telemetry.{cell}.servos") if begun <= at <= ended]
     from_job = [r for r in readings if r["source"] == "job" and isinstance(r["arms"]["arm"].get("motors"), dict)]
     if not from_job:
@@ -566,7 +563,7 @@ def outage(bed: AgentBed) -> Iterator[AgentOutage]:
     try:
         # The agent is killed as soon as the deadline's job runs (its own kill would come 23 s later):
         # the other job needs its pod only.
-        deadline_job = bed.wait_phase(names["deadline"], ("running", *TERMINAL), timeout=300)
+        deadline_job = bed.wait_phase(names["deadline"], {"running", *TERMINAL_PHASES}, timeout=300)
         assert status(deadline_job)["phase"] == "running", explain(status(deadline_job))  # else: no start in its window
         collected_job = bed.job(names["collected"])
         collected_pod = bed.wait(lambda: pod_of(bed, collected_job), 60, "the collected job's pod")
@@ -594,7 +591,7 @@ def test_a_deleted_robotjobs_pod_is_collected_by_the_garbage_collector_through_i
     job, pod = outage.jobs["collected"], outage.pods["collected"]
     assert pod is not None, "the job's pod"
     owner, = pod["metadata"]["ownerReferences"]
-    assert owner == {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "name": job["metadata"]["name"],
+    assert owner == {"apiVersion": API_VERSION, "kind": "RobotJob", "name": job["metadata"]["name"],
                      "uid": job["metadata"]["uid"], "controller": True, "blockOwnerDeletion": False}, owner
     bed.k8s.kubectl("delete", "rj", job["metadata"]["name"], "-n", bed.namespace, "--cascade=foreground",
                     "--wait=false")
