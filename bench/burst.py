@@ -32,13 +32,15 @@ from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, VERSION
+from armnet_core.times import kube_time
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-G, V = "armnet.io", "v1alpha1"
 
 
 def stamp() -> str:
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return kube_time(datetime.now(UTC))
 
 
 def peak_rss_mib(pid: int) -> float:
@@ -56,10 +58,10 @@ def one_run(plane, tree: Path, n_jobs: int) -> dict[str, float]:
     tag = uuid.uuid4().hex[:6]
     emb_a, emb_b = f"burst-a/{tag}", f"burst-b/{tag}"
     for name, emb in ((f"a-{tag}", emb_a), (f"b-{tag}", emb_b)):
-        api.create_cluster_custom_object(G, V, "cells", {
-            "apiVersion": f"{G}/{V}", "kind": "Cell", "metadata": {"name": name},
+        api.create_cluster_custom_object(GROUP, VERSION, CELLS, {
+            "apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": name},
             "spec": {"embodiment": emb, "nodeName": "burst-host"}})
-        api.patch_cluster_custom_object_status(G, V, "cells", name, {"status": {"lastHeartbeatTime": stamp()}})
+        api.patch_cluster_custom_object_status(GROUP, VERSION, CELLS, name, {"status": {"lastHeartbeatTime": stamp()}})
     env = {**os.environ, "KUBECONFIG": str(plane.kubeconfig),
            "PYTHONPATH": ":".join(str(tree / p) for p in ("runtime/src", "agent", "operator", "cli", "."))}
     argv = [sys.executable, "-m", "armnet_cli.main", "operator", "--kubeconfig", str(plane.kubeconfig),
@@ -82,7 +84,7 @@ def one_run(plane, tree: Path, n_jobs: int) -> dict[str, float]:
 
     def stream() -> None:
         w = watch.Watch()
-        for event in w.stream(api.list_namespaced_custom_object, G, V, ns, "robotjobs", timeout_seconds=300):
+        for event in w.stream(api.list_namespaced_custom_object, GROUP, VERSION, ns, ROBOTJOBS, timeout_seconds=300):
             status = event["object"].get("status") or {}
             name = event["object"]["metadata"]["name"]
             if status.get("phase") == "queued" and status.get("queuePosition") and name not in queued_at:
@@ -106,8 +108,8 @@ def one_run(plane, tree: Path, n_jobs: int) -> dict[str, float]:
         created: dict[str, float] = {}
 
         def create(name: str, emb: str) -> None:
-            api.create_namespaced_custom_object(G, V, ns, "robotjobs", {
-                "apiVersion": f"{G}/{V}", "kind": "RobotJob", "metadata": {"name": name},
+            api.create_namespaced_custom_object(GROUP, VERSION, ns, ROBOTJOBS, {
+                "apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": name},
                 "spec": {"image": "localhost/bench:dev", "embodiment": emb}})
             created[name] = time.perf_counter()
 

@@ -53,7 +53,7 @@ import threading
 import time
 import uuid
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import ExitStack, contextmanager
 from typing import Any
 
@@ -171,17 +171,18 @@ class PhaseWatch(_FirstSeen):
     """When this process first saw each RobotJob of a namespace in each phase (a watch, as a client)."""
 
     def _events(self) -> Iterator[Any]:
+        from armnet_core.api import GROUP, ROBOTJOBS, VERSION
         from kubernetes import client, watch
 
         api = client.CustomObjectsApi(self._api_client)
-        return watch.Watch().stream(api.list_namespaced_custom_object, "armnet.io", "v1alpha1",
-                                    self.namespace, "robotjobs", timeout_seconds=30)
+        return watch.Watch().stream(api.list_namespaced_custom_object, GROUP, VERSION,
+                                    self.namespace, ROBOTJOBS, timeout_seconds=30)
 
     def _stages(self, obj: Any) -> tuple[str, list[str]]:
         phase = (obj.get("status") or {}).get("phase")
         return obj["metadata"]["name"], [phase] if phase else []
 
-    def wait(self, name: str, phases: tuple[str, ...], timeout: float) -> tuple[str, float]:
+    def wait(self, name: str, phases: Collection[str], timeout: float) -> tuple[str, float]:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             with self._lock:
@@ -232,13 +233,15 @@ class PodStages(_FirstSeen):
 def platform_round(bed: Any, api: Any, watch: PhaseWatch, image: str, round_name: str,
                    pods: PodStages | None = None) -> dict[str, float]:
     """One trivial RobotJob through the apiserver, the operator and the agent."""
+    from armnet_core.api import API_VERSION, GROUP, ROBOTJOBS, TERMINAL_PHASES, VERSION
+
     name = f"dispatch-{round_name}"
-    body = {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name},
+    body = {"apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": name},
             "spec": {"image": image, "embodiment": "lerobot/so-101", "task": bed.node, "timeoutSeconds": 120}}
     submitted = time.monotonic()
-    api.create_namespaced_custom_object("armnet.io", "v1alpha1", bed.namespace, "robotjobs", body)
-    _, running = watch.wait(name, ("running", "succeeded", "failed", "timeout", "cancelled"), 120)
-    phase, done = watch.wait(name, ("succeeded", "failed", "timeout", "cancelled"), 120)
+    api.create_namespaced_custom_object(GROUP, VERSION, bed.namespace, ROBOTJOBS, body)
+    _, running = watch.wait(name, {"running", *TERMINAL_PHASES}, 120)
+    phase, done = watch.wait(name, TERMINAL_PHASES, 120)
     if phase != "succeeded":
         raise RuntimeError(f"the bench job {name} ended {phase}: {bed.job(name).get('status')}")
     stages = {f"stage:{k}": v for k, v in pods.of(name, submitted).items()} if pods is not None else {}

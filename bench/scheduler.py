@@ -26,6 +26,8 @@ from datetime import UTC, datetime, timedelta
 from functools import partial
 from pathlib import Path
 
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, VERSION
+from armnet_core.times import kube_time
 from armnet_operator.model import Cell, CellPhase, Job, JobPhase
 from armnet_operator.quota import CellQuota, Usage
 from armnet_operator.scheduling import plan_bindings
@@ -199,7 +201,6 @@ def bench_apiserver(n_cells: int, n_jobs: int) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from tests.testbed.kube import ControlPlane
 
-    g, v = "armnet.io", "v1alpha1"
     plane = ControlPlane()
     plane.start()
     try:
@@ -209,13 +210,13 @@ def bench_apiserver(n_cells: int, n_jobs: int) -> None:
         emb = "bench/so-101"
 
         def stamp() -> str:
-            return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+            return kube_time(datetime.now(UTC))
 
         def make_cell(i: int) -> None:
-            api.create_cluster_custom_object(g, v, "cells", {
-                "apiVersion": f"{g}/{v}", "kind": "Cell", "metadata": {"name": f"bench-{i:04d}"},
+            api.create_cluster_custom_object(GROUP, VERSION, CELLS, {
+                "apiVersion": API_VERSION, "kind": "Cell", "metadata": {"name": f"bench-{i:04d}"},
                 "spec": {"embodiment": emb, "nodeName": "bench-host"}})
-            api.patch_cluster_custom_object_status(g, v, "cells", f"bench-{i:04d}",
+            api.patch_cluster_custom_object_status(GROUP, VERSION, CELLS, f"bench-{i:04d}",
                                                    {"status": {"lastHeartbeatTime": stamp()}})
 
         pool = ThreadPoolExecutor(8)
@@ -227,7 +228,7 @@ def bench_apiserver(n_cells: int, n_jobs: int) -> None:
 
         def finish(name: str, phase: str) -> None:
             try:
-                api.patch_namespaced_custom_object_status(g, v, ns, "robotjobs", name, {"status": {"phase": phase}})
+                api.patch_namespaced_custom_object_status(GROUP, VERSION, ns, ROBOTJOBS, name, {"status": {"phase": phase}})
             except client.ApiException:
                 pass
 
@@ -244,7 +245,7 @@ def bench_apiserver(n_cells: int, n_jobs: int) -> None:
 
         def follow() -> None:
             w = watch.Watch()
-            for event in w.stream(api.list_namespaced_custom_object, g, v, ns, "robotjobs", timeout_seconds=900):
+            for event in w.stream(api.list_namespaced_custom_object, GROUP, VERSION, ns, ROBOTJOBS, timeout_seconds=900):
                 obj = event["object"]
                 name, phase = obj["metadata"]["name"], obj.get("status", {}).get("phase")
                 if phase == "dispatched" and name not in bound:
@@ -258,14 +259,14 @@ def bench_apiserver(n_cells: int, n_jobs: int) -> None:
         def heartbeat() -> None:
             while not stop.wait(15):
                 for i in range(n_cells):
-                    pool.submit(api.patch_cluster_custom_object_status, g, v, "cells", f"bench-{i:04d}",
+                    pool.submit(api.patch_cluster_custom_object_status, GROUP, VERSION, CELLS, f"bench-{i:04d}",
                                 {"status": {"lastHeartbeatTime": stamp()}})
 
         def submit(i: int) -> None:
             name = f"job-{i:05d}"
             submitted[name] = time.perf_counter()
-            api.create_namespaced_custom_object(g, v, ns, "robotjobs", {
-                "apiVersion": f"{g}/{v}", "kind": "RobotJob", "metadata": {"name": name},
+            api.create_namespaced_custom_object(GROUP, VERSION, ns, ROBOTJOBS, {
+                "apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": name},
                 "spec": {"image": "localhost/bench:dev", "embodiment": emb}})
 
         def wait_bound(count: int, timeout: float) -> None:
