@@ -15,6 +15,7 @@ from armnet_client.mapping import (
     view_of,
 )
 from armnet_client.resources import Cell, RobotJob
+from armnet_core.api import API_VERSION
 from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
 
 from .builders import a_cell, a_robotjob
@@ -31,7 +32,7 @@ def full_spec() -> JobSpec:
 def test_every_spec_field_maps_one_to_one_onto_the_crd_in_camel_case() -> None:
     body = robotjob_body(full_spec(), namespace="team-a", name="pick-1")
 
-    assert body["apiVersion"] == "armnet.io/v1alpha1" and body["kind"] == "RobotJob"
+    assert body["apiVersion"] == API_VERSION and body["kind"] == "RobotJob"
     assert body["metadata"] == {"namespace": "team-a", "name": "pick-1"}
     assert body["spec"] == {"image": "ghcr.io/acme/pick:1.2", "args": {"seed": 3, "n": [1, 2]},
                             "embodiment": "lerobot/so-101", "task": "pick-cube",

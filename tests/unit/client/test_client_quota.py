@@ -7,13 +7,14 @@ from typing import Any
 import pytest
 from armnet_client.mapping import quota_view_of
 from armnet_client.render import quota_document, quotas_table
+from armnet_core.api import API_VERSION
 
 pytestmark = pytest.mark.unit
 
 
 def a_quota(name: str = "team-a-so101", **spec: Any) -> dict[str, Any]:
     status = spec.pop("status", {})
-    return {"apiVersion": "armnet.io/v1alpha1", "kind": "CellQuota", "metadata": {"name": name},
+    return {"apiVersion": API_VERSION, "kind": "CellQuota", "metadata": {"name": name},
             "spec": {"namespace": "team-a", "embodiment": "lerobot/so-101", "nominalCells": 2, **spec},
             "status": status}
 

@@ -23,6 +23,7 @@ from armnet_client.kube import (
     connect,
     translate,
 )
+from armnet_core.api import GROUP, ROBOTJOBS
 
 pytestmark = pytest.mark.unit
 
@@ -123,8 +124,8 @@ def not_found(message: str, **details: str) -> str:
 
 
 def test_404_on_a_named_job_is_job_not_found_with_its_namespace() -> None:
-    body = not_found('robotjobs.armnet.io "pick-1" not found', name="pick-1", group="armnet.io", kind="robotjobs")
-    error = translate(404, body, verb="get", resource="robotjobs", namespace="team-a", name="pick-1")
+    body = not_found(f'{ROBOTJOBS}.{GROUP} "pick-1" not found', name="pick-1", group=GROUP, kind=ROBOTJOBS)
+    error = translate(404, body, verb="get", resource=ROBOTJOBS, namespace="team-a", name="pick-1")
 
     assert isinstance(error, JobNotFound)
     assert "'pick-1' not found in namespace 'team-a'" in str(error)

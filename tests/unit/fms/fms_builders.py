@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from armnet_core.api import SITE_LABEL
+
 NOW = 1_800_000_000.0  # a frozen clock
 NOW_ISO = "2027-01-15T08:00:00+00:00"
 
@@ -20,7 +22,7 @@ def a_cell(name: str = "so101-a", *, phase: str = "Busy", job: str | None = "tea
         status["currentJob"] = job
     if heartbeat:
         status["lastHeartbeatTime"] = heartbeat
-    return {"metadata": {"name": name, "uid": f"uid-{name}", "labels": {"armnet.io/site": site} if site else {}},
+    return {"metadata": {"name": name, "uid": f"uid-{name}", "labels": {SITE_LABEL: site} if site else {}},
             "spec": {"embodiment": "so101", "nodeName": "robot-host-1", "unschedulable": unschedulable,
                      "resetTimeoutSeconds": reset_timeout},
             "status": status}

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from armnet_core.api import API_VERSION
 from armnet_launch.plan import LABEL_CELL, LABEL_JOB_UID
 from armnet_launch.pod_spec import (
     ANNOTATION_CELL,
@@ -199,7 +200,7 @@ def test_a_running_deadline_never_extends_the_first() -> None:
 
 def test_the_robotjob_owns_the_pod() -> None:
     (owner,) = build_pod(inputs())["metadata"]["ownerReferences"]
-    assert owner == {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "name": "pick-1", "uid": "uid-1",
+    assert owner == {"apiVersion": API_VERSION, "kind": "RobotJob", "name": "pick-1", "uid": "uid-1",
                      "controller": True, "blockOwnerDeletion": False}
 
 

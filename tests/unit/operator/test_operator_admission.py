@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from armnet_core.api import API_VERSION, GROUP, ROBOTJOBS, VERSION
 from armnet_operator.admission import MalformedReview, review_response, review_robotjob
 from armnet_operator.args import MAX_ARGS_BYTES, MAX_ARGS_DEPTH, ArgsLimit, args_problem
 
@@ -30,9 +31,9 @@ def review(args: Any = None, operation: str = "CREATE", sub_resource: str | None
         spec["args"] = args
     body: dict[str, Any] = {
         "uid": uid, "operation": operation,
-        "kind": {"group": "armnet.io", "version": "v1alpha1", "kind": "RobotJob"},
-        "resource": {"group": "armnet.io", "version": "v1alpha1", "resource": "robotjobs"},
-        "object": {"apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob",
+        "kind": {"group": GROUP, "version": VERSION, "kind": "RobotJob"},
+        "resource": {"group": GROUP, "version": VERSION, "resource": ROBOTJOBS},
+        "object": {"apiVersion": API_VERSION, "kind": "RobotJob",
                    "metadata": {"name": "j", "namespace": "team-a"}, "spec": spec},
         **request,
     }

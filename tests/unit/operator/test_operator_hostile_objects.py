@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
+from armnet_core.api import RELEASE_CELL_FINALIZER
 from armnet_operator.args import MAX_ARGS_BYTES, MAX_ARGS_DEPTH, args_problem
 from armnet_operator.cell_checks import MAX_SAFETY_LIMIT, check_cell, check_cells
 from armnet_operator.health import derive_cell_phase
@@ -106,7 +107,7 @@ def test_a_timestamp_without_a_zone_is_read_as_utc_so_it_compares_with_now() -> 
 
 def test_a_deleting_job_with_an_unreadable_status_still_loses_its_finalizer() -> None:
     body = job_body(phase="cancelled", finishedAt="garbage")
-    body["metadata"].update(deletionTimestamp="2026-01-01T12:00:00Z", finalizers=["armnet.io/release-cell"])
+    body["metadata"].update(deletionTimestamp="2026-01-01T12:00:00Z", finalizers=[RELEASE_CELL_FINALIZER])
     actions = plan_lifecycle([parse_job(body)], [], NOW, TIMING)
     assert {type(a).__name__ for a in actions} == {"RepairStatus", "RemoveFinalizer"}
 
