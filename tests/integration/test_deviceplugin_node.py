@@ -19,7 +19,7 @@ import select
 import tempfile
 import time
 import tty
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +29,7 @@ from armnet_node.deviceplugin.decide import cell_device_paths
 from armnet_node.deviceplugin.server import DevicePlugins
 from armnet_node.metrics import AgentMetrics
 
+from tests.support.waiting import wait_for
 from tests.testbed.images import BASE_IMAGE
 from tests.testbed.kube import ControlPlane
 from tests.testbed.node import DEVICE_PLUGIN_DIR, Node
@@ -90,16 +91,6 @@ class Bed:
         return got
 
 
-def wait(check: Callable[[], Any], timeout: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = check()
-        if value:
-            return value
-        time.sleep(0.2)
-    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
-
-
 @pytest.fixture(scope="module")
 def bed(k8s: ControlPlane, k8s_node: Node) -> Iterator[Bed]:
     namespace = k8s.create_namespace("device-plugin")
@@ -130,7 +121,7 @@ def test_the_kubelet_advertises_one_device_of_the_cells_resource_after_registrat
         status = (bed.node.node_object() or {}).get("status", {})
         return status if status.get("capacity", {}).get(RESOURCE) == "1" else None
 
-    status = wait(advertised, 30, f"the Node's capacity to list {RESOURCE}")
+    status = wait_for(advertised, 30, f"the Node's capacity to list {RESOURCE}")
     assert status["allocatable"][RESOURCE] == "1"
 
 
@@ -153,7 +144,7 @@ def test_a_vanished_device_path_turns_the_device_unhealthy_and_back(bed: Bed) ->
     target = os.readlink(bed.link)
     bed.link.unlink()
     try:
-        wait(lambda: bed.sample("armnet_agent_device_healthy") == 0 or None, 10, "the device reported unhealthy")
+        wait_for(lambda: bed.sample("armnet_agent_device_healthy") == 0 or None, 10, "the device reported unhealthy")
         bed.pod("while-unplugged")
         refused = bed.wait_pod("while-unplugged", ("Failed", "Running", "Succeeded"))
         assert refused["status"]["phase"] == "Failed", refused["status"]
@@ -163,17 +154,17 @@ def test_a_vanished_device_path_turns_the_device_unhealthy_and_back(bed: Bed) ->
         assert "unhealthy" in message or "capacity: 0" in message, refused["status"]
     finally:
         bed.link.symlink_to(target)
-    wait(lambda: bed.sample("armnet_agent_device_healthy") == 1 or None, 10, "the device reported healthy again")
+    wait_for(lambda: bed.sample("armnet_agent_device_healthy") == 1 or None, 10, "the device reported healthy again")
     bed.delete_pod("while-unplugged")
 
 
 def test_after_a_kubelet_restart_the_plugin_registers_again_and_pods_get_the_device(bed: Bed) -> None:
-    wait(lambda: bed.node.api_get(f"/api/v1/namespaces/{bed.namespace}/pods/holder") is None, 30,
-         "the holder pod gone")
+    wait_for(lambda: bed.node.api_get(f"/api/v1/namespaces/{bed.namespace}/pods/holder") is None, 30,
+             "the holder pod gone")
     registrations = bed.sample("armnet_agent_device_plugin_registrations_total", result="ok")
     bed.node.restart_kubelet()
-    wait(lambda: bed.sample("armnet_agent_device_plugin_registrations_total", result="ok") > registrations, 15,
-         "the plugin registered with the new kubelet")
+    wait_for(lambda: bed.sample("armnet_agent_device_plugin_registrations_total", result="ok") > registrations, 15,
+             "the plugin registered with the new kubelet")
     os.write(bed.master, b"after restart\n")
     bed.pod("after-restart")
     pod = bed.wait_pod("after-restart", ("Succeeded", "Failed"))

@@ -28,6 +28,7 @@ from armnet_sim import SimulatedCellProcess
 
 from tests.support.sidecar_pod import Pod
 from tests.support.sim_connector import request
+from tests.support.waiting import wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
@@ -39,14 +40,6 @@ def pod(sim: SimulatedCellProcess) -> Iterator[Pod]:
     pod = Pod(sim, grace_period_seconds=GRACE_S)
     yield pod
     pod.close()
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 20, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
 
 
 def active_rollout(observer: SidecarObserver) -> Callable[[], int | None]:

@@ -7,7 +7,7 @@ import json
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import nats
@@ -18,17 +18,10 @@ from armnet_node.inputs_bridge import MAX_INPUT_BYTES, OperatorInputsBridge
 from armnet_node.rollout_recorder import RolloutRecorder
 from armnet_node.streams import NatsLink, StreamSettings
 
+from tests.support.waiting import wait_for
 from tests.testbed.natsd import NatsServer
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 20, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.02)
 
 
 def send(url: str, *messages: tuple[str, Any]) -> None:

@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import asyncio
 import threading
-import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from armnet_node.streams import (
 )
 from nats.js.api import ConsumerConfig, DeliverPolicy
 
+from tests.support.waiting import wait_for
 from tests.testbed.natsd import NatsServer
 from tests.testbed.procs import free_port
 
@@ -40,14 +40,6 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
 def a_namespace() -> str:
     return f"t{uuid.uuid4().hex[:10]}"
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 30, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.02)
 
 
 @dataclass(frozen=True)
