@@ -6,8 +6,8 @@
 # CPU-bound, 15-16 min cold on 2 cores, seconds warm) need only the machine's `go`, so they
 # start first, in the background, while the other steps (downloads, apt, debootstrap, image
 # builds: much of it disk and network) go on; their output is printed when they end. They
-# are the cold setup's longest path (2026-11-29, a fresh machine: kube-apiserver alone
-# 776 s), so nothing waits for them to start.
+# are the cold setup's longest path (on a fresh machine kube-apiserver alone takes ~13 min,
+# docs/benchmarks.md), so nothing waits for them to start.
 # ARMNET_SETUP_IMAGES=1 (the test command sets it) adds the steps from 50 on: the shipped
 # images, and their import into the test-bed node's image store.
 set -euo pipefail

@@ -33,21 +33,19 @@ fi
 # the shipped images is in one of them: two sessions holding the node would wait for each
 # other, and two building one image would build it twice. The simulator's serving thread
 # runs real-time (agent/armnet_sim/pty_server.py): without it, sessions side by side
-# on two cores starved the simulated servos (missed status packets).
+# on two cores starve the simulated servos (missed status packets).
 # One group per line; files separated by spaces; each group is its own session, its files run
 # in the order given. `armnet dev up` (test_dev_up.py) starts a node of its own and
 # test_node_store.py runs setup's import into the node's store, so both run before the
 # session's node fixture takes the host's node lock and keeps it to the end.
-# Balanced by measurement (2026-11-25, warm): the main session alone ran 6 minutes at half
-# the CPU after the side sessions ended, so the container tier and the local-run e2e moved
-# into them; on 2026-11-28 the main session still ended 2 minutes after the other two, so
-# the Helm chart's rendering, RBAC and lifecycle tests moved beside the agent's scenarios.
-# On 2026-11-29 (warm, 21 min 13 s, process accounting on) the main session ran its unit
-# tests last, from minute 16 to 21, after the other sessions had ended: one core idle for
-# five minutes. As a fourth session from the start (16:08) the run took 17 min 5 s, but the
-# simulated servos then answered past LeRobot's 50 ms reply window twice (an idle read found
-# a servo silent; LeRobot's sync read got no status packet): the pty hands bytes on through a
-# kernel worker, which the extra CPU demand delays. So three sessions, with the headroom.
+# The groups are balanced by measurement so that the three sessions end together: a session
+# that runs on alone uses one core of two. That is why the container tier and the Helm
+# chart's rendering, RBAC and lifecycle tests sit beside the agent's scenarios, and the
+# local-run e2e beside the node's tests.
+# Three sessions, not four: the unit tests as a session of their own end the run sooner, but
+# the extra CPU demand delays the kernel worker a pty hands its bytes on through, and the
+# simulated servos then answer past LeRobot's 50 ms reply window (docs/testing.md, "Why three
+# sessions").
 side_groups=(
   "e2e/test_agent_jobs.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container tests/integration/test_helm_chart.py tests/integration/test_helm_rbac.py tests/integration/test_helm_lifecycle.py"
   "tests/integration/test_dev_up.py tests/integration/test_node_store.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py"
