@@ -20,7 +20,7 @@ Next to them, CPU time per line (from /proc, so the machine's load barely moves
 it): the agent's process during the burst, and the reader's (the ``armnet``
 process, or the plain subscriber's).
 ``--unbatched`` adds the same ``armnet logs -f`` run with an agent sending one
-line per message (``batch_max_lines=1``: the format before batching).
+line per message (``batch_max_lines=1``: the single-line format, which the client still reads).
 
     PYTHONPATH=. ~/.cache/armnet/venv/bin/python bench/log_throughput.py [--lines 20000 200000] [--rounds 3]
 

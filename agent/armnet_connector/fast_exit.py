@@ -1,12 +1,12 @@
 """Ending a connector process once its clean stop is done, without the interpreter's teardown.
 
-Measured (2026-11-29, a 2-core host at load ~7): ``armnet connector`` logged "connector
-stopped" 10-30 ms after SIGTERM and the process exited 6.5 to more than 20 s later, in the
-interpreter's teardown of what LeRobot imports (torch among them). Everything the stop owes
-the cell is done by then (torque off and read back, the sockets removed, the record
-printed); the teardown only held the pod's end, the agent's terminal status and the host's
-stop, and a host that kills a process it thinks is hung (the kubelet after the pod's grace
-period) could not tell a slow teardown from a stop that never ran.
+Measured on a 2-core host at load ~7: ``armnet connector`` logs "connector stopped" 10-30 ms
+after SIGTERM, and the interpreter's teardown of what LeRobot imports (torch among them) then
+takes 6.5 to more than 20 s. Everything the stop owes the cell is done by then (torque off
+and read back, the sockets removed, the record printed); the teardown would only hold the
+pod's end, the agent's terminal status and the host's stop, and a host that kills a process
+it thinks is hung (the kubelet after the pod's grace period) cannot tell a slow teardown
+from a stop that never ran.
 """
 
 from __future__ import annotations

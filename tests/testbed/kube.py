@@ -292,7 +292,7 @@ class ControlPlane:
 
         Without a controller-manager a namespace stays Terminating forever. Through the
         API client, not kubectl: the suite makes and deletes hundreds, and each kubectl run
-        cost ~80 ms of CPU (2026-11-29: 995 kubectl runs, 1.3 CPU-minutes of a warm run).
+        costs ~80 ms of CPU (about a CPU-minute over a warm run).
         """
         try:
             self._core().delete_namespace(name)

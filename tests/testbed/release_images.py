@@ -4,8 +4,8 @@ tests/images/test_helm_install_node.py installs the chart with ``pullPolicy: Nev
 node's containerd must hold the operator and agent images under one tag (the chart has one
 ``image.tag``), the example customer image (images/example-job, on the runtime image) and the
 bus-loop example (on the runtime's LeRobot variant). The LeRobot images are ~6 GB each, and
-saving them out of Podman and importing them took 4 minutes alone and 12 beside the other test
-sessions, which it slowed twofold (docs/testing.md, the run of 2026-11-29 12:14). So setup does
+saving them out of Podman and importing them takes 4 minutes alone and 12 beside the other test
+sessions, which it slows twofold (docs/testing.md, "A loaded host"). So setup does
 it (scripts/setup.d/55-node-images.sh runs ``python -m tests.testbed.release_images``), after
 the image builds and before any session starts; the fixture then finds every image imported,
 and its own import, the same call, is the path for a run with pytest arguments.

@@ -112,8 +112,8 @@ def lock_dir(lock: str) -> Path:
 
 
 def _drop_older_locks(current: Path) -> None:
-    """Remove this lock's folders for other dependency sets (a LeRobot lock is ~3 GB; a
-    dependency change left the old one behind and the disk filled up across sessions)."""
+    """Remove this lock's folders for other dependency sets (a LeRobot lock is ~3 GB; kept
+    after each dependency change, they would fill the disk across sessions)."""
     prefix = current.name.rsplit("-", 1)[0] + "-"
     for older in current.parent.glob(prefix + "*"):
         if older != current and older.is_dir():
@@ -245,11 +245,11 @@ def _drop_older_builds(client: Any, repository: str, *, keep: str, lock: str) ->
     sibling image reuses: the agent and runtime-lerobot share their ~5 GB dependency
     stage); an image a container still uses stays (Podman refuses, and we go on). A stage
     labelled with another version of this build's lock (``LOCK_LABEL``: ``<lock>-<digest>``)
-    is never reused, so it goes at once: three lock changes in a day filled the disk. So
-    does every image built on such a lock, whatever its repository: a lock change rebuilds
-    all of them, and the sibling built later (runtime-lerobot after the agent) and the test
-    images made from it held the old ~5 GB dependency layers while the first one built: a
-    lock change then ran out of disk in the agent's build (it needs ~30 GB at its peak).
+    is never reused, so it goes at once: a few lock changes would fill the disk. So does
+    every image built on such a lock, whatever its repository: a lock change rebuilds all of
+    them, and kept, the sibling built later (runtime-lerobot after the agent) and the test
+    images made from it would hold the old ~5 GB dependency layers while the first one
+    builds (a rebuild needs ~28 GB at its peak: docs/benchmarks.md).
     """
     import docker
 

@@ -1,9 +1,9 @@
 """The RobotJob, Cell and CellQuota as the API server stores them: one set of models for every reader.
 
-The operator, the node agent and the customer's client all read these objects; each
-used to declare its own pydantic models of them, and the copies drifted (a default
-here, a required field there). They validate with these models now, each the part it
-acts on, and turn them into their own frozen dataclasses inside
+The operator, the node agent and the customer's client all read these objects. Each
+validates them with these models, the part it acts on, rather than declaring models of
+its own (copies drift: a default here, a required field there), and turns them into its
+own frozen dataclasses inside
 (``armnet_operator.parsing``, ``armnet_node.model``, ``armnet_client.mapping``).
 
 The models accept what the API server sends: camelCase aliases, fields the operator or

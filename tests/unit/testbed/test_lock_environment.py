@@ -3,7 +3,7 @@
 ``pip check`` is clean but for the exceptions lock/overrides.txt declares, every locked
 package is installed at its locked version, and LeRobot's own commands start: they import
 what LeRobot's pins bring (imageio, gymnasium, rerun, ...), which a ``--no-deps`` install
-of LeRobot used to leave out.
+of LeRobot would leave out.
 """
 
 from __future__ import annotations
