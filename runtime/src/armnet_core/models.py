@@ -33,7 +33,7 @@ def _utcnow() -> datetime:
     return datetime.now(timezone.utc)  # noqa: UP017 - the SDK supports Python 3.10
 
 
-class JobStatus(str, Enum):  # noqa: UP042 - str() must stay as in the reference
+class JobStatus(str, Enum):  # noqa: UP042 - str() stays the documented JobStatus.RUNNING, not a StrEnum's running
     """Job lifecycle states: submitted → queued/dispatched → running → a terminal state."""
 
     SUBMITTED = "submitted"

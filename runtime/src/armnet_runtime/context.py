@@ -52,7 +52,8 @@ _TELEOP_ERROR_LOG_INTERVAL_S = 5.0
 
 _RESET_PROMPT = "Reset the cell workspace, then press Enter. "
 
-# The names the connector helpers are known by in this module (the reference's spelling).
+# The connector helpers under the private names the SDK's documented implementation of these
+# methods uses.
 _TeleopConnection = PersistentConnection
 _connector_request = connector_request
 _looks_like_connector_endpoint = looks_like_connector_endpoint

@@ -4,7 +4,8 @@ A module another package imports is part of the package's contract with it; list
 it in ``__all__`` makes that a decision, and this test makes an unlisted import (a
 reach past the surface) fail with the module's name. The SDK's packages
 (``armnet_core``, ``armnet_runtime``, ``armnet_client``) are left out: their public
-surface is the seed's API reference, checked by the runtime conformance tests.
+surface is the SDK's documented API, pinned name by name and signature by signature in
+tests/unit/runtime/test_runtime_conformance.py.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ from armnet_runtime.lerobot.remote_feetech import RemoteFeetechMotorsBus
 
 pytestmark = pytest.mark.unit
 
-#: (register, value) writes a job made on the issue's cell, all accepted before the policy.
+#: (register, value) writes a job could make to unsettle a cell: without the policy, the bus takes them all.
 HOSTILE_WRITES = [
     ("Operating_Mode", 1),
     ("Min_Position_Limit", 0),
@@ -51,7 +51,7 @@ def refused(call, *args, **kwargs) -> RemoteCallError:
     return raised.value
 
 
-# -- 8.0 register policy ------------------------------------------------------------------
+# -- register policy (docs/connector.md, "Register write policy") -------------------------
 
 
 @pytest.mark.parametrize(("register", "value"), HOSTILE_WRITES)
@@ -160,7 +160,7 @@ def test_the_calibration_attribute_is_read_only(bus, calibration) -> None:
     assert bus.calibration == calibration
 
 
-# -- 8.1 calibration belongs to the cell --------------------------------------------------
+# -- calibration belongs to the cell (docs/connector.md) ----------------------------------
 
 
 @pytest.mark.parametrize(
@@ -220,7 +220,7 @@ def test_a_refused_calibration_leaves_the_cell_calibrated_after_a_simulator_rest
         next_job.disconnect()
 
 
-# -- 8.2 safety semantics ----------------------------------------------------------------
+# -- safety semantics (docs/connector.md, "Safety") --------------------------------------
 
 
 def test_clamp_is_the_default_a_far_goal_moves_by_the_limit_and_is_counted(bus, sim_cell, connector) -> None:

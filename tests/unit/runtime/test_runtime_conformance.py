@@ -1,5 +1,6 @@
-"""Every public name of the SDK reference exists with the documented signature and defaults,
-and importing ``armnet_runtime`` loads nothing beyond the standard library and pydantic."""
+"""Every public name of the SDK's documented API exists with its documented signature and
+defaults (this module pins them: it is the reference), and importing ``armnet_runtime`` loads
+nothing beyond the standard library and pydantic."""
 
 from __future__ import annotations
 

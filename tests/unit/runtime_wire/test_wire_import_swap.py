@@ -102,7 +102,7 @@ def test_swap_patches_definitions_reexports_and_early_binders() -> None:
 SWAP_CASE = """
 import importlib
 early = []
-try:  # needs torchvision, which CPU torch cannot load (reference section 0)
+try:  # imports torchvision through LeRobot; the case goes on without it where it cannot load
     importlib.import_module("lerobot.teleoperators.so_leader.so_leader")
     early.append("lerobot.teleoperators.so_leader.so_leader")
 except Exception:
