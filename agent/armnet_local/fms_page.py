@@ -19,6 +19,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from armnet_connector.inputs import LocalOperatorInputs
+from armnet_core.api import JobPhase
 from armnet_launch.supervise import JobHooks
 from armnet_launch.supervise.observe import EventKind, OutputEvent
 from armnet_node.metrics import AgentMetrics
@@ -63,7 +64,7 @@ class LocalPage:
         """The run's connector while the job runs (the same ``JobSource`` as a node agent's), else nothing."""
         cell = self.cell
         connector = cell.connector if cell is not None else None
-        if cell is None or connector is None or self.fleet.phase != "running":
+        if cell is None or connector is None or self.fleet.phase != JobPhase.RUNNING:
             return None
         return JobSource(InProcessView(connector.cell), cell.spec.cameras, cell.sim)
 

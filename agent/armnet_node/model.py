@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
-from armnet_core.api import STOPPED_BY_ANNOTATION
+from armnet_core.api import STOPPED_BY_ANNOTATION, JobPhase
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from armnet_core.resources import CellArm, CellSpec, RobotJobSpec
 from armnet_core.times import parse_time
@@ -173,7 +173,7 @@ def cancel_reason(job: Job) -> str | None:
 def should_launch(job: Job, cell: Cell) -> bool:
     """The operator's contract: dispatched, bound to this cell, and the cell names it back."""
     return (
-        job.phase == "dispatched"
+        job.phase == JobPhase.DISPATCHED
         and job.cell_name == cell.name
         and cell.current_job == job.key
         and not job.stopping

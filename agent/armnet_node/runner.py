@@ -33,7 +33,7 @@ from typing import Any
 
 from armnet_connector.inputs import LocalOperatorInputs
 from armnet_core import JobResult, JobStatus
-from armnet_core.api import TERMINAL_PHASES
+from armnet_core.api import TERMINAL_PHASES, JobPhase
 from armnet_core.times import status_time
 from armnet_launch.pod_spec import SecretRef
 from armnet_launch.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
@@ -264,7 +264,7 @@ class JobRunner:
                     launched.kill()
                     session.remove()
                     return
-                output.status("running", {"startedAt": status_time(started_at)})
+                output.status(JobPhase.RUNNING, {"startedAt": status_time(started_at)})
                 follower = guard_follower(self.deps.link, job.namespace, job.uid, job.follower_window_s,
                                           self.stop_follower_lost)
                 # The job's clock runs from startedAt (also across an agent restart).
@@ -329,7 +329,7 @@ class JobRunner:
             current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
         except Gone:
             return False
-        return current.uid == self.job.uid and current.phase == "dispatched" and not current.stopping
+        return current.uid == self.job.uid and current.phase == JobPhase.DISPATCHED and not current.stopping
 
     def _mark_running(self, adopted: bool) -> datetime | None:
         """``running`` + ``startedAt`` (kept if already written); None if the job is no longer ours."""
@@ -342,7 +342,7 @@ class JobRunner:
                 return None
             if current.stopping:
                 self.stop()
-            if current.phase == "running" and current.started_at is not None:
+            if current.phase == JobPhase.RUNNING and current.started_at is not None:
                 return current.started_at
             now = datetime.now(UTC)
             try:

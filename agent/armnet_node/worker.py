@@ -29,7 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from armnet_core.api import ACTIVE_PHASES, SIM_UNPLUG_ANNOTATION, TERMINAL_PHASES
+from armnet_core.api import ACTIVE_PHASES, SIM_UNPLUG_ANNOTATION, TERMINAL_PHASES, JobPhase
 from armnet_core.times import status_time
 from armnet_sim.calibration import builtin_calibration, write_calibration
 from armnet_sim.presets import PRESETS, CellSimulator
@@ -218,7 +218,7 @@ class CellWorker:
                         self._begin(job, container)
                         return
                     continue  # removed since the list: the next pass sees it gone
-                if job.phase == "running":
+                if job.phase == JobPhase.RUNNING:
                     self._vanished(job)
                     continue
                 if should_launch(job, self.cell):
@@ -272,7 +272,7 @@ class CellWorker:
         try:
             self.deps.kube.patch_job_status(job.namespace, job.name, body)
             self.deps.metrics.jobs_finished.labels(outcome="failed").inc()
-            job_output(self.deps.link, job.namespace, job.uid).status("failed", report.end_detail(body))
+            job_output(self.deps.link, job.namespace, job.uid).status(JobPhase.FAILED, report.end_detail(body))
         except KubeError as exc:
             log.info("job %s: vanished-container status not written (%s); next pass decides again", job.key, exc)
 

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
 
+from armnet_core.api import CellConditionType, CellPhase, JobPhase
 from armnet_core.times import kube_time
 
 from .actions import AuditEvent
@@ -44,19 +45,19 @@ class LocalFleet:
         self.cell, self.job_id = cell, job_id
         self.reset_timeout_s = reset_timeout_s
         self._rollout, self._on_stop = rollout, on_stop
-        self.phase = "running"
+        self.phase: str = JobPhase.RUNNING
         self.progress = ""
         self.unschedulable = False
         self.events: list[AuditEvent] = []
 
     def list_cells(self) -> list[dict[str, Any]]:
-        running = self.phase == "running"
+        running = self.phase == JobPhase.RUNNING
         return [{
             "metadata": {"name": self.cell, "uid": f"local-{self.cell}", "labels": {}},
             "spec": {"unschedulable": self.unschedulable, "resetTimeoutSeconds": self.reset_timeout_s},
-            "status": {"phase": "Busy" if running else "Ready", "lastHeartbeatTime": _now(),
+            "status": {"phase": CellPhase.BUSY if running else CellPhase.READY, "lastHeartbeatTime": _now(),
                        "currentJob": f"{LOCAL_NAMESPACE}/{self.job_id}" if running else None,
-                       "conditions": [{"type": "InterlockClear", "status": "True", "reason": "Local"}]},
+                       "conditions": [{"type": CellConditionType.INTERLOCK_CLEAR, "status": "True", "reason": "Local"}]},
         }]
 
     def current_jobs(self, cells: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from armnet_core.api import ACTIVE_PHASES, SITE_LABEL
+from armnet_core.api import ACTIVE_PHASES, SITE_LABEL, CellConditionType
 from armnet_core.lenient import read_leniently
 from armnet_core.resources import (
     CellSpec,
@@ -27,7 +27,6 @@ from armnet_core.resources import (
 from armnet_core.times import parse_time as core_time
 from armnet_core.times import status_time
 
-INTERLOCK_CONDITION = "InterlockClear"
 #: The latest verdicts the cell view lists (``status.rollouts`` keeps up to 50).
 VERDICTS_SHOWN = 5
 OUTCOMES = ("success", "failure")
@@ -220,7 +219,7 @@ def summarize_job(job: Mapping[str, Any]) -> JobSummary:
 
 def _interlock(conditions: Iterable[Condition]) -> str:
     for condition in conditions:
-        if condition.type == INTERLOCK_CONDITION:
+        if condition.type == CellConditionType.INTERLOCK_CLEAR:
             return {"True": "clear", "False": "tripped"}.get(condition.status, "unknown")
     return "unknown"
 

@@ -10,14 +10,16 @@ from __future__ import annotations
 
 from typing import Any
 
+from armnet_core.api import ArtifactsPhase
+
 from armnet_node.artifacts.model import UploadReport
 
-#: ``status.artifacts.phase`` values (the CRD's enum).
-UPLOADING = "Uploading"
-UPLOADED = "Uploaded"
-RETRYING = "Retrying"
-FAILED = "Failed"
-DISCARDED = "Discarded"
+#: ``status.artifacts.phase`` values (the CRD's enum, declared in ``armnet_core.api``).
+UPLOADING = ArtifactsPhase.UPLOADING
+UPLOADED = ArtifactsPhase.UPLOADED
+RETRYING = ArtifactsPhase.RETRYING
+FAILED = ArtifactsPhase.FAILED
+DISCARDED = ArtifactsPhase.DISCARDED
 
 #: How many left-out entries the message names (the manifest lists up to its own cap).
 NAMED_IN_MESSAGE = 3

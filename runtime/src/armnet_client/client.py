@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator, Mapping
 from datetime import datetime
 from typing import Any, Optional, TextIO
 
-from armnet_core.api import API_VERSION, CELLQUOTAS, CELLS, GROUP, VERSION
+from armnet_core.api import API_VERSION, CELLQUOTAS, CELLS, GROUP, VERSION, JobPhase
 from armnet_core.api import ROBOTJOBS as JOBS
 from armnet_core.models import Job, JobResult, JobSpec
 from armnet_core.nats_url import SHARED_ENV as SHARED_NATS_ENV
@@ -259,7 +259,7 @@ class Client:
                 return job, result
             if deadline is not None and time.monotonic() >= deadline:
                 raise WaitTimeout(
-                    f"robotjob {name!r} is still {job.status.phase or 'submitted'} after {timeout:g} s; "
+                    f"robotjob {name!r} is still {job.status.phase or JobPhase.SUBMITTED} after {timeout:g} s; "
                     f"it keeps running: `armnet get {name}` or `armnet cancel {name}`"
                 )
             time.sleep(self.poll_interval_s)
@@ -384,7 +384,7 @@ class Client:
         The stream may not say (a job the operator cancelled while queued never reached an
         agent; an older agent published no error): then ``status.result.error`` does.
         """
-        if streamed is not None and (streamed.reason or streamed.terminal_phase == "succeeded"):
+        if streamed is not None and (streamed.reason or streamed.terminal_phase == JobPhase.SUCCEEDED):
             yield streamed
             return
         try:

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 from typing import Any, Optional
 
+from armnet_core.api import ArtifactsPhase
 from armnet_core.models import Job, JobResult, JobStatus, TerminalStatus
 
 from .logwire import LogLine
@@ -104,7 +105,7 @@ def output_note(job: JobView) -> str:
     artifacts = job.artifacts
     if artifacts is None or not artifacts.phase:
         return "-"
-    if artifacts.phase != "Uploaded":
+    if artifacts.phase != ArtifactsPhase.UPLOADED:
         return artifacts.phase
     note = f"{artifacts.files or 0} files, {_size(artifacts.bytes or 0)}"
     return note if artifacts.complete is not False else note + " (incomplete)"

@@ -81,6 +81,17 @@ class CellConditionType(_Name):
     INTERLOCK_CLEAR = "InterlockClear"
 
 
+class ArtifactsPhase(_Name):
+    """``RobotJob.status.artifacts.phase``: where the job's output directory is on its way to the
+    object store (the node agent writes it, the client reads it)."""
+
+    UPLOADING = "Uploading"
+    UPLOADED = "Uploaded"
+    RETRYING = "Retrying"
+    FAILED = "Failed"
+    DISCARDED = "Discarded"
+
+
 #: Not a health condition (the operator still binds: jobs run without NATS). The node agent
 #: reports it on a Cell to tell the person at the cell and the platform team why the cell
 #: operator's buttons and live logs do nothing.
@@ -131,6 +142,7 @@ __all__ = [
     "ARTIFACTS_SECRET_KEY_ENV",
     "ACTIVE_PHASES",
     "API_VERSION",
+    "ArtifactsPhase",
     "CELLQUOTAS",
     "CELLS",
     "CELL_LABEL",

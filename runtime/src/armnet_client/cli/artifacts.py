@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from armnet_core.api import ArtifactsPhase, JobPhase
+
 from ..artifacts import MAX_MANIFEST_BYTES, OutputStore, download, parse_manifest, split_location
 from .common import add_cluster_options, client_from, guarded
 
@@ -36,10 +38,10 @@ def run(args: argparse.Namespace) -> int:
         job = client_from(args).read(args.job)
         stored = job.status.artifacts
         if stored is None or stored.phase is None:
-            print(f"robotjob {args.job} has no stored output yet (phase {job.status.phase or 'submitted'}): "
+            print(f"robotjob {args.job} has no stored output yet (phase {job.status.phase or JobPhase.SUBMITTED}): "
                   "the node agent stores it after the job ends")
             return EXIT_NOT_STORED
-        if stored.phase != "Uploaded" or not stored.location or not stored.manifest:
+        if stored.phase != ArtifactsPhase.UPLOADED or not stored.location or not stored.manifest:
             print(f"{stored.phase}: {stored.message or 'nothing stored'}")
             return EXIT_NOT_STORED
         whole = "" if stored.complete is not False else " (incomplete: a file changed while it was stored)"
