@@ -21,6 +21,8 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from armnet_core.api import JOB_ID_LABEL
+
 from .cri_log import CriStreamDecoder, NotCriLog
 from .log_recovery import DeliveredLines, missed_output
 from .plan import ContainerSpec, Mount
@@ -124,7 +126,7 @@ class ContainerJob:
             command=tuple(container_command(script)),
             env=dict(env),
             mounts=tuple(mounts),
-            labels={"armnet.io/job-id": env.get("ARMNET_JOB_ID", "")},
+            labels={JOB_ID_LABEL: env.get("ARMNET_JOB_ID", "")},
         )
         return cls.launch(client, spec)
 

@@ -11,12 +11,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from armnet_core.api import CELL_LABEL, JOB_UID_LABEL, MANAGED_BY_LABEL, NAME_LABEL, NAMESPACE_LABEL
+
 #: Labels tying a container to its cell and job; the agent re-adopts containers by them.
-LABEL_CELL = "armnet.io/cell"
-LABEL_JOB_UID = "armnet.io/job-uid"
-LABEL_NAMESPACE = "armnet.io/namespace"
-LABEL_NAME = "armnet.io/name"
-LABEL_MANAGED_BY = "armnet.io/managed-by"
+LABEL_CELL = CELL_LABEL
+LABEL_JOB_UID = JOB_UID_LABEL
+LABEL_NAMESPACE = NAMESPACE_LABEL
+LABEL_NAME = NAME_LABEL
+LABEL_MANAGED_BY = MANAGED_BY_LABEL
 MANAGED_BY_AGENT = "armnet-agent"
 
 #: Linux caps one env string (name=value) at 32 pages (MAX_ARG_STRLEN).

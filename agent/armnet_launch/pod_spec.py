@@ -42,7 +42,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from armnet_core.api import API_VERSION
+from armnet_core.api import API_VERSION, JOB_ANNOTATION, TIMEOUT_ANNOTATION
 
 from armnet_launch.plan import LABEL_CELL, LABEL_NAME, LABEL_NAMESPACE
 
@@ -50,9 +50,9 @@ CONNECTOR_CONTAINER = "connector"
 JOB_CONTAINER = "job"
 #: Env var carrying the sidecar's whole configuration (``launch.sidecar``).
 SIDECAR_ENV = "ARMNET_SIDECAR"
-ANNOTATION_JOB = "armnet.io/job"
+ANNOTATION_JOB = JOB_ANNOTATION
 ANNOTATION_CELL = LABEL_CELL  # the same key: the pod carries its cell as a label and an annotation
-ANNOTATION_TIMEOUT = "armnet.io/timeout-seconds"
+ANNOTATION_TIMEOUT = TIMEOUT_ANNOTATION
 #: Seconds beyond timeout + grace before the kubelet's own deadline ends the pod.
 DEADLINE_MARGIN_S = 30
 #: Seconds a pod may take to start its job container (pulling a multi-GB runtime image over a

@@ -25,9 +25,9 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from armnet_core.api import CELL_RESOURCE_PREFIX as RESOURCE_PREFIX
 from armnet_launch.pod_spec import device_path
 
-RESOURCE_PREFIX = "armnet.io/cell-"
 HEALTHY = "Healthy"
 UNHEALTHY = "Unhealthy"
 #: The devpts mount: a pty there is bind-mounted, never re-created with mknod.
