@@ -81,10 +81,10 @@ def test_a_sigterm_during_a_binding_pass_lets_the_pass_end_posts_its_events_and_
         k8s: Any, namespace: str, tmp_path: Path) -> None:
     """SIGTERM while a pass binds a burst: the process exits 0 and no bound job misses its Bound Event.
 
-    It once died of SIGABRT (-6) here, about once in seven CI runs of the CRD-lifecycle test
-    and every time in this one: cancelling the loop left the pass running after kopf's cleanup,
-    its Events went to the poster (a daemon thread) as the interpreter exited, and CPython
-    ended that thread inside an HTTPS call with an unwind that aborts the process.
+    The hazard: if cancelling the loop left the pass running after kopf's cleanup, its Events
+    would go to the poster (a daemon thread) as the interpreter exits, and CPython would end
+    that thread inside an HTTPS call with an unwind that aborts the process (SIGABRT, -6).
+    Without the ordered stop, this burst hits it on every run (the CRD-lifecycle test rarely).
     """
     burst = 40
     embodiment = f"test/{uuid.uuid4().hex[:8]}"

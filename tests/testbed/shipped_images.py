@@ -216,8 +216,7 @@ def _drop_stale_build_dirs(tmp: Path = Path("/var/tmp"), now: float | None = Non
     """Remove Podman's build directories a failed or killed build left behind; return them.
 
     Why: a build that fails leaves its context (GBs with LeRobot's wheels) in /var/tmp for
-    good; one such leftover of 2.2 GB was found beside a build that came within 3 GB of a
-    full disk. Only directories untouched for hours go: a running build's are fresh.
+    good (~2 GB each), and a LeRobot rebuild's peak leaves only a few GB of the disk free. Only directories untouched for hours go: a running build's are fresh.
     """
     now = time.time() if now is None else now
     removed = []

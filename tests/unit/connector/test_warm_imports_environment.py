@@ -1,15 +1,14 @@
 """The connector's warm imports leave ``os.environ`` alone once ``import_before_threads`` ran.
 
-numpy's first import sets ``OPENBLAS_MAIN_FREE`` and deletes it again. In the node
-agent that import ran in the warm-imports thread while another thread walked
-``os.environ`` (requests reads proxy settings from it on every Docker API call),
-and a job failed to launch with ``KeyError: 'OPENBLAS_MAIN_FREE'``. Each case runs
-in a fresh interpreter (numpy is imported once per process), with the
-environment's store replaced by one that records deletions, so the hazard shows
-deterministically instead of in one CI run of fifteen. numpy 2.4 (the lock's) sets
-and unsets that key with ``putenv`` instead of through ``os.environ`` (numpy
-gh-30627), so its import no longer deletes anything: the guard stays for numpy
-releases before 2.4 and any other module that edits the environment.
+numpy's first import before 2.4 sets ``OPENBLAS_MAIN_FREE`` and deletes it again. In the
+node agent that import runs in the warm-imports thread while another thread walks
+``os.environ`` (requests reads proxy settings from it on every Docker API call), and a
+job then fails to launch with ``KeyError: 'OPENBLAS_MAIN_FREE'``. Each case runs in a
+fresh interpreter (numpy is imported once per process), with the environment's store
+replaced by one that records deletions, so the hazard shows deterministically rather than
+in one run of many. numpy 2.4 (the lock's) sets and unsets that key with ``putenv``
+instead of through ``os.environ`` (numpy gh-30627), so its import deletes nothing: the
+guard stays for numpy releases before 2.4 and any other module that edits the environment.
 """
 
 from __future__ import annotations

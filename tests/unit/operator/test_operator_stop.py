@@ -1,8 +1,8 @@
 """Stopping the reconcile loop: the pass in flight ends first, and a pass that hangs does not hold the stop.
 
-The pass runs in a worker thread that cancelling the loop's task never stops. It
-once ran on past kopf's cleanup and queued its Events as the process exited (the
-operator then died of SIGABRT: see ``KubeApi.close`` and the live test in
+The pass runs in a worker thread that cancelling the loop's task never stops. A pass
+that ran on past kopf's cleanup would queue its Events as the process exits, and the
+operator would die of SIGABRT (see ``KubeApi.close`` and the live test in
 tests/integration/test_operator_cli_process.py).
 """
 
