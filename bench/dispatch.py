@@ -212,7 +212,9 @@ class PodStages(_FirstSeen):
         return watch.Watch().stream(core.list_namespaced_pod, self.namespace, timeout_seconds=30)
 
     def _stages(self, pod: Any) -> tuple[str, list[str]]:
-        job = (pod.metadata.annotations or {}).get("armnet.io/job", "").rpartition("/")[2]
+        from armnet_core.api import JOB_ANNOTATION
+
+        job = (pod.metadata.annotations or {}).get(JOB_ANNOTATION, "").rpartition("/")[2]
         reached = ["pod created"]
         status = pod.status
         for entry in (status.init_container_statuses if status else None) or []:

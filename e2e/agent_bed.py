@@ -25,7 +25,15 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, TERMINAL_PHASES, VERSION
+from armnet_core.api import (
+    API_VERSION,
+    CELLS,
+    GROUP,
+    NAMESPACE_LABEL,
+    ROBOTJOBS,
+    TERMINAL_PHASES,
+    VERSION,
+)
 
 from tests.testbed.procs import free_port
 
@@ -130,7 +138,7 @@ class AgentBed:
                 except subprocess.TimeoutExpired:
                     proc.kill()
         for container in self.podman.client.containers.list(
-            all=True, filters={"label": f"armnet.io/namespace={self.namespace}"}
+            all=True, filters={"label": f"{NAMESPACE_LABEL}={self.namespace}"}
         ):
             container.remove(force=True)
 

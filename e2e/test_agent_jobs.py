@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_core.api import ACTIVE_PHASES, SIM_UNPLUG_ANNOTATION
+from armnet_core.api import ACTIVE_PHASES, JOB_UID_LABEL, SIM_UNPLUG_ANNOTATION
 from armnet_core.times import status_time
 
 from e2e import scenarios
@@ -470,7 +470,7 @@ def test_a_container_that_vanished_while_the_agent_was_down_fails_its_job_with_a
     job = bed.wait_phase("vanishes", ("running",), timeout=300)
     bed.kill_agent()
     for container in bed.podman.client.containers.list(
-        all=True, filters={"label": f"armnet.io/job-uid={job['metadata']['uid']}"}
+        all=True, filters={"label": f"{JOB_UID_LABEL}={job['metadata']['uid']}"}
     ):
         container.remove(force=True)
     bed.start_agent()

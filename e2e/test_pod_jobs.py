@@ -27,7 +27,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 import pytest
-from armnet_core.api import API_VERSION, TERMINAL_PHASES
+from armnet_core.api import API_VERSION, CELL_RESOURCE_PREFIX, GROUP, TERMINAL_PHASES
 
 from e2e import scenarios
 from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, AgentBed, JobWatch
@@ -346,9 +346,9 @@ def test_a_running_job_pod_has_the_sidecar_shape_and_a_cancel_ends_it_cancelled(
     volumes = {v["name"]: v for v in spec["volumes"]}
     # The devices come from the agent's device plugin: the connector requests its cell's resource,
     # the customer container nothing; no hostPath device volume exists.
-    resource = f"armnet.io/cell-{job['status']['cellName']}"
+    resource = f"{CELL_RESOURCE_PREFIX}{job['status']['cellName']}"
     assert connector["resources"]["limits"][resource] == "1"
-    assert not [n for section in customer["resources"].values() for n in section if n.startswith("armnet.io/")]
+    assert not [n for section in customer["resources"].values() for n in section if n.startswith(f"{GROUP}/")]
     assert not [v for v in volumes.values() if v.get("hostPath", {}).get("type") == "CharDevice"]
     assert volumes["sockets"]["emptyDir"]["medium"] == "Memory"
     assert customer["securityContext"]["runAsNonRoot"] is True

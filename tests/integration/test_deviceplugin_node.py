@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from armnet_core.api import CELL_RESOURCE_PREFIX
 from armnet_node.deviceplugin.decide import cell_device_paths
 from armnet_node.deviceplugin.server import DevicePlugins
 from armnet_node.metrics import AgentMetrics
@@ -37,7 +38,7 @@ from tests.testbed.node import DEVICE_PLUGIN_DIR, Node
 pytestmark = [pytest.mark.node, pytest.mark.integration]
 
 CELL = "dp-node"
-RESOURCE = f"armnet.io/cell-{CELL}"
+RESOURCE = f"{CELL_RESOURCE_PREFIX}{CELL}"
 
 # Reads one line from the arm's device and answers it, then holds the device HOLD seconds.
 ANSWERS_ON_THE_ARM = """
@@ -134,7 +135,7 @@ def test_a_pod_requesting_the_cell_opens_its_pty_at_the_connector_path_and_a_sec
         bed.pod("second")
         refused = bed.wait_pod("second", ("Failed", "Running", "Succeeded"))
         assert refused["status"]["phase"] == "Failed", refused["status"]
-        assert "armnet.io/cell-dp-node" in refused["status"].get("message", ""), refused["status"]
+        assert RESOURCE in refused["status"].get("message", ""), refused["status"]
     finally:  # the later tests need the cell's one device free
         bed.delete_pod("holder")
         bed.delete_pod("second")

@@ -21,6 +21,7 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_core.api import CELL_RESOURCE_PREFIX, MANAGED_BY_LABEL
 from armnet_launch.plan import (
     LABEL_CELL,
     LABEL_JOB_UID,
@@ -333,7 +334,7 @@ def test_tenant_cannot_read_secrets_through_the_chart_roles(release: Release) ->
 # The job-pod policy (templates/job-pod-policy.yaml): job pods hold the robot's devices, so
 # a user with `edit` in a job namespace can neither ask the kubelet for a cell's device nor
 # make, change or enter a job pod; the agent still creates the pod its launcher builds.
-CELL_RESOURCE = "armnet.io/cell-x"
+CELL_RESOURCE = f"{CELL_RESOURCE_PREFIX}x"
 
 
 @dataclass(frozen=True)
@@ -411,7 +412,7 @@ def test_an_editor_cannot_create_a_pod_requesting_a_cell_device(job_pod_policy: 
 
 def test_an_editor_cannot_create_a_pod_with_the_job_pod_labels(job_pod_policy: Release) -> None:
     result = job_pod_policy.as_(job_pod_policy.editor, "create", "-n", job_pod_policy.team_a, "-f", "-",
-                                input=plain_pod("fake", labels={"armnet.io/managed-by": "armnet-agent"}))
+                                input=plain_pod("fake", labels={MANAGED_BY_LABEL: "armnet-agent"}))
 
     assert forbidden(result), result.stderr
     assert "only the armnet agent may create armnet job pods" in result.stderr
@@ -491,7 +492,7 @@ def test_an_editor_cannot_change_a_job_pods_connector_image(job_pod_policy: Rele
 
 def test_an_editor_cannot_relabel_a_job_pod(job_pod_policy: Release, running_job_pod: str) -> None:
     result = job_pod_policy.as_(job_pod_policy.editor, "label", "pod", running_job_pod, "-n", job_pod_policy.team_a,
-                                "armnet.io/managed-by-")
+                                f"{MANAGED_BY_LABEL}-")
 
     assert forbidden(result), result.stderr
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from armnet_core.api import API_VERSION
+from armnet_core.api import API_VERSION, CELL_RESOURCE_PREFIX, GROUP
 from armnet_launch.plan import LABEL_CELL, LABEL_JOB_UID
 from armnet_launch.pod_spec import (
     ANNOTATION_CELL,
@@ -34,6 +34,8 @@ from armnet_launch.pod_spec import (
 pytestmark = pytest.mark.unit
 
 SOCKETS = "/var/lib/armnet/run/uid-1/sockets"
+#: What the node agent's device plugin serves for cell-1.
+CELL_1_RESOURCE = f"{CELL_RESOURCE_PREFIX}cell-1"
 
 
 def inputs(**changes: Any) -> PodInputs:
@@ -246,16 +248,16 @@ def test_development_mounts_are_read_only_in_both_containers() -> None:
 
 
 def test_with_the_device_plugin_the_connector_requests_the_cells_resource_and_no_device_volume_exists() -> None:
-    pod = build_pod(inputs(device_resource="armnet.io/cell-cell-1"))
+    pod = build_pod(inputs(device_resource=CELL_1_RESOURCE))
     connector, job = containers(pod)
-    assert connector["resources"]["requests"]["armnet.io/cell-cell-1"] == "1"
-    assert connector["resources"]["limits"]["armnet.io/cell-cell-1"] == "1"
+    assert connector["resources"]["requests"][CELL_1_RESOURCE] == "1"
+    assert connector["resources"]["limits"][CELL_1_RESOURCE] == "1"
     assert not [v for v in pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
     assert not [m for m in connector["volumeMounts"] if m["mountPath"].startswith("/dev")]
     assert connector["securityContext"]["privileged"] is False
 
 
 def test_with_the_device_plugin_the_customer_container_requests_no_device_resource() -> None:
-    _, job = containers(build_pod(inputs(device_resource="armnet.io/cell-cell-1")))
+    _, job = containers(build_pod(inputs(device_resource=CELL_1_RESOURCE)))
     for section in job["resources"].values():
-        assert not [name for name in section if name.startswith("armnet.io/")]
+        assert not [name for name in section if name.startswith(f"{GROUP}/")]

@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 from armnet_connector.inputs import LocalOperatorInputs
+from armnet_core.api import CELL_RESOURCE_PREFIX, GROUP
 from armnet_launch.pod_spec import CONNECTOR_USER, SIDECAR_ENV, SecretRef, device_path
 from armnet_node.launchers import PodLauncher, PodSettings, SessionRequest
 from armnet_node.metrics import AgentMetrics
@@ -82,7 +83,7 @@ def test_an_agent_in_a_pod_has_the_sidecar_run_the_simulator_and_mounts_no_devic
 def test_with_the_simulator_in_the_sidecar_the_connector_requests_no_device_from_the_plugin(sim: SimulatedCell) -> None:
     """The agent's ptys are its own container's then: a bind mount of that path on the host is another terminal."""
     (connector,) = manifest(sim, simulator_in_pod=True, device_plugin=True)["spec"]["initContainers"]
-    assert not [name for name in connector["resources"].get("limits", {}) if name.startswith("armnet.io/")]
+    assert not [name for name in connector["resources"].get("limits", {}) if name.startswith(f"{GROUP}/")]
     assert PodSettings(node_name="h", connector_image="c", device_plugin=True,
                        simulator_in_pod=True).devices_through_plugin(simulated=False)
 
@@ -124,7 +125,7 @@ def test_with_the_device_plugin_the_pod_requests_the_cells_resource_instead_of_m
                              tripped=None, inputs=LocalOperatorInputs(), on_grace_expired=lambda: None)
     pod = PodLauncher(None, settings, AgentMetrics()).manifest(request)
     (connector,) = pod["spec"]["initContainers"]
-    assert connector["resources"]["limits"]["armnet.io/cell-cell-1"] == "1"
+    assert connector["resources"]["limits"][f"{CELL_RESOURCE_PREFIX}cell-1"] == "1"
     assert not [v for v in pod["spec"]["volumes"] if v.get("hostPath", {}).get("type") == "CharDevice"]
     assert sidecar_config(pod)["connector"]["arms"]["arm"]["port"] == device_path("arm")
 
