@@ -16,6 +16,8 @@ from pathlib import Path
 from types import MappingProxyType, TracebackType
 from typing import TypeVar
 
+from armnet_core.framing import BufferBudget
+
 from .agent_inputs import AGENT_SOCKET, AgentSession
 from .cell import CellState, Counters
 from .completion import CameraCompletionMonitor, CameraFrames
@@ -27,7 +29,7 @@ from .interlock import Interlock, TripReason
 from .observer import OBSERVER_SOCKET, ObserverSession
 from .record import ConnectorRecord
 from .report import SafetyReport
-from .server import BufferBudget, ServerLimits, UnixServer
+from .server import MAX_BUFFERED_BYTES, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession, Session
 from .warm_imports import start_warm_imports
 
@@ -97,7 +99,7 @@ class Connector:
         self.frames = FrameAreas(self.socket_dir)
         # Both sockets share one cap on unfinished request bytes (server.py).
         limits = ServerLimits(max_connections=config.max_connections)
-        budget = self.request_budget = BufferBudget()
+        budget = self.request_budget = BufferBudget(MAX_BUFFERED_BYTES)
         self._servers = [
             UnixServer(
                 self.socket_dir / ROBOT_SOCKET, self._job_starts(lambda: RobotSession(self.cell, self.frames)),

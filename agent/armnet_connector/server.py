@@ -1,11 +1,12 @@
 """JSON-lines over a unix socket: one thread per connection, blocking I/O.
 
-This module owns framing and connection lifetimes: it reads one request line
-(at most ``MAX_LINE_BYTES``), hands the parsed object to the connection's
-session and writes one reply line. A thread per connection with blocking I/O
-keeps the hot path to a ``recv``, a JSON decode, the call, a JSON encode and
-``sendall`` (no buffered file object: its Python layers cost measurably on a
-control loop's cold caches, see bench/proxy_overhead.py). It never interprets an op.
+This module owns connection lifetimes: it reads one request line (at most
+``MAX_LINE_BYTES``, cut by ``armnet_core.framing``, the one JSON-lines framing),
+hands the parsed object to the connection's session and writes one reply line.
+A thread per connection with blocking I/O keeps the hot path to a ``recv``, a
+JSON decode, the call, a JSON encode and ``sendall`` (no buffered file object:
+its Python layers cost measurably on a control loop's cold caches, see
+bench/proxy_overhead.py). It never interprets an op.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_core.backoff import BackoffPolicy
+from armnet_core.framing import BudgetExhausted, BufferBudget, FramingError, LineReader, LineTooLong
 from armnet_runtime.wire import dumps_line, line_codec
 
 from .cell import Counters
@@ -43,7 +45,6 @@ _ACCEPT_POLL_S = 0.2
 #: ``accept`` failing (out of file descriptors): retried after 10 ms, doubling, at most 1 s apart.
 _ACCEPT_BACKOFF = BackoffPolicy(first_s=0.01, max_s=1.0)
 _REFUSAL_SEND_TIMEOUT_S = 0.5
-_RECV_CHUNK = 1 << 16
 _STOP_JOIN_S = 3.0  # stop() waits this long in all for the threads of one socket
 
 
@@ -53,38 +54,6 @@ class ServerLimits:
 
     max_connections: int = MAX_CONNECTIONS
     max_line_bytes: int = MAX_LINE_BYTES
-
-
-class BufferBudget:
-    """Bytes of unfinished request lines, shared by every connection of a connector.
-
-    Without a total, N connections each holding a line just under the line cap
-    hold N times the cap; with it, the connection that would go over is closed.
-    """
-
-    def __init__(self, limit: int = MAX_BUFFERED_BYTES) -> None:
-        self.limit = limit
-        self._used = 0
-        self._lock = threading.Lock()
-
-    @property
-    def used(self) -> int:
-        return self._used
-
-    def take(self, size: int) -> bool:
-        with self._lock:
-            if self._used + size > self.limit:
-                return False
-            self._used += size
-            return True
-
-    def give_back(self, size: int) -> None:
-        with self._lock:
-            self._used -= size
-
-
-class FramingError(Exception):
-    """The peer's bytes cannot be framed into a request line; the connection must close."""
 
 
 #: The line codec, bound once (``armnet_runtime.wire.line_codec``: orjson's C functions when installed).
@@ -113,71 +82,19 @@ def parse_request(line: bytes) -> dict[str, Any]:
     return request
 
 
-class LineReader:
-    """Newline-framed lines from a blocking socket, read with plain ``recv``.
-
-    ``next()`` returns a line with its newline; at the peer's close, whatever is
-    left without one (empty at a clean close). A line over ``limit`` bytes, or
-    bytes the shared ``budget`` cannot hold, raise ``FramingError``. Each byte is
-    scanned for the newline once, so framing stays linear in the line's length.
-    """
-
-    def __init__(self, conn: socket.socket, limit: int = MAX_LINE_BYTES, budget: BufferBudget | None = None) -> None:
-        self._conn = conn
-        self._limit = limit
-        self._budget = budget
-        self._buffer = bytearray()
-        self._scanned = 0  # bytes of the buffer known to hold no newline
-        self._held = 0  # bytes charged to the budget
-
-    def next(self) -> bytes:
-        if not self._buffer:
-            chunk = self._conn.recv(_RECV_CHUNK)
-            if chunk.find(b"\n") == len(chunk) - 1:
-                return chunk  # the usual case: one whole request per chunk (or b"" at close)
-            self._append(chunk)
-        while True:
-            end = self._buffer.find(b"\n", self._scanned)
-            if end >= 0:
-                line = bytes(self._buffer[: end + 1])
-                del self._buffer[: end + 1]  # cheap: a bytearray drops its head in place
-                self._scanned = 0
-                self._release()
-                return line
-            self._scanned = len(self._buffer)
-            if len(self._buffer) > self._limit:
-                raise FramingError(
-                    f"request line longer than {self._limit} bytes; the connection is closed "
-                    "(requests are small control messages: camera frames come back by the data plane)"
-                )
-            chunk = self._conn.recv(_RECV_CHUNK)
-            if not chunk:
-                rest = bytes(self._buffer)
-                self._buffer.clear()
-                self._scanned = 0
-                self._release()
-                return rest
-            self._append(chunk)
-
-    def _append(self, chunk: bytes) -> None:
-        if self._budget is not None:
-            if not self._budget.take(len(chunk)):
-                raise FramingError(
-                    "the connector is holding too many unfinished request lines; this connection is closed "
-                    "(finish each request line with a newline)"
-                )
-            self._held += len(chunk)
-        self._buffer += chunk
-
-    def _release(self) -> None:
-        """Give the budget back all but what the buffer still holds."""
-        if self._budget is not None and self._held > len(self._buffer):
-            self._budget.give_back(self._held - len(self._buffer))
-            self._held = len(self._buffer)
-
-    def close(self) -> None:
-        self._buffer.clear()
-        self._release()
+def framing_message(error: FramingError) -> str:
+    """What the job is told when its bytes cannot be framed; the connection closes after it."""
+    if isinstance(error, LineTooLong):
+        return (
+            f"request line longer than {error.limit} bytes; the connection is closed "
+            "(requests are small control messages: camera frames come back by the data plane)"
+        )
+    if isinstance(error, BudgetExhausted):
+        return (
+            "the connector is holding too many unfinished request lines; this connection is closed "
+            "(finish each request line with a newline)"
+        )
+    return f"{error}; the connection is closed"
 
 
 class UnixServer:
@@ -202,7 +119,7 @@ class UnixServer:
         self._session_factory = session_factory
         self._counters = counters
         self._limits = limits if limits is not None else ServerLimits()
-        self._budget = budget if budget is not None else BufferBudget()
+        self._budget = budget if budget is not None else BufferBudget(MAX_BUFFERED_BYTES)
         self._listener: socket.socket | None = None
         self._stop = threading.Event()
         self._stopping = False  # the same as ``_stop.is_set()``, read per request without a call
@@ -292,7 +209,7 @@ class UnixServer:
                     line = reader.next()
                 except FramingError as exc:
                     self._counters.oversized_requests += 1
-                    conn.sendall(encode_reply(protocol_error(str(exc)).reply()))
+                    conn.sendall(encode_reply(protocol_error(framing_message(exc)).reply()))
                     return
                 if not line.endswith(b"\n"):
                     return  # the client closed, at a line's end or in its middle

@@ -4,14 +4,13 @@ The node agent reaches a pod's connector through two Unix sockets in the pod's
 volume: the observer's (telemetry, rollout events) and ``agent.sock`` (the cell
 operator's inputs). Both speak one JSON object per line, one reply per request.
 What is shared lives here: reaching a socket whose path is longer than a Unix
-address holds, and reading the reply whole by a deadline with a size cap, so that a
-sidecar that trickles a byte at a time or sends without end holds the agent for no
-longer than its timeout.
+address holds, and reading the reply whole by a deadline with a size cap (the one
+framing, ``armnet_core.framing``), so that a sidecar that trickles a byte at a time
+or sends without end holds the agent for no longer than its timeout.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import stat
@@ -19,7 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-RECV_CHUNK = 1 << 16
+from armnet_core.framing import LineReader, LineTooLong
+from armnet_runtime.wire import dumps_line, loads_json
 
 
 def connect_long(sock: socket.socket, path: Path) -> None:
@@ -54,17 +54,18 @@ def exchange(sock: socket.socket, request: dict[str, Any], deadline: float, max_
     ``max_bytes`` or not JSON (``RecursionError`` for JSON nested too deep).
     """
     sock.settimeout(max(deadline - time.monotonic(), 0.001))
-    sock.sendall(json.dumps(request).encode() + b"\n")
-    data = bytearray()
-    while not data.endswith(b"\n"):
-        left = deadline - time.monotonic()
-        if left <= 0:
-            raise TimeoutError("the reply did not arrive in time")
-        sock.settimeout(left)
-        chunk = sock.recv(RECV_CHUNK)
-        if not chunk:
-            raise ConnectionError("the connector closed the connection")
-        data += chunk
-        if len(data) > max_bytes:
-            raise ValueError(f"a reply over {max_bytes} bytes")
-    return json.loads(data)
+    sock.sendall(dumps_line(request))
+    reader = LineReader(sock, max_bytes)
+    try:
+        line = reader.next(deadline)
+    except LineTooLong:
+        raise ValueError(f"a reply over {max_bytes} bytes") from None
+    except TimeoutError:
+        raise TimeoutError("the reply did not arrive in time") from None
+    if not line.endswith(b"\n"):
+        raise ConnectionError("the connector closed the connection")
+    if len(line) + reader.pending > max_bytes:  # the cap holds for all it sent, newline or not
+        raise ValueError(f"a reply over {max_bytes} bytes")
+    if reader.pending:
+        raise ValueError("the connector sent more than one reply line")
+    return loads_json(line)

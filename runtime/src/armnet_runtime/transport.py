@@ -15,6 +15,8 @@ import socket
 import threading
 from typing import Any
 
+from armnet_core.framing import LineReader, LineTooLong
+
 from armnet_runtime.endpoints import Endpoint, parse_endpoint
 from armnet_runtime.errors import (
     ConnectorUnavailable,
@@ -49,7 +51,6 @@ cell's rest speed."""
 MAX_LINE_BYTES = 64 * 1024 * 1024
 """Longest reply line accepted; matches the connector's request limit."""
 
-_RECV_CHUNK = 1 << 16
 _UNSET: Any = object()
 
 
@@ -106,7 +107,7 @@ class PersistentConnection:
         self._connect_timeout = connect_timeout
         self._sock: socket.socket | None = None
         self._sock_timeout: float | None = None
-        self._buffer = bytearray()
+        self._reader: LineReader | None = None  # the lines of ``_sock`` (bytes after a reply stay in it)
         self._lock = threading.Lock()
         self._dumps, self._loads = line_codec()
 
@@ -126,7 +127,7 @@ class PersistentConnection:
                 if self._sock is None:
                     self._sock = _connect(self._address, self._connect_timeout)
                     self._sock_timeout = self._connect_timeout
-                    self._buffer.clear()
+                    self._reader = LineReader(self._sock, MAX_LINE_BYTES)
                 if wait != self._sock_timeout:
                     self._sock.settimeout(wait)
                     self._sock_timeout = wait
@@ -144,35 +145,19 @@ class PersistentConnection:
                 raise
 
     def _read_line(self, wait: float | None) -> bytes:
-        assert self._sock is not None
-        if not self._buffer:
-            # The usual case: the whole reply arrives in one chunk, nothing before or after it.
-            chunk = self._receive(wait)
-            if chunk.find(b"\n") == len(chunk) - 1:
-                return chunk[:-1]
-            self._buffer += chunk
-        while True:
-            end = self._buffer.find(b"\n")
-            if end >= 0:
-                line = bytes(self._buffer[:end])
-                del self._buffer[: end + 1]
-                return line
-            if len(self._buffer) > MAX_LINE_BYTES:
-                raise ProtocolError(f"reply from {self.endpoint} exceeds {MAX_LINE_BYTES} bytes")
-            self._buffer += self._receive(wait)
-
-    def _receive(self, wait: float | None) -> bytes:
-        """The next non-empty chunk from the connector; ConnectorUnavailable if none comes."""
-        assert self._sock is not None
+        """The next reply line without its newline; ConnectorUnavailable if none comes whole."""
+        assert self._reader is not None
         try:
-            chunk = self._sock.recv(_RECV_CHUNK)
+            line = self._reader.next()
+        except LineTooLong:
+            raise ProtocolError(f"reply from {self.endpoint} exceeds {MAX_LINE_BYTES} bytes") from None
         except TimeoutError as exc:
             raise ConnectorUnavailable(f"no reply from the cell connector at {self.endpoint} within {wait} s") from exc
         except OSError as exc:
             raise ConnectorUnavailable(f"connection to {self.endpoint} failed: {exc}") from exc
-        if not chunk:
+        if not line.endswith(b"\n"):  # closed, at a line's end or in its middle
             raise ConnectorUnavailable(f"the cell connector at {self.endpoint} closed the connection")
-        return chunk
+        return line[:-1]
 
     def close(self) -> None:
         with self._lock:
@@ -185,7 +170,7 @@ class PersistentConnection:
             finally:
                 self._sock = None
                 self._sock_timeout = None
-                self._buffer.clear()
+                self._reader = None
 
     def __enter__(self) -> PersistentConnection:
         return self
