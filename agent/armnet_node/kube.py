@@ -13,7 +13,7 @@ import base64
 import logging
 from typing import Any, cast
 
-from armnet_core.api import GROUP, VERSION
+from armnet_core.api import CELLS, GROUP, ROBOTJOBS, VERSION
 from kubernetes import client, config
 from kubernetes.client.exceptions import ApiException
 
@@ -68,7 +68,7 @@ class AgentKube:
 
     def list_cells(self) -> list[dict[str, Any]]:
         try:
-            listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "cells"))
+            listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, CELLS))
         except ApiException as exc:
             raise _error(exc, "list cells") from exc
         return list(listed.get("items", []))
@@ -76,12 +76,12 @@ class AgentKube:
     def list_jobs(self) -> list[dict[str, Any]]:
         try:
             if not self.namespaces:
-                listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "robotjobs"))
+                listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, ROBOTJOBS))
                 return list(listed.get("items", []))
             items: list[dict[str, Any]] = []
             for namespace in self.namespaces:
                 listed = cast(dict[str, Any], self.custom.list_namespaced_custom_object(
-                    GROUP, VERSION, namespace, "robotjobs"))
+                    GROUP, VERSION, namespace, ROBOTJOBS))
                 items.extend(listed.get("items", []))
             return items
         except ApiException as exc:
@@ -89,21 +89,21 @@ class AgentKube:
 
     def read_cell(self, name: str) -> dict[str, Any]:
         try:
-            return cast(dict[str, Any], self.custom.get_cluster_custom_object(GROUP, VERSION, "cells", name))
+            return cast(dict[str, Any], self.custom.get_cluster_custom_object(GROUP, VERSION, CELLS, name))
         except ApiException as exc:
             raise _error(exc, f"cell {name}") from exc
 
     def read_job(self, namespace: str, name: str) -> dict[str, Any]:
         try:
             return cast(dict[str, Any], self.custom.get_namespaced_custom_object(
-                GROUP, VERSION, namespace, "robotjobs", name))
+                GROUP, VERSION, namespace, ROBOTJOBS, name))
         except ApiException as exc:
             raise _error(exc, f"robotjob {namespace}/{name}") from exc
 
     def patch_job_status(self, namespace: str, name: str, body: dict[str, Any]) -> dict[str, Any]:
         try:
             return cast(dict[str, Any], self.custom.patch_namespaced_custom_object_status(
-                GROUP, VERSION, namespace, "robotjobs", name, body))
+                GROUP, VERSION, namespace, ROBOTJOBS, name, body))
         except ApiException as exc:
             raise _error(exc, f"robotjob {namespace}/{name} status") from exc
 
@@ -118,7 +118,7 @@ class AgentKube:
                {"op": "add", "path": f"/status/{field}", "value": value}]
         what = f"robotjob {namespace}/{name} status.{field}"
         try:
-            self.custom.patch_namespaced_custom_object_status(GROUP, VERSION, namespace, "robotjobs", name, ops,
+            self.custom.patch_namespaced_custom_object_status(GROUP, VERSION, namespace, ROBOTJOBS, name, ops,
                                                               _content_type="application/json-patch+json")
         except ApiException as exc:
             # A failed test is a bare 422 ("rejected ... an error in our request"): the uid tells.
@@ -129,7 +129,7 @@ class AgentKube:
     def patch_cell_status(self, name: str, body: dict[str, Any]) -> dict[str, Any]:
         try:
             return cast(dict[str, Any], self.custom.patch_cluster_custom_object_status(
-                GROUP, VERSION, "cells", name, body))
+                GROUP, VERSION, CELLS, name, body))
         except ApiException as exc:
             raise _error(exc, f"cell {name} status") from exc
 

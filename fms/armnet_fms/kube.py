@@ -13,7 +13,7 @@ import socket
 from datetime import UTC, datetime
 from typing import Any, cast
 
-from armnet_core.api import GROUP, VERSION
+from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, VERSION
 from armnet_core.times import kube_time
 
 from .actions import AuditEvent
@@ -30,18 +30,18 @@ class KubeGateway:
         self.identity = identity or socket.gethostname()
 
     def list_cells(self) -> list[dict[str, Any]]:
-        listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, "cells"))
+        listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, CELLS))
         return list(listed.get("items", []))
 
     def get_cell(self, name: str) -> dict[str, Any] | None:
-        return self._get(lambda: self.custom.get_cluster_custom_object(GROUP, VERSION, "cells", name))
+        return self._get(lambda: self.custom.get_cluster_custom_object(GROUP, VERSION, CELLS, name))
 
     def get_job(self, key: str) -> dict[str, Any] | None:
         namespace, _, name = key.partition("/")
         if not namespace or not name:
             return None
         return self._get(lambda: self.custom.get_namespaced_custom_object(
-            GROUP, VERSION, namespace, "robotjobs", name))
+            GROUP, VERSION, namespace, ROBOTJOBS, name))
 
     def current_jobs(self, cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
         """The RobotJobs the cells name in ``status.currentJob`` (one GET each, no cluster-wide job list)."""
@@ -54,14 +54,14 @@ class KubeGateway:
         return jobs
 
     def patch_cell(self, name: str, patch: dict[str, Any]) -> None:
-        self.custom.patch_cluster_custom_object(GROUP, VERSION, "cells", name, patch)
+        self.custom.patch_cluster_custom_object(GROUP, VERSION, CELLS, name, patch)
 
     def patch_job(self, namespace: str, name: str, patch: dict[str, Any]) -> None:
-        self.custom.patch_namespaced_custom_object(GROUP, VERSION, namespace, "robotjobs", name, patch)
+        self.custom.patch_namespaced_custom_object(GROUP, VERSION, namespace, ROBOTJOBS, name, patch)
 
     def post_event(self, event: AuditEvent) -> None:
         now = kube_time(datetime.now(UTC))
-        involved = {"apiVersion": f"{GROUP}/{VERSION}", "kind": event.kind, "name": event.name, "uid": event.uid}
+        involved = {"apiVersion": API_VERSION, "kind": event.kind, "name": event.name, "uid": event.uid}
         if event.kind == "RobotJob":
             involved["namespace"] = event.namespace
         body = {

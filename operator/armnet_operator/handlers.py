@@ -16,7 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 import kopf
-from armnet_core.api import GROUP, VERSION
+from armnet_core.api import CELLQUOTAS, CELLS, GROUP, ROBOTJOBS, VERSION
 
 from .controller import Controller
 from .errors import PermanentError
@@ -122,15 +122,15 @@ def build_registry(
         if stop_flag is not None:
             stop_flag.set()
 
-    @kopf.on.event(GROUP, VERSION, "robotjobs", registry=registry)
+    @kopf.on.event(GROUP, VERSION, ROBOTJOBS, registry=registry)
     async def job_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:
         _store(controller, "RobotJob", body, lambda: controller.cache.on_job(event.get("type"), body))
 
-    @kopf.on.event(GROUP, VERSION, "cells", registry=registry)
+    @kopf.on.event(GROUP, VERSION, CELLS, registry=registry)
     async def cell_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:
         _store(controller, "Cell", body, lambda: controller.cache.on_cell(event.get("type"), body))
 
-    @kopf.on.event(GROUP, VERSION, "cellquotas", registry=registry)
+    @kopf.on.event(GROUP, VERSION, CELLQUOTAS, registry=registry)
     async def quota_event(event: kopf.RawEvent, body: kopf.Body, **_: Any) -> None:
         _store(controller, "CellQuota", body, lambda: controller.cache.on_quota(event.get("type"), body))
 

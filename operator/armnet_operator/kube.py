@@ -16,7 +16,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any, cast
 
-from armnet_core.api import GROUP, VERSION
+from armnet_core.api import API_VERSION, CELLQUOTAS, CELLS, GROUP, ROBOTJOBS, VERSION
 from armnet_core.times import kube_time, micro_time
 from kubernetes import client, config
 from kubernetes.client import rest
@@ -171,23 +171,23 @@ class KubeApi:
         try:
             if patch.target is Target.CELL_STATUS:
                 return cast(dict[str, Any], self._send(self.custom.patch_cluster_custom_object_status,
-                    GROUP, VERSION, "cells", patch.name, patch.body
+                    GROUP, VERSION, CELLS, patch.name, patch.body
                 ))
             if patch.target is Target.QUOTA_STATUS:
                 return cast(dict[str, Any], self._send(self.custom.patch_cluster_custom_object_status,
-                    GROUP, VERSION, "cellquotas", patch.name, patch.body
+                    GROUP, VERSION, CELLQUOTAS, patch.name, patch.body
                 ))
             if patch.target is Target.JOB_STATUS:
                 return cast(dict[str, Any], self._send(self.custom.patch_namespaced_custom_object_status,
-                    GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
+                    GROUP, VERSION, patch.namespace, ROBOTJOBS, patch.name, patch.body
                 ))
             if patch.operations:
                 return cast(dict[str, Any], self._send(self.custom.patch_namespaced_custom_object,
-                    GROUP, VERSION, patch.namespace, "robotjobs", patch.name, list(patch.operations),
+                    GROUP, VERSION, patch.namespace, ROBOTJOBS, patch.name, list(patch.operations),
                     _content_type="application/json-patch+json",
                 ))
             return cast(dict[str, Any], self._send(self.custom.patch_namespaced_custom_object,
-                GROUP, VERSION, patch.namespace, "robotjobs", patch.name, patch.body
+                GROUP, VERSION, patch.namespace, ROBOTJOBS, patch.name, patch.body
             ))
         except ApiException as error:
             if patch.operations and error.status == 422:
@@ -199,7 +199,7 @@ class KubeApi:
     def read_job(self, namespace: str, name: str) -> dict[str, Any]:
         try:
             return cast(dict[str, Any], self._send(self.custom.get_namespaced_custom_object,
-                GROUP, VERSION, namespace, "robotjobs", name
+                GROUP, VERSION, namespace, ROBOTJOBS, name
             ))
         except ApiException as error:
             raise _translate(error, f"robotjob {namespace}/{name}") from error
@@ -207,7 +207,7 @@ class KubeApi:
     def list_quotas(self) -> list[dict[str, Any]]:
         """Every CellQuota (none if the CRD is not installed: nothing is rationed then)."""
         try:
-            found = self._send(self.custom.list_cluster_custom_object, GROUP, VERSION, "cellquotas")
+            found = self._send(self.custom.list_cluster_custom_object, GROUP, VERSION, CELLQUOTAS)
         except ApiException as error:
             if error.status == 404:
                 return []
@@ -216,7 +216,7 @@ class KubeApi:
 
     def read_cell(self, name: str) -> dict[str, Any]:
         try:
-            return cast(dict[str, Any], self._send(self.custom.get_cluster_custom_object, GROUP, VERSION, "cells", name))
+            return cast(dict[str, Any], self._send(self.custom.get_cluster_custom_object, GROUP, VERSION, CELLS, name))
         except ApiException as error:
             raise _translate(error, f"cell {name}") from error
 
@@ -224,7 +224,7 @@ class KubeApi:
         body = client.V1DeleteOptions(preconditions=client.V1Preconditions(uid=uid or None))
         try:
             self._send(self.custom.delete_namespaced_custom_object,
-                GROUP, VERSION, namespace, "robotjobs", name, body=body
+                GROUP, VERSION, namespace, ROBOTJOBS, name, body=body
             )
         except ApiException as error:
             raise _translate(error, f"delete robotjob {namespace}/{name}") from error
@@ -257,7 +257,7 @@ class KubeApi:
         # Events of a cluster-scoped Cell or CellQuota live in "default", as kubectl describe expects.
         namespace = subject.namespace if isinstance(subject, Job) else "default"
         kind = "RobotJob" if isinstance(subject, Job) else "Cell" if isinstance(subject, Cell) else "CellQuota"
-        involved = {"apiVersion": f"{GROUP}/{VERSION}", "kind": kind, "name": subject.name, "uid": subject.uid}
+        involved = {"apiVersion": API_VERSION, "kind": kind, "name": subject.name, "uid": subject.uid}
         if isinstance(subject, Job):
             involved["namespace"] = namespace
         body = {
@@ -289,7 +289,7 @@ class KubeApi:
             if error.status != 404:
                 raise _translate(error, f"discovery of {GROUP}/{VERSION}") from error
             served = set()  # no CRD of the group is left
-        missing = [f"{plural}.{GROUP}" for plural in ("robotjobs", "cells") if plural not in served]
+        missing = [f"{plural}.{GROUP}" for plural in (ROBOTJOBS, CELLS) if plural not in served]
         if missing:
             raise ResourceMissing(
                 f"the CRD(s) {', '.join(missing)} are not served by the API server (deleted or not yet "
@@ -303,7 +303,7 @@ class KubeApi:
         replace --force``, a GitOps sync): kopf's watches may have missed it.
         """
         uids: dict[str, str] = {}
-        for plural in ("robotjobs", "cells"):
+        for plural in (ROBOTJOBS, CELLS):
             name = f"{plural}.{GROUP}"
             try:
                 crd = self._send(self.extensions.read_custom_resource_definition, name)

@@ -122,7 +122,7 @@ class Client:
 
     def _read(self, name: str) -> RobotJob:
         ns = self.namespace
-        body = self._call("get", "robotjobs", lambda: self._api().get_namespaced_custom_object(
+        body = self._call("get", JOBS, lambda: self._api().get_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS, name), namespace=ns, name=name)
         return RobotJob.model_validate(body)
 
@@ -141,7 +141,7 @@ class Client:
         ns = namespace or self.namespace
         body = robotjob_body(spec, namespace=ns, name=name,
                              follower_window_s=self.follower_timeout_s if follow else None)
-        created = self._call("create", "robotjobs", lambda: self._api().create_namespaced_custom_object(
+        created = self._call("create", JOBS, lambda: self._api().create_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS, body), namespace=ns)
         job = job_from_robotjob(RobotJob.model_validate(created))
         log.info("submitted robotjob %s/%s", ns, job.id)
@@ -161,7 +161,7 @@ class Client:
         checked, and :class:`NamespaceNotFound` says so when the caller may look.
         """
         ns = self.namespace
-        found = self._call("list", "robotjobs", lambda: self._api().list_namespaced_custom_object(
+        found = self._call("list", JOBS, lambda: self._api().list_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS), namespace=ns)
         jobs = [RobotJob.model_validate(item) for item in found.get("items", [])]
         if not jobs:
@@ -203,12 +203,12 @@ class Client:
             raise InvalidJob(f"the RobotJob's spec is not valid: {exc}") from exc
         if not metadata.get("name") and not metadata.get("generateName"):
             metadata["generateName"] = generated_name_prefix(str((body.get("spec") or {}).get("image", "")))
-        created = self._call("create", "robotjobs", lambda: self._api().create_namespaced_custom_object(
+        created = self._call("create", JOBS, lambda: self._api().create_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS, body), namespace=ns)
         return job_from_robotjob(RobotJob.model_validate(created))
 
     def cells(self) -> list[CellView]:
-        found = self._call("list", "cells", lambda: self._api().list_cluster_custom_object(
+        found = self._call("list", CELLS, lambda: self._api().list_cluster_custom_object(
             GROUP, VERSION, CELLS), namespace=None)
         return sorted((cell_view_of(Cell.model_validate(i)) for i in found.get("items", [])),
                       key=lambda c: c.name)
@@ -220,7 +220,7 @@ class Client:
         (``rbac.tenants.cellReaderGroups``), as reading Cells does; without it the
         error says so (``Forbidden``).
         """
-        found = self._call("list", "cellquotas", lambda: self._api().list_cluster_custom_object(
+        found = self._call("list", CELLQUOTAS, lambda: self._api().list_cluster_custom_object(
             GROUP, VERSION, CELLQUOTAS), namespace=None)
         views = (quota_view_of(item) for item in found.get("items", []) if isinstance(item, Mapping))
         return sorted((v for v in views if all_tenants or v.tenant == self.namespace), key=lambda v: v.name)
@@ -228,7 +228,7 @@ class Client:
     def cancel(self, name: str) -> Job:
         """Ask for the job to stop (``spec.cancel: true``): at once if queued, within the cell's grace if running."""
         ns = self.namespace
-        patched = self._call("cancel", "robotjobs", lambda: self._api().patch_namespaced_custom_object(
+        patched = self._call("cancel", JOBS, lambda: self._api().patch_namespaced_custom_object(
             GROUP, VERSION, ns, JOBS, name, cancel_patch()), namespace=ns, name=name)
         return job_from_robotjob(RobotJob.model_validate(patched))
 
