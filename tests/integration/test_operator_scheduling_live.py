@@ -17,7 +17,15 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import pytest
-from armnet_core.api import API_VERSION, CELLS, GROUP, RELEASE_CELL_FINALIZER, ROBOTJOBS, VERSION
+from armnet_core.api import (
+    ACTIVE_PHASES,
+    API_VERSION,
+    CELLS,
+    GROUP,
+    RELEASE_CELL_FINALIZER,
+    ROBOTJOBS,
+    VERSION,
+)
 from armnet_core.times import kube_time, micro_time, parse_time
 from kubernetes import watch
 
@@ -270,12 +278,12 @@ def test_two_replicas_bind_50_jobs_over_5_cells_without_a_double_binding(
             seen_jobs[name] = status
             latest[name] = (status, obj["metadata"]["resourceVersion"])  # one assignment: never torn
             active = [s["cellName"] for s in seen_jobs.values()
-                      if s.get("phase") in ("dispatched", "running") and s.get("cellName")]
+                      if s.get("phase") in ACTIVE_PHASES and s.get("cellName")]
             if len(active) != len(set(active)):
                 violations.append(f"two active jobs on one cell: {sorted(active)}")
             # A phase without a cell is no binding (kept as a check: the simulated agent writes with
             # the version it saw, as the real one does, so it cannot land on a job just requeued).
-            if status.get("phase") in ("dispatched", "running") and status.get("cellName"):
+            if status.get("phase") in ACTIVE_PHASES and status.get("cellName"):
                 if bound_to.setdefault(name, status["cellName"]) != status["cellName"]:
                     violations.append(f"{name} moved from {bound_to[name]} to {status['cellName']} while active")
             elif status.get("phase") == "queued":

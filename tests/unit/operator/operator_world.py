@@ -12,6 +12,7 @@ import copy
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from armnet_core.api import TERMINAL_PHASES
 from armnet_core.times import kube_time
 from armnet_operator.errors import Conflict, NotFound
 from armnet_operator.model import Cell, Job
@@ -107,7 +108,7 @@ class World:
     def agent_set_phase(self, key: str, phase: str) -> None:
         body = self.jobs[key]
         body["status"]["phase"] = phase
-        if phase in ("succeeded", "failed", "cancelled", "timeout"):
+        if phase in TERMINAL_PHASES:
             body["status"]["finishedAt"] = kube_time(self.now)
         body["metadata"]["resourceVersion"] = self._next_rv()
 

@@ -16,7 +16,7 @@ from datetime import timedelta
 from typing import Any
 
 import pytest
-from armnet_core.api import RELEASE_CELL_FINALIZER
+from armnet_core.api import ACTIVE_PHASES, RELEASE_CELL_FINALIZER
 from armnet_operator.model import Timing
 from armnet_operator.patches import Patch, Target
 from armnet_operator.reconcile import Limits, Memory, reconcile_once
@@ -128,7 +128,7 @@ def test_a_terminal_job_without_the_finalizer_gets_none_and_still_frees_its_cell
 def _check_invariant(world: World) -> None:
     claims = Counter(c["status"]["currentJob"] for c in world.cells.values() if c["status"].get("currentJob"))
     assert all(n == 1 for n in claims.values()), f"a job is claimed by two cells: {claims}"
-    active = [b for b in world.jobs.values() if b["status"].get("phase") in ("dispatched", "running")]
+    active = [b for b in world.jobs.values() if b["status"].get("phase") in ACTIVE_PHASES]
     on_cell = Counter(b["status"]["cellName"] for b in active)
     assert all(n == 1 for n in on_cell.values()), f"two active jobs on one cell: {on_cell}"
     for body in active:

@@ -12,6 +12,7 @@ from collections import Counter
 from datetime import timedelta
 
 import pytest
+from armnet_core.api import ACTIVE_PHASES, TERMINAL_PHASES
 from armnet_operator.model import Timing
 from armnet_operator.reconcile import Memory, reconcile_once
 from hypothesis import HealthCheck, settings
@@ -137,7 +138,7 @@ class Cluster(RuleBasedStateMachine):
             c["status"]["currentJob"] for c in self.world.cells.values() if c["status"].get("currentJob")
         )
         assert all(n == 1 for n in claims.values()), f"a job is claimed by two cells: {claims}"
-        active = [b for b in self.world.jobs.values() if b["status"].get("phase") in ("dispatched", "running")]
+        active = [b for b in self.world.jobs.values() if b["status"].get("phase") in ACTIVE_PHASES]
         on_cell = Counter(b["status"]["cellName"] for b in active)
         assert all(n == 1 for n in on_cell.values()), f"two active jobs on one cell: {on_cell}"
         for body in active:
@@ -157,7 +158,7 @@ class Cluster(RuleBasedStateMachine):
             if phase == "running":
                 self.started.add(key)
             elif key in self.started:
-                assert phase in ("succeeded", "failed", "cancelled", "timeout"), f"{key} went from running to {phase}"
+                assert phase in TERMINAL_PHASES, f"{key} went from running to {phase}"
 
 
 TestClusterInvariants = Cluster.TestCase
