@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from armnet_core.backoff import BackoffPolicy
 from armnet_core.cell_completion import CompletionConfig
 
 from .config import CameraConfig
@@ -44,8 +45,9 @@ SLOW_SCORE_S = 1.0
 """A score that takes longer than this counts as "not complete" (and is counted as slow)."""
 FRAME_LOCK_WAIT_S = 0.05
 """How long the monitor waits for a camera's frame lock before skipping one look."""
-REOPEN_WAIT_S = 2.0
-"""How long the monitor waits before it opens its camera again after the camera failed."""
+REOPEN_BACKOFF = BackoffPolicy(first_s=2.0, max_s=8.0)
+"""Opening the camera again after an open failed: 2 s after the first, doubling while it keeps failing,
+at most 8 s apart (a camera plugged back is scored again within 8 s); a frame read starts over."""
 BLOCK_EXTRA_S = 1.0
 """``block=True`` waits at most three scoring periods plus this for a frame newer than the call."""
 
@@ -240,12 +242,13 @@ class CameraCompletionMonitor:
 
     def _run(self) -> None:
         opened = False
+        reopen = REOPEN_BACKOFF.start()
         try:
             while not self._stop.is_set():
                 if not opened:
                     opened = self._open()
                     if not opened:
-                        self._stop.wait(REOPEN_WAIT_S)
+                        self._stop.wait(reopen.failed())
                         continue
                 try:
                     frame = self._source.latest()
@@ -254,6 +257,7 @@ class CameraCompletionMonitor:
                     opened = False
                     self._close()
                     continue
+                reopen.succeeded()
                 if frame is not None and frame.stamp > self._scored_stamp:
                     self._score(frame)
                 self._stop.wait(self._period)

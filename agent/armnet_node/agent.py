@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_core.api import GROUP, VERSION
+from armnet_core.backoff import BackoffPolicy
 from armnet_launch.plan import LABEL_CELL, LABEL_NAMESPACE
 
 from armnet_node.artifacts import ObjectStore
@@ -34,6 +35,11 @@ from armnet_node.uploads import UploadQueue
 from armnet_node.worker import CellWorker, WorkerSettings
 
 log = logging.getLogger(__name__)
+
+#: A watch that failed (the API server away, a watch refused): reconnected after 1 s, doubling, at most
+#: 30 s apart. A watch only wakes the pass early, and the pass runs every ``pass_period`` regardless, so a
+#: slow reconnect costs latency, never a missed change; an API server that is away is not asked every second.
+WATCH_BACKOFF = BackoffPolicy(first_s=1.0, max_s=30.0)
 
 
 @dataclass(frozen=True)
@@ -81,6 +87,7 @@ class NodeAgent:
                 self.pass_once()
             except Exception:  # noqa: BLE001 - a failed pass is retried; the agent never dies of one
                 log.warning("agent pass failed", exc_info=True)
+            # Not a retry backoff: the pass is periodic, failed or not (a change wakes it early).
             self._wake.wait(self.settings.pass_period)
             self._wake.clear()
         for worker in self.workers.values():
@@ -185,13 +192,18 @@ class NodeAgent:
             args: tuple[Any, ...] = (GROUP, VERSION, plural)
         else:
             return  # namespace-limited agents rely on the pass for jobs
+        backoff = WATCH_BACKOFF.start()
         while not stop.is_set():
             try:
                 stream = watch.Watch().stream(list_call, *args, timeout_seconds=30)  # type: ignore[no-untyped-call]
                 for _event in stream:
+                    backoff.succeeded()
                     self._wake.set()
                     if stop.is_set():
                         return
             except (KubeError, Exception):  # noqa: BLE001 - reconnect after a pause
-                log.debug("watch on %s ended; reconnecting", plural, exc_info=True)
-                stop.wait(1.0)
+                delay = backoff.failed()
+                log.debug("watch on %s ended; reconnecting in %.0f s", plural, delay, exc_info=True)
+                stop.wait(delay)
+            else:
+                backoff.succeeded()  # the watch's own timeout: reconnect at once

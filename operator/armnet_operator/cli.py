@@ -6,6 +6,8 @@ import argparse
 import asyncio
 import logging
 
+from armnet_core.backoff import BackoffPolicy
+
 from .errors import PermanentError
 from .settings import ENV_PREFIX, OperatorSettings, load_settings
 from .termination import Termination
@@ -92,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 MAX_RESTARTS = 5
+#: kopf run again after 1, 2, 4, 8, 16 s; past ``MAX_RESTARTS`` the Deployment restarts the process.
+RESTART_BACKOFF = BackoffPolicy(first_s=1.0, max_s=30.0)
 
 
 def restart_after(failures: int) -> float | None:
@@ -102,4 +106,4 @@ def restart_after(failures: int) -> float | None:
     loop (kopf's own observer documents this race). The state worth keeping lives in the
     API server, so a fresh registry and controller in the same process lose nothing.
     """
-    return None if failures > MAX_RESTARTS else min(2.0 ** (failures - 1), 30.0)
+    return None if failures > MAX_RESTARTS else RESTART_BACKOFF.delay(failures)

@@ -33,6 +33,10 @@ OVERLAY_SECONDS = 10.0
 MAX_BACKOFF_SECONDS = 30.0
 #: Retrying a pass whose resources (CRDs) are gone: 1, 2, 4 ... s, at most 30 s apart.
 RESOURCES_BACKOFF = BackoffPolicy(first_s=1.0, max_s=MAX_BACKOFF_SECONDS)
+FAILED_PASS_FIRST_SECONDS = 1.0
+"""A pass that failed (the API server away, a bug) is retried after 1 s (the period if shorter),
+doubling while passes keep failing, at most one reconcile period apart: an operator that cannot reach
+the API server stops logging a traceback every second, and never waits longer than its own cadence."""
 QUEUE_SECONDS_PER_PASS = 0.5
 """Queue writes a pass starts within this budget; the rest go next pass, so a burst never holds a bind long."""
 STOP_GRACE_SECONDS = 5.0
@@ -236,6 +240,7 @@ class Controller:
     async def _run(self) -> None:
         period = self.settings.reconcile_period
         backoff = RESOURCES_BACKOFF.start()
+        failed_passes = BackoffPolicy(first_s=min(FAILED_PASS_FIRST_SECONDS, period), max_s=period).start()
         while True:
             try:
                 await asyncio.wait_for(self.cache.changed.wait(), timeout=max(period, backoff.current_s))
@@ -268,11 +273,14 @@ class Controller:
             except PermanentError as error:
                 self.metrics.errors.inc()
                 log.error("reconcile cannot proceed: %s", error)
+                # Not a retry backoff: retrying sooner cannot help; the next pass comes a period later.
                 await asyncio.sleep(period)
             except Exception:  # noqa: BLE001 - the loop outlives every failure; the next pass retries
                 self.metrics.errors.inc()
                 log.exception("reconcile pass failed, retrying")
-                await asyncio.sleep(min(1.0, period))
+                await asyncio.sleep(failed_passes.failed())
+            else:
+                failed_passes.succeeded()
             if backoff.failing:
                 backoff.succeeded()
                 if self.on_resources_back is not None:

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Optional
 
+from armnet_core.backoff import BackoffPolicy
+
 from .errors import NatsForbidden, NatsUnreachable
 from .logwire import (
     TEXT_KINDS,
@@ -46,6 +48,11 @@ __all__ = ["DEFAULT_STREAM", "CaughtUp", "Event", "FollowSettings", "follow_batc
 log = logging.getLogger(__name__)
 
 DEFAULT_STREAM = "ARMNET_LOGS"
+
+#: A fetch or a consumer that failed mid-follow: rebuilt after 0.25 s, doubling, at most 2 s apart. A
+#: server back from a restart is followed again within 2 s; one that stays away is asked every 2 s, not
+#: four times a second, until ``outage_limit_s`` gives up.
+RESUME_BACKOFF = BackoffPolicy(first_s=0.25, max_s=2.0)
 
 
 @dataclass(frozen=True)
@@ -219,6 +226,7 @@ def follow_batches(
     numbers = _LineNumbers()
     caught_up = False
     outage_since: Optional[float] = None
+    resume = RESUME_BACKOFF.start()
     done_since: Optional[float] = None
     try:
         loop.run_until_complete(session.connect())
@@ -233,6 +241,7 @@ def follow_batches(
                     pending = loop.run_until_complete(session.pending())
                     idle_and_done = pending == 0
                 outage_since = None
+                resume.succeeded()
             except Exception as exc:  # noqa: BLE001 - any NATS failure: rebuild from the last sequence
                 now = clock()
                 outage_since = outage_since if outage_since is not None else now
@@ -243,7 +252,7 @@ def follow_batches(
                     ) from exc
                 log.info("log stream interrupted (%s); resuming after stream sequence %d", exc, last)
                 session.sub = None
-                loop.run_until_complete(asyncio.sleep(0.25))
+                loop.run_until_complete(asyncio.sleep(resume.failed()))
                 continue
             if msgs:
                 done_since = None
