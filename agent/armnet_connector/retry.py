@@ -60,6 +60,8 @@ MAX_RETRIES = len(LOOP_RETRY_DELAYS_S)
 #: for a second (a pod's sidecar on a busy node) missed every ping of three quick
 #: attempts and failed a job that a second later would have run.
 CONNECT_RETRY_DELAYS_S = (RETRY_DELAY_S, 0.25, 0.5, 1.0, 1.0)
+#: Both are short fixed lists, not ``armnet_core.backoff``: a bounded number of tries whose first
+#: wait is the servo's reply window, inside one request, where the policy's open-ended loops are not.
 
 #: Methods that only read the servos, per allow-listed class.
 READ_METHODS: dict[str, frozenset[str]] = {

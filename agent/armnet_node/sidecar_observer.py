@@ -54,6 +54,8 @@ DEFAULT_KUBELET_ROOT = Path("/var/lib/kubelet")
 MAX_REPLY_BYTES = 32 << 20
 REQUEST_TIMEOUT_S = 2.0
 RETRY_S = 1.0
+"""After a failed request the socket is left alone this long. Not a retry loop (no backoff): the
+callers ask at their own cadence (telemetry ticks, rollout syncs); this only spares a dead socket."""
 #: Pages of rollout events asked for in one sync at most (256 each): the connector keeps 1024.
 MAX_EVENT_PAGES = 4
 _POD_UID = re.compile(r"^[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}$")

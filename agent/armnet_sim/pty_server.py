@@ -183,6 +183,8 @@ class PtyServer:
                 continue
             except OSError as exc:
                 if exc.errno == errno.EIO:  # no slave open at this instant
+                    # A poll for the next opener, not a retry of a failure (no backoff): a driver that
+                    # opens the port must find it answering at once.
                     time.sleep(0.001)
                     continue
                 raise
