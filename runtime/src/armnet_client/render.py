@@ -14,6 +14,7 @@ from typing import Any, Optional
 
 from armnet_core.api import ArtifactsPhase
 from armnet_core.models import Job, JobResult, JobStatus, TerminalStatus
+from armnet_core.times import status_time
 
 from .logwire import LogLine
 from .mapping import CellView, JobView, QuotaView
@@ -246,13 +247,7 @@ def log_text(line: LogLine, *, timestamps: bool = True) -> str:
 
     A finished job's status line is followed by why it ended (``[status: failed] <error>``).
     """
-    stamp = ""
-    if timestamps and line.time is not None:
-        moment = line.time
-        if moment.tzinfo is not timezone.utc:  # noqa: UP017
-            moment = moment.astimezone(timezone.utc)  # noqa: UP017
-        # isoformat, not strftime: a third of the cost, and it is paid on every line of a burst
-        stamp = moment.isoformat(timespec="milliseconds")[:-6] + "Z "
+    stamp = f"{status_time(line.time)} " if timestamps and line.time is not None else ""
     if line.kind == "stderr":
         return f"{stamp}[stderr] {line.text}"
     if line.kind == "status":

@@ -35,8 +35,13 @@ def micro_time(moment: datetime) -> str:
 
 
 def status_time(moment: datetime) -> str:
-    """``2026-11-29T03:20:06.123Z``: milliseconds in UTC, for a RobotJob's status."""
-    return moment.astimezone(_UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+    """``2026-11-29T03:20:06.123Z``: milliseconds in UTC, for a RobotJob's status and a printed log line.
+
+    ``isoformat``, not ``strftime``: a third of the cost, paid on every line ``armnet logs`` prints.
+    """
+    if moment.tzinfo is not _UTC:
+        moment = moment.astimezone(_UTC)
+    return moment.isoformat(timespec="milliseconds")[:-6] + "Z"
 
 
 def parse_time(value: object) -> datetime | None:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Literal, Optional
 
-from armnet_core.times import micro_time
+from armnet_core.times import micro_time, parse_time
 
 PROGRESS_MARKER = "[armnet:progress]"
 RESULT_MARKER_JSON = "[armnet:result]:json"
@@ -71,12 +71,8 @@ def split_timestamp(line: str) -> tuple[Optional[datetime], str]:
         except ValueError:
             pass
     match = _TIMESTAMP_RE.match(line)
-    if match is None:
-        return None, line
-    text = match.group(1).replace("Z", "+00:00")
-    try:
-        moment = datetime.fromisoformat(text)
-    except ValueError:
+    moment = parse_time(match.group(1)) if match is not None else None
+    if match is None or moment is None:
         return None, line
     return moment, line[match.end():]
 
