@@ -31,6 +31,7 @@ from typing import Annotated, Literal
 
 from armnet_connector.inputs import LocalOperatorInputs, OperatorInputs
 from armnet_connector.ratelog import RateLimitedLog
+from armnet_core.times import micro_time
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .sidecar_inputs import SidecarInputs
@@ -208,7 +209,7 @@ class OperatorInputsBridge:
 
         Repeated every ``reannounce_s`` while this wait lasts (``_repeat_notices``).
         """
-        at = datetime.now(UTC).isoformat()
+        at = micro_time(datetime.now(UTC))
         request = reset_request_id(self.job_uid, at)
         wait = self.inputs.pending_reset_wait() if isinstance(self.inputs, LocalOperatorInputs | SidecarInputs) else None
         notice = _ResetNotice(request=request, at=at, wait=wait, began=time.monotonic())

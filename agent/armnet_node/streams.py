@@ -30,6 +30,7 @@ from typing import Any
 from armnet_connector.ratelog import RateLimitedLog
 from armnet_core.backoff import Backoff, BackoffPolicy
 from armnet_core.logbatch import batch_headers
+from armnet_core.times import micro_time
 
 from .stream_outbox import BatchLimits, Outbox, OutMessage
 
@@ -538,7 +539,7 @@ class JobStream:
 
     def status(self, phase: str, detail: dict[str, Any]) -> None:
         """Publish a status transition; one message per phase (a repeat of a phase is deduplicated)."""
-        body = {"phase": phase, "detail": detail, "at": datetime.now(UTC).isoformat()}
+        body = {"phase": phase, "detail": detail, "at": micro_time(datetime.now(UTC))}
         payload = json.dumps(body, default=str, separators=(",", ":")).encode()
         self.link.publish(self._subjects["status"], payload, f"{self.job_uid}:status:{phase}")
 

@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from armnet_core.api import CellConditionType, CellPhase, JobPhase
-from armnet_core.times import kube_time
+from armnet_core.times import kube_time, micro_time
 
 from .actions import AuditEvent
 from .auth import AuthSettings
@@ -124,7 +124,7 @@ class LocalBus:
             loop.call_soon_threadsafe(store.accept, subject, data, time.time())
 
     def announce_reset(self, *_: Any) -> None:
-        at = datetime.now(UTC).isoformat()
+        at = micro_time(datetime.now(UTC))
         notice = {"namespace": LOCAL_NAMESPACE, "job": self.job_id, "at": at, "request": f"{self.job_id}@{at}"}
         loop, callback = self._loop, self._on_reset
         if loop is not None and callback is not None:

@@ -22,6 +22,8 @@ import threading
 from datetime import datetime, timezone
 from typing import Optional
 
+from armnet_core.times import micro_time
+
 from .logwire import inbox_prefix, job_subjects
 
 log = logging.getLogger(__name__)
@@ -35,7 +37,7 @@ def heartbeat_subject(namespace: str, job_id: str) -> str:
 
 
 def heartbeat_payload(now: datetime, client: str) -> bytes:
-    return json.dumps({"at": now.astimezone(timezone.utc).isoformat(), "client": client}).encode()  # noqa: UP017
+    return json.dumps({"at": micro_time(now), "client": client}).encode()
 
 
 class HeartbeatSender:
