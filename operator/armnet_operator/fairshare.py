@@ -165,6 +165,7 @@ class Ledger:
         quota, used = account.quota, account.used
         left = credits_left(quota, account.usage, self.now)
         if left is not None and left <= 0 and quota.period is not None:
+            # A message for people, not a time on the wire: a period ends on a whole minute.
             return (f"CellQuota {quota.name!r}: the {quota.credits_cell_hours:g} cell-hour(s) of this "
                     f"{quota.period.lower()} are used up; new credits at "
                     f"{period_end(self.now, quota.period):%Y-%m-%dT%H:%MZ}")

@@ -28,6 +28,7 @@ def parse_since(text: str, now: datetime) -> datetime:
     if match:
         unit = {"s": 1, "m": 60, "h": 3600, "d": 86400}[match.group(2)]
         return now - timedelta(seconds=int(match.group(1)) * unit)
+    # Not armnet_core.times.parse_time: a person's time without a zone is refused, not read as UTC.
     try:
         moment = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
     except ValueError:
