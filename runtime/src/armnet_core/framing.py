@@ -105,11 +105,13 @@ class LineReader:
         """The next line; with ``deadline`` (``time.monotonic()``), ``TimeoutError`` once it passes."""
         if not self._buffer:
             chunk = self._sock.recv(RECV_CHUNK) if deadline is None else self._recv_by(deadline)
-            if chunk.find(b"\n") == len(chunk) - 1:
+            if chunk.find(b"\n") == len(chunk) - 1 and len(chunk) <= self._limit + 1:
                 return chunk  # the usual case: one whole line per chunk (or b"" at close)
             self._append(chunk)
         while True:
             end = self._buffer.find(b"\n", self._scanned)
+            if end > self._limit:
+                raise LineTooLong(self._limit)  # a whole line arrived at once, but longer than the limit
             if end >= 0:
                 line = bytes(self._buffer[: end + 1])
                 del self._buffer[: end + 1]  # cheap: a bytearray drops its head in place

@@ -67,6 +67,16 @@ def test_a_line_over_the_limit_says_the_limit() -> None:
         assert caught.value.limit == 200
 
 
+def test_a_whole_line_over_the_limit_in_one_chunk_is_refused_too() -> None:
+    left, right = socket.socketpair()
+    with left, right:
+        reader = LineReader(right, limit=10)
+        left.sendall(b"x" * 10 + b"\n" + b"y" * 20 + b"\n")
+        assert reader.next() == b"x" * 10 + b"\n"  # exactly the limit, and its newline
+        with pytest.raises(LineTooLong):
+            reader.next()
+
+
 def test_the_shared_budget_refuses_the_reader_that_would_go_over_and_gets_its_bytes_back() -> None:
     budget = BufferBudget(limit=10)
     (a_left, a_right), (b_left, b_right) = socket.socketpair(), socket.socketpair()
