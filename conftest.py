@@ -1,3 +1,3 @@
 """Repository-wide pytest configuration: the test bed's fixtures (real services)."""
 
-pytest_plugins = ["tests.testbed.plugin"]
+pytest_plugins = ["armnet_testbed.plugin"]

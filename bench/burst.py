@@ -157,7 +157,7 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=1)
     args = parser.parse_args()
     trees = [t.resolve() for t in (args.tree or [REPO])]
-    from tests.testbed.kube import ControlPlane
+    from armnet_testbed.kube import ControlPlane
 
     plane = ControlPlane().start()
     try:

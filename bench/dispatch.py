@@ -292,10 +292,10 @@ def dispatch(args: argparse.Namespace) -> None:
     from pathlib import Path
     from types import SimpleNamespace
 
+    from armnet_testbed.kube import ControlPlane
     from kubernetes import client as kube_client
 
     from e2e.agent_bed import AgentBed
-    from tests.testbed.kube import ControlPlane
 
     script_dir = Path(tempfile.mkdtemp(prefix="armnet-bench-job-"))
     script = script_dir / "main.py"
@@ -318,7 +318,7 @@ def dispatch(args: argparse.Namespace) -> None:
         for path in (CONTAINER_PATH, *(() if args.no_node else (POD_PATH,))):
             bed = AgentBed(plane, engine, image, namespace, nats_url=nats_url)
             if path == POD_PATH:
-                from tests.testbed.node import Node
+                from armnet_testbed.node import Node
 
                 node = Node(plane=plane).start()
                 stack.callback(node.stop)
@@ -529,7 +529,7 @@ def services(args: argparse.Namespace) -> Iterator[tuple[Any, str, str, str]]:
     with ExitStack() as stack:
         nats_url = args.nats_url
         if nats_url is None:
-            from tests.testbed.natsd import NatsServer
+            from armnet_testbed.natsd import NatsServer
 
             nats_url = stack.enter_context(NatsServer()).url
         if os.environ.get("DOCKER_HOST"):
@@ -538,12 +538,12 @@ def services(args: argparse.Namespace) -> Iterator[tuple[Any, str, str, str]]:
             base_url = os.environ["DOCKER_HOST"]
             client = docker.DockerClient(base_url=base_url, timeout=None)
         else:
-            from tests.testbed.podman import PodmanService
+            from armnet_testbed.podman import PodmanService
 
             service = PodmanService().start()
             stack.callback(service.stop)
             client, base_url = service.client, service.base_url
-        from tests.testbed.images import BASE_IMAGE, require_base_image
+        from armnet_testbed.images import BASE_IMAGE, require_base_image
 
         require_base_image(client)
         yield client, base_url, BASE_IMAGE, nats_url

@@ -233,10 +233,10 @@ def services(args: argparse.Namespace) -> Iterator[tuple[str, Any]]:
     with ExitStack() as stack:
         nats_url = args.nats_url
         if nats_url is None:
-            from tests.testbed.natsd import NatsServer
+            from armnet_testbed.natsd import NatsServer
 
             nats_url = stack.enter_context(NatsServer()).url
-        from tests.testbed.kube import ControlPlane
+        from armnet_testbed.kube import ControlPlane
 
         yield nats_url, stack.enter_context(ControlPlane())
 

@@ -199,7 +199,7 @@ def bench_apiserver(n_cells: int, n_jobs: int) -> None:
     from kubernetes import client, watch
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from tests.testbed.kube import ControlPlane
+    from armnet_testbed.kube import ControlPlane
 
     plane = ControlPlane()
     plane.start()

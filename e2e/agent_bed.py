@@ -34,8 +34,7 @@ from armnet_core.api import (
     TERMINAL_PHASES,
     VERSION,
 )
-
-from tests.testbed.procs import free_port
+from armnet_testbed.procs import free_port
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "runtime" / "examples"

@@ -30,10 +30,10 @@ from armnet_client.logstream import FollowSettings, follow_events
 from armnet_client.logwire import LogLine
 from armnet_core.api import FOLLOWER_TIMEOUT_ANNOTATION, TERMINAL_PHASES
 from armnet_core.models import JobSpec, JobStatus, RemoteExecutionError
+from armnet_testbed.natsd import NatsServer
 
 from e2e.agent_bed import EXAMPLES, JOBS, PYTHONPATH, AgentBed
 from tests.support.pty_screen import Screen
-from tests.testbed.natsd import NatsServer
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
 

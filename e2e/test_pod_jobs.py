@@ -549,7 +549,7 @@ def outage(bed: AgentBed) -> Iterator[AgentOutage]:
     foreground-deleted RobotJob's finalizer before handling its pod, and then find the owner no
     longer waiting for its dependents.
     """
-    from tests.testbed.controllers import WorkloadControllers
+    from armnet_testbed.controllers import WorkloadControllers
 
     names = {
         "deadline": bed.submit("outlives", bed.image("ignores", JOBS / "ignores_shutdown.py"),

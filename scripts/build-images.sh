@@ -25,5 +25,5 @@ if [ -z "${DOCKER_HOST:-}" ] && [ ! -S /run/podman/podman.sock ]; then
   for _ in $(seq 50); do [ -S "$sock_dir/podman.sock" ] && break; sleep 0.2; done
   engine_args=(--engine "unix://$sock_dir/podman.sock")
 fi
-PYTHONPATH="$repo${PYTHONPATH:+:$PYTHONPATH}" "$venv/bin/python" -m tests.testbed.shipped_images \
+PYTHONPATH="$repo/testbed${PYTHONPATH:+:$PYTHONPATH}" "$venv/bin/python" -m armnet_testbed.shipped_images \
   "${engine_args[@]}" "$@"

@@ -22,6 +22,6 @@ compile=("$uv" pip compile --quiet --python-version 3.11 --python-platform x86_6
 for image in runtime platform lerobot; do
   "${compile[@]}" -c lock/dev.txt lock/$image.in -o lock/$image.txt
 done
-python3 tests/testbed/lockfile.py >lock/inputs.sha256
+python3 testbed/armnet_testbed/lockfile.py >lock/inputs.sha256
 echo "[lock] lock/dev.txt: $(grep -c '^[a-z]' lock/dev.txt) packages;" \
      "images: $(for i in runtime platform lerobot; do printf '%s %s ' "$i" "$(grep -c '^[a-z]' lock/$i.txt)"; done)"

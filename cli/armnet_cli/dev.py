@@ -1,9 +1,10 @@
 """``armnet dev up``: the test bed's control plane, node, NATS, object store and Podman API for manual use.
 
-Starts exactly what the pytest fixtures start (the library lives in
-``tests/testbed`` of a checkout), prints the variables to export, and stops
-everything on Ctrl-C. It needs a source checkout: the test bed is not shipped in
-the wheel on purpose (it is development tooling, not product code).
+Starts exactly what the pytest fixtures start (``armnet_testbed``, the distribution
+``armnet-testbed`` in ``testbed/`` of a checkout, which ``scripts/setup.sh`` installs
+into the development venv), prints the variables to export, and stops everything on
+Ctrl-C. The test bed is in no wheel and no image on purpose: it is development
+tooling, and it builds images and reads charts from the checkout it was installed from.
 """
 
 from __future__ import annotations
@@ -33,41 +34,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     up.add_argument("--no-podman", action="store_true", help="do not start the Podman API service")
     up.add_argument("--no-store", action="store_true",
                     help="do not start the S3-compatible object store (SeaweedFS) for job outputs")
-    up.add_argument("--repo", type=Path, default=None,
-                    help="repository checkout holding tests/testbed (default: found from cwd)")
 
 
 #: The bucket `armnet dev up` makes for job outputs.
 DEV_BUCKET = "armnet-outputs"
 
 
-def _find_checkout(start: Path) -> Path | None:
-    for candidate in (start, *start.parents):
-        if (candidate / "tests" / "testbed" / "__init__.py").is_file():
-            return candidate
-    here = Path(__file__).resolve()
-    for candidate in here.parents:
-        if (candidate / "tests" / "testbed" / "__init__.py").is_file():
-            return candidate
-    return None
-
-
-def _import_testbed(repo: Path | None) -> Any:
-    root = repo.resolve() if repo else _find_checkout(Path.cwd().resolve())
-    if root is None or not (root / "tests" / "testbed" / "__init__.py").is_file():
-        raise SystemExit("armnet dev up needs a source checkout of armnet (it uses tests/testbed): "
-                         "run it from the repository root, or pass --repo PATH")
-    if str(root) not in sys.path:
-        sys.path.insert(0, str(root))
-    import tests.testbed as testbed
-
-    return testbed
+def _import_testbed() -> Any:
+    try:
+        import armnet_testbed
+    except ImportError as error:
+        raise SystemExit(
+            f"armnet dev up needs the test bed (armnet-testbed), which is not installed here ({error}): "
+            "it is development tooling of a source checkout; run scripts/setup.sh in the checkout and use "
+            "its venv (~/.cache/armnet/venv/bin/armnet dev up)") from None
+    return armnet_testbed
 
 
 def run(args: argparse.Namespace) -> int:
     if args.dev_action != "up":  # argparse enforces the choice; kept for clarity
         return 2
-    testbed = _import_testbed(args.repo)
+    testbed = _import_testbed()
     stop = threading.Event()
     # Handlers, not KeyboardInterrupt: a shell may start us with SIGINT ignored.
     for signum in (signal.SIGINT, signal.SIGTERM):

@@ -34,11 +34,13 @@ fi
 # (another clone ran setup, a package was added), or the lock was synced; the import checks
 # (~7 s of CPU) run after each install.
 editable_key="$(cd "$here" && { echo "$here"; cat pyproject.toml runtime/pyproject.toml
-  ls -d runtime/src/*/__init__.py operator/*/__init__.py agent/*/__init__.py cli/*/__init__.py fms/*/__init__.py; } 2>/dev/null | sha256sum | cut -c1-16)"
+  cat testbed/pyproject.toml
+  ls -d runtime/src/*/__init__.py operator/*/__init__.py agent/*/__init__.py cli/*/__init__.py fms/*/__init__.py \
+    testbed/*/__init__.py; } 2>/dev/null | sha256sum | cut -c1-16)"
 if [ "$(cat "$editable_stamp" 2>/dev/null)" != "$editable_key" ]; then
-  echo "[setup/python] installing armnet and armnet-runtime (editable, no dependencies: the lock holds them)"
+  echo "[setup/python] installing armnet, armnet-runtime and the test bed (editable, no dependencies: the lock holds them)"
   rm -f "$editable_stamp"
-  "$uv" pip install --quiet --python "$venv/bin/python" --no-deps -e "$here/runtime" -e "$here"
+  "$uv" pip install --quiet --python "$venv/bin/python" --no-deps -e "$here/runtime" -e "$here" -e "$here/testbed"
   "$venv/bin/python" -c "import lerobot.motors.feetech, lerobot.cameras.opencv, scservo_sdk, armnet_runtime" \
     || { echo "[setup/python] LeRobot motors/cameras do not import; see docs/lerobot-compatibility.md" >&2; exit 1; }
   "$venv/bin/python" -c "from lerobot.robots.so_follower import SO101Follower; from lerobot.robots.bi_so_follower import BiSOFollower" \

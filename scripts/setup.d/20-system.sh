@@ -56,7 +56,7 @@ if [ ! -f "$conf" ] || ! grep -q 'runtime *= *"runc"' "$conf"; then
 # runc, not crun: crun refuses hybrid cgroup v1/v2 hosts. The ulimits stay below the
 # VM's hard limits (nofile 20000) because runc cannot raise them without
 # CAP_SYS_RESOURCE. The Docker-compatible API ignores default_ulimits: pass them per
-# container (tests/testbed does).
+# container (testbed/armnet_testbed does).
 [containers]
 default_ulimits = ["nofile=4096:16384", "nproc=4096:32768"]
 

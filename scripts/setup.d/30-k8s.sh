@@ -118,7 +118,7 @@ fi
 
 # ---------------------------------------------------------------- controller manager + scheduler
 # Only the chart's real install on the test-bed node needs them (a Deployment and a
-# DaemonSet become pods): tests/testbed/controllers.py starts them for that test alone.
+# DaemonSet become pods): testbed/armnet_testbed/controllers.py starts them for that test alone.
 # Same wrapper module, flags and pattern as the kubelet.
 for component in kube-controller-manager kube-scheduler; do
   if have "$component" "v$K8S_VERSION"; then

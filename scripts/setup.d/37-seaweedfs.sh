@@ -7,7 +7,7 @@
 # dependency mapped to its fork), which `go install pkg@version` refuses. The module is
 # downloaded to the module cache and built as the main module from there, so its own
 # go.mod and go.sum (replace included) apply unchanged. Built without cgo like the
-# Kubernetes binaries (tests/testbed/objstore.py starts it).
+# Kubernetes binaries (testbed/armnet_testbed/objstore.py starts it).
 #
 # Idempotent: a warm run checks the stamp written after a successful build (module
 # version) and that the binary runs, then exits.

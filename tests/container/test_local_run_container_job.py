@@ -22,8 +22,7 @@ from armnet_launch.cell_spec import build_job_env, resolve_spec
 from armnet_launch.container import ContainerJob
 from armnet_launch.sim_cell import LocalCell
 from armnet_launch.supervise import JobHooks, SupervisorLimits, supervise
-
-from tests.testbed.plugin import Podman
+from armnet_testbed.plugin import Podman
 
 pytestmark = [pytest.mark.container, pytest.mark.timeout(600)]
 

@@ -8,8 +8,7 @@ import threading
 from pathlib import Path
 
 import pytest
-
-from tests.testbed.plugin import Podman
+from armnet_testbed.plugin import Podman
 
 pytestmark = pytest.mark.container
 

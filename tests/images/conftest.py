@@ -1,4 +1,4 @@
-"""The shipped images, built once per content hash (tests.testbed.shipped_images).
+"""The shipped images, built once per content hash (armnet_testbed.shipped_images).
 
 A warm session finds every tag in Podman and builds nothing; a cold one builds the
 dependency locks (PyPI) and images (the agent's, with torch, takes minutes).
@@ -9,9 +9,8 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-
-from tests.testbed.plugin import Podman, _start
-from tests.testbed.shipped_images import (
+from armnet_testbed.plugin import Podman, _start
+from armnet_testbed.shipped_images import (
     AGENT,
     OPERATOR,
     RUNTIME,

@@ -2,7 +2,7 @@
 
 What runs: the test bed's apiserver and node (containerd + kubelet), plus
 kube-controller-manager and kube-scheduler for this module alone (the chart's Deployment
-and DaemonSet become pods only through them; tests/testbed/controllers.py); the
+and DaemonSet become pods only through them; testbed/armnet_testbed/controllers.py); the
 operator and agent images built from images/ and imported into the node's containerd.
 
 The agent runs the chart's default, the pod launcher: each job is a pod on the agent's
@@ -40,14 +40,14 @@ from urllib.parse import urlparse
 import pytest
 import yaml
 from armnet_core.api import CELLS, GROUP, ROBOTJOBS, VERSION
+from armnet_testbed.controllers import WorkloadControllers
+from armnet_testbed.kube import ControlPlane
+from armnet_testbed.node import Node
+from armnet_testbed.plugin import Podman
+from armnet_testbed.procs import free_port
+from armnet_testbed.release_images import forget_superseded_tags, release_images, repository
 
 from tests.support.helm import CHART, CRDS, adopt_crds, helm_binary, helm_on
-from tests.testbed.controllers import WorkloadControllers
-from tests.testbed.kube import ControlPlane
-from tests.testbed.node import Node
-from tests.testbed.plugin import Podman
-from tests.testbed.procs import free_port
-from tests.testbed.release_images import forget_superseded_tags, release_images, repository
 
 pytestmark = [pytest.mark.node, pytest.mark.container, pytest.mark.timeout(1800)]
 
@@ -125,7 +125,7 @@ def get_json(k8s: ControlPlane, kind: str, *args: str) -> Any:
 def release(k8s: ControlPlane, k8s_node: Node, podman: Podman) -> Iterator[dict[str, Any]]:
     """The chart installed, its pods running on the node; everything removed afterwards.
 
-    Its images are in the node's store already when setup ran (tests/testbed/release_images.py):
+    Its images are in the node's store already when setup ran (testbed/armnet_testbed/release_images.py):
     the import here then finds nothing to do.
     """
     images = release_images(podman.client)

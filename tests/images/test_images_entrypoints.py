@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pip
 import pytest
+from armnet_testbed.images import REPO_ROOT
+from armnet_testbed.lockfile import OVERRIDES, overridden, unexcused
+from armnet_testbed.plugin import Podman
 
 from tests.images.conftest import run_image
-from tests.testbed.images import REPO_ROOT
-from tests.testbed.lockfile import OVERRIDES, overridden, unexcused
-from tests.testbed.plugin import Podman
 
 pytestmark = [pytest.mark.container, pytest.mark.timeout(1800)]
 

@@ -29,11 +29,11 @@ from armnet_node.runner import RunnerDeps
 from armnet_node.streams import NatsLink, StreamSettings
 from armnet_node.telemetry import TelemetrySettings
 from armnet_node.worker import CellWorker, WorkerSettings
+from armnet_testbed.procs import free_port
 from kubernetes import client
 
 from tests.support.fms_objects import a_cell, apply, get
 from tests.support.sim_connector import connected_link
-from tests.testbed.procs import free_port
 
 pytestmark = pytest.mark.integration
 

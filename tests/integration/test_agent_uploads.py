@@ -22,10 +22,10 @@ from armnet_node.kube import AgentKube
 from armnet_node.metrics import AgentMetrics
 from armnet_node.plan import HostPaths
 from armnet_node.uploads import TrackedJob, UploadQueue
+from armnet_testbed.objstore import SeaweedS3
+from armnet_testbed.procs import free_port, wait_until
 
 from tests.support.fms_objects import a_job, apply, get, patch_status
-from tests.testbed.objstore import SeaweedS3
-from tests.testbed.procs import free_port, wait_until
 
 pytestmark = pytest.mark.integration
 

@@ -29,9 +29,8 @@ from armnet_node.artifacts import (
 )
 from armnet_node.artifacts.scan import LINK_OUT, scan_output
 from armnet_node.artifacts.upload import upload_scan
-
-from tests.testbed.objstore import SeaweedS3
-from tests.testbed.procs import wait_until
+from armnet_testbed.objstore import SeaweedS3
+from armnet_testbed.procs import wait_until
 
 pytestmark = pytest.mark.integration
 

@@ -19,9 +19,9 @@ from armnet_client.logwire import LogLine
 from armnet_client.viewer import packet_of
 from armnet_node import streams
 from armnet_runtime.rerun import Entry, Packet, encode_packet
+from armnet_testbed.natsd import NatsServer
 
 from tests.integration.client_bed import Publisher, stdout_lines
-from tests.testbed.natsd import NatsServer
 
 pytestmark = pytest.mark.integration
 

@@ -20,9 +20,9 @@ from armnet_node.kube import AgentKube
 from armnet_node.metrics import AgentMetrics
 from armnet_node.plan import HostPaths
 from armnet_node.uploads import TrackedJob, UploadQueue
+from armnet_testbed.objstore import SeaweedS3
 
 from tests.support.fms_objects import a_job, apply, patch_status
-from tests.testbed.objstore import SeaweedS3
 
 pytestmark = pytest.mark.integration
 

@@ -15,10 +15,10 @@ from typing import Any
 import pytest
 from armnet_core.models import JobSpec
 from armnet_runtime.rerun import ENCODING_JPEG, Entry, ImageData, Packet, encode_packet
+from armnet_testbed.natsd import NatsServer
+from armnet_testbed.rrd import recorded
 
 from tests.integration.client_bed import Publisher, Tenant, stdout_lines, terminal
-from tests.testbed.natsd import NatsServer
-from tests.testbed.rrd import recorded
 
 pytestmark = pytest.mark.integration
 

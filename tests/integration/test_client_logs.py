@@ -20,9 +20,9 @@ import pytest
 from armnet_client.errors import NatsUnreachable
 from armnet_client.logstream import CaughtUp, FollowSettings, follow_events
 from armnet_client.logwire import LogLine
+from armnet_testbed.natsd import NatsServer
 
 from tests.integration.client_bed import Publisher, stdout_lines, terminal
-from tests.testbed.natsd import NatsServer
 
 pytestmark = pytest.mark.integration
 

@@ -21,12 +21,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-
-from tests.testbed.images import BASE_IMAGE
+from armnet_testbed.images import BASE_IMAGE
 
 pytestmark = [pytest.mark.node, pytest.mark.integration, pytest.mark.timeout(600)]
 
-REPO = Path(__file__).resolve().parents[2]
 #: A warm start is ~10 s (control plane, node, controllers); this test runs before its session
 #: takes the host's node lock (scripts/test.sh), so it never waits for another node.
 UP_WITHIN_S = 240.0
@@ -35,7 +33,7 @@ UP_WITHIN_S = 240.0
 @pytest.fixture(scope="module")
 def dev_up() -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "armnet_cli.main", "dev", "up", "--no-podman", "--repo", str(REPO)],
+        [sys.executable, "-m", "armnet_cli.main", "dev", "up", "--no-podman"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )
     assert proc.stdout is not None

@@ -29,11 +29,11 @@ from armnet_core.api import CELL_RESOURCE_PREFIX
 from armnet_node.deviceplugin.decide import cell_device_paths
 from armnet_node.deviceplugin.server import DevicePlugins
 from armnet_node.metrics import AgentMetrics
+from armnet_testbed.images import BASE_IMAGE
+from armnet_testbed.kube import ControlPlane
+from armnet_testbed.node import DEVICE_PLUGIN_DIR, Node
 
 from tests.support.waiting import wait_for
-from tests.testbed.images import BASE_IMAGE
-from tests.testbed.kube import ControlPlane
-from tests.testbed.node import DEVICE_PLUGIN_DIR, Node
 
 pytestmark = [pytest.mark.node, pytest.mark.integration]
 

@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 import yaml
 from armnet_core.api import GROUP, RELEASE_CELL_FINALIZER, ROBOTJOBS
+from armnet_testbed.kube import ControlPlane
 
 from tests.support.helm import ALL_OPTIONS, CHART, REPO_ROOT, env_of, find, helm, notes, render
-from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 

@@ -17,12 +17,12 @@ from typing import Any
 
 import pytest
 import yaml
+from armnet_testbed.kube import ControlPlane
 
 from tests.support import helm_nats
 from tests.support.fms_objects import FMS_RULES
 from tests.support.helm import ALL_OPTIONS, CHART, find, helm, helm_on, render
 from tests.support.helm_nats import Server, connect, run, settle, violated
-from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 

@@ -15,9 +15,9 @@ import uuid
 
 import pytest
 from armnet_core.api import GROUP, ROBOTJOBS
+from armnet_testbed.kube import ControlPlane
 
 from tests.support.helm import CHART, CRDS, adopt_crds, helm_on
-from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 

@@ -16,11 +16,11 @@ from typing import Any
 
 import nats
 import pytest
+from armnet_testbed.procs import require_tool
 
 from tests.support import helm_nats
 from tests.support.helm import find, render
 from tests.support.helm_nats import ENV, Server, connect, run, settle, violated
-from tests.testbed.procs import require_tool
 
 pytestmark = pytest.mark.integration
 

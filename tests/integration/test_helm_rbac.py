@@ -32,9 +32,9 @@ from armnet_launch.plan import (
 )
 from armnet_launch.pod_spec import PodInputs, build_pod
 from armnet_node.plan import container_name
+from armnet_testbed.kube import ControlPlane, KubeUser
 
 from tests.support.helm import render
-from tests.testbed.kube import ControlPlane, KubeUser
 
 pytestmark = pytest.mark.integration
 

@@ -21,9 +21,9 @@ from armnet_core.api import GROUP, ROBOTJOBS, VERSION
 from armnet_operator.admission import WEBHOOK_PATH
 from armnet_operator.metrics import Metrics
 from armnet_operator.webhook import AdmissionWebhook
+from armnet_testbed.kube import ControlPlane
 
 from tests.support.helm import CHART, env_of, find, helm, render
-from tests.testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 

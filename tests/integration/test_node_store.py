@@ -10,15 +10,14 @@ from __future__ import annotations
 import subprocess
 
 import pytest
-
-from tests.testbed.containerd import (
+from armnet_testbed.containerd import (
     SOURCE_LABEL,
     Containerd,
     hold_node_lock,
     import_into_store,
     release_node_lock,
 )
-from tests.testbed.images import BASE_IMAGE
+from armnet_testbed.images import BASE_IMAGE
 
 pytestmark = [pytest.mark.node, pytest.mark.integration, pytest.mark.timeout(600)]
 

@@ -18,9 +18,8 @@ import pytest
 import yaml
 from armnet_core.api import API_VERSION, CELLS, GROUP, ROBOTJOBS, VERSION
 from armnet_core.times import kube_time
+from armnet_testbed.procs import free_port
 from kubernetes import client
-
-from tests.testbed.procs import free_port
 
 pytestmark = pytest.mark.integration
 

@@ -20,8 +20,7 @@ import pytest
 import yaml
 from armnet_core.api import GROUP, ROBOTJOBS
 from armnet_core.times import kube_time
-
-from tests.testbed.kube import ControlPlane
+from armnet_testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 

@@ -31,10 +31,10 @@ from armnet_core.api import API_VERSION, GROUP, ROBOTJOBS, VERSION
 from armnet_operator.admission import WEBHOOK_PATH
 from armnet_operator.args import MAX_ARGS_BYTES, MAX_ARGS_DEPTH
 from armnet_operator.handlers import build_registry
+from armnet_testbed.procs import free_port
 from kopf.testing import KopfRunner
 
 from tests.integration.operator_bed import Bed, operator_settings
-from tests.testbed.procs import free_port
 
 pytestmark = pytest.mark.integration
 WEBHOOK_NAME = f"{ROBOTJOBS}.{GROUP}"

@@ -17,9 +17,9 @@ from armnet_connector.inputs import LocalOperatorInputs
 from armnet_node.inputs_bridge import MAX_INPUT_BYTES, OperatorInputsBridge
 from armnet_node.rollout_recorder import RolloutRecorder
 from armnet_node.streams import NatsLink, StreamSettings
+from armnet_testbed.natsd import NatsServer
 
 from tests.support.waiting import wait_for
-from tests.testbed.natsd import NatsServer
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 

@@ -29,11 +29,11 @@ from armnet_node.streams import (
     StreamSettings,
     line_msg_id,
 )
+from armnet_testbed.natsd import NatsServer
+from armnet_testbed.procs import free_port
 from nats.js.api import ConsumerConfig, DeliverPolicy
 
 from tests.support.waiting import wait_for
-from tests.testbed.natsd import NatsServer
-from tests.testbed.procs import free_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 

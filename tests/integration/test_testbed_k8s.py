@@ -8,8 +8,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-
-from tests.testbed.kube import ControlPlane
+from armnet_testbed.kube import ControlPlane
 
 pytestmark = pytest.mark.integration
 

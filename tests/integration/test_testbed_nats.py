@@ -7,9 +7,8 @@ import uuid
 
 import nats
 import pytest
+from armnet_testbed.natsd import NatsServer
 from nats.js.api import ConsumerConfig, DeliverPolicy
-
-from tests.testbed.natsd import NatsServer
 
 pytestmark = pytest.mark.integration
 

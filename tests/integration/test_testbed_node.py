@@ -15,10 +15,9 @@ from typing import Any
 
 import pytest
 from armnet_launch.pod_spec import serving_gate
-
-from tests.testbed.images import BASE_IMAGE
-from tests.testbed.kube import ControlPlane
-from tests.testbed.node import Node
+from armnet_testbed.images import BASE_IMAGE
+from armnet_testbed.kube import ControlPlane
+from armnet_testbed.node import Node
 
 pytestmark = pytest.mark.node
 

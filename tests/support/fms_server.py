@@ -18,7 +18,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-from tests.testbed.procs import free_port
+from armnet_testbed.procs import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 PYTHONPATH = ":".join(str(REPO / p) for p in ("runtime/src", "agent", "operator", "cli", "fms")) + f":{REPO}"

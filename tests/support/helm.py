@@ -18,8 +18,7 @@ from typing import Any
 
 import pytest
 import yaml
-
-from tests.testbed.kube import ControlPlane
+from armnet_testbed.kube import ControlPlane
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 CHART = REPO_ROOT / "helm" / "armnet"

@@ -22,9 +22,9 @@ from typing import Any
 
 import nats
 import pytest
+from armnet_testbed.procs import ManagedProcess, free_port, require_tool, wait_until
 
 from tests.support.helm import find, render
-from tests.testbed.procs import ManagedProcess, free_port, require_tool, wait_until
 
 PASSWORDS = {"agent": "agent-pw", "fms": "fms-pw", "tenant-team-a": "a-pw", "tenant-team-b": "b-pw"}
 #: The passwords as the chart's nats.conf reads them (from the users Secret, in the pod's environment).

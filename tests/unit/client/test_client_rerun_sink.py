@@ -9,8 +9,7 @@ import pytest
 from armnet_client.errors import RerunMissing
 from armnet_client.rerun_sink import Replayed, replay
 from armnet_runtime.rerun import ENCODING_JPEG, ENCODING_RAW_U8, Entry, ImageData, Packet
-
-from tests.testbed.rrd import recorded
+from armnet_testbed.rrd import recorded
 
 pytestmark = pytest.mark.unit
 

@@ -22,8 +22,7 @@ from armnet_operator.cli import add_arguments, run
 from armnet_operator.errors import PermanentError
 from armnet_operator.metrics import Metrics
 from armnet_operator.webhook import MAX_REVIEW_BYTES, AdmissionWebhook
-
-from tests.testbed.pki import Pki, create_pki
+from armnet_testbed.pki import Pki, create_pki
 
 pytestmark = pytest.mark.unit
 

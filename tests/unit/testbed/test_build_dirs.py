@@ -6,8 +6,7 @@ import os
 from pathlib import Path
 
 import pytest
-
-from tests.testbed.shipped_images import STALE_BUILD_DIR_S, _drop_stale_build_dirs
+from armnet_testbed.shipped_images import STALE_BUILD_DIR_S, _drop_stale_build_dirs
 
 pytestmark = pytest.mark.unit
 

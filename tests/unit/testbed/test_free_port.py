@@ -9,8 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from tests.testbed.procs import PORT_CLAIMS, free_port
+from armnet_testbed.procs import PORT_CLAIMS, free_port
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -25,7 +24,7 @@ def test_ports_in_a_row_differ_and_lie_below_the_ephemeral_range() -> None:
 
 def test_a_port_another_process_claimed_stays_its_own_while_it_lives() -> None:
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from tests.testbed.procs import free_port; "
+        [sys.executable, "-c", "import sys; from armnet_testbed.procs import free_port; "
          "print(free_port(), flush=True); sys.stdin.read()"],
         cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:

@@ -6,8 +6,7 @@ What these read is the committed text; scripts/lock.sh (uv, the registry) writes
 from __future__ import annotations
 
 import pytest
-
-from tests.testbed.lockfile import (
+from armnet_testbed.lockfile import (
     INPUTS_DIGEST,
     LOCK_DIR,
     OVERRIDES,

@@ -15,8 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from tests.testbed.lockfile import OVERRIDES, lock_file, normalize, overridden, pins, unexcused
+from armnet_testbed.lockfile import OVERRIDES, lock_file, normalize, overridden, pins, unexcused
 
 pytestmark = pytest.mark.unit
 

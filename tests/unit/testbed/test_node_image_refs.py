@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import pytest
-
-from tests.testbed.containerd import orphan_image_ids
+from armnet_testbed.containerd import orphan_image_ids
 
 pytestmark = pytest.mark.unit
 

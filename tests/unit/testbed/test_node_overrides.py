@@ -7,16 +7,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-
-from tests.testbed.containerd import (
+from armnet_testbed.containerd import (
     CONTAINERD_ROOT,
     PAUSE_IMAGE,
     containerd_config,
     containerd_major,
     containerd_root,
 )
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.node import feature_gates, kubelet_config
+from armnet_testbed.errors import TestbedSetupError
+from armnet_testbed.node import feature_gates, kubelet_config
 
 pytestmark = pytest.mark.unit
 

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import pytest
-
-from tests.testbed.release_images import ReleaseImages
+from armnet_testbed.release_images import ReleaseImages
 
 pytestmark = pytest.mark.unit
 

@@ -6,7 +6,7 @@ node's containerd must hold the operator and agent images under one tag (the cha
 bus-loop example (on the runtime's LeRobot variant). The LeRobot images are ~6 GB each, and
 saving them out of Podman and importing them takes 4 minutes alone and 12 beside the other test
 sessions, which it slows twofold (docs/testing.md, "A loaded host"). So setup does
-it (scripts/setup.d/55-node-images.sh runs ``python -m tests.testbed.release_images``), after
+it (scripts/setup.d/55-node-images.sh runs ``python -m armnet_testbed.release_images``), after
 the image builds and before any session starts; the fixture then finds every image imported,
 and its own import, the same call, is the path for a run with pytest arguments.
 
@@ -25,10 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tests.testbed.containerd import PAUSE_IMAGE, import_into_store
-from tests.testbed.images import BASE_IMAGE, REPO_ROOT
-from tests.testbed.procs import progress
-from tests.testbed.shipped_images import AGENT, OPERATOR, RUNTIME, RUNTIME_LEROBOT, ensure_image
+from armnet_testbed.containerd import PAUSE_IMAGE, import_into_store
+from armnet_testbed.images import BASE_IMAGE, REPO_ROOT
+from armnet_testbed.procs import progress
+from armnet_testbed.shipped_images import AGENT, OPERATOR, RUNTIME, RUNTIME_LEROBOT, ensure_image
 
 #: The prefix of the common tag; earlier runs' tags with it are superseded.
 TAG_PREFIX = "it-"

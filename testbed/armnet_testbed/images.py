@@ -1,6 +1,6 @@
 """Container images without a registry: the debootstrap base, and this repository's wheels.
 
-The images themselves (``images/*``) are built by ``tests.testbed.shipped_images``,
+The images themselves (``images/*``) are built by ``armnet_testbed.shipped_images``,
 once per content hash, from the wheels ``build_wheels`` makes and the locked
 dependency wheels it caches under ``WHEEL_CACHE``.
 """
@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from tests.testbed.errors import TestbedSetupError
+from armnet_testbed.errors import TestbedSetupError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 BASE_IMAGE = "localhost/armnet-base:bookworm"

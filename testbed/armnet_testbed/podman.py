@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.procs import ManagedProcess, progress, require_tool, wait_until
+from armnet_testbed.errors import TestbedSetupError
+from armnet_testbed.procs import ManagedProcess, progress, require_tool, wait_until
 
 # Below this VM's hard limits (nofile 20000, nproc 96365): runc cannot raise them.
 ULIMIT_SPEC: tuple[tuple[str, int, int], ...] = (("nofile", 4096, 16384), ("nproc", 4096, 32768))

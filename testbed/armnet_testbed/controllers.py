@@ -20,8 +20,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tests.testbed.kube import ControlPlane, k8s_bin_dir
-from tests.testbed.procs import ManagedProcess, progress, require_tool
+from armnet_testbed.kube import ControlPlane, k8s_bin_dir
+from armnet_testbed.procs import ManagedProcess, progress, require_tool
 
 CONTROLLERS = ("deployment-controller", "replicaset-controller", "daemonset-controller",
                "garbage-collector-controller", "root-ca-certificate-publisher-controller",

@@ -8,8 +8,8 @@ and one file per image (``runtime``, ``platform``, ``lerobot``), each compiled w
 
 Pure functions over text, used by the suite (``pip check`` minus the declared
 exceptions must be empty, in the venv and in every image) and by the image builds
-(tests.testbed.shipped_images: a lock's wheel folder is keyed by the lock file's hash).
-``python -m tests.testbed.lockfile`` prints the inputs' digest that scripts/lock.sh
+(armnet_testbed.shipped_images: a lock's wheel folder is keyed by the lock file's hash).
+``python -m armnet_testbed.lockfile`` prints the inputs' digest that scripts/lock.sh
 records in lock/inputs.sha256, so the suite can tell when the lock is older than its inputs.
 """
 

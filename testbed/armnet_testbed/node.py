@@ -60,7 +60,7 @@ from typing import Any, TextIO
 
 import yaml
 
-from tests.testbed.containerd import (
+from armnet_testbed.containerd import (
     CONTAINERD_ROOT,
     PAUSE_IMAGE,
     Containerd,
@@ -69,10 +69,10 @@ from tests.testbed.containerd import (
     release_node_lock,
     shim_pids,
 )
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.images import BASE_IMAGE
-from tests.testbed.kube import KUBELET_CLIENT_USER, ControlPlane, k8s_bin_dir
-from tests.testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
+from armnet_testbed.errors import TestbedSetupError
+from armnet_testbed.images import BASE_IMAGE
+from armnet_testbed.kube import KUBELET_CLIENT_USER, ControlPlane, k8s_bin_dir
+from armnet_testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
 
 NODE_NAME = "armnet-node"
 # RFC 2544 benchmarking range: never routed on the internet, put on `lo` here.
@@ -390,7 +390,7 @@ class Node:
         return bool(self.import_images(image))
 
     def import_images(self, *images: str) -> list[str]:
-        """Import the images the node lacks (in one archive: tests/testbed/containerd.py); return those imported."""
+        """Import the images the node lacks (in one archive: testbed/armnet_testbed/containerd.py); return those imported."""
         return self.started_containerd.import_images(*images)
 
     def drop_unnamed_images(self) -> list[str]:

@@ -1,7 +1,7 @@
 """The test-bed node's containerd: its config, its persistent image store, and imports into it.
 
 One containerd at a time runs on the store (``CONTAINERD_ROOT``, an image cache like
-Podman's storage, so a warm start imports nothing): the node's (tests/testbed/node.py, with
+Podman's storage, so a warm start imports nothing): the node's (testbed/armnet_testbed/node.py, with
 a kubelet) or, before any test session starts, setup's own (``import_into_store``,
 scripts/setup.d/55-node-images.sh), which imports the images the sessions' pods run so
 that no 6 GB ``podman save`` / ``ctr import`` runs beside timing-sensitive tests. Both
@@ -28,13 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.procs import ManagedProcess, progress, require_tool, wait_until
+from armnet_testbed.errors import TestbedSetupError
+from armnet_testbed.procs import ManagedProcess, progress, require_tool, wait_until
 
 PAUSE_IMAGE = "localhost/armnet-pause:testbed"
 CONTAINERD_ROOT = Path(os.environ.get("ARMNET_NODE_CONTAINERD_ROOT",
                                      Path.home() / ".cache/armnet/node/containerd"))
-# Experiment override (tests/testbed/node.py's docstring); unset by default.
+# Experiment override (testbed/armnet_testbed/node.py's docstring); unset by default.
 CONTAINERD_ENV = "ARMNET_TESTBED_CONTAINERD"
 # Label on an imported image: the Podman image id it came from (re-import on change).
 SOURCE_LABEL = "armnet.io/podman-image-id"

@@ -28,13 +28,13 @@ from typing import Any
 
 import pytest
 
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.images import BASE_IMAGE, require_base_image
-from tests.testbed.kube import ControlPlane, KubeUser
-from tests.testbed.natsd import NatsServer
-from tests.testbed.node import Node
-from tests.testbed.objstore import SeaweedS3
-from tests.testbed.podman import PodmanService, ulimits
+from armnet_testbed.errors import TestbedSetupError
+from armnet_testbed.images import BASE_IMAGE, require_base_image
+from armnet_testbed.kube import ControlPlane, KubeUser
+from armnet_testbed.natsd import NatsServer
+from armnet_testbed.node import Node
+from armnet_testbed.objstore import SeaweedS3
+from armnet_testbed.podman import PodmanService, ulimits
 
 K8s = ControlPlane  # the `k8s` fixture's type: .kubeconfig .url .admin_token .user() .kubectl()
 

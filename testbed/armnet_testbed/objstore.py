@@ -20,8 +20,8 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
+from armnet_testbed.errors import TestbedSetupError
+from armnet_testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
 
 SEAWEEDFS_CACHE = Path(os.environ.get("ARMNET_SEAWEEDFS_DIR", Path.home() / ".cache/armnet/seaweedfs"))
 ACCESS_KEY = "armnet-testbed"

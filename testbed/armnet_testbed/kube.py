@@ -7,7 +7,7 @@ deleting, pods without a node stay Pending and there is no ``default``
 ServiceAccount (see docs/reference/testbed-host.md, "A control plane without
 controllers"). Fresh etcd per start.
 
-The plane is always node-capable (``tests/testbed/node.py`` adds a real kubelet on
+The plane is always node-capable (``testbed/armnet_testbed/node.py`` adds a real kubelet on
 demand): the Node authorizer and the NodeRestriction admission plugin only judge
 requests from ``system:nodes`` users, and the kubelet client certificate is only
 used when the apiserver calls a kubelet (logs, exec), so none of it changes what
@@ -32,9 +32,9 @@ from typing import Any
 
 import yaml
 
-from tests.testbed.errors import TestbedSetupError
-from tests.testbed.pki import Pki, create_pki
-from tests.testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
+from armnet_testbed.errors import TestbedSetupError
+from armnet_testbed.pki import Pki, create_pki
+from armnet_testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = Path(__file__).resolve().parent / "fixtures"

@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tests.testbed.images import BASE_IMAGE, REPO_ROOT, WHEEL_CACHE, build_wheels
-from tests.testbed.lockfile import lock_file
-from tests.testbed.procs import progress
+from armnet_testbed.images import BASE_IMAGE, REPO_ROOT, WHEEL_CACHE, build_wheels
+from armnet_testbed.lockfile import lock_file
+from armnet_testbed.procs import progress
 
 HASH_LABEL = "armnet.io/content-hash"
 LOCK_LABEL = "armnet.io/lock"

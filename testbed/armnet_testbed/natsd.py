@@ -12,7 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tests.testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
+from armnet_testbed.procs import ManagedProcess, free_port, progress, require_tool, wait_until
 
 
 class NatsServer:

@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from tests.testbed.errors import TestbedSetupError
+from armnet_testbed.errors import TestbedSetupError
 
 
 def progress(message: str) -> None:

@@ -11,7 +11,7 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from tests.testbed.procs import require_tool
+from armnet_testbed.procs import require_tool
 
 _DAYS = "3650"
 
