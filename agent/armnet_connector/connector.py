@@ -17,6 +17,7 @@ from types import MappingProxyType, TracebackType
 from typing import TypeVar
 
 from armnet_core.framing import BufferBudget
+from armnet_runtime.endpoints import OPERATOR_SOCKET, ROBOT_SOCKET
 
 from .agent_inputs import AGENT_SOCKET, AgentSession
 from .cell import CellState, Counters
@@ -37,8 +38,6 @@ log = logging.getLogger(__name__)
 
 S = TypeVar("S", bound=Session)
 
-ROBOT_SOCKET = "robot.sock"
-OPERATOR_SOCKET = "operator.sock"
 OBSERVER_MAX_CONNECTIONS = 4
 """The agent keeps one connection; a restarted agent may open another before the old one closes."""
 STOP_THREADS_WAIT_S = 1.0

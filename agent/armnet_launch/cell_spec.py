@@ -23,7 +23,7 @@ from typing import Any, Literal
 from armnet_core import BIMANUAL_SO101_EMBODIMENT, SO101_EMBODIMENT
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from armnet_runtime import env as env_keys
-from armnet_runtime.endpoints import with_arm
+from armnet_runtime.endpoints import OPERATOR_SOCKET, ROBOT_SOCKET, with_arm
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 PRESET_EMBODIMENT = {"so101": SO101_EMBODIMENT, "bimanual_so101": BIMANUAL_SO101_EMBODIMENT}
@@ -36,10 +36,8 @@ DEFAULT_ROBOT_ID = "so101-sim"
 DEFAULT_SAFETY_LIMIT = 10.0
 DEFAULT_GRACE_SECONDS = 10.0
 DEFAULT_RESET_TIMEOUT_SECONDS = 60.0
-ROBOT_SOCKET = "robot.sock"
 #: LeRobot's dataset root under the job's output directory.
 LEROBOT_DIR = "lerobot"
-OPERATOR_SOCKET = "operator.sock"
 
 
 class LocalCellError(ValueError):

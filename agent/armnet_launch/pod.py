@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from armnet_core.backoff import BackoffPolicy
 from armnet_core.times import parse_time
 
 from .log_recovery import DeliveredLines, missed_output
@@ -35,7 +36,8 @@ from .sidecar import parse_record
 log = logging.getLogger(__name__)
 
 POLL_S = 0.25
-FOLLOW_RETRY_S = 0.5
+#: Retrying the job container's log follow (not started yet, or the API server blinked).
+FOLLOW_RETRY = BackoffPolicy(first_s=0.5, max_s=4.0)
 #: How often the wait for the job container's start looks at a stop request and at its bound.
 START_POLL_S = 1.0
 #: Beyond the pod's own termination grace, how long the kubelet may take to notice the job
@@ -269,12 +271,13 @@ class PodJob:
         """The job container's log as it comes, then what the follow missed (``log_recovery``)."""
         self._started.wait()
         delivered = DeliveredLines()
+        retry = FOLLOW_RETRY.start()
         while True:
             try:
                 response = self._log(follow=True)
             except Exception:  # noqa: BLE001 - not started yet, or the API blinked: retry until the exit
                 log.debug("pod log follow of %s failed", self.name, exc_info=True)
-                if self._done.wait(FOLLOW_RETRY_S):
+                if self._done.wait(retry.failed()):
                     break
                 continue
             try:

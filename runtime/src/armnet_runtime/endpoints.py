@@ -13,6 +13,10 @@ from urllib.parse import parse_qs, urlsplit
 
 UNIX_PREFIX = "unix://"
 TCP_PREFIX = "tcp://"
+#: The connector's two sockets in a job's socket directory (runtime/PROTOCOL.md): the
+#: robot (bus and cameras) and the cell operator's (resets, verdicts, teleop, lifecycle).
+ROBOT_SOCKET = "robot.sock"
+OPERATOR_SOCKET = "operator.sock"
 _DEVICE_ROOT = "/dev/"
 
 
