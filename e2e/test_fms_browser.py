@@ -182,6 +182,9 @@ def test_the_fleet_updates_live_and_a_reset_then_two_outcomes_reach_the_job(
     # Live: the page was loaded before the job ran; it shows the job without a reload.
     wait_text(browser, f"cell-{cell}", jobs["reset"], timeout=180, context=job_status(bed, jobs["reset"]))
     wait_text(browser, f"cell-{cell}", "reset waiting", timeout=180, context=job_status(bed, jobs["reset"]))
+    # The operator's summary of the queue at the cell (status.queue): none waits; the job's end, from its timeout.
+    wait_text(browser, f"cell-{cell}", "0 jobs waiting; its job likely ends in", timeout=60,
+              context=lambda: json.dumps((bed.cell(cell).get("status") or {}).get("queue")))
     assert filter_labels(browser) == {"filter-q": "Cell name", "filter-site": "Site"}
     screenshot(browser, "fms-fleet")
     # The whole card opens the cell, not only its name; and so does the keyboard (Tab, Enter).

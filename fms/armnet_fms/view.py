@@ -100,6 +100,23 @@ class PendingReset:
 
 
 @dataclass(frozen=True)
+class QueueAtCell:
+    """The operator's ``status.queue``: jobs waiting for a cell like this one, and when it frees."""
+
+    waiting_jobs: int
+    likely_free: float | None  # epoch seconds; None when no job holds the cell
+    latest_free: float | None
+
+    def json(self, now: float) -> dict[str, Any]:
+        """Seconds from ``now`` (the FMS's clock), never negative: an overdue job frees the cell any moment."""
+        def left(moment: float | None) -> float | None:
+            return None if moment is None else round(max(0.0, moment - now), 1)
+
+        return {"waitingJobs": self.waiting_jobs, "likelyFreeInS": left(self.likely_free),
+                "latestFreeInS": left(self.latest_free)}
+
+
+@dataclass(frozen=True)
 class CellRow:
     name: str
     site: str
@@ -111,6 +128,8 @@ class CellRow:
     reset_timeout_s: int
     job: JobSummary | None
     reset: PendingReset | None
+    #: The operator's summary of the queue at this cell (None when it has written none).
+    queue: QueueAtCell | None = None
 
 
 def parse_time(value: Any) -> float | None:
@@ -256,6 +275,10 @@ def build_row(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, An
         reset_timeout_s=spec.reset_timeout_seconds if spec is not None else DEFAULT_RESET_TIMEOUT_S,
         job=job,
         reset=pending,
+        queue=None if status.queue is None else QueueAtCell(
+            status.queue.waiting_jobs,
+            status.queue.likely_free.timestamp() if status.queue.likely_free is not None else None,
+            status.queue.latest_free.timestamp() if status.queue.latest_free is not None else None),
     )
 
 
@@ -307,6 +330,7 @@ def row_json(row: CellRow, now: float) -> dict[str, Any]:
             "verdicts": [{"index": v.index, "total": v.total, "outcome": v.outcome, "by": v.by, "at": v.at}
                          for v in job.verdicts],
         },
+        "queue": None if row.queue is None else row.queue.json(now),
         "reset": None if row.reset is None else {
             "request": row.reset.request_id, "secondsLeft": round(row.reset.seconds_left(now), 1),
         },

@@ -30,7 +30,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
-from .model import Cell, Job
+from .model import Cell, CellQueue, Job
 
 _PoolKey = tuple[str, str | None] | str
 #: How long a job holds a cell, by the job and the cell.
@@ -133,6 +133,31 @@ def queue_starts(queue: Iterable[Job], available: Iterable[Seat],
         for key in _pools(cell):
             heapq.heappush(heaps[key], (free_at[name], name, version[name]))
     return starts
+
+
+def cell_queues(cells: Iterable[Cell], waiting: Iterable[Job], holders: Mapping[str, Job], now: datetime,
+                typical: Mapping[str, timedelta]) -> dict[str, CellQueue]:
+    """Cell name -> the jobs waiting for a cell like it, and when its job likely ends and ends at the latest.
+
+    For the cell operator, who plans resets and breaks around the queue: a job
+    waits for this cell when it could run here (its embodiment, and its task if it
+    names one), whatever it waits on. A cell nobody holds has no free time (it is free).
+    """
+    demand: dict[_PoolKey, int] = defaultdict(int)
+    for job in waiting:
+        demand[job.embodiment if job.task is None else (job.embodiment, job.task)] += 1
+    likely = likely_occupancy(typical)
+    summary = {}
+    for cell in cells:
+        count = sum(demand.get(key, 0) for key in _pools(cell))
+        holder = holders.get(cell.name)
+        if holder is None:
+            summary[cell.name] = CellQueue(count)
+            continue
+        since = holder.started_at or holder.bound_at or now
+        summary[cell.name] = CellQueue(count, max(now, since + likely(holder, cell)),
+                                       max(now, since + longest_occupancy(holder, cell)))
+    return summary
 
 
 def _pools(cell: Cell) -> tuple[_PoolKey, _PoolKey]:

@@ -124,6 +124,19 @@ class Arm:
 
 
 @dataclass(frozen=True)
+class CellQueue:
+    """``status.queue``: the jobs waiting for a cell like this one, and when it frees (likely, at the latest).
+
+    Written by the operator for the cell operator's page (``estimate.cell_queues``); no
+    scheduling decision reads it back.
+    """
+
+    waiting_jobs: int = 0
+    likely_free: datetime | None = None
+    latest_free: datetime | None = None
+
+
+@dataclass(frozen=True)
 class Cell:
     """A Cell as the scheduler sees it. ``current_job`` is the claim (``namespace/name``)."""
 
@@ -148,6 +161,8 @@ class Cell:
     """Why the cell must never be bound (set by ``cell_checks``, not read from the API)."""
     spec_problem: str | None = None
     """A spec field that could not be read (named): the cell is Invalid until it is fixed."""
+    queue: CellQueue = CellQueue()
+    """``status.queue`` as last written (empty when absent)."""
 
 
 @dataclass(frozen=True)
@@ -177,6 +192,7 @@ __all__ = [
     "BoundReason",
     "Cell",
     "CellConditionType",
+    "CellQueue",
     "CellPhase",
     "Job",
     "JobConditionType",

@@ -25,10 +25,22 @@ from armnet_core.resources import (
     RobotJobStatus,
     Wire,
 )
+from armnet_core.resources import (
+    CellQueue as CellQueueStatus,
+)
 from pydantic import BaseModel, Field, ValidationError
 
 from .args import args_problem, measure
-from .model import Arm, Cell, CellConditionType, CellPhase, Job, JobConditionType, JobPhase
+from .model import (
+    Arm,
+    Cell,
+    CellConditionType,
+    CellPhase,
+    CellQueue,
+    Job,
+    JobConditionType,
+    JobPhase,
+)
 
 _Model = TypeVar("_Model", bound=BaseModel)
 
@@ -228,7 +240,14 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         arms=_arms(raw_spec),
         message=status.message or None,
         spec_problem=problem,
+        queue=_cell_queue(status.queue),
     )
+
+
+def _cell_queue(queue: CellQueueStatus | None) -> CellQueue:
+    if queue is None:
+        return CellQueue()
+    return CellQueue(queue.waiting_jobs, queue.likely_free, queue.latest_free)
 
 
 #: How deep a ``spec.completion`` may nest (it holds ``region`` and ``colour`` objects: 2) and

@@ -25,6 +25,7 @@ from .model import (
     BoundReason,
     Cell,
     CellPhase,
+    CellQueue,
     Job,
     JobConditionType,
     JobPhase,
@@ -67,6 +68,17 @@ def quota_status(name: str, status: dict[str, Any]) -> Patch:
     """A CellQuota's status, without a resourceVersion: the leading operator is its only writer,
     and the spec (which others change) is not in the patch."""
     return Patch(Target.QUOTA_STATUS, name, "", {"status": status})
+
+
+def cell_queue(name: str, queue: CellQueue) -> Patch:
+    """A Cell's ``status.queue``, without a resourceVersion: the leading operator is its only
+    writer, and a merge patch of that one field cannot clobber the agent's heartbeat or conditions."""
+    body = {
+        "waitingJobs": queue.waiting_jobs,
+        "likelyFree": kube_time(queue.likely_free) if queue.likely_free is not None else None,
+        "latestFree": kube_time(queue.latest_free) if queue.latest_free is not None else None,
+    }
+    return Patch(Target.CELL_STATUS, name, "", {"status": {"queue": body}})
 
 
 def claim_cell(cell: Cell, job: Job, now: datetime) -> Patch:

@@ -46,7 +46,7 @@ from .lifecycle import (
     plan_lifecycle,
     release_reason,
 )
-from .model import Cell, CellPhase, Job, JobPhase, Timing
+from .model import Cell, CellPhase, CellQueue, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
 from .quota import QuotaObject, Usage
 from .quota_writes import current_usage, plan_quota_writes, quotas_in_force
@@ -82,6 +82,8 @@ class Memory:
     """Each CellQuota's usage as this replica last wrote it (until the watch delivers it)."""
     quota_shown: MutableMapping[str, dict[str, Any]] = field(default_factory=dict)
     """Each CellQuota's status as last written, apart from its usage: a change is written at once."""
+    cell_queue_written_at: MutableMapping[str, datetime] = field(default_factory=dict)
+    """When each Cell's ``status.queue`` was last written (its changes are rate limited)."""
 
 
 @dataclass(frozen=True)
@@ -221,9 +223,48 @@ def reconcile_once(
     by_key.update(outcome.jobs_written)
     if quotas or memory.quota_shown:
         _write_quotas(by_key.values(), by_name.values(), quotas, now, api, memory, limits, outcome)
+    _write_cell_queues(by_name.values(), plan.cell_queues, now, api, memory, limits, outcome)
     _report_failures(outcome, {**{f"job:{k}": j for k, j in by_key.items()},
                                **{f"cell:{n}": c for n, c in by_name.items()}}, memory, api, now)
     return outcome
+
+
+def _write_cell_queues(cells: Iterable[Cell], planned: Mapping[str, CellQueue], now: datetime, api: Api,
+                       memory: Memory, limits: Limits, outcome: Outcome) -> None:
+    """Each Cell's ``status.queue`` that moved (last in a pass: binds and job status go first).
+
+    Written when the count of waiting jobs changed, or a free time moved by
+    ``ESTIMATE_STEP`` or appeared or vanished, at most once per ``position_refresh``
+    per cell. A failed write is retried next pass and never stops scheduling.
+    """
+    known = set()
+    for cell in cells:
+        known.add(cell.name)
+        queue = planned.get(cell.name)
+        last = memory.cell_queue_written_at.get(cell.name)
+        if queue is None or not _cell_queue_moved(cell.queue, queue) \
+                or (last is not None and now - last < limits.position_refresh):
+            continue
+        try:
+            api.patch(patches.cell_queue(cell.name, queue))
+        except NotFound:
+            continue
+        except TransientError as error:
+            _count(error, outcome)
+            continue
+        except Exception as error:  # noqa: BLE001 - an advisory summary (RBAC, an old CRD) never stops scheduling
+            log.warning("queue summary of Cell %s not written, retrying next pass: %s", cell.name, error)
+            continue
+        outcome.writes += 1
+        memory.cell_queue_written_at[cell.name] = now
+    for stale in [name for name in memory.cell_queue_written_at if name not in known]:
+        del memory.cell_queue_written_at[stale]
+
+
+def _cell_queue_moved(written: CellQueue, planned: CellQueue) -> bool:
+    return written.waiting_jobs != planned.waiting_jobs \
+        or _estimate_moved(written.likely_free, planned.likely_free) \
+        or _estimate_moved(written.latest_free, planned.latest_free)
 
 
 def _write_quotas(jobs: Iterable[Job], cells: Iterable[Cell], quotas: Sequence[QuotaObject], now: datetime,

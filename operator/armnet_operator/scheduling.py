@@ -19,13 +19,13 @@ from __future__ import annotations
 import heapq
 from collections import defaultdict, deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
 
-from .estimate import likely_occupancy, queue_starts, seats, typical_runs
+from .estimate import cell_queues, likely_occupancy, queue_starts, seats, typical_runs
 from .fairshare import Ledger, holds_cell
 from .health import derive_cell_phase, is_available
-from .model import Cell, CellPhase, Job, QueuedReason
+from .model import Cell, CellPhase, CellQueue, Job, QueuedReason
 from .quota import DEFAULT_SHARING, CellQuota, FairSharing, Usage
 
 
@@ -50,6 +50,8 @@ class QueueEntry:
 class SchedulePlan:
     bindings: tuple[Binding, ...]
     queued: Mapping[str, QueueEntry]
+    cell_queues: Mapping[str, CellQueue] = field(default_factory=dict)
+    """Each cell's queue summary after this pass's bindings (``estimate.cell_queues``)."""
 
 
 def order_key(job: Job) -> tuple[int, datetime, str, str]:
@@ -185,26 +187,34 @@ def plan_bindings(
             heapq.heappush(turns, (ledger.rank(tenant), order_key(queue[head + 1]), tenant))
     exhausted.sort(key=lambda entry: order_key(entry[0]))
     positions = _positions(entries + exhausted)
-    latest, likely = _start_estimates(entries, bindings, jobs, phases, now)
+    holders = _holders(jobs, bindings, now)
+    typical = typical_runs(jobs)
+    latest, likely = _start_estimates(entries, holders, typical, phases, now)
+    at_cells = cell_queues(cells, (job for job, _, _ in entries + exhausted), holders, now, typical)
     return SchedulePlan(tuple(bindings), {
         key: replace(entry, latest_start=latest[key], likely_start=likely.get(key, latest[key]))
         if key in latest else entry
         for key, entry in positions.items()
-    })
+    }, at_cells)
+
+
+def _holders(jobs: list[Job], bindings: list[Binding], now: datetime) -> dict[str, Job]:
+    """Cell name -> the job holding it after this pass's bindings."""
+    holders = {job.cell_name: job for job in jobs if job.active and job.cell_name}
+    holders.update({b.cell.name: replace(b.job, bound_at=now) for b in bindings})
+    return holders
 
 
 def _start_estimates(
-    entries: list[tuple[Job, QueuedReason, str]], bindings: list[Binding], jobs: list[Job],
+    entries: list[tuple[Job, QueuedReason, str]], holders: Mapping[str, Job], typical: Mapping[str, timedelta],
     phases: Mapping[str, tuple[Cell, CellPhase]], now: datetime,
 ) -> tuple[dict[str, datetime], dict[str, datetime]]:
     """The latest and the likely start of each job that waits for busy cells (``estimate``), after this pass's bindings."""
     busy = [job for job, reason, _ in entries if reason is QueuedReason.ALL_CELLS_BUSY]
     if not busy:
         return {}, {}
-    holders = {job.cell_name: job for job in jobs if job.active and job.cell_name}
-    holders.update({b.cell.name: replace(b.job, bound_at=now) for b in bindings})
     available = [cell for cell, phase in phases.values() if is_available(phase)]
-    likely = likely_occupancy(typical_runs(jobs))
+    likely = likely_occupancy(typical)
     return (queue_starts(busy, seats(available, holders, now)),
             queue_starts(busy, seats(available, holders, now, likely), likely))
 

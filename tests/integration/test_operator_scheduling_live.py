@@ -112,6 +112,14 @@ def test_a_job_waiting_behind_an_embodiment_with_finished_runs_says_when_it_like
     assert abs((when(waiting, "likelyStart") - bound_at).total_seconds() - 40) <= 1
     header, row = bed.k8s.kubectl("get", "rj", "waiting", "-n", bed.ns, "-o", "wide").stdout.splitlines()
     assert "LIKELY-START" in header.split() and waiting["status"]["likelyStart"] in row.split()
+    # The cell's own summary for the cell operator: one job waits for it; its job likely ends, and at the latest.
+    queue = bed.wait("the cell's queue summary", lambda: (
+        (summary := bed.get_cell(cell).get("status", {}).get("queue") or {}).get("waitingJobs") == 1 and summary))
+    assert abs((when({"status": queue}, "likelyFree") - bound_at).total_seconds() - 40) <= 1
+    assert abs((when({"status": queue}, "latestFree") - bound_at).total_seconds() - (300 + 10)) <= 1
+    header, row = bed.k8s.kubectl("get", "cell", cell, "-o", "wide").stdout.splitlines()
+    columns = dict(zip(header.split(), row.split(), strict=False))
+    assert columns["WAITING"] == "1"
 
 
 def test_queue_reasons_say_why_a_job_waits(bed: Bed, operator: Any) -> None:

@@ -20,6 +20,22 @@
     return `${Math.round(seconds / 60)} min ago`;
   }
 
+  function within(seconds) {
+    if (seconds < 1) return "any moment";
+    if (seconds < 90) return `in ${Math.round(seconds)} s`;
+    return `in ${Math.round(seconds / 60)} min`;
+  }
+
+  // The operator's summary of the queue at the cell (status.queue): counts and times only.
+  function queueText(queue) {
+    const waiting = queue.waitingJobs === 1 ? "1 job waiting" : `${queue.waitingJobs} jobs waiting`;
+    const likely = queue.likelyFreeInS ?? queue.latestFreeInS;
+    if (likely === null || likely === undefined) return `${waiting}; no job holds the cell`;
+    const latest = queue.latestFreeInS !== null && queue.latestFreeInS > likely
+      ? `, at the latest ${within(queue.latestFreeInS)}` : "";
+    return `${waiting}; its job likely ends ${within(likely)}${latest}`;
+  }
+
   // A fleet card is one link stretched over the whole card (fms.css): a tap anywhere on it, or
   // Enter on its focused name, opens the cell. Cards are updated in place, never replaced, so a
   // tap or the keyboard focus survives the live feed's re-renders (twice a second).
@@ -60,6 +76,7 @@
     for (const c of cell.falseConditions) {
       facts.push(el("p", "cond", `${c.type}: ${c.reason}${c.message ? " (" + c.message + ")" : ""}`));
     }
+    if (cell.queue) facts.push(el("p", "queue", queueText(cell.queue)));
     facts.push(el("p", "heartbeat", `Heartbeat ${age(cell.heartbeatAgeS)}`));
     return facts;
   }

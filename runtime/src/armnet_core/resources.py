@@ -185,6 +185,18 @@ class CellSpec(Wire):
     only shows them reads them leniently (the client)."""
 
 
+class CellQueue(Wire):
+    """The operator's summary of the queue at one cell (``status.queue``), for the cell operator's page.
+
+    Counts and times only: a Cell is read by every tenant, so it never names another
+    tenant's waiting job.
+    """
+
+    waiting_jobs: int = Field(default=0, ge=0, alias="waitingJobs")
+    likely_free: Optional[Timestamp] = Field(default=None, alias="likelyFree")
+    latest_free: Optional[Timestamp] = Field(default=None, alias="latestFree")
+
+
 class CellStatus(Wire):
     phase: Optional[str] = None
     current_job: Optional[str] = Field(default=None, alias="currentJob")
@@ -192,6 +204,7 @@ class CellStatus(Wire):
     last_heartbeat_time: Optional[Timestamp] = Field(default=None, alias="lastHeartbeatTime")
     message: Optional[str] = None
     conditions: list[Condition] = Field(default_factory=list)
+    queue: Optional[CellQueue] = None
 
 
 class Cell(Wire):
@@ -252,6 +265,7 @@ __all__ = [
     "Cell",
     "CellArm",
     "CellCamera",
+    "CellQueue",
     "CellQuota",
     "CellQuotaSpec",
     "CellQuotaStatus",

@@ -46,6 +46,7 @@ PLACES = [
     (api.CELLS, ("spec", "cameras", "*"), resources.CellCamera),
     (api.CELLS, ("status",), resources.CellStatus),
     (api.CELLS, ("status", "conditions", "[]"), resources.Condition),
+    (api.CELLS, ("status", "queue"), resources.CellQueue),
     (api.CELLQUOTAS, ("spec",), resources.CellQuotaSpec),
     (api.CELLQUOTAS, ("status",), resources.CellQuotaStatus),
     (api.CELLQUOTAS, ("status", "usage"), resources.QuotaUsage),

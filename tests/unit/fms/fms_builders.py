@@ -12,8 +12,8 @@ NOW_ISO = "2027-01-15T08:00:00+00:00"
 
 def a_cell(name: str = "so101-a", *, phase: str = "Busy", job: str | None = "team-a/eval-1",
            heartbeat: str | None = NOW_ISO, site: str = "", unschedulable: bool = False,
-           interlock: str = "True", reset_timeout: int = 30, extra_conditions: tuple[dict[str, Any], ...] = ()
-           ) -> dict[str, Any]:
+           interlock: str = "True", reset_timeout: int = 30, extra_conditions: tuple[dict[str, Any], ...] = (),
+           queue: dict[str, Any] | None = None) -> dict[str, Any]:
     conditions = [{"type": "AgentConnected", "status": "True", "reason": "Heartbeat"},
                   {"type": "InterlockClear", "status": interlock, "reason": "Tripped" if interlock == "False" else "Clear"},
                   *extra_conditions]
@@ -22,6 +22,8 @@ def a_cell(name: str = "so101-a", *, phase: str = "Busy", job: str | None = "tea
         status["currentJob"] = job
     if heartbeat:
         status["lastHeartbeatTime"] = heartbeat
+    if queue is not None:
+        status["queue"] = queue
     return {"metadata": {"name": name, "uid": f"uid-{name}", "labels": {SITE_LABEL: site} if site else {}},
             "spec": {"embodiment": "so101", "nodeName": "robot-host-1", "unschedulable": unschedulable,
                      "resetTimeoutSeconds": reset_timeout},

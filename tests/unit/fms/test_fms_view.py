@@ -135,3 +135,25 @@ def test_an_elapsed_that_is_not_a_duration_counts_the_timeout_from_when_the_noti
 
 def test_an_elapsed_past_the_timeout_shows_a_reset_already_over() -> None:
     assert pending_from_notice("so101-a", {**a_notice(), "elapsed": 1e308}, 30, NOW).expired(NOW)
+
+
+def test_the_queue_at_a_cell_shows_how_many_wait_and_in_how_long_its_job_ends_by_the_fms_clock() -> None:
+    queue = {"waitingJobs": 3, "likelyFree": "2027-01-15T08:04:00Z", "latestFree": "2027-01-15T08:12:00Z"}
+    row = row_json(only_row([a_cell(queue=queue)], [a_job()]), NOW)
+    assert row["queue"] == {"waitingJobs": 3, "likelyFreeInS": 240.0, "latestFreeInS": 720.0}
+
+
+def test_an_overdue_job_ends_any_moment_a_free_cell_has_no_end_and_no_summary_shows_none() -> None:
+    overdue = {"waitingJobs": 1, "likelyFree": "2027-01-15T07:50:00Z", "latestFree": "2027-01-15T07:55:00Z"}
+    assert row_json(only_row([a_cell(queue=overdue)]), NOW)["queue"] == {
+        "waitingJobs": 1, "likelyFreeInS": 0.0, "latestFreeInS": 0.0}
+    assert row_json(only_row([a_cell(queue={"waitingJobs": 0})]), NOW)["queue"] == {
+        "waitingJobs": 0, "likelyFreeInS": None, "latestFreeInS": None}
+    assert row_json(only_row([a_cell()]), NOW)["queue"] is None
+
+
+def test_a_malformed_time_in_the_queue_summary_hides_only_that_time() -> None:
+    queue = {"waitingJobs": 2, "likelyFree": "soon", "latestFree": "2027-01-15T08:12:00Z"}
+    row = row_json(only_row([a_cell(queue=queue)]), NOW)
+    assert row["queue"] == {"waitingJobs": 2, "likelyFreeInS": None, "latestFreeInS": 720.0}
+    assert row["phase"] == "Busy"  # the rest of the cell still shows

@@ -14,7 +14,7 @@ from armnet_operator.estimate import (
     seats,
     typical_runs,
 )
-from armnet_operator.model import JobPhase, QueuedReason
+from armnet_operator.model import CellQueue, JobPhase, QueuedReason
 from armnet_operator.scheduling import plan_bindings
 from operator_builders import NOW, TIMING, a_cell, a_job
 
@@ -142,3 +142,30 @@ def test_a_running_job_past_its_typical_run_counts_as_ending_now_and_no_history_
     assert plan.queued[waiting.key].likely_start == NOW
     plan = plan_bindings([running, waiting], [busy], NOW, HB)
     assert plan.queued[waiting.key].likely_start == plan.queued[waiting.key].latest_start == at(600 + 10 - 500)
+
+
+def test_each_cell_counts_the_jobs_that_could_run_on_it_and_says_when_its_job_likely_ends_and_at_the_latest():
+    picker = a_cell().named("picker").with_task("pick").with_grace(10).claimed_by("tenant-a/run").build()
+    plain = a_cell().named("plain").with_grace(10).claimed_by("tenant-a/other").build()
+    idle = a_cell().named("idle").with_embodiment("lerobot/bimanual_so101").build()
+    running = a_job().named("run").with_task("pick").with_timeout(600).started_ago(50).running_on("picker")
+    other = a_job().named("other").with_timeout(600).started_ago(10).running_on("plain")
+    untasked = a_job().named("any").submitted_ago(300).queued()
+    tasked = a_job().named("pick-1").with_task("pick").submitted_ago(200).queued()
+    plan = plan_bindings([running, other, untasked, tasked, *(a_run(f"ran-{i}", 120) for i in range(3))],
+                         [picker, plain, idle], NOW, HB)
+    picker_queue, plain_queue = plan.cell_queues["picker"], plan.cell_queues["plain"]
+    # Both waiting jobs could run on the task's cell; only the untasked one on the plain cell.
+    assert (picker_queue.waiting_jobs, plain_queue.waiting_jobs) == (2, 1)
+    assert (picker_queue.likely_free, picker_queue.latest_free) == (at(120 - 50), at(600 + 10 - 50))
+    assert (plain_queue.likely_free, plain_queue.latest_free) == (at(120 - 10), at(600 + 10 - 10))
+    # A cell nobody holds has no free time, and no job waits for its embodiment.
+    assert plan.cell_queues["idle"] == CellQueue(0, None, None)
+
+
+def test_a_cell_bound_in_this_pass_frees_from_its_binding():
+    free = a_cell().named("free").with_grace(10).build()
+    first = a_job().named("first").with_timeout(60).submitted_ago(300).queued()
+    second = a_job().named("second").submitted_ago(200).queued()
+    plan = plan_bindings([first, second], [free], NOW, HB)
+    assert plan.cell_queues["free"] == CellQueue(1, at(60 + 10), at(60 + 10))
