@@ -1,9 +1,10 @@
 """The FMS web service (Starlette): pages, the live feed (server-sent events), the actions.
 
-Every route but ``/login``, ``/logout``, ``/healthz``, ``/metrics`` and the
-static files (the ``public`` list in ``build_app``) needs an authenticated cell
-operator (``guard.operator_only``); every response carries the security headers
-(``guard.SecurityHeaders``). A POST made with a session
+Every path but ``/login``, ``/logout``, ``/healthz``, ``/metrics`` and the
+static files (``PUBLIC_PATHS``) needs an authenticated cell operator (the
+``guard.CellOperatorsOnly`` middleware; a route reads who with ``guard.caller_of``);
+every response carries the security headers (the ``guard.SecurityHeaders``
+middleware). A POST made with a session
 cookie or a proxy header must carry that credential's CSRF token. Decisions
 live in ``view`` and ``actions``; this module reads requests, applies plans and
 counts them.
@@ -42,12 +43,15 @@ from starlette.staticfiles import StaticFiles
 from . import auth
 from .actions import ActionKind, Plan, Refused, plan_action
 from .bus import BusUnavailable, OperatorBus
-from .guard import SESSION_COOKIE, Caller, SecurityHeaders, operator_only
+from .guard import SESSION_COOKIE, CellOperatorsOnly, SecurityHeaders, caller_of
 from .state import FleetState
 from .telemetry import TelemetryStore
 from .view import build_row, row_json
 
 log = logging.getLogger(__name__)
+
+#: The paths anyone may reach (and ``/static/``): logging in and out, metrics, health.
+PUBLIC_PATHS = frozenset({"/login", "/logout", "/metrics", "/healthz"})
 
 STATIC = Path(__file__).parent / "static"
 
@@ -110,8 +114,6 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
     Gauge("armnet_fms_telemetry_frame_bytes", "Bytes of all latest camera frames held (bounded by the frame budget)",
           registry=metrics.registry).set_function(lambda: store.frame_bytes)
 
-    guarded = operator_only(settings, clock)
-
     async def login_page(request: Request) -> Response:
         return _page("login.html", message="")
 
@@ -135,10 +137,12 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         response.delete_cookie(SESSION_COOKIE, path="/")
         return response
 
-    async def fleet_page(request: Request, who: Caller) -> Response:
+    async def fleet_page(request: Request) -> Response:
+        who = caller_of(request)
         return _page("fleet.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential))
 
-    async def cell_page(request: Request, who: Caller) -> Response:
+    async def cell_page(request: Request) -> Response:
+        who = caller_of(request)
         return _page("cell.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential),
                      cell=request.path_params["name"], telemetry="on" if telemetry is not None else "off")
 
@@ -150,10 +154,10 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
             rows = [r for r in rows if r.name == only]
         return {"cells": [row_json(r, now) for r in rows], "kubeOk": state.kube_ok, "natsOk": bus.connected}
 
-    async def fleet_json(request: Request, who: Caller) -> Response:
+    async def fleet_json(request: Request) -> Response:
         return JSONResponse(snapshot(request))
 
-    async def live(request: Request, who: Caller) -> Response:
+    async def live(request: Request) -> Response:
         async def events() -> AsyncIterator[bytes]:
             metrics.live_clients.inc()
             last, quiet = "", 0.0
@@ -176,16 +180,17 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         return StreamingResponse(events(), media_type="text/event-stream",
                                  headers={"X-Accel-Buffering": "no"})
 
-    async def camera_frame(request: Request, who: Caller) -> Response:
+    async def camera_frame(request: Request) -> Response:
         frame = store.frame(request.path_params["name"], request.path_params["camera"])
         if frame is None:
             return JSONResponse({"error": "no frame from this camera yet"}, status_code=404)
         return Response(frame.jpeg, media_type="image/jpeg")
 
-    async def cell_telemetry(request: Request, who: Caller) -> Response:
+    async def cell_telemetry(request: Request) -> Response:
         return JSONResponse(store.view(request.path_params["name"], clock()))
 
-    async def act(request: Request, who: Caller) -> Response:
+    async def act(request: Request) -> Response:
+        who = caller_of(request)
         try:
             kind = ActionKind(request.path_params["action"])
         except ValueError:
@@ -256,26 +261,28 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
                 await poller
             await bus.close()
 
-    # The only routes anyone may reach; every other route is wrapped by ``guarded`` below.
-    public = [
+    # The only paths anyone may reach (``PUBLIC_PATHS``, ``/static/``); ``CellOperatorsOnly`` refuses
+    # every other request that is not a cell operator's, whatever route it asks for.
+    routes = [
         Route("/login", login_page, methods=["GET"]),
         Route("/login", login, methods=["POST"]),
         Route("/logout", logout, methods=["POST"]),
         Route("/metrics", metrics_route),
         Route("/healthz", healthz),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
+        Route("/", fleet_page),
+        Route("/cells/{name}", cell_page),
+        Route("/api/fleet", fleet_json),
+        Route("/live", live),
+        Route("/api/cells/{name}/camera/{camera}.jpg", camera_frame, methods=["GET"]),
+        Route("/api/cells/{name}/telemetry", cell_telemetry, methods=["GET"]),
+        Route("/api/cells/{name}/{action}", act, methods=["POST"]),
     ]
-    operator_routes: list[tuple[str, Any, list[str] | None]] = [
-        ("/", fleet_page, None),
-        ("/cells/{name}", cell_page, None),
-        ("/api/fleet", fleet_json, None),
-        ("/live", live, None),
-        ("/api/cells/{name}/camera/{camera}.jpg", camera_frame, ["GET"]),
-        ("/api/cells/{name}/telemetry", cell_telemetry, ["GET"]),
-        ("/api/cells/{name}/{action}", act, ["POST"]),
-    ]
-    routes = [*public, *(Route(path, guarded(endpoint), methods=methods) for path, endpoint, methods in operator_routes)]
-    app = Starlette(routes=routes, lifespan=lifespan, middleware=[Middleware(SecurityHeaders)])
+    app = Starlette(routes=routes, lifespan=lifespan, middleware=[
+        Middleware(SecurityHeaders),
+        Middleware(CellOperatorsOnly, settings=settings, clock=clock, public=PUBLIC_PATHS,
+                   public_prefixes=("/static/",), routes=routes),
+    ])
     app.state.metrics = metrics
     return app
 

@@ -1,21 +1,23 @@
-"""Who may reach which route, and the security headers on every response.
+"""Who may reach which route, and the security headers on every response: two ASGI middlewares.
 
-Both are applied in one place each, so a route added later cannot forget them:
-``SecurityHeaders`` wraps the whole app (errors, 404s, redirects, static files
-and the live feed included), and ``operator_only`` wraps every route that is not
-in the app's short public list. A refused request gets the same answer on
-every route: a JSON 401 under ``/api/`` and ``/live`` (scripts), a redirect to
-``/login`` elsewhere (a person).
+Both wrap the whole app, so a route added later cannot forget them:
+``SecurityHeaders`` puts the headers on every response (errors, 404s, redirects,
+static files and the live feed included), and ``CellOperatorsOnly`` lets through
+only a cell operator's request to any path but the app's short public list,
+leaving the caller in the request's state (``caller_of``). A refused request gets
+the same answer on every route: a JSON 401 under ``/api/`` and ``/live`` (scripts),
+a redirect to ``/login`` elsewhere (a person).
 """
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from starlette.datastructures import MutableHeaders
 from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
+from starlette.routing import BaseRoute, Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from . import auth
@@ -79,22 +81,46 @@ def unauthorized(request: Request) -> Response:
     return RedirectResponse("/login", status_code=303)
 
 
-OperatorEndpoint = Callable[[Request, Caller], Awaitable[Response]]
+class CellOperatorsOnly:
+    """Pure ASGI middleware: every path but ``public`` (exact) and ``public_prefixes`` needs a cell operator.
+
+    Pure ASGI, like ``SecurityHeaders``: the live feed's stream passes through unbuffered.
+    """
+
+    def __init__(self, app: ASGIApp, settings: auth.AuthSettings, clock: Callable[[], float],
+                 public: frozenset[str], public_prefixes: tuple[str, ...], routes: Sequence[BaseRoute]) -> None:
+        self.app = app
+        self.settings = settings
+        self.clock = clock
+        self.public = public
+        self.public_prefixes = public_prefixes
+        self.routes = routes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        path = scope.get("path", "")
+        if scope["type"] != "http" or path in self.public or path.startswith(self.public_prefixes) \
+                or not self._routed(scope):
+            await self.app(scope, receive, send)  # a path no route serves: the router's 404, which shows nothing
+            return
+        request = Request(scope)
+        who = caller(self.settings, request, self.clock())
+        if who is None:
+            await unauthorized(request)(scope, receive, send)
+            return
+        scope.setdefault("state", {})[_CALLER] = who
+        await self.app(scope, receive, send)
 
 
-def operator_only(settings: auth.AuthSettings, clock: Callable[[], float]
-                  ) -> Callable[[OperatorEndpoint], Callable[[Request], Awaitable[Response]]]:
-    """Turns an endpoint that takes the caller into a route endpoint that refuses anyone else."""
+    def _routed(self, scope: Scope) -> bool:
+        return any(route.matches(scope)[0] is not Match.NONE for route in self.routes)
 
-    def wrap(endpoint: OperatorEndpoint) -> Callable[[Request], Awaitable[Response]]:
-        async def guarded(request: Request) -> Response:
-            who = caller(settings, request, clock())
-            if who is None:
-                return unauthorized(request)
-            return await endpoint(request, who)
 
-        guarded.__name__ = endpoint.__name__
-        guarded.__doc__ = endpoint.__doc__
-        return guarded
+_CALLER = "armnet_fms_caller"
 
-    return wrap
+
+def caller_of(request: Request) -> Caller:
+    """The cell operator ``CellOperatorsOnly`` let through (it lets no request through without one)."""
+    who = request.scope.get("state", {}).get(_CALLER)
+    if not isinstance(who, Caller):
+        raise RuntimeError("a guarded route was reached without CellOperatorsOnly: refusing to serve it")
+    return who
