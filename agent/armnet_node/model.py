@@ -24,21 +24,13 @@ from armnet_node.follower_rule import follower_window
 
 
 @dataclass(frozen=True)
-class ArmSpec:
-    port: str | None = None
-    robot_id: str | None = None
-    calibration_dir: str | None = None
-    safety_limit: float | None = None
-
-
-@dataclass(frozen=True)
 class Cell:
     name: str
     node_name: str
     embodiment: str
     task: str | None
     simulated: bool
-    arms: dict[str, ArmSpec]
+    arms: dict[str, CellArm]  # the core model: frozen, the fields the launch reads
     cameras: tuple[CameraSpec, ...]
     language_instruction: str | None
     grace_seconds: float
@@ -97,9 +89,7 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
     camera_problem = unknown_camera(completion, spec.cameras)
     if camera_problem is not None:
         raise ValueError(f"Cell {meta.get('name')}: invalid spec: {camera_problem}")
-    arms = {name: _arm(arm) for name, arm in spec.arms.items()}
-    if not arms:
-        arms = {"arm": _arm(spec.robot or CellArm())}
+    arms = dict(spec.arms) or {"arm": spec.robot or CellArm()}
     status = obj.get("status") or {}
     return Cell(
         name=str(meta.get("name", "")),
@@ -122,10 +112,6 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
         annotations=dict(meta.get("annotations") or {}),
         resource_version=str(meta.get("resourceVersion", "")),
     )
-
-
-def _arm(arm: CellArm) -> ArmSpec:
-    return ArmSpec(arm.port, arm.robot_id, arm.calibration_dir, arm.safety_limit)
 
 
 def parse_job(obj: dict[str, Any]) -> Job:
