@@ -131,25 +131,16 @@ def test_a_rest_whose_position_reads_lose_servo_replies_asks_again_and_reaches_r
 
 def test_a_rest_that_ends_outside_its_tolerance_is_reported_not_ok(connector, client_for, sim_cell) -> None:
     """Someone holds the wrist far from its rest pose for the whole move."""
-    held_at = REST["wrist_roll"] - 800
-    holding = threading.Event()
-    holding.set()
-
-    def hold() -> None:
-        while holding.is_set():
-            sim_cell.arm.move_by_hand("wrist_roll", held_at)
-            time.sleep(0.01)
-
-    # Held before the move starts: a holder thread not yet scheduled on a loaded host left the
-    # arm at rest, and the move reached it (this test failed so once).
-    sim_cell.arm.move_by_hand("wrist_roll", held_at)
-    holder = threading.Thread(target=hold, daemon=True)
-    holder.start()
+    # Held as an obstacle holds it: the servo pushes, the joint stays. A thread putting the joint
+    # back by hand every 10 ms raced the servo's own motion: on a loaded host the thread (and the
+    # pipe to the simulator's process) fell behind, the wrist reached its rest, and the move was
+    # reported as reaching it.
+    sim_cell.arm.move_by_hand("wrist_roll", REST["wrist_roll"] - 800)
+    sim_cell.arm.block("wrist_roll")
     try:
         reply = client_for(connector.robot_endpoint).request({"op": "return_to_rest"})
     finally:
-        holding.clear()
-        holder.join(5)
+        sim_cell.arm.block("wrist_roll", False)
     assert reply["error_type"] == "RestNotReached" and "'wrist_roll'" in reply["error"], reply
     report = connector.record().rests[0]
     assert not report.reached and abs(report.errors["wrist_roll"]) > TOLERANCE
