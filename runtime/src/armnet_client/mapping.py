@@ -18,7 +18,7 @@ from armnet_core.api import API_VERSION, FOLLOWER_TIMEOUT_ANNOTATION
 from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
 from pydantic import ValidationError
 
-from .resources import Cell, CellQuota, JobArtifacts, RobotJob, RolloutRecord
+from .resources import Cell, CellQueue, CellQuota, JobArtifacts, RobotJob, RolloutRecord
 
 _NAME_CHARS = re.compile(r"[^a-z0-9-]+")
 _GENERATED_PREFIX_MAX = 40
@@ -224,6 +224,8 @@ class CellView:
     unschedulable: bool
     completion: Optional[CompletionView] = None
     """The cell's completion monitor, None when only an operator's outcome completes an episode."""
+    queue: Optional[CellQueue] = None
+    """The operator's summary of the queue at the cell (``status.queue``), None before it wrote one."""
 
 
 def cell_view_of(cell: Cell) -> CellView:
@@ -243,6 +245,7 @@ def cell_view_of(cell: Cell) -> CellView:
         ),
         unschedulable=cell.spec.unschedulable,
         completion=completion_view_of(cell.spec.completion),
+        queue=cell.status.queue,
     )
 
 

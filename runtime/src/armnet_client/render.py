@@ -131,7 +131,7 @@ def _when(moment: Optional[datetime]) -> Optional[str]:
 def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False) -> str:
     headers = ["NAME", "PHASE", "EMBODIMENT", "TASK", "JOB", "FAILING", "HEARTBEAT"]
     if wide:
-        headers += ["NODE", "COMPLETION"]
+        headers += ["WAITING", "FREE-IN", "NODE", "COMPLETION"]
     rows = []
     for cell in cells:
         failing = ",".join(f"{c.type}({c.reason})" if c.reason else c.type
@@ -141,9 +141,22 @@ def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False)
                age(cell.last_heartbeat, now) + (" ago" if cell.last_heartbeat else "")]
         if wide:
             monitor = cell.completion
-            row += [cell.node, f"{monitor.scorer}({monitor.camera})" if monitor else "operator"]
+            row += [*_queue_columns(cell, now), cell.node,
+                    f"{monitor.scorer}({monitor.camera})" if monitor else "operator"]
         rows.append(row)
     return table(headers, rows)
+
+
+def _queue_columns(cell: CellView, now: datetime) -> list[str]:
+    """WAITING and FREE-IN (``4m/12m``: its job likely ends in 4 minutes, at the latest in 12), or ``-``."""
+    queue = cell.queue
+    if queue is None:
+        return ["-", "-"]
+    likely = queue.likely_free or queue.latest_free
+    if likely is None:
+        return [str(queue.waiting_jobs), "-"]
+    latest = f"/{age(now, queue.latest_free)}" if queue.latest_free is not None else ""
+    return [str(queue.waiting_jobs), f"{age(now, likely)}{latest}"]
 
 
 def _hours(value: float) -> str:
@@ -221,6 +234,7 @@ def cell_document(cell: CellView) -> dict[str, Any]:
         "name": cell.name, "phase": cell.phase, "embodiment": cell.embodiment, "task": cell.task,
         "node": cell.node, "currentJob": cell.current_job, "unschedulable": cell.unschedulable,
         "completion": {"scorer": cell.completion.scorer, "camera": cell.completion.camera} if cell.completion else None,
+        "queue": cell.queue.model_dump(mode="json", by_alias=True) if cell.queue else None,
         "lastHeartbeatTime": cell.last_heartbeat.isoformat() if cell.last_heartbeat else None,
         "failingConditions": [{"type": c.type, "reason": c.reason, "message": c.message}
                               for c in cell.false_conditions],

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from armnet_core.resources import (
     Cell,
+    CellQueue,
     CellQuota,
     CellSpec,
     CellStatus,
@@ -27,6 +28,7 @@ from armnet_core.resources import (
 
 __all__ = [
     "Cell",
+    "CellQueue",
     "CellQuota",
     "CellSpec",
     "CellStatus",

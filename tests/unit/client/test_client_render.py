@@ -320,3 +320,19 @@ def test_wide_cells_name_the_completion_monitor_and_a_malformed_one_never_fails_
     assert [r[-1] for r in rows[1:]] == ["region(front)", "operator", "?(?)"]
     assert cell_document(cells[0])["completion"] == {"scorer": "region", "camera": "front"}
     assert cell_document(cells[1])["completion"] is None
+
+
+def test_wide_cells_say_how_many_jobs_wait_and_when_the_job_likely_ends_and_at_the_latest() -> None:
+    busy, free, unseen = a_cell(phase="Busy"), a_cell("cell-2", phase="Ready"), a_cell("cell-3", phase="Ready")
+    busy["status"]["queue"] = {"waitingJobs": 2, "likelyFree": (NOW + timedelta(minutes=4)).isoformat(),
+                               "latestFree": (NOW + timedelta(minutes=12)).isoformat()}
+    free["status"]["queue"] = {"waitingJobs": 0}
+    cells = [cell_view_of(Cell.model_validate(b)) for b in (busy, free, unseen)]
+
+    rows = [r.split() for r in cells_table(cells, NOW, wide=True).splitlines()]
+
+    assert rows[0][-4:] == ["WAITING", "FREE-IN", "NODE", "COMPLETION"]
+    assert [r[-4:-2] for r in rows[1:]] == [["2", "4m/12m"], ["0", "-"], ["-", "-"]]
+    assert cell_document(cells[0])["queue"] == {"waitingJobs": 2, "likelyFree": "2026-11-24T10:09:00Z",
+                                                "latestFree": "2026-11-24T10:17:00Z"}
+    assert cell_document(cells[2])["queue"] is None
