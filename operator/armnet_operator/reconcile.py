@@ -82,8 +82,8 @@ class Memory:
     """Each CellQuota's usage as this replica last wrote it (until the watch delivers it)."""
     quota_shown: MutableMapping[str, dict[str, Any]] = field(default_factory=dict)
     """Each CellQuota's status as last written, apart from its usage: a change is written at once."""
-    cell_queue_written_at: MutableMapping[str, datetime] = field(default_factory=dict)
-    """When each Cell's ``status.queue`` was last written (its changes are rate limited)."""
+    cell_queue_written: MutableMapping[str, tuple[CellQueue, datetime]] = field(default_factory=dict)
+    """Each Cell's ``status.queue`` as this replica last wrote it, and when (until the watch shows it)."""
 
 
 @dataclass(frozen=True)
@@ -223,27 +223,39 @@ def reconcile_once(
     by_key.update(outcome.jobs_written)
     if quotas or memory.quota_shown:
         _write_quotas(by_key.values(), by_name.values(), quotas, now, api, memory, limits, outcome)
-    _write_cell_queues(by_name.values(), plan.cell_queues, now, api, memory, limits, outcome)
+    _write_cell_queues(by_name.values(), plan.cell_queues, now, api, memory, outcome,
+                       skip=frozenset(outcome.cells_written))
     _report_failures(outcome, {**{f"job:{k}": j for k, j in by_key.items()},
                                **{f"cell:{n}": c for n, c in by_name.items()}}, memory, api, now)
     return outcome
 
 
+#: The least time between two writes of one Cell's ``status.queue``: an advisory figure for a
+#: person, written beside the claims and releases the operator guards with the Cell's
+#: resourceVersion (each write of it makes the next guarded write of the Cell conflict
+#: until the watch shows it).
+CELL_QUEUE_REFRESH = timedelta(seconds=10)
+
+
 def _write_cell_queues(cells: Iterable[Cell], planned: Mapping[str, CellQueue], now: datetime, api: Api,
-                       memory: Memory, limits: Limits, outcome: Outcome) -> None:
+                       memory: Memory, outcome: Outcome, skip: frozenset[str]) -> None:
     """Each Cell's ``status.queue`` that moved (last in a pass: binds and job status go first).
 
-    Written when the count of waiting jobs changed, or a free time moved by
-    ``ESTIMATE_STEP`` or appeared or vanished, at most once per ``position_refresh``
-    per cell. A failed write is retried next pass and never stops scheduling.
+    Moved: the count of waiting jobs changed, or a free time moved by ``ESTIMATE_STEP`` or
+    appeared or vanished, against what this replica last wrote (the watch may not show it
+    yet: comparing with the listed Cell would write it again every pass until it does), or
+    against the listed Cell when this replica wrote none. At most once per
+    ``CELL_QUEUE_REFRESH`` per cell; never for a cell this pass already wrote (its claim or
+    release holds its resourceVersion). A failed write is retried later and never stops
+    scheduling.
     """
     known = set()
     for cell in cells:
         known.add(cell.name)
         queue = planned.get(cell.name)
-        last = memory.cell_queue_written_at.get(cell.name)
-        if queue is None or not _cell_queue_moved(cell.queue, queue) \
-                or (last is not None and now - last < limits.position_refresh):
+        written, at = memory.cell_queue_written.get(cell.name, (cell.queue, None))
+        if queue is None or cell.name in skip or not _cell_queue_moved(written, queue) \
+                or (at is not None and now - at < CELL_QUEUE_REFRESH):
             continue
         try:
             api.patch(patches.cell_queue(cell.name, queue))
@@ -256,9 +268,9 @@ def _write_cell_queues(cells: Iterable[Cell], planned: Mapping[str, CellQueue], 
             log.warning("queue summary of Cell %s not written, retrying next pass: %s", cell.name, error)
             continue
         outcome.writes += 1
-        memory.cell_queue_written_at[cell.name] = now
-    for stale in [name for name in memory.cell_queue_written_at if name not in known]:
-        del memory.cell_queue_written_at[stale]
+        memory.cell_queue_written[cell.name] = (queue, now)
+    for stale in [name for name in memory.cell_queue_written if name not in known]:
+        del memory.cell_queue_written[stale]
 
 
 def _cell_queue_moved(written: CellQueue, planned: CellQueue) -> bool:
