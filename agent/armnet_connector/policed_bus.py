@@ -116,12 +116,19 @@ class BusPolicy:
         why = write_refusal(
             motor.model, register, name, value, interlock_held=held, bounds=self.bounds, current=current
         )
-        if why is not None:
-            self._refuse(name, why)
+        if why is None:
+            return
+        refusal = self.interlock.refusal() if held else None
+        if refusal is not None:
+            # The interlock is the reason, whichever path the write took: a job in its grace
+            # window is told so (ShuttingDown), as a motion request tripped at the same moment is.
+            error_type, message = refusal
+            self._refuse(name, f"{why}. {message}", error_type)
+        self._refuse(name, why)
 
-    def _refuse(self, motor: str | None, why: str) -> NoReturn:
+    def _refuse(self, motor: str | None, why: str, error_type: str = "NotAllowed") -> NoReturn:
         self.recorder.record_refusal("register", motor, why, tripped=False)
-        raise RequestError("NotAllowed", why)
+        raise RequestError(error_type, why)
 
 
 @functools.cache

@@ -273,3 +273,15 @@ def test_a_lost_connection_under_a_cached_method_is_recovered(bus, connector) ->
     bus._conn._sock.close()  # the connection breaks under the proxy (say the connector restarted)
     time.sleep(0.05)
     assert set(bus.sync_read("Present_Position")) == set(bus.motors)
+
+
+def test_in_the_grace_window_a_register_write_is_told_the_job_is_shutting_down(bus, sim_cell, connector) -> None:
+    """Whichever path a write takes once the deadline tripped the interlock, the job hears why: its grace window."""
+    from armnet_connector.interlock import TripReason
+    from armnet_runtime.errors import ShuttingDown
+
+    _warm(bus)
+    connector.interlock.trip(TripReason.DEADLINE, "the job's timeout passed")
+    with pytest.raises(ShuttingDown, match="grace window"):
+        bus.write("Torque_Enable", "shoulder_pan", 1, normalize=False)
+    bus.write("Torque_Enable", "shoulder_pan", 0, normalize=False)  # letting go is still accepted
