@@ -49,6 +49,7 @@ class JobPhase(_Name):
     FAILED = JobStatus.FAILED.value
     TIMEOUT = JobStatus.TIMEOUT.value
     CANCELLED = JobStatus.CANCELLED.value
+    PREEMPTED = JobStatus.PREEMPTED.value
 
 
 #: ``RobotJob.status.phase`` values, as plain strings (the SDK's ``JobStatus``).

@@ -44,12 +44,14 @@ class JobStatus(str, Enum):  # noqa: UP042 - str() stays the documented JobStatu
     FAILED = "failed"
     TIMEOUT = "timeout"
     CANCELLED = "cancelled"
+    PREEMPTED = "preempted"
 
 
 TerminalStatus = frozenset(
-    {JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.TIMEOUT, JobStatus.CANCELLED}
+    {JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.TIMEOUT, JobStatus.CANCELLED, JobStatus.PREEMPTED}
 )
-"""The statuses a job never leaves."""
+"""The statuses a run ends in. A job never leaves them, except a ``PREEMPTED`` one whose spec asks
+for a requeue (``requeueOnPreemption``, the default): the operator puts it back in the queue."""
 
 
 class JobSpec(BaseModel):

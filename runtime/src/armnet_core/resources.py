@@ -67,6 +67,8 @@ class RobotJobSpec(Wire):
     detach: bool = False
     priority: int = 0
     cancel: bool = False
+    #: A run preempted for another job (docs/operator.md) goes back to the queue; false: it ends ``preempted``.
+    requeue_on_preemption: bool = Field(default=True, alias="requeueOnPreemption")
     ttl_seconds_after_finished: Optional[int] = Field(default=None, alias="ttlSecondsAfterFinished")
 
 
@@ -121,6 +123,32 @@ class JobArtifacts(Wire):
     message: Optional[str] = None
 
 
+class PreemptionRequest(Wire):
+    """``status.preemption``: the operator asks the node agent to stop the run at its next episode boundary.
+
+    The agent lets the open rollout end (``rollout_end``), then opens the grace window
+    (``is_shutting_down()``); a job that reaches no boundary within ``episodeWaitSeconds``
+    gets the grace window there. The run then ends ``preempted``.
+    """
+
+    requested_at: Timestamp = Field(alias="requestedAt")
+    for_job: str = Field(alias="forJob", min_length=1, max_length=507)
+    message: str = Field(min_length=1, max_length=1024)
+    episode_wait_seconds: int = Field(alias="episodeWaitSeconds", ge=0, le=86400)
+
+
+class PreemptedRun(Wire):
+    """One earlier run of a requeued job (``status.preemptions``): where, when, for whom, and how it ended."""
+
+    cell_name: str = Field(alias="cellName")
+    started_at: Optional[Timestamp] = Field(default=None, alias="startedAt")
+    finished_at: Optional[Timestamp] = Field(default=None, alias="finishedAt")
+    for_job: Optional[str] = Field(default=None, alias="forJob")
+    message: Optional[str] = None
+    rollouts: int = Field(default=0, ge=0, description="Rollouts the run ended.")
+    result: Optional[RobotJobResult] = None
+
+
 class RobotJobStatus(Wire):
     phase: Optional[str] = None
     job_id: Optional[str] = Field(default=None, alias="jobId")
@@ -136,6 +164,8 @@ class RobotJobStatus(Wire):
     rollouts: list[RolloutRecord] = Field(default_factory=list)
     result: Optional[RobotJobResult] = None
     artifacts: Optional[JobArtifacts] = None
+    preemption: Optional[PreemptionRequest] = None
+    preemptions: list[PreemptedRun] = Field(default_factory=list)
     conditions: list[Condition] = Field(default_factory=list)
 
 
@@ -275,6 +305,8 @@ __all__ = [
     "JobArtifacts",
     "Metadata",
     "MonitorVerdict",
+    "PreemptedRun",
+    "PreemptionRequest",
     "QuotaUsage",
     "RobotJob",
     "RobotJobResult",
