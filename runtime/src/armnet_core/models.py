@@ -50,8 +50,7 @@ class JobStatus(str, Enum):  # noqa: UP042 - str() stays the documented JobStatu
 TerminalStatus = frozenset(
     {JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.TIMEOUT, JobStatus.CANCELLED, JobStatus.PREEMPTED}
 )
-"""The statuses a run ends in. A job never leaves them, except a ``PREEMPTED`` one whose spec asks
-for a requeue (``requeueOnPreemption``, the default): the operator puts it back in the queue."""
+"""The statuses a job never leaves (a preempted job's requeue is a new job: ``status.requeuedAs``)."""
 
 
 class JobSpec(BaseModel):

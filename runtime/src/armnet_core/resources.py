@@ -67,7 +67,8 @@ class RobotJobSpec(Wire):
     detach: bool = False
     priority: int = 0
     cancel: bool = False
-    #: A run preempted for another job (docs/operator.md) goes back to the queue; false: it ends ``preempted``.
+    #: A job preempted for another (docs/operator.md) ends ``preempted``; true: the operator queues a copy of
+    #: it (``status.requeuedAs``) that keeps its place in the queue.
     requeue_on_preemption: bool = Field(default=True, alias="requeueOnPreemption")
     ttl_seconds_after_finished: Optional[int] = Field(default=None, alias="ttlSecondsAfterFinished")
 
@@ -137,18 +138,6 @@ class PreemptionRequest(Wire):
     episode_wait_seconds: int = Field(alias="episodeWaitSeconds", ge=0, le=86400)
 
 
-class PreemptedRun(Wire):
-    """One earlier run of a requeued job (``status.preemptions``): where, when, for whom, and how it ended."""
-
-    cell_name: str = Field(alias="cellName")
-    started_at: Optional[Timestamp] = Field(default=None, alias="startedAt")
-    finished_at: Optional[Timestamp] = Field(default=None, alias="finishedAt")
-    for_job: Optional[str] = Field(default=None, alias="forJob")
-    message: Optional[str] = None
-    rollouts: int = Field(default=0, ge=0, description="Rollouts the run ended.")
-    result: Optional[RobotJobResult] = None
-
-
 class RobotJobStatus(Wire):
     phase: Optional[str] = None
     job_id: Optional[str] = Field(default=None, alias="jobId")
@@ -165,7 +154,8 @@ class RobotJobStatus(Wire):
     result: Optional[RobotJobResult] = None
     artifacts: Optional[JobArtifacts] = None
     preemption: Optional[PreemptionRequest] = None
-    preemptions: list[PreemptedRun] = Field(default_factory=list)
+    #: The RobotJob the operator created to run this preempted job again (``spec.requeueOnPreemption``).
+    requeued_as: Optional[str] = Field(default=None, alias="requeuedAs", max_length=253)
     conditions: list[Condition] = Field(default_factory=list)
 
 
@@ -305,7 +295,6 @@ __all__ = [
     "JobArtifacts",
     "Metadata",
     "MonitorVerdict",
-    "PreemptedRun",
     "PreemptionRequest",
     "QuotaUsage",
     "RobotJob",
