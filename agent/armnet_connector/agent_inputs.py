@@ -4,10 +4,13 @@ With the pod launcher the connector runs in the job's pod and the node agent
 outside it, so the agent's NATS inputs bridge (``node.inputs_bridge``) cannot
 hand the cell operator's clicks to the connector's ``OperatorInputs`` object in
 its own process. ``agent.sock`` carries them in: reset confirmations, rollout
-verdicts, teleop, stop, and the cancel that opens the grace window
-(``ctx.is_shutting_down``), and the notice that the job's container started
-(``job_started``: a pod's connector starts the job's clock then, or at the job's
-first connection, not at its own start, which precedes the job's image pull).
+verdicts, teleop, stop, the cancel that opens the grace window
+(``ctx.is_shutting_down``), the preemption that opens it at the job's next
+episode boundary (``preempt``: at the end of the open rollout, at once between
+rollouts; ``CellState.stop_at_episode_end``), and the notice that the job's
+container started (``job_started``: a pod's connector starts the job's clock
+then, or at the job's first connection, not at its own start, which precedes
+the job's image pull).
 
 Why a second socket next to ``observer.sock`` rather than write ops on it: the
 observer stays read-only by construction (its session has no op that changes
@@ -42,7 +45,7 @@ AGENT_SOCKET = "agent.sock"
 MAX_ACTION_MOTORS = 64
 TELEOP_EVENTS = ("next_episode", "rerecord_episode", "stop_recording")
 MAX_CANCEL_WHY = 500
-"""Characters of a cancel's reason: it lands in the interlock's message and the job's record."""
+"""Characters of a cancel's or a preemption's reason: it lands in the interlock's message and the job's record."""
 
 
 class AgentSession(Session):
@@ -55,7 +58,7 @@ class AgentSession(Session):
         self.ops.update(
             reset_pending=self.op_reset_pending, confirm_reset=self.op_confirm_reset, outcome=self.op_outcome,
             teleop_action=self.op_teleop_action, teleop_event=self.op_teleop_event, stop=self.op_stop,
-            cancel=self.op_cancel, job_started=self.op_job_started,
+            cancel=self.op_cancel, preempt=self.op_preempt, job_started=self.op_job_started,
         )
 
     def handle(self, request: dict[str, Any]) -> Reply:
@@ -141,6 +144,19 @@ class AgentSession(Session):
             self.cell.deadline.cancel(why)
         return {"ok": True, "applied": True}
 
+    def op_preempt(self, request: dict[str, Any]) -> Reply:
+        """The job was preempted for ``why``: open the grace window at its next episode boundary.
+
+        ``now``: the window is open on return (the job was between rollouts, or the
+        window was open already); false, it opens when the job ends its open rollout.
+        The op changes nothing the second time, so the agent may ask again to learn
+        whether the boundary came.
+        """
+        why = request.get("why")
+        if not (isinstance(why, str) and 0 < len(why) <= MAX_CANCEL_WHY):
+            raise protocol_error(f"request field 'why' must be a string of 1 to {MAX_CANCEL_WHY} characters "
+                                 "(the preemption's reason)")
+        return {"ok": True, "applied": True, "now": self.cell.stop_at_episode_end(why)}
 
     def op_job_started(self, request: dict[str, Any]) -> Reply:
         """The job's container runs (the agent saw it start): the job's clock starts, if its first

@@ -133,6 +133,8 @@ class CellState:
         self._reset_lock = threading.Lock()
         #: One verdict per rollout: the check and the append happen together.
         self._rollout_lock = threading.Lock()
+        #: Why the job is to stop at the end of the open rollout (``stop_at_episode_end``), until that end.
+        self._stop_at_end: str | None = None
 
     # -- the live objects of every connection ---------------------------------------
 
@@ -387,9 +389,52 @@ class CellState:
         return self.inputs.wait_reset_confirmation(timeout_s)
 
     def record_rollout(self, event: RolloutEvent) -> None:
+        """Append a rollout event; an end with a stop pending (``stop_at_episode_end``) opens the grace window."""
         with self._rollout_lock:
             self.rollouts.append(event)
+            why = self._stop_at_end if event.kind == "end" else None
+            if why is not None:
+                self._stop_at_end = None
+                self.deadline.cancel(why)
         log.info("rollout %s index=%s total=%s", event.kind, event.index, event.total)
+        if why is not None:
+            log.info("the episode ended: the stop that waited for it opened the grace window (%s)", why)
+
+    def stop_at_episode_end(self, why: str) -> bool:
+        """Open the grace window at the job's next episode boundary; True if it is open on return.
+
+        A preempted job is never stopped mid-episode (docs/connector.md, "Preemption"):
+        between rollouts the window opens now, as a cancel's does (the interlock's
+        reason is ``why``); during one it opens when the job ends that rollout
+        (``record_rollout`` of its end), and this returns False. A second request
+        changes nothing (the first ``why`` stands); once the window is open, from
+        whatever opened it, this returns True.
+
+        The decision and the opening happen under the rollouts' lock, so no rollout can
+        begin between them. That is safe: tripping the interlock takes only the
+        interlock's own lock, and nothing holding that lock waits for this one.
+        """
+        with self._rollout_lock:
+            if self.deadline.deadline_passed:
+                return True
+            if self._stop_at_end is not None:
+                return False
+            if self._rollout_open():
+                self._stop_at_end = why
+                pending = True
+            else:
+                self.deadline.cancel(why)
+                pending = False
+        if pending:
+            log.info("stop requested (%s): the grace window opens at the end of the open rollout", why)
+        return not pending
+
+    def _rollout_open(self) -> bool:
+        """Whether the latest begin or end is a begin (a verdict is neither). Under ``_rollout_lock``."""
+        for event in reversed(self.rollouts):
+            if event.kind in ("begin", "end"):
+                return event.kind == "begin"
+        return False
 
     def record_monitor_verdict(self, *, told_complete: bool) -> None:
         """Record the completion monitor's verdict on the open rollout, once per rollout.
