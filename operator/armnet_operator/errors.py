@@ -23,6 +23,10 @@ class Conflict(TransientError):
     """A resourceVersion precondition failed: someone else wrote first."""
 
 
+class AlreadyExists(TransientError):
+    """A create found an object of that name: someone (this operator before a crash?) made it first."""
+
+
 class NotFound(TransientError):
     """The object vanished between the snapshot and the write."""
 

@@ -220,8 +220,8 @@ def plan_reclaim(
     the same cohort and embodiment that holds more than its nominal share, on a
     cell the owner's job can use. Victims go most-over-share tenant first, then
     lowest priority, then most recently bound (Kueue's order). A borrowing job
-    already asked to stop (``spec.cancel``) counts as a cell on its way back, so
-    the decision is the same when repeated on the next pass.
+    already asked to stop (``spec.cancel``, or preempted already) counts as a cell
+    on its way back, so the decision is the same when repeated on the next pass.
     """
     holders = [j for j in holders if j.cell_name is not None]
     ledger = Ledger(quotas, holders, usage, now, sharing)
@@ -249,7 +249,7 @@ def plan_reclaim(
         victim_tenant = ledger.tenant_of(victim)
         ledger.release(victim_tenant)
         ledger.charge(tenant)
-        if not victim.cancel:
+        if not (victim.cancel or victim.preempting):
             decisions.append(Reclaim(victim, victim.cell_name or "", victim_tenant, owner,
                                      f"cell {victim.cell_name} is borrowed by CellQuota {victim_tenant!r}; "
                                      f"its owner {account.quota.name!r} has job {owner.key} waiting"))
@@ -269,7 +269,7 @@ def _victim(
                 or (owner.task is not None and cell_task.get(job.cell_name or "") != owner.task)):
             continue
         bound = job.bound_at.timestamp() if job.bound_at else 0.0
-        key = (not job.cancel, -ledger.score(tenant), job.priority, -bound, job.key)
+        key = (not (job.cancel or job.preempting), -ledger.score(tenant), job.priority, -bound, job.key)
         if best_key is None or key < best_key:
             best, best_key = job, key
     return best

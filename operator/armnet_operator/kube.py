@@ -22,7 +22,14 @@ from kubernetes import client, config
 from kubernetes.client import rest
 from kubernetes.client.exceptions import ApiException
 
-from .errors import Conflict, NotFound, PermanentError, ResourceMissing, TransientError
+from .errors import (
+    AlreadyExists,
+    Conflict,
+    NotFound,
+    PermanentError,
+    ResourceMissing,
+    TransientError,
+)
 from .leader import LeaseMove, LeaseSeen, LeaseView, decide_lease, observe
 from .model import Cell, Job
 from .patches import Patch, Target
@@ -203,6 +210,18 @@ class KubeApi:
             ))
         except ApiException as error:
             raise _translate(error, f"robotjob {namespace}/{name}") from error
+
+    def create_job(self, body: dict[str, Any]) -> dict[str, Any]:
+        """Create a RobotJob (a preempted job's requeue); AlreadyExists when the name is taken."""
+        namespace, name = body["metadata"]["namespace"], body["metadata"]["name"]
+        try:
+            return cast(dict[str, Any], self._send(self.custom.create_namespaced_custom_object,
+                GROUP, VERSION, namespace, ROBOTJOBS, body
+            ))
+        except ApiException as error:
+            if error.status == 409:
+                raise AlreadyExists(f"robotjob {namespace}/{name}: already exists") from error
+            raise _translate(error, f"create robotjob {namespace}/{name}") from error
 
     def list_quotas(self) -> list[dict[str, Any]]:
         """Every CellQuota (none if the CRD is not installed: nothing is rationed then)."""

@@ -72,6 +72,13 @@ class RequestCancel:
 
 
 @dataclass(frozen=True)
+class RequeuePreempted:
+    """Create the copy that runs a preempted job again (``requeue``), then name it in the job's status."""
+
+    job: Job
+
+
+@dataclass(frozen=True)
 class AddFinalizer:
     job: Job
 
@@ -92,6 +99,7 @@ Action = (
     | RequeueJob
     | FinishJob
     | RequestCancel
+    | RequeuePreempted
     | RepairStatus
     | AddFinalizer
     | RemoveFinalizer
@@ -170,6 +178,10 @@ def _plan_job(
         # (and of the CRD) whenever no operator runs, e.g. after ``helm uninstall``.
         if job.has_finalizer and not claimed:
             actions.append(RemoveFinalizer(job))
+        if requeue_due(job):
+            # Before any TTL: the copy is created from this job, which must exist until then.
+            actions.append(RequeuePreempted(job))
+            return actions
         if not job.deleting and _ttl_expired(job, now, timing):
             actions.append(DeleteJob(job))
         return actions
@@ -181,6 +193,12 @@ def _plan_job(
     elif job.spec_problem is not None:
         actions.append(FinishJob(job, JobPhase.FAILED, "InvalidSpec", job.spec_problem))
     return actions
+
+
+def requeue_due(job: Job) -> bool:
+    """A preempted job whose spec asks for a requeue and that has none yet (cancelled or deleted: none)."""
+    return (job.phase is JobPhase.PREEMPTED and job.requeue_on_preemption and job.requeued_as is None
+            and not job.cancel and not job.deleting)
 
 
 def _plan_cancel(job: Job, cell: Cell | None, now: datetime, timing: Timing) -> list[Action]:

@@ -41,6 +41,16 @@ class Metrics:
             "armnet_requeues_total", "Dispatched jobs put back in the queue (cell gone, offline or unclaimed)",
             registry=r,
         )
+        self.preemptions = Counter(
+            "armnet_preemptions_total",
+            "Running jobs asked to stop at their next episode boundary, by why (reclaim: a borrowed cell "
+            "goes back to the tenant that owns it)", ["reason"], registry=r,
+        )
+        self.preemption_requeues = Counter(
+            "armnet_preemption_requeues_total",
+            "Preempted jobs whose copy (status.requeuedAs) was created to run them again", registry=r,
+        )
+        self.preemptions.labels("reclaim")
         self.errors = Counter("armnet_reconcile_errors_total", "Failed writes and reconcile passes", registry=r)
         self.object_errors = Counter(
             "armnet_reconcile_object_errors_total",
@@ -87,6 +97,8 @@ class Metrics:
         self.binds.inc(len(outcome.bound))
         self.conflicts.inc(outcome.conflicts)
         self.requeues.inc(outcome.requeued)
+        self.preemptions.labels("reclaim").inc(outcome.preempted)
+        self.preemption_requeues.inc(outcome.requeued_copies)
         self.errors.inc(outcome.errors)
         failing = Tally(failure.kind for failure in outcome.failed.values())
         for kind in ("RobotJob", "Cell"):

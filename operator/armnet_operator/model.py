@@ -84,6 +84,11 @@ class Job:
     """Why this job can never start (args too deep or too large, an unreadable spec): it fails."""
     status_defects: tuple[str, ...] = ()
     """Status fields that could not be read (e.g. ``status.finishedAt``): read as absent, then repaired."""
+    requeue_on_preemption: bool = True
+    preemption_requested_at: datetime | None = None
+    """``status.preemption.requestedAt``: the operator asked the agent to stop the run at an episode boundary."""
+    requeued_as: str | None = None
+    """``status.requeuedAs``: the job created to run this preempted one again."""
 
     @property
     def has_finalizer(self) -> bool:
@@ -92,6 +97,11 @@ class Job:
     @property
     def key(self) -> str:
         return f"{self.namespace}/{self.name}"
+
+    @property
+    def preempting(self) -> bool:
+        """Asked to stop at its next episode boundary: its cell is on its way back."""
+        return self.preemption_requested_at is not None
 
     @property
     def terminal(self) -> bool:
@@ -174,6 +184,8 @@ class Timing:
     lost_grace: timedelta = timedelta(seconds=60)
     cancel_force_after: timedelta = timedelta(seconds=60)
     default_ttl: timedelta | None = timedelta(hours=24)
+    episode_wait: timedelta = timedelta(seconds=120)
+    """How long a preempted job may run on to its next episode boundary before its grace window opens."""
 
 
 def job_key(namespace: str, name: str) -> str:

@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from datetime import UTC, datetime, timedelta
 from typing import Any, TypeVar
 
+from armnet_core.api import PREEMPTED_FROM_ANNOTATION, QUEUED_SINCE_ANNOTATION
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from armnet_core.lenient import read_parts
 from armnet_core.resources import (
@@ -28,6 +29,7 @@ from armnet_core.resources import (
 from armnet_core.resources import (
     CellQueue as CellQueueStatus,
 )
+from armnet_core.times import parse_time
 from pydantic import BaseModel, Field, ValidationError
 
 from .args import args_problem, measure
@@ -101,9 +103,10 @@ def _conditions(raw: Any, section: str) -> tuple[list[Condition], list[dict[str,
     return parsed, plain, defects
 
 
-_JOB_SPEC_FIELDS = ("image", "embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds")
+_JOB_SPEC_FIELDS = ("image", "embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds",
+                    "requeueOnPreemption")
 _JOB_STATUS_SCALARS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "startedAt",
-                       "estimatedStart", "likelyStart")
+                       "estimatedStart", "likelyStart", "preemption", "requeuedAs")
 _JOB_STATUS_FIELDS = (*_JOB_STATUS_SCALARS, "conditions")
 
 
@@ -167,10 +170,11 @@ def _job(
     spec_problem: str | None, status_defects: tuple[str, ...] = (),
 ) -> Job:
     """The frozen ``Job`` from parsed metadata, spec and status (both parsing paths end here)."""
+    created = meta.creation_timestamp or datetime.now(UTC)
     return Job(
         namespace=meta.namespace or "",
         name=meta.name,
-        created=meta.creation_timestamp or datetime.now(UTC),
+        created=queued_since(meta.annotations, created),
         embodiment=spec.embodiment,
         task=spec.task or None,
         priority=spec.priority,
@@ -196,7 +200,21 @@ def _job(
         conditions=plain_conditions,
         spec_problem=spec_problem,
         status_defects=status_defects,
+        requeue_on_preemption=spec.requeue_on_preemption,
+        preemption_requested_at=status.preemption.requested_at if status.preemption is not None else None,
+        requeued_as=status.requeued_as,
     )
+
+
+def queued_since(annotations: Mapping[str, str], created: datetime) -> datetime:
+    """When the job joined the queue: a preempted job's requeue keeps the place of the job it repeats.
+
+    Only ever earlier than the object's creation (the operator writes it when it
+    creates the requeue); a value that does not parse is ignored. A tenant who
+    writes it on their own job moves that job ahead only as far as a priority could.
+    """
+    since = parse_time(annotations.get(QUEUED_SINCE_ANNOTATION)) if annotations.get(PREEMPTED_FROM_ANNOTATION) else None
+    return since if since is not None and since < created else created
 
 
 def parse_cell(body: Mapping[str, Any]) -> Cell:

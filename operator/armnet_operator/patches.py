@@ -13,7 +13,7 @@ resourceVersion and unable to drop anyone else's finalizer.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from enum import StrEnum
 from typing import Any
 
@@ -185,6 +185,18 @@ def request_cancel(job: Job, now: datetime) -> Patch:
     message = "the agent stops the job within the cell's grace period and reports cancelled"
     set_condition(conditions, JobConditionType.CANCEL_REQUESTED, True, "Requested", message, now)
     return _job_status(job, {"conditions": conditions})
+
+
+def request_preemption(job: Job, for_job: str, message: str, episode_wait: timedelta, now: datetime) -> Patch:
+    """``status.preemption``: the node agent stops the run at its next episode boundary (docs/operator.md)."""
+    request = {"requestedAt": kube_time(now), "forJob": for_job, "message": message[:1024],
+               "episodeWaitSeconds": int(episode_wait.total_seconds())}
+    return _job_status(job, {"preemption": request})
+
+
+def name_requeue(job: Job, name: str) -> Patch:
+    """``status.requeuedAs`` on the preempted job: its copy exists (created once, found again after a crash)."""
+    return _job_status(job, {"requeuedAs": name})
 
 
 def add_finalizer(job: Job) -> Patch:

@@ -29,7 +29,8 @@ from typing import Any, Protocol
 
 from . import patches
 from .cell_checks import check_cell, check_cells
-from .errors import Conflict, NotFound, ResourceMissing, TransientError
+from .errors import AlreadyExists, Conflict, NotFound, ResourceMissing, TransientError
+from .fairshare import Reclaim
 from .health import derive_cell_phase
 from .lifecycle import (
     Action,
@@ -41,15 +42,18 @@ from .lifecycle import (
     RepairStatus,
     RequestCancel,
     RequeueJob,
+    RequeuePreempted,
     SetCellPhase,
     plan_active_job,
     plan_lifecycle,
     release_reason,
+    requeue_due,
 )
 from .model import Cell, CellPhase, CellQueue, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
 from .quota import QuotaObject, Usage
 from .quota_writes import current_usage, plan_quota_writes, quotas_in_force
+from .requeue import is_requeue_of, requeue_body, requeue_name
 from .scheduling import Binding, QueueEntry, plan_bindings
 
 log = logging.getLogger(__name__)
@@ -66,6 +70,9 @@ class Api(Protocol):
 
     def read_job(self, namespace: str, name: str) -> dict[str, Any]:
         """The RobotJob as the server has it now; raise NotFound if gone."""
+
+    def create_job(self, body: dict[str, Any]) -> dict[str, Any]:
+        """Create the RobotJob; raise AlreadyExists if its name is taken."""
 
     def post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None: ...
 
@@ -118,6 +125,10 @@ class Outcome:
     """Queue writes were left for the next pass (``Limits.max_queue_tasks``): run it soon."""
     quotas_ignored: int = 0
     """CellQuotas in scope that this pass did not apply (malformed, or duplicating another's scope)."""
+    preempted: int = 0
+    """Running jobs asked to stop at their next episode boundary (a borrowed cell reclaimed)."""
+    requeued_copies: int = 0
+    """Preempted jobs whose copy now waits in the queue in their place (``requeue``)."""
 
     def merge(self, other: Outcome) -> None:
         self.bound.extend(other.bound)
@@ -127,6 +138,8 @@ class Outcome:
         self.deleted.update(other.deleted)
         self.conflicts += other.conflicts
         self.requeued += other.requeued
+        self.preempted += other.preempted
+        self.requeued_copies += other.requeued_copies
         self.errors += other.errors
         self.writes += other.writes
 
@@ -199,6 +212,9 @@ def reconcile_once(
         outcome.merge(result)
     # Finalizers after the binds: off the submit->bound path. A job whose bind failed
     # gets its finalizer next pass (it changed under us; this write would conflict).
+    preempts = [_guarded(f"job:{r.job.key}", r.job, partial(_preempt, r, now, timing, api)) for r in plan.reclaims]
+    for result in _parallel(limits.parallel_binds, preempts):
+        outcome.merge(result)
     finalize.difference_update(b.job.key for b in plan.bindings)
     finalize.update(j.key for j, _ in outcome.bound[bound_before:] if not j.has_finalizer)
     by_key.update(outcome.jobs_written)
@@ -525,6 +541,8 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
                 kind = "Normal" if phase is JobPhase.CANCELLED and error is None else "Warning"
                 _event(api, job, kind, reason, error or f"job {phase}")
             return written
+        case RequeuePreempted(job=job):
+            return _requeue_preempted(job, api, outcome)
         case RequestCancel(job=job):
             written = _write(api, patches.request_cancel(job, now), outcome)
             if written is not None:
@@ -550,6 +568,72 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
                 pass
             except TransientError as error:
                 _count(error, outcome)
+    return None
+
+
+def _preempt(reclaim: Reclaim, now: datetime, timing: Timing, api: Api) -> Outcome:
+    """Ask the agent to stop the borrowing job at its next episode boundary; an Event on both jobs."""
+    outcome = Outcome()
+    victim, owner = reclaim.job, reclaim.for_job
+    request = patches.request_preemption(victim, owner.key, reclaim.message, timing.episode_wait, now)
+    written = _write(api, request, outcome)
+    if written is None:
+        return outcome
+    outcome.jobs_written[victim.key] = parse_job(written)
+    outcome.preempted += 1
+    wait = int(timing.episode_wait.total_seconds())
+    log.info("preempting %s on cell %s for %s: %s", victim.key, reclaim.cell, owner.key, reclaim.message)
+    _event(api, victim, "Warning", "Preempted",
+           f"{reclaim.message}: the job stops at its next episode boundary (its grace window opens then, "
+           f"or in {wait} s without one)")
+    _event(api, owner, "Normal", "Preempting",
+           f"job {victim.key} on cell {reclaim.cell} stops at its next episode boundary for this job")
+    return outcome
+
+
+def _requeue_preempted(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Create the preempted job's copy (or find the one made before a crash), then name it in its status."""
+    try:
+        current = api.read_job(job.namespace, job.name)
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    fresh = parse_job(current)
+    if fresh.uid != job.uid or not requeue_due(fresh):
+        return None
+    copy = _create_requeue(current, fresh, api, outcome)
+    if copy is None:
+        return None
+    name = str(copy["metadata"]["name"])
+    written = _write(api, patches.name_requeue(fresh, name), outcome)
+    if written is not None:
+        outcome.requeued_copies += 1
+        _event(api, fresh, "Normal", "Requeued", f"preempted; {name} runs it again, in its place in the queue")
+        _event(api, parse_job(copy), "Normal", "RequeuedFrom",
+               f"runs preempted job {job.name} again, in its place in the queue")
+    return written
+
+
+def _create_requeue(current: dict[str, Any], job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """The copy as created now, or as found (created for this job before); None to retry next pass."""
+    for taken_by_other in (False, True):
+        name = requeue_name(job.name, job.uid, taken_by_other)
+        try:
+            made = api.create_job(requeue_body(current, name, job.created))
+        except AlreadyExists:
+            try:
+                existing = api.read_job(job.namespace, name)
+            except TransientError as error:
+                _count(error, outcome)
+                return None
+            if is_requeue_of(existing, job.uid):
+                return existing
+            continue
+        except TransientError as error:
+            _count(error, outcome)
+            return None
+        outcome.writes += 1
+        return made
     return None
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
 
 from .estimate import cell_queues, likely_occupancy, queue_starts, seats, typical_runs
-from .fairshare import Ledger, holds_cell
+from .fairshare import Ledger, Reclaim, holds_cell, plan_reclaim
 from .health import derive_cell_phase, is_available
 from .model import Cell, CellPhase, CellQueue, Job, QueuedReason
 from .quota import DEFAULT_SHARING, CellQuota, FairSharing, Usage
@@ -52,6 +52,8 @@ class SchedulePlan:
     queued: Mapping[str, QueueEntry]
     cell_queues: Mapping[str, CellQueue] = field(default_factory=dict)
     """Each cell's queue summary after this pass's bindings (``estimate.cell_queues``)."""
+    reclaims: tuple[Reclaim, ...] = ()
+    """Borrowing jobs to preempt at their next episode boundary for owners waiting (``fairshare.plan_reclaim``)."""
 
 
 def order_key(job: Job) -> tuple[int, datetime, str, str]:
@@ -144,6 +146,7 @@ def plan_bindings(
     """
     jobs = list(jobs)
     cells = list(cells)
+    quotas = list(quotas)
     occupied = occupied_cells(jobs, cells)
     claimed_jobs = {cell.current_job for cell in cells if cell.current_job}
     phases = {
@@ -191,17 +194,19 @@ def plan_bindings(
     typical = typical_runs(jobs)
     latest, likely = _start_estimates(entries, holders, typical, phases, now)
     at_cells = cell_queues(cells, (job for job, _, _ in entries + exhausted), holders, now, typical)
+    for_busy = [job for job, reason, _ in entries if reason is QueuedReason.ALL_CELLS_BUSY]
+    reclaims = plan_reclaim(holders.values(), for_busy, cells, quotas, usage or {}, now, sharing) if for_busy else ()
     return SchedulePlan(tuple(bindings), {
         key: replace(entry, latest_start=latest[key], likely_start=likely.get(key, latest[key]))
         if key in latest else entry
         for key, entry in positions.items()
-    }, at_cells)
+    }, at_cells, reclaims)
 
 
 def _holders(jobs: list[Job], bindings: list[Binding], now: datetime) -> dict[str, Job]:
     """Cell name -> the job holding it after this pass's bindings."""
     holders = {job.cell_name: job for job in jobs if job.active and job.cell_name}
-    holders.update({b.cell.name: replace(b.job, bound_at=now) for b in bindings})
+    holders.update({b.cell.name: replace(b.job, bound_at=now, cell_name=b.cell.name) for b in bindings})
     return holders
 
 

@@ -28,6 +28,7 @@ class OperatorSettings(BaseModel):
     lost_grace: float = Field(60.0, ge=0, description="seconds past the heartbeat timeout before a running job fails as lost")
     cancel_force_after: float = Field(60.0, ge=0, description="seconds an unconfirmed cancel on a lost cell waits before it is forced")
     default_ttl: float | None = Field(86400.0, ge=0, description="seconds finished RobotJobs are kept when they set no ttlSecondsAfterFinished (none: forever)")
+    episode_wait: float = Field(120.0, ge=0, le=86400, description="seconds a preempted job may run on to its next episode boundary before its grace window opens")
     reconcile_period: float = Field(5.0, gt=0, description="seconds between full reconciles when nothing changes")
     position_refresh: float = Field(5.0, ge=0, description="minimum seconds between queuePosition-only updates of one job")
     quota_refresh: float = Field(30.0, gt=0, description="seconds between writes of a CellQuota's usage when nothing else in its status changes")
@@ -71,6 +72,7 @@ class OperatorSettings(BaseModel):
             lost_grace=timedelta(seconds=self.lost_grace),
             cancel_force_after=timedelta(seconds=self.cancel_force_after),
             default_ttl=None if self.default_ttl is None else timedelta(seconds=self.default_ttl),
+            episode_wait=timedelta(seconds=self.episode_wait),
         )
 
 

@@ -103,6 +103,10 @@ STREAMS_CONNECTED_CONDITION = "StreamsConnected"
 STOPPED_BY_ANNOTATION = f"{GROUP}/stopped-by"
 #: ``armnet submit --follow`` asks for a cancel when its client is gone this long; the node agent applies it.
 FOLLOWER_TIMEOUT_ANNOTATION = f"{GROUP}/follower-timeout-seconds"
+#: On the RobotJob the operator creates to run a preempted job again: the preempted job's uid (the requeue
+#: is created once per preempted job) and when the preempted job first queued (it keeps its place).
+PREEMPTED_FROM_ANNOTATION = f"{GROUP}/preempted-from"
+QUEUED_SINCE_ANNOTATION = f"{GROUP}/queued-since"
 #: The operator's finalizer on a RobotJob: the job's cell is released before the job is deleted.
 RELEASE_CELL_FINALIZER = f"{GROUP}/release-cell"
 #: The label by which the cell operator's page groups Cells (set by whoever installs the cells).
@@ -159,6 +163,8 @@ __all__ = [
     "MANAGED_BY_LABEL",
     "NAMESPACE_LABEL",
     "NAME_LABEL",
+    "PREEMPTED_FROM_ANNOTATION",
+    "QUEUED_SINCE_ANNOTATION",
     "PHASES",
     "RELEASE_CELL_FINALIZER",
     "ROBOTJOBS",

@@ -34,7 +34,7 @@ def test_the_phases_are_the_robotjob_crds_phase_enum_in_its_order() -> None:
 def test_active_and_terminal_phases_are_disjoint_phases() -> None:
     assert api.ACTIVE_PHASES | api.TERMINAL_PHASES <= set(api.PHASES)
     assert not api.ACTIVE_PHASES & api.TERMINAL_PHASES
-    assert api.TERMINAL_PHASES == {"succeeded", "failed", "timeout", "cancelled"}
+    assert api.TERMINAL_PHASES == {"succeeded", "failed", "timeout", "cancelled", "preempted"}
 
 
 def _status_enum(plural: str, *path: str) -> tuple[str, ...]:

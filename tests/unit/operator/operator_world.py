@@ -14,7 +14,7 @@ from typing import Any
 
 from armnet_core.api import TERMINAL_PHASES
 from armnet_core.times import kube_time
-from armnet_operator.errors import Conflict, NotFound
+from armnet_operator.errors import AlreadyExists, Conflict, NotFound
 from armnet_operator.model import Cell, Job
 from armnet_operator.parsing import parse_cell, parse_job
 from armnet_operator.patches import Patch, Target
@@ -146,6 +146,18 @@ class World:
         if key not in self.jobs:
             raise NotFound(key)
         return copy.deepcopy(self.jobs[key])
+
+    def create_job(self, body: dict[str, Any]) -> dict[str, Any]:
+        meta = body["metadata"]
+        key = f"{meta['namespace']}/{meta['name']}"
+        if key in self.jobs:
+            raise AlreadyExists(key)
+        created = copy.deepcopy(body)
+        created["metadata"].update(uid=f"uid-{meta['name']}", resourceVersion=self._next_rv(),
+                                   creationTimestamp=kube_time(self.now))
+        created.setdefault("status", {})
+        self.jobs[key] = created
+        return copy.deepcopy(created)
 
     def read_cell(self, name: str) -> dict[str, Any]:
         if name not in self.cells:
