@@ -45,6 +45,7 @@ from .mapping import (
     generated_name_prefix,
     job_from_robotjob,
     quota_view_of,
+    requeue_of,
     result_from_robotjob,
     robotjob_body,
     view_of,
@@ -250,19 +251,36 @@ class Client:
         return result.model_copy(update={"stdout": output[0], "stderr": output[1]})
 
     def wait_terminal(self, name: str, timeout: Optional[float]) -> tuple[RobotJob, JobResult]:
-        """Like :meth:`wait` but never reads the stream: the RobotJob and its result with the tails."""
+        """Like :meth:`wait` but never reads the stream: the RobotJob and its result with the tails.
+
+        A job preempted and requeued (``status.requeuedAs``) is followed to the job that runs it
+        again: the result is the last run's, the RobotJob that one.
+        """
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             job = self._read(name)
             result = result_from_robotjob(job)
-            if result is not None:
+            successor = requeue_of(job) if result is not None else None
+            if result is not None and successor is None:
                 return job, result
+            if successor:
+                log.info("robotjob %s was preempted; %s runs it again: waiting for that one", name, successor)
+                name = successor
+                continue
             if deadline is not None and time.monotonic() >= deadline:
                 raise WaitTimeout(
                     f"robotjob {name!r} is still {job.status.phase or JobPhase.SUBMITTED} after {timeout:g} s; "
                     f"it keeps running: `armnet get {name}` or `armnet cancel {name}`"
                 )
             time.sleep(self.poll_interval_s)
+
+    def _next_run(self, name: str) -> Optional[str]:
+        """After a run's log stream ended: the job that runs it again if it was preempted and requeued."""
+        while True:
+            successor = requeue_of(self._read(name))
+            if successor != "":
+                return successor
+            time.sleep(self.poll_interval_s)  # the operator creates the copy on its next pass
 
     def _stream_output(self, job: RobotJob) -> Optional[tuple[str, str]]:
         """The job's whole stdout and stderr from the stream; ``None`` when unreadable or empty."""
@@ -296,16 +314,24 @@ class Client:
         stdout: list[str] = []
         stderr: list[str] = []
         from_stream = True
-        for line in self.logs(job.id, follow=True):
-            from_stream = from_stream and line.source == "stream"
-            if line.kind == "stdout":
-                stdout.append(line.text + "\n")
-                print(line.text, file=out or sys.stdout)
-            elif line.kind == "stderr":
-                stderr.append(line.text + "\n")
-                print(line.text, file=err or sys.stderr)
-            elif line.kind == "progress":
-                print(f"[progress] {line.text}", file=err or sys.stderr)
+        name: Optional[str] = job.id
+        while name:
+            for line in self.logs(name, follow=True):
+                from_stream = from_stream and line.source == "stream"
+                if line.kind == "stdout":
+                    stdout.append(line.text + "\n")
+                    print(line.text, file=out or sys.stdout)
+                elif line.kind == "stderr":
+                    stderr.append(line.text + "\n")
+                    print(line.text, file=err or sys.stderr)
+                elif line.kind == "progress":
+                    print(f"[progress] {line.text}", file=err or sys.stderr)
+            last, name = name, self._next_run(name)
+            if name:
+                print(f"[armnet] {last} was preempted; {name} runs it again, in its place in the queue",
+                      file=err or sys.stderr)
+                stdout.clear()
+                stderr.clear()
         _, result = self.wait_terminal(job.id, None)
         if from_stream and (stdout or stderr):
             log.info("robotjob %s: stdout/stderr are the whole output from the log stream", job.id)

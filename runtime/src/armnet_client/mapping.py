@@ -89,6 +89,17 @@ def status_of(phase: Optional[str]) -> JobStatus:
     return JobStatus(phase)
 
 
+def requeue_of(job: RobotJob) -> Optional[str]:
+    """The job that runs a preempted ``job`` again: its name; ``""`` while the operator is still
+    creating it; None when none comes (not preempted, or its spec or a cancel said no requeue)."""
+    if job.status.phase != JobStatus.PREEMPTED.value:
+        return None
+    if job.status.requeued_as:
+        return job.status.requeued_as
+    wanted = job.spec.requeue_on_preemption and not job.spec.cancel and job.metadata.deletion_timestamp is None
+    return "" if wanted else None
+
+
 def result_from_robotjob(job: RobotJob) -> Optional[JobResult]:
     """The ``JobResult`` of a finished RobotJob; ``None`` while it has not finished.
 
@@ -160,6 +171,10 @@ class JobView:
     rollouts: tuple[RolloutRecord, ...] = ()
     #: Where the job's output went (None until the node agent wrote it, after the job).
     artifacts: Optional[JobArtifacts] = None
+    #: A preempted job: the job that runs it again (``status.requeuedAs``).
+    requeued_as: Optional[str] = None
+    #: A running job the operator preempted: it stops at its next episode boundary.
+    preempting: bool = False
 
 
 def view_of(job: RobotJob) -> JobView:
@@ -186,6 +201,8 @@ def view_of(job: RobotJob) -> JobView:
         image=job.spec.image,
         rollouts=tuple(job.status.rollouts),
         artifacts=job.status.artifacts,
+        requeued_as=job.status.requeued_as,
+        preempting=job.status.preemption is not None,
     )
 
 

@@ -57,6 +57,8 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def _queue_note(job: JobView, now: datetime) -> str:
     """``AllCellsBusy #2, likely in 4m, within 12m``: why it waits, its place, its likely and latest start."""
+    if job.status is JobStatus.PREEMPTED and job.requeued_as:
+        return f"requeued as {job.requeued_as}"
     if job.status not in (JobStatus.QUEUED, JobStatus.SUBMITTED) or not job.queued_reason:
         return ""
     position = f" #{job.queue_position}" if job.queue_position else ""
@@ -75,8 +77,8 @@ def jobs_table(jobs: Sequence[JobView], now: datetime, *, wide: bool = False) ->
         headers += ["TASK", "PRIORITY", "IMAGE", "PROGRESS", "OUTPUT"]
     rows = []
     for job in jobs:
-        status = job.status.value + (" (cancelling)" if job.cancel_requested
-                                     and job.status not in TerminalStatus else "")
+        stopping = " (cancelling)" if job.cancel_requested else " (preempting)" if job.preempting else ""
+        status = job.status.value + (stopping if job.status not in TerminalStatus else "")
         row = [job.name, status, job.cell or "<none>", job.embodiment, _queue_note(job, now) or "-",
                age(job.created_at, now)]
         if wide:

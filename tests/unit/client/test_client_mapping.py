@@ -9,6 +9,7 @@ from armnet_client.mapping import (
     cell_view_of,
     generated_name_prefix,
     job_from_robotjob,
+    requeue_of,
     result_from_robotjob,
     robotjob_body,
     spec_from_robotjob,
@@ -179,3 +180,26 @@ def test_a_job_submitted_without_a_follower_has_no_follower_annotation() -> None
 def test_a_detached_job_never_declares_a_follower() -> None:
     body = robotjob_body(full_spec().model_copy(update={"detach": True}), namespace="a", follower_window_s=12)
     assert "annotations" not in body["metadata"]
+
+
+def _preempted(spec: dict[str, object] | None = None, **status: object) -> RobotJob:
+    body = a_robotjob(phase="preempted", result={"exitCode": 0, "returnValue": {"episodes_done": 2}}, **status)
+    body["spec"].update(spec or {})
+    return RobotJob.model_validate(body)
+
+
+def test_a_preempted_job_names_the_job_that_runs_it_again_once_the_operator_made_it() -> None:
+    assert requeue_of(_preempted(requeuedAs="pick-1-r1")) == "pick-1-r1"
+    assert requeue_of(_preempted()) == ""  # requeued by default: the operator's next pass creates the copy
+    result = job_from_robotjob(_preempted()).result
+    assert result is not None and result.status is JobStatus.PREEMPTED
+    assert result.return_value == {"episodes_done": 2}  # the partial result stays on the preempted job
+
+
+@pytest.mark.parametrize("spec", [{"requeueOnPreemption": False}, {"cancel": True}])
+def test_no_job_runs_a_preempted_one_again_when_its_spec_or_a_cancel_says_no(spec: dict[str, object]) -> None:
+    assert requeue_of(_preempted(spec)) is None
+
+
+def test_only_a_preempted_job_has_a_requeue() -> None:
+    assert requeue_of(RobotJob.model_validate(a_robotjob(phase="succeeded", requeuedAs="x"))) is None

@@ -336,3 +336,12 @@ def test_wide_cells_say_how_many_jobs_wait_and_when_the_job_likely_ends_and_at_t
     assert cell_document(cells[0])["queue"] == {"waitingJobs": 2, "likelyFree": "2026-11-24T10:09:00Z",
                                                 "latestFree": "2026-11-24T10:17:00Z"}
     assert cell_document(cells[2])["queue"] is None
+
+
+def test_a_preempting_job_says_so_and_a_preempted_one_names_its_requeue() -> None:
+    preemption = {"requestedAt": "2026-11-24T10:00:00Z", "forJob": "team-b/x", "message": "reclaimed",
+                  "episodeWaitSeconds": 120}
+    running = jobs_table([view_of(job(phase="running", cellName="cell-a", preemption=preemption))], NOW)
+    assert "running (preempting)" in running.splitlines()[1]
+    preempted = jobs_table([view_of(job(phase="preempted", cellName="cell-a", requeuedAs="pick-r1"))], NOW)
+    assert "requeued as pick-r1" in preempted.splitlines()[1]
