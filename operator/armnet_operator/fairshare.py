@@ -5,7 +5,9 @@ quota's usage) and answers the scheduler's three questions about a tenant: is it
 blocked by its quota (and why, in words), does its next cell need borrowing, and
 its rank among the tenants competing for the same cells. ``plan_reclaim`` says
 which borrowing jobs should stop at their next episode boundary so a waiting
-owner gets its nominal cell back. Nothing here writes; the scheduler decides.
+owner gets its nominal cell back; ``plan_within_quota`` which of a tenant's own
+jobs a higher-priority job of that tenant preempts, where its quota allows it.
+Nothing here writes; the scheduler decides.
 
 The rules, in Kueue's terms:
 
@@ -194,13 +196,18 @@ def holds_cell(job: Job, claimed: frozenset[str] | set[str]) -> bool:
 
 @dataclass(frozen=True)
 class Reclaim:
-    """Ask ``job`` (borrowing) to stop at its next episode boundary so ``for_job`` gets its cell."""
+    """Ask ``job`` to stop at its next episode boundary so ``for_job`` gets its cell.
+
+    ``reason``: ``reclaim`` (``job`` borrows a cell of ``for_job``'s tenant) or ``priority``
+    (both of one tenant, whose quota lets a higher priority preempt a lower one).
+    """
 
     job: Job
     cell: str
     quota: str
     for_job: Job
     message: str
+    reason: str = "reclaim"
 
 
 def plan_reclaim(
@@ -275,6 +282,62 @@ def _victim(
     return best
 
 
+def plan_within_quota(
+    holders: Iterable[Job],
+    waiting: Iterable[Job],
+    cells: Iterable[Cell],
+    quotas: Iterable[CellQuota],
+    usage: Mapping[str, Usage],
+    now: datetime,
+    decided: Iterable[Reclaim] = (),
+) -> tuple[Reclaim, ...]:
+    """Which of a tenant's running jobs its waiting jobs of higher priority preempt (Kueue's
+    ``withinClusterQueue: LowerPriority``), where the tenant's CellQuota says so.
+
+    Only within one quota: a tenant sets its own ``spec.priority``, so a priority says
+    nothing across tenants. ``waiting`` are the jobs left waiting for a busy cell or at
+    their quota's limit (a job out of credits preempts nothing: a freed cell would not
+    be its). ``decided`` are this pass's reclaims: their victims are taken and the jobs
+    they serve need nothing more. Each waiting job, highest priority first, then oldest,
+    preempts at most one job of strictly lower priority on a cell it can use: the lowest
+    priority, then the most recently bound. A job already asked to stop (cancelled or
+    preempting) counts as the cell on its way back for the highest-priority waiting job
+    it could serve, so the decision is the same when repeated on the next pass.
+    """
+    decided = list(decided)
+    by_name, _ = index_quotas(quotas)
+    ledger = Ledger(by_name.values(), (), usage, now, DEFAULT_SHARING)
+    cell_task = {c.name: c.task for c in cells}
+    taken = {r.job.key for r in decided}
+    served = {r.for_job.key for r in decided}
+    mine: dict[str, list[Job]] = defaultdict(list)
+    for job in holders:
+        if job.cell_name is not None and job.key not in taken:
+            mine[ledger.tenant_of(job)].append(job)
+    decisions: list[Reclaim] = []
+    for owner in sorted(waiting, key=lambda j: (-j.priority, j.created, j.namespace, j.name)):
+        tenant = ledger.tenant_of(owner)
+        quota = by_name.get(tenant)
+        if owner.key in served or quota is None or not quota.preempt_lower_priority:
+            continue
+        left = credits_left(quota, usage.get(tenant, _NO_USAGE), now)
+        if left is not None and left <= 0:
+            continue
+        usable = [j for j in mine[tenant] if j.key not in taken and j.priority < owner.priority
+                  and (owner.task is None or cell_task.get(j.cell_name or "") == owner.task)]
+        if not usable:
+            continue
+        victim = min(usable, key=lambda j: (not (j.cancel or j.preempting), j.priority,
+                                            -(j.bound_at.timestamp() if j.bound_at else 0.0), j.key))
+        taken.add(victim.key)
+        if not (victim.cancel or victim.preempting):
+            decisions.append(Reclaim(
+                victim, victim.cell_name or "", tenant, owner,
+                f"job {owner.key} of CellQuota {tenant!r} has priority {owner.priority}, above this job's "
+                f"{victim.priority} (the quota's preemption.withinQuota is LowerPriority)", "priority"))
+    return tuple(decisions)
+
+
 @dataclass(frozen=True)
 class Standing:
     """A quota's standing for its status: what it holds, borrows and waits for, and its usage."""
@@ -313,4 +376,4 @@ def plan_standings(
 
 
 __all__ = ["UNMANAGED", "Ledger", "Reclaim", "Standing", "holds_cell", "index_quotas", "plan_reclaim",
-           "plan_standings"]
+           "plan_standings", "plan_within_quota"]

@@ -44,13 +44,14 @@ class Metrics:
         self.preemptions = Counter(
             "armnet_preemptions_total",
             "Running jobs asked to stop at their next episode boundary, by why (reclaim: a borrowed cell "
-            "goes back to the tenant that owns it)", ["reason"], registry=r,
+            "goes back to the tenant that owns it; priority: a higher priority of the same tenant)", ["reason"], registry=r,
         )
         self.preemption_requeues = Counter(
             "armnet_preemption_requeues_total",
             "Preempted jobs whose copy (status.requeuedAs) was created to run them again", registry=r,
         )
-        self.preemptions.labels("reclaim")
+        for reason in ("reclaim", "priority"):
+            self.preemptions.labels(reason)
         self.errors = Counter("armnet_reconcile_errors_total", "Failed writes and reconcile passes", registry=r)
         self.object_errors = Counter(
             "armnet_reconcile_object_errors_total",
@@ -97,7 +98,8 @@ class Metrics:
         self.binds.inc(len(outcome.bound))
         self.conflicts.inc(outcome.conflicts)
         self.requeues.inc(outcome.requeued)
-        self.preemptions.labels("reclaim").inc(outcome.preempted)
+        for reason, count in outcome.preempted.items():
+            self.preemptions.labels(reason).inc(count)
         self.preemption_requeues.inc(outcome.requeued_copies)
         self.errors.inc(outcome.errors)
         failing = Tally(failure.kind for failure in outcome.failed.values())

@@ -40,6 +40,8 @@ class CellQuota:
     cohort: str | None = None
     credits_cell_hours: float | None = None
     period: QuotaPeriod | None = None
+    preempt_lower_priority: bool = False
+    """``spec.preemption.withinQuota: LowerPriority``: a waiting job preempts the tenant's lower-priority ones."""
     resource_version: str = ""
 
 

@@ -41,6 +41,7 @@ def parse_cell_quota(body: Mapping[str, Any]) -> CellQuota:
         name=name, namespace=spec.namespace, embodiment=spec.embodiment, nominal_cells=spec.nominal_cells,
         task=spec.task, borrowing_limit=spec.borrowing_limit, weight=spec.weight, cohort=spec.cohort,
         credits_cell_hours=spec.credits_cell_hours, period=None if spec.period is None else QuotaPeriod(spec.period),
+        preempt_lower_priority=spec.preemption.within_quota == "LowerPriority",
         resource_version=str(meta.get("resourceVersion") or ""),
     )
 

@@ -125,8 +125,8 @@ class Outcome:
     """Queue writes were left for the next pass (``Limits.max_queue_tasks``): run it soon."""
     quotas_ignored: int = 0
     """CellQuotas in scope that this pass did not apply (malformed, or duplicating another's scope)."""
-    preempted: int = 0
-    """Running jobs asked to stop at their next episode boundary (a borrowed cell reclaimed)."""
+    preempted: dict[str, int] = field(default_factory=dict)
+    """Running jobs asked to stop at their next episode boundary, by why (``Reclaim.reason``)."""
     requeued_copies: int = 0
     """Preempted jobs whose copy now waits in the queue in their place (``requeue``)."""
 
@@ -138,7 +138,8 @@ class Outcome:
         self.deleted.update(other.deleted)
         self.conflicts += other.conflicts
         self.requeued += other.requeued
-        self.preempted += other.preempted
+        for reason, count in other.preempted.items():
+            self.preempted[reason] = self.preempted.get(reason, 0) + count
         self.requeued_copies += other.requeued_copies
         self.errors += other.errors
         self.writes += other.writes
@@ -580,7 +581,7 @@ def _preempt(reclaim: Reclaim, now: datetime, timing: Timing, api: Api) -> Outco
     if written is None:
         return outcome
     outcome.jobs_written[victim.key] = parse_job(written)
-    outcome.preempted += 1
+    outcome.preempted[reclaim.reason] = outcome.preempted.get(reclaim.reason, 0) + 1
     wait = int(timing.episode_wait.total_seconds())
     log.info("preempting %s on cell %s for %s: %s", victim.key, reclaim.cell, owner.key, reclaim.message)
     _event(api, victim, "Warning", "Preempted",

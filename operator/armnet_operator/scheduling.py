@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
 
 from .estimate import cell_queues, likely_occupancy, queue_starts, seats, typical_runs
-from .fairshare import Ledger, Reclaim, holds_cell, plan_reclaim
+from .fairshare import Ledger, Reclaim, holds_cell, plan_reclaim, plan_within_quota
 from .health import derive_cell_phase, is_available
 from .model import Cell, CellPhase, CellQueue, Job, QueuedReason
 from .quota import DEFAULT_SHARING, CellQuota, FairSharing, Usage
@@ -53,7 +53,8 @@ class SchedulePlan:
     cell_queues: Mapping[str, CellQueue] = field(default_factory=dict)
     """Each cell's queue summary after this pass's bindings (``estimate.cell_queues``)."""
     reclaims: tuple[Reclaim, ...] = ()
-    """Borrowing jobs to preempt at their next episode boundary for owners waiting (``fairshare.plan_reclaim``)."""
+    """Running jobs to preempt at their next episode boundary: borrowers for owners waiting
+    (``fairshare.plan_reclaim``), then lower priorities for higher ones of one tenant (``plan_within_quota``)."""
 
 
 def order_key(job: Job) -> tuple[int, datetime, str, str]:
@@ -196,6 +197,9 @@ def plan_bindings(
     at_cells = cell_queues(cells, (job for job, _, _ in entries + exhausted), holders, now, typical)
     for_busy = [job for job, reason, _ in entries if reason is QueuedReason.ALL_CELLS_BUSY]
     reclaims = plan_reclaim(holders.values(), for_busy, cells, quotas, usage or {}, now, sharing) if for_busy else ()
+    at_limit = for_busy + [job for job, _, _ in exhausted]
+    if at_limit and any(q.preempt_lower_priority for q in quotas):
+        reclaims += plan_within_quota(holders.values(), at_limit, cells, quotas, usage or {}, now, reclaims)
     return SchedulePlan(tuple(bindings), {
         key: replace(entry, latest_start=latest[key], likely_start=likely.get(key, latest[key]))
         if key in latest else entry

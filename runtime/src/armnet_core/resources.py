@@ -236,6 +236,12 @@ class Cell(Wire):
 # -- CellQuota -------------------------------------------------------------------------------
 
 
+class QuotaPreemption(Wire):
+    """Which running jobs of the tenant a waiting job of the same tenant may preempt (Kueue's ``withinClusterQueue``)."""
+
+    within_quota: Literal["Never", "LowerPriority"] = Field(default="Never", alias="withinQuota")
+
+
 class CellQuotaSpec(Wire):
     """A tenant's share of one embodiment's cells, with the CRD's rules (an object stored before them still parses)."""
 
@@ -248,6 +254,7 @@ class CellQuotaSpec(Wire):
     cohort: Optional[str] = Field(default=None, min_length=1, max_length=63)
     credits_cell_hours: Optional[float] = Field(default=None, alias="creditsCellHours", ge=0)
     period: Optional[Literal["Day", "Week"]] = None
+    preemption: QuotaPreemption = Field(default_factory=QuotaPreemption)
 
     @model_validator(mode="after")
     def _the_crds_rules(self) -> CellQuotaSpec:
@@ -296,6 +303,7 @@ __all__ = [
     "Metadata",
     "MonitorVerdict",
     "PreemptionRequest",
+    "QuotaPreemption",
     "QuotaUsage",
     "RobotJob",
     "RobotJobResult",

@@ -192,6 +192,10 @@ class QuotaBuilder:
     def with_credits(self, cell_hours: float, period: QuotaPeriod = QuotaPeriod.WEEK) -> QuotaBuilder:
         return self._with(credits_cell_hours=cell_hours, period=period)
 
+    def preempting_lower_priorities(self) -> QuotaBuilder:
+        """``spec.preemption.withinQuota: LowerPriority``."""
+        return self._with(preempt_lower_priority=True)
+
     def build(self) -> CellQuota:
         return self.quota
 

@@ -71,12 +71,12 @@ def test_an_owner_waiting_for_its_borrowed_cell_preempts_the_borrower_once_with_
     assert request["forJob"] == "t/a1"
     assert "CellQuota 'b'" in request["message"] and "'a'" in request["message"]
     assert request["episodeWaitSeconds"] == int(TIMING.episode_wait.total_seconds())
-    assert outcome.preempted == 1
+    assert outcome.preempted == {"reclaim": 1}
     assert ("t2/b1", "Preempted") in world.events and ("t/a1", "Preempting") in world.events
     assert world.jobs["t/a1"]["status"]["queuedReason"] == "AllCellsBusy"
     world.tick(5)
     again = run(world, memory)  # the borrower is still running to its episode boundary
-    assert again.preempted == 0
+    assert again.preempted == {}
     assert world.events.count(("t2/b1", "Preempted")) == 1
 
 
@@ -175,3 +175,20 @@ def test_queued_since_only_moves_a_copy_earlier_and_only_with_its_origin() -> No
     assert created({PREEMPTED_FROM_ANNOTATION: "u", QUEUED_SINCE_ANNOTATION: later}) == NOW
     assert created({QUEUED_SINCE_ANNOTATION: earlier}) == NOW
     assert created({PREEMPTED_FROM_ANNOTATION: "u", QUEUED_SINCE_ANNOTATION: "yesterday"}) == NOW
+
+
+def test_a_higher_priority_of_the_same_tenant_preempts_a_lower_one_where_its_quota_allows() -> None:
+    world, memory = World(), Memory()
+    world.add_cell("c1", "so101", None)
+    world.quotas["a"] = quota_body("a", "t", 1)
+    world.quotas["a"]["spec"]["preemption"] = {"withinQuota": "LowerPriority"}
+    world.submit("low", "so101", None, 1)
+    run(world, memory)
+    agent_runs(world, "t/low")
+    world.tick(5)
+    world.submit("urgent", "so101", None, 9)
+    outcome = run(world, memory)
+    assert world.jobs["t/urgent"]["status"]["queuedReason"] == "QuotaExhausted"
+    assert outcome.preempted == {"priority": 1}
+    request = world.jobs["t/low"]["status"]["preemption"]
+    assert request["forJob"] == "t/urgent" and "priority 9, above this job's 1" in request["message"]
