@@ -8,19 +8,22 @@ the field, reported on the object rather than crashing the agent.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
 from armnet_core.api import STOPPED_BY_ANNOTATION, JobPhase
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
-from armnet_core.resources import CellArm, CellSpec, RobotJobSpec
+from armnet_core.resources import CellArm, CellSpec, PreemptionRequest, RobotJobSpec
 from armnet_core.times import parse_time
 from armnet_launch.cell_spec import CameraSpec
 from pydantic import ValidationError
 
 from armnet_node import rollout_history
 from armnet_node.follower_rule import follower_window
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,10 @@ class Job:
     follower_window_s: float | None = None
     #: ``status.rollouts`` as last written (kept when an agent restart re-adopts the job).
     rollouts: rollout_history.History = ()
+    #: The operator's request to stop the run at its next episode boundary (``status.preemption``), if any.
+    preemption: PreemptionRequest | None = None
+    #: ``spec.requeueOnPreemption``: a preempted run goes back to the queue (told to clients on its stream).
+    requeue_on_preemption: bool = True
 
     @property
     def key(self) -> str:
@@ -141,7 +148,25 @@ def parse_job(obj: dict[str, Any]) -> Job:
         stopped_by=_operator_name((meta.get("annotations") or {}).get(STOPPED_BY_ANNOTATION)),
         follower_window_s=follower_window(meta.get("annotations") or {}, spec.detach),
         rollouts=rollout_history.from_status(status.get("rollouts")),
+        preemption=parse_preemption(status.get("preemption"), where),
+        requeue_on_preemption=spec.requeue_on_preemption,
     )
+
+
+def parse_preemption(data: Any, where: str) -> PreemptionRequest | None:
+    """``status.preemption``, or None when absent or malformed.
+
+    A malformed request is logged and ignored rather than failing the whole job: the
+    run goes on, and the operator, which wrote it, is the one to fix it (a job it
+    cannot preempt still ends, at its timeout at the latest).
+    """
+    if data is None:
+        return None
+    try:
+        return PreemptionRequest.model_validate(data)
+    except ValidationError as exc:
+        log.warning("%s: status.preemption ignored, it is invalid: %s", where, str(exc)[:500])
+        return None
 
 
 def _operator_name(value: Any) -> str | None:

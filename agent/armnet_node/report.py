@@ -119,14 +119,19 @@ def terminal_patch(
     return {"metadata": {"resourceVersion": resource_version}, "status": status}
 
 
-def end_detail(patch: Mapping[str, Any]) -> dict[str, Any]:
+def end_detail(patch: Mapping[str, Any], *, requeue_on_preemption: bool = True) -> dict[str, Any]:
     """The ``detail`` of the job's terminal status message on its stream, from the terminal patch written.
 
     The exit code and error as ``status.result`` has them: a client following the
-    stream tells the customer why the job ended without reading the RobotJob.
+    stream tells the customer why the job ended without reading the RobotJob. A
+    preempted run's also carries ``requeue`` (the job's ``spec.requeueOnPreemption``):
+    true, the job goes back to the queue and runs again, so the client keeps following it.
     """
     result = patch["status"].get("result") or {}
-    return {key: result[key] for key in ("exitCode", "error") if result.get(key) is not None}
+    detail = {key: result[key] for key in ("exitCode", "error") if result.get(key) is not None}
+    if patch["status"].get("phase") == JobStatus.PREEMPTED.value:
+        detail["requeue"] = requeue_on_preemption
+    return detail
 
 
 def failed_before_start(resource_version: str, error: str, now: datetime) -> dict[str, Any]:
