@@ -86,6 +86,15 @@ class JobSession(Protocol):
         """Open the grace window of a graceful stop (the interlock's reason names the cancel, or ``why``)."""
         ...
 
+    def on_preempt(self, why: str) -> None:
+        """Ask the connector to open the grace window at the job's next episode boundary (at once between
+        rollouts), its interlock naming ``why``; never raises. Any number of calls: the first ``why`` stands."""
+        ...
+
+    def preempt_began(self) -> bool:
+        """Whether the connector has opened the grace window ``on_preempt`` asked for (the boundary came)."""
+        ...
+
     def failure(self) -> str | None:
         """An infrastructure failure that overrides the job's own result (OOM, connector restart)."""
         ...
@@ -219,6 +228,16 @@ class ContainerSession:
 
     def on_cancel(self, why: str | None = None) -> None:
         self.local_cell.cancel(why)
+
+    def on_preempt(self, why: str) -> None:
+        connector = self.local_cell.connector
+        if connector is not None:
+            connector.cell.stop_at_episode_end(why)
+
+    def preempt_began(self) -> bool:
+        """The connector's interlock holds: the preemption's grace window opened (or another trip refuses
+        motion already, and the agent's stop may begin as well)."""
+        return self.interlock_trip() is not None
 
     def failure(self) -> str | None:
         if self.job is not None and self.job.oom_killed:
@@ -428,9 +447,12 @@ class PodSession:
         #: The sidecar connector's observer socket (telemetry, rollout events), once the pod exists.
         self.observer: SidecarObserver | None = None
         self._record: report.ConnectorRecord | None = None
-        #: The sidecar connector's ``agent.sock``: the operator's inputs and the cancel notice.
+        #: The sidecar connector's ``agent.sock``: the operator's inputs, the cancel and the preemption.
         self.inputs = SidecarInputs(lambda: agent_socket(self._observer_path()), launcher.metrics,
                                     active_rollout=self.active_rollout)
+        #: The preemption's reason once asked (``on_preempt``), and whether the sidecar said its window is open.
+        self._preempt_why: str | None = None
+        self._preempt_open = False
 
     def start(self) -> LaunchedJob:
         core, metrics = self.launcher.core, self.launcher.metrics
@@ -494,6 +516,26 @@ class PodSession:
         if not self.inputs.cancel(why):
             log.warning("job %s: the cancel did not reach its connector sidecar; the job is killed when the grace "
                         "window ends without having been told it is shutting down", self.request.job.key)
+
+    def on_preempt(self, why: str) -> None:
+        """The ``preempt`` op on the sidecar's ``agent.sock``; one that does not arrive is asked again by
+        ``preempt_began`` (the op is idempotent)."""
+        self._preempt_why = why
+        now = self.inputs.preempt(why)
+        if now is None:
+            log.warning("job %s: the preemption did not reach its connector sidecar yet; it is asked again until "
+                        "it does, or until the agent opens the grace window itself", self.request.job.key)
+        self._preempt_open = now is True
+
+    def preempt_began(self) -> bool:
+        """Asks the sidecar (its interlock is in the pod, out of ``interlock_trip``'s reach) until it says the
+        window is open; from then on, without asking."""
+        why = self._preempt_why
+        if why is None:
+            return False
+        if not self._preempt_open:
+            self._preempt_open = self.inputs.preempt_window_open(why)
+        return self._preempt_open
 
     def failure(self) -> str | None:
         job = self.job

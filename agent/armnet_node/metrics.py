@@ -36,6 +36,12 @@ class AgentMetrics:
             "armnet_agent_follower_cancels_total",
             "non-detached jobs cancelled because their following client stopped sending heartbeats", registry=r,
         )
+        self.preemptions = Counter(
+            "armnet_agent_preemptions_total",
+            "runs ended preempted for another job (status.preemption), by where the stop came: episode_end (the "
+            "job's rollout ended, or none was open) or episode_wait (no boundary within episodeWaitSeconds: the "
+            "agent opened the grace window itself)", ["stopped_at"], registry=r,
+        )
         self.lines_published = Counter(
             "armnet_agent_lines_published_total", "output lines handed to the stream publisher", registry=r
         )

@@ -15,6 +15,10 @@ The steps, each safe to repeat after a crash at any point:
    present is the "not yet reported" fact: a restarted agent re-reads its log
    from the start and writes the same result.
 
+A preemption (the operator's ``status.preemption``, ``preempt``) stops the run
+at its next episode boundary through the same graceful path as a cancel, and
+the run ends ``preempted`` (``node.preemption`` decides what it ends as).
+
 Every terminal status the runner writes (step 1's failure included) is also
 published on the job's status stream with its error, so a client following the
 job says why it ended.
@@ -29,11 +33,14 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import partial
 from typing import Any
 
 from armnet_connector.inputs import LocalOperatorInputs
+from armnet_connector.interlock import TripReason
 from armnet_core import JobResult, JobStatus
 from armnet_core.api import TERMINAL_PHASES, JobPhase
+from armnet_core.resources import PreemptionRequest
 from armnet_core.times import status_time
 from armnet_launch.pod_spec import SecretRef
 from armnet_launch.supervise import JobHooks, SupervisorLimits, infra_failure, supervise
@@ -48,6 +55,13 @@ from armnet_node.launchers import JobLauncher, JobSession, SessionRequest
 from armnet_node.metrics import AgentMetrics
 from armnet_node.model import Cell, Job, cancel_reason, parse_job
 from armnet_node.plan import HostPaths, LaunchError, plan_launch
+from armnet_node.preemption import (
+    STOPPED_AT_EPISODE_END,
+    STOPPED_AT_EPISODE_WAIT,
+    episode_wait_left,
+    preempted_result,
+    preemption_reason,
+)
 from armnet_node.publish import JobOutput, Link, inputs_bridge, job_output
 from armnet_node.rollout_history import as_status
 from armnet_node.rollout_recorder import RolloutRecorder
@@ -56,6 +70,8 @@ from armnet_node.uploads import TrackedJob, UploadQueue
 log = logging.getLogger(__name__)
 
 PROGRESS_FLUSH_S = 1.0
+#: How often a preempted run's connector is asked whether the episode boundary came.
+PREEMPT_POLL_S = 0.1
 STATUS_RETRIES = 5
 ADOPTED_TRIP = (
     "the node agent restarted while this job ran; its connector was re-created with the interlock "
@@ -123,6 +139,18 @@ class JobRunner:
         #: A launch refused before anything starts (``start(refuse=...)``): the job's error.
         self._refused: str | None = None
         self._device_problems = device_problems or (lambda: ())
+        #: The operator's preemption of this run (``preempt``), once asked; guarded by ``_stop_lock``
+        #: with ``_cancelled`` and ``_preempt_stopped_at``.
+        self._preemption: PreemptionRequest | None = None
+        self._stop_lock = threading.Lock()
+        #: A cancel was asked (``stop``): its result stands, the run is never counted as preempted.
+        self._cancelled = False
+        #: The agent began the graceful stop for the preemption: where (``preemption.STOPPED_AT_*``).
+        self._preempt_stopped_at: str | None = None
+        #: The session once its job started: a preemption asked earlier is applied then.
+        self._started_session: JobSession | None = None
+        #: The job's run is over (``supervise`` returned, or the runner ended): a preemption waits no more.
+        self._job_ended = threading.Event()
         self._seen_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
         self.hooks.on_deadline = self._deadline_reached
@@ -150,8 +178,12 @@ class JobRunner:
         """Stop like a timeout (interlock, grace window, kill), ending ``cancelled``.
 
         A cancel that begins before any device loss keeps its result: a loss after it is not recorded.
+        A cancel also keeps it over a preemption, before or after the preemption's stop began: a
+        cancelled job must not go back to the queue.
         """
         self._close_device_loss()
+        with self._stop_lock:
+            self._cancelled = True
         if not self.hooks.cancel_gracefully.is_set():
             log.info("stopping job %s (cancel, deletion or gone)", self.job.key)
         self.hooks.cancel_gracefully.set()
@@ -178,8 +210,85 @@ class JobRunner:
         log.warning("job %s: stopping it: %s", self.job.key, message)
         self.hooks.cancel_gracefully.set()
 
+    def preempt(self, request: PreemptionRequest) -> None:
+        """Stop the run at its next episode boundary, for another job (the operator's ``status.preemption``).
+
+        Once only: the worker calls it on every pass that sees the request. It never
+        blocks the caller: a daemon thread asks the job's session (``on_preempt``, as
+        soon as the job started), waits until the connector opened the grace window
+        (the boundary came, or none was open), or ``episodeWaitSeconds`` from
+        ``requestedAt`` passed, or the job ended; then begins the graceful stop as
+        ``stop`` does, the interlock naming the preemption. The run ends ``preempted``.
+        """
+        with self._stop_lock:
+            if self._preemption is not None or self._job_ended.is_set():
+                return
+            self._preemption = request
+        log.info("job %s: preempted for %s (%s); it stops at its next episode boundary, within %d s",
+                 self.job.key, request.for_job, request.message, request.episode_wait_seconds)
+        threading.Thread(target=self._carry_out_preemption, args=(request,), name=f"armnet-preempt-{self.job.name}",
+                         daemon=True).start()
+
+    def _carry_out_preemption(self, request: PreemptionRequest) -> None:
+        stopped_at = self._await_episode_boundary(request)
+        if stopped_at is None:
+            return  # the job ended first: its own result stands
+        self._close_device_loss()
+        with self._stop_lock:
+            if self._cancelled or self.hooks.cancel_gracefully.is_set():
+                return  # a cancel or a lost device began the stop first: theirs
+            self._preempt_stopped_at = stopped_at
+        log.info("job %s: stopping it for its preemption (%s)", self.job.key,
+                 "the episode boundary came" if stopped_at == STOPPED_AT_EPISODE_END
+                 else f"no episode boundary within {request.episode_wait_seconds} s")
+        self.hooks.cancel_gracefully.set()
+
+    def _await_episode_boundary(self, request: PreemptionRequest) -> str | None:
+        """Where the stop comes (``STOPPED_AT_*``), once it is due; None when the job ended first."""
+        give_up_at = time.monotonic() + episode_wait_left(request, datetime.now(UTC))
+        why = preemption_reason(request)
+        asked: JobSession | None = None
+        while not self._job_ended.is_set():
+            session = self._started_session
+            if asked is None and session is not None:
+                asked = session
+                _quietly(partial(session.on_preempt, why), f"job {self.job.key}: asking for the preemption's stop")
+            if asked is not None and _quietly(asked.preempt_began, f"job {self.job.key}: the boundary check"):
+                return STOPPED_AT_EPISODE_END
+            if time.monotonic() >= give_up_at:
+                return STOPPED_AT_EPISODE_WAIT
+            self._job_ended.wait(PREEMPT_POLL_S)
+        return None
+
+    def session_started(self, session: JobSession) -> None:
+        """The job runs in ``session``: the graceful stop reaches its connector, and so does a preemption
+        (one asked before now too)."""
+        self.hooks.on_cancel = lambda: session.on_cancel(self._cancel_why())
+        self._started_session = session
+
+    @property
+    def preemption(self) -> PreemptionRequest | None:
+        """The preemption this run was asked (``preempt``), if any."""
+        return self._preemption
+
+    @property
+    def preemption_stopped_at(self) -> str | None:
+        """Where the agent began the stop for the preemption (``preemption.STOPPED_AT_*``), None: it did not."""
+        return self._preempt_stopped_at
+
+    def _cancel_why(self) -> str | None:
+        """What the interlock names when the graceful stop opens: a lost device, the preemption, or
+        (None) the connector's own words for a cancel."""
+        if self._device_lost is not None:
+            return self._device_lost
+        with self._stop_lock:
+            request = self._preemption if self._preempt_stopped_at is not None else None
+        return preemption_reason(request) if request is not None else None
+
     def settle_device_loss(self) -> str | None:
-        """The job ended (``supervise`` returned): no loss is recorded from now; the one recorded before, if any."""
+        """The job ended (``supervise`` returned): no loss is recorded from now, and a preemption waits no
+        more (the job's own end came first); the loss recorded before, if any."""
+        self._job_ended.set()
         return self._close_device_loss()
 
     def _close_device_loss(self) -> str | None:
@@ -208,6 +317,7 @@ class JobRunner:
             self._publish_end(self._write_terminal(infra_failure(
                 f"the node agent failed: {type(exc).__name__}: {exc}", SupervisorLimits(self.job.timeout_seconds)), None))
         finally:
+            self._job_ended.set()
             self._finished.set()
             if self._on_done is not None:
                 self._on_done(self)
@@ -248,7 +358,6 @@ class JobRunner:
         try:
             with launcher.session(request) as session:
                 self.session = session
-                self.hooks.on_cancel = lambda: session.on_cancel(self._device_lost)
                 bridge = inputs_bridge(self.deps.link, session.operator_inputs(), namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout,
                                        on_verdict=self._record_verdict,
@@ -258,6 +367,7 @@ class JobRunner:
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
                     self._fail_before_start(_engine_error(exc, job.image))
                     return
+                self.session_started(session)
                 self._count_start(adopted)
                 started_at = self._mark_running(adopted)
                 if started_at is None:
@@ -278,17 +388,10 @@ class JobRunner:
                 flusher.start()
                 result = supervise(launched, limits, self.hooks)
                 device_lost = self.settle_device_loss()  # a loss recorded after this does not change the result
-                failure = session.failure()
-                if failure is not None and result.status not in (JobStatus.TIMEOUT, JobStatus.CANCELLED):
-                    result = infra_failure(failure, limits)
-                elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
-                    result = result.model_copy(update={"error": self._stop_reason})
-                lost = lost_job_error(result.status, device_lost, tuple(self._device_problems()))
-                if lost is not None:
-                    result = result.model_copy(update={"status": JobStatus.FAILED, "error": lost})
                 self.rollouts.sync()  # the last begins and ends, before the connector stops
                 record = session.record()
                 self.rollouts.sync()  # a pod's sidecar may stop before the sync above: its record has the last
+                result = self.final_result(result, session.failure(), device_lost, record, limits)
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
                 with self._status_lock:  # waits out a progress write still in flight
@@ -315,6 +418,39 @@ class JobRunner:
                 # started): the agent that adopts the job takes it, or the queue's sweep once
                 # the job is terminal or gone.
                 self.deps.uploads.released(job.uid)
+
+    def final_result(self, result: JobResult, failure: str | None, device_lost: str | None,
+                     record: report.ConnectorRecord, limits: SupervisorLimits) -> JobResult:
+        """The run's result from the supervisor's: an infrastructure failure (``failure``), then a lost device,
+        then the preemption, each over the ones after it.
+
+        An infrastructure failure does not replace a timeout or a cancel (their grace window
+        explains the end); a lost device (``device_lost``, or one missing now while the job
+        failed) replaces what ``device_health.lost_job_error`` says. A result either replaced,
+        or a cancel's, is not the preemption's.
+        """
+        own = result
+        if failure is not None and result.status not in (JobStatus.TIMEOUT, JobStatus.CANCELLED):
+            result = infra_failure(failure, limits)
+        elif result.status is JobStatus.CANCELLED and self._stop_reason is not None:
+            result = result.model_copy(update={"error": self._stop_reason})
+        lost = lost_job_error(result.status, device_lost, tuple(self._device_problems()))
+        if lost is not None:
+            return result.model_copy(update={"status": JobStatus.FAILED, "error": lost})
+        if result is not own:
+            return result
+        return self._preempted(result, record)
+
+    def _preempted(self, result: JobResult, record: report.ConnectorRecord) -> JobResult:
+        """``preempted`` when the preemption opened the job's grace window before the job ended (and no
+        cancel was asked): the agent's stop for it, or the connector's at the boundary, as its record says."""
+        with self._stop_lock:
+            request, cancelled, stopped_at = self._preemption, self._cancelled, self._preempt_stopped_at
+        if request is None or cancelled:
+            return result
+        by_connector = record.trip_reason == TripReason.DEADLINE and record.trip_message == preemption_reason(request)
+        by_agent = stopped_at is not None and result.status is JobStatus.CANCELLED
+        return preempted_result(result, request, stopped=by_agent or by_connector)
 
     def _count_start(self, adopted: bool) -> None:
         if adopted:
@@ -422,7 +558,8 @@ class JobRunner:
     def _publish_end(self, written: dict[str, Any] | None) -> None:
         """The terminal status just written, on the job's status stream (nothing when none was written)."""
         if written is not None:
-            self._output.status(written["status"]["phase"], report.end_detail(written))
+            self._output.status(written["status"]["phase"],
+                                report.end_detail(written, requeue_on_preemption=self.job.requeue_on_preemption))
 
     def _write_terminal(self, result: JobResult, record: report.ConnectorRecord | None) -> dict[str, Any] | None:
         def body(current: Job) -> dict[str, Any]:
@@ -460,6 +597,8 @@ class JobRunner:
         metrics.job_duration.observe(max((datetime.now(UTC) - started_at).total_seconds(), 0.0))
         if result.status is JobStatus.TIMEOUT:
             metrics.timeouts.inc()
+        if result.status is JobStatus.PREEMPTED:
+            metrics.preemptions.labels(stopped_at=self.preemption_stopped_at or STOPPED_AT_EPISODE_END).inc()
         if record.trip_reason is not None:
             metrics.interlock_trips.labels(reason=record.trip_reason).inc()
 
@@ -483,6 +622,16 @@ def write_progress(kube: AgentKube, job: Job, progress: str | None, rollout: dic
     if history is not None:
         rollouts.written(history)
     return True
+
+
+def _quietly(call: Callable[[], Any], what: str) -> Any:
+    """``call()``, or None after logging what failed: a session's error must not end the preemption's wait
+    (the wait's end still opens the grace window)."""
+    try:
+        return call()
+    except Exception:  # noqa: BLE001 - logged; the caller goes on
+        log.exception("%s failed", what)
+        return None
 
 
 def _engine_error(exc: Exception, image: str) -> str:

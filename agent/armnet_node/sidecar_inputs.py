@@ -1,4 +1,4 @@
-"""The agent's write path into a pod job's connector: operator inputs and the cancel notice.
+"""The agent's write path into a pod job's connector: operator inputs, the cancel and the preemption.
 
 For a connector in the agent's process the inputs bridge (``node.inputs_bridge``)
 hands the cell operator's clicks to a ``LocalOperatorInputs``. A pod job's
@@ -114,6 +114,25 @@ class SidecarInputs:
         """Open the connector's grace window now (the job's ``is_shutting_down`` turns true), its
         interlock naming ``why`` (default: cancelled)."""
         return self._send("cancel", {} if why is None else {"why": why[:MAX_CANCEL_WHY]})
+
+    def preempt(self, why: str) -> bool | None:
+        """Ask the connector to open its grace window at the job's next episode boundary, naming ``why``.
+
+        True: the window is open (the job was between rollouts); False: it opens at the
+        end of the open rollout; None: the request did not arrive (counted as failed).
+        """
+        reply = self._call({"op": "preempt", "why": why[:MAX_CANCEL_WHY]})
+        self._metrics.sidecar_inputs.labels(op="preempt", result="failed" if reply is None else "applied").inc()
+        return None if reply is None else reply.get("now") is True
+
+    def preempt_window_open(self, why: str) -> bool:
+        """Whether the grace window a preemption asked for is open yet (the boundary came).
+
+        Asks with the same op: it changes nothing the second time, and it delivers the
+        request should the first one not have arrived. Not counted: a poll, not an input.
+        """
+        reply = self._call({"op": "preempt", "why": why[:MAX_CANCEL_WHY]})
+        return reply is not None and reply.get("now") is True
 
     def watch(self, running: Callable[[], bool]) -> None:
         """Poll for reset waits in a daemon thread while ``running()`` (the job's container runs), until ``close``."""

@@ -6,7 +6,9 @@ and keeps at most one runner at a time (the operator's binding says which).
 Its heartbeat thread renews ``status.lastHeartbeatTime`` and the health
 conditions every ``heartbeat_period`` seconds, and at once when the cell's
 device watch (``node.device_watch``) changes its verdict; a lost device also
-stops the running job (it ends ``failed``, "device lost").
+stops the running job (it ends ``failed``, "device lost"). A running job the
+operator preempted (``status.preemption``) is handed to its runner, which
+stops it at its next episode boundary.
 
 A simulated cell's arm ports are reached through symlinks the worker makes to
 the simulator's ptys, ``<state-dir>/cells/<cell>/dev/<arm>`` (as udev makes
@@ -202,6 +204,8 @@ class CellWorker:
                 job = mine.get(runner.uid)
                 if not runner.reported and (job is None or job.stopping or job.phase in TERMINAL_PHASES):
                     runner.stop()
+                elif not runner.reported and job is not None and job.preemption is not None:
+                    runner.preempt(job.preemption)  # once only: later passes change nothing
                 self._stop_if_device_lost(runner)
                 return
             for job in sorted(mine.values(), key=lambda j: j.key):
@@ -244,6 +248,8 @@ class CellWorker:
                                     device_problems=lambda: self.devices.state.problems).start(refuse=refuse)
             if refuse is None:
                 self._stop_if_device_lost(self.runner)
+                if job.preemption is not None:  # an adopted run the operator preempted before the agent restarted
+                    self.runner.preempt(job.preemption)
 
     # -- the cell's devices ----------------------------------------------------------
 
