@@ -93,6 +93,14 @@ class ArtifactsPhase(_Name):
     DISCARDED = "Discarded"
 
 
+class PreflightPhase(_Name):
+    """``RobotJob.status.preflight.phase``: a job's pre-flight on a simulated twin (the operator writes it)."""
+
+    RUNNING = "Running"
+    PASSED = "Passed"
+    FAILED = "Failed"
+
+
 #: Not a health condition (the operator still binds: jobs run without NATS). The node agent
 #: reports it on a Cell to tell the person at the cell and the platform team why the cell
 #: operator's buttons and live logs do nothing.
@@ -107,6 +115,10 @@ FOLLOWER_TIMEOUT_ANNOTATION = f"{GROUP}/follower-timeout-seconds"
 #: is created once per preempted job) and when the preempted job first queued (it keeps its place).
 PREEMPTED_FROM_ANNOTATION = f"{GROUP}/preempted-from"
 QUEUED_SINCE_ANNOTATION = f"{GROUP}/queued-since"
+#: On the RobotJob the operator creates to run a job's pre-flight on a simulated twin (``spec.preflight``):
+#: the job's uid. The pre-flight is created once per job, runs only on pre-flight cells and is rationed by no
+#: CellQuota (it never uses a real cell).
+PREFLIGHT_FOR_ANNOTATION = f"{GROUP}/preflight-for"
 #: The operator's finalizer on a RobotJob: the job's cell is released before the job is deleted.
 RELEASE_CELL_FINALIZER = f"{GROUP}/release-cell"
 #: The label by which the cell operator's page groups Cells (set by whoever installs the cells).
@@ -164,6 +176,8 @@ __all__ = [
     "NAMESPACE_LABEL",
     "NAME_LABEL",
     "PREEMPTED_FROM_ANNOTATION",
+    "PREFLIGHT_FOR_ANNOTATION",
+    "PreflightPhase",
     "QUEUED_SINCE_ANNOTATION",
     "PHASES",
     "RELEASE_CELL_FINALIZER",

@@ -57,6 +57,13 @@ class Condition(Wire):
 # -- RobotJob --------------------------------------------------------------------------------
 
 
+class PreflightSpec(Wire):
+    """``spec.preflight``: run the job on a simulated twin of its embodiment (a Cell with ``spec.preflight``)
+    for at most ``seconds`` first; only a pre-flight that passes lets it join the queue for a real cell."""
+
+    seconds: int = Field(ge=1, le=3600)
+
+
 class RobotJobSpec(Wire):
     image: str
     embodiment: str
@@ -71,6 +78,8 @@ class RobotJobSpec(Wire):
     #: it (``status.requeuedAs``) that keeps its place in the queue.
     requeue_on_preemption: bool = Field(default=True, alias="requeueOnPreemption")
     ttl_seconds_after_finished: Optional[int] = Field(default=None, alias="ttlSecondsAfterFinished")
+    #: Run first on a simulated twin of the embodiment; only a pre-flight that passes joins the real queue.
+    preflight: Optional[PreflightSpec] = None
 
 
 class Rollout(Wire):
@@ -138,6 +147,18 @@ class PreemptionRequest(Wire):
     episode_wait_seconds: int = Field(alias="episodeWaitSeconds", ge=0, le=86400)
 
 
+class PreflightStatus(Wire):
+    """``status.preflight``: the operator's record of a job's pre-flight (``job``, a RobotJob of the same
+    namespace) and its verdict: ``Running`` (the job waits), ``Passed`` (it joins the queue), ``Failed``
+    (the job failed, reason ``PreflightFailed``)."""
+
+    phase: Literal["Running", "Passed", "Failed"]
+    job: str = Field(min_length=1, max_length=253)
+    message: Optional[str] = Field(default=None, max_length=1024)
+    started_at: Optional[Timestamp] = Field(default=None, alias="startedAt")
+    finished_at: Optional[Timestamp] = Field(default=None, alias="finishedAt")
+
+
 class RobotJobStatus(Wire):
     phase: Optional[str] = None
     job_id: Optional[str] = Field(default=None, alias="jobId")
@@ -156,6 +177,7 @@ class RobotJobStatus(Wire):
     preemption: Optional[PreemptionRequest] = None
     #: The RobotJob the operator created to run this preempted job again (``spec.requeueOnPreemption``).
     requeued_as: Optional[str] = Field(default=None, alias="requeuedAs", max_length=253)
+    preflight: Optional[PreflightStatus] = None
     conditions: list[Condition] = Field(default_factory=list)
 
 
@@ -190,6 +212,8 @@ class CellSpec(Wire):
     task: Optional[str] = None
     unschedulable: bool = False
     simulated: bool = False
+    #: A simulated twin for pre-flights only: the operator binds pre-flight runs to it and never an ordinary job.
+    preflight: bool = False
     robot: Optional[CellArm] = None
     arms: dict[str, CellArm] = Field(default_factory=dict)
     cameras: dict[str, CellCamera] = Field(default_factory=dict)
@@ -303,6 +327,8 @@ __all__ = [
     "Metadata",
     "MonitorVerdict",
     "PreemptionRequest",
+    "PreflightSpec",
+    "PreflightStatus",
     "QuotaPreemption",
     "QuotaUsage",
     "RobotJob",
