@@ -272,13 +272,18 @@ class AgentBed:
         self.wait(interlock_clear, 30, f"InterlockClear on {st['cellName']} after the job")
 
     def wait_ready(self, cell: str, timeout: float = 60) -> dict[str, Any]:
+        seen: dict[str, Any] = {}
+
         def ready() -> dict[str, Any] | None:
             obj = self.cell(cell)
-            status = obj.get("status") or {}
+            status = seen["status"] = obj.get("status") or {}
             conditions = {c["type"]: c["status"] for c in status.get("conditions", [])}
             ok = status.get("phase") == "Ready" and len(conditions) >= 5 and set(conditions.values()) == {"True"}
             return obj if ok else None
-        return self.wait(ready, timeout, f"cell {cell} Ready with all health conditions True")
+        try:
+            return self.wait(ready, timeout, f"cell {cell} Ready with all health conditions True")
+        except AssertionError as failure:
+            raise AssertionError(f"{failure}\nthe cell's last status: {seen.get('status')}") from None
 
 
 class JobWatch:
