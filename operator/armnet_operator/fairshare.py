@@ -13,6 +13,8 @@ The rules, in Kueue's terms:
 
 - A tenant is a CellQuota; a job belongs to the quota of its namespace and
   embodiment whose task is the job's task, else the one without a task.
+- Pre-flights (``armnet.io/preflight-for``) are unmanaged too: they only ever run on
+  simulated twins (``Cell.preflight``), which no quota shares out.
 - A namespace without any CellQuota is not rationed (today's behaviour: no
   limit, weight 1, no recorded usage): all its jobs form one unmanaged tenant.
   A namespace with CellQuotas is rationed: a job none of them covers waits.
@@ -109,8 +111,12 @@ class Ledger:
             self.charge(self.tenant_of(job))
 
     def tenant_of(self, job: Job) -> str:
-        """The quota name that governs ``job``, ``UNMANAGED``, or the uncovered key of its namespace."""
-        if job.namespace not in self._rationed:
+        """The quota name that governs ``job``, ``UNMANAGED``, or the uncovered key of its namespace.
+
+        A pre-flight (``preflight``) is unmanaged: it runs on a simulated twin, never on a
+        real cell, so no quota rations it (and as no quota's job, nothing preempts it).
+        """
+        if job.namespace not in self._rationed or job.is_preflight:
             return UNMANAGED
         if job.task is not None:
             name = self._scope.get((job.namespace, job.embodiment, job.task))

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 from .health import derive_cell_phase, heartbeat_fresh, heartbeat_lost_for
-from .model import Cell, CellPhase, Job, JobPhase, Timing
+from .model import Cell, CellPhase, Job, JobPhase, PreflightPhase, Timing
+from .preflight import needs_cancel, needs_start
 from .scheduling import occupied_cells
 
 MAX_TTL_SECONDS = 366 * 24 * 3600
@@ -79,6 +80,30 @@ class RequeuePreempted:
 
 
 @dataclass(frozen=True)
+class StartPreflight:
+    """Create the job's pre-flight (``preflight``; or find the one made before a crash), then name it in
+    ``status.preflight``."""
+
+    job: Job
+
+
+@dataclass(frozen=True)
+class ConcludePreflight:
+    """Give the verdict on the job's finished pre-flight. ``preflight`` is it as this replica sees it; None
+    when its watch does not show it (just created, or gone): the writer reads it from the server."""
+
+    job: Job
+    preflight: Job | None
+
+
+@dataclass(frozen=True)
+class CancelPreflight:
+    """Cancel a pre-flight (``job``) whose own job is gone, cancelled or over: it must not hold a twin for nothing."""
+
+    job: Job
+
+
+@dataclass(frozen=True)
 class AddFinalizer:
     job: Job
 
@@ -100,6 +125,9 @@ Action = (
     | FinishJob
     | RequestCancel
     | RequeuePreempted
+    | StartPreflight
+    | ConcludePreflight
+    | CancelPreflight
     | RepairStatus
     | AddFinalizer
     | RemoveFinalizer
@@ -115,11 +143,35 @@ def plan_lifecycle(
     by_key = {job.key: job for job in jobs}
     by_name = {cell.name: cell for cell in cells}
     claimed = {cell.current_job for cell in cells if cell.current_job}
+    by_uid = {job.uid: job for job in jobs if job.uid}
     actions: list[Action] = []
     actions.extend(_plan_cells(cells, jobs, by_key, now, timing))
     for job in jobs:
         actions.extend(_plan_job(job, by_name, job.key in claimed, now, timing))
+        actions.extend(_plan_preflight(job, by_key, by_uid))
     return tuple(actions)
+
+
+def _plan_preflight(job: Job, by_key: dict[str, Job], by_uid: dict[str, Job]) -> list[Action]:
+    """A job's pre-flight: start it, give its verdict once it ends; stop a pre-flight whose job is gone or done.
+
+    Level-based like the rest: a job waiting with ``spec.preflight`` and no
+    ``status.preflight`` gets one; a ``Running`` one whose pre-flight is terminal (or not in
+    view) gets its verdict. A job being cancelled or deleted is cancelled as any queued job
+    (``_plan_cancel``); its pre-flight is then cancelled from here, as the pre-flight of a
+    job that is over.
+    """
+    if job.is_preflight:
+        owner = by_uid.get(job.preflight_for or "")
+        return [CancelPreflight(job)] if needs_cancel(job, owner) else []
+    if needs_start(job):
+        return [StartPreflight(job)]
+    if job.preflight_phase is PreflightPhase.RUNNING and job.preflight_job and job.waiting:
+        found = by_key.get(f"{job.namespace}/{job.preflight_job}")
+        preflight = found if found is not None and found.preflight_for == job.uid else None
+        if preflight is None or preflight.terminal:
+            return [ConcludePreflight(job, preflight)]
+    return []
 
 
 def _plan_cells(

@@ -50,6 +50,13 @@ class Metrics:
             "armnet_preemption_requeues_total",
             "Preempted jobs whose copy (status.requeuedAs) was created to run them again", registry=r,
         )
+        self.preflights = Counter(
+            "armnet_preflights_total",
+            "Pre-flights on a simulated twin given their verdict (passed: the job joined the queue for a real "
+            "cell; failed: the job failed with PreflightFailed)", ["verdict"], registry=r,
+        )
+        for verdict in ("passed", "failed"):
+            self.preflights.labels(verdict)
         for reason in ("reclaim", "priority"):
             self.preemptions.labels(reason)
         self.errors = Counter("armnet_reconcile_errors_total", "Failed writes and reconcile passes", registry=r)
@@ -101,6 +108,8 @@ class Metrics:
         for reason, count in outcome.preempted.items():
             self.preemptions.labels(reason).inc(count)
         self.preemption_requeues.inc(outcome.requeued_copies)
+        for verdict, count in outcome.preflights.items():
+            self.preflights.labels(verdict).inc(count)
         self.errors.inc(outcome.errors)
         failing = Tally(failure.kind for failure in outcome.failed.values())
         for kind in ("RobotJob", "Cell"):

@@ -16,7 +16,13 @@ from enum import StrEnum
 from typing import Any
 
 from armnet_core.api import ACTIVE_PHASES as _ACTIVE
-from armnet_core.api import RELEASE_CELL_FINALIZER, CellConditionType, CellPhase, JobPhase
+from armnet_core.api import (
+    RELEASE_CELL_FINALIZER,
+    CellConditionType,
+    CellPhase,
+    JobPhase,
+    PreflightPhase,
+)
 from armnet_core.api import TERMINAL_PHASES as _TERMINAL
 
 TERMINAL_PHASES = frozenset(JobPhase(phase) for phase in _TERMINAL)
@@ -41,6 +47,8 @@ class QueuedReason(StrEnum):
     ALL_CELLS_UNAVAILABLE = "AllCellsUnavailable"
     WAITING_FOR_CELL_RELEASE = "WaitingForCellRelease"
     QUOTA_EXHAUSTED = "QuotaExhausted"
+    PREFLIGHT_RUNNING = "PreflightRunning"
+    """The job's pre-flight runs (or waits) on a simulated twin; it joins the queue once that passes."""
 
 
 class BoundReason(StrEnum):
@@ -89,6 +97,14 @@ class Job:
     """``status.preemption.requestedAt``: the operator asked the agent to stop the run at an episode boundary."""
     requeued_as: str | None = None
     """``status.requeuedAs``: the job created to run this preempted one again."""
+    preflight_seconds: int | None = None
+    """``spec.preflight.seconds``: the job runs on a simulated twin first (``preflight``); None: no pre-flight."""
+    preflight_phase: PreflightPhase | None = None
+    """``status.preflight.phase``: the verdict on the job's pre-flight so far (None: not started)."""
+    preflight_job: str | None = None
+    """``status.preflight.job``: the name of the job's pre-flight RobotJob (same namespace)."""
+    preflight_for: str | None = None
+    """The ``armnet.io/preflight-for`` annotation: this job is the pre-flight of the job with this uid."""
 
     @property
     def has_finalizer(self) -> bool:
@@ -102,6 +118,17 @@ class Job:
     def preempting(self) -> bool:
         """Asked to stop at its next episode boundary: its cell is on its way back."""
         return self.preemption_requested_at is not None
+
+    @property
+    def is_preflight(self) -> bool:
+        """A pre-flight run: bound only to pre-flight cells, rationed by no CellQuota, never preempted."""
+        return self.preflight_for is not None
+
+    @property
+    def awaits_preflight(self) -> bool:
+        """Asked for a pre-flight that has not passed (yet): never bound to a cell meanwhile."""
+        return (self.preflight_seconds is not None and not self.is_preflight
+                and self.preflight_phase is not PreflightPhase.PASSED)
 
     @property
     def terminal(self) -> bool:
@@ -173,6 +200,8 @@ class Cell:
     """A spec field that could not be read (named): the cell is Invalid until it is fixed."""
     queue: CellQueue = CellQueue()
     """``status.queue`` as last written (empty when absent)."""
+    preflight: bool = False
+    """``spec.preflight``: a simulated twin that runs pre-flights only (and no ordinary job)."""
 
 
 @dataclass(frozen=True)
@@ -209,6 +238,7 @@ __all__ = [
     "Job",
     "JobConditionType",
     "JobPhase",
+    "PreflightPhase",
     "QueuedReason",
     "Timing",
     "job_key",

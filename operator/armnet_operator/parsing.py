@@ -13,7 +13,11 @@ from collections.abc import Mapping
 from datetime import UTC, datetime, timedelta
 from typing import Any, TypeVar
 
-from armnet_core.api import PREEMPTED_FROM_ANNOTATION, QUEUED_SINCE_ANNOTATION
+from armnet_core.api import (
+    PREEMPTED_FROM_ANNOTATION,
+    PREFLIGHT_FOR_ANNOTATION,
+    QUEUED_SINCE_ANNOTATION,
+)
 from armnet_core.cell_completion import CompletionConfig, unknown_camera
 from armnet_core.lenient import read_parts
 from armnet_core.resources import (
@@ -42,6 +46,7 @@ from .model import (
     Job,
     JobConditionType,
     JobPhase,
+    PreflightPhase,
 )
 
 _Model = TypeVar("_Model", bound=BaseModel)
@@ -53,6 +58,10 @@ class _JobStatus(RobotJobStatus):
     """The platform's model, with the phase narrowed to the operator's: an unknown phase is a defect to repair."""
 
     phase: JobPhase | None = None
+
+
+def _preflight_phase(status: Any) -> PreflightPhase | None:
+    return PreflightPhase(status.preflight.phase) if status.preflight is not None else None
 
 
 class _CellStatus(CellStatus):
@@ -104,9 +113,9 @@ def _conditions(raw: Any, section: str) -> tuple[list[Condition], list[dict[str,
 
 
 _JOB_SPEC_FIELDS = ("image", "embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds",
-                    "requeueOnPreemption")
+                    "requeueOnPreemption", "preflight")
 _JOB_STATUS_SCALARS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "startedAt",
-                       "estimatedStart", "likelyStart", "preemption", "requeuedAs")
+                       "estimatedStart", "likelyStart", "preemption", "requeuedAs", "preflight")
 _JOB_STATUS_FIELDS = (*_JOB_STATUS_SCALARS, "conditions")
 
 
@@ -203,6 +212,10 @@ def _job(
         requeue_on_preemption=spec.requeue_on_preemption,
         preemption_requested_at=status.preemption.requested_at if status.preemption is not None else None,
         requeued_as=status.requeued_as,
+        preflight_seconds=spec.preflight.seconds if spec.preflight is not None else None,
+        preflight_phase=_preflight_phase(status),
+        preflight_job=status.preflight.job if status.preflight is not None else None,
+        preflight_for=meta.annotations.get(PREFLIGHT_FOR_ANNOTATION) or None,
     )
 
 
@@ -221,7 +234,8 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
     meta = Metadata.model_validate(_metadata(body))
     raw_spec = body.get("spec") or {}
     fields = _plain({k: v for k, v in raw_spec.items()
-                     if k in ("embodiment", "task", "nodeName", "unschedulable", "gracePeriodSeconds")})
+                     if k in ("embodiment", "task", "nodeName", "unschedulable", "gracePeriodSeconds",
+                              "simulated", "preflight")})
     problem = None
     try:
         spec = CellSpec.model_validate(fields)
@@ -230,6 +244,10 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         problem = "; ".join(f"spec.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in error.errors())
         bad = {str(e["loc"][0]) for e in error.errors() if e["loc"]}
         spec = CellSpec.model_validate({"embodiment": "", "nodeName": "", **{k: v for k, v in fields.items() if k not in bad}})
+    if spec.preflight and not spec.simulated:
+        # The CRD refuses it; an object stored before the rule is never bound, rather than run as a twin.
+        why = "spec.preflight: a pre-flight cell must be simulated (spec.simulated: true)"
+        problem = f"{problem}; {why}" if problem else why
     completion = _completion_problem(raw_spec)
     if completion is not None:
         problem = f"{problem}; {completion}" if problem else completion
@@ -259,6 +277,7 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         message=status.message or None,
         spec_problem=problem,
         queue=_cell_queue(status.queue),
+        preflight=spec.preflight,
     )
 
 

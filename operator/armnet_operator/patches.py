@@ -30,6 +30,7 @@ from .model import (
     JobConditionType,
     JobPhase,
 )
+from .preflight import PREFLIGHT_FAILED
 from .scheduling import QueueEntry
 
 
@@ -197,6 +198,26 @@ def request_preemption(job: Job, for_job: str, message: str, episode_wait: timed
 def name_requeue(job: Job, name: str) -> Patch:
     """``status.requeuedAs`` on the preempted job: its copy exists (created once, found again after a crash)."""
     return _job_status(job, {"requeuedAs": name})
+
+
+def start_preflight(job: Job, preflight: dict[str, Any]) -> Patch:
+    """``status.preflight`` once the job's pre-flight exists (``preflight.started_status``)."""
+    return _job_status(job, {"preflight": preflight})
+
+
+def conclude_preflight(job: Job, preflight: dict[str, Any], error: str | None, now: datetime) -> Patch:
+    """``status.preflight`` with the verdict; a failed pre-flight also fails the job, in the same write."""
+    if error is None:
+        return _job_status(job, {"preflight": preflight})
+    failed = finish_job(job, JobPhase.FAILED, PREFLIGHT_FAILED, error, now)
+    failed.body["status"]["preflight"] = preflight
+    return failed
+
+
+def cancel_job(job: Job) -> Patch:
+    """``spec.cancel`` on a pre-flight whose job is over. No resourceVersion: a cancel is one-way and the
+    patch names nothing else, so it cannot undo anyone's write."""
+    return Patch(Target.JOB, job.name, job.namespace, {"spec": {"cancel": True}})
 
 
 def add_finalizer(job: Job) -> Patch:

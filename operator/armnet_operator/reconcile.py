@@ -35,6 +35,8 @@ from .health import derive_cell_phase
 from .lifecycle import (
     Action,
     AddFinalizer,
+    CancelPreflight,
+    ConcludePreflight,
     DeleteJob,
     FinishJob,
     ReleaseCell,
@@ -44,6 +46,7 @@ from .lifecycle import (
     RequeueJob,
     RequeuePreempted,
     SetCellPhase,
+    StartPreflight,
     plan_active_job,
     plan_lifecycle,
     release_reason,
@@ -51,6 +54,17 @@ from .lifecycle import (
 )
 from .model import Cell, CellPhase, CellQueue, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
+from .preflight import (
+    PREFLIGHT_FAILED,
+    failed_error,
+    is_preflight_of,
+    judge,
+    needs_start,
+    preflight_body,
+    preflight_name,
+    started_status,
+    verdict_status,
+)
 from .quota import QuotaObject, Usage
 from .quota_writes import current_usage, plan_quota_writes, quotas_in_force
 from .requeue import is_requeue_of, requeue_body, requeue_name
@@ -129,6 +143,8 @@ class Outcome:
     """Running jobs asked to stop at their next episode boundary, by why (``Reclaim.reason``)."""
     requeued_copies: int = 0
     """Preempted jobs whose copy now waits in the queue in their place (``requeue``)."""
+    preflights: dict[str, int] = field(default_factory=dict)
+    """Pre-flights given their verdict, by verdict (``passed``, ``failed``)."""
 
     def merge(self, other: Outcome) -> None:
         self.bound.extend(other.bound)
@@ -141,6 +157,8 @@ class Outcome:
         for reason, count in other.preempted.items():
             self.preempted[reason] = self.preempted.get(reason, 0) + count
         self.requeued_copies += other.requeued_copies
+        for verdict, count in other.preflights.items():
+            self.preflights[verdict] = self.preflights.get(verdict, 0) + count
         self.errors += other.errors
         self.writes += other.writes
 
@@ -544,6 +562,16 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
             return written
         case RequeuePreempted(job=job):
             return _requeue_preempted(job, api, outcome)
+        case StartPreflight(job=job):
+            return _start_preflight(job, now, api, outcome)
+        case ConcludePreflight(job=job):
+            return _conclude_preflight(job, now, api, outcome)
+        case CancelPreflight(job=job):
+            written = _write(api, patches.cancel_job(job), outcome)
+            if written is not None:
+                _event(api, job, "Normal", "CancelRequested",
+                       "the job this pre-flight was for is gone, cancelled or over")
+            return written
         case RequestCancel(job=job):
             written = _write(api, patches.request_cancel(job, now), outcome)
             if written is not None:
@@ -638,6 +666,92 @@ def _create_requeue(current: dict[str, Any], job: Job, api: Api, outcome: Outcom
     return None
 
 
+def _start_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Create the job's pre-flight (or find the one made before a crash), then name it in ``status.preflight``.
+
+    The body is copied from the job as the server has it now (the snapshot's frozen ``Job``
+    has no args, secrets or labels), as a preempted job's requeue is.
+    """
+    try:
+        current = api.read_job(job.namespace, job.name)
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    fresh = parse_job(current)
+    if fresh.uid != job.uid or not needs_start(fresh):
+        return None
+    made = _create_preflight(current, fresh, api, outcome)
+    if made is None:
+        return None
+    name = str(made["metadata"]["name"])
+    written = _write(api, patches.start_preflight(fresh, started_status(name, now)), outcome)
+    if written is not None:
+        # Scheduled in this same pass: a free twin takes it at once.
+        outcome.jobs_written[f"{job.namespace}/{name}"] = parse_job(made)
+        _event(api, fresh, "Normal", "PreflightStarted",
+               f"pre-flight job {name} runs this job on a simulated twin first (at most "
+               f"{fresh.preflight_seconds} s); the job joins the queue for a real cell once it passes")
+    return written
+
+
+def _create_preflight(current: dict[str, Any], job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """The pre-flight as created now, or as found (created for this job before); None to retry next pass."""
+    for taken_by_other in (False, True):
+        name = preflight_name(job.name, job.uid, taken_by_other)
+        try:
+            made = api.create_job(preflight_body(current, name))
+        except AlreadyExists:
+            try:
+                existing = api.read_job(job.namespace, name)
+            except TransientError as error:
+                _count(error, outcome)
+                return None
+            if is_preflight_of(existing, job.uid):
+                return existing
+            continue
+        except TransientError as error:
+            _count(error, outcome)
+            return None
+        outcome.writes += 1
+        return made
+    return None
+
+
+def _conclude_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Read the finished pre-flight's result, write the verdict on the job; a failed one fails the job.
+
+    The pre-flight is read from the server even when the snapshot has it: its error and
+    traceback are in ``status.result``, which the frozen ``Job`` does not carry, and a
+    pre-flight the watch does not show yet (just created) must not be taken for gone.
+    """
+    name = job.preflight_job or ""
+    try:
+        body: dict[str, Any] | None = api.read_job(job.namespace, name)
+    except NotFound:
+        body = None
+    except TransientError as error:
+        _count(error, outcome)
+        return None
+    if body is not None and not is_preflight_of(body, job.uid):
+        body = None  # a job of that name, but not this job's pre-flight: its own is gone
+    result = ((body or {}).get("status") or {}).get("result") or {}
+    verdict = judge(parse_job(body) if body is not None else None, name, result.get("error"), result.get("traceback"))
+    if verdict is None:
+        return None  # still running (the snapshot was behind)
+    failure = None if verdict.passed else failed_error(verdict)
+    written = _write(api, patches.conclude_preflight(job, verdict_status(name, verdict, now), failure, now), outcome)
+    if written is None:
+        return None
+    label = verdict.label
+    outcome.preflights[label] = outcome.preflights.get(label, 0) + 1
+    log.info("pre-flight of %s %s: %s", job.key, label, verdict.message)
+    if verdict.passed:
+        _event(api, job, "Normal", "PreflightPassed", f"{verdict.message}; the job joins the queue for a real cell")
+    else:
+        _event(api, job, "Warning", PREFLIGHT_FAILED, f"{verdict.message}; the job never bound a real cell")
+    return written
+
+
 def _recheck_release(cell: Cell, now: datetime, timing: Timing, api: Api, outcome: Outcome) -> str | None:
     """Decide a claim's release again on the claiming job as the server has it now.
 
@@ -698,7 +812,7 @@ def _claim(
         _count(error, outcome)
         return None
     fresh = replace(fresh, invalid=check_cell(fresh))
-    same_pool = (fresh.embodiment, fresh.task) == (cell.embodiment, cell.task)
+    same_pool = (fresh.embodiment, fresh.task, fresh.preflight) == (cell.embodiment, cell.task, cell.preflight)
     free = derive_cell_phase(fresh, False, now, heartbeat_timeout) is CellPhase.READY
     if fresh.current_job is not None or not same_pool or not free:
         return None

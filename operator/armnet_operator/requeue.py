@@ -44,11 +44,13 @@ def requeue_name(name: str, uid: str, taken_by_other: bool = False) -> str:
 def requeue_body(preempted: Mapping[str, Any], name: str, queued_since: datetime) -> dict[str, Any]:
     """The copy of ``preempted`` (a RobotJob as the server returned it) to create as ``name``."""
     meta = preempted.get("metadata") or {}
-    annotations = {k: v for k, v in (meta.get("annotations") or {}).items() if not k.startswith(_NOT_COPIED)}
+    annotations = copied_annotations(meta)
     annotations[PREEMPTED_FROM_ANNOTATION] = str(meta.get("uid", ""))
     annotations[QUEUED_SINCE_ANNOTATION] = kube_time(queued_since)
     spec = dict(preempted.get("spec") or {})
     spec["cancel"] = False
+    # It ran on a real cell, so its pre-flight (``preflight``) passed: the copy runs the same program again.
+    spec.pop("preflight", None)
     return {
         "apiVersion": API_VERSION,
         "kind": "RobotJob",
@@ -62,10 +64,15 @@ def requeue_body(preempted: Mapping[str, Any], name: str, queued_since: datetime
     }
 
 
+def copied_annotations(meta: Mapping[str, Any]) -> dict[str, str]:
+    """The annotations of a job its copies keep: the tenant's own, not the ones that describe one object."""
+    return {k: v for k, v in (meta.get("annotations") or {}).items() if not k.startswith(_NOT_COPIED)}
+
+
 def is_requeue_of(candidate: Mapping[str, Any], uid: str) -> bool:
     """Whether ``candidate`` is the copy created for the job with ``uid`` (before a crash, or by another replica)."""
     annotations = (candidate.get("metadata") or {}).get("annotations") or {}
     return bool(uid) and annotations.get(PREEMPTED_FROM_ANNOTATION) == uid
 
 
-__all__ = ["is_requeue_of", "requeue_body", "requeue_name"]
+__all__ = ["copied_annotations", "is_requeue_of", "requeue_body", "requeue_name"]

@@ -10,6 +10,11 @@ matches no free cell never blocks the jobs behind it (no head-of-line
 blocking): each job draws from its own pool, and a tenant out of quota never
 blocks another tenant.
 
+Pre-flights (``preflight``) draw from their own pool: the pre-flight cells
+(``Cell.preflight``) of their embodiment, whatever their task; no ordinary job is
+ever bound to a pre-flight cell. A job whose pre-flight has not passed waits with
+``PreflightRunning``, behind every other job in ``queuePosition``, and is never bound.
+
 Cost: one sort of the waiting jobs, then O(log tenants) per job, so the cost
 per decision grows only with log(queue length).
 """
@@ -69,23 +74,29 @@ def occupied_cells(jobs: Iterable[Job], cells: Iterable[Cell]) -> set[str]:
 
 
 class _Pools:
-    """Free, available cells by (embodiment, task) and by embodiment, popped lazily."""
+    """Free, available cells by (embodiment, task) and by embodiment, popped lazily; pre-flight
+    cells apart, by embodiment only (a pre-flight runs on any twin of its embodiment)."""
 
     def __init__(self, free: list[Cell]) -> None:
         free.sort(key=lambda c: c.name)
         self.by_pair: dict[tuple[str, str | None], deque[Cell]] = defaultdict(deque)
         self.by_embodiment: dict[str, deque[Cell]] = defaultdict(deque)
+        self.twins: dict[str, deque[Cell]] = defaultdict(deque)
         for cell in free:
+            if cell.preflight:
+                self.twins[cell.embodiment].append(cell)
+                continue
             self.by_pair[(cell.embodiment, cell.task)].append(cell)
             self.by_embodiment[cell.embodiment].append(cell)
         self.taken: set[str] = set()
 
     def pop(self, job: Job) -> Cell | None:
-        pool = (
-            self.by_embodiment.get(job.embodiment)
-            if job.task is None
-            else self.by_pair.get((job.embodiment, job.task))
-        )
+        if job.is_preflight:
+            pool = self.twins.get(job.embodiment)
+        elif job.task is None:
+            pool = self.by_embodiment.get(job.embodiment)
+        else:
+            pool = self.by_pair.get((job.embodiment, job.task))
         while pool:
             cell = pool.popleft()
             if cell.name not in self.taken:
@@ -101,13 +112,17 @@ class _Census:
         self.total: dict[object, int] = defaultdict(int)
         self.available: dict[object, int] = defaultdict(int)
         for cell, phase in phases.values():
-            for key in (cell.embodiment, (cell.embodiment, cell.task)):
+            keys: tuple[object, ...] = ((_TWIN, cell.embodiment),) if cell.preflight else (
+                cell.embodiment, (cell.embodiment, cell.task))
+            for key in keys:
                 self.total[key] += 1
                 if is_available(phase):
                     self.available[key] += 1
 
     def reason(self, job: Job) -> tuple[QueuedReason, str]:
         emb, task = job.embodiment, job.task
+        if job.is_preflight:
+            return self._twin_reason(emb)
         if not self.total.get(emb):
             return (
                 QueuedReason.NO_CELL_FOR_EMBODIMENT,
@@ -130,6 +145,21 @@ class _Census:
             QueuedReason.ALL_CELLS_BUSY,
             f"all {self.available[key]} available matching Cell(s) are busy",
         )
+
+    def _twin_reason(self, emb: str) -> tuple[QueuedReason, str]:
+        key = (_TWIN, emb)
+        if not self.total.get(key):
+            return (QueuedReason.NO_CELL_FOR_EMBODIMENT,
+                    f"no pre-flight Cell (spec.preflight: true) has embodiment {emb!r}; ask a cluster admin "
+                    "to register a simulated twin of it, or submit the job without spec.preflight")
+        if not self.available.get(key):
+            return (QueuedReason.ALL_CELLS_UNAVAILABLE,
+                    f"all {self.total[key]} pre-flight Cell(s) of {emb!r} are offline, faulted or cordoned")
+        return QueuedReason.ALL_CELLS_BUSY, f"all {self.available[key]} available pre-flight Cell(s) of {emb!r} are busy"
+
+
+#: Marks the census key of an embodiment's pre-flight cells: no real pool key (a name, a pair of names) equals it.
+_TWIN = object()
 
 
 def plan_bindings(
@@ -160,7 +190,7 @@ def plan_bindings(
     ledger = Ledger(quotas, (j for j in jobs if holds_cell(j, claimed)), usage or {}, now, sharing)
 
     queues: dict[str, list[Job]] = defaultdict(list)
-    for job in sorted((j for j in jobs if j.waiting), key=order_key):
+    for job in sorted((j for j in jobs if j.waiting and not j.awaits_preflight), key=order_key):
         queues[ledger.tenant_of(job)].append(job)
     turns = [(ledger.rank(t), order_key(q[0]), t) for t, q in queues.items()]
     heapq.heapify(turns)
@@ -190,11 +220,20 @@ def plan_bindings(
         if head + 1 < len(queue):
             heapq.heappush(turns, (ledger.rank(tenant), order_key(queue[head + 1]), tenant))
     exhausted.sort(key=lambda entry: order_key(entry[0]))
-    positions = _positions(entries + exhausted)
+    twin_entries = [(replace(job, task=None), reason, message) for job, reason, message in entries
+                    if job.is_preflight]
+    entries = [entry for entry in entries if not entry[0].is_preflight]
+    # Twins and real cells are disjoint pools: each has its own positions, estimates and cell queues.
+    positions = {**_positions(twin_entries), **_positions(entries + exhausted)}
+    positions.update(_awaiting_positions(jobs, entries + exhausted, positions))
     holders = _holders(jobs, bindings, now)
-    typical = typical_runs(jobs)
-    latest, likely = _start_estimates(entries, holders, typical, phases, now)
-    at_cells = cell_queues(cells, (job for job, _, _ in entries + exhausted), holders, now, typical)
+    typical = typical_runs(j for j in jobs if not j.is_preflight)
+    real = {name: pair for name, pair in phases.items() if not pair[0].preflight}
+    latest, likely = _start_estimates(entries, holders, typical, real, now)
+    at_cells = cell_queues([c for c in cells if not c.preflight], (job for job, _, _ in entries + exhausted),
+                           holders, now, typical)
+    at_cells.update(cell_queues([c for c in cells if c.preflight], (job for job, _, _ in twin_entries),
+                                holders, now, typical))
     for_busy = [job for job, reason, _ in entries if reason is QueuedReason.ALL_CELLS_BUSY]
     reclaims = plan_reclaim(holders.values(), for_busy, cells, quotas, usage or {}, now, sharing) if for_busy else ()
     at_limit = for_busy + [job for job, _, _ in exhausted]
@@ -257,6 +296,29 @@ def _positions(entries: list[tuple[Job, QueuedReason, str]]) -> dict[str, QueueE
         ahead_any[emb] += 1
         queued[job.key] = QueueEntry(reason, position, message)
     return queued
+
+
+def _awaiting_positions(jobs: list[Job], ahead: list[tuple[Job, QueuedReason, str]],
+                        planned: Mapping[str, QueueEntry]) -> dict[str, QueueEntry]:
+    """The jobs waiting for their pre-flight's verdict: behind every job waiting for a cell (they are
+    not in the running for one yet), each told what its pre-flight is doing."""
+    awaiting = sorted((j for j in jobs if j.waiting and j.awaits_preflight), key=order_key)
+    if not awaiting:
+        return {}
+    entries = []
+    for job in awaiting:
+        name = job.preflight_job
+        found = planned.get(f"{job.namespace}/{name}") if name else None
+        if name is None:
+            doing = "its pre-flight on a simulated twin is being created"
+        elif found is not None:
+            doing = f"its pre-flight job {name} waits for a pre-flight cell ({found.reason}: {found.message})"
+        else:
+            doing = f"its pre-flight job {name} runs on a simulated twin"
+        entries.append((job, QueuedReason.PREFLIGHT_RUNNING,
+                        f"{doing}; the job joins the queue for a real cell, in its place, once it passes"))
+    placed = _positions(ahead + entries)
+    return {job.key: placed[job.key] for job, _, _ in entries}
 
 
 def choose_cell(

@@ -82,6 +82,13 @@ class JobBuilder:
     def cancel_requested(self, seconds_ago: float) -> JobBuilder:
         return self._with(cancel=True, cancel_requested_at=ago(seconds_ago))
 
+    def with_preflight(self, seconds: int = 30) -> JobBuilder:
+        return self._with(preflight_seconds=seconds)
+
+    def preflight_of(self, owner: Job) -> JobBuilder:
+        """The pre-flight run of ``owner`` (``armnet.io/preflight-for`` its uid)."""
+        return self._with(preflight_for=owner.uid, namespace=owner.namespace, name=f"{owner.name}-preflight")
+
     def new(self) -> Job:
         return self.job
 
@@ -126,6 +133,10 @@ class CellBuilder:
 
     def with_grace(self, seconds: int) -> CellBuilder:
         return self._with(grace_period=timedelta(seconds=seconds))
+
+    def as_preflight_twin(self) -> CellBuilder:
+        """A simulated twin that runs pre-flights only (``spec.preflight: true``)."""
+        return self._with(preflight=True)
 
     def cordoned(self) -> CellBuilder:
         return self._with(unschedulable=True)

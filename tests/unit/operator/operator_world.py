@@ -80,16 +80,16 @@ class World:
         self.now += timedelta(seconds=seconds)
 
     # ---- what users and agents do
-    def submit(self, name: str, embodiment: str, task: str | None, priority: int) -> None:
-        spec: dict[str, Any] = {"image": "localhost/job:dev", "embodiment": embodiment, "priority": priority}
+    def submit(self, name: str, embodiment: str, task: str | None, priority: int, **extra: Any) -> None:
+        spec: dict[str, Any] = {"image": "localhost/job:dev", "embodiment": embodiment, "priority": priority, **extra}
         if task:
             spec["task"] = task
         meta = {"name": name, "namespace": "t", "uid": f"uid-{name}", "resourceVersion": self._next_rv(),
                 "creationTimestamp": kube_time(self.now)}
         self.jobs[f"t/{name}"] = {"metadata": meta, "spec": spec, "status": {}}
 
-    def add_cell(self, name: str, embodiment: str, task: str | None) -> None:
-        spec: dict[str, Any] = {"embodiment": embodiment, "nodeName": f"host-{name}"}
+    def add_cell(self, name: str, embodiment: str, task: str | None, **extra: Any) -> None:
+        spec: dict[str, Any] = {"embodiment": embodiment, "nodeName": f"host-{name}", **extra}
         if task:
             spec["task"] = task
         meta = {"name": name, "resourceVersion": self._next_rv()}
@@ -134,6 +134,7 @@ class World:
             raise Conflict(key)
         if patch.target is Target.JOB:
             merge(obj["metadata"], body.get("metadata", {}))
+            merge(obj.setdefault("spec", {}), body.get("spec", {}))
         else:
             merge(obj.setdefault("status", {}), body.get("status", {}))
         obj["metadata"]["resourceVersion"] = self._next_rv()
