@@ -23,7 +23,8 @@ def body(**spec: object) -> dict[str, object]:
 
 def test_the_example_manifest_parses_into_the_quotas_it_describes():
     a, b = (parse_cell_quota(doc) for doc in yaml.safe_load_all(EXAMPLE.read_text()))
-    assert a == CellQuota("team-a-so101", "team-a", "lerobot/so-101", 2, weight=2.0, cohort="lab")
+    assert a == CellQuota("team-a-so101", "team-a", "lerobot/so-101", 2, weight=2.0, cohort="lab",
+                          preempt_lower_priority=True)
     assert (b.borrowing_limit, b.credits_cell_hours, b.period) == (2, 40.0, QuotaPeriod.WEEK)
 
 
