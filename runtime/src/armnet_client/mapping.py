@@ -16,6 +16,7 @@ from typing import Any, Optional
 
 from armnet_core.api import API_VERSION, FOLLOWER_TIMEOUT_ANNOTATION
 from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
+from armnet_core.resources import PreflightStatus
 from pydantic import ValidationError
 
 from .resources import Cell, CellQueue, CellQuota, JobArtifacts, RobotJob, RolloutRecord
@@ -175,6 +176,8 @@ class JobView:
     requeued_as: Optional[str] = None
     #: A running job the operator preempted: it stops at its next episode boundary.
     preempting: bool = False
+    #: A job with ``spec.preflight``: its pre-flight on a simulated twin and the verdict (``status.preflight``).
+    preflight: Optional[PreflightStatus] = None
 
 
 def view_of(job: RobotJob) -> JobView:
@@ -203,6 +206,7 @@ def view_of(job: RobotJob) -> JobView:
         artifacts=job.status.artifacts,
         requeued_as=job.status.requeued_as,
         preempting=job.status.preemption is not None,
+        preflight=job.status.preflight,
     )
 
 

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from armnet_core.api import ArtifactsPhase
+from armnet_core.api import ArtifactsPhase, PreflightPhase
 from armnet_core.models import Job, JobResult, JobStatus, TerminalStatus
 from armnet_core.times import status_time
 
@@ -59,9 +59,13 @@ def _queue_note(job: JobView, now: datetime) -> str:
     """``AllCellsBusy #2, likely in 4m, within 12m``: why it waits, its place, its likely and latest start."""
     if job.status is JobStatus.PREEMPTED and job.requeued_as:
         return f"requeued as {job.requeued_as}"
+    if job.preflight is not None and job.preflight.phase == PreflightPhase.FAILED.value:
+        return f"pre-flight {job.preflight.job} failed"
     if job.status not in (JobStatus.QUEUED, JobStatus.SUBMITTED) or not job.queued_reason:
         return ""
     position = f" #{job.queue_position}" if job.queue_position else ""
+    if job.preflight is not None and job.preflight.phase == PreflightPhase.RUNNING.value:
+        return f"{job.queued_reason}{position}, pre-flight {job.preflight.job}"
     starts = ""
     if job.estimated_start is not None:
         likely = job.likely_start
@@ -226,6 +230,7 @@ def job_document(job: Job, view: JobView) -> dict[str, Any]:
                       "monitor": r.monitor.model_dump(mode="json", by_alias=True) if r.monitor else None}
                      for r in view.rollouts],
         "cancelRequested": view.cancel_requested,
+        "preflight": view.preflight.model_dump(mode="json", by_alias=True, exclude_none=True) if view.preflight else None,
         "artifacts": view.artifacts.model_dump(mode="json", by_alias=True, exclude_none=True) if view.artifacts else None,
     })
     return document

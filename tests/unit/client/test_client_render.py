@@ -156,7 +156,8 @@ def test_the_job_json_shape_is_the_sdk_job_plus_queue_and_progress() -> None:
     document = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))
 
     assert set(document) == {"id", "spec", "status", "created_at", "updated_at", "cell_id", "result",
-                             "namespace", "jobId", "queue", "progress", "rollout", "rollouts", "cancelRequested", "artifacts"}
+                             "namespace", "jobId", "queue", "progress", "rollout", "rollouts", "cancelRequested", "artifacts",
+                             "preflight"}
     assert document["status"] == "queued"
     assert document["queue"] == {"reason": "AllCellsBusy", "position": 1, "estimatedStart": "2026-01-01T12:10:00+00:00",
                                  "likelyStart": "2026-01-01T12:04:00+00:00"}
@@ -345,3 +346,15 @@ def test_a_preempting_job_says_so_and_a_preempted_one_names_its_requeue() -> Non
     assert "running (preempting)" in running.splitlines()[1]
     preempted = jobs_table([view_of(job(phase="preempted", cellName="cell-a", requeuedAs="pick-r1"))], NOW)
     assert "requeued as pick-r1" in preempted.splitlines()[1]
+
+
+def test_a_job_in_its_preflight_names_it_and_one_whose_preflight_failed_says_so() -> None:
+    running = {"phase": "Running", "job": "pick-preflight", "startedAt": "2026-11-24T10:00:00Z"}
+    waiting = view_of(job(phase="queued", queuedReason="PreflightRunning", queuePosition=3, preflight=running))
+    assert "PreflightRunning #3, pre-flight pick-preflight" in jobs_table([waiting], NOW).splitlines()[1]
+    failed = {"phase": "Failed", "job": "pick-preflight", "message": "the pre-flight job pick-preflight failed"}
+    body = job(phase="failed", preflight=failed)
+    assert "pre-flight pick-preflight failed" in jobs_table([view_of(body)], NOW).splitlines()[1]
+    document = json.loads(json.dumps(job_document(job_from_robotjob(body), view_of(body))))
+    assert document["preflight"] == failed
+    assert json.loads(json.dumps(job_document(job_from_robotjob(job()), view_of(job()))))["preflight"] is None
