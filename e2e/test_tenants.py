@@ -1,12 +1,17 @@
-"""Preemption only at an episode boundary, end to end: two tenants, one cell, the real processes.
+"""Two tenants on shared cells, end to end: fair share by weight, and preemption only at an episode boundary.
 
 Real kube-apiserver + etcd, the real ``armnet operator`` and ``armnet agent``, Podman
 containers, the cell simulator driven by LeRobot's own Feetech bus through the connector.
-Tenant A owns the cell (a CellQuota of one nominal cell); tenant B has none and borrows it
-from their cohort while A has nothing to run. When A submits, B's job must give the cell
-back: the operator asks for a stop at B's next episode boundary, B's open rollout ends with
-no move refused, B ends ``preempted`` with how far it got, A runs on the cell, and a copy
-of B's job (keeping B's place in the queue) runs B's work again once A is done.
+One bed, two tenants (namespaces), two groups of cells told apart by task:
+
+- four shared cells, where each tenant's CellQuota gives it all four (nominal shares
+  above the cells: every pass ranks the tenants by weighted usage alone) and A weighs
+  three times B: while both have jobs waiting, A gets three quarters of the cell time;
+- one cell A owns (a CellQuota of one nominal cell) and B may borrow from their cohort
+  while A has nothing to run. When A submits, B's job must give the cell back: the
+  operator asks for a stop at B's next episode boundary, B's open rollout ends with no
+  move refused, B ends ``preempted`` with how far it got, A runs on the cell, and a copy
+  of B's job (keeping B's place in the queue) runs B's work again once A is done.
 """
 
 from __future__ import annotations
@@ -24,6 +29,11 @@ from e2e.scenarios import explain, moment_of, status
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
 
 EPISODES = 6
+#: Fair share: A weighs 3, B 1; 40 jobs of 1.5 s on four cells (A 30, B 10: under fair share both
+#: queues drain together; first-come would run B's ten in the first half).
+WEIGHTS = (3, 1)
+JOBS_PER_TENANT = (30, 10)
+SHARED = "shared"
 
 
 class Tenants(AgentBed):
@@ -59,24 +69,30 @@ class Tenants(AgentBed):
         return [event.reason for event in found.items]
 
 
-def quota(name: str, namespace: str, nominal: int, task: str) -> dict[str, Any]:
+def quota(name: str, namespace: str, nominal: int, task: str, **spec: Any) -> dict[str, Any]:
     return {"apiVersion": API_VERSION, "kind": "CellQuota", "metadata": {"name": name},
             "spec": {"namespace": namespace, "embodiment": "lerobot/so-101", "task": task,
-                     "nominalCells": nominal, "cohort": f"lab-{task}"}}
+                     "nominalCells": nominal, **spec}}
 
 
 @pytest.fixture(scope="module")
 def bed(k8s: Any, podman: Any, base_image: str, nats_server: str) -> Iterator[Tenants]:
     owner, borrower = k8s.create_namespace("preempt-a"), k8s.create_namespace("preempt-b")
     bed = Tenants(k8s, podman, base_image, owner, nats_url=nats_server, other=borrower)
-    cell = bed.add_cell("so101")
-    quotas = [quota(f"a-{bed.node}", owner, 1, bed.node), quota(f"b-{bed.node}", borrower, 0, bed.node)]
+    shared_task = f"{SHARED}-{bed.node}"
+    cells = [bed.add_cell("so101")] + [bed.add_cell(f"shared{i}", task=shared_task) for i in range(4)]
+    cohort = f"lab-{bed.node}"
+    quotas = [quota(f"a-{bed.node}", owner, 1, bed.node, cohort=cohort),
+              quota(f"b-{bed.node}", borrower, 0, bed.node, cohort=cohort),
+              quota(f"a-{shared_task}", owner, 4, shared_task, weight=WEIGHTS[0]),
+              quota(f"b-{shared_task}", borrower, 4, shared_task, weight=WEIGHTS[1])]
     for body in quotas:
         bed.apply(body, namespaced=False)
     bed.start_operator()
     bed.start_agent()
     try:
-        bed.wait_ready(cell, timeout=90)
+        for cell in cells:
+            bed.wait_ready(cell, timeout=90)
         yield bed
     finally:
         bed.stop()
@@ -123,3 +139,28 @@ def test_a_borrowed_cell_goes_back_at_an_episode_boundary_and_the_preempted_job_
     assert "Preempted" in bed.events_of(bed.other, "borrower")
     assert "Requeued" in bed.events_of(bed.other, "borrower")
     assert "Preempting" in bed.events_of(bed.namespace, "owner")
+
+
+def test_while_both_tenants_wait_each_gets_cell_time_in_proportion_to_its_weight(bed: Tenants) -> None:
+    counts = bed.image("counts", JOBS / "counts_slowly.py")
+    task = f"{SHARED}-{bed.node}"
+    names = {bed.namespace: [f"a{i:02d}" for i in range(JOBS_PER_TENANT[0])],
+             bed.other: [f"b{i:02d}" for i in range(JOBS_PER_TENANT[1])]}
+    for a, b in zip(names[bed.namespace], names[bed.other] + [None] * 20, strict=False):
+        for namespace, name in ((bed.namespace, a), (bed.other, b)):
+            if name is not None:
+                bed.submit_to(namespace, name, counts, task=task, timeoutSeconds=120,
+                              args={"lines": 3, "pause": 0.5})
+    runs = {(namespace, name): status(bed.phase_of(namespace, name, ("succeeded", "failed", "timeout"), 400))
+            for namespace, jobs in names.items() for name in jobs}
+    assert all(st["phase"] == "succeeded" for st in runs.values()), {k: explain(v) for k, v in runs.items()
+                                                                     if v["phase"] != "succeeded"}
+    spans = {key: (moment_of(st["startedAt"]), moment_of(st["finishedAt"])) for key, st in runs.items()}
+    # The window in which both tenants had a job waiting: until the last job of either started.
+    last_start = {ns: max(spans[(ns, n)][0] for n in jobs) for ns, jobs in names.items()}
+    start, end = min(s for s, _ in spans.values()), min(last_start.values())
+    held = {ns: sum(max(0.0, (min(e, end) - max(s, start)).total_seconds())
+                    for (job_ns, _), (s, e) in spans.items() if job_ns == ns) for ns in names}
+    share = held[bed.namespace] / (held[bed.namespace] + held[bed.other])
+    wanted = WEIGHTS[0] / sum(WEIGHTS)
+    assert abs(share - wanted) <= 0.10, (share, held, end - start)
