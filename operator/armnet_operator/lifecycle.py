@@ -98,9 +98,14 @@ class ConcludePreflight:
 
 @dataclass(frozen=True)
 class CancelPreflight:
-    """Cancel a pre-flight (``job``) whose own job is gone, cancelled or over: it must not hold a twin for nothing."""
+    """Cancel a pre-flight (``job``) whose own job is gone, cancelled or over: it must not hold a twin for nothing.
+
+    ``recheck`` is set when the decision rests on the job not being in this replica's view
+    (a watch still listing, or lagging): the writer then reads it from the server first.
+    """
 
     job: Job
+    recheck: bool = False
 
 
 @dataclass(frozen=True)
@@ -163,7 +168,7 @@ def _plan_preflight(job: Job, by_key: dict[str, Job], by_uid: dict[str, Job]) ->
     """
     if job.is_preflight:
         owner = by_uid.get(job.preflight_for or "")
-        return [CancelPreflight(job)] if needs_cancel(job, owner) else []
+        return [CancelPreflight(job, recheck=owner is None)] if needs_cancel(job, owner) else []
     if needs_start(job):
         return [StartPreflight(job)]
     if job.preflight_phase is PreflightPhase.RUNNING and job.preflight_job and job.waiting:

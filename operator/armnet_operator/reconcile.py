@@ -59,6 +59,7 @@ from .preflight import (
     failed_error,
     is_preflight_of,
     judge,
+    needs_cancel,
     needs_start,
     preflight_body,
     preflight_name,
@@ -566,7 +567,9 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
             return _start_preflight(job, now, api, outcome)
         case ConcludePreflight(job=job):
             return _conclude_preflight(job, now, api, outcome)
-        case CancelPreflight(job=job):
+        case CancelPreflight(job=job, recheck=recheck):
+            if recheck and not _owner_gone(job, api, outcome):
+                return None
             written = _write(api, patches.cancel_job(job), outcome)
             if written is not None:
                 _event(api, job, "Normal", "CancelRequested",
@@ -750,6 +753,34 @@ def _conclude_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> 
     else:
         _event(api, job, "Warning", PREFLIGHT_FAILED, f"{verdict.message}; the job never bound a real cell")
     return written
+
+
+def _owner_gone(preflight: Job, api: Api, outcome: Outcome) -> bool:
+    """Whether the job a pre-flight is for is gone, cancelled, deleted or over, as the server has it now.
+
+    This replica's watch may not show it yet (still listing after a start): cancelling
+    a healthy job's pre-flight on that view would fail the job. The job is found by the
+    pre-flight's ownerReference (a pre-flight without one is not the operator's: gone).
+    """
+    try:
+        body = api.read_job(preflight.namespace, preflight.name)
+    except NotFound:
+        return False  # the pre-flight itself is gone: nothing to cancel
+    except TransientError as error:
+        _count(error, outcome)
+        return False
+    refs = (body.get("metadata") or {}).get("ownerReferences") or []
+    name = next((r.get("name") for r in refs if isinstance(r, dict) and r.get("uid") == preflight.preflight_for), None)
+    if not name:
+        return True
+    try:
+        owner = parse_job(api.read_job(preflight.namespace, str(name)))
+    except NotFound:
+        return True
+    except TransientError as error:
+        _count(error, outcome)
+        return False
+    return owner.uid != preflight.preflight_for or needs_cancel(preflight, owner)
 
 
 def _recheck_release(cell: Cell, now: datetime, timing: Timing, api: Api, outcome: Outcome) -> str | None:

@@ -182,7 +182,8 @@ def test_a_pre_flight_cell_that_is_not_simulated_is_never_bound() -> None:
 def test_a_preflight_whose_job_is_cancelled_deleted_gone_or_over_is_cancelled() -> None:
     owner = a_job().named("pick").with_preflight().queued()
     run = replace(a_job().preflight_of(owner).running_on("twin"))
-    for gone in ([], [replace(owner, cancel=True)], [replace(owner, deleting=True)],
+    assert CancelPreflight(run, recheck=True) in plan_lifecycle([run], [], NOW, TIMING)  # not in view: read first
+    for gone in ([replace(owner, cancel=True)], [replace(owner, deleting=True)],
                  [replace(owner, phase=JobPhase.FAILED, finished_at=ago(1))]):
         assert CancelPreflight(run) in plan_lifecycle([run, *gone], [], NOW, TIMING)
     assert not any(isinstance(a, CancelPreflight) for a in plan_lifecycle([run, owner], [], NOW, TIMING))
@@ -294,6 +295,19 @@ def test_cancelling_a_job_during_its_preflight_cancels_both() -> None:
     run(world, memory)
     assert status(world, "t/pick")["phase"] == "cancelled"
     assert world.jobs["t/pick-preflight"]["spec"]["cancel"] is True  # the agent stops it on the twin
+
+
+def test_a_preflight_whose_job_is_not_in_view_yet_is_left_running_and_one_whose_job_is_gone_is_cancelled() -> None:
+    world, memory = twin_world(), Memory()
+    run(world, memory)
+    world.agent_set_phase("t/pick-preflight", "running")
+    jobs, cells = world.snapshot()
+    lagging = [j for j in jobs if j.key != "t/pick"]  # a watch still listing: the job is not in view yet
+    reconcile_once(lagging, cells, world.now, TIMING, world, memory, LIMITS)
+    assert world.jobs["t/pick-preflight"]["spec"].get("cancel") is not True
+    del world.jobs["t/pick"]  # deleted and gone (its finalizer removed)
+    run(world, memory)
+    assert world.jobs["t/pick-preflight"]["spec"]["cancel"] is True
 
 
 def test_a_preflight_created_before_a_crash_is_found_not_created_twice() -> None:
