@@ -3,7 +3,9 @@
 Hypothesis drives random interleavings of submit, cancel, delete, cell up/down,
 agent start/finish, time passing, operator crashes mid-pass, restarts, and a
 second replica acting on a stale snapshot (its job and cell watches lagging by
-different amounts), through the real reconcile code.
+different amounts), through the real reconcile code. Some jobs ask for a pre-flight,
+which runs on the one simulated twin: no ordinary job ever holds the twin, no
+pre-flight a real cell, and a job holds a real cell only after its pre-flight passed.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from collections import Counter
 from datetime import timedelta
 
 import pytest
-from armnet_core.api import ACTIVE_PHASES, TERMINAL_PHASES
+from armnet_core.api import ACTIVE_PHASES, PREFLIGHT_FOR_ANNOTATION, TERMINAL_PHASES
 from armnet_operator.model import Timing
 from armnet_operator.reconcile import Memory, reconcile_once
 from hypothesis import HealthCheck, settings
@@ -32,6 +34,8 @@ TIMING = Timing(
 EMBODIMENTS = ["so-101", "bimanual"]
 TASKS = [None, "fold", "stack"]
 CELLS = [(f"c{i}", EMBODIMENTS[i % 2], TASKS[i % 3]) for i in range(4)]
+#: A simulated twin for pre-flights only (``spec.preflight``).
+TWIN = "twin-0"
 
 
 class Cluster(RuleBasedStateMachine):
@@ -45,6 +49,9 @@ class Cluster(RuleBasedStateMachine):
         for name, embodiment, task in CELLS:
             self.world.add_cell(name, embodiment, task)
             self.world.heartbeat(name)
+        self.world.add_cell(TWIN, EMBODIMENTS[0], None, simulated=True, preflight=True)
+        self.world.heartbeat(TWIN)
+        self.up[TWIN] = True
 
     def _pick(self, index: int) -> str | None:
         keys = sorted(self.world.jobs)
@@ -54,6 +61,11 @@ class Cluster(RuleBasedStateMachine):
     def submit(self, embodiment: str, task: str | None, priority: int) -> None:
         self.count += 1
         self.world.submit(f"j{self.count}", embodiment, task, priority)
+
+    @rule(task=st.sampled_from(TASKS), priority=st.integers(0, 3))
+    def submit_with_preflight(self, task: str | None, priority: int) -> None:
+        self.count += 1
+        self.world.submit(f"j{self.count}", EMBODIMENTS[0], task, priority, preflight={"seconds": 30})
 
     @rule(index=st.integers(0, 100))
     def cancel(self, index: int) -> None:
@@ -68,7 +80,7 @@ class Cluster(RuleBasedStateMachine):
             namespace, name = key.split("/")
             self.world.delete_job(namespace, name, "")
 
-    @rule(cell=st.sampled_from([c[0] for c in CELLS]), up=st.booleans())
+    @rule(cell=st.sampled_from([c[0] for c in CELLS] + [TWIN]), up=st.booleans())
     def cell_up_or_down(self, cell: str, up: bool) -> None:
         self.up[cell] = up
 
@@ -145,6 +157,29 @@ class Cluster(RuleBasedStateMachine):
             key = f"t/{body['metadata']['name']}"
             cell = self.world.cells[body["status"]["cellName"]]
             assert cell["status"].get("currentJob") == key, f"{key} active on an unclaimed cell"
+
+    @invariant()
+    def twins_hold_only_preflights_and_a_job_holds_a_real_cell_only_after_its_preflight_passed(self) -> None:
+        if not hasattr(self, "world"):
+            return
+        owners: Counter[str] = Counter()
+        for key, body in self.world.jobs.items():
+            annotations = body["metadata"].get("annotations") or {}
+            is_preflight = PREFLIGHT_FOR_ANNOTATION in annotations
+            if is_preflight:
+                owners[annotations[PREFLIGHT_FOR_ANNOTATION]] += 1
+            status = body["status"]
+            if status.get("phase") not in ACTIVE_PHASES:
+                continue
+            assert (status["cellName"] == TWIN) == is_preflight, f"{key} ({status}) holds the wrong kind of cell"
+            if body["spec"].get("preflight") and not is_preflight:
+                assert (status.get("preflight") or {}).get("phase") == "Passed", f"{key} bound before its pre-flight passed"
+        assert all(n == 1 for n in owners.values()), f"a job has more than one pre-flight: {owners}"
+        for name, cell in self.world.cells.items():
+            holder = self.world.jobs.get(cell["status"].get("currentJob") or "")
+            if holder is not None:
+                annotations = holder["metadata"].get("annotations") or {}
+                assert (name == TWIN) == (PREFLIGHT_FOR_ANNOTATION in annotations), f"cell {name} claimed by {holder}"
 
     @invariant()
     def a_queued_job_names_no_cell_and_a_started_job_never_goes_back(self) -> None:

@@ -354,3 +354,27 @@ def test_a_parsed_job_carries_its_preflight() -> None:
                      "status": {"preflight": {"phase": "Running", "job": "pick-preflight"}}})
     assert (job.preflight_seconds, job.preflight_phase, job.preflight_job, job.preflight_for) == (
         7, PreflightPhase.RUNNING, "pick-preflight", "u")
+
+
+def test_jobs_with_preflights_all_end_when_agents_keep_working() -> None:
+    """Liveness: one twin and one real cell drain a queue of jobs with and without pre-flights."""
+    world, memory = World(), Memory()
+    world.add_cell("real", "so101", None)
+    world.add_cell("twin", "so101", None, simulated=True, preflight=True)
+    for i in range(6):
+        extra = {"preflight": {"seconds": 30}} if i % 2 == 0 else {}
+        world.submit(f"j{i}", "so101", None, 0, **extra)
+    for _ in range(120):
+        run(world, memory)
+        for name in ("real", "twin"):
+            claim = world.cells[name]["status"].get("currentJob")
+            body = world.jobs.get(claim or "")
+            if body and body["status"].get("phase") == "dispatched":
+                world.agent_set_phase(claim, "running")
+            elif body and body["status"].get("phase") == "running":
+                world.agent_set_phase(claim, "succeeded")
+        world.tick(1)
+    phases = {key: body["status"].get("phase") for key, body in world.jobs.items()}
+    assert phases == {**{f"t/j{i}": "succeeded" for i in range(6)},
+                      **{f"t/j{i}-preflight": "succeeded" for i in range(0, 6, 2)}}
+    assert {world.jobs[f"t/j{i}"]["status"]["cellName"] for i in range(6)} == {"real"}
