@@ -297,6 +297,21 @@ def test_cancelling_a_job_during_its_preflight_cancels_both() -> None:
     assert world.jobs["t/pick-preflight"]["spec"]["cancel"] is True  # the agent stops it on the twin
 
 
+def test_verdicts_are_counted_in_armnet_preflights_total() -> None:
+    from armnet_operator.metrics import Metrics
+
+    metrics = Metrics()
+    sample = metrics.registry.get_sample_value
+    assert sample("armnet_preflights_total", {"verdict": "failed"}) == 0  # exported before the first one
+    world, memory = twin_world(), Memory()
+    run(world, memory)
+    world.agent_set_phase("t/pick-preflight", "failed")
+    jobs, cells = world.snapshot()
+    metrics.observe(run(world, memory), jobs, cells, world.now)
+    assert sample("armnet_preflights_total", {"verdict": "failed"}) == 1
+    assert sample("armnet_preflights_total", {"verdict": "passed"}) == 0
+
+
 def test_a_preflight_whose_job_is_not_in_view_yet_is_left_running_and_one_whose_job_is_gone_is_cancelled() -> None:
     world, memory = twin_world(), Memory()
     run(world, memory)
