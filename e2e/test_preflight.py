@@ -97,7 +97,9 @@ def test_a_job_that_trips_the_interlock_fails_in_its_preflight_and_never_binds_a
     assert not any(s.get("phase") in ("dispatched", "running") for s in seen), seen
     assert any(s.get("queuedReason") == "PreflightRunning" for s in seen), seen
     assert f"{bed.namespace}/unsafe" not in held_by, held_by
-    assert {"PreflightStarted", "PreflightFailed"} <= set(bed.events_of("unsafe"))
+    # Events go out from a background poster, a moment after the writes they tell of.
+    bed.wait(lambda: {"PreflightStarted", "PreflightFailed"} <= set(bed.events_of("unsafe")), 30,
+             "the PreflightStarted and PreflightFailed Events on job unsafe")
 
 
 def test_a_good_job_binds_the_real_cell_once_its_preflight_passed(bed: TwinBed, watch: JobWatch) -> None:
@@ -123,4 +125,5 @@ def test_a_good_job_binds_the_real_cell_once_its_preflight_passed(bed: TwinBed, 
     seen = watch.statuses("good")
     waiting = [s for s in seen if s.get("queuedReason") == "PreflightRunning"]
     assert waiting and not any(s.get("cellName") for s in waiting), seen
-    assert {"PreflightStarted", "PreflightPassed"} <= set(bed.events_of("good"))
+    bed.wait(lambda: {"PreflightStarted", "PreflightPassed"} <= set(bed.events_of("good")), 30,
+             "the PreflightStarted and PreflightPassed Events on job good")
