@@ -13,6 +13,7 @@ and then runs on the ordinary cell.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from datetime import datetime
 from typing import Any
 
 import pytest
@@ -21,6 +22,11 @@ from e2e.agent_bed import EXAMPLES, JOBS, AgentBed, JobWatch
 from e2e.scenarios import explain, moment_of, status
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
+
+
+def whole_seconds(value: str) -> datetime:
+    """A status time the agent wrote (milliseconds) at the operator's precision (seconds, ``metav1.Time``)."""
+    return moment_of(value).replace(microsecond=0)
 
 
 class TwinBed(AgentBed):
@@ -89,7 +95,7 @@ def test_a_job_that_trips_the_interlock_fails_in_its_preflight_and_never_binds_a
     assert child["cellName"] == bed.twin
     assert "SafetyViolation" in child["result"]["traceback"]
     assert child["result"]["safety"]["interlockTrips"] >= 1, child["result"]["safety"]
-    assert moment_of(parent["preflight"]["finishedAt"]) >= moment_of(child["finishedAt"])
+    assert moment_of(parent["preflight"]["finishedAt"]) >= whole_seconds(child["finishedAt"])
 
     # Never bound to the ordinary cell: no status of the job ever named a cell, nor the cell the job.
     seen = watch.statuses("unsafe")
@@ -121,7 +127,7 @@ def test_a_good_job_binds_the_real_cell_once_its_preflight_passed(bed: TwinBed, 
         assert "without failing" in parent["preflight"]["message"]
     # The job started on the real cell only after its pre-flight ended and the verdict was written.
     assert moment_of(parent["startedAt"]) >= moment_of(parent["preflight"]["finishedAt"])
-    assert moment_of(parent["preflight"]["finishedAt"]) >= moment_of(child["finishedAt"])
+    assert moment_of(parent["preflight"]["finishedAt"]) >= whole_seconds(child["finishedAt"])
     seen = watch.statuses("good")
     waiting = [s for s in seen if s.get("queuedReason") == "PreflightRunning"]
     assert waiting and not any(s.get("cellName") for s in waiting), seen
