@@ -36,6 +36,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from armnet_core.api import MAX_STOP_REASON
+
 from .cell import CellState
 from .errors import RequestError, failure_reply, protocol_error
 from .inputs import LocalOperatorInputs
@@ -44,7 +46,7 @@ from .session import Reply, Session
 AGENT_SOCKET = "agent.sock"
 MAX_ACTION_MOTORS = 64
 TELEOP_EVENTS = ("next_episode", "rerecord_episode", "stop_recording")
-MAX_CANCEL_WHY = 500
+MAX_CANCEL_WHY = MAX_STOP_REASON
 """Characters of a cancel's or a preemption's reason: it lands in the interlock's message and the job's record."""
 
 

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from armnet_connector.agent_inputs import MAX_CANCEL_WHY
 from armnet_core import JobResult, JobStatus
+from armnet_core.api import MAX_STOP_REASON
 from armnet_core.resources import PreemptionRequest
 
 #: ``armnet_agent_preemptions_total{stopped_at}``: the boundary came (or none was open), or the wait ran out.
@@ -33,7 +33,7 @@ def preemption_reason(request: PreemptionRequest) -> str:
     Cut here, not on the way, so that the in-process connector and a pod's sidecar
     name the same words, and the agent recognises them in the connector's record.
     """
-    return preempted_error(request)[:MAX_CANCEL_WHY]
+    return preempted_error(request)[:MAX_STOP_REASON]
 
 
 def episode_wait_left(request: PreemptionRequest, now: datetime) -> float:

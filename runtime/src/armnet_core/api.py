@@ -105,12 +105,19 @@ class PreflightPhase(_Name):
 #: reports it on a Cell to tell the person at the cell and the platform team why the cell
 #: operator's buttons and live logs do nothing.
 STREAMS_CONNECTED_CONDITION = "StreamsConnected"
+#: Not a health condition either (a person can still reset the cell, so the operator still binds).
+#: On a cell with ``spec.reset.mode: Scripted`` the node agent reports whether its latest scripted
+#: reset worked; False: it fell back to the person at the cell, who should look at the workspace.
+AUTO_RESET_CONDITION = "AutoResetWorking"
 
 #: Keys on RobotJobs and Cells that one process writes and another reads.
 #: The cell operator's page (FMS) writes who stopped a job; the node agent puts it in the job's error.
 STOPPED_BY_ANNOTATION = f"{GROUP}/stopped-by"
 #: ``armnet submit --follow`` asks for a cancel when its client is gone this long; the node agent applies it.
 FOLLOWER_TIMEOUT_ANNOTATION = f"{GROUP}/follower-timeout-seconds"
+#: Characters of a stop's reason (a cancel's, a preemption's) on the connector's agent socket: it lands
+#: in the interlock's message and the job's record.
+MAX_STOP_REASON = 500
 #: On the RobotJob the operator creates to run a preempted job again: the preempted job's uid (the requeue
 #: is created once per preempted job) and when the preempted job first queued (it keeps its place).
 PREEMPTED_FROM_ANNOTATION = f"{GROUP}/preempted-from"
@@ -174,6 +181,7 @@ __all__ = [
     "JobPhase",
     "MANAGED_BY_LABEL",
     "NAMESPACE_LABEL",
+    "MAX_STOP_REASON",
     "NAME_LABEL",
     "PREEMPTED_FROM_ANNOTATION",
     "PREFLIGHT_FOR_ANNOTATION",
@@ -186,6 +194,7 @@ __all__ = [
     "SITE_LABEL",
     "STOPPED_BY_ANNOTATION",
     "STREAMS_CONNECTED_CONDITION",
+    "AUTO_RESET_CONDITION",
     "TERMINAL_PHASES",
     "TIMEOUT_ANNOTATION",
     "VERSION",
