@@ -1,4 +1,5 @@
-"""A cell's ``completion`` settings: which camera the monitor watches and how it scores (pydantic, pure).
+"""A cell's ``completion`` settings: which camera the monitor watches and how it scores (pydantic, pure);
+and its ``reset`` settings, whose scripted resets that monitor judges.
 
 The Cell spec (``spec.completion``) as the operator and the node agent read it, a
 local run's cell file and the connector's config all load this one model (plain
@@ -222,3 +223,136 @@ def unknown_camera(completion: CompletionConfig | None, cameras: Any) -> str | N
         f"name one of {sorted(cameras)} (spec.cameras)"
     )
 
+
+
+# -- resets without a person (``spec.reset``) ---------------------------------------------------
+
+#: How a cell's workspace is put back between episodes when a job calls ``ctx.cell.reset()``.
+RESET_MODES = ("Operator", "Scripted")
+MAX_RESET_POSES = 16
+MAX_RESET_ATTEMPTS = 10
+MAX_SETTLE_SECONDS = 30.0
+#: The SO-101's joints, as its calibration file and LeRobot name them. The gripper is in
+#: LeRobot's ``range_0_100`` (0 closed .. 100 open), every other joint in degrees.
+SO101_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
+SO101_GRIPPER = "gripper"
+#: Where a degrees joint can be at all (one turn of the servo, centred on its calibrated middle).
+DEGREES_SPAN = (-180.0, 180.0)
+GRIPPER_SPAN = (0.0, 100.0)
+
+
+class ResetConfig(_Model):
+    """How ``ctx.cell.reset()`` puts the workspace back (docs/connector.md, "Resets without a person").
+
+    ``Operator``: a person confirms (the default). ``Scripted``: after the arm's rest move
+    the connector drives it through ``poses`` itself, under the cell's safety limits, and
+    the cell's completion monitor judges the scene; after ``attempts`` failed tries a
+    person confirms, as with ``Operator``.
+    """
+
+    mode: str = "Operator"
+    poses: tuple[dict[str, float], ...] = Field(
+        default=(), description="joint -> value (degrees; the gripper 0..100), visited in order"
+    )
+    attempts: int = Field(default=3, description="scripted tries before a person is asked")
+    settle_seconds: float = Field(default=1.0, description="wait after the last pose before the scene is judged")
+
+    @field_validator("mode")
+    @classmethod
+    def _known_mode(cls, value: str) -> str:
+        return _one_of(value, "reset.mode", RESET_MODES, "is not a reset mode")
+
+    @field_validator("attempts", mode="before")
+    @classmethod
+    def _attempts(cls, value: Any) -> Any:
+        return _bounded(value, "reset.attempts", 1, MAX_RESET_ATTEMPTS, (int,),
+                        f"1 to {MAX_RESET_ATTEMPTS} (scripted tries before a person is asked)")
+
+    @field_validator("settle_seconds", mode="before")
+    @classmethod
+    def _settle(cls, value: Any) -> Any:
+        return _bounded(value, "reset.settleSeconds", 0, MAX_SETTLE_SECONDS, (int, float),
+                        f"0 to {MAX_SETTLE_SECONDS:g} seconds")
+
+    @field_validator("poses", mode="before")
+    @classmethod
+    def _poses(cls, value: Any) -> Any:
+        if not isinstance(value, list | tuple):
+            return value
+        if len(value) > MAX_RESET_POSES:
+            raise ValueError(f"reset.poses has {len(value)} poses; give at most {MAX_RESET_POSES}")
+        for number, pose in enumerate(value, 1):
+            if not isinstance(pose, dict) or not pose:
+                raise ValueError(f"reset.poses[{number - 1}] must be a non-empty mapping joint -> value, e.g. "
+                                 "{shoulder_lift: -30, elbow_flex: 60}")
+            for joint, angle in pose.items():
+                if isinstance(angle, bool) or not isinstance(angle, int | float):
+                    raise ValueError(f"reset.poses[{number - 1}].{str(joint)[:40]} must be a number, got {angle!r}"[:300])
+                _finite(angle, f"reset.poses[{number - 1}].{str(joint)[:40]}")
+        return value
+
+    @model_validator(mode="after")
+    def _poses_for_scripted(self) -> ResetConfig:
+        if self.mode == "Scripted" and not self.poses:
+            raise ValueError("reset.mode Scripted needs reset.poses (1 to 16 poses the connector drives the arm through)")
+        if self.mode == "Operator" and self.poses:
+            raise ValueError("reset.poses are driven only with reset.mode Scripted; set mode: Scripted, or drop poses")
+        return self
+
+    @property
+    def scripted(self) -> bool:
+        return self.mode == "Scripted"
+
+
+def reset_joints(arm_names: Any) -> dict[str, tuple[str, str]]:
+    """Every pose key a cell with ``arm_names`` takes -> (arm, joint).
+
+    A single-arm cell names the joint (``elbow_flex``); a cell of several arms prefixes it
+    with the arm, as LeRobot's bimanual robots name their features (``left_elbow_flex``).
+    """
+    names = list(arm_names)
+    if len(names) == 1:
+        return {joint: (names[0], joint) for joint in SO101_JOINTS}
+    return {f"{arm}_{joint}": (arm, joint) for arm in names for joint in SO101_JOINTS}
+
+
+def split_pose(pose: Any, arm_names: Any) -> dict[str, dict[str, float]]:
+    """One pose of ``reset.poses`` as arm -> {joint: value}; raises ``ValueError`` for an unknown key."""
+    keys = reset_joints(arm_names)
+    split: dict[str, dict[str, float]] = {}
+    for key, value in pose.items():
+        if key not in keys:
+            raise ValueError(f"{str(key)[:64]!r} is not a joint of this cell; use {sorted(keys)}")
+        arm, joint = keys[key]
+        split.setdefault(arm, {})[joint] = float(value)
+    return split
+
+
+def reset_problem(reset: ResetConfig | None, completion: CompletionConfig | None, arm_names: Any) -> str | None:
+    """Why ``reset`` cannot work on a cell with ``completion`` and ``arm_names``, None if it can.
+
+    Checked wherever a Cell is read to run jobs (the node agent, the connector, a local
+    cell file) and by the CRD's rules; the calibrated range of each joint is the
+    connector's check, where the cell's calibration file is.
+    """
+    if reset is None or not reset.scripted:
+        return None
+    names = list(arm_names)
+    if completion is None:
+        return (
+            "reset.mode Scripted needs the cell's completion monitor (spec.completion): it judges whether "
+            "the scene is back at its start; add spec.completion, or use reset.mode Operator"
+        )
+    for number, pose in enumerate(reset.poses):
+        try:
+            split = split_pose(pose, names)
+        except ValueError as exc:
+            return f"reset.poses[{number}]: {exc}"
+        for arm, joints in split.items():
+            for joint, value in joints.items():
+                low, high = GRIPPER_SPAN if joint == SO101_GRIPPER else DEGREES_SPAN
+                if not low <= value <= high:
+                    unit = "0 (closed) to 100 (open)" if joint == SO101_GRIPPER else "-180 to 180 degrees"
+                    where = joint if len(names) == 1 else f"{arm}_{joint}"
+                    return f"reset.poses[{number}].{where} is {value:g}; give {unit}"
+    return None

@@ -227,6 +227,10 @@ class CellSpec(Wire):
     """The completion monitor's settings as written: a reader that runs or checks them validates them
     with ``armnet_core.cell_completion.CompletionConfig`` (the node agent, the operator), one that
     only shows them reads them leniently (the client)."""
+    reset: Any = None
+    """How ``ctx.cell.reset()`` puts the workspace back (``Operator`` or ``Scripted`` poses), as written: a
+    reader that runs it validates it with ``armnet_core.cell_completion.ResetConfig`` and ``reset_problem``
+    (the node agent), one that only shows it reads it leniently."""
 
 
 class CellQueue(Wire):
