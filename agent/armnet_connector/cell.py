@@ -16,6 +16,15 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from .auto_reset import (
+    FELL_BACK,
+    STOPPED,
+    SUCCEEDED,
+    AttemptReport,
+    AutoResetReport,
+    PoseMover,
+    pose_targets,
+)
 from .config import ConnectorConfig, MotorRange, read_calibration_file
 from .deadline import Deadline
 from .errors import RequestError, bounded
@@ -23,6 +32,8 @@ from .hardware import (
     CameraFactory,
     DeviceLocks,
     Handle,
+    cell_motors_of,
+    create_feetech,
     opencv_camera_factory,
     simulated_camera_factory,
 )
@@ -75,6 +86,14 @@ class Counters:
     completion_camera_errors: int = 0
     #: ``is_complete(block=True)`` calls that saw no frame newer than the call scored in time.
     completion_block_timeouts: int = 0
+    #: Scripted resets the completion monitor judged back at their start (no person involved).
+    auto_resets_succeeded: int = 0
+    #: Tries of a scripted reset that failed (moves not made, or the scene still scored complete).
+    auto_reset_attempts_failed: int = 0
+    #: Scripted resets that ran out of tries and asked the person at the cell (alert: look at the workspace).
+    auto_resets_fell_back: int = 0
+    #: Scripted resets the interlock stopped (a safety refusal, the deadline's grace window, the stop).
+    auto_resets_stopped: int = 0
 
 
 @dataclass(frozen=True)
@@ -91,6 +110,10 @@ class RolloutEvent:
 
 
 MAX_ROLLOUT_EVENTS = 1024
+#: Scripted resets kept with their tries (``CellState.auto_resets``); the counters count them all.
+MAX_AUTO_RESETS_KEPT = 64
+#: A scripted reset's judgement waits for this many scoring periods per frame it needs, plus ``BLOCK``'s second.
+JUDGE_PERIODS_PER_FRAME = 3.0
 
 
 @dataclass
@@ -135,6 +158,19 @@ class CellState:
         self._rollout_lock = threading.Lock()
         #: Why the job is to stop at the end of the open rollout (``stop_at_episode_end``), until that end.
         self._stop_at_end: str | None = None
+        #: The latest scripted resets (``reset``), oldest first.
+        self.auto_resets: deque[AutoResetReport] = deque(maxlen=MAX_AUTO_RESETS_KEPT)
+        #: The scripted reset's poses as arm -> raw goals, or why the cell's calibration rules them out.
+        self.reset_targets: list[dict[str, dict[str, int]]] = []
+        self.reset_unusable: str | None = None
+        reset = self.config.reset
+        if reset is not None and reset.scripted:
+            motors = {name: cell_motors_of(arm, self.ranges[name]) for name, arm in self.config.arms.items()}
+            try:
+                self.reset_targets = pose_targets(reset.poses, self.ranges, motors)
+            except ValueError as exc:
+                self.reset_unusable = str(exc)
+                log.error("the cell's scripted reset cannot run, every reset asks the person at the cell: %s", exc)
 
     # -- the live objects of every connection ---------------------------------------
 
@@ -359,10 +395,13 @@ class CellState:
         return report
 
     def reset(self) -> None:
-        """Rest pose, then wait for an operator's confirmation; on timeout trip the interlock."""
+        """Rest pose, then the cell's scripted reset if it has one; if none worked, wait for an operator's
+        confirmation; on timeout trip the interlock."""
         with self._reset_lock:
             self.counters.resets += 1
             self.return_to_rest()
+            if self.config.reset is not None and self.config.reset.scripted and self._scripted_reset():
+                return
             timeout = self.config.reset_timeout_seconds
             if self.inputs.wait_reset_confirmation(timeout):
                 log.info("reset confirmed by the operator")
@@ -373,6 +412,116 @@ class CellState:
                 "ResetTimeoutException",
                 f"{message}; the cell's interlock is tripped. Finish up (save your data) and return.",
             )
+
+    # -- the scripted reset (docs/connector.md, "Resets without a person") ----------------
+
+    def _scripted_reset(self) -> bool:
+        """Drive the arms through the cell's reset poses and let the monitor judge; True once it says reset.
+
+        Up to ``reset.attempts`` tries; each failed one is logged and counted. False: the
+        person at the cell confirms instead (the caller waits for it, as for a manual reset).
+        Raises ``RequestError`` when the interlock trips meanwhile: no move is sent after it,
+        and no person is asked (the job hears why, as from any refused motion).
+        """
+        reset = self.config.reset
+        assert reset is not None
+        attempts: list[AttemptReport] = []
+        if self.reset_unusable is not None:
+            attempts.append(AttemptReport(0, False, self.reset_unusable))
+            return self._auto_reset_ends(FELL_BACK, attempts)
+        for number in range(1, reset.attempts + 1):
+            try:
+                missed = self._drive_reset_poses()
+                done, detail = (False, missed) if missed is not None else self._judge_reset(reset.settle_seconds)
+            except RequestError as exc:
+                if not self.interlock.tripped:
+                    raise
+                attempts.append(AttemptReport(number, False, exc.message))
+                self._auto_reset_ends(STOPPED, attempts)
+                raise
+            attempts.append(AttemptReport(number, done, detail))
+            if done:
+                return self._auto_reset_ends(SUCCEEDED, attempts)
+            log.warning("scripted reset try %d of %d failed: %s", number, reset.attempts, detail)
+        return self._auto_reset_ends(FELL_BACK, attempts)
+
+    def _auto_reset_ends(self, outcome: str, attempts: list[AttemptReport]) -> bool:
+        report = AutoResetReport(outcome, tuple(attempts), self.now())
+        # A try the interlock stopped is not a failed one (nor is a poses' problem found at start: no try).
+        failed = sum(1 for a in attempts if not a.reset and a.number > 0) - (outcome == STOPPED)
+        self.counters.auto_reset_attempts_failed += failed
+        self.auto_resets.append(report)
+        self.guard.recorder.record_auto_reset(report.as_status(), failed_attempts=failed)
+        if outcome == SUCCEEDED:
+            self.counters.auto_resets_succeeded += 1
+            log.info("%s", report.message)
+        elif outcome == STOPPED:
+            self.counters.auto_resets_stopped += 1
+            log.warning("%s", report.message)
+        else:
+            self.counters.auto_resets_fell_back += 1
+            log.error("%s", report.message)
+        return outcome == SUCCEEDED
+
+    def _drive_reset_poses(self) -> str | None:
+        """One pass through the poses, arm by arm, each on a bus of the job's kind; None, or why a pose was missed.
+
+        Raises ``RequestError`` when the guard refuses a write (the interlock holds).
+        """
+        for number, pose in enumerate(self.reset_targets):
+            for arm_name, goal in pose.items():
+                refusal = self.interlock.refusal()
+                if refusal is not None:
+                    raise RequestError(*refusal)
+                missed = self._drive_arm(arm_name, goal)
+                if missed is not None:
+                    return f"pose {number}, arm {arm_name}: {missed}"
+        return None
+
+    def _drive_arm(self, arm_name: str, goal: dict[str, int]) -> str | None:
+        motors = cell_motors_of(self.config.arms[arm_name], self.ranges[arm_name])
+        from lerobot.motors import Motor, MotorNormMode
+
+        handle = create_feetech(
+            [], {"port": arm_name, "motors": {m: Motor(c.id, c.model, MotorNormMode(c.norm_mode))
+                                              for m, c in motors.items()}},
+            self.config, self.locks, self.ranges, interlock=self.interlock, recorder=self.guard.recorder,
+            on_lost_reply=self.count_bus_retry, ledger_for=self.ledger,
+        )
+        mover = PoseMover(handle, self.guard.check, self.interlock.refusal,
+                          self.config.rest_speed_ticks_per_second, self.count_bus_retry)
+        with handle.lock:  # a job's bus on the device sends nothing meanwhile (it waits, then DeviceBusy)
+            try:
+                handle.obj.connect()
+            except (ConnectionError, RuntimeError) as exc:
+                return f"its bus did not connect: {bounded(str(exc), 200)}"
+            try:
+                return mover.drive(goal)
+            except (ConnectionError, TimeoutError) as exc:
+                return f"the bus failed: {type(exc).__name__}: {bounded(str(exc), 200)}"
+            finally:
+                handle.obj.disconnect(disable_torque=False)  # the arm holds the pose; the job's bus takes over
+
+    def _judge_reset(self, settle_s: float) -> tuple[bool, str]:
+        """Settle, then the monitor's judgement: (the scene is back at its start, what the monitor saw)."""
+        until = time.monotonic() + settle_s
+        while time.monotonic() < until:
+            refusal = self.interlock.refusal()
+            if refusal is not None:
+                raise RequestError(*refusal)
+            time.sleep(min(0.05, max(0.0, until - time.monotonic())))
+        completion = self.config.completion
+        frames = completion.consecutive_frames if completion is not None else 1
+        rate = completion.rate_hz if completion is not None else 1.0
+        judgement = self.completion.judge_reset(frames, frames * JUDGE_PERIODS_PER_FRAME / rate + 1.0)
+        if judgement is None:
+            return False, "the cell has no completion monitor to judge the scene"
+        if judgement.reset:
+            return True, f"the completion monitor scored {judgement.scored} fresh frames, none complete"
+        if judgement.scored < frames:
+            return False, judgement.detail
+        return False, (f"the completion monitor still sees the task done in {judgement.hits} of {judgement.scored} "
+                       f"fresh frames ({judgement.detail})")
 
     def count_bus_retry(self) -> None:
         """One servo reply lost and asked again (``retry``), by any of the connector's reads."""

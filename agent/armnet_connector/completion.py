@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -26,7 +27,7 @@ from armnet_core.backoff import BackoffPolicy
 from armnet_core.cell_completion import CompletionConfig
 
 from .config import CameraConfig
-from .inputs import MonitorVerdict
+from .inputs import MonitorVerdict, SceneJudgement
 from .ratelog import RateLimitedLog
 from .scoring import (
     ArucoRegionScorer,
@@ -50,6 +51,8 @@ REOPEN_BACKOFF = BackoffPolicy(first_s=2.0, max_s=8.0)
 at most 8 s apart (a camera plugged back is scored again within 8 s); a frame read starts over."""
 BLOCK_EXTRA_S = 1.0
 """``block=True`` waits at most three scoring periods plus this for a frame newer than the call."""
+RECENT_FRAMES = 300
+"""Scored frames kept (capture time, hit) for a reset's judgement: at least the most it asks for."""
 
 
 def block_wait_s(rate_hz: float) -> float:
@@ -175,6 +178,8 @@ class CameraCompletionMonitor:
         #: Wall-clock time of the latest score (the record's ``frameAt``; the source's clock may be another).
         self._scored_at: float | None = None
         self._scoring_since: float | None = None
+        #: (capture stamp, hit, detail) of the latest frames scored (not those a scorer failed on).
+        self._recent: deque[tuple[float, bool, str]] = deque(maxlen=RECENT_FRAMES)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         # One rate-limited log per kind of failure: a broken camera must not hide a broken scorer.
@@ -231,6 +236,31 @@ class CameraCompletionMonitor:
         with self._cond:
             verdict = self._verdict_locked()
             return MonitorVerdict(verdict.complete, verdict.score, self._scored_at)
+
+    def judge_reset(self, frames: int, timeout_s: float) -> SceneJudgement:
+        """Whether the scene is back at its start: ``frames`` frames captured after this call scored, none a hit.
+
+        Why every one a miss, not "the streak is not complete": an object half in its
+        region (a hit now and then) is not a workspace put back, and the next episode
+        would start judged complete. Too few frames scored within ``timeout_s`` (a camera
+        down, a scorer failing) is not a reset either.
+        """
+        frames = max(1, min(frames, RECENT_FRAMES))
+        called = self._source.clock()
+
+        def fresh() -> list[tuple[float, bool, str]]:
+            return [entry for entry in self._recent if entry[0] > called]
+
+        with self._cond:
+            self._cond.wait_for(lambda: len(fresh()) >= frames or self._stop.is_set(), timeout=timeout_s)
+            seen = fresh()[:frames]
+        hits = sum(1 for _, hit, _ in seen if hit)
+        if len(seen) < frames:
+            detail = (f"only {len(seen)} of {frames} frames captured after the moves were scored within "
+                      f"{timeout_s:g} s (is camera {self.config.camera} delivering frames?)")
+            return SceneJudgement(False, len(seen), hits, detail)
+        detail = seen[-1][2]
+        return SceneJudgement(hits == 0, len(seen), hits, detail)
 
     def _verdict_locked(self) -> Verdict:
         since = self._scoring_since
@@ -308,6 +338,8 @@ class CameraCompletionMonitor:
             self._scoring_since = None
             self._streak = self._streak.advance(result) if failure is None and result is not None \
                 else self._streak.miss(failure or "")
+            if failure is None and result is not None:
+                self._recent.append((frame.stamp, result.hit, result.detail))
             self._scored_stamp = frame.stamp
             self._scored_at = time.time()
             self._counters.completion_frames_scored += 1

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from armnet_core.cell_completion import CompletionConfig, unknown_camera
+from armnet_core.cell_completion import CompletionConfig, ResetConfig, reset_problem, unknown_camera
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic.alias_generators import to_camel
 
@@ -155,6 +155,11 @@ class ConnectorConfig(_Model):
         description="the cell's completion monitor: which camera it watches and how it scores "
         "(None: no monitor, every episode waits for an operator's outcome)",
     )
+    reset: ResetConfig | None = Field(
+        default=None,
+        description="how ctx.cell.reset() puts the workspace back: an operator's confirmation (None, Operator), "
+        "or scripted poses judged by the completion monitor (Scripted)",
+    )
     present_position_max_age_ms: float = Field(
         default=25.0,
         ge=0,
@@ -174,6 +179,9 @@ class ConnectorConfig(_Model):
         camera_problem = unknown_camera(self.completion, self.cameras)
         if camera_problem is not None:
             raise ValueError(camera_problem)
+        reset = reset_problem(self.reset, self.completion, self.arms)
+        if reset is not None:
+            raise ValueError(reset)
         return self
 
     def arm_for(self, selector: str | None) -> tuple[str, ArmConfig]:

@@ -51,6 +51,20 @@ class MonitorVerdict:
     frame_at: float | None
 
 
+@dataclass(frozen=True)
+class SceneJudgement:
+    """The monitor's judgement of a scripted reset: is the scene back at its start (nothing in the region)?"""
+
+    #: ``frames`` fresh frames were scored and none was a hit.
+    reset: bool
+    #: Frames captured after the judgement began that were scored (a scorer failure is not a score).
+    scored: int
+    #: How many of them were hits (the task's object still in its target region).
+    hits: int
+    #: The latest scored frame's detail, or why too few were scored.
+    detail: str
+
+
 class CompletionMonitor(Protocol):
     """The cell's automated episode scoring (``is_complete`` on robot.sock)."""
 
@@ -58,6 +72,11 @@ class CompletionMonitor(Protocol):
 
     def audit(self) -> MonitorVerdict | None:
         """The verdict to record on the rollout; None for a cell that scores nothing."""
+        ...
+
+    def judge_reset(self, frames: int, timeout_s: float) -> SceneJudgement | None:
+        """Wait for ``frames`` frames captured after the call to be scored (at most ``timeout_s``) and judge
+        whether the scene is back at its start; None for a cell that scores nothing."""
         ...
 
 
@@ -72,6 +91,9 @@ class NeverComplete:
         return False, False
 
     def audit(self) -> MonitorVerdict | None:
+        return None
+
+    def judge_reset(self, frames: int, timeout_s: float) -> SceneJudgement | None:
         return None
 
 

@@ -57,6 +57,9 @@ class SafetyReport:
     #: Per arm: the registers the latest restore could not put back (empty: the arm is as the job
     #: found it). Non-empty: the next tenant would inherit them; an operator should look at the cell.
     restore_failures: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    #: Scripted resets (the cell's ``reset.mode: Scripted``): totals by outcome and the latest one
+    #: (``auto_reset.AutoResetReport.as_status``); empty when the job made none.
+    auto_resets: dict[str, Any] = field(default_factory=dict)
 
     @property
     def clamps_total(self) -> int:
@@ -81,6 +84,8 @@ class SafetyReport:
                 for arm, motors in self.registers_restored.items()
             },
             "registerRestoreFailures": {arm: list(lines) for arm, lines in self.restore_failures.items()},
+            # Only on a job that made scripted resets: the connector's own moves, under the same limits.
+            **({"autoResets": dict(self.auto_resets)} if self.auto_resets else {}),
         }
 
 
@@ -100,6 +105,7 @@ class SafetyRecorder:
         self._mismatches: dict[str, list[str]] = {}
         self._restored: dict[str, dict[str, dict[str, tuple[int | None, int]]]] = {}
         self._restore_failures: dict[str, tuple[str, ...]] = {}
+        self._auto_resets: dict[str, Any] = {}
 
     def record_steps(self, steps: dict[str, float]) -> None:
         """Keep each motor's largest step (signed steps: ``decide_goals``'s)."""
@@ -171,6 +177,16 @@ class SafetyRecorder:
             else:
                 self._restore_failures.pop(arm, None)
 
+    def record_auto_reset(self, report: dict[str, Any], *, failed_attempts: int) -> None:
+        """One scripted reset (``AutoResetReport.as_status``): counted by outcome, its failed tries too
+        (``failedAttempts``); the latest is kept whole."""
+        with self._lock:
+            totals = self._auto_resets
+            outcome = str(report.get("outcome"))
+            totals[outcome] = int(totals.get(outcome, 0)) + 1
+            totals["failedAttempts"] = int(totals.get("failedAttempts", 0)) + failed_attempts
+            totals["latest"] = report
+
     def snapshot(self) -> SafetyReport:
         with self._lock:
             return SafetyReport(
@@ -185,4 +201,5 @@ class SafetyRecorder:
                 calibration_mismatches={arm: tuple(notes) for arm, notes in self._mismatches.items()},
                 registers_restored={arm: {m: dict(r) for m, r in motors.items()} for arm, motors in self._restored.items()},
                 restore_failures=dict(self._restore_failures),
+                auto_resets=dict(self._auto_resets),
             )
