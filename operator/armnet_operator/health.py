@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta
 
+from .duty_cycle import rest_due
 from .model import Cell, CellPhase
 
 UNAVAILABLE = frozenset({CellPhase.OFFLINE, CellPhase.FAULTED, CellPhase.CORDONED, CellPhase.INVALID})
@@ -26,7 +27,8 @@ def heartbeat_lost_for(cell: Cell, now: datetime, timeout: timedelta) -> timedel
 
 
 def derive_cell_phase(cell: Cell, occupied: bool, now: datetime, timeout: timedelta) -> CellPhase:
-    """Invalid beats Offline beats Faulted beats Cordoned beats Busy: the most actionable fact wins."""
+    """Invalid beats Offline beats Faulted beats Cordoned beats Busy beats Resting: the most actionable
+    fact wins, and a rest never begins while the cell holds a job (``duty_cycle``)."""
     if cell.invalid:
         return CellPhase.INVALID
     if not heartbeat_fresh(cell, now, timeout):
@@ -35,7 +37,9 @@ def derive_cell_phase(cell: Cell, occupied: bool, now: datetime, timeout: timede
         return CellPhase.FAULTED
     if cell.unschedulable:
         return CellPhase.CORDONED
-    return CellPhase.BUSY if occupied else CellPhase.READY
+    if occupied:
+        return CellPhase.BUSY
+    return CellPhase.RESTING if rest_due(cell.duty_cycle, cell.duty, now) else CellPhase.READY
 
 
 def is_available(phase: CellPhase) -> bool:

@@ -9,9 +9,10 @@ edge writes every change with a resourceVersion precondition.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 
+from .duty_cycle import DutyState, next_state
 from .health import derive_cell_phase, heartbeat_fresh, heartbeat_lost_for
 from .model import Cell, CellPhase, Job, JobPhase, PreflightPhase, Timing
 from .preflight import needs_cancel, needs_start
@@ -32,12 +33,16 @@ class ReleaseCell:
     phase: CellPhase
     reason: str
     recheck: bool = False
+    duty: DutyState | None = None
+    """The duty cycle's state to record with it (``duty_cycle``); None: unchanged."""
 
 
 @dataclass(frozen=True)
 class SetCellPhase:
     cell: Cell
     phase: CellPhase
+    duty: DutyState | None = None
+    """The duty cycle's state to record with it (``duty_cycle``); None: unchanged."""
 
 
 @dataclass(frozen=True)
@@ -188,14 +193,25 @@ def _plan_cells(
         job = by_key.get(cell.current_job or "")
         release = release_reason(cell, job, now, timing)
         if release is not None:
-            free_phase = derive_cell_phase(cell, False, now, timing.heartbeat_timeout)
+            duty = _duty_change(cell, False, now)
+            free = cell if duty is None else replace(cell, duty=duty)
+            free_phase = derive_cell_phase(free, False, now, timing.heartbeat_timeout)
             finished = job is not None and job.terminal and job.cell_name == cell.name
-            actions.append(ReleaseCell(cell, free_phase, release, recheck=not finished))
+            actions.append(ReleaseCell(cell, free_phase, release, recheck=not finished, duty=duty))
             continue
-        phase = derive_cell_phase(cell, cell.name in occupied, now, timing.heartbeat_timeout)
-        if phase != cell.phase or cell.invalid != cell.message:
-            actions.append(SetCellPhase(cell, phase))
+        busy = cell.name in occupied
+        duty = _duty_change(cell, busy, now)
+        phase = derive_cell_phase(cell if duty is None else replace(cell, duty=duty), busy, now,
+                                  timing.heartbeat_timeout)
+        if phase != cell.phase or cell.invalid != cell.message or duty is not None:
+            actions.append(SetCellPhase(cell, phase, duty))
     return actions
+
+
+def _duty_change(cell: Cell, occupied: bool, now: datetime) -> DutyState | None:
+    """The duty cycle's next state when it differs from the recorded one (``duty_cycle.next_state``)."""
+    planned = next_state(cell.duty_cycle, cell.duty, occupied, now)
+    return None if planned == cell.duty else planned
 
 
 def release_reason(cell: Cell, job: Job | None, now: datetime, timing: Timing) -> str | None:

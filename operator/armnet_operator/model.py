@@ -25,6 +25,8 @@ from armnet_core.api import (
 )
 from armnet_core.api import TERMINAL_PHASES as _TERMINAL
 
+from .duty_cycle import NO_STATE, DutyCycle, DutyState
+
 TERMINAL_PHASES = frozenset(JobPhase(phase) for phase in _TERMINAL)
 ACTIVE_PHASES = frozenset(JobPhase(phase) for phase in _ACTIVE)
 
@@ -202,6 +204,10 @@ class Cell:
     """``status.queue`` as last written (empty when absent)."""
     preflight: bool = False
     """``spec.preflight``: a simulated twin that runs pre-flights only (and no ordinary job)."""
+    duty_cycle: DutyCycle | None = None
+    """``spec.dutyCycle``: rest R minutes every H hours (``duty_cycle``)."""
+    duty: DutyState = NO_STATE
+    """``status.dutyCycle`` as last written."""
 
 
 @dataclass(frozen=True)

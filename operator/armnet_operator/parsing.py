@@ -37,6 +37,7 @@ from armnet_core.times import parse_time
 from pydantic import BaseModel, Field, ValidationError
 
 from .args import args_problem, measure
+from .duty_cycle import NO_STATE, DutyCycle, DutyState
 from .model import (
     Arm,
     Cell,
@@ -235,7 +236,7 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
     raw_spec = body.get("spec") or {}
     fields = _plain({k: v for k, v in raw_spec.items()
                      if k in ("embodiment", "task", "nodeName", "unschedulable", "gracePeriodSeconds",
-                              "simulated", "preflight")})
+                              "simulated", "preflight", "dutyCycle")})
     problem = None
     try:
         spec = CellSpec.model_validate(fields)
@@ -278,6 +279,10 @@ def parse_cell(body: Mapping[str, Any]) -> Cell:
         spec_problem=problem,
         queue=_cell_queue(status.queue),
         preflight=spec.preflight,
+        duty_cycle=None if spec.duty_cycle is None else DutyCycle(
+            rest=timedelta(minutes=spec.duty_cycle.rest_minutes), every=timedelta(hours=spec.duty_cycle.every_hours)),
+        duty=NO_STATE if status.duty_cycle is None else DutyState(
+            status.duty_cycle.working_since, status.duty_cycle.resting_until),
     )
 
 

@@ -21,6 +21,7 @@ from armnet_core.api import RELEASE_CELL_FINALIZER
 from armnet_core.times import kube_time
 
 from .conditions import set_condition
+from .duty_cycle import NO_STATE, DutyState
 from .model import (
     BoundReason,
     Cell,
@@ -87,13 +88,25 @@ def claim_cell(cell: Cell, job: Job, now: datetime) -> Patch:
     return _cell_status(cell, status)
 
 
-def release_cell(cell: Cell, phase: CellPhase) -> Patch:
-    return _cell_status(cell, {"currentJob": None, "claimedAt": None, "phase": phase.value, "message": cell.invalid})
+def release_cell(cell: Cell, phase: CellPhase, duty: DutyState | None = None) -> Patch:
+    status = {"currentJob": None, "claimedAt": None, "phase": phase.value, "message": cell.invalid}
+    return _cell_status(cell, _with_duty(status, duty))
 
 
-def set_cell_phase(cell: Cell, phase: CellPhase) -> Patch:
-    """The phase, with ``message`` saying why an Invalid cell is never bound (cleared otherwise)."""
-    return _cell_status(cell, {"phase": phase.value, "message": cell.invalid})
+def set_cell_phase(cell: Cell, phase: CellPhase, duty: DutyState | None = None) -> Patch:
+    """The phase, with ``message`` saying why an Invalid cell is never bound (cleared otherwise),
+    and the duty cycle's state when it changed (``duty``)."""
+    return _cell_status(cell, _with_duty({"phase": phase.value, "message": cell.invalid}, duty))
+
+
+def _with_duty(status: dict[str, Any], duty: DutyState | None) -> dict[str, Any]:
+    if duty is None:
+        return status
+    if duty == NO_STATE:
+        return {**status, "dutyCycle": None}
+    return {**status, "dutyCycle": {
+        "workingSince": kube_time(duty.working_since) if duty.working_since else None,
+        "restingUntil": kube_time(duty.resting_until) if duty.resting_until else None}}
 
 
 def repair_status(job: Job) -> Patch:

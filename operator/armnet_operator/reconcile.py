@@ -27,8 +27,11 @@ from datetime import datetime, timedelta
 from functools import partial
 from typing import Any, Protocol
 
+from armnet_core.times import kube_time
+
 from . import patches
 from .cell_checks import check_cell, check_cells
+from .duty_cycle import DutyState
 from .errors import AlreadyExists, Conflict, NotFound, ResourceMissing, TransientError
 from .fairshare import Reclaim
 from .health import derive_cell_phase
@@ -534,16 +537,16 @@ def _post_transitions(jobs: list[Job], memory: Memory, api: Api) -> None:
 def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Outcome) -> dict[str, Any] | None:
     """Write one lifecycle action; return the object as the server now has it, if written."""
     match action:
-        case ReleaseCell(cell=cell, phase=phase, reason=reason, recheck=recheck):
+        case ReleaseCell(cell=cell, phase=phase, reason=reason, recheck=recheck, duty=duty):
             if recheck:
                 rechecked = _recheck_release(cell, now, timing, api, outcome)
                 if rechecked is None:
                     return None
                 reason = rechecked
             log.info("releasing cell %s: %s", cell.name, reason)
-            return _write(api, patches.release_cell(cell, phase), outcome)
-        case SetCellPhase(cell=cell, phase=phase):
-            return _write(api, patches.set_cell_phase(cell, phase), outcome)
+            return _rest_event(api, cell, duty, _write(api, patches.release_cell(cell, phase, duty), outcome))
+        case SetCellPhase(cell=cell, phase=phase, duty=duty):
+            return _rest_event(api, cell, duty, _write(api, patches.set_cell_phase(cell, phase, duty), outcome))
         case RequeueJob(job=job, message=message):
             written = _write(api, patches.requeue_job(job, message, now), outcome)
             if written is not None:
@@ -601,6 +604,14 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
             except TransientError as error:
                 _count(error, outcome)
     return None
+
+
+def _rest_event(api: Api, cell: Cell, duty: DutyState | None, written: dict[str, Any] | None) -> dict[str, Any] | None:
+    """An Event on the cell when its duty cycle's rest begins (written)."""
+    if written is not None and duty is not None and duty.resting_until is not None and cell.duty.resting_until is None:
+        _event(api, cell, "Normal", "Resting",
+               f"duty cycle: resting until {kube_time(duty.resting_until)}; no job is bound to the cell until then")
+    return written
 
 
 def _preempt(reclaim: Reclaim, now: datetime, timing: Timing, api: Api) -> Outcome:

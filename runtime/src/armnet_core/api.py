@@ -68,6 +68,7 @@ class CellPhase(_Name):
     OFFLINE = "Offline"
     FAULTED = "Faulted"
     CORDONED = "Cordoned"
+    RESTING = "Resting"
     INVALID = "Invalid"
 
 

@@ -206,6 +206,20 @@ class CellCamera(Wire):
     fps: int = 30
 
 
+class DutyCycleSpec(Wire):
+    """``spec.dutyCycle``: the cell rests ``restMinutes`` every ``everyHours`` (AutoEval's robots: 20 min every 6 h)."""
+
+    rest_minutes: int = Field(alias="restMinutes", ge=1, le=1440)
+    every_hours: float = Field(alias="everyHours", gt=0, le=168)
+
+
+class DutyCycleStatus(Wire):
+    """``status.dutyCycle``: when the cell's working time began, and until when it rests (absent: working)."""
+
+    working_since: Optional[Timestamp] = Field(default=None, alias="workingSince")
+    resting_until: Optional[Timestamp] = Field(default=None, alias="restingUntil")
+
+
 class CellSpec(Wire):
     embodiment: str
     node_name: str = Field(alias="nodeName")
@@ -223,6 +237,7 @@ class CellSpec(Wire):
     safety_policy: Literal["clamp", "trip"] = Field(default="clamp", alias="safetyPolicy")
     allow_calibration_jobs: bool = Field(default=False, alias="allowCalibrationJobs")
     register_bounds: dict[str, tuple[int, int]] = Field(default_factory=dict, alias="registerBounds")
+    duty_cycle: Optional[DutyCycleSpec] = Field(default=None, alias="dutyCycle")
     completion: Any = None
     """The completion monitor's settings as written: a reader that runs or checks them validates them
     with ``armnet_core.cell_completion.CompletionConfig`` (the node agent, the operator), one that
@@ -253,6 +268,7 @@ class CellStatus(Wire):
     message: Optional[str] = None
     conditions: list[Condition] = Field(default_factory=list)
     queue: Optional[CellQueue] = None
+    duty_cycle: Optional[DutyCycleStatus] = Field(default=None, alias="dutyCycle")
 
 
 class Cell(Wire):
@@ -327,6 +343,8 @@ __all__ = [
     "CellSpec",
     "CellStatus",
     "Condition",
+    "DutyCycleSpec",
+    "DutyCycleStatus",
     "JobArtifacts",
     "Metadata",
     "MonitorVerdict",

@@ -29,8 +29,10 @@ def merge(target: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]:
     for key, value in patch.items():
         if value is None:
             target.pop(key, None)
-        elif isinstance(value, dict) and isinstance(target.get(key), dict):
-            merge(target[key], value)
+        elif isinstance(value, dict):
+            # RFC 7386: an object patched onto a missing or non-object value patches an empty object
+            # (its nulls remove nothing and are not stored).
+            target[key] = merge(target[key] if isinstance(target.get(key), dict) else {}, value)
         else:
             target[key] = copy.deepcopy(value)
     return target

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.unit
 
 PACKAGE = Path(__file__).resolve().parents[3] / "operator" / "armnet_operator"
 PURE = ["model", "args", "admission", "cell_checks", "health", "scheduling", "quota", "fairshare", "quota_parsing", "lifecycle", "conditions", "patches", "parsing",
-        "reconcile", "leader", "settings", "errors", "requeue", "preflight"]
+        "reconcile", "leader", "settings", "errors", "requeue", "preflight", "duty_cycle"]
 ROBOT_HOST = ("armnet_sim", "armnet_connector", "armnet_launch", "armnet_node", "armnet_local")
 FORBIDDEN_IN_PURE = ("kopf", "kubernetes", *ROBOT_HOST, "prometheus_client", "aiohttp")
 
