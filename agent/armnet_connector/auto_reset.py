@@ -27,8 +27,9 @@ from .identity import CellMotor
 from .retry import with_read_retry
 from .safety import RestWalk, to_raw
 
-#: Outcomes of a scripted reset (the metric's ``outcome`` label uses them, with "failed" for each failed try).
-SUCCEEDED = "succeeded"
+#: Outcomes of a scripted reset (the metric's ``outcome`` label uses them, and ``try_failed`` for each failed try).
+#: It worked: the completion monitor judged the scene back at its start, nobody was involved.
+WORKED = "worked"
 FELL_BACK = "fell_back"
 #: The interlock tripped during it (a safety refusal, the deadline, the connector's stop): no person is asked.
 STOPPED = "stopped"
@@ -51,7 +52,7 @@ class AttemptReport:
 
 @dataclass(frozen=True)
 class AutoResetReport:
-    """One scripted reset: its outcome (``SUCCEEDED``, ``FELL_BACK``, ``STOPPED``) and its tries."""
+    """One scripted reset: its outcome (``WORKED``, ``FELL_BACK``, ``STOPPED``) and its tries."""
 
     outcome: str
     attempts: tuple[AttemptReport, ...]
@@ -62,8 +63,8 @@ class AutoResetReport:
     def message(self) -> str:
         tries = len(self.attempts)
         last = self.attempts[-1].detail if self.attempts else ""
-        if self.outcome == SUCCEEDED:
-            return f"scripted reset succeeded on try {tries}: {last}"
+        if self.outcome == WORKED:
+            return f"scripted reset worked on try {tries}: {last}"
         if self.outcome == STOPPED:
             return f"scripted reset stopped on try {tries}: {last}"
         return (

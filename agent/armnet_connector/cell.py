@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from .auto_reset import (
     FELL_BACK,
     STOPPED,
-    SUCCEEDED,
+    WORKED,
     AttemptReport,
     AutoResetReport,
     PoseMover,
@@ -87,7 +87,7 @@ class Counters:
     #: ``is_complete(block=True)`` calls that saw no frame newer than the call scored in time.
     completion_block_timeouts: int = 0
     #: Scripted resets the completion monitor judged back at their start (no person involved).
-    auto_resets_succeeded: int = 0
+    auto_resets_worked: int = 0
     #: Tries of a scripted reset that failed (moves not made, or the scene still scored complete).
     auto_reset_attempts_failed: int = 0
     #: Scripted resets that ran out of tries and asked the person at the cell (alert: look at the workspace).
@@ -441,7 +441,7 @@ class CellState:
                 raise
             attempts.append(AttemptReport(number, done, detail))
             if done:
-                return self._auto_reset_ends(SUCCEEDED, attempts)
+                return self._auto_reset_ends(WORKED, attempts)
             log.warning("scripted reset try %d of %d failed: %s", number, reset.attempts, detail)
         return self._auto_reset_ends(FELL_BACK, attempts)
 
@@ -452,8 +452,8 @@ class CellState:
         self.counters.auto_reset_attempts_failed += failed
         self.auto_resets.append(report)
         self.guard.recorder.record_auto_reset(report.as_status(), failed_attempts=failed)
-        if outcome == SUCCEEDED:
-            self.counters.auto_resets_succeeded += 1
+        if outcome == WORKED:
+            self.counters.auto_resets_worked += 1
             log.info("%s", report.message)
         elif outcome == STOPPED:
             self.counters.auto_resets_stopped += 1
@@ -461,7 +461,7 @@ class CellState:
         else:
             self.counters.auto_resets_fell_back += 1
             log.error("%s", report.message)
-        return outcome == SUCCEEDED
+        return outcome == WORKED
 
     def _drive_reset_poses(self) -> str | None:
         """One pass through the poses, arm by arm, each on a bus of the job's kind; None, or why a pose was missed.

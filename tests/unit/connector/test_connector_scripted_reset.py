@@ -84,10 +84,10 @@ def test_a_reset_whose_poses_leave_the_target_ends_without_anyone(
     present = bus.sync_read("Present_Position")
     assert all(abs(present[joint] - angle) < 3.0 for joint, angle in AWAY.items()), present
     assert cell.is_complete(block=True).complete is False
-    assert connector.counters.auto_resets_succeeded == 1
+    assert connector.counters.auto_resets_worked == 1
     assert connector.counters.auto_reset_attempts_failed == connector.counters.auto_resets_fell_back == 0
     latest = connector.safety_report().as_status()["autoResets"]["latest"]
-    assert (latest["outcome"], [a["reset"] for a in latest["attempts"]]) == ("succeeded", [True])
+    assert (latest["outcome"], [a["reset"] for a in latest["attempts"]]) == ("worked", [True])
     bus.disconnect()
 
 
@@ -104,7 +104,7 @@ def test_a_reset_whose_poses_end_on_the_target_tries_again_then_asks_the_person(
     assert person.asked == 1
     counters = connector.record().counters
     assert (counters["auto_reset_attempts_failed"], counters["auto_resets_fell_back"],
-            counters["auto_resets_succeeded"]) == (2, 1, 0)
+            counters["auto_resets_worked"]) == (2, 1, 0)
     [report] = connector.cell.auto_resets
     assert report.outcome == "fell_back" and [a.reset for a in report.attempts] == [False, False]
     assert "the completion monitor still sees the task done" in report.attempts[-1].detail
