@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from armnet_core import BIMANUAL_SO101_EMBODIMENT, SO101_EMBODIMENT
-from armnet_core.cell_completion import CompletionConfig, unknown_camera
+from armnet_core.cell_completion import CompletionConfig, ResetConfig, reset_problem, unknown_camera
 from armnet_runtime import env as env_keys
 from armnet_runtime.endpoints import OPERATOR_SOCKET, ROBOT_SOCKET, with_arm
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -72,6 +72,9 @@ class LocalCellFile(BaseModel):
     calibration_files: dict[str, Path] = Field(
         default_factory=dict, description="arm name -> LeRobot calibration JSON (default: shipped)"
     )
+    reset: ResetConfig | None = Field(
+        default=None, description="how ctx.cell.reset() puts the workspace back (docs/connector.md); None: a person"
+    )
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,8 @@ class LocalCellSpec:
     cell_name: str | None = None
     #: The cell's completion monitor (None: only an operator's outcome completes an episode).
     completion: CompletionConfig | None = None
+    #: How ``ctx.cell.reset()`` puts the workspace back (None: a person confirms).
+    reset: ResetConfig | None = None
 
     @property
     def arm_names(self) -> tuple[str, ...]:
@@ -204,9 +209,10 @@ def resolve_spec(
         if file.cameras is not None
         else (CameraSpec("front"),)
     )
-    camera_problem = unknown_camera(file.completion, {camera.name for camera in cameras})
-    if camera_problem is not None:
-        raise LocalCellError(camera_problem)
+    problem = unknown_camera(file.completion, {camera.name for camera in cameras}) or reset_problem(
+        file.reset, file.completion, PRESET_ARMS[chosen_preset])
+    if problem is not None:
+        raise LocalCellError(problem)
     return LocalCellSpec(
         preset=chosen_preset,
         embodiment=cell_embodiment,
@@ -228,6 +234,7 @@ def resolve_spec(
         latency_ms=file.latency_ms,
         calibration_files=dict(file.calibration_files),
         completion=file.completion,
+        reset=file.reset,
     )
 
 

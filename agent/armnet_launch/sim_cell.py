@@ -68,6 +68,7 @@ def build_connector_config(spec: LocalCellSpec, layout: CellLayout, ports: dict[
         allow_calibration_jobs=spec.allow_calibration_jobs,
         register_bounds=dict(spec.register_bounds),
         completion=spec.completion,
+        reset=spec.reset,
     )
 
 
