@@ -17,7 +17,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
+from armnet_core.api import AUTO_RESET_CONDITION as AUTO_RESET_WORKING
 from armnet_core.api import STREAMS_CONNECTED_CONDITION as STREAMS_CONNECTED
 from armnet_core.api import CellConditionType
 from armnet_core.conditions import merge_conditions as merge_conditions
@@ -197,3 +199,19 @@ def streams_condition(probe: StreamsProbe) -> Condition:
             f"{INPUTS_NEED_NATS}: check the server and the agent's URL and credentials",
         )
     return _ok(STREAMS_CONNECTED, "Connected", f"the node agent's NATS link to {probe.server} is up")
+
+
+def auto_reset_condition(latest: Mapping[str, Any] | None) -> Condition:
+    """``AutoResetWorking`` on a cell with a scripted reset: whether the latest one worked without a person.
+
+    Not a health condition (the operator still binds: a person can reset the cell), so it
+    is False only to tell the person at the cell and the platform team. ``latest`` is the
+    connector's report of it (``AutoResetReport.as_status()``); a reset the interlock
+    stopped says nothing about the workspace and is not passed here.
+    """
+    if latest is None:
+        return _ok(AUTO_RESET_WORKING, "NoResetYet", "no scripted reset has run on this cell since the node agent started")
+    message = str(latest.get("message") or "")[:1000]
+    if latest.get("outcome") == "fell_back":
+        return _bad(AUTO_RESET_WORKING, "FellBackToOperator", message)
+    return _ok(AUTO_RESET_WORKING, "Worked", message)

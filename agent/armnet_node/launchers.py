@@ -113,6 +113,11 @@ class JobSession(Protocol):
 
     def interlock_trip(self) -> str | None: ...
 
+    def auto_reset_latest(self) -> Mapping[str, Any] | None:
+        """The job's latest scripted reset as the connector reports it (``AutoResetReport.as_status()``), while the
+        job runs; None when it made none, or when the connector is out of reach (a pod: its record has it)."""
+        ...
+
     def job_view(self) -> JobView | None:
         """What the job's connector knows, for telemetry (in this process, or a pod sidecar's observer socket)."""
         ...
@@ -255,6 +260,11 @@ class ContainerSession:
         connector = self.local_cell.connector
         trip = connector.interlock.trip_info if connector is not None else None
         return trip.message if trip is not None else None
+
+    def auto_reset_latest(self) -> Mapping[str, Any] | None:
+        connector = self.local_cell.connector
+        resets = list(connector.cell.auto_resets) if connector is not None else []
+        return resets[-1].as_status() if resets else None
 
     def rollout(self) -> dict[str, int] | None:
         connector = self.local_cell.connector
@@ -571,6 +581,9 @@ class PodSession:
 
     def interlock_trip(self) -> str | None:
         return None  # the connector is in the pod; its trips reach the status through its record
+
+    def auto_reset_latest(self) -> Mapping[str, Any] | None:
+        return None  # likewise: the record's safety report carries the latest (``autoResets``)
 
     def rollout(self) -> dict[str, int] | None:
         """The last rollout begun, from the events the recorder last read (no request of its own)."""

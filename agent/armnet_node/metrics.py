@@ -55,6 +55,13 @@ class AgentMetrics:
             "cell operators' rollout verdicts passed to jobs and recorded in status.rollouts", ["outcome"],
             registry=r,
         )
+        self.auto_resets = Counter(
+            "armnet_agent_auto_resets_total",
+            "scripted resets (Cell spec.reset.mode Scripted) of ended jobs, by outcome: worked (the completion "
+            "monitor judged the scene back at its start, nobody involved), try_failed (one try that did not; each "
+            "try counts), fell_back (every try failed: the person at the cell was asked, alert), stopped (the "
+            "interlock stopped it: a safety refusal, the deadline, a cancel)", ["outcome"], registry=r,
+        )
         self.completion_overrules = Counter(
             "armnet_completion_overrules_total",
             "rollouts whose cell operator's outcome differs from the completion monitor's verdict (status.rollouts: "

@@ -14,7 +14,7 @@ from datetime import datetime
 from typing import Any
 
 from armnet_core.api import STOPPED_BY_ANNOTATION, JobPhase
-from armnet_core.cell_completion import CompletionConfig, unknown_camera
+from armnet_core.cell_completion import CompletionConfig, ResetConfig, reset_problem, unknown_camera
 from armnet_core.resources import CellArm, CellSpec, PreemptionRequest, RobotJobSpec
 from armnet_core.times import parse_time
 from armnet_launch.cell_spec import CameraSpec
@@ -44,6 +44,8 @@ class Cell:
     register_bounds: dict[str, tuple[int, int]] = field(default_factory=dict)
     #: The cell's completion monitor settings (``spec.completion``), None: operators only.
     completion: CompletionConfig | None = None
+    #: How ``ctx.cell.reset()`` puts the workspace back (``spec.reset``), None: the operator confirms.
+    reset: ResetConfig | None = None
     current_job: str | None = None
     annotations: dict[str, str] = field(default_factory=dict)
     resource_version: str = ""
@@ -91,12 +93,13 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
     try:
         spec = CellSpec.model_validate(obj.get("spec") or {})
         completion = None if spec.completion is None else CompletionConfig.model_validate(spec.completion)
+        reset = None if spec.reset is None else ResetConfig.model_validate(spec.reset)
     except ValidationError as exc:
         raise ValueError(f"Cell {meta.get('name')}: invalid spec: {exc}") from exc
-    camera_problem = unknown_camera(completion, spec.cameras)
-    if camera_problem is not None:
-        raise ValueError(f"Cell {meta.get('name')}: invalid spec: {camera_problem}")
     arms = dict(spec.arms) or {"arm": spec.robot or CellArm()}
+    problem = unknown_camera(completion, spec.cameras) or reset_problem(reset, completion, arms)
+    if problem is not None:
+        raise ValueError(f"Cell {meta.get('name')}: invalid spec: {problem}")
     status = obj.get("status") or {}
     return Cell(
         name=str(meta.get("name", "")),
@@ -115,6 +118,7 @@ def parse_cell(obj: dict[str, Any]) -> Cell:
         allow_calibration_jobs=spec.allow_calibration_jobs,
         register_bounds=dict(spec.register_bounds),
         completion=completion,
+        reset=reset,
         current_job=status.get("currentJob"),
         annotations=dict(meta.get("annotations") or {}),
         resource_version=str(meta.get("resourceVersion", "")),

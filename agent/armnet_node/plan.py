@@ -104,6 +104,7 @@ def cell_spec_for(cell: Cell) -> LocalCellSpec:
         allow_calibration_jobs=cell.allow_calibration_jobs,
         register_bounds=cell.register_bounds,
         completion=cell.completion,
+        reset=cell.reset,
         cameras=cell.cameras,
         grace_seconds=cell.grace_seconds,
         reset_timeout_seconds=cell.reset_timeout_seconds,

@@ -30,7 +30,7 @@ import logging
 import shutil
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
@@ -152,6 +152,8 @@ class JobRunner:
         #: The job's run is over (``supervise`` returned, or the runner ended): a preemption waits no more.
         self._job_ended = threading.Event()
         self._seen_at = time.monotonic()
+        #: The job's latest scripted reset from its connector's record, once the job ended.
+        self._final_auto_reset: Mapping[str, Any] | None = None
         self._thread = threading.Thread(target=self._run, name=f"armnet-job-{job.name}", daemon=True)
         self.hooks.on_deadline = self._deadline_reached
 
@@ -307,6 +309,13 @@ class JobRunner:
         session = self.session
         return session.interlock_trip() if session is not None else None
 
+    def auto_reset_latest(self) -> Mapping[str, Any] | None:
+        """The job's latest scripted reset (``AutoResetReport.as_status()``): live from an in-process connector,
+        else from the connector's record once the job ended; None when it made none (or it is not known yet)."""
+        session = self.session
+        live = session.auto_reset_latest() if session is not None else None
+        return live if live is not None else self._final_auto_reset
+
     # -- the run -------------------------------------------------------------------
 
     def _run(self) -> None:
@@ -391,6 +400,7 @@ class JobRunner:
                 self.rollouts.sync()  # the last begins and ends, before the connector stops
                 record = session.record()
                 self.rollouts.sync()  # a pod's sidecar may stop before the sync above: its record has the last
+                self._final_auto_reset = auto_resets(record).get("latest")
                 result = self.final_result(result, session.failure(), device_lost, record, limits)
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
@@ -601,6 +611,27 @@ class JobRunner:
             metrics.preemptions.labels(stopped_at=self.preemption_stopped_at or STOPPED_AT_EPISODE_END).inc()
         if record.trip_reason is not None:
             metrics.interlock_trips.labels(reason=record.trip_reason).inc()
+        count_auto_resets(metrics, record)
+
+
+#: ``armnet_agent_auto_resets_total``'s outcome label -> the key of the record's ``autoResets`` that counts it.
+AUTO_RESET_OUTCOMES = (("worked", "worked"), ("try_failed", "failedAttempts"), ("fell_back", "fell_back"),
+                       ("stopped", "stopped"))
+
+
+def count_auto_resets(metrics: AgentMetrics, record: report.ConnectorRecord) -> None:
+    """Add an ended job's scripted resets, by outcome (each failed try too), to ``armnet_agent_auto_resets_total``."""
+    resets = auto_resets(record)
+    for outcome, key in AUTO_RESET_OUTCOMES:
+        count = resets.get(key)
+        if isinstance(count, int) and count > 0:
+            metrics.auto_resets.labels(outcome=outcome).inc(count)
+
+
+def auto_resets(record: report.ConnectorRecord) -> Mapping[str, Any]:
+    """The scripted resets of the connector's record (its safety report's ``autoResets``), {} when none."""
+    resets = record.safety.get("autoResets") if isinstance(record.safety, Mapping) else None
+    return resets if isinstance(resets, Mapping) else {}
 
 
 def write_progress(kube: AgentKube, job: Job, progress: str | None, rollout: dict[str, int] | None,

@@ -26,6 +26,7 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -96,6 +97,8 @@ class CellWorker:
         self._idle_cameras = IdleCameras()
         self._idle_arms = IdleArms()
         self._telemetry: CellTelemetry | None = None
+        #: The latest scripted reset a job on this cell reported (``AutoResetWorking``), across jobs.
+        self._auto_reset: Mapping[str, Any] | None = None
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
 
     @property
@@ -197,6 +200,7 @@ class CellWorker:
         with self._lock:
             runner = self.runner
             if runner is not None and runner.done:
+                self._note_auto_reset(runner)
                 self._finished_uids.add(runner.uid)
                 self.runner = runner = None
             mine = {job.uid: job for job in jobs if job.cell_name == self.cell.name}
@@ -376,6 +380,12 @@ class CellWorker:
         runner = self.runner
         return runner is not None and not runner.done
 
+    def _note_auto_reset(self, runner: JobRunner | None) -> None:
+        """Keep the job's latest scripted reset for ``AutoResetWorking`` (one the interlock stopped says nothing)."""
+        latest = runner.auto_reset_latest() if runner is not None else None
+        if latest is not None and latest.get("outcome") != "stopped":
+            self._auto_reset = latest
+
     def _heartbeat(self) -> None:
         streams = health.streams_condition(streams_probe(self.deps.link))
         try:
@@ -383,6 +393,9 @@ class CellWorker:
         except Exception:  # noqa: BLE001 - a probe bug must not stop the heartbeat; the others stay as they were
             log.warning("cell %s: health probe failed", self.cell.name, exc_info=True)
             conditions = (*health.cell_health(health.CellProbe(arms={}))[:1], streams)
+        if self.cell.reset is not None and self.cell.reset.scripted:
+            self._note_auto_reset(self.runner)
+            conditions = (*conditions, health.auto_reset_condition(self._auto_reset))
         for _ in range(3):
             now = datetime.now(UTC)
             try:
