@@ -240,10 +240,12 @@ def _plan_job(
     actions: list[Action] = []
     if job.status_defects:
         actions.append(RepairStatus(job))
-    # Not on terminal jobs: they hold no cell the finalizer would protect (a cell
-    # still naming one is released by ``_plan_cells`` either way), and adding it
-    # would only make their deletion wait for one more write.
-    if not job.deleting and not job.terminal and not job.has_finalizer:
+    # Only on a job that holds a cell (bound, or named by a cell's claim): the finalizer
+    # protects the cell's release, and a waiting or finished job holds none (a cell still
+    # naming one is released by ``_plan_cells`` either way). Written for every new job, it
+    # doubled the writes of a burst of submissions, and every delete of a queued job
+    # waited for the operator.
+    if not job.deleting and not job.terminal and not job.has_finalizer and (job.active or claimed):
         actions.append(AddFinalizer(job))
     if job.terminal:
         # A finished job has nothing left for the finalizer to protect once its cell is

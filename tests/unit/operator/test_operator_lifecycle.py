@@ -149,9 +149,12 @@ def test_a_finished_job_past_its_ttl_loses_the_finalizer_then_is_deleted():
     assert of_type(plan([job], []), RemoveFinalizer | DeleteJob) == [RemoveFinalizer(job), DeleteJob(job)]
 
 
-def test_every_live_job_gets_the_finalizer():
-    job = a_job().without_finalizer().queued()
-    assert of_type(plan([job], []), AddFinalizer) == [AddFinalizer(job)]
+def test_a_job_holding_a_cell_gets_the_finalizer_and_a_waiting_one_none():
+    bound = a_job().named("bound").without_finalizer().dispatched_to("c1")
+    claimed = a_job().named("claimed").without_finalizer().queued()
+    waiting = a_job().named("waiting").without_finalizer().queued()
+    cells = [a_cell().named("c1").claimed_by(bound).ready(), a_cell().named("c2").claimed_by(claimed).ready()]
+    assert of_type(plan([bound, claimed, waiting], cells), AddFinalizer) == [AddFinalizer(bound), AddFinalizer(claimed)]
 
 
 def test_a_finished_job_without_the_finalizer_gets_none_but_still_frees_its_cell():
