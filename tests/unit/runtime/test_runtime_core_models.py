@@ -60,9 +60,11 @@ def test_jobs_get_unique_ids_and_start_submitted() -> None:
     assert jobs[0].cell_id is None and jobs[0].result is None and jobs[0].dispatched is None
 
 
-def test_terminal_statuses_are_exactly_the_four_end_states() -> None:
+def test_terminal_statuses_are_the_seeds_four_end_states_and_preempted() -> None:
+    """``PREEMPTED`` is the platform's addition to the seed's four: a run stopped at an episode
+    boundary for another job (docs/operator.md, Preemption)."""
     assert TerminalStatus == frozenset(
-        {JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.TIMEOUT, JobStatus.CANCELLED}
+        {JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.TIMEOUT, JobStatus.CANCELLED, JobStatus.PREEMPTED}
     )
     assert Job(spec=JobSpec(image="i", embodiment="e"), status=JobStatus.TIMEOUT).is_terminal()
 
@@ -70,7 +72,7 @@ def test_terminal_statuses_are_exactly_the_four_end_states() -> None:
 def test_job_status_values_are_the_wire_strings() -> None:
     assert [s.value for s in JobStatus] == [
         "submitted", "queued", "dispatched", "running",
-        "succeeded", "failed", "timeout", "cancelled",
+        "succeeded", "failed", "timeout", "cancelled", "preempted",
     ]
     assert JobStatus("running") is JobStatus.RUNNING
 
