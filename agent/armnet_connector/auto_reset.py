@@ -25,7 +25,7 @@ from .errors import RequestError
 from .hardware import Handle
 from .identity import CellMotor
 from .retry import with_read_retry
-from .safety import RestWalk, to_raw
+from .safety import RestWalk, limit_for, ticks_per_unit, to_raw
 
 #: Outcomes of a scripted reset (the metric's ``outcome`` label uses them, and ``try_failed`` for each failed try).
 #: It worked: the completion monitor judged the scene back at its start, nobody was involved.
@@ -37,7 +37,10 @@ STOPPED = "stopped"
 TICK_S = 0.02
 #: How far (raw ticks) a servo may end from a pose and the pose still count as reached (as a rest's).
 SETTLE_TOLERANCE_TICKS = 25
+#: How long an arm that gets no closer to a pose may take before the pose counts as missed.
 SETTLE_WAIT_S = 3.0
+#: The longest an arm that keeps getting closer may take after its walk.
+MAX_SETTLE_S = 30.0
 MAX_DETAIL_CHARS = 300
 
 
@@ -113,17 +116,45 @@ def pose_targets(
     return targets
 
 
+#: The mover keeps each step this far inside the cell's relative limit: the guard never has to clamp
+#: (or, under ``safetyPolicy: trip``, refuse) the connector's own goals.
+STEP_MARGIN = 0.9
+
+
+def step_limits(safety_limit: float | Mapping[str, float] | None, motors: Mapping[str, CellMotor],
+                ranges: Mapping[str, MotorRange]) -> dict[str, int]:
+    """Per motor, the largest raw step from the present position the mover sends (pure).
+
+    The cell's ``safetyLimit`` is in each motor's unit (degrees, 0..100); a motor without
+    one gets none here, and the walk's speed alone paces it.
+    """
+    steps: dict[str, int] = {}
+    for name, motor in motors.items():
+        limit = limit_for(safety_limit, name)
+        cell_range = ranges.get(name)
+        if limit is not None and cell_range is not None:
+            steps[name] = max(1, int(limit * ticks_per_unit(motor.norm_mode, cell_range) * STEP_MARGIN))
+    return steps
+
+
 class PoseMover:
-    """Drives one arm's policed bus to raw goals, every write through the motion guard. The caller holds the lock."""
+    """Drives one arm's policed bus to raw goals, every write through the motion guard. The caller holds the lock.
+
+    Each goal is the walk's, but never further from the present position than the cell's
+    step limit allows (``step_limits``): on a loaded host a late tick, or an arm that
+    lags its walk, must not make the connector's own write one the guard clamps (a goal
+    clamped short would stay short) or, under ``safetyPolicy: trip``, refuses.
+    """
 
     def __init__(self, handle: Handle, check: Callable[[Handle, str, list[Any], dict[str, Any]], None],
                  refusal: Callable[[], tuple[str, str] | None], speed_ticks_per_s: float,
-                 on_lost_reply: Callable[[], None]) -> None:
+                 on_lost_reply: Callable[[], None], max_steps: Mapping[str, int] | None = None) -> None:
         self.handle = handle
         self._check = check
         self._refusal = refusal
         self.speed = speed_ticks_per_s
         self._on_lost_reply = on_lost_reply
+        self._max_steps = dict(max_steps or {})
 
     def _call(self, method: str, args: list[Any], kwargs: dict[str, Any]) -> Any:
         """A call as a job's goes: the guard first (it raises, or clamps the goals in place), then the bus."""
@@ -141,7 +172,18 @@ class PoseMover:
             self.handle, "sync_read", lambda: bus.sync_read("Present_Position", motors, normalize=False),
             on_retry=self._on_lost_reply, before_retry=self._stop_if_refused,
         )
-        return {m: int(v) for m, v in read.items()}
+        present = {m: int(v) for m, v in read.items()}
+        # The guard's step check reuses this read (as a job's own sync_read) instead of reading again.
+        self.handle.present[False] = (time.monotonic(), {m: float(v) for m, v in present.items()})
+        return present
+
+    def _send(self, goal: Mapping[str, int], present: Mapping[str, int]) -> None:
+        """Write ``goal``, each motor at most its step from ``present``."""
+        bounded = {}
+        for motor, value in goal.items():
+            step = self._max_steps.get(motor)
+            bounded[motor] = value if step is None else max(present[motor] - step, min(present[motor] + step, value))
+        self._call("sync_write", ["Goal_Position", bounded], {"normalize": False})
 
     def drive(self, goal: Mapping[str, int]) -> str | None:
         """Walk to ``goal`` at the rest speed; None once every motor is within tolerance, else why not.
@@ -160,16 +202,24 @@ class PoseMover:
             time.sleep(TICK_S)
             now = time.monotonic()
             done, last = walk.advance(done, now - last), now
-            self._call("sync_write", ["Goal_Position", walk.at(done)], {"normalize": False})
-        settle_until = time.monotonic() + SETTLE_WAIT_S
+            self._send(walk.at(done), self.positions(motors))
+        # Bounded steps may leave the arm short of the pose when the walk ends (a slow host, a small
+        # limit): it goes on from where it is, for as long as it gets closer, and then SETTLE_WAIT_S more.
+        started = time.monotonic()
+        settle_until, closest = started + SETTLE_WAIT_S, None
         while True:
             self._stop_if_refused()
             reached = self.positions(motors)
             errors = {m: goal[m] - reached[m] for m in motors}
             worst = max(motors, key=lambda m: abs(errors[m]))
+            now = time.monotonic()
             if abs(errors[worst]) <= SETTLE_TOLERANCE_TICKS:
                 return None
-            if time.monotonic() >= settle_until:
+            if closest is None or abs(errors[worst]) < closest:
+                closest = abs(errors[worst])
+                settle_until = min(now + SETTLE_WAIT_S, started + MAX_SETTLE_S)
+            if now >= settle_until:
                 return (f"{worst} ended {abs(errors[worst])} ticks from the pose (tolerance {SETTLE_TOLERANCE_TICKS}); "
                         "is something in the arm's way?")
+            self._send(goal, reached)  # a goal bounded short of the pose on the way is sent again from here
             time.sleep(TICK_S)

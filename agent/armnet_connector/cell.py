@@ -2,8 +2,9 @@
 
 This module owns the shared facts (config, interlock, deadline, inputs, the
 live objects of every connection, counters, each arm's register ledger) and the
-cell-wide actions (``return_to_rest``, ``reset``, releasing every device and
-putting back the registers a job changed). Per-connection request handling lives
+cell-wide actions (``return_to_rest``, ``reset`` with its scripted tries and
+fallback to a person, releasing every device and putting back the registers a
+job changed). Per-connection request handling lives
 in ``session``.
 """
 
@@ -24,6 +25,7 @@ from .auto_reset import (
     AutoResetReport,
     PoseMover,
     pose_targets,
+    step_limits,
 )
 from .config import ConnectorConfig, MotorRange, read_calibration_file
 from .deadline import Deadline
@@ -42,6 +44,7 @@ from .interlock import Interlock, TripReason
 from .motion import MotionGuard
 from .rest import RestReport, cell_bus, move_to_rest, rest_pose, restore_registers, torque_off
 from .restore import RegisterLedger, RestoreOutcome, restore_block
+from .retry import with_read_retry
 
 log = logging.getLogger(__name__)
 
@@ -434,11 +437,11 @@ class CellState:
                 missed = self._drive_reset_poses()
                 done, detail = (False, missed) if missed is not None else self._judge_reset(reset.settle_seconds)
             except RequestError as exc:
-                if not self.interlock.tripped:
+                if self.interlock.tripped:
+                    attempts.append(AttemptReport(number, False, exc.message))
+                    self._auto_reset_ends(STOPPED, attempts)
                     raise
-                attempts.append(AttemptReport(number, False, exc.message))
-                self._auto_reset_ends(STOPPED, attempts)
-                raise
+                done, detail = False, f"a write was refused: {exc.error_type}: {bounded(exc.message, 200)}"
             attempts.append(AttemptReport(number, done, detail))
             if done:
                 return self._auto_reset_ends(WORKED, attempts)
@@ -470,9 +473,7 @@ class CellState:
         """
         for number, pose in enumerate(self.reset_targets):
             for arm_name, goal in pose.items():
-                refusal = self.interlock.refusal()
-                if refusal is not None:
-                    raise RequestError(*refusal)
+                self._refuse_if_tripped()
                 missed = self._drive_arm(arm_name, goal)
                 if missed is not None:
                     return f"pose {number}, arm {arm_name}: {missed}"
@@ -488,11 +489,18 @@ class CellState:
             self.config, self.locks, self.ranges, interlock=self.interlock, recorder=self.guard.recorder,
             on_lost_reply=self.count_bus_retry, ledger_for=self.ledger,
         )
+        arm = self.config.arms[arm_name]
         mover = PoseMover(handle, self.guard.check, self.interlock.refusal,
-                          self.config.rest_speed_ticks_per_second, self.count_bus_retry)
-        with handle.lock:  # a job's bus on the device sends nothing meanwhile (it waits, then DeviceBusy)
-            try:
-                handle.obj.connect()
+                          self.config.rest_speed_ticks_per_second, self.count_bus_retry,
+                          max_steps=step_limits(arm.safety_limit, motors, self.ranges[arm_name]))
+        lock = handle.lock
+        # A job's bus on the device sends nothing meanwhile (it waits, then DeviceBusy).
+        if not lock.acquire(lock.wait_s):
+            return f"its device stayed busy with another call for {lock.wait_s:g} s"
+        try:
+            try:  # the handshake asked again after a lost reply, as a job's connect is (``retry``)
+                with_read_retry(handle, "connect", handle.obj.connect, on_retry=self.count_bus_retry,
+                                before_retry=self._refuse_if_tripped)
             except (ConnectionError, RuntimeError) as exc:
                 return f"its bus did not connect: {bounded(str(exc), 200)}"
             try:
@@ -500,15 +508,23 @@ class CellState:
             except (ConnectionError, TimeoutError) as exc:
                 return f"the bus failed: {type(exc).__name__}: {bounded(str(exc), 200)}"
             finally:
-                handle.obj.disconnect(disable_torque=False)  # the arm holds the pose; the job's bus takes over
+                try:  # without torque off: the arm holds the pose, and the job's bus takes over
+                    handle.obj.disconnect(disable_torque=False)
+                except Exception as exc:  # noqa: BLE001 - a bus that fails to close must not hide the move's outcome
+                    log.warning("arm %s: the reset's bus did not close cleanly: %s", arm_name, bounded(str(exc), 200))
+        finally:
+            lock.release()
+
+    def _refuse_if_tripped(self) -> None:
+        refusal = self.interlock.refusal()
+        if refusal is not None:
+            raise RequestError(*refusal)
 
     def _judge_reset(self, settle_s: float) -> tuple[bool, str]:
         """Settle, then the monitor's judgement: (the scene is back at its start, what the monitor saw)."""
         until = time.monotonic() + settle_s
         while time.monotonic() < until:
-            refusal = self.interlock.refusal()
-            if refusal is not None:
-                raise RequestError(*refusal)
+            self._refuse_if_tripped()
             time.sleep(min(0.05, max(0.0, until - time.monotonic())))
         completion = self.config.completion
         frames = completion.consecutive_frames if completion is not None else 1

@@ -86,6 +86,7 @@ def test_a_reset_whose_poses_leave_the_target_ends_without_anyone(
     assert cell.is_complete(block=True).complete is False
     assert connector.counters.auto_resets_worked == 1
     assert connector.counters.auto_reset_attempts_failed == connector.counters.auto_resets_fell_back == 0
+    assert connector.safety_report().clamps_total == 0  # the connector's own steps stay inside the limit
     latest = connector.safety_report().as_status()["autoResets"]["latest"]
     assert (latest["outcome"], [a["reset"] for a in latest["attempts"]]) == ("worked", [True])
     bus.disconnect()
@@ -125,6 +126,25 @@ def test_a_reset_that_fell_back_and_nobody_confirmed_times_out_as_a_manual_one(
         a_job_cell(connector).reset()
     assert person.asked == 1
     assert connector.record().trip_reason == TripReason.RESET_TIMEOUT
+
+
+def test_a_scripted_reset_on_a_trip_policy_cell_with_a_small_step_limit_never_trips_it(
+    sim_cell: SimulatedCellProcess, make_connector: Callable[..., Connector],
+    cell_config: Callable[..., ConnectorConfig],
+) -> None:
+    person = Person(confirms=False)
+    config = cell_config(sim_cell, completion=completion_of_the_target(), safetyPolicy="trip",
+                         reset={"mode": "Scripted", "poses": [AWAY], "attempts": 1, "settleSeconds": 0.2})
+    config.arms["arm"].safety_limit = 3.0  # degrees per write; the walk's speed (4000 ticks/s) goes 7 per tick
+    connector = make_connector(config, camera_factory=simulated_camera_factory(source=sim_cell),
+                               inputs=LocalOperatorInputs(on_reset_requested=person))
+
+    a_job_cell(connector).reset()
+
+    assert (person.asked, connector.counters.auto_resets_worked) == (0, 1)
+    report = connector.safety_report()
+    assert (report.refusals_total, report.interlock_trips) == (0, 0)
+    assert max(report.largest_requested_step.values()) <= 3.0 * 4095 / 360  # raw ticks
 
 
 def test_the_interlock_tripped_during_a_scripted_reset_stops_the_arm_where_it_is(
