@@ -30,7 +30,7 @@ from .restore import (
     restore_plan,
     servos_of,
 )
-from .retry import retry_lost_replies
+from .retry import CONNECT_RETRY_DELAYS_S, retry_lost_replies
 from .safety import RestWalk
 
 log = logging.getLogger(__name__)
@@ -99,6 +99,9 @@ def cell_bus(arm: ArmConfig, ranges: dict[str, MotorRange], *, handshake: bool =
             if attempt == CONNECT_ATTEMPTS:
                 raise
             log.warning("connecting the cell's bus on %s failed (%s); retrying", arm.port, exc)
+            # Past the lost reply first (as a job's connect, ``retry``): asked again at once, the
+            # handshake's next ping can take the late reply of this one and miss a servo again.
+            time.sleep(CONNECT_RETRY_DELAYS_S[attempt - 1])
     try:
         yield bus
     finally:
