@@ -569,11 +569,16 @@ class CellState:
         """Open the grace window at the job's next episode boundary; True if it is open on return.
 
         A preempted job is never stopped mid-episode (docs/connector.md, "Preemption"):
-        between rollouts the window opens now, as a cancel's does (the interlock's
-        reason is ``why``); during one it opens when the job ends that rollout
-        (``record_rollout`` of its end), and this returns False. A second request
-        changes nothing (the first ``why`` stands); once the window is open, from
-        whatever opened it, this returns True.
+        the window opens when the job ends a rollout (``record_rollout`` of its end),
+        the one it is in or, between rollouts, its next one; a job that never began a
+        rollout has no episodes to wait for, and its window opens now, as a cancel's
+        does (the interlock's reason is ``why``). Not at once between rollouts: the job
+        asks ``is_shutting_down()`` right after a rollout ends and then begins the next
+        one, and a window opened between its question and its ``rollout_begin`` would
+        refuse that rollout's first move. At a rollout's end the window is open before
+        the job's ``rollout_end`` returns, so its next question sees it. A second
+        request changes nothing (the first ``why`` stands); once the window is open,
+        from whatever opened it, this returns True.
 
         The decision and the opening happen under the rollouts' lock, so no rollout can
         begin between them. That is safe: tripping the interlock takes only the
@@ -584,7 +589,7 @@ class CellState:
                 return True
             if self._stop_at_end is not None:
                 return False
-            if self._rollout_open():
+            if self._rollout_open() or self._rollouts_seen():
                 self._stop_at_end = why
                 pending = True
             else:
@@ -593,6 +598,10 @@ class CellState:
         if pending:
             log.info("stop requested (%s): the grace window opens at the end of the open rollout", why)
         return not pending
+
+    def _rollouts_seen(self) -> bool:
+        """Whether the job began a rollout (it runs episodes). Under ``_rollout_lock``."""
+        return any(event.kind == "begin" for event in self.rollouts)
 
     def _rollout_open(self) -> bool:
         """Whether the latest begin or end is a begin (a verdict is neither). Under ``_rollout_lock``."""

@@ -52,12 +52,18 @@ def refusal(connector: Connector) -> dict[str, Any]:
     return request(connector.socket_dir / ROBOT_SOCKET, {"op": "return_to_rest"})
 
 
-def test_between_rollouts_the_grace_window_opens_at_once_naming_the_preemption(connector: Connector) -> None:
+def test_between_rollouts_the_grace_window_opens_at_the_next_rollouts_end(connector: Connector) -> None:
+    """Not at once: the job may have asked is_shutting_down() already and be about to begin the next
+    rollout, whose first move would then be refused."""
     job = a_job_cell(connector)
     job.rollout_begin(index=0, total=2)
     job.rollout_end()
 
-    assert connector.cell.stop_at_episode_end(WHY) is True
+    assert connector.cell.stop_at_episode_end(WHY) is False
+    assert job.is_shutting_down() is False
+    job.rollout_begin(index=1, total=2)
+    assert refusal(connector).get("error_type") != "ShuttingDown"  # the episode moves
+    job.rollout_end()
 
     assert job.is_shutting_down() is True
     trip = connector.interlock.trip_info
@@ -104,12 +110,12 @@ def test_a_grace_window_already_open_is_left_as_it_is(connector: Connector) -> N
     assert trip is not None and trip.message == "the job was cancelled"
 
 
-def test_a_rollout_begun_after_the_request_between_rollouts_finds_the_job_shutting_down(
+def test_a_rollout_begun_after_the_request_to_a_job_that_ran_none_finds_the_job_shutting_down(
     connector: Connector,
 ) -> None:
     job = a_job_cell(connector)
     assert connector.cell.stop_at_episode_end(WHY) is True
-    job.rollout_begin(index=0, total=1)  # the job's loop goes on, but no episode may start moving
+    job.rollout_begin(index=0, total=1)  # a job that starts episodes only now gets none
     assert job.is_shutting_down() is True
     assert refusal(connector)["error_type"] == "ShuttingDown"
 
@@ -145,7 +151,7 @@ def test_a_verdict_on_the_open_rollout_is_not_its_end(monitored: Connector) -> N
 # -- agent.sock --------------------------------------------------------------------------
 
 
-def test_the_preempt_op_between_rollouts_opens_the_window_now(connector: Connector, agent_dir: Path) -> None:
+def test_the_preempt_op_before_any_rollout_opens_the_window_now(connector: Connector, agent_dir: Path) -> None:
     reply = request(agent_dir / AGENT_SOCKET, {"op": "preempt", "why": WHY})
     assert reply == {"ok": True, "applied": True, "now": True}
     assert a_job_cell(connector).is_shutting_down() is True
