@@ -72,7 +72,9 @@ def watch(bed: TwinBed) -> Iterator[JobWatch]:
 def test_a_job_that_trips_the_interlock_fails_in_its_preflight_and_never_binds_a_real_cell(
         bed: TwinBed, watch: JobWatch) -> None:
     unsafe = bed.image("unsafe", JOBS / "unsafe.py", (EXAMPLES / "_so101_moves.py",))
-    bed.submit("unsafe", unsafe, timeout=120, preflight={"seconds": 30})
+    # A bound well above the job's start-up (the LeRobot import took 40 s and more on a loaded
+    # 2-core host): the unsafe move, not the bound, must end the pre-flight.
+    bed.submit("unsafe", unsafe, timeout=180, preflight={"seconds": 150})
     held_by: set[str] = set()
 
     def failed() -> dict[str, Any] | None:
@@ -80,7 +82,7 @@ def test_a_job_that_trips_the_interlock_fails_in_its_preflight_and_never_binds_a
         job = bed.job("unsafe")
         return job if status(job).get("phase") in ("failed", "succeeded", "timeout", "cancelled") else None
 
-    parent = status(bed.wait(failed, 240, "job unsafe to end"))
+    parent = status(bed.wait(failed, 300, "job unsafe to end"))
     assert parent["phase"] == "failed", explain(parent)
     assert parent["preflight"]["phase"] == "Failed", parent["preflight"]
     name = parent["preflight"]["job"]

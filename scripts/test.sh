@@ -50,7 +50,7 @@ fi
 # sessions").
 side_groups=(
   "e2e/test_agent_jobs.py e2e/test_tenants.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container tests/integration/test_helm_chart.py tests/integration/test_helm_rbac.py tests/integration/test_helm_lifecycle.py tests/unit/runtime tests/unit/testbed"
-  "tests/integration/test_dev_up.py tests/integration/test_node_store.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py e2e/test_preflight.py"
+  "tests/integration/test_dev_up.py tests/integration/test_node_store.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py e2e/test_preflight.py e2e/test_unattended.py"
 )
 # Each session prints its slowest tests (--durations): where the suite's time budget goes.
 # Every session's output is also kept in one directory; a failed run keeps it (its path is
