@@ -659,17 +659,32 @@ def _requeue_preempted(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] |
 
 def _create_requeue(current: dict[str, Any], job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
     """The copy as created now, or as found (created for this job before); None to retry next pass."""
+    return _create_once(job, api, outcome, lambda taken: requeue_name(job.name, job.uid, taken),
+                        lambda name: requeue_body(current, name, job.created), is_requeue_of)
+
+
+def _create_once(
+    job: Job, api: Api, outcome: Outcome, name_for: Callable[[bool], str],
+    body_for: Callable[[str], dict[str, Any]], made_for: Callable[[Mapping[str, Any], str], bool],
+) -> dict[str, Any] | None:
+    """Create a RobotJob made from ``job`` (its requeue, its pre-flight) once, even across a crash.
+
+    ``name_for(taken_by_other)`` names it; when a job of that name exists, it is the one
+    made for ``job`` before (``made_for(existing, job.uid)``: its annotation names the uid)
+    and is returned as found, or a tenant's own job, and the uid-suffixed name is tried.
+    None: a write failed, the next pass tries again.
+    """
     for taken_by_other in (False, True):
-        name = requeue_name(job.name, job.uid, taken_by_other)
+        name = name_for(taken_by_other)
         try:
-            made = api.create_job(requeue_body(current, name, job.created))
+            made = api.create_job(body_for(name))
         except AlreadyExists:
             try:
                 existing = api.read_job(job.namespace, name)
             except TransientError as error:
                 _count(error, outcome)
                 return None
-            if is_requeue_of(existing, job.uid):
+            if made_for(existing, job.uid):
                 return existing
             continue
         except TransientError as error:
@@ -710,25 +725,8 @@ def _start_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dic
 
 def _create_preflight(current: dict[str, Any], job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
     """The pre-flight as created now, or as found (created for this job before); None to retry next pass."""
-    for taken_by_other in (False, True):
-        name = preflight_name(job.name, job.uid, taken_by_other)
-        try:
-            made = api.create_job(preflight_body(current, name))
-        except AlreadyExists:
-            try:
-                existing = api.read_job(job.namespace, name)
-            except TransientError as error:
-                _count(error, outcome)
-                return None
-            if is_preflight_of(existing, job.uid):
-                return existing
-            continue
-        except TransientError as error:
-            _count(error, outcome)
-            return None
-        outcome.writes += 1
-        return made
-    return None
+    return _create_once(job, api, outcome, lambda taken: preflight_name(job.name, job.uid, taken),
+                        lambda name: preflight_body(current, name), is_preflight_of)
 
 
 def _conclude_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dict[str, Any] | None:
