@@ -5,23 +5,12 @@ complete; rollout 2 stops short of it. Nobody at the cell marks anything: the mo
 verdicts are what ``status.rollouts`` must show.
 """
 
-import time
 
-from _so101_moves import open_bus
+from _so101_moves import drive_to, open_bus
 from armnet_runtime import Context, main
 
 TARGET = {"shoulder_lift": 20.0, "elbow_flex": 40.0, "wrist_flex": 0.0}  # armnet_sim.render.TARGET_POSE
 SHORT = {**TARGET, "elbow_flex": 25.0}
-
-
-def drive(bus, goal):
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        present = bus.sync_read("Present_Position")
-        if all(abs(present[j] - g) < 0.5 for j, g in goal.items()):
-            return
-        bus.sync_write("Goal_Position", {j: present[j] + max(-8.0, min(8.0, g - present[j])) for j, g in goal.items()})
-        time.sleep(0.05)
 
 
 @main
@@ -30,7 +19,7 @@ def run(ctx: Context):
     seen = []
     for index, goal in ((1, TARGET), (2, SHORT)):
         ctx.cell.rollout_begin(index=index, total=2, outcome_controls=False)
-        drive(bus, goal)
+        drive_to(bus, goal)
         for _ in range(10):  # each check waits for a frame captured after it to be scored
             status = ctx.cell.is_complete(block=True)
             if status.complete:

@@ -8,24 +8,13 @@ then drive the arm onto the target, even ones stop short of it. The job returns 
 the monitor answered and where the arm really was, after each reset and at each end.
 """
 
-import time
 
-from _so101_moves import open_bus
+from _so101_moves import drive_to, open_bus
 from armnet_runtime import Context, main
 
 TARGET = {"shoulder_lift": 20.0, "elbow_flex": 40.0, "wrist_flex": 0.0}  # armnet_sim.render.TARGET_POSE
 SHORT = {**TARGET, "elbow_flex": 25.0}
 CHECKS = 10  # is_complete(block=True) waits for a frame captured after each check
-
-
-def drive(bus, goal):
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        present = bus.sync_read("Present_Position")
-        if all(abs(present[j] - g) < 0.5 for j, g in goal.items()):
-            return
-        bus.sync_write("Goal_Position", {j: present[j] + max(-8.0, min(8.0, g - present[j])) for j, g in goal.items()})
-        time.sleep(0.05)
 
 
 def where(bus, joints):
@@ -42,7 +31,7 @@ def run(ctx: Context):
         ctx.cell.reset()
         after_reset = where(bus, TARGET)
         ctx.cell.rollout_begin(index=index, total=rollouts, outcome_controls=False)
-        drive(bus, TARGET if index % 2 else SHORT)
+        drive_to(bus, TARGET if index % 2 else SHORT, within_s=60)
         complete = False
         for _ in range(CHECKS):
             if ctx.cell.is_complete(block=True).complete:

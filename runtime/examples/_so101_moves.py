@@ -84,6 +84,17 @@ def move_joint(bus: Any, joint: str, target: float, step: float, settle_s: float
     return present
 
 
+def drive_to(bus: Any, goal: dict[str, float], *, step: float = 8.0, within_s: float = 120.0) -> None:
+    """Walk several joints at once to ``goal`` in moves of at most ``step`` from where they are."""
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        present = bus.sync_read("Present_Position")
+        if all(abs(present[j] - g) < 0.5 for j, g in goal.items()):
+            return
+        bus.sync_write("Goal_Position", {j: present[j] + max(-step, min(step, g - present[j])) for j, g in goal.items()})
+        time.sleep(0.05)
+
+
 def exercise_arm(
     bus: Any,
     *,
