@@ -634,16 +634,32 @@ def _preempt(reclaim: Reclaim, now: datetime, timing: Timing, api: Api) -> Outco
     return outcome
 
 
-def _requeue_preempted(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
-    """Create the preempted job's copy (or find the one made before a crash), then name it in its status."""
+def _still_due(
+    job: Job, api: Api, outcome: Outcome, due: Callable[[Job], bool],
+) -> tuple[dict[str, Any], Job] | None:
+    """The job as the server has it now, body and model, if it is the same job and ``due`` still holds.
+
+    A job made from another (its requeue, its pre-flight) is copied from the body the server
+    returns (the snapshot's frozen ``Job`` has no args, secrets or labels), and only when the
+    decision, taken on a snapshot that may lag, holds on that fresh read.
+    """
     try:
         current = api.read_job(job.namespace, job.name)
     except TransientError as error:
         _count(error, outcome)
         return None
     fresh = parse_job(current)
-    if fresh.uid != job.uid or not requeue_due(fresh):
+    if fresh.uid != job.uid or not due(fresh):
         return None
+    return current, fresh
+
+
+def _requeue_preempted(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Create the preempted job's copy (or find the one made before a crash), then name it in its status."""
+    read = _still_due(job, api, outcome, requeue_due)
+    if read is None:
+        return None
+    current, fresh = read
     copy = _create_requeue(current, fresh, api, outcome)
     if copy is None:
         return None
@@ -701,14 +717,10 @@ def _start_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dic
     The body is copied from the job as the server has it now (the snapshot's frozen ``Job``
     has no args, secrets or labels), as a preempted job's requeue is.
     """
-    try:
-        current = api.read_job(job.namespace, job.name)
-    except TransientError as error:
-        _count(error, outcome)
+    read = _still_due(job, api, outcome, needs_start)
+    if read is None:
         return None
-    fresh = parse_job(current)
-    if fresh.uid != job.uid or not needs_start(fresh):
-        return None
+    current, fresh = read
     made = _create_preflight(current, fresh, api, outcome)
     if made is None:
         return None
