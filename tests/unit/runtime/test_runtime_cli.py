@@ -225,6 +225,31 @@ def test_system_exit_passes_through(tmp_path: Path) -> None:
     assert "leaving" in result.stdout
 
 
+@pytest.mark.parametrize("ending", ["return 'done'", "raise RuntimeError('late')", "sys.exit(7)"])
+def test_what_a_job_leaves_for_its_exit_still_happens_however_main_ends(tmp_path: Path, ending: str) -> None:
+    """The runtime skips the interpreter's last collections at exit (``_wind_down_quickly``), not
+    the job's own wind-down: its atexit handlers run and a module's unclosed file is flushed."""
+    out = tmp_path / "out"
+    script = write(tmp_path, f"""
+        import atexit, sys
+        from armnet_runtime import main
+
+        OUT = {str(out)!r}
+        LOG = open(OUT + ".log", "w")  # never closed: the interpreter flushes it at exit
+        atexit.register(lambda: open(OUT + ".atexit", "w").write("ran"))
+
+        @main
+        def run(ctx):
+            LOG.write("buffered, never flushed by the job")
+            {ending}
+    """)
+    result = run_script(script)
+
+    assert result.code in (0, 1, 7), result.stderr
+    assert Path(f"{out}.log").read_text() == "buffered, never flushed by the job"
+    assert Path(f"{out}.atexit").read_text() == "ran"
+
+
 def test_the_script_directory_is_importable(tmp_path: Path) -> None:
     write(tmp_path, "VALUE = 'from a sibling'\n", name="helper_mod_for_armnet.py")
     script = write(tmp_path, """
