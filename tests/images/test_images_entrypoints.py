@@ -81,29 +81,30 @@ def test_runtime_image_runs_a_customer_job_built_from_the_example(
         "greeting": "hello, cell", "job_id": "job-7"}
 
 
-def test_runtime_lerobot_variant_imports_lerobots_robot_classes_as_uid_65532(
+JOB_ENV = {"ARMNET_LEROBOT_TOOLS": "remote", "ARMNET_CALIBRATION_JOBS": "0"}
+"""A job container's environment for LeRobot's tools, as the node agent sets it."""
+
+
+def test_runtime_lerobot_variant_in_a_job_imports_lerobots_robot_classes_on_the_connectors_bus_as_uid_65532(
         podman: Podman, runtime_lerobot_image: str) -> None:
+    """The image's .pth installs the import swap in every interpreter of a job's container.
+
+    One interpreter checks it all: each start imports torch, the longest step of these tests.
+    """
     code, output = run_image(podman, runtime_lerobot_image, ["python", "-c", (
-        "import os; from lerobot.robots.so_follower import SO101Follower; "
-        "import lerobot.cameras.opencv; print(os.getuid(), 'imported')")])
+        "import os; from lerobot.robots.so_follower import SO101Follower; import lerobot.cameras.opencv; "
+        "from lerobot.motors.feetech import FeetechMotorsBus; print(os.getuid(), FeetechMotorsBus.__module__)")],
+        environment=JOB_ENV)
 
     assert code == 0, output
-    assert output.strip().splitlines()[-1] == "65532 imported"
+    assert output.strip().splitlines()[-1] == "65532 armnet_runtime.lerobot.remote_feetech"
 
 
-def test_in_a_job_lerobots_own_commands_use_the_connector_and_lerobot_calibrate_is_refused(
+def test_in_a_job_lerobot_calibrate_is_refused_and_outside_a_job_lerobot_is_untouched(
         podman: Podman, runtime_lerobot_image: str) -> None:
-    """The image's .pth installs the import swap in every interpreter of a job's container."""
-    job_env = {"ARMNET_LEROBOT_TOOLS": "remote", "ARMNET_CALIBRATION_JOBS": "0"}
-    code, output = run_image(podman, runtime_lerobot_image, ["python", "-c", (
-        "from lerobot.motors.feetech import FeetechMotorsBus; print(FeetechMotorsBus.__module__)")],
-        environment=job_env)
-    assert code == 0, output
-    assert output.strip().splitlines()[-1] == "armnet_runtime.lerobot.remote_feetech"
-
     code, output = run_image(podman, runtime_lerobot_image, [
         "lerobot-calibrate", "--robot.type=so101_follower", "--robot.port=/dev/null", "--robot.id=arm"],
-        environment=job_env)
+        environment=JOB_ENV)
     assert code == 1, output
     assert "lerobot-calibrate is refused in this job" in output and "EOFError" not in output
 
