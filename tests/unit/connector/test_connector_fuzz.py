@@ -1,9 +1,15 @@
 """Hostile and random requests: the connector always answers well-formed replies and never
-reaches a name outside the allow-list on a real object."""
+reaches a name outside the allow-list on a real object.
+
+Each example starts a connector of its own (a request may trip its interlock or close its
+bus), ~0.8 s: the suite runs 30; ``ARMNET_FUZZ_EXAMPLES=500`` (or
+``bench/connector_policy_fuzz.sh``, which runs this fuzzer and the policy's) runs it longer.
+"""
 
 from __future__ import annotations
 
 import json
+import os
 import socket
 import sys
 from typing import Any
@@ -15,6 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 pytestmark = pytest.mark.unit
+
+EXAMPLES = int(os.environ.get("ARMNET_FUZZ_EXAMPLES", "30"))
 
 NAMES = sorted(FEETECH.methods | FEETECH.readable) + [
     "__class__", "__dict__", "__init__", "__reduce__", "_comm_success", "_read", "port_handler",
@@ -115,7 +123,7 @@ def check_reply(raw: bytes) -> dict[str, Any]:
     return reply
 
 
-@settings(max_examples=250, deadline=None, database=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=EXAMPLES, deadline=None, database=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(batch=st.lists(lines, min_size=1, max_size=8))
 def test_random_and_hostile_requests_always_get_a_well_formed_reply(
     batch: list[bytes], socket_dir, cell_config, motors, recorder
