@@ -111,22 +111,24 @@ def test_a_job_that_trips_the_interlock_fails_in_its_preflight_and_never_binds_a
 
 
 def test_a_good_job_binds_the_real_cell_once_its_preflight_passed(bed: TwinBed, watch: JobWatch) -> None:
-    slow = bed.image("counts-slowly", JOBS / "counts_slowly.py")
-    # 14 lines a second apart: the 10 s pre-flight runs its whole time (timeout, which passes),
-    # then the job runs to its end on the ordinary cell.
-    bed.submit("good", slow, timeout=120, args={"lines": 14, "pause": 1.0}, preflight={"seconds": 10})
+    episodes = bed.image("episodes", JOBS / "episodes.py", (EXAMPLES / "_so101_moves.py",))
+    # Twelve rollouts of ~0.8 s on the arm: the 10 s pre-flight usually runs its whole time
+    # (timeout: it passes, having moved the twin), then the job runs to its end on the ordinary cell.
+    bed.submit("good", episodes, timeout=120, args={"episodes": 12, "hold": 0.5}, preflight={"seconds": 10})
 
     parent = status(bed.wait_phase("good", timeout=240))
     assert parent["phase"] == "succeeded", explain(parent)
     assert parent["cellName"] == bed.real
     assert parent["preflight"]["phase"] == "Passed", parent["preflight"]
-    assert parent["result"]["returnValue"] == {"lines": 14}
+    assert parent["result"]["returnValue"] == {"episodes_done": 12, "of": 12, "refused_mid_rollout": []}
 
     child = status(bed.job(parent["preflight"]["job"]))
     assert child["phase"] in ("succeeded", "timeout"), explain(child)
     assert child["cellName"] == bed.twin
+    assert child["result"]["safety"]["deviceCalls"] > 0, child["result"]["safety"]
     if child["phase"] == "timeout":
         assert "without failing" in parent["preflight"]["message"]
+        assert "call(s) to the twin's devices" in parent["preflight"]["message"]
     # The job started on the real cell only after its pre-flight ended and the verdict was written.
     assert moment_of(parent["startedAt"]) >= moment_of(parent["preflight"]["finishedAt"])
     assert moment_of(parent["preflight"]["finishedAt"]) >= whole_seconds(child["finishedAt"])

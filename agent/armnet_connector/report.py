@@ -60,6 +60,10 @@ class SafetyReport:
     #: Scripted resets (the cell's ``reset.mode: Scripted``): totals by outcome and the latest one
     #: (``auto_reset.AutoResetReport.as_status``); empty when the job made none.
     auto_resets: dict[str, Any] = field(default_factory=dict)
+    #: The job's calls the connector carried to the cell's devices (its buses and cameras, each
+    #: past the safety check): 0 says the job never reached the cell, which a pre-flight that
+    #: only ran out its seconds must not count as passing.
+    device_calls: int = 0
 
     @property
     def clamps_total(self) -> int:
@@ -86,6 +90,7 @@ class SafetyReport:
             "registerRestoreFailures": {arm: list(lines) for arm, lines in self.restore_failures.items()},
             # Only on a job that made scripted resets: the connector's own moves, under the same limits.
             **({"autoResets": dict(self.auto_resets)} if self.auto_resets else {}),
+            "deviceCalls": self.device_calls,
         }
 
 
@@ -106,6 +111,7 @@ class SafetyRecorder:
         self._restored: dict[str, dict[str, dict[str, tuple[int | None, int]]]] = {}
         self._restore_failures: dict[str, tuple[str, ...]] = {}
         self._auto_resets: dict[str, Any] = {}
+        self._device_calls = 0
 
     def record_steps(self, steps: dict[str, float]) -> None:
         """Keep each motor's largest step (signed steps: ``decide_goals``'s)."""
@@ -127,6 +133,11 @@ class SafetyRecorder:
             for motor, size in zip(motors, sizes, strict=True):
                 if size > largest.get(motor, 0.0):
                     largest[motor] = size
+
+    def record_device_call(self) -> None:
+        """One call of the job's carried to a device (uncontended, the lock costs ~0.1 µs of a ~100 µs bus call)."""
+        with self._lock:
+            self._device_calls += 1
 
     def record_clamp(self, motor: str) -> None:
         with self._lock:
@@ -202,4 +213,5 @@ class SafetyRecorder:
                 registers_restored={arm: {m: dict(r) for m, r in motors.items()} for arm, motors in self._restored.items()},
                 restore_failures=dict(self._restore_failures),
                 auto_resets=dict(self._auto_resets),
+                device_calls=self._device_calls,
             )

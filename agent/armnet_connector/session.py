@@ -296,6 +296,7 @@ class RobotSession(Session):
         try:
             with handle.lock:
                 self.cell.guard.check(handle, method, args, kwargs)
+                self.cell.guard.recorder.record_device_call()
                 if method == "torque_disabled":
                     return self._torque_disabled(handle, args, kwargs)
                 bound = getattr(handle.obj, method)

@@ -97,14 +97,19 @@ class Verdict:
         return PreflightPhase.PASSED if self.passed else PreflightPhase.FAILED
 
 
-def judge(preflight: Job | None, name: str, error: str | None = None, traceback: str | None = None) -> Verdict | None:
+def judge(preflight: Job | None, name: str, error: str | None = None, traceback: str | None = None,
+          device_calls: int | None = None) -> Verdict | None:
     """The verdict on the pre-flight ``name`` (None: it is gone), or None while it has not finished.
 
-    ``error`` and ``traceback`` are the pre-flight's ``status.result`` (the frozen ``Job``
-    does not carry them). Succeeded, or ran its whole time (``timeout``): passed. Failed:
-    failed, with its error (or its traceback's last line). Cancelled or preempted (a
-    pre-flight is neither preempted nor requeued by the operator; a person cancelled it):
-    failed, as one that is gone.
+    ``error``, ``traceback`` and ``device_calls`` are the pre-flight's ``status.result``
+    (``device_calls``: its connector record's ``safety.deviceCalls``, ``device_calls_of``;
+    the frozen ``Job`` does not carry them). Succeeded: passed. Ran its whole time
+    (``timeout``): passed if it reached the twin's devices; one that made no call to them
+    (still importing, or waiting on something else, when its seconds ran out) proved
+    nothing and fails, saying to give the pre-flight more seconds; a record that does not
+    say (an agent from before the count) passes, as before. Failed: failed, with its error
+    (or its traceback's last line). Cancelled or preempted (a pre-flight is neither
+    preempted nor requeued by the operator; a person cancelled it): failed, as one that is gone.
     """
     if preflight is None:
         return Verdict(False, f"the pre-flight job {name} no longer exists")
@@ -114,15 +119,27 @@ def judge(preflight: Job | None, name: str, error: str | None = None, traceback:
     match preflight.phase:
         case JobPhase.SUCCEEDED:
             return Verdict(True, f"the pre-flight job {name} succeeded{where}")
+        case JobPhase.TIMEOUT if device_calls == 0:
+            return Verdict(False, f"the pre-flight job {name} ran the pre-flight's {preflight.timeout_seconds} s{where} "
+                                  "without reaching the cell (no call to its bus or cameras), which proves nothing: "
+                                  "give spec.preflight.seconds more time than the job takes to start")
         case JobPhase.TIMEOUT:
+            calls = f", {device_calls} call(s) to the twin's devices" if device_calls else ""
             return Verdict(True, f"the pre-flight job {name} ran the pre-flight's {preflight.timeout_seconds} s "
-                                 f"without failing{where}")
+                                 f"without failing{where}{calls}")
         case JobPhase.FAILED:
             why = error or _last_line(traceback) or "it failed without an error message"
             return Verdict(False, _bounded(f"the pre-flight job {name} failed{where}: {why}"))
     if preflight.phase is JobPhase.CANCELLED:
         return Verdict(False, f"the pre-flight job {name} was cancelled")
     return Verdict(False, f"the pre-flight job {name} was stopped ({preflight.phase}) before it could pass")
+
+
+def device_calls_of(result: Mapping[str, Any]) -> int | None:
+    """``safety.deviceCalls`` of a job's ``status.result``: a count, or None when the record has none."""
+    safety = result.get("safety")
+    calls = safety.get("deviceCalls") if isinstance(safety, Mapping) else None
+    return calls if type(calls) is int and calls >= 0 else None
 
 
 def _last_line(text: str | None) -> str | None:
@@ -165,6 +182,7 @@ def needs_cancel(preflight: Job, owner: Job | None) -> bool:
 __all__ = [
     "PREFLIGHT_FAILED",
     "Verdict",
+    "device_calls_of",
     "failed_error",
     "is_preflight_of",
     "judge",

@@ -59,6 +59,7 @@ from .model import Cell, CellPhase, CellQueue, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
 from .preflight import (
     PREFLIGHT_FAILED,
+    device_calls_of,
     failed_error,
     is_preflight_of,
     judge,
@@ -759,7 +760,8 @@ def _conclude_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> 
     if body is not None and not is_preflight_of(body, job.uid):
         body = None  # a job of that name, but not this job's pre-flight: its own is gone
     result = ((body or {}).get("status") or {}).get("result") or {}
-    verdict = judge(parse_job(body) if body is not None else None, name, result.get("error"), result.get("traceback"))
+    verdict = judge(parse_job(body) if body is not None else None, name, result.get("error"), result.get("traceback"),
+                    device_calls_of(result))
     if verdict is None:
         return None  # still running (the snapshot was behind)
     failure = None if verdict.passed else failed_error(verdict)

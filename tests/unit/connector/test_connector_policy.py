@@ -242,6 +242,18 @@ def test_a_single_raw_write_beyond_the_limit_is_clamped_too(bus, sim_cell, conne
     assert connector.safety_report().clamps == {"wrist_flex": 1}
 
 
+def test_the_report_counts_the_calls_carried_to_the_cell_and_not_the_refused_ones(bus, sim_cell, connector) -> None:
+    """``deviceCalls``: what says a job reached the cell (a pre-flight that only ran out its seconds did not)."""
+    before = connector.safety_report().device_calls
+    assert before > 0  # the fixture's bus connected through the connector
+    bus.sync_read("Present_Position")
+    bus.read("Present_Position", "elbow_flex")
+    assert connector.safety_report().device_calls == before + 2
+    with pytest.raises(ValueError):
+        bus.sync_write("Goal_Position", {"elbow_flex": float("nan")})  # refused at the safety check
+    assert connector.safety_report().as_status()["deviceCalls"] == before + 2
+
+
 def test_the_records_counters_carry_the_safety_reports_totals_for_the_agents_metrics(bus, sim_cell, connector) -> None:
     bus.enable_torque()
     before = sim_cell.arm.positions()["wrist_flex"]

@@ -17,7 +17,7 @@ from armnet_core.api import PREFLIGHT_FOR_ANNOTATION, PreflightPhase
 from armnet_operator.lifecycle import CancelPreflight, StartPreflight, plan_lifecycle
 from armnet_operator.model import JobPhase, QueuedReason
 from armnet_operator.parsing import parse_cell, parse_job
-from armnet_operator.preflight import judge, preflight_body, preflight_name
+from armnet_operator.preflight import device_calls_of, judge, preflight_body, preflight_name
 from armnet_operator.quota_parsing import read_quota
 from armnet_operator.reconcile import Memory, Outcome, reconcile_once
 from armnet_operator.requeue import requeue_body
@@ -55,6 +55,41 @@ def test_the_verdict_on_a_finished_preflight(phase: JobPhase, error: str | None,
     assert verdict.passed is passed
     assert verdict.phase is (PreflightPhase.PASSED if passed else PreflightPhase.FAILED)
     assert said in verdict.message and "pick-preflight" in verdict.message
+
+
+@pytest.mark.parametrize(("calls", "passed", "said"), [
+    (0, False, "without reaching the cell (no call to its bus or cameras), which proves nothing: "
+               "give spec.preflight.seconds more time"),
+    (412, True, "ran the pre-flight's 30 s without failing on pre-flight cell twin-1, 412 call(s) to the twin's devices"),
+    (None, True, "ran the pre-flight's 30 s without failing on pre-flight cell twin-1"),
+])
+def test_a_preflight_that_ran_its_time_passes_only_if_it_reached_the_twins_devices(
+        calls: int | None, passed: bool, said: str) -> None:
+    run = a_job().named("pick-preflight").with_timeout(30).finished(JobPhase.TIMEOUT, cell="twin-1")
+    verdict = judge(run, "pick-preflight", device_calls=calls)
+    assert verdict is not None and verdict.passed is passed
+    assert said in verdict.message, verdict.message
+
+
+def test_a_succeeded_preflight_passes_whatever_it_called() -> None:
+    run = a_job().named("pick-preflight").finished(JobPhase.SUCCEEDED, cell="twin-1")
+    verdict = judge(run, "pick-preflight", device_calls=0)
+    assert verdict is not None and verdict.passed
+
+
+@pytest.mark.parametrize(("result", "calls"), [
+    ({"safety": {"deviceCalls": 7}}, 7),
+    ({"safety": {"deviceCalls": 0}}, 0),
+    ({}, None),
+    ({"safety": None}, None),
+    ({"safety": {"deviceCalls": "7"}}, None),
+    ({"safety": {"deviceCalls": True}}, None),
+    ({"safety": {"deviceCalls": -1}}, None),
+    ({"safety": ["deviceCalls"]}, None),
+])
+def test_the_device_calls_are_read_from_the_result_only_when_they_are_a_count(
+        result: dict[str, object], calls: int | None) -> None:
+    assert device_calls_of(result) == calls
 
 
 @pytest.mark.parametrize("phase", [None, JobPhase.QUEUED, JobPhase.DISPATCHED, JobPhase.RUNNING])
@@ -256,14 +291,28 @@ def test_a_job_whose_preflight_succeeded_binds_to_an_ordinary_cell() -> None:
     assert ("t/pick", "PreflightPassed") in world.events
 
 
-def test_a_preflight_that_ran_its_whole_time_passes() -> None:
+def test_a_preflight_that_ran_its_whole_time_on_the_twins_devices_passes() -> None:
     world, memory = twin_world(), Memory()
     run(world, memory)
+    world.jobs["t/pick-preflight"]["status"]["result"] = {"safety": {"policy": "clamp", "deviceCalls": 900}}
     world.agent_set_phase("t/pick-preflight", "timeout")
     world.tick(31)
     run(world, memory)
     assert status(world, "t/pick")["preflight"]["phase"] == "Passed"
     assert status(world, "t/pick")["cellName"] == "real"
+
+
+def test_a_preflight_that_ran_its_whole_time_without_reaching_the_twin_fails_its_job() -> None:
+    world, memory = twin_world(), Memory()
+    run(world, memory)
+    world.jobs["t/pick-preflight"]["status"]["result"] = {"safety": {"policy": "clamp", "deviceCalls": 0}}
+    world.agent_set_phase("t/pick-preflight", "timeout")
+    world.tick(31)
+    run(world, memory)
+    parent = status(world, "t/pick")
+    assert parent["phase"] == "failed" and "cellName" not in parent
+    assert "without reaching the cell" in parent["result"]["error"]
+    assert "spec.preflight.seconds" in parent["result"]["error"]
 
 
 def test_a_job_whose_preflight_failed_fails_and_never_binds_a_real_cell() -> None:
