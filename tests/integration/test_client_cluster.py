@@ -235,6 +235,29 @@ def test_submit_from_a_manifest_keeps_fields_the_sdk_spec_lacks(
     assert capsys.readouterr().out.strip() == "from-file"
 
 
+def test_submit_flags_set_a_preflight_and_a_priority_over_the_sdks_spec(
+    k8s: Any, tenant: Tenant, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert tenant.cli("submit", "--detach", "--name", "checked", "--image", "localhost/pick:dev",
+                      "--embodiment", "test/client", "--timeout", "300", "--preflight", "45",
+                      "--priority", "3") == 0
+    assert capsys.readouterr().out.strip() == "checked"
+    stored = kclient.CustomObjectsApi(k8s.api_client()).get_namespaced_custom_object(
+        GROUP, VERSION, tenant.namespace, ROBOTJOBS, "checked")
+    spec = stored["spec"]
+    assert (spec["preflight"], spec["priority"], spec["timeoutSeconds"], spec["detach"]) == (
+        {"seconds": 45}, 3, 300, True)
+
+    manifest = tmp_path / "job.yaml"
+    manifest.write_text(yaml.safe_dump({
+        "apiVersion": API_VERSION, "kind": "RobotJob", "metadata": {"name": "from-file-checked"},
+        "spec": {"image": "localhost/pick:dev", "embodiment": "test/client", "priority": 5}}))
+    assert tenant.cli("submit", "-f", str(manifest), "--detach", "--preflight", "20") == 0
+    stored = kclient.CustomObjectsApi(k8s.api_client()).get_namespaced_custom_object(
+        GROUP, VERSION, tenant.namespace, ROBOTJOBS, "from-file-checked")
+    assert (stored["spec"]["preflight"], stored["spec"]["priority"]) == ({"seconds": 20}, 5)
+
+
 def test_an_apiserver_that_does_not_answer_is_cluster_unreachable_naming_the_server(tmp_path: Path) -> None:
     kubeconfig = tmp_path / "kubeconfig"
     kubeconfig.write_text(yaml.safe_dump({

@@ -39,3 +39,15 @@ def test_flags_map_onto_every_spec_field() -> None:
 def test_a_wrong_flag_is_named(argv: tuple[str, ...], message: str) -> None:
     with pytest.raises(InvalidJob, match=message):
         submit.spec_from_flags(parse(*argv))
+
+
+def test_priority_and_preflight_are_spec_fields_beyond_the_sdks_model() -> None:
+    extras = submit.spec_extras(parse("--image", "x:1", "--embodiment", "e", "--priority", "5", "--preflight", "60"))
+    assert extras == {"priority": 5, "preflight": {"seconds": 60}}
+    assert submit.spec_extras(parse("--image", "x:1", "--embodiment", "e")) == {}
+
+
+@pytest.mark.parametrize("seconds", ["0", "3601", "-5"])
+def test_a_preflight_out_of_the_crds_bounds_is_named(seconds: str) -> None:
+    with pytest.raises(InvalidJob, match=f"--preflight takes 1 to 3600 seconds, not {int(seconds)}"):
+        submit.spec_extras(parse("--image", "x:1", "--embodiment", "e", "--preflight", seconds))

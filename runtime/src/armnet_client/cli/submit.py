@@ -12,15 +12,20 @@ from armnet_core.models import JobSpec
 from pydantic import ValidationError
 
 from ..errors import InvalidJob
+from ..mapping import robotjob_body
 from ..render import result_exit_code
 from .common import add_cluster_options, client_from, guarded
 from .printer import LogPrinter
+
+#: ``spec.preflight.seconds``'s bounds (the CRD's).
+MAX_PREFLIGHT_SECONDS = 3600
 
 EXAMPLES = """
   armnet submit -f job.yaml                         # a RobotJob manifest, as for kubectl apply
   armnet submit --image ghcr.io/acme/pick:1.2 --embodiment lerobot/so-101 \\
       --task pick-cube --args '{"episodes": 10}' --timeout 600 --secret HF_TOKEN=hf-token
   armnet submit --detach --image localhost/pick:dev --embodiment lerobot/so-101
+  armnet submit --image localhost/pick:dev --embodiment lerobot/so-101 --preflight 60 --priority 5
 prints the job's name; without --detach it then follows the output like
 `armnet logs -f` and exits like `armnet result`: 0 succeeded, 1 failed/timeout/cancelled.
 """
@@ -38,6 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", help="the RobotJob's name (default: generated from the image)")
     parser.add_argument("--detach", action="store_true", help="print the name and return; the job "
                         "keeps running when this client goes away")
+    parser.add_argument("--priority", type=int, help="the job's priority within its tenant (higher runs "
+                        "first; with the tenant's CellQuota allowing it, it may preempt its own lower ones)")
+    parser.add_argument("--preflight", type=int, metavar="S", help="first run the job for at most S seconds "
+                        "on a simulated twin of its embodiment: it waits for a real cell only if that passes")
     parser.add_argument("--follower-timeout", type=float, default=30.0, metavar="S",
                         help="without --detach: the node agent cancels the job when this client's "
                         "heartbeats stop for S seconds (a crash, a closed laptop); default 30")
@@ -67,6 +76,21 @@ def spec_from_flags(args: argparse.Namespace) -> JobSpec:
         raise InvalidJob(f"invalid job: {exc}") from exc
 
 
+def spec_extras(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``RobotJob.spec`` fields the flags set that ``JobSpec`` (the SDK's model) has no field for.
+
+    They go into the manifest as written, over a ``-f`` manifest's own, like ``--detach``.
+    """
+    extras: dict[str, Any] = {}
+    if args.priority is not None:
+        extras["priority"] = args.priority
+    if args.preflight is not None:
+        if not 1 <= args.preflight <= MAX_PREFLIGHT_SECONDS:
+            raise InvalidJob(f"--preflight takes 1 to {MAX_PREFLIGHT_SECONDS} seconds, not {args.preflight}")
+        extras["preflight"] = {"seconds": args.preflight}
+    return extras
+
+
 def read_manifest(path: str) -> dict[str, Any]:
     import yaml
 
@@ -86,10 +110,16 @@ def run(args: argparse.Namespace) -> int:
         client.follower_timeout_s = args.follower_timeout
         # Heartbeats need NATS: without a URL the follow polls the status and declares no follower.
         follow = not args.detach and client.nats_url is not None
+        extras = spec_extras(args)
         if args.filename:
             manifest = read_manifest(args.filename)
             if args.detach:
                 manifest.setdefault("spec", {})["detach"] = True
+            manifest.setdefault("spec", {}).update(extras)
+            job = client.submit_manifest(manifest, namespace=args.namespace, follow=follow)
+        elif extras:
+            manifest = robotjob_body(spec_from_flags(args), namespace=client.namespace, name=args.name)
+            manifest["spec"].update(extras)
             job = client.submit_manifest(manifest, namespace=args.namespace, follow=follow)
         else:
             job = client.submit(spec_from_flags(args), name=args.name, follow=follow)
