@@ -291,25 +291,24 @@ def test_a_job_whose_preflight_succeeded_binds_to_an_ordinary_cell() -> None:
     assert ("t/pick", "PreflightPassed") in world.events
 
 
-def test_a_preflight_that_ran_its_whole_time_on_the_twins_devices_passes() -> None:
+def preflight_timed_out(device_calls: int) -> dict[str, Any]:
+    """The job's status after its pre-flight ran its whole time with ``device_calls`` on the twin."""
     world, memory = twin_world(), Memory()
     run(world, memory)
-    world.jobs["t/pick-preflight"]["status"]["result"] = {"safety": {"policy": "clamp", "deviceCalls": 900}}
+    world.jobs["t/pick-preflight"]["status"]["result"] = {"safety": {"policy": "clamp", "deviceCalls": device_calls}}
     world.agent_set_phase("t/pick-preflight", "timeout")
     world.tick(31)
     run(world, memory)
-    assert status(world, "t/pick")["preflight"]["phase"] == "Passed"
-    assert status(world, "t/pick")["cellName"] == "real"
+    return status(world, "t/pick")
+
+
+def test_a_preflight_that_ran_its_whole_time_on_the_twins_devices_passes() -> None:
+    parent = preflight_timed_out(900)
+    assert parent["preflight"]["phase"] == "Passed" and parent["cellName"] == "real"
 
 
 def test_a_preflight_that_ran_its_whole_time_without_reaching_the_twin_fails_its_job() -> None:
-    world, memory = twin_world(), Memory()
-    run(world, memory)
-    world.jobs["t/pick-preflight"]["status"]["result"] = {"safety": {"policy": "clamp", "deviceCalls": 0}}
-    world.agent_set_phase("t/pick-preflight", "timeout")
-    world.tick(31)
-    run(world, memory)
-    parent = status(world, "t/pick")
+    parent = preflight_timed_out(0)
     assert parent["phase"] == "failed" and "cellName" not in parent
     assert "without reaching the cell" in parent["result"]["error"]
     assert "spec.preflight.seconds" in parent["result"]["error"]
