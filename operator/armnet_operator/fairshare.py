@@ -247,7 +247,7 @@ def plan_reclaim(
             candidates[pool].append(job)
     taken: set[str] = set()
     decisions: list[Reclaim] = []
-    for owner in sorted(waiting, key=lambda j: (-j.priority, j.created, j.namespace, j.name)):
+    for owner in sorted(waiting, key=lambda j: j.queue_order):
         tenant = ledger.tenant_of(owner)
         account = ledger.accounts.get(tenant)
         if account is None or account.used >= account.quota.nominal_cells:
@@ -321,7 +321,7 @@ def plan_within_quota(
         if job.cell_name is not None and job.key not in taken:
             mine[ledger.tenant_of(job)].append(job)
     decisions: list[Reclaim] = []
-    for owner in sorted(waiting, key=lambda j: (-j.priority, j.created, j.namespace, j.name)):
+    for owner in sorted(waiting, key=lambda j: j.queue_order):
         tenant = ledger.tenant_of(owner)
         quota = by_name.get(tenant)
         if owner.key in served or quota is None or not quota.preempt_lower_priority:

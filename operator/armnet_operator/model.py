@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from enum import StrEnum
 from typing import Any
 
@@ -26,6 +26,9 @@ from armnet_core.api import (
 from armnet_core.api import TERMINAL_PHASES as _TERMINAL
 
 from .duty_cycle import NO_STATE, DutyCycle, DutyState
+
+#: A job not queued yet sorts after every queued job created in the same second (``Job.queue_order``).
+_NOT_ARRIVED = datetime.max.replace(tzinfo=UTC)
 
 TERMINAL_PHASES = frozenset(JobPhase(phase) for phase in _TERMINAL)
 ACTIVE_PHASES = frozenset(JobPhase(phase) for phase in _ACTIVE)
@@ -107,6 +110,21 @@ class Job:
     """``status.preflight.job``: the name of the job's pre-flight RobotJob (same namespace)."""
     preflight_for: str | None = None
     """The ``armnet.io/preflight-for`` annotation: this job is the pre-flight of the job with this uid."""
+    arrived_at: datetime | None = None
+    """``status.arrivedAt``: when the operator first queued the job, in microseconds (``queue_order``)."""
+
+    @property
+    def queue_order(self) -> tuple[int, datetime, datetime, str, str]:
+        """Where the job waits: by priority, then creation, then arrival, then namespace and name.
+
+        A creation time has whole seconds, so jobs created in one second tie on it. Broken
+        by namespace and name, a job arriving late in that second went ahead of peers
+        already numbered and moved each of them one place back: during a burst most
+        positions were rewritten again and again. ``arrived_at`` (stamped with the job's
+        first queue position) keeps the order of arrival instead: a job not stamped yet
+        arrived after every stamped one, and positions once written stay.
+        """
+        return (-self.priority, self.created, self.arrived_at or _NOT_ARRIVED, self.namespace, self.name)
 
     @property
     def has_finalizer(self) -> bool:

@@ -116,7 +116,7 @@ def _conditions(raw: Any, section: str) -> tuple[list[Condition], list[dict[str,
 _JOB_SPEC_FIELDS = ("image", "embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds",
                     "requeueOnPreemption", "preflight")
 _JOB_STATUS_SCALARS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "startedAt",
-                       "estimatedStart", "likelyStart", "preemption", "requeuedAs", "preflight")
+                       "estimatedStart", "likelyStart", "preemption", "requeuedAs", "preflight", "arrivedAt")
 _JOB_STATUS_FIELDS = (*_JOB_STATUS_SCALARS, "conditions")
 
 
@@ -217,6 +217,7 @@ def _job(
         preflight_phase=_preflight_phase(status),
         preflight_job=status.preflight.job if status.preflight is not None else None,
         preflight_for=meta.annotations.get(PREFLIGHT_FOR_ANNOTATION) or None,
+        arrived_at=status.arrived_at,
     )
 
 

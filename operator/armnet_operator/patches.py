@@ -18,7 +18,7 @@ from enum import StrEnum
 from typing import Any
 
 from armnet_core.api import RELEASE_CELL_FINALIZER
-from armnet_core.times import kube_time
+from armnet_core.times import kube_time, micro_time
 
 from .conditions import set_condition
 from .duty_cycle import NO_STATE, DutyState
@@ -159,6 +159,8 @@ def queue_job(job: Job, entry: QueueEntry, now: datetime) -> Patch:
         "likelyStart": kube_time(entry.likely_start) if entry.likely_start is not None else None,
         "conditions": conditions,
     }
+    if job.arrived_at is None:
+        status["arrivedAt"] = micro_time(now)  # once: its place among jobs created in the same second
     return _job_status(job, status)
 
 

@@ -62,8 +62,8 @@ class SchedulePlan:
     (``fairshare.plan_reclaim``), then lower priorities for higher ones of one tenant (``plan_within_quota``)."""
 
 
-def order_key(job: Job) -> tuple[int, datetime, str, str]:
-    return (-job.priority, job.created, job.namespace, job.name)
+def order_key(job: Job) -> tuple[int, datetime, datetime, str, str]:
+    return job.queue_order
 
 
 def occupied_cells(jobs: Iterable[Job], cells: Iterable[Cell]) -> set[str]:

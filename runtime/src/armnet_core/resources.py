@@ -178,6 +178,9 @@ class RobotJobStatus(Wire):
     #: The RobotJob the operator created to run this preempted job again (``spec.requeueOnPreemption``).
     requeued_as: Optional[str] = Field(default=None, alias="requeuedAs", max_length=253)
     preflight: Optional[PreflightStatus] = None
+    #: When the operator first queued the job, in microseconds: its place among the jobs created in the
+    #: same second (a creation time has whole seconds), kept so a later arrival never moves it back.
+    arrived_at: Optional[Timestamp] = Field(default=None, alias="arrivedAt")
     conditions: list[Condition] = Field(default_factory=list)
 
 

@@ -67,6 +67,13 @@ class JobBuilder:
     def submitted_ago(self, seconds: float) -> JobBuilder:
         return self._with(created=ago(seconds))
 
+    def created_at(self, moment: datetime) -> JobBuilder:
+        return self._with(created=moment)
+
+    def arrived_ago(self, seconds: float) -> JobBuilder:
+        """Queued first by the operator ``seconds`` ago (``status.arrivedAt``)."""
+        return self._with(arrived_at=ago(seconds))
+
     def with_ttl(self, seconds: int) -> JobBuilder:
         return self._with(ttl_seconds_after_finished=seconds)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
+
 import pytest
 from armnet_operator.model import CellConditionType, QueuedReason
 from armnet_operator.scheduling import choose_cell, plan_bindings
@@ -40,6 +42,28 @@ def test_equal_priority_is_first_in_first_out():
     second = a_job().named("second").submitted_ago(200).queued()
     plan = plan_bindings([second, first], [a_cell().named("c").ready()], NOW, HB)
     assert bound(plan) == {"first": "c"}
+
+
+def test_jobs_created_in_one_second_wait_in_the_order_they_arrived_not_by_name():
+    """A creation time has whole seconds: among its jobs a late arrival never moves an earlier one back."""
+    second = NOW.replace(microsecond=0) - timedelta(seconds=30)
+    zed = a_job().named("zed", "tenant-z").created_at(second).arrived_ago(29.5).queued()
+    bea = a_job().named("bea", "tenant-b").created_at(second).arrived_ago(29.2).queued()
+    abe = a_job().named("abe", "tenant-a").created_at(second).new()  # not queued yet: arrived after both
+    older = a_job().named("old", "tenant-z").created_at(second - timedelta(seconds=1)).arrived_ago(31).queued()
+    plan = plan_bindings([abe, bea, zed, older], [a_cell().named("c").claimed_by("x/y").ready()], NOW, HB)
+    positions = {key.split("/")[1]: entry.position for key, entry in plan.queued.items()}
+    assert positions == {"old": 1, "zed": 2, "bea": 3, "abe": 4}
+
+
+def test_priority_and_creation_still_come_before_arrival():
+    second = NOW.replace(microsecond=0) - timedelta(seconds=30)
+    early = a_job().named("early").created_at(second - timedelta(seconds=5)).arrived_ago(1).queued()
+    urgent = a_job().named("urgent").with_priority(2).created_at(second).new()
+    late = a_job().named("late").created_at(second).arrived_ago(29).queued()
+    plan = plan_bindings([late, early, urgent], [a_cell().named("c").claimed_by("x/y").ready()], NOW, HB)
+    positions = {key.split("/")[1]: entry.position for key, entry in plan.queued.items()}
+    assert positions == {"urgent": 1, "early": 2, "late": 3}
 
 
 def test_a_job_with_a_task_only_binds_to_a_cell_of_that_task():
