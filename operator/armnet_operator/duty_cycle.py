@@ -60,4 +60,24 @@ def next_state(cycle: DutyCycle | None, state: DutyState, occupied: bool, now: d
     return state
 
 
-__all__ = ["NO_STATE", "DutyCycle", "DutyState", "next_state", "rest_due", "resting"]
+def ready_at(cycle: DutyCycle | None, state: DutyState, free_at: datetime, now: datetime) -> tuple[datetime, DutyState]:
+    """When a cell that is free from ``free_at`` on can start a job, and its cycle from then on.
+
+    For the start estimates (``estimate``), which walk the queue ahead: inside a rest, at
+    its end; once the working time is up at ``free_at``, after the rest that begins then;
+    else at once. A cycle not recorded yet begins ``now`` (the operator records it in this pass).
+    """
+    if cycle is None:
+        return free_at, state
+    if state.resting_until is not None:
+        if free_at < state.resting_until:
+            return state.resting_until, DutyState(working_since=state.resting_until)
+        state = DutyState(working_since=state.resting_until)
+    working_since = state.working_since or now
+    if free_at - working_since >= cycle.every:
+        back = free_at + cycle.rest
+        return back, DutyState(working_since=back)
+    return free_at, DutyState(working_since=working_since)
+
+
+__all__ = ["NO_STATE", "DutyCycle", "DutyState", "next_state", "ready_at", "rest_due", "resting"]

@@ -30,6 +30,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
+from .duty_cycle import NO_STATE, DutyState, ready_at
 from .model import Cell, CellQueue, Job
 
 _PoolKey = tuple[str, str | None] | str
@@ -41,10 +42,12 @@ RECENT_RUNS = 20
 
 @dataclass(frozen=True)
 class Seat:
-    """A cell that can run the queue's jobs, and when it is free at the latest."""
+    """A cell that can run the queue's jobs, when it can start the next at the latest, and its duty
+    cycle's state from then on (``duty_cycle.ready_at``: a rest due is taken before that start)."""
 
     cell: Cell
     free_at: datetime
+    duty: DutyState = NO_STATE
 
 
 def seats(cells: Iterable[Cell], holders: Mapping[str, Job], now: datetime,
@@ -54,17 +57,18 @@ def seats(cells: Iterable[Cell], holders: Mapping[str, Job], now: datetime,
     A job that has started leaves at its start plus its ``occupancy`` (by default the
     longest: timeout plus grace); one bound but not started yet at its binding plus the
     same (it starts at once on a ready cell). A job past that moment is counted as
-    leaving now.
+    leaving now. A cell with a duty cycle rests first when its rest is due by then.
     """
     occupancy = occupancy or longest_occupancy
     result = []
     for cell in cells:
         job = holders.get(cell.name)
-        if job is None:
-            result.append(Seat(cell, now))
-            continue
-        since = job.started_at or job.bound_at or now
-        result.append(Seat(cell, max(now, since + occupancy(job, cell))))
+        free_at = now
+        if job is not None:
+            since = job.started_at or job.bound_at or now
+            free_at = max(now, since + occupancy(job, cell))
+        ready, duty = ready_at(cell.duty_cycle, cell.duty, free_at, now)
+        result.append(Seat(cell, ready, duty))
     return result
 
 
@@ -101,18 +105,20 @@ def queue_starts(queue: Iterable[Job], available: Iterable[Seat],
     """Job key -> the moment it starts, for ``queue`` in its order (the first starts first).
 
     Each job takes the matching seat that frees first and holds it for its ``occupancy``
-    (by default the longest, which makes the moments the latest starts). A job with a
+    (by default the longest, which makes the moments the latest starts), and a cell with a
+    duty cycle rests after it when its working time is up by then. A job with a
     task draws from the cells of its (embodiment, task); one without, from every cell
     of its embodiment. A job no seat matches gets no entry.
     """
     occupancy = occupancy or longest_occupancy
     free_at: dict[str, datetime] = {}
+    duty: dict[str, DutyState] = {}
     version: dict[str, int] = defaultdict(int)
     cells: dict[str, Cell] = {}
     heaps: dict[_PoolKey, list[tuple[datetime, str, int]]] = defaultdict(list)
     for seat in available:
         name = seat.cell.name
-        cells[name], free_at[name] = seat.cell, seat.free_at
+        cells[name], free_at[name], duty[name] = seat.cell, seat.free_at, seat.duty
         for key in _pools(seat.cell):
             heaps[key].append((seat.free_at, name, 0))
     for entries in heaps.values():
@@ -128,7 +134,7 @@ def queue_starts(queue: Iterable[Job], available: Iterable[Seat],
         start, name, _ = heap[0]
         starts[job.key] = start
         cell = cells[name]
-        free_at[name] = start + occupancy(job, cell)
+        free_at[name], duty[name] = ready_at(cell.duty_cycle, duty[name], start + occupancy(job, cell), start)
         version[name] += 1
         for key in _pools(cell):
             heapq.heappush(heaps[key], (free_at[name], name, version[name]))

@@ -11,11 +11,19 @@ from dataclasses import replace
 from datetime import timedelta
 
 import pytest
-from armnet_operator.duty_cycle import NO_STATE, DutyCycle, DutyState, next_state, rest_due
+from armnet_operator.duty_cycle import (
+    NO_STATE,
+    DutyCycle,
+    DutyState,
+    next_state,
+    ready_at,
+    rest_due,
+)
+from armnet_operator.estimate import queue_starts, seats
 from armnet_operator.health import derive_cell_phase
 from armnet_operator.model import CellPhase
 from armnet_operator.reconcile import Limits, Memory, reconcile_once
-from operator_builders import NOW, TIMING, a_cell
+from operator_builders import NOW, TIMING, a_cell, a_job
 
 from tests.unit.operator.operator_world import World
 
@@ -36,6 +44,38 @@ H = timedelta(hours=1)
 ])
 def test_next_state(state: DutyState, occupied: bool, expected: DutyState) -> None:
     assert next_state(CYCLE, state, occupied, NOW) == expected
+
+
+M = timedelta(minutes=1)
+
+
+@pytest.mark.parametrize(("state", "free_at", "ready", "after"), [
+    pytest.param(DutyState(NOW - 5 * H), NOW + 30 * M, NOW + 30 * M, DutyState(NOW - 5 * H),
+                 id="working time left when free: at once"),
+    pytest.param(DutyState(NOW - 5 * H), NOW + 2 * H, NOW + 2 * H + 20 * M, DutyState(NOW + 2 * H + 20 * M),
+                 id="time up by then: after a rest that begins then"),
+    pytest.param(DutyState(NOW - 7 * H, NOW + 10 * M), NOW, NOW + 10 * M, DutyState(NOW + 10 * M),
+                 id="resting: at the rest's end"),
+    pytest.param(DutyState(NOW - 7 * H, NOW + 10 * M), NOW + H, NOW + H, DutyState(NOW + 10 * M),
+                 id="free after the rest: at once, in the next working time"),
+    pytest.param(NO_STATE, NOW + 7 * H, NOW + 7 * H + 20 * M, DutyState(NOW + 7 * H + 20 * M),
+                 id="no cycle recorded yet: it begins now"),
+])
+def test_when_a_cell_can_start_its_next_job(state: DutyState, free_at, ready, after) -> None:  # noqa: ANN001
+    assert ready_at(CYCLE, state, free_at, NOW) == (ready, after)
+    assert ready_at(None, state, free_at, NOW) == (free_at, state)
+
+
+def test_the_start_estimates_count_the_rests_a_cell_takes_on_the_way() -> None:
+    cell = replace(a_cell().named("c1").with_grace(0).build(), duty_cycle=CYCLE, duty=DutyState(NOW - 5 * H))
+    running = a_job().named("run").with_timeout(3600).started_ago(1800).running_on("c1")
+    first, second = (a_job().named(n).with_timeout(3600).queued() for n in ("first", "second"))
+    starts = queue_starts([first, second], seats([cell], {"c1": running}, NOW))
+    # run ends at +30 min (working time left: first starts then); first ends at +90 min, past the
+    # 6 hours: the cell rests 20 minutes before second.
+    assert starts == {first.key: NOW + 30 * M, second.key: NOW + 110 * M}
+    resting = replace(cell, duty=DutyState(NOW - 7 * H, NOW + 15 * M))
+    assert queue_starts([first], seats([resting], {}, NOW)) == {first.key: NOW + 15 * M}
 
 
 def test_without_a_cycle_nothing_is_recorded_and_nothing_rests() -> None:
