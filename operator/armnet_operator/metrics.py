@@ -11,7 +11,7 @@ from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, star
 
 from .args import ArgsLimit
 from .model import Cell, CellPhase, Job, JobPhase
-from .reconcile import Outcome
+from .pass_io import Outcome
 
 _LATENCY_BUCKETS = (0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60, 300, 900, 3600)
 

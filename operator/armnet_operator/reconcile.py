@@ -25,15 +25,21 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
 from functools import partial
-from typing import Any, Protocol
+from typing import Any
 
 from armnet_core.times import kube_time
 
 from . import patches
 from .cell_checks import check_cell, check_cells
+from .derived_jobs import (
+    conclude_preflight,
+    owner_gone,
+    preempt,
+    requeue_preempted,
+    start_preflight,
+)
 from .duty_cycle import DutyState
-from .errors import AlreadyExists, Conflict, NotFound, ResourceMissing, TransientError
-from .fairshare import Reclaim
+from .errors import Conflict, NotFound, ResourceMissing, TransientError
 from .health import derive_cell_phase
 from .lifecycle import (
     Action,
@@ -53,47 +59,15 @@ from .lifecycle import (
     plan_active_job,
     plan_lifecycle,
     release_reason,
-    requeue_due,
 )
 from .model import Cell, CellPhase, CellQueue, Job, JobPhase, Timing
 from .parsing import parse_cell, parse_job
-from .preflight import (
-    PREFLIGHT_FAILED,
-    device_calls_of,
-    failed_error,
-    is_preflight_of,
-    judge,
-    needs_cancel,
-    needs_start,
-    preflight_body,
-    preflight_name,
-    started_status,
-    verdict_status,
-)
+from .pass_io import Api, Failure, Outcome, count_failure, post_event, write
 from .quota import QuotaObject, Usage
 from .quota_writes import current_usage, plan_quota_writes, quotas_in_force
-from .requeue import is_requeue_of, requeue_body, requeue_name
 from .scheduling import Binding, QueueEntry, plan_bindings
 
 log = logging.getLogger(__name__)
-
-
-class Api(Protocol):
-    def patch(self, patch: patches.Patch) -> dict[str, Any]:
-        """Apply the patch; raise Conflict on a failed precondition, NotFound if gone."""
-
-    def delete_job(self, namespace: str, name: str, uid: str) -> None: ...
-
-    def read_cell(self, name: str) -> dict[str, Any]:
-        """The Cell as the server has it now; raise NotFound if gone."""
-
-    def read_job(self, namespace: str, name: str) -> dict[str, Any]:
-        """The RobotJob as the server has it now; raise NotFound if gone."""
-
-    def create_job(self, body: dict[str, Any]) -> dict[str, Any]:
-        """Create the RobotJob; raise AlreadyExists if its name is taken."""
-
-    def post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None: ...
 
 
 @dataclass
@@ -110,62 +84,6 @@ class Memory:
     """Each CellQuota's status as last written, apart from its usage: a change is written at once."""
     cell_queue_written: MutableMapping[str, tuple[CellQueue, datetime]] = field(default_factory=dict)
     """Each Cell's ``status.queue`` as this replica last wrote it, and when (until the watch shows it)."""
-
-
-@dataclass(frozen=True)
-class Failure:
-    """One object a pass could not handle: it was skipped, the rest were scheduled."""
-
-    subject: Job | Cell
-    error: str
-
-    @property
-    def kind(self) -> str:
-        return "RobotJob" if isinstance(self.subject, Job) else "Cell"
-
-    @property
-    def name(self) -> str:
-        return self.subject.key if isinstance(self.subject, Job) else self.subject.name
-
-
-@dataclass
-class Outcome:
-    bound: list[tuple[Job, Cell]] = field(default_factory=list)
-    conflicts: int = 0
-    requeued: int = 0
-    errors: int = 0
-    writes: int = 0
-    queue: dict[str, QueueEntry] = field(default_factory=dict)
-    jobs_written: dict[str, Job] = field(default_factory=dict)
-    cells_written: dict[str, Cell] = field(default_factory=dict)
-    deleted: set[str] = field(default_factory=set)
-    failed: dict[str, Failure] = field(default_factory=dict)
-    more: bool = False
-    """Queue writes were left for the next pass (``Limits.max_queue_tasks``): run it soon."""
-    quotas_ignored: int = 0
-    """CellQuotas in scope that this pass did not apply (malformed, or duplicating another's scope)."""
-    preempted: dict[str, int] = field(default_factory=dict)
-    """Running jobs asked to stop at their next episode boundary, by why (``Reclaim.reason``)."""
-    requeued_copies: int = 0
-    """Preempted jobs whose copy now waits in the queue in their place (``requeue``)."""
-    preflights: dict[str, int] = field(default_factory=dict)
-    """Pre-flights given their verdict, by verdict (``passed``, ``failed``)."""
-
-    def merge(self, other: Outcome) -> None:
-        self.bound.extend(other.bound)
-        self.failed.update(other.failed)
-        self.jobs_written.update(other.jobs_written)
-        self.cells_written.update(other.cells_written)
-        self.deleted.update(other.deleted)
-        self.conflicts += other.conflicts
-        self.requeued += other.requeued
-        for reason, count in other.preempted.items():
-            self.preempted[reason] = self.preempted.get(reason, 0) + count
-        self.requeued_copies += other.requeued_copies
-        for verdict, count in other.preflights.items():
-            self.preflights[verdict] = self.preflights.get(verdict, 0) + count
-        self.errors += other.errors
-        self.writes += other.writes
 
 
 @dataclass(frozen=True)
@@ -236,7 +154,7 @@ def reconcile_once(
         outcome.merge(result)
     # Finalizers after the binds: off the submit->bound path. A job whose bind failed
     # gets its finalizer next pass (it changed under us; this write would conflict).
-    preempts = [_guarded(f"job:{r.job.key}", r.job, partial(_preempt, r, now, timing, api)) for r in plan.reclaims]
+    preempts = [_guarded(f"job:{r.job.key}", r.job, partial(preempt, r, now, timing, api)) for r in plan.reclaims]
     for result in _parallel(limits.parallel_binds, preempts):
         outcome.merge(result)
     finalize.difference_update(b.job.key for b in plan.bindings)
@@ -302,7 +220,7 @@ def _write_cell_queues(cells: Iterable[Cell], planned: Mapping[str, CellQueue], 
         except NotFound:
             continue
         except TransientError as error:
-            _count(error, outcome)
+            count_failure(error, outcome)
             continue
         except Exception as error:  # noqa: BLE001 - an advisory summary (RBAC, an old CRD) never stops scheduling
             log.warning("queue summary of Cell %s not written, retrying next pass: %s", cell.name, error)
@@ -337,7 +255,7 @@ def _write_quotas(jobs: Iterable[Job], cells: Iterable[Cell], quotas: Sequence[Q
             memory.failing[key] = problem
             log.error("%s", problem)
             # Once per distinct problem: where `kubectl describe cellquota` shows it.
-            _event(api, by_name[name], "Warning", "QuotaIgnored", problem)
+            post_event(api, by_name[name], "Warning", "QuotaIgnored", problem)
     for key in [k for k in memory.failing if k.startswith("quota:") and k.removeprefix("quota:") not in ignored]:
         del memory.failing[key]
     known = {q.name for q in quotas}
@@ -346,21 +264,21 @@ def _write_quotas(jobs: Iterable[Job], cells: Iterable[Cell], quotas: Sequence[Q
         memory.quota_usage.pop(stale, None)
     writes = plan_quota_writes(jobs, cells, quotas, memory.quota_usage, memory.quota_shown, now,
                                limits.quota_refresh)
-    for write in writes:
+    for quota_write in writes:
         try:
-            api.patch(patches.quota_status(write.name, write.status))
+            api.patch(patches.quota_status(quota_write.name, quota_write.status))
         except NotFound:
             continue
         except TransientError as error:
-            _count(error, outcome)
+            count_failure(error, outcome)
             continue
         except Exception as error:  # noqa: BLE001 - a quota's status (its CRD gone, RBAC) never stops scheduling
-            log.error("status of CellQuota %s not written, retrying next pass: %s", write.name, error)
+            log.error("status of CellQuota %s not written, retrying next pass: %s", quota_write.name, error)
             continue
         outcome.writes += 1
-        memory.quota_shown[write.name] = {k: v for k, v in write.status.items() if k != "usage"}
-        if write.usage is not None:
-            memory.quota_usage[write.name] = write.usage
+        memory.quota_shown[quota_write.name] = {k: v for k, v in quota_write.status.items() if k != "usage"}
+        if quota_write.usage is not None:
+            memory.quota_usage[quota_write.name] = quota_write.usage
 
 
 def screen(
@@ -455,7 +373,7 @@ def _report_failures(outcome: Outcome, subjects: Mapping[str, Job | Cell], memor
         log.error("reconcile of %s %s failed; skipped it, scheduling the rest: %s",
                   failure.kind, failure.name, failure.error)
         message = f"the operator could not reconcile this object and skips it: {failure.error}"
-        _event(api, failure.subject, "Warning", "ReconcileFailed", message)
+        post_event(api, failure.subject, "Warning", "ReconcileFailed", message)
         latest = subjects.get(key, failure.subject)
         if isinstance(latest, Job):
             _mark(api, latest, False, message, now, outcome)
@@ -469,7 +387,7 @@ def _report_failures(outcome: Outcome, subjects: Mapping[str, Job | Cell], memor
 
 def _mark(api: Api, job: Job, ok: bool, message: str, now: datetime, outcome: Outcome) -> None:
     try:
-        _write(api, patches.mark_reconciled(job, ok, message, now), outcome)
+        write(api, patches.mark_reconciled(job, ok, message, now), outcome)
     except Exception as error:  # noqa: BLE001 - the Event and the log already carry the failure
         log.debug("Reconciled condition not written on %s: %s", job.key, error)
 
@@ -528,9 +446,9 @@ def _post_transitions(jobs: list[Job], memory: Memory, api: Api) -> None:
             if job.phase == before or job.phase is None:
                 continue
             if job.phase is JobPhase.RUNNING:
-                _event(api, job, "Normal", "Started", f"job started on cell {job.cell_name}")
+                post_event(api, job, "Normal", "Started", f"job started on cell {job.cell_name}")
             elif job.terminal and before in (JobPhase.DISPATCHED, JobPhase.RUNNING):
-                _event(api, job, "Normal", "Finished", f"job finished: {job.phase}")
+                post_event(api, job, "Normal", "Finished", f"job finished: {job.phase}")
     memory.seen_phases.clear()
     memory.seen_phases.update(current)
 
@@ -545,14 +463,14 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
                     return None
                 reason = rechecked
             log.info("releasing cell %s: %s", cell.name, reason)
-            return _rest_event(api, cell, duty, _write(api, patches.release_cell(cell, phase, duty), outcome))
+            return _rest_event(api, cell, duty, write(api, patches.release_cell(cell, phase, duty), outcome))
         case SetCellPhase(cell=cell, phase=phase, duty=duty):
-            return _rest_event(api, cell, duty, _write(api, patches.set_cell_phase(cell, phase, duty), outcome))
+            return _rest_event(api, cell, duty, write(api, patches.set_cell_phase(cell, phase, duty), outcome))
         case RequeueJob(job=job, message=message):
-            written = _write(api, patches.requeue_job(job, message, now), outcome)
+            written = write(api, patches.requeue_job(job, message, now), outcome)
             if written is not None:
                 outcome.requeued += 1
-                _event(api, job, "Warning", "Requeued", message)
+                post_event(api, job, "Warning", "Requeued", message)
             return written
         case FinishJob(job=job, phase=phase, reason=reason, error=error, recheck_cell=recheck_cell):
             if recheck_cell:
@@ -560,42 +478,42 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
                 if verdict is None:
                     return None
                 phase, reason, error = verdict.phase, verdict.reason, verdict.error
-            written = _write(api, patches.finish_job(job, phase, reason, error, now), outcome)
+            written = write(api, patches.finish_job(job, phase, reason, error, now), outcome)
             if written is not None:
                 kind = "Normal" if phase is JobPhase.CANCELLED and error is None else "Warning"
-                _event(api, job, kind, reason, error or f"job {phase}")
+                post_event(api, job, kind, reason, error or f"job {phase}")
             return written
         case RequeuePreempted(job=job):
-            return _requeue_preempted(job, api, outcome)
+            return requeue_preempted(job, api, outcome)
         case StartPreflight(job=job):
-            return _start_preflight(job, now, api, outcome)
+            return start_preflight(job, now, api, outcome)
         case ConcludePreflight(job=job):
-            return _conclude_preflight(job, now, api, outcome)
+            return conclude_preflight(job, now, api, outcome)
         case CancelPreflight(job=job, recheck=recheck):
-            if recheck and not _owner_gone(job, api, outcome):
+            if recheck and not owner_gone(job, api, outcome):
                 return None
-            written = _write(api, patches.cancel_job(job), outcome)
+            written = write(api, patches.cancel_job(job), outcome)
             if written is not None:
-                _event(api, job, "Normal", "CancelRequested",
+                post_event(api, job, "Normal", "CancelRequested",
                        "the job this pre-flight was for is gone, cancelled or over")
             return written
         case RequestCancel(job=job):
-            written = _write(api, patches.request_cancel(job, now), outcome)
+            written = write(api, patches.request_cancel(job, now), outcome)
             if written is not None:
-                _event(api, job, "Normal", "CancelRequested", "asked the agent to stop the job")
+                post_event(api, job, "Normal", "CancelRequested", "asked the agent to stop the job")
             return written
         case RepairStatus(job=job):
-            written = _write(api, patches.repair_status(job), outcome)
+            written = write(api, patches.repair_status(job), outcome)
             if written is not None:
                 fields = ", ".join(job.status_defects)
                 log.warning("repaired unreadable status field(s) of %s: %s", job.key, fields)
-                _event(api, job, "Warning", "StatusRepaired",
+                post_event(api, job, "Warning", "StatusRepaired",
                        f"cleared unreadable status field(s) {fields}; the operator re-derives them")
             return written
         case AddFinalizer(job=job):
             return _add_finalizer(job, api, outcome)
         case RemoveFinalizer(job=job):
-            return _write(api, patches.set_finalizer(job, False), outcome)
+            return write(api, patches.set_finalizer(job, False), outcome)
         case DeleteJob(job=job):
             try:
                 api.delete_job(job.namespace, job.name, job.uid)
@@ -603,207 +521,16 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
             except NotFound:
                 pass
             except TransientError as error:
-                _count(error, outcome)
+                count_failure(error, outcome)
     return None
 
 
 def _rest_event(api: Api, cell: Cell, duty: DutyState | None, written: dict[str, Any] | None) -> dict[str, Any] | None:
     """An Event on the cell when its duty cycle's rest begins (written)."""
     if written is not None and duty is not None and duty.resting_until is not None and cell.duty.resting_until is None:
-        _event(api, cell, "Normal", "Resting",
+        post_event(api, cell, "Normal", "Resting",
                f"duty cycle: resting until {kube_time(duty.resting_until)}; no job is bound to the cell until then")
     return written
-
-
-def _preempt(reclaim: Reclaim, now: datetime, timing: Timing, api: Api) -> Outcome:
-    """Ask the agent to stop the borrowing job at its next episode boundary; an Event on both jobs."""
-    outcome = Outcome()
-    victim, owner = reclaim.job, reclaim.for_job
-    request = patches.request_preemption(victim, owner.key, reclaim.message, timing.episode_wait, now)
-    written = _write(api, request, outcome)
-    if written is None:
-        return outcome
-    outcome.jobs_written[victim.key] = parse_job(written)
-    outcome.preempted[reclaim.reason] = outcome.preempted.get(reclaim.reason, 0) + 1
-    wait = int(timing.episode_wait.total_seconds())
-    log.info("preempting %s on cell %s for %s: %s", victim.key, reclaim.cell, owner.key, reclaim.message)
-    _event(api, victim, "Warning", "Preempted",
-           f"{reclaim.message}: the job stops at its next episode boundary (its grace window opens then, "
-           f"or in {wait} s without one)")
-    _event(api, owner, "Normal", "Preempting",
-           f"job {victim.key} on cell {reclaim.cell} stops at its next episode boundary for this job")
-    return outcome
-
-
-def _still_due(
-    job: Job, api: Api, outcome: Outcome, due: Callable[[Job], bool],
-) -> tuple[dict[str, Any], Job] | None:
-    """The job as the server has it now, body and model, if it is the same job and ``due`` still holds.
-
-    A job made from another (its requeue, its pre-flight) is copied from the body the server
-    returns (the snapshot's frozen ``Job`` has no args, secrets or labels), and only when the
-    decision, taken on a snapshot that may lag, holds on that fresh read.
-    """
-    try:
-        current = api.read_job(job.namespace, job.name)
-    except TransientError as error:
-        _count(error, outcome)
-        return None
-    fresh = parse_job(current)
-    if fresh.uid != job.uid or not due(fresh):
-        return None
-    return current, fresh
-
-
-def _requeue_preempted(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
-    """Create the preempted job's copy (or find the one made before a crash), then name it in its status."""
-    read = _still_due(job, api, outcome, requeue_due)
-    if read is None:
-        return None
-    current, fresh = read
-    copy = _create_requeue(current, fresh, api, outcome)
-    if copy is None:
-        return None
-    name = str(copy["metadata"]["name"])
-    written = _write(api, patches.name_requeue(fresh, name), outcome)
-    if written is not None:
-        outcome.requeued_copies += 1
-        _event(api, fresh, "Normal", "Requeued", f"preempted; {name} runs it again, in its place in the queue")
-        _event(api, parse_job(copy), "Normal", "RequeuedFrom",
-               f"runs preempted job {job.name} again, in its place in the queue")
-    return written
-
-
-def _create_requeue(current: dict[str, Any], job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
-    """The copy as created now, or as found (created for this job before); None to retry next pass."""
-    return _create_once(job, api, outcome, lambda taken: requeue_name(job.name, job.uid, taken),
-                        lambda name: requeue_body(current, name, job.created), is_requeue_of)
-
-
-def _create_once(
-    job: Job, api: Api, outcome: Outcome, name_for: Callable[[bool], str],
-    body_for: Callable[[str], dict[str, Any]], made_for: Callable[[Mapping[str, Any], str], bool],
-) -> dict[str, Any] | None:
-    """Create a RobotJob made from ``job`` (its requeue, its pre-flight) once, even across a crash.
-
-    ``name_for(taken_by_other)`` names it; when a job of that name exists, it is the one
-    made for ``job`` before (``made_for(existing, job.uid)``: its annotation names the uid)
-    and is returned as found, or a tenant's own job, and the uid-suffixed name is tried.
-    None: a write failed, the next pass tries again.
-    """
-    for taken_by_other in (False, True):
-        name = name_for(taken_by_other)
-        try:
-            made = api.create_job(body_for(name))
-        except AlreadyExists:
-            try:
-                existing = api.read_job(job.namespace, name)
-            except TransientError as error:
-                _count(error, outcome)
-                return None
-            if made_for(existing, job.uid):
-                return existing
-            continue
-        except TransientError as error:
-            _count(error, outcome)
-            return None
-        outcome.writes += 1
-        return made
-    return None
-
-
-def _start_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dict[str, Any] | None:
-    """Create the job's pre-flight (or find the one made before a crash), then name it in ``status.preflight``.
-
-    The body is copied from the job as the server has it now (the snapshot's frozen ``Job``
-    has no args, secrets or labels), as a preempted job's requeue is.
-    """
-    read = _still_due(job, api, outcome, needs_start)
-    if read is None:
-        return None
-    current, fresh = read
-    made = _create_preflight(current, fresh, api, outcome)
-    if made is None:
-        return None
-    name = str(made["metadata"]["name"])
-    written = _write(api, patches.start_preflight(fresh, started_status(name, now)), outcome)
-    if written is not None:
-        # Scheduled in this same pass: a free twin takes it at once.
-        outcome.jobs_written[f"{job.namespace}/{name}"] = parse_job(made)
-        _event(api, fresh, "Normal", "PreflightStarted",
-               f"pre-flight job {name} runs this job on a simulated twin first (at most "
-               f"{fresh.preflight_seconds} s); the job joins the queue for a real cell once it passes")
-    return written
-
-
-def _create_preflight(current: dict[str, Any], job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
-    """The pre-flight as created now, or as found (created for this job before); None to retry next pass."""
-    return _create_once(job, api, outcome, lambda taken: preflight_name(job.name, job.uid, taken),
-                        lambda name: preflight_body(current, name), is_preflight_of)
-
-
-def _conclude_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dict[str, Any] | None:
-    """Read the finished pre-flight's result, write the verdict on the job; a failed one fails the job.
-
-    The pre-flight is read from the server even when the snapshot has it: its error and
-    traceback are in ``status.result``, which the frozen ``Job`` does not carry, and a
-    pre-flight the watch does not show yet (just created) must not be taken for gone.
-    """
-    name = job.preflight_job or ""
-    try:
-        body: dict[str, Any] | None = api.read_job(job.namespace, name)
-    except NotFound:
-        body = None
-    except TransientError as error:
-        _count(error, outcome)
-        return None
-    if body is not None and not is_preflight_of(body, job.uid):
-        body = None  # a job of that name, but not this job's pre-flight: its own is gone
-    result = ((body or {}).get("status") or {}).get("result") or {}
-    verdict = judge(parse_job(body) if body is not None else None, name, result.get("error"), result.get("traceback"),
-                    device_calls_of(result))
-    if verdict is None:
-        return None  # still running (the snapshot was behind)
-    failure = None if verdict.passed else failed_error(verdict)
-    written = _write(api, patches.conclude_preflight(job, verdict_status(name, verdict, now), failure, now), outcome)
-    if written is None:
-        return None
-    label = verdict.label
-    outcome.preflights[label] = outcome.preflights.get(label, 0) + 1
-    log.info("pre-flight of %s %s: %s", job.key, label, verdict.message)
-    if verdict.passed:
-        _event(api, job, "Normal", "PreflightPassed", f"{verdict.message}; the job joins the queue for a real cell")
-    else:
-        _event(api, job, "Warning", PREFLIGHT_FAILED, f"{verdict.message}; the job never bound a real cell")
-    return written
-
-
-def _owner_gone(preflight: Job, api: Api, outcome: Outcome) -> bool:
-    """Whether the job a pre-flight is for is gone, cancelled, deleted or over, as the server has it now.
-
-    This replica's watch may not show it yet (still listing after a start): cancelling
-    a healthy job's pre-flight on that view would fail the job. The job is found by the
-    pre-flight's ownerReference (a pre-flight without one is not the operator's: gone).
-    """
-    try:
-        body = api.read_job(preflight.namespace, preflight.name)
-    except NotFound:
-        return False  # the pre-flight itself is gone: nothing to cancel
-    except TransientError as error:
-        _count(error, outcome)
-        return False
-    refs = (body.get("metadata") or {}).get("ownerReferences") or []
-    name = next((r.get("name") for r in refs if isinstance(r, dict) and r.get("uid") == preflight.preflight_for), None)
-    if not name:
-        return True
-    try:
-        owner = parse_job(api.read_job(preflight.namespace, str(name)))
-    except NotFound:
-        return True
-    except TransientError as error:
-        _count(error, outcome)
-        return False
-    return owner.uid != preflight.preflight_for or needs_cancel(preflight, owner)
 
 
 def _recheck_release(cell: Cell, now: datetime, timing: Timing, api: Api, outcome: Outcome) -> str | None:
@@ -820,7 +547,7 @@ def _recheck_release(cell: Cell, now: datetime, timing: Timing, api: Api, outcom
     except NotFound:
         job = None
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         return None
     return release_reason(cell, job, now, timing)
 
@@ -838,7 +565,7 @@ def _recheck_finish(job: Job, now: datetime, timing: Timing, api: Api, outcome: 
     except NotFound:
         cell = None
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         return None
     return next((a for a in plan_active_job(job, cell, now, timing) if isinstance(a, FinishJob)), None)
 
@@ -856,14 +583,14 @@ def _claim(
     try:
         return api.patch(patches.claim_cell(cell, job, now))
     except Conflict as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         return None
     try:
         fresh = parse_cell(api.read_cell(cell.name))
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         return None
     fresh = replace(fresh, invalid=check_cell(fresh))
     same_pool = (fresh.embodiment, fresh.task, fresh.preflight) == (cell.embodiment, cell.task, cell.preflight)
@@ -873,7 +600,7 @@ def _claim(
     try:
         return api.patch(patches.claim_cell(fresh, job, now))
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         return None
 
 
@@ -894,20 +621,20 @@ def _bind(binding: Binding, now: datetime, heartbeat_timeout: timedelta, api: Ap
     try:
         bound = parse_job(api.patch(patches.bind_job(job, cell, now)))
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         # The job changed (cancelled, deleted, bound elsewhere): give the cell back now
         # rather than waiting for the claim grace. If this fails too, the repair does it.
         rv = str(claimed.get("metadata", {}).get("resourceVersion", ""))
         free = Cell(**{**cell.__dict__, "resource_version": rv})
         phase = derive_cell_phase(free, False, now, timedelta.max)
-        released = _write(api, patches.release_cell(free, phase), outcome)
+        released = write(api, patches.release_cell(free, phase), outcome)
         if released is not None:
             outcome.cells_written[cell.name] = parse_cell(released)
         return outcome
     outcome.jobs_written[job.key] = bound
     outcome.writes += 2
     outcome.bound.append((job, cell))
-    _event(api, job, "Normal", "Bound", f"bound to cell {cell.name}")
+    post_event(api, job, "Normal", "Bound", f"bound to cell {cell.name}")
     return outcome
 
 
@@ -935,7 +662,7 @@ def _queue(job: Job, finalize: bool, entry: QueueEntry | None, now: datetime, ap
             return outcome
         job = outcome.jobs_written[job.key] = parse_job(written)
     if entry is not None:
-        written = _write(api, patches.queue_job(job, entry, now), outcome)
+        written = write(api, patches.queue_job(job, entry, now), outcome)
         if written is not None:
             outcome.jobs_written[job.key] = parse_job(written)
     return outcome
@@ -969,9 +696,9 @@ def _append_finalizer(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | 
     try:
         written = api.patch(patches.add_finalizer(job))
     except Conflict as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         return None
     else:
         outcome.writes += 1
@@ -979,11 +706,11 @@ def _append_finalizer(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | 
     try:
         fresh = parse_job(api.read_job(job.namespace, job.name))
     except TransientError as error:
-        _count(error, outcome)
+        count_failure(error, outcome)
         return None
     if fresh.has_finalizer or fresh.terminal or fresh.deleting:
         return None
-    return _write(api, patches.add_finalizer(fresh), outcome)
+    return write(api, patches.add_finalizer(fresh), outcome)
 
 
 def _queue_write_due(
@@ -1011,31 +738,6 @@ def _estimate_moved(written: datetime | None, planned: datetime | None) -> bool:
     if written is None or planned is None:
         return written is not planned
     return abs(planned - written) >= ESTIMATE_STEP
-
-
-def _write(api: Api, patch: patches.Patch, outcome: Outcome) -> dict[str, Any] | None:
-    try:
-        written = api.patch(patch)
-    except TransientError as error:
-        _count(error, outcome)
-        return None
-    outcome.writes += 1
-    return written
-
-
-def _count(error: TransientError, outcome: Outcome) -> None:
-    if isinstance(error, Conflict):
-        outcome.conflicts += 1
-    elif not isinstance(error, NotFound):
-        outcome.errors += 1
-        log.warning("write failed, retrying next pass: %s", error)
-
-
-def _event(api: Api, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None:
-    try:
-        api.post_event(subject, type_, reason, message)
-    except Exception as error:  # noqa: BLE001 - events are best effort by design
-        log.debug("event not posted for %s: %s", subject, error)
 
 
 __all__ = ["Api", "Failure", "Limits", "Memory", "Outcome", "reconcile_once", "screen"]
