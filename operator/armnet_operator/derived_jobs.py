@@ -79,15 +79,28 @@ def _still_due(
     return current, fresh
 
 
-def requeue_preempted(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
-    """Create the preempted job's copy (or find the one made before a crash), then name it in its status."""
-    read = _still_due(job, api, outcome, requeue_due)
+def _made_from(
+    job: Job, api: Api, outcome: Outcome, due: Callable[[Job], bool],
+    create: Callable[[dict[str, Any], Job, Api, Outcome], dict[str, Any] | None],
+) -> tuple[Job, dict[str, Any]] | None:
+    """The job as the server has it now and the job ``create`` made from it (now, or before a crash).
+
+    None when ``due`` no longer holds on the fresh read or a write failed: the next pass decides again.
+    """
+    read = _still_due(job, api, outcome, due)
     if read is None:
         return None
     current, fresh = read
-    copy = _create_requeue(current, fresh, api, outcome)
-    if copy is None:
+    made = create(current, fresh, api, outcome)
+    return None if made is None else (fresh, made)
+
+
+def requeue_preempted(job: Job, api: Api, outcome: Outcome) -> dict[str, Any] | None:
+    """Create the preempted job's copy (or find the one made before a crash), then name it in its status."""
+    made = _made_from(job, api, outcome, requeue_due, _create_requeue)
+    if made is None:
         return None
+    fresh, copy = made
     name = str(copy["metadata"]["name"])
     written = write(api, patches.name_requeue(fresh, name), outcome)
     if written is not None:
@@ -142,13 +155,10 @@ def start_preflight(job: Job, now: datetime, api: Api, outcome: Outcome) -> dict
     The body is copied from the job as the server has it now (the snapshot's frozen ``Job``
     has no args, secrets or labels), as a preempted job's requeue is.
     """
-    read = _still_due(job, api, outcome, needs_start)
-    if read is None:
+    both = _made_from(job, api, outcome, needs_start, _create_preflight)
+    if both is None:
         return None
-    current, fresh = read
-    made = _create_preflight(current, fresh, api, outcome)
-    if made is None:
-        return None
+    fresh, made = both
     name = str(made["metadata"]["name"])
     written = write(api, patches.start_preflight(fresh, started_status(name, now)), outcome)
     if written is not None:
