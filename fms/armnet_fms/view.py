@@ -130,6 +130,10 @@ class CellRow:
     reset: PendingReset | None
     #: The operator's summary of the queue at this cell (None when it has written none).
     queue: QueueAtCell | None = None
+    #: A simulated twin that runs pre-flights only (``spec.preflight``).
+    preflight: bool = False
+    #: When its duty cycle's rest ends (epoch seconds; ``status.dutyCycle.restingUntil``), None: not resting.
+    resting_until: float | None = None
 
 
 def parse_time(value: Any) -> float | None:
@@ -279,6 +283,9 @@ def build_row(cell: Mapping[str, Any], jobs_by_key: Mapping[str, Mapping[str, An
             status.queue.waiting_jobs,
             status.queue.likely_free.timestamp() if status.queue.likely_free is not None else None,
             status.queue.latest_free.timestamp() if status.queue.latest_free is not None else None),
+        preflight=spec.preflight if spec is not None else False,
+        resting_until=(status.duty_cycle.resting_until.timestamp()
+                       if status.duty_cycle is not None and status.duty_cycle.resting_until is not None else None),
     )
 
 
@@ -331,6 +338,8 @@ def row_json(row: CellRow, now: float) -> dict[str, Any]:
                          for v in job.verdicts],
         },
         "queue": None if row.queue is None else row.queue.json(now),
+        "preflight": row.preflight,
+        "restEndsInS": None if row.resting_until is None else round(max(0.0, row.resting_until - now), 1),
         "reset": None if row.reset is None else {
             "request": row.reset.request_id, "secondsLeft": round(row.reset.seconds_left(now), 1),
         },

@@ -63,6 +63,10 @@
     badges.appendChild(el("span", "badge phase", cell.phase));
     badges.appendChild(el("span", `badge interlock ${cell.interlock}`, `interlock ${cell.interlock}`));
     if (cell.unschedulable) badges.appendChild(el("span", "badge", "cordoned"));
+    if (cell.preflight) badges.appendChild(el("span", "badge", "pre-flight twin"));
+    if (cell.phase === "Resting" && cell.restEndsInS !== null) {
+      badges.appendChild(el("span", "badge waiting", `resting, back ${within(cell.restEndsInS)}`));
+    }
     if (cell.reset) badges.appendChild(el("span", "badge waiting", "reset waiting"));
     if (cell.site) badges.appendChild(el("span", "badge", `site ${cell.site}`));
     facts.push(badges);

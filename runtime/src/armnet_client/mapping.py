@@ -247,6 +247,10 @@ class CellView:
     """The cell's completion monitor, None when only an operator's outcome completes an episode."""
     queue: Optional[CellQueue] = None
     """The operator's summary of the queue at the cell (``status.queue``), None before it wrote one."""
+    preflight: bool = False
+    """A simulated twin that runs pre-flights only (``spec.preflight``): never an ordinary job."""
+    resting_until: Optional[datetime] = None
+    """Its duty cycle's rest ends then (``status.dutyCycle.restingUntil``); None: not resting."""
 
 
 def cell_view_of(cell: Cell) -> CellView:
@@ -267,6 +271,8 @@ def cell_view_of(cell: Cell) -> CellView:
         unschedulable=cell.spec.unschedulable,
         completion=completion_view_of(cell.spec.completion),
         queue=cell.status.queue,
+        preflight=cell.spec.preflight,
+        resting_until=cell.status.duty_cycle.resting_until if cell.status.duty_cycle else None,
     )
 
 

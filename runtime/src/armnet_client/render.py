@@ -142,7 +142,7 @@ def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False)
     for cell in cells:
         failing = ",".join(f"{c.type}({c.reason})" if c.reason else c.type
                            for c in cell.false_conditions) or "-"
-        row = [cell.name, cell.phase, cell.embodiment, cell.task or "<any>",
+        row = [cell.name, _cell_phase(cell, now), cell.embodiment, cell.task or "<any>",
                cell.current_job or "-", failing,
                age(cell.last_heartbeat, now) + (" ago" if cell.last_heartbeat else "")]
         if wide:
@@ -151,6 +151,15 @@ def cells_table(cells: Sequence[CellView], now: datetime, *, wide: bool = False)
                     f"{monitor.scorer}({monitor.camera})" if monitor else "operator"]
         rows.append(row)
     return table(headers, rows)
+
+
+def _cell_phase(cell: CellView, now: datetime) -> str:
+    """The phase, with what it does not say: ``Resting(12m)`` (its rest ends in 12 minutes) and
+    ``Ready,Preflight`` for a twin that runs pre-flights only (as ``kubectl`` shows ``Ready,SchedulingDisabled``)."""
+    phase = cell.phase
+    if phase == "Resting" and cell.resting_until is not None and cell.resting_until > now:
+        phase += f"({age(now, cell.resting_until)})"
+    return phase + ",Preflight" if cell.preflight else phase
 
 
 def _queue_columns(cell: CellView, now: datetime) -> list[str]:
@@ -240,6 +249,8 @@ def cell_document(cell: CellView) -> dict[str, Any]:
     return {
         "name": cell.name, "phase": cell.phase, "embodiment": cell.embodiment, "task": cell.task,
         "node": cell.node, "currentJob": cell.current_job, "unschedulable": cell.unschedulable,
+        "preflight": cell.preflight,
+        "restingUntil": cell.resting_until.isoformat() if cell.resting_until else None,
         "completion": {"scorer": cell.completion.scorer, "camera": cell.completion.camera} if cell.completion else None,
         "queue": cell.queue.model_dump(mode="json", by_alias=True) if cell.queue else None,
         "lastHeartbeatTime": cell.last_heartbeat.isoformat() if cell.last_heartbeat else None,

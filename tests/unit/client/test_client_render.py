@@ -191,6 +191,20 @@ def test_the_cells_table_shows_failing_conditions_and_heartbeat_age() -> None:
         {"type": "HardwareReady", "reason": "DeviceLost", "message": None}]
 
 
+def test_the_cells_table_says_when_a_rest_ends_and_which_cells_run_preflights_only() -> None:
+    resting = a_cell("arm-1", phase="Resting", dutyCycle={"workingSince": "2026-11-24T04:00:00Z",
+                                                           "restingUntil": "2026-11-24T10:17:00Z"})
+    twin = a_cell("twin-1", phase="Ready")
+    twin["spec"].update(simulated=True, preflight=True)
+    cells = [cell_view_of(Cell.model_validate(body)) for body in (resting, twin)]
+
+    rows = [row.split() for row in cells_table(cells, NOW).splitlines()[1:]]
+
+    assert [row[:2] for row in rows] == [["arm-1", "Resting(12m)"], ["twin-1", "Ready,Preflight"]]
+    assert cell_document(cells[0])["restingUntil"] == "2026-11-24T10:17:00+00:00"
+    assert cell_document(cells[1])["preflight"] is True
+
+
 def line(kind: str, text: str, data: object = None) -> LogLine:
     return LogLine(kind=kind, text=text, time=NOW, data=data)
 

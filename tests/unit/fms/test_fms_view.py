@@ -157,3 +157,14 @@ def test_a_malformed_time_in_the_queue_summary_hides_only_that_time() -> None:
     row = row_json(only_row([a_cell(queue=queue)]), NOW)
     assert row["queue"] == {"waitingJobs": 2, "likelyFreeInS": None, "latestFreeInS": 720.0}
     assert row["phase"] == "Busy"  # the rest of the cell still shows
+
+
+def test_a_row_says_when_a_resting_cell_is_back_and_which_cell_is_a_preflight_twin() -> None:
+    resting = a_cell(phase="Resting", job=None)
+    resting["status"]["dutyCycle"] = {"workingSince": "2027-01-15T02:00:00+00:00",
+                                      "restingUntil": "2027-01-15T08:12:00+00:00"}
+    twin = a_cell("twin", phase="Ready", job=None)
+    twin["spec"].update(simulated=True, preflight=True)
+    rows = [row_json(only_row([cell]), NOW) for cell in (resting, twin)]
+    assert (rows[0]["restEndsInS"], rows[0]["preflight"]) == (720.0, False)
+    assert (rows[1]["restEndsInS"], rows[1]["preflight"]) == (None, True)
