@@ -22,11 +22,12 @@ from pathlib import Path
 from armnet_connector.warm_imports import import_before_threads
 from armnet_core.api import ARTIFACTS_BUCKET_ENV
 from armnet_core.nats_url import nats_url_from
+from armnet_core.object_store import StoreSettingsError
 from armnet_launch.container import EngineUnavailable, connect_engine
 from armnet_launch.pod_spec import CONNECTOR_USER
 
 from armnet_node.agent import AgentSettings, NodeAgent
-from armnet_node.artifacts import ObjectStore, StoreConfig, StoreMisconfigured
+from armnet_node.artifacts import ObjectStore, StoreConfig
 from armnet_node.deviceplugin.server import DEVICE_PLUGIN_DIR, DevicePlugins
 from armnet_node.kube import AgentKube, make_client
 from armnet_node.launchers import ContainerLauncher, JobLauncher, PodLauncher, PodSettings
@@ -157,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     )
     try:
         store_config = StoreConfig.from_env()
-    except StoreMisconfigured as exc:
+    except StoreSettingsError as exc:
         logging.error("%s", exc)
         return 2
     if store_config is None:

@@ -14,6 +14,8 @@ The package never reads the job's env, the Kubernetes API or the connector: the 
 hands it a directory, a job's identity and a store.
 """
 
+from armnet_core.object_store import StoreConfig
+
 from armnet_node.artifacts import summary
 from armnet_node.artifacts.model import (
     Artifact,
@@ -25,7 +27,7 @@ from armnet_node.artifacts.model import (
     StoreUnavailable,
     UploadReport,
 )
-from armnet_node.artifacts.store import ObjectStore, StoreConfig
+from armnet_node.artifacts.store import ObjectStore
 from armnet_node.artifacts.upload import upload_output
 
 __all__ = [

@@ -1,27 +1,16 @@
 """The object store, through boto3: the few S3 calls an upload needs, and their errors mapped.
 
-Any S3-compatible server works (SeaweedFS in the test bed and ``armnet dev up``, AWS S3,
-an operator's own): path-style addressing, and checksums only where S3 requires them
-(boto3 >= 1.36 adds CRC checksums to every upload by default, which some compatible
-servers refuse). The file's SHA-256 travels in the object's metadata
-(``x-amz-meta-sha256``); that is what a resumed upload compares, not the ETag (an MD5,
-or a digest of digests for a multipart upload).
+The settings and the client are ``armnet_core.object_store``'s (the operator's too). The
+file's SHA-256 travels in the object's metadata (``x-amz-meta-sha256``); that is what a
+resumed upload compares, not the ETag (an MD5, or a digest of digests for a multipart upload).
 """
 
 from __future__ import annotations
 
-import os
-from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import IO, Any
 
-from armnet_core.api import (
-    ARTIFACTS_ACCESS_KEY_ENV,
-    ARTIFACTS_BUCKET_ENV,
-    ARTIFACTS_ENDPOINT_ENV,
-    ARTIFACTS_REGION_ENV,
-    ARTIFACTS_SECRET_KEY_ENV,
-)
+from armnet_core.api import ARTIFACTS_ACCESS_KEY_ENV, ARTIFACTS_BUCKET_ENV
+from armnet_core.object_store import StoreConfig, s3_client
 
 from armnet_node.artifacts.keys import SHA256_METADATA
 from armnet_node.artifacts.model import StoreMisconfigured, StoreUnavailable
@@ -33,66 +22,13 @@ _MISCONFIGURED = frozenset({
 })
 
 
-@dataclass(frozen=True)
-class StoreConfig:
-    """Where the agent stores job outputs. ``endpoint_url`` None is AWS S3 itself."""
-
-    bucket: str
-    access_key_id: str
-    secret_access_key: str
-    endpoint_url: str | None = None
-    region: str = "us-east-1"
-
-    def __repr__(self) -> str:  # never the secret in a log line
-        return f"StoreConfig(bucket={self.bucket!r}, endpoint_url={self.endpoint_url!r}, region={self.region!r})"
-
-    @property
-    def location(self) -> str:
-        return f"s3://{self.bucket}/"
-
-    @classmethod
-    def from_env(cls, environ: Mapping[str, str] | None = None) -> StoreConfig | None:
-        """The settings from the agent's env; None when no bucket is set (uploads are off)."""
-        env = os.environ if environ is None else environ
-        bucket = env.get(ARTIFACTS_BUCKET_ENV, "").strip()
-        if not bucket:
-            return None
-        missing = [name for name in (ARTIFACTS_ACCESS_KEY_ENV, ARTIFACTS_SECRET_KEY_ENV) if not env.get(name)]
-        if missing:
-            raise StoreMisconfigured(
-                f"{ARTIFACTS_BUCKET_ENV} is set but {', '.join(missing)} is not: give the agent the store's keys "
-                "(the chart reads them from the Secret named by artifacts.credentialsSecret)"
-            )
-        return cls(
-            bucket=bucket, access_key_id=env[ARTIFACTS_ACCESS_KEY_ENV], secret_access_key=env[ARTIFACTS_SECRET_KEY_ENV],
-            endpoint_url=env.get(ARTIFACTS_ENDPOINT_ENV) or None, region=env.get(ARTIFACTS_REGION_ENV) or "us-east-1",
-        )
-
-
 class ObjectStore:
     """One bucket. Every method raises :class:`StoreMisconfigured` or :class:`StoreUnavailable`."""
 
     def __init__(self, config: StoreConfig, *, max_attempts: int = 5) -> None:
-        import boto3
-        from botocore.config import Config
-
         self.config = config
         self.bucket = config.bucket
-        self._s3: Any = boto3.client(
-            "s3",
-            endpoint_url=config.endpoint_url,
-            region_name=config.region,
-            aws_access_key_id=config.access_key_id,
-            aws_secret_access_key=config.secret_access_key,
-            config=Config(
-                s3={"addressing_style": "path"},
-                retries={"mode": "standard", "max_attempts": max_attempts},
-                request_checksum_calculation="when_required",
-                response_checksum_validation="when_required",
-                connect_timeout=10,
-                read_timeout=60,
-            ),
-        )
+        self._s3: Any = s3_client(config, max_attempts=max_attempts)
 
     def ensure_bucket(self) -> None:
         """Create the bucket when absent (development stores; a production bucket is the operator's)."""
