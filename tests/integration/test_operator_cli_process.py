@@ -21,6 +21,8 @@ from armnet_core.times import kube_time
 from armnet_testbed.procs import free_port
 from kubernetes import client
 
+from tests.support.processes import stop_process
+
 pytestmark = pytest.mark.integration
 
 
@@ -67,12 +69,7 @@ def test_the_armnet_operator_command_binds_a_job_exports_metrics_and_exits_0_at_
         proc.terminate()
         assert proc.wait(timeout=15) == 0
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc)
         k8s.kubectl("delete", "cell", cell, "--ignore-not-found", "--wait=false", check=False)
 
 

@@ -22,6 +22,8 @@ from armnet_core.api import GROUP, ROBOTJOBS
 from armnet_core.times import kube_time
 from armnet_testbed.kube import ControlPlane
 
+from tests.support.processes import stop_process
+
 pytestmark = pytest.mark.integration
 
 CRD = Path(__file__).resolve().parents[2] / "crds" / "robotjob.yaml"
@@ -119,9 +121,4 @@ def test_the_operator_outlives_its_crd_and_binds_again_once_it_is_back(own_plane
         proc.terminate()  # restarted twice, it still ends cleanly at SIGTERM
         assert proc.wait(timeout=20) == 0, log.read_text()[-3000:]
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc)
