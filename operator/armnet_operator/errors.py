@@ -31,6 +31,10 @@ class NotFound(TransientError):
     """The object vanished between the snapshot and the write."""
 
 
+class StoreError(TransientError):
+    """The object store of job outputs refused or did not answer: the next pass tries again."""
+
+
 class ResourceMissing(OperatorError):
     """A CRD the operator needs is not installed (deleted, or not yet applied): back off, retry."""
 

@@ -22,6 +22,7 @@ from .controller import Controller
 from .errors import PermanentError
 from .kube import KubeApi, make_client
 from .metrics import Metrics
+from .outputs_store import OutputsStore
 from .settings import OperatorSettings
 from .webhook import make_webhook
 
@@ -85,7 +86,7 @@ def build_registry(
     metrics = Metrics()
     webhook = make_webhook(metrics, settings)  # loads the certificate now: a bad path fails at start
     api_client = make_client(settings.kubeconfig)
-    api = KubeApi(api_client, COMPONENT, settings.identity)
+    api = KubeApi(api_client, COMPONENT, settings.identity, outputs=OutputsStore.from_env())
     controller = Controller(settings, api, metrics, on_death=on_death, on_resources_back=on_resources_back)
     registry = kopf.OperatorRegistry()
 

@@ -28,10 +28,12 @@ from .errors import (
     NotFound,
     PermanentError,
     ResourceMissing,
+    StoreError,
     TransientError,
 )
 from .leader import LeaseMove, LeaseSeen, LeaseView, decide_lease, observe
 from .model import Cell, Job
+from .outputs_store import OutputsStore
 from .patches import Patch, Target
 from .quota import QuotaObject
 
@@ -105,8 +107,10 @@ def _resource_missing(error: ApiException) -> bool:
 class KubeApi:
     def __init__(
         self, api_client: client.ApiClient, component: str, identity: str,
-        monotonic: Callable[[], float] = time.monotonic,
+        monotonic: Callable[[], float] = time.monotonic, outputs: OutputsStore | None = None,
     ) -> None:
+        self.outputs = outputs
+        """The object store of job outputs, whose prefixes go with their jobs at the TTL; None: none."""
         self.custom = client.CustomObjectsApi(api_client)
         self.core = client.CoreV1Api(api_client)
         self.leases = client.CoordinationV1Api(api_client)
@@ -238,6 +242,15 @@ class KubeApi:
             return cast(dict[str, Any], self._send(self.custom.get_cluster_custom_object, GROUP, VERSION, CELLS, name))
         except ApiException as error:
             raise _translate(error, f"cell {name}") from error
+
+    @property
+    def outputs_bucket(self) -> str | None:
+        return self.outputs.bucket if self.outputs is not None else None
+
+    def remove_outputs(self, prefix: str) -> int:
+        if self.outputs is None:
+            raise StoreError("no object store of job outputs is configured")
+        return self.outputs.remove(prefix)
 
     def delete_job(self, namespace: str, name: str, uid: str) -> None:
         body = client.V1DeleteOptions(preconditions=client.V1Preconditions(uid=uid or None))

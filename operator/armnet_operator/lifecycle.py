@@ -257,7 +257,9 @@ def _plan_job(
             # Before any TTL: the copy is created from this job, which must exist until then.
             actions.append(RequeuePreempted(job))
             return actions
-        if not job.deleting and _ttl_expired(job, now, timing):
+        # At its TTL once the node agent has stored its outputs: removed with the job
+        # (``artifact_removal``), they must not be uploaded after the removal.
+        if not job.deleting and not job.uploading and _ttl_expired(job, now, timing):
             actions.append(DeleteJob(job))
         return actions
     cell = cells.get(job.cell_name or "")

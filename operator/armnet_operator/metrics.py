@@ -55,6 +55,14 @@ class Metrics:
             "Pre-flights on a simulated twin given their verdict (passed: the job joined the queue for a real "
             "cell; failed: the job failed with PreflightFailed)", ["verdict"], registry=r,
         )
+        self.outputs_removed = Counter(
+            "armnet_job_outputs_removed_total",
+            "Finished jobs whose stored outputs were removed with the job at its TTL (removed), or whose removal "
+            "the object store refused or did not answer (failed: the job stays and the next pass tries again)",
+            ["outcome"], registry=r,
+        )
+        for result in ("removed", "failed"):
+            self.outputs_removed.labels(result)
         for verdict in ("passed", "failed"):
             self.preflights.labels(verdict)
         for reason in ("reclaim", "priority"):
@@ -110,6 +118,8 @@ class Metrics:
         self.preemption_requeues.inc(outcome.requeued_copies)
         for verdict, count in outcome.preflights.items():
             self.preflights.labels(verdict).inc(count)
+        for result, count in outcome.outputs_removed.items():
+            self.outputs_removed.labels(result).inc(count)
         self.errors.inc(outcome.errors)
         failing = Tally(failure.kind for failure in outcome.failed.values())
         for kind in ("RobotJob", "Cell"):

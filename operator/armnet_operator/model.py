@@ -18,6 +18,7 @@ from typing import Any
 from armnet_core.api import ACTIVE_PHASES as _ACTIVE
 from armnet_core.api import (
     RELEASE_CELL_FINALIZER,
+    ArtifactsPhase,
     CellConditionType,
     CellPhase,
     JobPhase,
@@ -112,6 +113,12 @@ class Job:
     """The ``armnet.io/preflight-for`` annotation: this job is the pre-flight of the job with this uid."""
     arrived_at: datetime | None = None
     """``status.arrivedAt``: when the operator first queued the job, in microseconds (``queue_order``)."""
+    artifacts_location: str | None = None
+    """``status.artifacts.location``: where the node agent stored the job's outputs (``s3://bucket/ns/uid/``)."""
+    artifacts_phase: str | None = None
+    """``status.artifacts.phase``: ``Uploading`` or ``Retrying`` while the agent is still at it."""
+    keep_artifacts: bool = False
+    """The ``armnet.io/keep-artifacts: "true"`` annotation: its outputs outlive the job's TTL."""
 
     @property
     def queue_order(self) -> tuple[int, datetime, datetime, str, str]:
@@ -125,6 +132,11 @@ class Job:
         arrived after every stamped one, and positions once written stay.
         """
         return (-self.priority, self.created, self.arrived_at or _NOT_ARRIVED, self.namespace, self.name)
+
+    @property
+    def uploading(self) -> bool:
+        """The node agent is still storing the job's outputs (``status.artifacts``)."""
+        return self.artifacts_phase in (ArtifactsPhase.UPLOADING.value, ArtifactsPhase.RETRYING.value)
 
     @property
     def has_finalizer(self) -> bool:

@@ -14,6 +14,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any, TypeVar
 
 from armnet_core.api import (
+    KEEP_ARTIFACTS_ANNOTATION,
     PREEMPTED_FROM_ANNOTATION,
     PREFLIGHT_FOR_ANNOTATION,
     QUEUED_SINCE_ANNOTATION,
@@ -116,7 +117,8 @@ def _conditions(raw: Any, section: str) -> tuple[list[Condition], list[dict[str,
 _JOB_SPEC_FIELDS = ("image", "embodiment", "task", "priority", "cancel", "ttlSecondsAfterFinished", "timeoutSeconds",
                     "requeueOnPreemption", "preflight")
 _JOB_STATUS_SCALARS = ("phase", "cellName", "jobId", "queuedReason", "queuePosition", "finishedAt", "startedAt",
-                       "estimatedStart", "likelyStart", "preemption", "requeuedAs", "preflight", "arrivedAt")
+                       "estimatedStart", "likelyStart", "preemption", "requeuedAs", "preflight", "arrivedAt",
+                       "artifacts")
 _JOB_STATUS_FIELDS = (*_JOB_STATUS_SCALARS, "conditions")
 
 
@@ -218,6 +220,9 @@ def _job(
         preflight_job=status.preflight.job if status.preflight is not None else None,
         preflight_for=meta.annotations.get(PREFLIGHT_FOR_ANNOTATION) or None,
         arrived_at=status.arrived_at,
+        artifacts_location=status.artifacts.location if status.artifacts is not None else None,
+        artifacts_phase=status.artifacts.phase if status.artifacts is not None else None,
+        keep_artifacts=meta.annotations.get(KEEP_ARTIFACTS_ANNOTATION) == "true",
     )
 
 

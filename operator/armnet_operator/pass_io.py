@@ -37,6 +37,13 @@ class Api(Protocol):
 
     def post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None: ...
 
+    @property
+    def outputs_bucket(self) -> str | None:
+        """The object store's bucket of job outputs (docs/outputs.md); None: the operator has no store."""
+
+    def remove_outputs(self, prefix: str) -> int:
+        """Remove every object under ``prefix`` in that bucket; how many. Raise StoreError when the store fails."""
+
 
 @dataclass(frozen=True)
 class Failure:
@@ -76,6 +83,8 @@ class Outcome:
     """Preempted jobs whose copy now waits in the queue in their place (``requeue``)."""
     preflights: dict[str, int] = field(default_factory=dict)
     """Pre-flights given their verdict, by verdict (``passed``, ``failed``)."""
+    outputs_removed: dict[str, int] = field(default_factory=dict)
+    """Finished jobs' stored outputs removed with the job at its TTL, by outcome (``removed``, ``failed``)."""
 
     def merge(self, other: Outcome) -> None:
         self.bound.extend(other.bound)
@@ -90,6 +99,8 @@ class Outcome:
         self.requeued_copies += other.requeued_copies
         for verdict, count in other.preflights.items():
             self.preflights[verdict] = self.preflights.get(verdict, 0) + count
+        for result, count in other.outputs_removed.items():
+            self.outputs_removed[result] = self.outputs_removed.get(result, 0) + count
         self.errors += other.errors
         self.writes += other.writes
 

@@ -30,6 +30,7 @@ from typing import Any
 from armnet_core.times import kube_time
 
 from . import patches
+from .artifact_removal import outputs_prefix
 from .cell_checks import check_cell, check_cells
 from .derived_jobs import (
     conclude_preflight,
@@ -515,6 +516,9 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
         case RemoveFinalizer(job=job):
             return write(api, patches.set_finalizer(job, False), outcome)
         case DeleteJob(job=job):
+            prefix = outputs_prefix(job, api.outputs_bucket)
+            if prefix is not None and not _remove_outputs(api, job, prefix, outcome):
+                return None  # the job stays, the one pointer to its outputs: the next pass tries again
             try:
                 api.delete_job(job.namespace, job.name, job.uid)
                 outcome.writes += 1
@@ -523,6 +527,19 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
             except TransientError as error:
                 count_failure(error, outcome)
     return None
+
+
+def _remove_outputs(api: Api, job: Job, prefix: str, outcome: Outcome) -> bool:
+    """Remove the job's stored outputs before the job itself (``artifact_removal``); False: the store failed."""
+    try:
+        removed = api.remove_outputs(prefix)
+    except TransientError as error:
+        count_failure(error, outcome)
+        outcome.outputs_removed["failed"] = outcome.outputs_removed.get("failed", 0) + 1
+        return False
+    outcome.outputs_removed["removed"] = outcome.outputs_removed.get("removed", 0) + 1
+    log.info("removed %d stored output object(s) of %s under %s at its TTL", removed, job.key, prefix)
+    return True
 
 
 def _rest_event(api: Api, cell: Cell, duty: DutyState | None, written: dict[str, Any] | None) -> dict[str, Any] | None:

@@ -379,11 +379,13 @@ def test_agent_nats_url_comes_from_a_value_or_a_secret() -> None:
     assert from_secret["ARMNET_AGENT_NATS_URL"] == {"secretKeyRef": {"name": "nats-creds", "key": "url"}}
 
 
-def test_agent_stores_job_outputs_in_the_bucket_with_keys_from_a_secret() -> None:
+@pytest.mark.parametrize("kind", ["DaemonSet", "Deployment"])
+def test_agent_and_operator_reach_the_outputs_bucket_with_keys_from_a_secret(kind: str) -> None:
+    """The agent stores job outputs there; the operator removes a job's with the job at its TTL."""
     values = {"artifacts": {"bucket": "robot-outputs", "endpoint": "http://s3.storage:8333",
                             "credentialsSecret": "outputs-writer"}}
-    env = env_of(find(render(values=values), "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
-    without = env_of(find(render(), "DaemonSet")["spec"]["template"]["spec"]["containers"][0])
+    env = env_of(find(render(values=values), kind)["spec"]["template"]["spec"]["containers"][0])
+    without = env_of(find(render(), kind)["spec"]["template"]["spec"]["containers"][0])
 
     assert (env["ARMNET_ARTIFACTS_BUCKET"], env["ARMNET_ARTIFACTS_ENDPOINT"]) == ("robot-outputs", "http://s3.storage:8333")
     assert env["ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"] == {

@@ -95,3 +95,21 @@ nats://{{ include "armnet.fullname" . }}-nats.{{ .Release.Namespace }}.svc:4222
   mountPath: /var/run/secrets/kubernetes.io/serviceaccount
   readOnly: true
 {{- end -}}
+{{- /* The object store of job outputs (docs/outputs.md): the agent uploads there, the operator
+removes a job's outputs with the job at its TTL. Both get the same variables and keys. */}}
+{{- define "armnet.artifacts.env" -}}
+{{- with .Values.artifacts }}
+{{- if .bucket }}
+{{- if not .credentialsSecret }}
+{{- fail "artifacts.bucket is set but artifacts.credentialsSecret is not: name the Secret (keys accessKeyId, secretAccessKey) with the keys to the bucket" }}
+{{- end }}
+- {name: ARMNET_ARTIFACTS_BUCKET, value: {{ .bucket | quote }}}
+- {name: ARMNET_ARTIFACTS_ENDPOINT, value: {{ .endpoint | quote }}}
+- {name: ARMNET_ARTIFACTS_REGION, value: {{ .region | quote }}}
+- name: ARMNET_ARTIFACTS_ACCESS_KEY_ID
+  valueFrom: {secretKeyRef: {name: {{ .credentialsSecret }}, key: accessKeyId}}
+- name: ARMNET_ARTIFACTS_SECRET_ACCESS_KEY
+  valueFrom: {secretKeyRef: {name: {{ .credentialsSecret }}, key: secretAccessKey}}
+{{- end }}
+{{- end }}
+{{- end -}}

@@ -127,6 +127,9 @@ QUEUED_SINCE_ANNOTATION = f"{GROUP}/queued-since"
 #: the job's uid. The pre-flight is created once per job, runs only on pre-flight cells and is rationed by no
 #: CellQuota (it never uses a real cell).
 PREFLIGHT_FOR_ANNOTATION = f"{GROUP}/preflight-for"
+#: On a RobotJob, ``"true"``: its stored outputs outlive it (the operator removes a job's outputs with the
+#: job at its ``ttlSecondsAfterFinished`` otherwise). Set it any time before the TTL, e.g. ``kubectl annotate``.
+KEEP_ARTIFACTS_ANNOTATION = f"{GROUP}/keep-artifacts"
 #: The operator's finalizer on a RobotJob: the job's cell is released before the job is deleted.
 RELEASE_CELL_FINALIZER = f"{GROUP}/release-cell"
 #: The label by which the cell operator's page groups Cells (set by whoever installs the cells).
@@ -185,6 +188,7 @@ __all__ = [
     "MAX_STOP_REASON",
     "NAME_LABEL",
     "PREEMPTED_FROM_ANNOTATION",
+    "KEEP_ARTIFACTS_ANNOTATION",
     "PREFLIGHT_FOR_ANNOTATION",
     "PreflightPhase",
     "QUEUED_SINCE_ANNOTATION",

@@ -14,7 +14,7 @@ from typing import Any
 
 from armnet_core.api import TERMINAL_PHASES
 from armnet_core.times import kube_time
-from armnet_operator.errors import AlreadyExists, Conflict, NotFound
+from armnet_operator.errors import AlreadyExists, Conflict, NotFound, StoreError
 from armnet_operator.model import Cell, Job
 from armnet_operator.parsing import parse_cell, parse_job
 from armnet_operator.patches import Patch, Target
@@ -73,6 +73,11 @@ class World:
         self.quotas: dict[str, dict[str, Any]] = {}
         self.crash_after: int | None = None
         self.events: list[tuple[str, str]] = []
+        self.outputs_bucket: str | None = None
+        """The object store of job outputs (``Api.outputs_bucket``); None: the operator has none."""
+        self.stored: dict[str, bytes] = {}
+        """Its objects by key, as the node agent stored them."""
+        self.store_down = False
 
     def _next_rv(self) -> str:
         self.rv += 1
@@ -176,6 +181,14 @@ class World:
             self.jobs[key]["metadata"]["resourceVersion"] = self._next_rv()
         else:
             del self.jobs[key]
+
+    def remove_outputs(self, prefix: str) -> int:
+        if self.store_down:
+            raise StoreError(f"the store did not answer removing {prefix}")
+        gone = [key for key in self.stored if key.startswith(prefix)]
+        for key in gone:
+            del self.stored[key]
+        return len(gone)
 
     def post_event(self, subject: Job | Cell | QuotaObject, type_: str, reason: str, message: str) -> None:
         self.events.append((subject.key if isinstance(subject, Job) else subject.name, reason))
