@@ -133,6 +133,80 @@ def test_an_agent_killed_before_the_upload_leaves_it_to_the_next_agent(
     assert (paths.state_dir / "uploads" / f"{running.uid}.json").exists()
 
 
+#: The agent killed mid-upload: ``upload_output`` in a process of its own that stops after its
+#: ``HOLD_AFTER``-th stored file until it is SIGKILLed (so the kill lands mid-upload however slowly
+#: the host runs), its store from the env.
+KILLED_UPLOADER = """
+import os, sys, threading
+from pathlib import Path
+from armnet_node.artifacts import ObjectStore, StoreConfig
+from armnet_node.artifacts.scan import scan_output
+from armnet_node.artifacts.model import OutputLimits
+from armnet_node.artifacts.keys import job_prefix
+from armnet_node.artifacts.upload import upload_scan
+
+root, namespace, uid, hold_after = Path(sys.argv[1]), sys.argv[2], sys.argv[3], int(sys.argv[4])
+store = ObjectStore(StoreConfig.from_env())
+stored = []
+
+def on_stored(artifact):
+    stored.append(artifact.path)
+    print(f"stored {artifact.path}", flush=True)
+    if len(stored) == hold_after:
+        threading.Event().wait()  # until the test kills this process
+
+upload_scan(scan_output(root, OutputLimits(), job_prefix(namespace, uid)), store, namespace, uid, on_stored)
+print("finished", flush=True)
+"""
+
+
+def test_an_agent_killed_mid_upload_is_resumed_by_the_next_one_and_nothing_is_sent_twice(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3,
+    tmp_path: Path, running_queue: list[threading.Event],
+) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    paths = HostPaths(tmp_path)
+    job = a_tracked_job(k8s, namespace, "succeeded")
+    UploadQueue(bucket_store, paths, kube, AgentMetrics()).track(job)
+    files = {f"data/chunk-{i:03d}.parquet": os.urandom(64 << 10) for i in range(40)}
+    out = write_output(paths, job, files)
+    env = {**os.environ, **object_store.agent_env(bucket_store.bucket)}
+    uploader = subprocess.Popen([sys.executable, "-c", KILLED_UPLOADER, str(out), namespace, job.uid, "15"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    assert uploader.stdout is not None
+    first = [uploader.stdout.readline().split(" ", 1)[1].strip() for _ in range(15)]
+    uploader.send_signal(signal.SIGKILL)
+    assert uploader.wait(30) == -signal.SIGKILL, uploader.stderr.read() if uploader.stderr else ""
+    prefix = f"{namespace}/{job.uid}/"
+    client = object_store.client()
+
+    def stored() -> dict[str, Any]:
+        listed = client.list_objects_v2(Bucket=bucket_store.bucket, Prefix=prefix).get("Contents", [])
+        return {item["Key"]: item["LastModified"] for item in listed}
+
+    before = stored()
+    assert set(before) == {f"{prefix}files/{path}" for path in first}  # mid-upload: no manifest yet
+
+    metrics = AgentMetrics()
+    start(UploadQueue(bucket_store, paths, kube, metrics), running_queue)  # the next agent
+    wait_until(lambda: not out.exists(), timeout=90, what="the next agent's upload of the rest")
+
+    after = stored()
+    assert set(after) == {f"{prefix}files/{path}" for path in files} | {f"{prefix}manifest.json"}
+    assert {key: after[key] for key in before} == before
+    # The 15 stored before the kill were not sent again: the next agent sent the other 25 only.
+    assert metrics.output_bytes._value.get() == 25 * (64 << 10)
+    objects = object_store.objects(bucket_store.bucket, prefix)
+    assert all(objects[f"{prefix}files/{path}"] == data for path, data in files.items())
+    manifest = json.loads(objects[f"{prefix}manifest.json"])
+    assert manifest["complete"] is True and len(manifest["files"]) == len(files)
+    assert artifacts_of(k8s, job)["phase"] == "Uploaded"
+
+
 def test_a_store_that_does_not_answer_keeps_the_output_and_the_next_agent_stores_it(
     k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3,
     tmp_path: Path, running_queue: list[threading.Event],
