@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from armnet_core.api import ArtifactsPhase, PreflightPhase
+from armnet_core.api import ArtifactsPhase, CellPhase, PreflightPhase
 from armnet_core.models import Job, JobResult, JobStatus, TerminalStatus
 from armnet_core.times import status_time
 
@@ -157,7 +157,7 @@ def _cell_phase(cell: CellView, now: datetime) -> str:
     """The phase, with what it does not say: ``Resting(12m)`` (its rest ends in 12 minutes) and
     ``Ready,Preflight`` for a twin that runs pre-flights only (as ``kubectl`` shows ``Ready,SchedulingDisabled``)."""
     phase = cell.phase
-    if phase == "Resting" and cell.resting_until is not None and cell.resting_until > now:
+    if phase == CellPhase.RESTING and cell.resting_until is not None and cell.resting_until > now:
         phase += f"({age(now, cell.resting_until)})"
     return phase + ",Preflight" if cell.preflight else phase
 
