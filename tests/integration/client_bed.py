@@ -34,13 +34,15 @@ def grant_tenant(k8s: Any, namespace: str, user: str) -> None:
          "metadata": {"name": f"armnet-tenant-{user}", "namespace": namespace},
          "roleRef": {"apiGroup": "rbac.authorization.k8s.io", "kind": "Role", "name": "armnet-tenant"},
          "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
+        # Not the chart's name: a Helm test of the same session installs the chart's own
+        # ClusterRole, and Helm refuses to take over one it did not make.
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRole",
-         "metadata": {"name": "armnet-cell-reader"},
+         "metadata": {"name": "armnet-test-cell-reader"},
          "rules": [{"apiGroups": [GROUP], "resources": ["cells", "cellquotas"], "verbs": ["get", "list", "watch"]}]},
         {"apiVersion": "rbac.authorization.k8s.io/v1", "kind": "ClusterRoleBinding",
-         "metadata": {"name": f"armnet-cell-reader-{user}"},
+         "metadata": {"name": f"armnet-test-cell-reader-{user}"},
          "roleRef": {"apiGroup": "rbac.authorization.k8s.io", "kind": "ClusterRole",
-                     "name": "armnet-cell-reader"},
+                     "name": "armnet-test-cell-reader"},
          "subjects": [{"kind": "User", "name": user, "apiGroup": "rbac.authorization.k8s.io"}]},
     ]))
     wait_authorized(k8s, user, ("create", f"{ROBOTJOBS}.{GROUP}", "-n", namespace), ("list", f"{CELLS}.{GROUP}"), ("list", f"{CELLQUOTAS}.{GROUP}"))
