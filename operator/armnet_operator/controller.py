@@ -12,6 +12,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
@@ -393,7 +394,9 @@ class Controller:
         quotas = self._quotas_in_scope(self.cache.quota_snapshot())
         self.api.writing(True)
         try:
-            outcome = reconcile_once(jobs, cells, now, self.settings.timing, self.api, self.memory, self.limits,
+            # With a store of outputs, a TTL delete waits for the job's upload (``artifact_removal``).
+            timing = replace(self.settings.timing, outputs_store=self.api.outputs_bucket is not None)
+            outcome = reconcile_once(jobs, cells, now, timing, self.api, self.memory, self.limits,
                                      quotas)
         finally:
             self.api.writing(False)

@@ -12,6 +12,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 
+from .artifact_removal import upload_pending
 from .duty_cycle import DutyState, next_state
 from .health import derive_cell_phase, heartbeat_fresh, heartbeat_lost_for
 from .model import Cell, CellPhase, Job, JobPhase, PreflightPhase, Timing
@@ -257,9 +258,12 @@ def _plan_job(
             # Before any TTL: the copy is created from this job, which must exist until then.
             actions.append(RequeuePreempted(job))
             return actions
-        # At its TTL once the node agent has stored its outputs: removed with the job
-        # (``artifact_removal``), they must not be uploaded after the removal.
-        if not job.deleting and not job.uploading and _ttl_expired(job, now, timing):
+        # At its TTL; with the operator removing stored outputs with the job
+        # (``artifact_removal``), once the node agent's upload has settled (bounded), so
+        # nothing is stored after the removal.
+        ttl_end = _ttl_end(job, timing)
+        if not job.deleting and ttl_end is not None and now >= ttl_end \
+                and not (timing.outputs_store and upload_pending(job, now, ttl_end)):
             actions.append(DeleteJob(job))
         return actions
     cell = cells.get(job.cell_name or "")
@@ -322,14 +326,15 @@ def plan_active_job(job: Job, cell: Cell | None, now: datetime, timing: Timing) 
     return []
 
 
-def _ttl_expired(job: Job, now: datetime, timing: Timing) -> bool:
+def _ttl_end(job: Job, timing: Timing) -> datetime | None:
+    """When the finished job is due for deletion; None: never (no TTL, or not finished)."""
     if job.finished_at is None:
-        return False
+        return None
     if job.ttl_seconds_after_finished is not None:
         # Clamped: timedelta overflows near 10**14 s, and no TTL needs more than a year.
         ttl = timedelta(seconds=min(max(job.ttl_seconds_after_finished, 0), MAX_TTL_SECONDS))
     elif timing.default_ttl is not None:
         ttl = timing.default_ttl
     else:
-        return False
-    return now - job.finished_at >= ttl
+        return None
+    return job.finished_at + ttl

@@ -251,6 +251,9 @@ class Timing:
     default_ttl: timedelta | None = timedelta(hours=24)
     episode_wait: timedelta = timedelta(seconds=120)
     """How long a preempted job may run on to its next episode boundary before its grace window opens."""
+    outputs_store: bool = False
+    """The operator removes a finished job's stored outputs with it at its TTL (``artifact_removal``):
+    the TTL delete then waits for the node agent's upload to begin and to settle."""
 
 
 def job_key(namespace: str, name: str) -> str:

@@ -415,7 +415,8 @@ def _apply_group(actions: list[Action], now: datetime, timing: Timing, api: Api)
             action = replace(action, job=latest)
         response = _apply(action, now, timing, api, outcome)
         if isinstance(action, DeleteJob):
-            outcome.deleted.add(action.job.key)
+            if response is not None:
+                outcome.deleted.add(action.job.key)
         elif response is None:
             return outcome
         elif isinstance(action, ReleaseCell | SetCellPhase):
@@ -516,9 +517,8 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
         case RemoveFinalizer(job=job):
             return write(api, patches.set_finalizer(job, False), outcome)
         case DeleteJob(job=job):
-            prefix = outputs_prefix(job, api.outputs_bucket)
-            if prefix is not None and not _remove_outputs(api, job, prefix, outcome):
-                return None  # the job stays, the one pointer to its outputs: the next pass tries again
+            if not _outputs_settled(job, api, outcome):
+                return None  # the job stays, the one pointer to its outputs: the next pass decides again
             try:
                 api.delete_job(job.namespace, job.name, job.uid)
                 outcome.writes += 1
@@ -526,7 +526,31 @@ def _apply(action: Action, now: datetime, timing: Timing, api: Api, outcome: Out
                 pass
             except TransientError as error:
                 count_failure(error, outcome)
+                return None
+            return {}  # deleted: gone from this pass's view
     return None
+
+
+def _outputs_settled(job: Job, api: Api, outcome: Outcome) -> bool:
+    """Whether the job may be deleted as far as its stored outputs go: removed now, kept, or none.
+
+    Decided again on the job as the server has it now, since a removal cannot be undone: a
+    ``keep-artifacts`` annotation added just before the TTL, or an upload begun since, that
+    the snapshot does not show yet must win. False: the job stays until a later pass.
+    """
+    if api.outputs_bucket is None or job.keep_artifacts:
+        return True
+    try:
+        fresh = parse_job(api.read_job(job.namespace, job.name))
+    except NotFound:
+        return True
+    except TransientError as error:
+        count_failure(error, outcome)
+        return False
+    if fresh.uid != job.uid or (fresh.uploading and not job.uploading):
+        return False  # another job of that name (the delete's precondition would refuse), or an upload begun since
+    prefix = outputs_prefix(fresh, api.outputs_bucket)
+    return prefix is None or _remove_outputs(api, fresh, prefix, outcome)
 
 
 def _remove_outputs(api: Api, job: Job, prefix: str, outcome: Outcome) -> bool:

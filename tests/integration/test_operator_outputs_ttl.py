@@ -80,3 +80,24 @@ def test_a_jobs_outputs_go_with_it_at_its_ttl_and_a_kept_jobs_stay(
         assert 'armnet_job_outputs_removed_total{outcome="removed"} 1.0' in metrics
     finally:
         stop_process(proc)
+
+
+def test_a_store_that_does_not_answer_is_asked_again_only_after_a_growing_wait() -> None:
+    """A removal runs inside the reconcile pass: an outage must cost the pass nothing after its first try."""
+    from armnet_core.object_store import StoreConfig
+    from armnet_operator.errors import StoreError
+    from armnet_operator.outputs_store import OutputsStore
+
+    clock = [100.0]
+    nothing_there = StoreConfig(bucket="outputs", access_key_id="k", secret_access_key="s",
+                                endpoint_url=f"http://127.0.0.1:{free_port()}")
+    store = OutputsStore(nothing_there, clock=lambda: clock[0])
+    with pytest.raises(StoreError, match="did not remove t/u-1/ in bucket outputs"):
+        store.remove("t/u-1/")
+    with pytest.raises(StoreError, match="not asked again for 10 s"):
+        store.remove("t/u-2/")
+    clock[0] += 10
+    with pytest.raises(StoreError, match="did not remove t/u-2/"):
+        store.remove("t/u-2/")  # asked again, and failed again: the next wait doubles
+    with pytest.raises(StoreError, match="not asked again for 20 s"):
+        store.remove("t/u-2/")

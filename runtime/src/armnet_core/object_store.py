@@ -65,7 +65,8 @@ class StoreConfig:
         )
 
 
-def s3_client(config: StoreConfig, *, max_attempts: int = 5) -> Any:
+def s3_client(config: StoreConfig, *, max_attempts: int = 5, connect_timeout: float = 10,
+              read_timeout: float = 60) -> Any:
     """A boto3 S3 client for ``config`` (imported here: only the processes that store need boto3)."""
     import boto3
     from botocore.config import Config
@@ -81,8 +82,8 @@ def s3_client(config: StoreConfig, *, max_attempts: int = 5) -> Any:
             retries={"mode": "standard", "max_attempts": max_attempts},
             request_checksum_calculation="when_required",
             response_checksum_validation="when_required",
-            connect_timeout=10,
-            read_timeout=60,
+            connect_timeout=connect_timeout,
+            read_timeout=read_timeout,
         ),
     )
 

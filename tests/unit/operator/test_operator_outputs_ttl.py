@@ -9,10 +9,16 @@ outputs) until the next pass removes both.
 from __future__ import annotations
 
 from dataclasses import replace
+from datetime import timedelta
 
 import pytest
 from armnet_core.api import KEEP_ARTIFACTS_ANNOTATION
-from armnet_operator.artifact_removal import outputs_prefix
+from armnet_operator.artifact_removal import (
+    UPLOAD_SETTLE_CAP,
+    UPLOAD_START_WAIT,
+    outputs_prefix,
+    upload_pending,
+)
 from armnet_operator.lifecycle import DeleteJob, plan_lifecycle
 from armnet_operator.reconcile import Memory, reconcile_once
 from operator_builders import NOW, TIMING, a_job
@@ -42,12 +48,35 @@ def test_only_the_job_s_own_prefix_in_the_operator_s_bucket_is_removed(job, buck
     assert outputs_prefix(job, bucket) == prefix
 
 
-@pytest.mark.parametrize(("phase", "deleted"), [
-    ("Uploading", False), ("Retrying", False), ("Uploaded", True), ("Failed", True), ("Discarded", True), (None, True),
+WITH_STORE = replace(TIMING, outputs_store=True)
+H = timedelta(hours=1)
+
+
+@pytest.mark.parametrize(("phase", "ended_ago", "deleted"), [
+    pytest.param("Uploaded", 6, True, id="stored"),
+    pytest.param("Failed", 6, True, id="given up"),
+    pytest.param("Discarded", 6, True, id="discarded"),
+    pytest.param("Uploading", 6, False, id="uploading"),
+    pytest.param("Retrying", 6, False, id="retrying"),
+    pytest.param("Retrying", 5 + 24 * 3600 + 1, True, id="retrying a day past the TTL: an agent gone for good"),
+    pytest.param(None, 6, False, id="no upload begun yet"),
+    pytest.param(None, 11 * 60, True, id="none begun 10 minutes after the end"),
 ])
-def test_a_job_past_its_ttl_waits_for_its_upload_to_settle(phase: str | None, deleted: bool) -> None:
-    job = replace(a_job().with_ttl(5).without_finalizer().finished(seconds_ago=6), artifacts_phase=phase)
-    assert any(isinstance(a, DeleteJob) for a in plan_lifecycle([job], [], NOW, TIMING)) is deleted
+def test_with_a_store_a_job_past_its_ttl_waits_for_its_upload_within_bounds(
+        phase: str | None, ended_ago: float, deleted: bool) -> None:
+    job = replace(a_job().with_ttl(5).without_finalizer().finished(seconds_ago=ended_ago), artifacts_phase=phase)
+    assert any(isinstance(a, DeleteJob) for a in plan_lifecycle([job], [], NOW, WITH_STORE)) is deleted
+    # Without a store nothing is removed with the job: nothing to wait for.
+    assert any(isinstance(a, DeleteJob) for a in plan_lifecycle([job], [], NOW, TIMING))
+
+
+def test_the_waits_are_bounded() -> None:
+    ended = NOW - timedelta(seconds=6)
+    job = replace(a_job().finished(seconds_ago=6), artifacts_phase="Uploading")
+    assert upload_pending(job, NOW, ended) and not upload_pending(job, ended + UPLOAD_SETTLE_CAP, ended)
+    fresh = replace(job, artifacts_phase=None)
+    assert upload_pending(fresh, NOW, ended) and not upload_pending(fresh, ended + UPLOAD_START_WAIT, ended)
+    assert UPLOAD_START_WAIT == timedelta(minutes=10) and UPLOAD_SETTLE_CAP == 24 * H
 
 
 def finished_with_outputs(world: World, name: str, **annotations: str) -> str:
@@ -79,6 +108,19 @@ def test_at_its_ttl_a_job_s_outputs_are_removed_before_it_and_a_kept_job_s_stay(
     assert not any(key.startswith(removed) for key in world.stored)
     assert sorted(world.stored) == sorted([f"{kept}files/data.parquet", f"{kept}manifest.json", "t/other-uid/files/x"])
     assert outcome.outputs_removed == {"removed": 1}
+
+
+def test_a_keep_annotation_the_snapshot_does_not_show_yet_keeps_the_outputs() -> None:
+    """The removal cannot be undone: it is decided again on the job as the server has it."""
+    world, memory = World(), Memory()
+    world.outputs_bucket = BUCKET
+    prefix = finished_with_outputs(world, "rec")
+    world.tick(2)
+    jobs, cells = world.snapshot()  # the operator's view, from before the annotation
+    world.jobs["t/rec"]["metadata"]["annotations"][KEEP_ARTIFACTS_ANNOTATION] = "true"
+    reconcile_once(jobs, cells, world.now, TIMING, world, memory)
+    assert "t/rec" not in world.jobs
+    assert f"{prefix}manifest.json" in world.stored
 
 
 def test_a_store_that_does_not_answer_keeps_the_job_until_its_outputs_are_removed() -> None:
