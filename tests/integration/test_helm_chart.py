@@ -391,6 +391,11 @@ def test_agent_and_operator_reach_the_outputs_bucket_with_keys_from_a_secret(kin
     assert env["ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"] == {
         "secretKeyRef": {"name": "outputs-writer", "key": "secretAccessKey"}}
     assert not [name for name in without if name.startswith("ARMNET_ARTIFACTS_")]
+    # The operator's own keys (list and delete), when given: the robot hosts' keys need only write.
+    values["artifacts"]["operatorCredentialsSecret"] = "outputs-remover"
+    env = env_of(find(render(values=values), kind)["spec"]["template"]["spec"]["containers"][0])
+    owner = "outputs-remover" if kind == "Deployment" else "outputs-writer"
+    assert env["ARMNET_ARTIFACTS_ACCESS_KEY_ID"] == {"secretKeyRef": {"name": owner, "key": "accessKeyId"}}
     result = helm("template", "armnet", str(CHART), "--values", "-",
                   input=yaml.safe_dump({"artifacts": {"bucket": "robot-outputs"}}), check=False)
     assert result.returncode != 0 and "artifacts.credentialsSecret" in result.stderr, result.stderr

@@ -96,9 +96,11 @@ nats://{{ include "armnet.fullname" . }}-nats.{{ .Release.Namespace }}.svc:4222
   readOnly: true
 {{- end -}}
 {{- /* The object store of job outputs (docs/outputs.md): the agent uploads there, the operator
-removes a job's outputs with the job at its TTL. Both get the same variables and keys. */}}
+removes a job's outputs with the job at its TTL. Both get the same variables; the keys come from
+"secret" (the agent's artifacts.credentialsSecret, which needs only to write; the operator's
+artifacts.operatorCredentialsSecret, which needs to list and delete, else the same Secret). */}}
 {{- define "armnet.artifacts.env" -}}
-{{- with .Values.artifacts }}
+{{- with .artifacts }}
 {{- if .bucket }}
 {{- if not .credentialsSecret }}
 {{- fail "artifacts.bucket is set but artifacts.credentialsSecret is not: name the Secret (keys accessKeyId, secretAccessKey) with the keys to the bucket" }}
@@ -107,9 +109,9 @@ removes a job's outputs with the job at its TTL. Both get the same variables and
 - {name: ARMNET_ARTIFACTS_ENDPOINT, value: {{ .endpoint | quote }}}
 - {name: ARMNET_ARTIFACTS_REGION, value: {{ .region | quote }}}
 - name: ARMNET_ARTIFACTS_ACCESS_KEY_ID
-  valueFrom: {secretKeyRef: {name: {{ .credentialsSecret }}, key: accessKeyId}}
+  valueFrom: {secretKeyRef: {name: {{ $.secret }}, key: accessKeyId}}
 - name: ARMNET_ARTIFACTS_SECRET_ACCESS_KEY
-  valueFrom: {secretKeyRef: {name: {{ .credentialsSecret }}, key: secretAccessKey}}
+  valueFrom: {secretKeyRef: {name: {{ $.secret }}, key: secretAccessKey}}
 {{- end }}
 {{- end }}
 {{- end -}}
