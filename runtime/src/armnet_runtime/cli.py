@@ -149,12 +149,8 @@ def _stop_rerun(ctx: Optional[Context]) -> None:
         streamer.stop()
 
 
-def run(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int:
-    """Run a script's ``@main``; returns the process exit code (``EXIT_*``).
-
-    ``own_process``: the process exists for this run (``main``), so the objects its imports made
-    are frozen out of the collector once the script is loaded (``_freeze_imports``).
-    """
+def run(argv: Sequence[str] | None = None) -> int:
+    """Run a script's ``@main``; returns the process exit code (``EXIT_*``)."""
     try:
         args = _parse_args(sys.argv[1:] if argv is None else list(argv))
     except _UsageError as exc:
@@ -164,20 +160,13 @@ def run(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int:
     _install_timestamped_streams()
     _configure_sdk_logging()
     try:
-        return _run_script(args.script, own_process)
+        return _run_script(args.script)
     finally:
         _flush_streams()
         sys.stdout, sys.stderr = saved  # in-process callers get their streams back
 
 
-def _freeze_imports() -> None:
-    """Leave what the script's imports made (torch's and LeRobot's objects, most of the heap) out
-    of the collector's walks from now on: what the run makes stays collectable, and the
-    collection at its end (``_wind_down_quickly``) walks the run's objects, not the libraries'."""
-    gc.freeze()
-
-
-def _run_script(script: str, own_process: bool = False) -> int:
+def _run_script(script: str) -> int:
     from armnet_runtime.lerobot.in_job import activate
 
     # The swap, and in a job LeRobot's calibrate/setup-motors refused when the job's own code calls them.
@@ -191,8 +180,6 @@ def _run_script(script: str, own_process: bool = False) -> int:
         traceback.print_exc()
         _print_traceback_marker(_user_traceback())
         return EXIT_USER_IMPORT_FAILED
-    if own_process:
-        _freeze_imports()
 
     fn = registered_main()
     if fn is None:
@@ -244,10 +231,7 @@ def _wind_down_quickly() -> None:
     torch's and LeRobot's objects (ten times that on a loaded host), and a recording job that
     had reported its end within a 3 s grace window was killed while its interpreter wound down
     (killed there, it also lost what the shutdown would have flushed). Frozen, those objects are
-    skipped: the shutdown takes well under a second (``bench/startup.py``). One collection runs
-    first, so what the run left unreachable (an object in a cycle) still gets its finalizer; it
-    walks the run's objects only, the imports' having been frozen once the script was loaded
-    (``_freeze_imports``). Only what is alive at that moment is frozen.
+    skipped: the shutdown takes ~0.5 s (``bench/startup.py``).
 
     What a job relies on at exit still happens: atexit handlers run, and every module is kept
     alive to the end (held by ``sys``, whose globals Python clears after the modules') so that
@@ -257,14 +241,13 @@ def _wind_down_quickly() -> None:
     reference cycles still alive at exit miss a last collection, which Python never promises.
     """
     sys._armnet_modules_to_clear = tuple(sys.modules.values())  # type: ignore[attr-defined]
-    gc.collect()  # the run's garbage first: an object the run left in a cycle gets its finalizer
     gc.freeze()
 
 
 def main() -> None:
     """Console-script entry point: ``armnet-runtime SCRIPT``."""
     try:
-        code = run(own_process=True)
+        code = run()
     finally:
         _flush_streams()
         _wind_down_quickly()
