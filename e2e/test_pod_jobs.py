@@ -445,6 +445,13 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     # SIGTERM to the sidecar's PID 1 (the kernel ignores SIGKILL to a namespace's init from inside it).
     bed.k8s.kubectl("exec", "-n", bed.namespace, f"armnet-{job['metadata']['uid']}", "-c", "connector", "--",
                     "python3", "-c", "import os, signal; os.kill(1, signal.SIGTERM)")
+
+    def connector_back() -> bool:  # restarted and serving again (its postStart gate returned)
+        statuses = ((pod_of(bed, job) or {}).get("status") or {}).get("initContainerStatuses", [])
+        return any(s["name"] == "connector" and s.get("restartCount", 0) >= 1 and s.get("started") is True
+                   for s in statuses)
+
+    bed.wait(connector_back, 240, "the connector sidecar restarted and serving")
     bed.release(job["metadata"]["uid"])
     st = status(bed.wait_phase("loses-connector", timeout=300))
     assert st["phase"] == "failed", explain(st)

@@ -99,6 +99,15 @@ def parse_record(log_text: str) -> dict[str, Any] | None:
 
 
 def main() -> int:
+    # First, before the slow imports: a stop that comes while this sidecar is still starting (the
+    # job ended meanwhile) ends it after its record line, not by SIGTERM's default mid-import.
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
     from armnet_connector import Connector, ConnectorConfig
     from armnet_connector.fast_exit import exit_after_clean_stop
     from armnet_connector.interlock import TripReason
@@ -120,13 +129,6 @@ def main() -> int:
     marker = socket_dir / STARTED_MARKER
     restarted = marker.exists()
     marker.touch()
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
     connector_config = ConnectorConfig.model_validate(dict(config.connector))
     sim = _start_simulator(config.simulator, connector_config) if config.simulator is not None else None
     if sim is not None:

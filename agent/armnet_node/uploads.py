@@ -220,9 +220,10 @@ class UploadQueue:
             self._retry_later(job, prefix, "the upload finished but status.artifacts could not be written",
                               "error", write_status=False)
             return
-        self._done(job, directory)
+        # Counted before the directory goes: whoever sees it gone sees the upload counted.
         self.metrics.outputs.labels(outcome="uploaded" if report.complete else "incomplete").inc()
         self.metrics.output_bytes.inc(report.uploaded_bytes)
+        self._done(job, directory)
         log.info("job %s/%s: %d files (%d bytes) stored under %s", job.namespace, job.name,
                  len(report.artifacts), report.total_bytes, summary.location(report.bucket, report.prefix))
 
