@@ -361,17 +361,25 @@ class RobotSession(Session):
             raise RequestError("TypeError", "torque_disabled(motors=None) takes one optional argument")
         motors = args[0] if args else kwargs.get("motors")
         bus = handle.obj
+        switch_args = [motors] if motors is not None else []
+
+        # Each switch is the same acknowledged absolute write as a direct disable/enable_torque
+        # call, and so is asked again on a lost acknowledgement (a loaded host failed LeRobot's
+        # SO follower in connect -> configure -> torque_disabled), checked again before each retry.
+        def switch(method: str) -> None:
+            with_read_retry(handle, method, lambda: getattr(bus, method)(motors), on_retry=self.cell.count_bus_retry,
+                            before_retry=lambda: self.cell.guard.check(handle, method, switch_args, {}))
 
         def enter() -> None:
             with handle.lock:
-                bus.disable_torque(motors)
+                switch("disable_torque")
 
         def leave(exc: BaseException | None) -> bool:
             with handle.lock:
                 if self.cell.interlock.tripped:
                     log.warning("torque_disabled exit: the interlock holds, torque stays off")
                 else:
-                    bus.enable_torque(motors)
+                    switch("enable_torque")
             return False
 
         return {"ok": True, "context_manager": True, "object_id": self._add("c", _Context(handle, enter, leave))}

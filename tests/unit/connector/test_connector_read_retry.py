@@ -120,6 +120,19 @@ def test_a_torque_switch_that_lost_an_acknowledgement_is_asked_again_and_torque_
     assert all(sim_cell.arm.register(m, "Torque_Enable") == 1 for m in sim_cell.arm.motors)
 
 
+def test_torque_disabled_whose_switches_lost_an_acknowledgement_asks_again_and_leaves_torque_on(
+        remote, sim_cell, connector) -> None:
+    """LeRobot's SO follower wraps configure in ``bus.torque_disabled()``: a CI run failed a job on its lost ack."""
+    remote.connect()
+    before = connector.counters.bus_retries
+    sim_cell.arm.drop_replies("shoulder_pan", 1)  # the disable's acknowledgement
+    with remote.torque_disabled():
+        assert all(sim_cell.arm.register(m, "Torque_Enable") == 0 for m in sim_cell.arm.motors)
+        sim_cell.arm.drop_replies("gripper", 1)  # and the enable's at the exit
+    assert connector.counters.bus_retries - before >= 2
+    assert all(sim_cell.arm.register(m, "Torque_Enable") == 1 for m in sim_cell.arm.motors)
+
+
 def test_configure_motors_that_lost_an_acknowledgement_is_run_again_and_configures_every_motor(
         remote, sim_cell, connector) -> None:
     """LeRobot's SO follower calls it in connect, with no retry of its own: a loaded CI run failed a job on it."""
