@@ -26,7 +26,12 @@ Modes:
 
 - default: a 100 Hz tick of one SO-101 arm;
 - ``--camera``: a 100 Hz tick of one arm and one camera;
-- ``--bimanual``: a 30 Hz tick of a bimanual SO-101 (both arms) and two cameras.
+- ``--bimanual``: a 30 Hz tick of a bimanual SO-101 (both arms) and two cameras;
+- ``--completion region|classifier`` (with ``--camera``): the connector's completion
+  monitor scores the camera at 30 Hz, its fastest rate, with that scorer (the arm on
+  the target region, or the simulated cells' learned classifier) while the ticks run:
+  every target then says what the monitor costs the job (it must cost nothing a
+  target can see); the frames it scored are printed at the end.
 
 Floors timed in the same ticks: a raw line round trip between two plain
 processes (no armnet code: what any connector in its own process pays), a bare
@@ -71,7 +76,23 @@ FRAME_SHAPE = (480, 640, 3)
 # ----------------------------------------------------------------- cell process
 
 
-def serve_cell(preset: str) -> None:
+def monitor_settings(scorer: str) -> Any:
+    """The completion settings ``--completion`` turns on: ``scorer`` on the camera at its fastest rate."""
+    from armnet_core.cell_completion import MAX_RATE_HZ, CompletionConfig
+    from armnet_sim.render import target_region
+    from armnet_sim.scene_samples import HEIGHT, SHIPPED_CLASSIFIER, SHIPPED_CLASSIFIER_INPUT, WIDTH
+
+    if scorer == "classifier":
+        settings: dict[str, Any] = {"classifier": {"model": str(SHIPPED_CLASSIFIER.resolve()),
+                                                   "inputSize": SHIPPED_CLASSIFIER_INPUT}}
+    else:
+        left, top, width, height = target_region(WIDTH, HEIGHT)
+        settings = {"region": {"left": left, "top": top, "width": width, "height": height},
+                    "colour": {"hueMin": 170, "hueMax": 8, "saturationMin": 120, "valueMin": 80}}
+    return CompletionConfig.model_validate({"camera": "front", "scorer": scorer, "rateHz": MAX_RATE_HZ, **settings})
+
+
+def serve_cell(preset: str, completion: str | None = None) -> None:
     """Child mode: the connector of a local cell, as its own process; runs until stdin closes.
 
     The topology of a real cell: the simulated servos live in a third process
@@ -100,13 +121,19 @@ def serve_cell(preset: str) -> None:
         with SimulatedCellProcess(spec.preset, calibrations=calibrations) as sim:
             ports = sim.ports()
             config = build_connector_config(spec, layout, ports)
-            with Connector(config, layout.socket_dir, camera_factory=simulated_camera_factory(source=sim)):
+            if completion is not None:
+                config = config.model_copy(update={"completion": monitor_settings(completion)})
+            with Connector(config, layout.socket_dir, camera_factory=simulated_camera_factory(source=sim)) as connector:
                 arms = [
                     {"port": ports[arm.name], "endpoint": arm.endpoint, "calibration_file": str(arm.calibration_file)}
                     for arm in layout.arms
                 ]
                 print(json.dumps({"arms": arms, "endpoint": layout.robot_endpoint}), flush=True)
                 sys.stdin.read()
+                counters = connector.counters
+                print(json.dumps({"scored": counters.completion_frames_scored,
+                                  "scorer_errors": counters.completion_scorer_errors,
+                                  "scorer_slow": counters.completion_scorer_slow}), flush=True)
 
 
 # ----------------------------------------------------------------- clients
@@ -493,6 +520,8 @@ def main() -> int:
         help="also tick a proxy to a connector run from another checkout (say the code before a change), "
              "in the same ticks: a before/after on a shared machine",
     )
+    parser.add_argument("--completion", choices=("region", "classifier"),
+                        help="with --camera: the connector's completion monitor scores the camera at 30 Hz meanwhile")
     parser.add_argument("--serve-cell", metavar="PRESET", help=argparse.SUPPRESS)
     parser.add_argument("--serve-echo", metavar="PATH", help=argparse.SUPPRESS)
     parser.add_argument("--serve-client", metavar="ARMS", type=int, help=argparse.SUPPRESS)
@@ -503,14 +532,17 @@ def main() -> int:
         serve_client(sys.stdin.readline(), args.serve_client, args.client_cameras, args.client_way)
         return 0
     if args.serve_cell:
-        serve_cell(args.serve_cell)
+        serve_cell(args.serve_cell, args.completion)
         return 0
+    if args.completion and not args.camera:
+        parser.error("--completion needs --camera: the monitor scores the cell's one camera")
     if args.serve_echo:
         serve_echo(args.serve_echo)
         return 0
     preset, arms, cameras, hz = ("bimanual_so101", 2, 2, 30.0) if args.bimanual else ("so101", 1, int(args.camera), 100.0)
     cell_process = subprocess.Popen(
-        [sys.executable, __file__, "--serve-cell", preset], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        [sys.executable, __file__, "--serve-cell", preset, *(["--completion", args.completion] if args.completion else [])],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
     )
     baseline_process = serve_baseline(args.compare_with, preset) if args.compare_with else None
     try:
@@ -543,6 +575,10 @@ def main() -> int:
             if process is not None and process.stdin is not None:
                 process.stdin.close()
                 process.wait(timeout=30)
+    if args.completion and cell_process.stdout is not None:
+        monitor = json.loads(cell_process.stdout.readline() or "{}")
+        print(f"completion monitor ({args.completion}, 30 Hz) meanwhile: {monitor.get('scored')} frames scored, "
+              f"{monitor.get('scorer_errors')} scorer errors, {monitor.get('scorer_slow')} slow scores")
     return 0
 
 

@@ -26,6 +26,7 @@ from typing import Any, Protocol
 from armnet_core.backoff import BackoffPolicy
 from armnet_core.cell_completion import CompletionConfig
 
+from .classifier_scorer import ClassifierScorer
 from .config import CameraConfig
 from .inputs import MonitorVerdict, SceneJudgement
 from .ratelog import RateLimitedLog
@@ -64,6 +65,8 @@ def build_scorer(config: CompletionConfig) -> FrameScorer:
     """The scorer a cell's completion settings describe."""
     if config.service is not None:
         return ServiceScorer(config.service, camera=config.camera)
+    if config.classifier is not None:
+        return ClassifierScorer(config.classifier)
     r = config.region
     assert r is not None  # a region scorer's config holds its region
     region = Region(r.left, r.top, r.width, r.height)

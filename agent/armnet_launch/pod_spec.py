@@ -153,6 +153,9 @@ class PodInputs:
     observer_dir: str | None = None
     #: The job's output directory on the host (``ARMNET_OUTPUT_DIR``, uploaded when the job ends), or None.
     output_dir: str | None = None
+    #: Host files the connector alone reads, mounted read-only at the same path: the cell's
+    #: completion classifier, a judge's token file (``cell_completion.host_files``).
+    host_files: tuple[str, ...] = ()
 
 
 def device_path(arm: str) -> str:
@@ -262,6 +265,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         *({"name": f"device-{i}", "mountPath": device_path(arm)} for i, arm in enumerate(_host_devices(inputs))),
         *_dev_mounts(inputs),
         *([{"name": OBSERVER_VOLUME, "mountPath": inputs.observer_dir}] if inputs.observer_dir else []),
+        *({"name": f"host-file-{i}", "mountPath": path, "readOnly": True} for i, path in enumerate(inputs.host_files)),
     ]
     env = [{"name": SIDECAR_ENV, "value": json.dumps(dict(inputs.sidecar), sort_keys=True)}]
     env += [{"name": k, "value": v} for k, v in sorted(_with_home(inputs.connector_env).items())]
@@ -370,6 +374,11 @@ def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
     ]
     volumes += [
         {"name": f"dev-{i}", "hostPath": {"path": path, "type": "Directory"}} for i, path in enumerate(inputs.dev_mounts)
+    ]
+    # type File: a file missing on the host fails the pod's start, saying which path (the
+    # cell's CompletionReady condition has said so before any job was bound).
+    volumes += [
+        {"name": f"host-file-{i}", "hostPath": {"path": path, "type": "File"}} for i, path in enumerate(inputs.host_files)
     ]
     return volumes
 

@@ -19,6 +19,7 @@ from typing import Any
 
 from armnet_core.api import GROUP, VERSION
 from armnet_core.backoff import BackoffPolicy
+from armnet_core.cell_completion import DEFAULT_COMPLETION_DIRS
 from armnet_launch.plan import LABEL_CELL, LABEL_NAMESPACE
 
 from armnet_node.artifacts import ObjectStore
@@ -52,6 +53,7 @@ class AgentSettings:
     pass_period: float = 2.0
     dev_mounts: tuple[str, ...] = ()
     dev_env: dict[str, str] = field(default_factory=dict)
+    completion_dirs: tuple[str, ...] = DEFAULT_COMPLETION_DIRS
 
 
 class NodeAgent:
@@ -67,7 +69,7 @@ class NodeAgent:
         self.launcher = launcher
         self.metrics = metrics
         self.link = link
-        paths = HostPaths(settings.state_dir, settings.dev_mounts, settings.dev_env or None)
+        paths = HostPaths(settings.state_dir, settings.dev_mounts, settings.dev_env or None, settings.completion_dirs)
         self.uploads = UploadQueue(store, paths, kube, metrics)
         self.deps = RunnerDeps(kube=kube, launcher=launcher, paths=paths, metrics=metrics, link=link,
                                uploads=self.uploads)

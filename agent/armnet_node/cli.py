@@ -21,6 +21,7 @@ from pathlib import Path
 
 from armnet_connector.warm_imports import import_before_threads
 from armnet_core.api import ARTIFACTS_BUCKET_ENV
+from armnet_core.cell_completion import DEFAULT_COMPLETION_DIRS
 from armnet_core.nats_url import nats_url_from
 from armnet_core.object_store import StoreSettingsError
 from armnet_launch.container import EngineUnavailable, connect_engine
@@ -98,6 +99,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--metrics-address", default=_env("METRICS_ADDRESS", "0.0.0.0"))
     parser.add_argument("--dev-mount", action="append", default=[],
                         help="development only: mount this host path read-only at the same path in job containers")
+    parser.add_argument("--completion-files-dir", action="append", default=None, metavar="DIR",
+                        help="a host directory a Cell's completion monitor may read files from (a classifier's "
+                             "model, a judge's token file); repeat for several. Default: "
+                             f"{os.pathsep.join(DEFAULT_COMPLETION_DIRS)} (or ARMNET_AGENT_COMPLETION_FILES_DIRS, "
+                             "separated by ':'); a Cell naming a file elsewhere is not bound (docs/connector.md)")
     parser.add_argument("--dev-env", action="append", default=[],
                         help="development only: NAME=VALUE added to every job container's env (e.g. PATH)")
     parser.add_argument("--launcher", choices=("container", "pod"), default=_env("LAUNCHER", "container"),
@@ -132,6 +138,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--verbose", action="store_true")
 
 
+def completion_dirs(flags: list[str] | None, env_value: str | None) -> tuple[str, ...]:
+    """The completion directories: the flags, else the env var's ':'-separated list, else the defaults."""
+    if flags:
+        return tuple(flags)
+    if env_value:
+        return tuple(d for d in env_value.split(os.pathsep) if d)
+    return DEFAULT_COMPLETION_DIRS
+
+
 def run(args: argparse.Namespace) -> int:
     import_before_threads()  # before any worker, connector or metrics thread (warm_imports.py)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
@@ -155,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
         telemetry=TelemetrySettings(args.telemetry_servo_hz, args.telemetry_frame_fps),
         dev_mounts=tuple(args.dev_mount),
         dev_env=dev_env,
+        completion_dirs=completion_dirs(args.completion_files_dir, _env("COMPLETION_FILES_DIRS")),
     )
     try:
         store_config = StoreConfig.from_env()

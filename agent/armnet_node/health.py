@@ -29,6 +29,7 @@ HARDWARE_READY = CellConditionType.HARDWARE_READY
 CALIBRATION_PRESENT = CellConditionType.CALIBRATION_PRESENT
 CAMERAS_READY = CellConditionType.CAMERAS_READY
 INTERLOCK_CLEAR = CellConditionType.INTERLOCK_CLEAR
+COMPLETION_READY = CellConditionType.COMPLETION_READY
 HEALTH_CONDITIONS = tuple(CellConditionType)
 
 
@@ -178,6 +179,20 @@ def interlock_condition(probe: CellProbe) -> Condition:
             f"the running job's interlock is tripped: {probe.interlock_trip}; it clears when the job ends",
         )
     return _ok(INTERLOCK_CLEAR, "Clear", "motion is allowed")
+
+
+def completion_condition(problem: str | None) -> Condition:
+    """``CompletionReady`` on a cell whose completion monitor reads files on the robot host (a classifier's
+    model, a judge's token file): ``problem`` is why it cannot use them (``completion_model.files_problem``),
+    None when it can.
+
+    A health condition: a cell whose monitor cannot score would run every evaluation to
+    "not complete", so it is not bound until the file is fixed.
+    """
+    if problem is None:
+        return _ok(COMPLETION_READY, "FilesUsable", "the completion monitor's files on this host load and answer")
+    return _bad(COMPLETION_READY, "FileUnusable",
+                f"{problem[:900]}; no job is bound to this cell until its completion monitor can score")
 
 
 INPUTS_NEED_NATS = ("the cell operator's Confirm reset and Success/Fail, teleop and live logs "

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from armnet_connector.inputs import LocalOperatorInputs, OperatorInputs
+from armnet_core.cell_completion import host_files
 from armnet_launch.container import ContainerJob
 from armnet_launch.plan import LABEL_JOB_UID, LABEL_MANAGED_BY, MANAGED_BY_AGENT
 from armnet_launch.pod import PodExists, PodJob
@@ -148,6 +149,8 @@ class SessionRequest:
 class JobLauncher(Protocol):
     kind: str
     secrets_by_ref: bool
+    #: The uid the connector runs as when it is not this process (a pod's sidecar), else None.
+    connector_uid: int | None
 
     def running(self) -> dict[str, Any]:
         """Job uid -> a row of every job this agent's launcher started and did not remove."""
@@ -173,6 +176,8 @@ class ContainerLauncher:
     kind = "container"
     #: Secrets reach the container as env values (the Docker API has no secret references).
     secrets_by_ref = False
+    #: The connector runs in this process.
+    connector_uid: int | None = None
 
     def __init__(self, engine: Any, metrics: AgentMetrics) -> None:
         self.engine = engine
@@ -358,6 +363,7 @@ class PodLauncher:
         self.settings = settings
         self.metrics = metrics
         self.namespaces = namespaces
+        self.connector_uid: int | None = settings.connector_user
 
     def running(self) -> dict[str, Any]:
         """This node's job pods, by label (re-adoption reads the pod, never the agent's memory)."""
@@ -445,6 +451,7 @@ class PodLauncher:
             job_user=s.job_user,
             connector_user=s.connector_user,
             observer_dir=OBSERVER_DIR,
+            host_files=host_files(cell.completion),
         )
         return build_pod(inputs)
 

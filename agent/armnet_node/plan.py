@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from armnet_core.cell_completion import DEFAULT_COMPLETION_DIRS, host_files, outside_dirs
 from armnet_launch.cell_spec import (
     EMBODIMENT_PRESET,
     CellLayout,
@@ -54,6 +55,9 @@ class HostPaths:
     dev_mounts: tuple[str, ...] = ()
     #: Extra env for the customer container (development images: PATH to the mounted venv).
     dev_env: Mapping[str, str] | None = None
+    #: The host directories a Cell's completion monitor may read files from (a classifier's
+    #: model, a judge's token file); any other path is refused (``completion_model``).
+    completion_dirs: tuple[str, ...] = DEFAULT_COMPLETION_DIRS
 
     def run_dir(self, job_uid: str) -> Path:
         """Short on purpose: a unix socket path must stay under 108 bytes."""
@@ -129,6 +133,9 @@ def plan_launch(job: Job, cell: Cell, paths: HostPaths, secrets: Mapping[str, st
             "(set spec.simulated: true)"
         )
     spec = cell_spec_for(cell)
+    refused = outside_dirs(host_files(cell.completion), paths.completion_dirs)
+    if refused is not None:
+        raise LaunchError(f"cell {cell.name}: {refused}")
     run_dir = paths.run_dir(job.uid)
     layout = replace(
         plan_layout(spec, run_dir), cache_dir=paths.cache_dir(cell.name), volume_dir=paths.volume_dir(job.namespace),

@@ -33,6 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from armnet_core.api import ACTIVE_PHASES, SIM_UNPLUG_ANNOTATION, TERMINAL_PHASES, JobPhase
+from armnet_core.cell_completion import host_files
+from armnet_core.conditions import remove_condition
 from armnet_core.times import status_time
 from armnet_sim.calibration import builtin_calibration, write_calibration
 from armnet_sim.presets import PRESETS, CellSimulator
@@ -40,6 +42,7 @@ from armnet_sim.process import SimulatedCellProcess
 
 from armnet_node import device_health, health, report
 from armnet_node.bus_turns import BusTurns
+from armnet_node.completion_model import CompletionFilesCheck
 from armnet_node.device_watch import DeviceWatch
 from armnet_node.deviceplugin.decide import DevicePath, cell_device_paths
 from armnet_node.kube import Conflict, Gone, KubeError
@@ -99,6 +102,9 @@ class CellWorker:
         self._telemetry: CellTelemetry | None = None
         #: The latest scripted reset a job on this cell reported (``AutoResetWorking``), across jobs.
         self._auto_reset: Mapping[str, Any] | None = None
+        # The uid the connector reads the cell's completion files as: a pod's sidecar's, or this process's.
+        reader_uid = getattr(deps.launcher, "connector_uid", None)
+        self._completion_files = CompletionFilesCheck(deps.paths.completion_dirs, reader_uid)
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
 
     @property
@@ -396,6 +402,10 @@ class CellWorker:
         if self.cell.reset is not None and self.cell.reset.scripted:
             self._note_auto_reset(self.runner)
             conditions = (*conditions, health.auto_reset_condition(self._auto_reset))
+        completion = self.cell.completion
+        reads_files = completion is not None and bool(host_files(completion))
+        if completion is not None and reads_files:
+            conditions = (*conditions, health.completion_condition(self._completion_files.problem(completion)))
         for _ in range(3):
             now = datetime.now(UTC)
             try:
@@ -403,12 +413,12 @@ class CellWorker:
             except Gone:
                 return
             current = (raw.get("status") or {}).get("conditions") or []
+            merged = health.merge_conditions(current, conditions, now)
+            if not reads_files:  # a model or token file taken out of the Cell takes its condition with it
+                remove_condition(merged, health.COMPLETION_READY)
             body = {
                 "metadata": {"resourceVersion": raw["metadata"]["resourceVersion"]},
-                "status": {
-                    "lastHeartbeatTime": status_time(now),
-                    "conditions": health.merge_conditions(current, conditions, now),
-                },
+                "status": {"lastHeartbeatTime": status_time(now), "conditions": merged},
             }
             try:
                 updated = self.deps.kube.patch_cell_status(self.cell.name, body)

@@ -344,10 +344,26 @@ def test_agent_mounts_calibration_cache_and_the_device_plugin_dir() -> None:
 
     assert host_paths == {"calibration": "/var/lib/armnet/calibration", "cache": "/var/lib/armnet/cache",
                           "device-plugins": "/var/lib/kubelet/device-plugins",
-                          "kubelet-pods": "/var/lib/kubelet/pods"}
+                          "kubelet-pods": "/var/lib/kubelet/pods",
+                          "completion-files-0": "/var/lib/armnet/models",
+                          "completion-files-1": "/var/lib/armnet/secrets"}
     assert mounts["device-plugins"]["mountPath"] == "/var/lib/kubelet/device-plugins"
     assert mounts["calibration"]["readOnly"] is True
     assert not pod["containers"][0]["securityContext"].get("privileged")
+
+
+def test_agent_reads_completion_files_only_from_its_directories_mounted_read_only_at_the_same_path() -> None:
+    dirs = ["/srv/armnet/models"]
+    pod = find(render(values={"agent": {"completionFiles": {"hostPaths": dirs}}}), "DaemonSet")["spec"]["template"]["spec"]
+    container = pod["containers"][0]
+    mounts = {m["name"]: m for m in container["volumeMounts"]}
+    volumes = {v["name"]: v for v in pod["volumes"]}
+
+    assert volumes["completion-files-0"]["hostPath"] == {"path": "/srv/armnet/models", "type": "DirectoryOrCreate"}
+    assert mounts["completion-files-0"] == {"name": "completion-files-0", "mountPath": "/srv/armnet/models",
+                                            "readOnly": True}
+    assert "completion-files-1" not in volumes
+    assert env_of(container)["ARMNET_AGENT_COMPLETION_FILES_DIRS"] == "/srv/armnet/models"
 
 
 def test_agent_reads_job_pods_observer_sockets_through_a_read_only_propagated_kubelet_pods_mount() -> None:

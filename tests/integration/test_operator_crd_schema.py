@@ -169,26 +169,46 @@ def test_a_cell_with_a_completion_monitor_is_accepted_with_its_defaults(k8s: Any
         k8s.kubectl("delete", "cell", cell["metadata"]["name"], "--wait=false")
 
 
-def test_a_cell_with_a_scoring_service_is_accepted_with_its_defaults(k8s: Any) -> None:
-    cell = a_cell(a_completion(scorer="service", region=None, colour=None,
-                               service={"url": "http://judge.lab.internal:8080/score"}))
+@pytest.mark.parametrize(("scorer", "setting", "defaults"), [
+    ("service", {"url": "http://judge.lab.internal:8080/score"}, {"timeoutSeconds": 0.5, "threshold": 0.5}),
+    ("classifier", {"model": "/var/lib/armnet/models/reach.onnx"}, {"threshold": 0.5, "inputSize": 64}),
+])
+def test_a_cell_with_a_scoring_service_or_a_classifier_is_accepted_with_its_defaults(
+    k8s: Any, scorer: str, setting: dict[str, Any], defaults: dict[str, Any],
+) -> None:
+    cell = a_cell(a_completion(scorer=scorer, region=None, colour=None, **{scorer: setting}))
     apply(k8s, cell)
     try:
         stored = json.loads(k8s.kubectl("get", "cell", cell["metadata"]["name"], "-o", "json").stdout)
-        service = stored["spec"]["completion"]["service"]
-        assert (service["timeoutSeconds"], service["threshold"]) == (0.5, 0.5)
+        assert stored["spec"]["completion"][scorer] == {**setting, **defaults}
     finally:
         k8s.kubectl("delete", "cell", cell["metadata"]["name"], "--wait=false")
 
 
 SERVICE = {"url": "http://judge.lab.internal:8080/score"}
+CLASSIFIER = {"model": "/var/lib/armnet/models/reach.onnx"}
 
 
 @pytest.mark.parametrize(("completion", "says"), [
     (a_completion(region=None), "scorer region needs region"),
     (a_completion(scorer="service", region=None, colour=None), "scorer service needs service"),
-    (a_completion(scorer="service", service=SERVICE), "a service scorer scores with its endpoint alone"),
-    (a_completion(service=SERVICE), "service is for scorer service only"),
+    (a_completion(scorer="service", service=SERVICE), "a service or classifier scorer scores alone"),
+    (a_completion(service=SERVICE), "service and classifier each belong to their own scorer"),
+    (a_completion(scorer="classifier", region=None, colour=None), "scorer classifier needs classifier"),
+    (a_completion(scorer="service", region=None, colour=None, service={**SERVICE, "tokenFile": "judge-token"}),
+     "spec.completion.service.tokenFile"),
+    (a_completion(scorer="classifier", classifier=CLASSIFIER), "a service or classifier scorer scores alone"),
+    (a_completion(classifier=CLASSIFIER), "service and classifier each belong to their own scorer"),
+    (a_completion(scorer="service", region=None, colour=None, service=SERVICE, classifier=CLASSIFIER),
+     "service and classifier each belong to their own scorer"),
+    (a_completion(scorer="classifier", region=None, colour=None, classifier={"model": "models/reach.onnx"}),
+     "spec.completion.classifier.model"),
+    (a_completion(scorer="classifier", region=None, colour=None, classifier={**CLASSIFIER, "inputSize": 4}),
+     "spec.completion.classifier.inputSize"),
+    (a_completion(scorer="classifier", region=None, colour=None,
+                  classifier={"model": "/var/lib/armnet/models/../../../etc/x.onnx"}), "give a normalized absolute path"),
+    (a_completion(scorer="service", region=None, colour=None,
+                  service={**SERVICE, "tokenFile": "/var/lib/armnet/secrets//../token"}), "give a normalized absolute path"),
     (a_completion(scorer="service", region=None, colour=None, service={"url": "file:///etc/passwd"}),
      "spec.completion.service.url"),
     (a_completion(scorer="service", region=None, colour=None, service={**SERVICE, "timeoutSeconds": 5}),
@@ -202,7 +222,7 @@ SERVICE = {"url": "http://judge.lab.internal:8080/score"}
     (a_completion(arucoId=3), "exactly one object to look for"),
     (a_completion(colour=None), "exactly one object to look for"),
     (a_completion(colour=None, arucoId=60), "spec.completion.arucoId is not in its dictionary"),
-    (a_completion(scorer="classifier"), "spec.completion.scorer"),
+    (a_completion(scorer="vlm"), "spec.completion.scorer"),
     (a_completion(colour={"hueMin": 0, "hueMax": 8, "valueMin": 200, "valueMax": 10}), "must not exceed"),
 ])
 def test_a_hostile_completion_is_rejected_saying_what_to_fix(k8s: Any, completion: dict[str, Any], says: str) -> None:

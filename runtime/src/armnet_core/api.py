@@ -81,6 +81,9 @@ class CellConditionType(_Name):
     CALIBRATION_PRESENT = "CalibrationPresent"
     CAMERAS_READY = "CamerasReady"
     INTERLOCK_CLEAR = "InterlockClear"
+    #: Only on a cell whose completion monitor reads files on the robot host (a classifier's
+    #: model, a judge's token file): they are where the agent allows and usable.
+    COMPLETION_READY = "CompletionReady"
 
 
 class ArtifactsPhase(_Name):

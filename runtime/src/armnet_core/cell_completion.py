@@ -31,12 +31,19 @@ MAX_RATE_HZ = 30.0
 #: The slowest: ``block=True`` waits a few periods, which must stay well under a call's timeout.
 MIN_RATE_HZ = 0.5
 MAX_CONSECUTIVE_FRAMES = 300
-#: Scorers this connector has; ``classifier`` is not built yet.
-SCORERS = ("region", "service")
+#: Scorers this connector has.
+SCORERS = ("region", "service", "classifier")
 #: The longest a ``service`` scorer may take to answer: the monitor counts a score slower than
 #: its limit (``SLOW_SCORE_S`` in the connector, 1 s) as "not complete" anyway.
 MAX_SERVICE_TIMEOUT_S = 1.0
 MIN_SERVICE_TIMEOUT_S = 0.05
+#: The largest model file a ``classifier`` scorer loads: a success classifier for one task is a
+#: few kB to a few MB; a larger file is refused before it is read (a 2 GB file must not fill
+#: the connector's memory).
+MAX_MODEL_BYTES = 64 << 20
+#: The side of the square picture a classifier sees, in pixels (the frame is resized to it).
+MIN_INPUT_SIZE = 16
+MAX_INPUT_SIZE = 512
 
 
 class _Model(BaseModel):
@@ -119,18 +126,38 @@ class ColourConfig(_Model):
         return self
 
 
+def _host_file(value: str, name: str, example: str) -> str:
+    """``value`` if it is a normalized absolute path (a file on the robot host), else why, with ``example``."""
+    if not value.startswith("/") or "\x00" in value:
+        raise ValueError(f"{name} {value[:80]!r}: give the absolute path of a file on the robot host (e.g. {example})")
+    if "/../" in f"{value}/" or "/./" in f"{value}/" or "//" in value:
+        raise ValueError(f"{name} {value[:80]!r}: give a normalized absolute path (no '..', '.' or '//' parts)")
+    return value
+
+
 class ServiceConfig(_Model):
     """An external scorer: the monitor POSTs each frame it scores (JPEG) and reads ``{"score": 0..1}`` back.
 
     The URL is the cell owner's (in the Cell, never a job's); a service that is slow
     (past ``timeoutSeconds``), down or answers anything else counts as "not complete"
-    and is reported, never waited for beyond the timeout.
+    and is reported, never waited for beyond the timeout. A judge that wants
+    credentials gets a bearer token read from ``tokenFile``, a file on the robot host
+    (never in the Cell or a pod's spec, where tenants could read it).
     """
 
     url: str = Field(min_length=8, max_length=2048, pattern=r"^https?://[^\s]+$",
                      description="http(s) endpoint that scores one JPEG frame")
     timeout_seconds: float = Field(default=0.5, description="how long one score may take")
     threshold: float = Field(default=0.5, ge=0, le=1, description="a frame scored at least this is a hit")
+    token_file: str | None = Field(default=None, min_length=2, max_length=1024,
+                                   description="file on the robot host holding the bearer token the judge wants")
+
+    @field_validator("token_file")
+    @classmethod
+    def _token_file(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        return _host_file(value, "completion.service.tokenFile", "/var/lib/armnet/secrets/judge-token")
 
     @field_validator("timeout_seconds", mode="before")
     @classmethod
@@ -145,6 +172,40 @@ class ServiceConfig(_Model):
         return _finite(value, "completion.service.threshold")
 
 
+class ClassifierConfig(_Model):
+    """A learned success classifier: an ONNX model file on the robot host, run by OpenCV's DNN module.
+
+    The contract (docs/connector.md, "Scoring by a learned classifier"): one input of
+    ``1 x 3 x inputSize x inputSize`` float32, the frame resized to that square, RGB,
+    scaled to 0..1; one output, a single logit, whose sigmoid is the score. The path is
+    the cell owner's (in the Cell, never a job's); the file is checked where the cell's
+    connector runs (``CompletionReady`` on the Cell says why it cannot be used).
+    """
+
+    model: str = Field(min_length=2, max_length=1024, description="absolute path of the .onnx model file on the robot host")
+    threshold: float = Field(default=0.5, ge=0, le=1, description="a frame scored at least this is a hit")
+    input_size: int = Field(default=64, description="side of the square picture the model sees, in pixels")
+
+    @field_validator("threshold", mode="before")
+    @classmethod
+    def _threshold(cls, value: Any) -> Any:
+        return _finite(value, "completion.classifier.threshold")
+
+    @field_validator("input_size", mode="before")
+    @classmethod
+    def _input_size(cls, value: Any) -> Any:
+        return _bounded(value, "completion.classifier.inputSize", MIN_INPUT_SIZE, MAX_INPUT_SIZE, (int,),
+                        f"{MIN_INPUT_SIZE} to {MAX_INPUT_SIZE} pixels (the side the model was trained on)")
+
+    @field_validator("model")
+    @classmethod
+    def _normal_path(cls, value: str) -> str:
+        if not value.endswith(".onnx"):
+            raise ValueError(f"completion.classifier.model {value[:80]!r}: give the absolute path of an ONNX "
+                             "model file on the robot host, ending in .onnx (e.g. /var/lib/armnet/models/reach.onnx)")
+        return _host_file(value, "completion.classifier.model", "/var/lib/armnet/models/reach.onnx")
+
+
 class CompletionConfig(_Model):
     """How the cell's completion monitor scores an episode (docs/connector.md, "Completion monitor")."""
 
@@ -152,6 +213,7 @@ class CompletionConfig(_Model):
     scorer: str = "region"
     region: RegionConfig | None = Field(default=None, description="region scorer: where the object must be")
     service: ServiceConfig | None = Field(default=None, description="service scorer: the endpoint that scores")
+    classifier: ClassifierConfig | None = Field(default=None, description="classifier scorer: the model that scores")
     colour: ColourConfig | None = Field(default=None, description="the object is a blob of this HSV range")
     aruco_id: int | None = Field(default=None, description="the object is the ArUco marker of this id")
     aruco_dictionary: str = "DICT_4X4_50"
@@ -190,16 +252,20 @@ class CompletionConfig(_Model):
 
     @model_validator(mode="after")
     def _one_object(self) -> CompletionConfig:
-        if self.scorer == "service":
-            if self.service is None:
-                raise ValueError("completion.scorer service needs completion.service (its url)")
+        own = {"service": self.service, "classifier": self.classifier}
+        for scorer, setting in own.items():
+            if setting is not None and self.scorer != scorer:
+                raise ValueError(f"completion.{scorer} is for scorer {scorer}; this completion's scorer is {self.scorer}")
+        if self.scorer in own:
+            if own[self.scorer] is None:
+                needs = "its url" if self.scorer == "service" else "its model file"
+                raise ValueError(f"completion.scorer {self.scorer} needs completion.{self.scorer} ({needs})")
             if self.region is not None or self.colour is not None or self.aruco_id is not None:
+                alone = "its endpoint" if self.scorer == "service" else "its model"
                 raise ValueError(
-                    "completion.scorer service scores with its endpoint alone: leave out region, colour and arucoId"
+                    f"completion.scorer {self.scorer} scores with {alone} alone: leave out region, colour and arucoId"
                 )
             return self
-        if self.service is not None:
-            raise ValueError("completion.service is for scorer service; this completion's scorer is region")
         if self.region is None:
             raise ValueError("completion.scorer region needs completion.region (where the object must be)")
         if (self.colour is None) == (self.aruco_id is None):
@@ -212,6 +278,43 @@ class CompletionConfig(_Model):
                 f"completion.arucoId is {self.aruco_id}; {self.aruco_dictionary} holds ids 0 to {size - 1}"
             )
         return self
+
+
+def host_files(completion: CompletionConfig | None) -> tuple[str, ...]:
+    """The robot host's files the completion monitor reads (a classifier's model, a judge's token file).
+
+    A job pod's connector gets each mounted read-only at the same path; the node agent
+    checks them for the Cell's ``CompletionReady``.
+    """
+    if completion is None:
+        return ()
+    if completion.classifier is not None:
+        return (completion.classifier.model,)
+    if completion.service is not None and completion.service.token_file is not None:
+        return (completion.service.token_file,)
+    return ()
+
+
+#: Where a node agent lets a completion monitor read files unless told otherwise
+#: (``--completion-files-dir``; the Helm chart mounts both at the same path).
+DEFAULT_COMPLETION_DIRS = ("/var/lib/armnet/models", "/var/lib/armnet/secrets")
+
+
+def outside_dirs(paths: Any, dirs: Any) -> str | None:
+    """Why one of ``paths`` is not inside one of ``dirs`` (the agent's allowed directories), None if all are.
+
+    Why a fence at all: a Cell names files the connector reads with the agent's
+    rights and sends (a token) to the Cell's URL; without it, whoever may edit a
+    Cell could read any single-line file of the host, the agent's own credentials
+    included. Paths are compared as given: the models already refuse ``..``, ``.``
+    and ``//`` parts, and the file checks refuse a symbolic link.
+    """
+    allowed = [d.rstrip("/") for d in dirs if d]
+    for path in paths:
+        if not any(path.startswith(f"{d}/") for d in allowed):
+            return (f"{path[:200]} is outside the directories this node agent reads completion files from "
+                    f"({', '.join(allowed) or 'none'}); put the file there (the agent's --completion-files-dir)")
+    return None
 
 
 def unknown_camera(completion: CompletionConfig | None, cameras: Any) -> str | None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -159,6 +160,21 @@ def test_a_scorer_that_raises_is_counted_and_answers_not_complete(
     assert counters.completion_scorer_errors == 2
     assert monitor.is_complete(block=False) == (False, False)
     assert "ZeroDivisionError: a bug in the scorer" in monitor.verdict().detail
+
+
+def test_a_classifier_whose_model_is_not_a_model_counts_each_failed_score_and_answers_not_complete(
+    run_monitor: Callable[..., CameraCompletionMonitor], tmp_path: Path,
+) -> None:
+    model = tmp_path / "reach.onnx"
+    model.write_text("not a model")
+    config = CompletionConfig.model_validate({"camera": "front", "scorer": "classifier", "rateHz": 30,
+                                              "consecutiveFrames": 1, "classifier": {"model": str(model)}})
+    source, counters = ShownFrames(), Counters()
+    monitor = run_monitor(config, source, counters)  # the connector's start does not load the model
+    show_frames(source, counters, ON_TARGET, 3, 0.0)
+    assert counters.completion_scorer_errors == 3
+    assert monitor.is_complete(block=False) == (False, False)
+    assert "is not an ONNX model OpenCV can run" in monitor.verdict().detail
 
 
 class Hanging:

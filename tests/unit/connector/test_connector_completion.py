@@ -3,8 +3,9 @@
 The simulator's camera draws a red disc on the arm's end effector and a blue
 target pad where the disc lands at ``TARGET_POSE``; the cell's completion
 monitor looks for the disc inside the pad's region. LeRobot's bus (the SDK's
-proxy) drives the arm; the SDK's ``Cell`` asks. The main cases run twice: with the
-region scorer in the connector, and with the service scorer asking a judge over HTTP.
+proxy) drives the arm; the SDK's ``Cell`` asks. The main cases run three times: with the
+region scorer in the connector, with the service scorer asking a judge over HTTP, and
+with the learned classifier the project trains on rendered frames.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from armnet_connector.hardware import simulated_camera_factory
 from armnet_runtime.context import Cell
 from armnet_sim import SimulatedCellProcess
 from armnet_sim.render import TARGET_POSE, target_region
+from armnet_sim.scene_samples import SHIPPED_CLASSIFIER, SHIPPED_CLASSIFIER_INPUT
 
 from tests.support.scoring_service import ScoringService
 
@@ -61,8 +63,13 @@ def region_judge(completion: dict[str, Any]) -> ScoringService:
 @pytest.fixture
 def connector(request: pytest.FixtureRequest, sim_cell: SimulatedCellProcess,
               make_connector: Callable[..., Connector], cell_config: Callable[..., ConnectorConfig]) -> Iterator[Connector]:
-    """The cell's monitor with the region scorer, or (``"service"``) a service that judges with it over HTTP."""
+    """The cell's monitor with the region scorer, (``"service"``) a service that judges with it over HTTP,
+    or (``"classifier"``) the learned classifier the project ships for its simulated cells."""
     completion = completion_of_the_target()
+    if getattr(request, "param", "region") == "classifier":
+        completion = {"camera": "front", "scorer": "classifier",
+                      "classifier": {"model": str(SHIPPED_CLASSIFIER.resolve()), "inputSize": SHIPPED_CLASSIFIER_INPUT},
+                      "consecutiveFrames": completion["consecutiveFrames"], "rateHz": completion["rateHz"]}
     if getattr(request, "param", "region") == "service":
         judge = region_judge(completion)
         request.addfinalizer(judge.close)
@@ -92,7 +99,7 @@ def a_job_cell(connector: Connector) -> Cell:
     return Cell(robot_port=connector.robot_endpoint, operator_call_endpoint=connector.operator_endpoint)
 
 
-@pytest.mark.parametrize("connector", ["region", "service"], indirect=True)
+@pytest.mark.parametrize("connector", ["region", "service", "classifier"], indirect=True)
 def test_a_job_that_drives_the_arm_onto_the_target_is_scored_complete(connector: Connector, bus: Any) -> None:
     cell = a_job_cell(connector)
     assert not cell.is_complete(block=True)
@@ -106,7 +113,7 @@ def test_a_job_that_drives_the_arm_onto_the_target_is_scored_complete(connector:
     assert connector.record().counters["completion_frames_scored"] >= 3
 
 
-@pytest.mark.parametrize("connector", ["region", "service"], indirect=True)
+@pytest.mark.parametrize("connector", ["region", "service", "classifier"], indirect=True)
 def test_a_job_that_stops_short_of_the_target_is_not_complete(connector: Connector, bus: Any) -> None:
     short = {**TARGET_POSE, "elbow_flex": TARGET_POSE["elbow_flex"] - 15.0}
     drive_to(bus, short)

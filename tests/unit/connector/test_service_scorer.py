@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from armnet_connector.service_scorer import MAX_ANSWER_BYTES, ServiceScoreError, ServiceScorer
-from armnet_core.cell_completion import ServiceConfig
+from armnet_connector.service_scorer import (
+    MAX_ANSWER_BYTES,
+    MAX_TOKEN_BYTES,
+    ServiceScoreError,
+    ServiceScorer,
+)
+from armnet_core.cell_completion import CompletionConfig, ServiceConfig
+from armnet_node.completion_model import files_problem
 
 from tests.support.scoring_service import ScoringService
 
@@ -88,3 +95,57 @@ def test_a_frame_that_is_no_image_is_a_miss_and_never_sent(service: ScoringServi
     result = scorer(service.url).score(np.zeros((4, 4), dtype=np.uint8))
     assert not result.hit and "the scorer needs height x width x 3 uint8" in result.detail
     assert service.received == []
+
+
+def test_a_judge_with_a_token_file_gets_the_bearer_token_and_it_is_read_once(
+    service: ScoringService, tmp_path: Path,
+) -> None:
+    token = tmp_path / "judge-token"
+    token.write_text("s3cr3t-token\n")
+    judge = scorer(service.url, tokenFile=str(token))
+    judge.score(FRAME)
+    token.write_text("rotated")  # read once, at the first frame: the connector of one job keeps it
+    judge.score(FRAME)
+    assert [headers["Authorization"] for headers, _ in service.received] == ["Bearer s3cr3t-token"] * 2
+    assert "s3cr3t" not in repr(judge)
+
+
+def test_a_token_file_that_is_a_link_or_a_fifo_is_refused_without_reading_or_hanging(
+    service: ScoringService, tmp_path: Path,
+) -> None:
+    import os
+
+    real = tmp_path / "real-token"
+    real.write_text("fine")
+    link = tmp_path / "judge-token"
+    link.symlink_to(real)
+    fifo = tmp_path / "fifo-token"
+    os.mkfifo(fifo)  # opened blocking, a FIFO nobody writes to would hang the reader for ever
+    for path, says in ((link, "is a symbolic link or lies under one"), (fifo, "is not a regular file")):
+        with pytest.raises(ServiceScoreError) as raised:
+            scorer(service.url, tokenFile=str(path)).score(FRAME)
+        assert says in str(raised.value)
+    assert not service.received
+
+
+@pytest.mark.parametrize(("content", "says"), [
+    (None, "does not exist on this robot host"),
+    (b"", "holds no bearer token on one line"),
+    (b"two\nlines", "holds no bearer token on one line"),
+    ("t\u00f6ken".encode(), "holds no bearer token on one line"),  # not sendable in a header as it is
+    (b"x" * (MAX_TOKEN_BYTES + 1), f"over the {MAX_TOKEN_BYTES:,} bytes it may be"),
+])
+def test_an_unusable_token_file_is_a_score_error_naming_the_file_never_its_content(
+    service: ScoringService, tmp_path: Path, content: bytes | None, says: str,
+) -> None:
+    token = tmp_path / "judge-token"
+    if content is not None:
+        token.write_bytes(content)
+    with pytest.raises(ServiceScoreError) as raised:
+        scorer(service.url, tokenFile=str(token)).score(FRAME)
+    assert says in str(raised.value) and str(token) in str(raised.value)
+    assert "two" not in str(raised.value) and "lines" not in str(raised.value) and not service.received
+    problem = files_problem(CompletionConfig.model_validate(
+        {"camera": "front", "scorer": "service", "service": {"url": service.url, "tokenFile": str(token)}}),
+        dirs=(str(tmp_path),))
+    assert problem is not None and says in problem

@@ -134,6 +134,18 @@ def test_the_output_directory_is_the_job_containers_only() -> None:
     assert "output" not in {m["name"] for m in connector["volumeMounts"]}
 
 
+def test_the_completion_monitors_host_files_are_mounted_read_only_into_the_connector_only_at_their_paths() -> None:
+    files = ("/var/lib/armnet/models/reach.onnx", "/var/lib/armnet/secrets/judge-token")
+    pod = build_pod(inputs(host_files=files))
+    connector, job = containers(pod)
+    volumes = {v["name"]: v for v in pod["spec"]["volumes"]}
+    for i, path in enumerate(files):
+        assert volumes[f"host-file-{i}"]["hostPath"] == {"path": path, "type": "File"}
+        assert {"name": f"host-file-{i}", "mountPath": path, "readOnly": True} in connector["volumeMounts"]
+    assert not [m for m in job["volumeMounts"] if m["name"].startswith("host-file-")]
+    assert not [v for v in build_pod(inputs())["spec"]["volumes"] if v["name"].startswith("host-file-")]
+
+
 def test_without_an_observer_directory_there_is_no_observer_volume() -> None:
     assert "observer" not in {v["name"] for v in build_pod(inputs())["spec"]["volumes"]}
 

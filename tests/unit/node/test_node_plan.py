@@ -178,3 +178,28 @@ def test_a_cell_with_a_bad_completion_is_an_error_naming_the_cell_and_the_fix(
     with pytest.raises(ValueError, match="^Cell cell-1: invalid spec") as raised:
         parse_cell(cell_obj(completion=completion))
     assert says in str(raised.value)
+
+
+CLASSIFIER = {"camera": "front", "scorer": "classifier"}
+
+
+@pytest.mark.parametrize("files", [
+    {"classifier": {"model": "/etc/armnet/reach.onnx"}},
+    {"classifier": {"model": "/var/lib/armnet/models-old/reach.onnx"}},  # a sibling sharing the prefix
+    {"scorer": "service", "service": {"url": "http://judge:8080/s",
+                                      "tokenFile": "/var/run/secrets/kubernetes.io/serviceaccount/token"}},
+])
+def test_a_cell_naming_a_completion_file_outside_the_agents_directories_is_not_launched(files: dict[str, Any]) -> None:
+    cell = parse_cell(cell_obj(completion={**CLASSIFIER, **files}))
+    with pytest.raises(LaunchError) as raised:
+        plan_launch(parse_job(job_obj()), cell, PATHS, {})
+    assert "is outside the directories this node agent reads completion files from" in str(raised.value)
+    assert "/var/lib/armnet/models, /var/lib/armnet/secrets" in str(raised.value)
+
+
+def test_a_cell_naming_a_completion_file_inside_them_is_launched_with_it() -> None:
+    cell = parse_cell(cell_obj(completion={**CLASSIFIER, "classifier": {"model": "/var/lib/armnet/models/reach.onnx"}}))
+    plan = plan_launch(parse_job(job_obj()), cell, PATHS, {})
+    config = build_connector_config(plan.cell_spec, plan.layout, {"arm": "/dev/pts/9"})
+    assert config.completion is not None and config.completion.classifier is not None
+    assert config.completion.classifier.model == "/var/lib/armnet/models/reach.onnx"
