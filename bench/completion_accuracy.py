@@ -4,7 +4,8 @@
 
 Both scorers a simulated cell can run are measured on the same held-out pictures
 (``armnet_sim.scene_samples``, a seed neither was tuned or trained on): successes, near
-misses (the disc 4-40 px off the pad) and far poses, each under another light (gain
+misses (the disc 4-40 px off the pad), far poses and pictures of no scene at all (the
+simulator's "no arm attached", a flat colour, noise), each under another light (gain
 0.6-1.4, offset -30..30) with sensor noise (sigma up to 8). The labels come from the
 scene's geometry, not from a scorer. Printed per scorer: precision and recall of a
 frame's hit (target ≥ 0.95 each, issue: unattended evaluation), the near misses it
@@ -68,8 +69,9 @@ def accuracy(scorer: Any, pictures: list[Any]) -> dict[str, float]:
     precision = true_pos / max(1, sum(hits))
     recall = true_pos / max(1, sum(truth))
     near = [h for h, p in zip(hits, pictures, strict=True) if p.kind == "near_miss"]
+    blank = [h for h, p in zip(hits, pictures, strict=True) if p.kind == "no_scene"]
     return {"precision": precision, "recall": recall, "near_miss_hits": sum(near) / max(1, len(near)),
-            "cpu_ms": cpu_ms}
+            "no_scene_hits": sum(blank) / max(1, len(blank)), "cpu_ms": cpu_ms}
 
 
 def latency(scorer: Any, seed: int) -> list[int]:
@@ -115,7 +117,7 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=800)
     args = parser.parse_args()
     pictures = samples(HELD_OUT_SEED, args.samples)
-    counts = {kind: sum(1 for p in pictures if p.kind == kind) for kind in ("success", "near_miss", "far")}
+    counts = {kind: sum(1 for p in pictures if p.kind == kind) for kind in ("success", "near_miss", "far", "no_scene")}
     print(f"held-out pictures (seed {HELD_OUT_SEED}): {counts}, light and noise varied")
     scorers: dict[str, Callable[[], Any]] = {"region": region_scorer, "classifier": classifier_scorer}
     failed = False
@@ -127,7 +129,7 @@ def main() -> int:
         met = figures["precision"] >= 0.95 and figures["recall"] >= 0.95 and all(0 <= d <= 2 for d in delays)
         failed |= not met
         print(f"{name:10s} precision {figures['precision']:.3f}  recall {figures['recall']:.3f}  "
-              f"near misses taken for a success {figures['near_miss_hits']:.1%}  "
+              f"near misses taken for a success {figures['near_miss_hits']:.1%}, no scene {figures['no_scene_hits']:.1%}  "
               f"CPU {figures['cpu_ms']:.2f} ms/frame  latency {delays} frames (max {max(delays)})  "
               f"{'met' if met else 'NOT MET'}")
     return 1 if failed else 0

@@ -28,6 +28,7 @@ from typing import Any
 
 import pytest
 from armnet_core.api import API_VERSION, CELL_RESOURCE_PREFIX, GROUP, TERMINAL_PHASES
+from armnet_sim.scene_samples import SHIPPED_CLASSIFIER, SHIPPED_CLASSIFIER_INPUT
 
 from e2e import scenarios
 from e2e.agent_bed import DEV_MOUNTS, EXAMPLES, JOBS, AgentBed, JobWatch
@@ -156,6 +157,14 @@ def bed(k8s: Any, k8s_node: Any, podman: Any, base_image: str, nats_server: str,
     camera = {"front": {"indexOrPath": 0}}
     bed.cells = [bed.add_cell(f"pod-{c}", cameras=camera) for c in "abc"]  # type: ignore[attr-defined]
     bed.bimanual = bed.add_cell("pod-bimanual", bimanual=True)  # type: ignore[attr-defined]
+    # An evaluation cell whose monitor runs the learned classifier (a host file the agent allows,
+    # --completion-files-dir). This agent runs the simulator itself: a job pod's camera would draw
+    # no arm, so the cell must say it cannot be scored rather than take evaluations.
+    bed.agent_args += ["--completion-files-dir", str(SHIPPED_CLASSIFIER.parent)]
+    bed.evaluator = bed.add_cell(  # type: ignore[attr-defined]
+        "pod-eval", task="evaluation", cameras={"front": {"indexOrPath": 0, "width": 640, "height": 480, "fps": 30}},
+        completion={"camera": "front", "scorer": "classifier", "consecutiveFrames": 3, "rateHz": 15,
+                    "classifier": {"model": str(SHIPPED_CLASSIFIER), "inputSize": SHIPPED_CLASSIFIER_INPUT}})
     bed.start_operator()
     bed.start_agent()
     try:
@@ -458,6 +467,18 @@ def test_a_connector_sidecar_killed_mid_job_comes_back_tripped_and_the_job_fails
     assert "connector sidecar restarted" in st["result"]["error"]
     # The restarted connector's own record: it came back with the interlock tripped.
     assert "connector record: agent_restarted: the connector restarted while the job ran" in st["result"]["error"]
+
+
+def test_a_monitored_cell_whose_pods_cameras_cannot_see_the_arm_says_so_and_takes_no_job(bed: AgentBed) -> None:
+    def completion_ready() -> dict[str, Any] | None:
+        conditions = (bed.cell(bed.evaluator).get("status") or {}).get("conditions") or []  # type: ignore[attr-defined]
+        return next((c for c in conditions if c["type"] == "CompletionReady"), None)
+
+    condition = bed.wait(completion_ready, 60, "CompletionReady on the monitored cell")
+    assert (condition["status"], condition["reason"]) == ("False", "CannotSeeTheArm"), condition
+    assert "--pod-simulator sidecar" in condition["message"]
+    assert bed.wait(lambda: bed.cell(bed.evaluator).get("status", {}).get("phase") == "Faulted", 60,  # type: ignore[attr-defined]
+                    "the operator faulting the cell")
 
 
 def test_a_job_beyond_the_free_cells_waits_queued_and_runs_once_a_cell_is_free_never_sharing_one(

@@ -181,18 +181,26 @@ def interlock_condition(probe: CellProbe) -> Condition:
     return _ok(INTERLOCK_CLEAR, "Clear", "motion is allowed")
 
 
-def completion_condition(problem: str | None) -> Condition:
+def completion_condition(problem: str | None, reason: str = "FileUnusable") -> Condition:
     """``CompletionReady`` on a cell whose completion monitor reads files on the robot host (a classifier's
     model, a judge's token file): ``problem`` is why it cannot use them (``completion_model.files_problem``),
     None when it can.
 
     A health condition: a cell whose monitor cannot score would run every evaluation to
-    "not complete", so it is not bound until the file is fixed.
+    "not complete", so it is not bound until the file is fixed. ``reason``: ``FileUnusable``,
+    or ``CannotSeeTheArm`` (``MONITOR_SEES_NO_ARM``).
     """
     if problem is None:
         return _ok(COMPLETION_READY, "FilesUsable", "the completion monitor's files on this host load and answer")
-    return _bad(COMPLETION_READY, "FileUnusable",
+    return _bad(COMPLETION_READY, reason,
                 f"{problem[:900]}; no job is bound to this cell until its completion monitor can score")
+
+
+MONITOR_SEES_NO_ARM = (
+    "this node agent runs the cell simulator itself (--pod-simulator agent), so a job pod's simulated camera "
+    "draws no arm and the completion monitor could never see the task done; run the agent with "
+    "--pod-simulator sidecar (the Helm chart's agent.podSimulator) for simulated cells with spec.completion"
+)
 
 
 INPUTS_NEED_NATS = ("the cell operator's Confirm reset and Success/Fail, teleop and live logs "

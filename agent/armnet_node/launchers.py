@@ -151,6 +151,9 @@ class JobLauncher(Protocol):
     secrets_by_ref: bool
     #: The uid the connector runs as when it is not this process (a pod's sidecar), else None.
     connector_uid: int | None
+    #: A simulated cell's cameras, as the job's connector opens them, draw the arm (they reach the
+    #: simulator's joint state): a completion monitor can see the task.
+    simulated_cameras_draw_the_arm: bool
 
     def running(self) -> dict[str, Any]:
         """Job uid -> a row of every job this agent's launcher started and did not remove."""
@@ -176,8 +179,9 @@ class ContainerLauncher:
     kind = "container"
     #: Secrets reach the container as env values (the Docker API has no secret references).
     secrets_by_ref = False
-    #: The connector runs in this process.
+    #: The connector runs in this process, beside the simulator.
     connector_uid: int | None = None
+    simulated_cameras_draw_the_arm = True
 
     def __init__(self, engine: Any, metrics: AgentMetrics) -> None:
         self.engine = engine
@@ -364,6 +368,8 @@ class PodLauncher:
         self.metrics = metrics
         self.namespaces = namespaces
         self.connector_uid: int | None = settings.connector_user
+        # The sidecar's cameras draw the arm only when the simulator runs in the pod beside them.
+        self.simulated_cameras_draw_the_arm = settings.simulator_in_pod
 
     def running(self) -> dict[str, Any]:
         """This node's job pods, by label (re-adoption reads the pod, never the agent's memory)."""

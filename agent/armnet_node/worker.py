@@ -105,6 +105,7 @@ class CellWorker:
         # The uid the connector reads the cell's completion files as: a pod's sidecar's, or this process's.
         reader_uid = getattr(deps.launcher, "connector_uid", None)
         self._completion_files = CompletionFilesCheck(deps.paths.completion_dirs, reader_uid)
+        self._cameras_draw_the_arm = bool(getattr(deps.launcher, "simulated_cameras_draw_the_arm", True))
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
 
     @property
@@ -392,6 +393,22 @@ class CellWorker:
         if latest is not None and latest.get("outcome") != "stopped":
             self._auto_reset = latest
 
+    def _completion_readiness(self) -> tuple[str | None, str] | None:
+        """(why the cell's monitor cannot score or None, the reason) when the cell reports ``CompletionReady``.
+
+        Reported when the monitor reads files on this host, and when it could never see
+        the task: a simulated cell whose job pods' cameras draw no arm (the simulator runs
+        in this agent, out of the pod's reach).
+        """
+        completion = self.cell.completion
+        if completion is None:
+            return None
+        if self.cell.simulated and not self._cameras_draw_the_arm:
+            return health.MONITOR_SEES_NO_ARM, "CannotSeeTheArm"
+        if host_files(completion):
+            return self._completion_files.problem(completion), "FileUnusable"
+        return None
+
     def _heartbeat(self) -> None:
         streams = health.streams_condition(streams_probe(self.deps.link))
         try:
@@ -402,10 +419,9 @@ class CellWorker:
         if self.cell.reset is not None and self.cell.reset.scripted:
             self._note_auto_reset(self.runner)
             conditions = (*conditions, health.auto_reset_condition(self._auto_reset))
-        completion = self.cell.completion
-        reads_files = completion is not None and bool(host_files(completion))
-        if completion is not None and reads_files:
-            conditions = (*conditions, health.completion_condition(self._completion_files.problem(completion)))
+        readiness = self._completion_readiness()
+        if readiness is not None:
+            conditions = (*conditions, health.completion_condition(*readiness))
         for _ in range(3):
             now = datetime.now(UTC)
             try:
@@ -414,7 +430,7 @@ class CellWorker:
                 return
             current = (raw.get("status") or {}).get("conditions") or []
             merged = health.merge_conditions(current, conditions, now)
-            if not reads_files:  # a model or token file taken out of the Cell takes its condition with it
+            if readiness is None:  # the settings taken out of the Cell take their condition with them
                 remove_condition(merged, health.COMPLETION_READY)
             body = {
                 "metadata": {"resourceVersion": raw["metadata"]["resourceVersion"]},

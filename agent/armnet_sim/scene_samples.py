@@ -8,7 +8,10 @@ when the end effector's disc has its centre on the target pad. The kinds of pose
 - ``success``: the disc's centre on the pad, at least ``SUCCESS_MARGIN_PX`` inside its edge;
 - ``near_miss``: just off the pad, its centre ``NEAR_MISS_PX`` outside its edge
   (a pose a policy that almost made it ends in);
-- ``far``: anywhere else the arm reaches.
+- ``far``: anywhere else the arm reaches;
+- ``no_scene``: pictures that are no view of the task at all (the simulator's "no arm
+  attached" picture, a flat colour, noise): a camera that shows something else must
+  never be scored complete, and a learned classifier only learns that from examples.
 
 A pose in the band between (a centre on the pad's very edge) is never drawn: its
 label would be a matter of a pixel, which no camera decides. ``perturb`` changes the
@@ -34,9 +37,9 @@ from .render import TARGET_POSE, chain_points, render_arms, target_region
 WIDTH, HEIGHT = 640, 480
 SUCCESS_MARGIN_PX = 2.0
 NEAR_MISS_PX = (4.0, 40.0)
-KINDS = ("success", "near_miss", "far")
-#: The shares of the kinds in ``samples`` (successes, near misses, far poses).
-MIX = (0.4, 0.4, 0.2)
+KINDS = ("success", "near_miss", "far", "no_scene")
+#: The shares of the kinds in ``samples`` (successes, near misses, far poses, no scene).
+MIX = (0.38, 0.38, 0.18, 0.06)
 #: The chain joints and their spread around the target (degrees) for a near pose.
 CHAIN = ("shoulder_lift", "elbow_flex", "wrist_flex")
 NEAR_SPREAD_DEG = 6.0
@@ -101,7 +104,20 @@ def perturb(image: Any, rng: np.random.Generator, *, gain: tuple[float, float] =
     return np.clip(out, 0, 255).astype(np.uint8)
 
 
+def no_scene(rng: np.random.Generator) -> Any:
+    """A BGR picture that shows no task: the simulator's "no arm attached", a flat colour, or noise."""
+    choice = int(rng.integers(3))
+    if choice == 0:
+        return cv2.cvtColor(render_arms({}, WIDTH, HEIGHT), cv2.COLOR_RGB2BGR)
+    if choice == 1:
+        return np.full((HEIGHT, WIDTH, 3), rng.integers(0, 256, 3), dtype=np.uint8)
+    return rng.integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
+
+
 def sample(rng: np.random.Generator, kind: str, *, vary_light: bool = True) -> SceneSample:
+    if kind == "no_scene":
+        image = no_scene(rng)
+        return SceneSample(perturb(image, rng) if vary_light else image, False, kind, {})
     joints = _pose(rng, kind)
     rgb = render_arms({"arm": joints}, WIDTH, HEIGHT)
     image = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
@@ -139,6 +155,7 @@ __all__ = [
     "approach",
     "frame_of",
     "kind_of",
+    "no_scene",
     "pad_distance",
     "perturb",
     "sample",

@@ -27,7 +27,7 @@ from armnet_core.cell_completion import MAX_MODEL_BYTES, ClassifierConfig, Compl
 from armnet_node.completion_model import CompletionFilesCheck, files_problem
 from armnet_node.health import completion_condition
 from armnet_sim.render import TARGET_POSE
-from armnet_sim.scene_samples import SHIPPED_CLASSIFIER, SHIPPED_CLASSIFIER_INPUT, frame_of, samples
+from armnet_sim.scene_samples import SHIPPED_CLASSIFIER, SHIPPED_CLASSIFIER_INPUT, frame_of, no_scene, samples
 
 pytestmark = pytest.mark.unit
 
@@ -44,6 +44,15 @@ def test_the_shipped_model_scores_the_arm_on_the_target_a_hit_and_off_it_a_miss(
     for miss in ({**TARGET_POSE, "elbow_flex": TARGET_POSE["elbow_flex"] - 15.0},
                  {"shoulder_lift": -30.0, "elbow_flex": -20.0, "wrist_flex": 10.0}):
         assert not scorer.score(frame_of(miss)).hit, miss
+
+
+def test_the_shipped_model_never_scores_a_picture_of_no_task_complete() -> None:
+    # A pod's simulated camera without the simulator's state draws "no arm attached": a model
+    # trained on arm pictures alone took that for a success (e2e on the pod launcher).
+    scorer = ClassifierScorer(shipped())
+    rng = np.random.default_rng(7)
+    for _ in range(12):
+        assert not scorer.score(no_scene(rng)).hit
 
 
 def test_the_shipped_model_tells_successes_from_near_misses_under_changed_light() -> None:
