@@ -3,8 +3,8 @@
 The Cell names the path; the connector (and the node agent's check) read it with
 their own rights, so the read refuses anything but a plain regular file at exactly
 that path: a symbolic link anywhere on the way (the path must be its own real path),
-a FIFO or device (opened non-blocking, then checked with ``fstat``: a FIFO put there
-cannot hang the reader), and more than ``cap`` bytes (the read stops one byte past
+a FIFO or device (``lstat`` before the open, so none is opened; opened non-blocking and
+checked again with ``fstat`` to be the same file), and more than ``cap`` bytes (the read stops one byte past
 it, so a file that grows meanwhile cannot fill the reader's memory).
 """
 
@@ -23,6 +23,14 @@ def read_host_file(path: str, cap: int, what: str) -> bytes:
     if os.path.realpath(path) != path:
         raise HostFileError(f"{what} {path} is a symbolic link or lies under one; give the file's real path")
     try:
+        seen = os.lstat(path)  # before the open: a device node is never opened (that can act on it)
+    except FileNotFoundError:
+        raise HostFileError(f"{what} {path} does not exist on this robot host") from None
+    except OSError as exc:
+        raise HostFileError(f"{what} {path} cannot be read ({exc.strerror or type(exc).__name__})") from None
+    if not stat.S_ISREG(seen.st_mode):
+        raise HostFileError(f"{what} {path} is not a regular file")
+    try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
         raise HostFileError(f"{what} {path} does not exist on this robot host") from None
@@ -30,8 +38,8 @@ def read_host_file(path: str, cap: int, what: str) -> bytes:
         raise HostFileError(f"{what} {path} cannot be read ({exc.strerror or type(exc).__name__})") from None
     try:
         info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise HostFileError(f"{what} {path} is not a regular file")
+        if not stat.S_ISREG(info.st_mode) or (info.st_dev, info.st_ino) != (seen.st_dev, seen.st_ino):
+            raise HostFileError(f"{what} {path} changed while it was opened; try again once it is in place")
         if info.st_size > cap:
             raise HostFileError(f"{what} {path} is {_size(info.st_size)}, over the {_size(cap)} it may be")
         chunks: list[bytes] = []
@@ -58,7 +66,10 @@ def readable_by(path: str, uid: int) -> str | None:
         info = os.stat(path)
     except OSError:
         return None  # the read itself says why
-    if uid == 0 or info.st_mode & stat.S_IROTH or (info.st_uid == uid and info.st_mode & stat.S_IRUSR):
+    # The kernel asks the owner's class alone when the uid owns the file; else, without knowing
+    # the reader's groups, only the others' class counts.
+    owner = info.st_uid == uid
+    if uid == 0 or (owner and info.st_mode & stat.S_IRUSR) or (not owner and info.st_mode & stat.S_IROTH):
         return None
     return (f"{path} is not readable by the connector's uid {uid} (mode {stat.filemode(info.st_mode)}, "
             f"owner {info.st_uid}); make it readable by others (chmod o+r) or owned by uid {uid}")

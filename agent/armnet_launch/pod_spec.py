@@ -375,8 +375,9 @@ def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
     volumes += [
         {"name": f"dev-{i}", "hostPath": {"path": path, "type": "Directory"}} for i, path in enumerate(inputs.dev_mounts)
     ]
-    # type File: a file missing on the host fails the pod's start, saying which path (the
-    # cell's CompletionReady condition has said so before any job was bound).
+    # type File: a file missing on the host keeps the pod from starting (the kubelet's FailedMount
+    # event names it; the job then ends at its deadline). The cell's CompletionReady condition
+    # says so before any job is bound.
     volumes += [
         {"name": f"host-file-{i}", "hostPath": {"path": path, "type": "File"}} for i, path in enumerate(inputs.host_files)
     ]

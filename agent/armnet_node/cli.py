@@ -139,10 +139,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def completion_dirs(flags: list[str] | None, env_value: str | None) -> tuple[str, ...]:
-    """The completion directories: the flags, else the env var's ':'-separated list, else the defaults."""
+    """The completion directories: the flags, else the env var's ':'-separated list (empty: none), else the
+    defaults."""
     if flags:
         return tuple(flags)
-    if env_value:
+    if env_value is not None:  # set but empty (the chart's hostPaths: []): no directory at all
         return tuple(d for d in env_value.split(os.pathsep) if d)
     return DEFAULT_COMPLETION_DIRS
 

@@ -5,7 +5,7 @@ A classifier's model file and a judge's token file are the cell owner's, put on 
 robot host by hand; the connector reads them while a job runs, where a bad one would
 only cost the job its verdicts. The node agent's heartbeat asks every few seconds
 (``CompletionReady``); loading a model costs milliseconds to seconds, so the answer is
-kept for as long as the files are the same (device, inode, size, modification time)
+kept for as long as the files are the same (``file_identity``: content and permissions)
 and the Cell's settings are unchanged. The checks are the connector's own
 (``classifier_scorer.model_problem``, ``service_scorer.read_token``): the cell is
 judged by the code that will read its files; before them, each file must lie in one
@@ -27,16 +27,21 @@ from armnet_core.cell_completion import (
     outside_dirs,
 )
 
-FileIdentity = tuple[int, int, int, int] | None
+FileIdentity = tuple[int, ...] | None
 
 
 def file_identity(path: str) -> FileIdentity:
-    """(device, inode, size, mtime) of ``path``, None when it cannot be stat'ed (the check says why)."""
+    """What the check's answer depends on in ``path``'s metadata, None when it cannot be stat'ed.
+
+    Device, inode, size and mtime for the content; ctime, mode and owner for who may read
+    it (the fix a ``chmod o+r`` message asks for changes only those).
+    """
     try:
         info = os.stat(path)
     except OSError:
         return None
-    return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
+    return (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, info.st_ctime_ns, info.st_mode,
+            info.st_uid, info.st_gid)
 
 
 def files_problem(completion: CompletionConfig, dirs: tuple[str, ...] = DEFAULT_COMPLETION_DIRS,

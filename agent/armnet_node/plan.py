@@ -125,6 +125,18 @@ def _bimanual_id(cell: Cell) -> str:
     return cell.name
 
 
+def completion_files_refused(cell: Cell, paths: HostPaths) -> str | None:
+    """Why a new job must not launch on ``cell``: its monitor names a file outside the agent's directories.
+
+    Asked before a launch only, never of a job the agent adopts (it runs already: a change
+    of the directories must not fail it mid-run). The heartbeat's ``CompletionReady`` says
+    the same earlier, so the operator does not bind such a cell; this closes the window of
+    a Cell edited between the binding and the launch.
+    """
+    refused = outside_dirs(host_files(cell.completion), paths.completion_dirs)
+    return f"cell {cell.name}: {refused}" if refused is not None else None
+
+
 def plan_launch(job: Job, cell: Cell, paths: HostPaths, secrets: Mapping[str, str]) -> LaunchPlan:
     """Everything the launch of ``job`` on ``cell`` does; ``secrets`` are env name -> value."""
     if not cell.simulated:
@@ -133,9 +145,6 @@ def plan_launch(job: Job, cell: Cell, paths: HostPaths, secrets: Mapping[str, st
             "(set spec.simulated: true)"
         )
     spec = cell_spec_for(cell)
-    refused = outside_dirs(host_files(cell.completion), paths.completion_dirs)
-    if refused is not None:
-        raise LaunchError(f"cell {cell.name}: {refused}")
     run_dir = paths.run_dir(job.uid)
     layout = replace(
         plan_layout(spec, run_dir), cache_dir=paths.cache_dir(cell.name), volume_dir=paths.volume_dir(job.namespace),

@@ -54,7 +54,7 @@ from armnet_node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
 from armnet_node.launchers import JobLauncher, JobSession, SessionRequest
 from armnet_node.metrics import AgentMetrics
 from armnet_node.model import Cell, Job, cancel_reason, parse_job
-from armnet_node.plan import HostPaths, LaunchError, plan_launch
+from armnet_node.plan import HostPaths, LaunchError, completion_files_refused, plan_launch
 from armnet_node.preemption import (
     STOPPED_AT_EPISODE_END,
     STOPPED_AT_EPISODE_WAIT,
@@ -338,6 +338,10 @@ class JobRunner:
             return
         if not adopted and self._refused is not None:
             self._fail_before_start(self._refused)
+            return
+        files_refused = None if adopted else completion_files_refused(cell, self.deps.paths)
+        if files_refused is not None:
+            self._fail_before_start(files_refused)
             return
         launcher = self.deps.launcher
         try:

@@ -27,7 +27,13 @@ from armnet_core.cell_completion import MAX_MODEL_BYTES, ClassifierConfig, Compl
 from armnet_node.completion_model import CompletionFilesCheck, files_problem
 from armnet_node.health import completion_condition
 from armnet_sim.render import TARGET_POSE
-from armnet_sim.scene_samples import SHIPPED_CLASSIFIER, SHIPPED_CLASSIFIER_INPUT, frame_of, no_scene, samples
+from armnet_sim.scene_samples import (
+    SHIPPED_CLASSIFIER,
+    SHIPPED_CLASSIFIER_INPUT,
+    frame_of,
+    no_scene,
+    samples,
+)
 
 pytestmark = pytest.mark.unit
 
@@ -155,3 +161,13 @@ def test_the_agents_check_refuses_files_outside_its_directories_links_and_what_t
         files_problem(classifier_completion(private), dirs, reader_uid=65532) or "")
     assert files_problem(classifier_completion(private), dirs) is None  # an in-process connector: the agent's rights
     assert files_problem(classifier_completion(fine), dirs, reader_uid=65532) is None
+
+
+def test_a_chmod_the_check_asked_for_is_seen_at_the_next_heartbeat(tmp_path: Path) -> None:
+    path = tmp_path / "reach.onnx"
+    path.write_bytes(SHIPPED_CLASSIFIER.read_bytes())
+    path.chmod(0o600)
+    check = CompletionFilesCheck(dirs=(str(tmp_path),), reader_uid=65532)
+    assert "chmod o+r" in (check.problem(classifier_completion(path)) or "")
+    path.chmod(0o644)  # changes neither content nor mtime: only the mode and ctime
+    assert check.problem(classifier_completion(path)) is None

@@ -10,7 +10,7 @@ import pytest
 from armnet_launch.plan import LABEL_CELL, LABEL_JOB_UID
 from armnet_launch.sim_cell import build_connector_config
 from armnet_node.model import parse_cell, parse_job, should_launch
-from armnet_node.plan import HostPaths, LaunchError, plan_launch
+from armnet_node.plan import HostPaths, LaunchError, completion_files_refused, plan_launch
 from armnet_runtime import env as env_keys
 from armnet_runtime.cell_config import parse_cell_config
 
@@ -191,15 +191,25 @@ CLASSIFIER = {"camera": "front", "scorer": "classifier"}
 ])
 def test_a_cell_naming_a_completion_file_outside_the_agents_directories_is_not_launched(files: dict[str, Any]) -> None:
     cell = parse_cell(cell_obj(completion={**CLASSIFIER, **files}))
-    with pytest.raises(LaunchError) as raised:
-        plan_launch(parse_job(job_obj()), cell, PATHS, {})
-    assert "is outside the directories this node agent reads completion files from" in str(raised.value)
-    assert "/var/lib/armnet/models, /var/lib/armnet/secrets" in str(raised.value)
+    refused = completion_files_refused(cell, PATHS)
+    assert refused is not None and refused.startswith("cell cell-1: ")
+    assert "is outside the directories this node agent reads completion files from" in refused
+    assert "/var/lib/armnet/models, /var/lib/armnet/secrets" in refused
 
 
 def test_a_cell_naming_a_completion_file_inside_them_is_launched_with_it() -> None:
     cell = parse_cell(cell_obj(completion={**CLASSIFIER, "classifier": {"model": "/var/lib/armnet/models/reach.onnx"}}))
+    assert completion_files_refused(cell, PATHS) is None
     plan = plan_launch(parse_job(job_obj()), cell, PATHS, {})
     config = build_connector_config(plan.cell_spec, plan.layout, {"arm": "/dev/pts/9"})
     assert config.completion is not None and config.completion.classifier is not None
     assert config.completion.classifier.model == "/var/lib/armnet/models/reach.onnx"
+
+
+def test_the_completion_directories_come_from_the_flags_else_the_env_where_empty_means_none() -> None:
+    from armnet_node.cli import completion_dirs
+
+    assert completion_dirs(["/srv/models"], "/a:/b") == ("/srv/models",)
+    assert completion_dirs(None, "/a:/b") == ("/a", "/b")
+    assert completion_dirs(None, "") == ()
+    assert completion_dirs(None, None) == ("/var/lib/armnet/models", "/var/lib/armnet/secrets")
