@@ -41,7 +41,8 @@ SETTLE_TOLERANCE_TICKS = 25
 SETTLE_WAIT_S = 3.0
 #: A busy host or a noisy cable drops the odd packet; the connector's own moves retry.
 RETRIES = 3
-CONNECT_ATTEMPTS = 3
+#: The handshake of the cell's own bus is tried as often as a job's connect (``retry``).
+CONNECT_ATTEMPTS = len(CONNECT_RETRY_DELAYS_S) + 1
 TORQUE_ENABLE = "Torque_Enable"
 
 
@@ -100,7 +101,9 @@ def cell_bus(arm: ArmConfig, ranges: dict[str, MotorRange], *, handshake: bool =
                 raise
             log.warning("connecting the cell's bus on %s failed (%s); retrying", arm.port, exc)
             # Past the lost reply first (as a job's connect, ``retry``): asked again at once, the
-            # handshake's next ping can take the late reply of this one and miss a servo again.
+            # handshake's next ping can take the late reply of this one and miss a servo again;
+            # and as patient as a job's connect (a second of starved CPU loses every ping of
+            # three quick attempts: a scripted reset failed so under the suite's load).
             time.sleep(CONNECT_RETRY_DELAYS_S[attempt - 1])
     try:
         yield bus

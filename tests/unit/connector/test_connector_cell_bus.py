@@ -129,6 +129,21 @@ def test_a_rest_whose_position_reads_lose_servo_replies_asks_again_and_reaches_r
     assert len(lost) >= 2  # both dropped replies counted; a loaded host may lose one more on its own
 
 
+def test_the_cells_own_bus_connects_through_as_many_lost_pings_as_a_jobs_connect(connector, sim_cell) -> None:
+    """A scripted reset's rest failed on "Missing motor IDs" after three quick attempts (CI under load)."""
+    from armnet_connector.rest import CONNECT_ATTEMPTS, cell_bus
+    from armnet_connector.retry import retry_delays
+
+    assert CONNECT_ATTEMPTS == len(retry_delays("connect")) + 1
+    arm, ranges = connector.config.arms["arm"], connector.cell.ranges["arm"]
+    sim_cell.arm.drop_replies("shoulder_lift", 3)  # every ping of three attempts, as a starved host loses them
+    try:
+        with cell_bus(arm, ranges) as bus:
+            assert bus.is_connected
+    finally:
+        sim_cell.arm.clear_faults()
+
+
 def test_a_rest_that_ends_outside_its_tolerance_is_reported_not_ok(connector, client_for, sim_cell) -> None:
     """Someone holds the wrist far from its rest pose for the whole move."""
     # Held as an obstacle holds it: the servo pushes, the joint stays. A thread putting the joint
