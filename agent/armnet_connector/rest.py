@@ -43,6 +43,9 @@ SETTLE_WAIT_S = 3.0
 RETRIES = 3
 #: The handshake of the cell's own bus is tried as often as a job's connect (``retry``).
 CONNECT_ATTEMPTS = len(CONNECT_RETRY_DELAYS_S) + 1
+#: A port that does not open is missing (unplugged, or gone with its simulator), not slow: the
+#: handshake's patience would only hold a stop's grace window up (2.8 s per arm, at every stop).
+OPEN_ATTEMPTS = 3
 TORQUE_ENABLE = "Torque_Enable"
 
 
@@ -97,7 +100,8 @@ def cell_bus(arm: ArmConfig, ranges: dict[str, MotorRange], *, handshake: bool =
         except (ConnectionError, RuntimeError) as exc:
             if bus.is_connected:
                 bus.port_handler.closePort()
-            if attempt == CONNECT_ATTEMPTS:
+            # LeRobot's ConnectionError: the port did not open; RuntimeError: a servo missed the handshake.
+            if attempt >= (OPEN_ATTEMPTS if isinstance(exc, ConnectionError) else CONNECT_ATTEMPTS):
                 raise
             log.warning("connecting the cell's bus on %s failed (%s); retrying", arm.port, exc)
             # Past the lost reply first (as a job's connect, ``retry``): asked again at once, the

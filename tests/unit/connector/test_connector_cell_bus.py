@@ -144,6 +144,19 @@ def test_the_cells_own_bus_connects_through_as_many_lost_pings_as_a_jobs_connect
         sim_cell.arm.clear_faults()
 
 
+def test_a_port_that_does_not_open_is_tried_three_times_not_with_the_handshake_s_patience(
+        connector, caplog: pytest.LogCaptureFixture) -> None:
+    """A missing device (unplugged, its simulator gone) must not hold every stop up by the handshake's 2.8 s."""
+    from armnet_connector.rest import OPEN_ATTEMPTS, cell_bus
+
+    arm = connector.config.arms["arm"].model_copy(update={"port": "/dev/armnet-no-such-port"})
+    with caplog.at_level("WARNING", logger="armnet_connector.rest"), pytest.raises(ConnectionError):
+        with cell_bus(arm, connector.cell.ranges["arm"], handshake=False):
+            pass
+    assert OPEN_ATTEMPTS == 3
+    assert len([r for r in caplog.records if "retrying" in r.getMessage()]) == OPEN_ATTEMPTS - 1
+
+
 def test_a_rest_that_ends_outside_its_tolerance_is_reported_not_ok(connector, client_for, sim_cell) -> None:
     """Someone holds the wrist far from its rest pose for the whole move."""
     # Held as an obstacle holds it: the servo pushes, the joint stays. A thread putting the joint
