@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from armnet_client import Client
 from armnet_core.api import ACTIVE_PHASES, JOB_UID_LABEL, SIM_UNPLUG_ANNOTATION
 from armnet_core.times import status_time
 
@@ -186,12 +187,18 @@ def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, 
 def test_what_a_job_writes_to_its_output_directory_is_stored_with_its_checksums(
     bed: AgentBed, batch: dict[str, str], object_store: Any, outputs_bucket: str,
 ) -> None:
-    st = status(bed.wait_phase(batch["output"], timeout=300))
+    # As a customer waits for it: the result says where the output went (the terminal status
+    # said Pending, so the client waits for the upload: docs/client.md).
+    result = Client(namespace=bed.namespace, kubeconfig=str(bed.k8s.kubeconfig), env={},
+                    artifacts_wait_s=120).wait(batch["output"], timeout=420)
+    st = status(bed.job(batch["output"]))
     assert st["phase"] == "succeeded", json.dumps(st, indent=1)
     uid = st["jobId"]
-    bed.wait(lambda: (status(bed.job(batch["output"])).get("artifacts") or {}).get("phase") == "Uploaded", 120,
-             "the job's output uploaded")
-    artifacts = status(bed.job(batch["output"]))["artifacts"]
+    assert result.artifacts is not None and result.artifacts.phase == "Uploaded", result.artifacts
+    artifacts = st["artifacts"]
+    assert result.artifacts.model_dump(exclude_none=True) == {
+        "phase": "Uploaded", "location": artifacts["location"], "manifest": artifacts["manifest"],
+        "files": 2, "bytes": 4096 + 26, "complete": True, "left_out": 1, "message": artifacts["message"]}
     prefix = f"{bed.namespace}/{uid}/"
     assert artifacts["location"] == f"s3://{outputs_bucket}/{prefix}"
     assert (artifacts["files"], artifacts["bytes"], artifacts["leftOut"]) == (2, 4096 + 26, 1), artifacts

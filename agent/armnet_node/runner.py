@@ -593,6 +593,9 @@ class JobRunner:
             if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
                 return None
             body = body_for(current)
+            pending = self.deps.uploads.pending_status(current.uid)
+            if pending is not None:
+                body["status"]["artifacts"] = pending
             try:
                 self.deps.kube.patch_job_status(current.namespace, current.name, body)
                 return body

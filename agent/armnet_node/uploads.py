@@ -110,6 +110,18 @@ class UploadQueue:
                 self._ready.add(uid)
         self._wake.set()
 
+    def pending_status(self, uid: str) -> dict[str, Any] | None:
+        """``status.artifacts`` to write with the job's terminal status: ``Pending`` when the queue will
+        write a final phase for it (it is tracked, and there is a store or something to discard).
+
+        A client waiting for the job's result then knows to wait for the upload too.
+        """
+        if not self._record(uid).exists():
+            return None
+        if self.store is None and not _has_entries(self.paths.output_dir(uid)):
+            return None
+        return summary.pending()
+
     def released(self, uid: str) -> None:
         """The runner let go without a terminal status (the agent stops): the sweep decides."""
         with self._lock:

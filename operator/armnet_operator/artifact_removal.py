@@ -15,6 +15,8 @@ from __future__ import annotations
 import re
 from datetime import datetime, timedelta
 
+from armnet_core.api import ArtifactsPhase
+
 from .model import Job
 
 #: How long after a job's end its TTL delete waits for the node agent to begin storing its outputs
@@ -44,10 +46,11 @@ def outputs_prefix(job: Job, bucket: str | None) -> str | None:
 def upload_pending(job: Job, now: datetime, ttl_end: datetime) -> bool:
     """Whether the job's TTL delete (due at ``ttl_end``) waits for its upload, so nothing is stored after
     the removal: one under way, up to ``UPLOAD_SETTLE_CAP`` past the TTL; none begun yet (no
-    ``status.artifacts``), up to ``UPLOAD_START_WAIT`` after the job ended."""
+    ``status.artifacts``, or ``Pending``: waiting in the agent's queue), up to ``UPLOAD_START_WAIT``
+    after the job ended."""
     if job.uploading:
         return now < ttl_end + UPLOAD_SETTLE_CAP
-    if job.artifacts_phase is None and job.finished_at is not None:
+    if job.artifacts_phase in (None, ArtifactsPhase.PENDING) and job.finished_at is not None:
         return now < job.finished_at + UPLOAD_START_WAIT
     return False
 

@@ -10,6 +10,7 @@ queue on the same state directory that never heard of the job.
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import uuid
 from collections.abc import Iterator
@@ -17,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from armnet_client import Client
+from armnet_core.models import Artifacts
 from armnet_node.artifacts import ObjectStore, OutputLimits, StoreConfig
 from armnet_node.kube import AgentKube
 from armnet_node.metrics import AgentMetrics
@@ -267,6 +270,8 @@ def test_without_a_store_the_output_is_removed_and_a_job_that_wrote_something_is
         paths.output_dir(job.uid).mkdir(parents=True)
         queue.ready(job.uid)
     write_output(paths, wrote, {"episode.parquet": b"lost"})
+    # The terminal status says Pending only where a final phase will follow (Discarded).
+    assert (queue.pending_status(wrote.uid), queue.pending_status(silent.uid)) == ({"phase": "Pending"}, None)
     queue.process_ready()
 
     assert not paths.output_dir(wrote.uid).exists() and not paths.output_dir(silent.uid).exists()
@@ -275,6 +280,48 @@ def test_without_a_store_the_output_is_removed_and_a_job_that_wrote_something_is
     assert "artifacts.bucket" in artifacts["message"]
     assert artifacts_of(k8s, silent) == {}
     assert queue.tracked() == []
+
+
+def test_a_client_waiting_for_a_result_marked_pending_gets_where_the_output_was_stored(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, tmp_path: Path,
+) -> None:
+    """``wait``/``execute`` return ``result.artifacts`` once the upload the terminal status announced settled."""
+    paths = HostPaths(tmp_path)
+    queue = UploadQueue(bucket_store, paths, kube, AgentMetrics())
+    job = a_tracked_job(k8s, namespace)
+    assert queue.pending_status(job.uid) is None  # not tracked: no upload will follow
+    queue.track(job)
+    write_output(paths, job, {"data/episode_000.parquet": b"p" * 5000})
+    # The runner writes the terminal status with the queue's word: a final phase will follow.
+    patch_status(k8s, "job", job.name, {"phase": "succeeded", "artifacts": queue.pending_status(job.uid)}, namespace)
+    client = Client(kubeconfig=str(k8s.kubeconfig), namespace=namespace, env={}, poll_interval_s=0.1)
+
+    # Not waited for where only the exit status matters (`armnet submit`), nor past artifacts_wait_s.
+    assert client.wait_terminal(job.name, None, stored_output=False)[1].artifacts == Artifacts(phase="Pending")
+    client.artifacts_wait_s = 0.3
+    assert client.wait(job.name).artifacts == Artifacts(phase="Pending")
+
+    # The upload is let go only once the client says it waits for it.
+    client.artifacts_wait_s = 120.0
+    waiting = threading.Event()
+    said = logging.Handler()
+    said.emit = lambda record: waiting.set() if "waiting for the node agent" in record.getMessage() else None  # type: ignore[method-assign]
+    client_log = logging.getLogger("armnet_client")
+    level = client_log.level
+    client_log.setLevel(logging.INFO)
+    client_log.addHandler(said)
+    uploader = threading.Thread(target=lambda: waiting.wait(60) and (queue.ready(job.uid), queue.process_ready()))
+    uploader.start()
+    try:
+        result = client.wait(job.name)
+    finally:
+        waiting.set()
+        uploader.join()
+        client_log.removeHandler(said)
+        client_log.setLevel(level)
+    assert result.artifacts is not None and result.artifacts.phase == "Uploaded", result.artifacts
+    assert result.artifacts.location == f"s3://{bucket_store.bucket}/{namespace}/{job.uid}/"
+    assert (result.artifacts.files, result.artifacts.bytes, result.artifacts.complete) == (1, 5000, True)
 
 
 def test_a_job_its_runner_still_runs_is_not_taken_even_deleted(

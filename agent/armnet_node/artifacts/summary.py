@@ -15,6 +15,7 @@ from armnet_core.api import ArtifactsPhase
 from armnet_node.artifacts.model import UploadReport
 
 #: ``status.artifacts.phase`` values (the CRD's enum, declared in ``armnet_core.api``).
+PENDING = ArtifactsPhase.PENDING
 UPLOADING = ArtifactsPhase.UPLOADING
 UPLOADED = ArtifactsPhase.UPLOADED
 RETRYING = ArtifactsPhase.RETRYING
@@ -34,6 +35,11 @@ DISCARDED_MESSAGE = (
 
 def location(bucket: str, prefix: str) -> str:
     return f"s3://{bucket}/{prefix}"
+
+
+def pending() -> dict[str, Any]:
+    """Written with the terminal status: the output waits in the upload queue (a final phase follows)."""
+    return {"phase": PENDING}
 
 
 def uploading(bucket: str, prefix: str) -> dict[str, Any]:

@@ -16,7 +16,15 @@ from collections.abc import Callable, Iterator, Mapping
 from datetime import datetime
 from typing import Any, Optional, TextIO
 
-from armnet_core.api import API_VERSION, CELLQUOTAS, CELLS, GROUP, VERSION, JobPhase
+from armnet_core.api import (
+    API_VERSION,
+    ARTIFACTS_IN_PROGRESS,
+    CELLQUOTAS,
+    CELLS,
+    GROUP,
+    VERSION,
+    JobPhase,
+)
 from armnet_core.api import ROBOTJOBS as JOBS
 from armnet_core.models import Job, JobResult, JobSpec
 from armnet_core.nats_url import SHARED_ENV as SHARED_NATS_ENV
@@ -56,6 +64,8 @@ from .statusfeed import ended, status_events
 log = logging.getLogger("armnet_client")
 
 DEFAULT_FOLLOWER_TIMEOUT_S = 30.0
+#: How long ``wait``/``execute`` wait past a job's end for its output to be stored (docs/outputs.md).
+DEFAULT_ARTIFACTS_WAIT_S = 120.0
 
 NATS_URL_ENV = ("ARMNET_NATS_URL", SHARED_NATS_ENV)
 
@@ -74,6 +84,7 @@ class Client:
         stream: str = DEFAULT_STREAM, poll_interval_s: float = 1.0,
         heartbeat_interval_s: float = DEFAULT_INTERVAL_S, env: Optional[Mapping[str, str]] = None,
         follower_timeout_s: float = DEFAULT_FOLLOWER_TIMEOUT_S,
+        artifacts_wait_s: float = DEFAULT_ARTIFACTS_WAIT_S,
     ) -> None:
         environ = os.environ if env is None else env
         self._target = kube.ClusterTarget(kubeconfig, context, namespace)
@@ -86,6 +97,9 @@ class Client:
         #: A job submitted to be followed (``execute``, ``armnet submit``) and not detached is
         #: cancelled by the node agent when this client's heartbeats stop for this long.
         self.follower_timeout_s = follower_timeout_s
+        #: ``wait``/``execute`` wait this long past the job's end for the node agent to store its
+        #: output (``JobResult.artifacts``); a longer upload is returned as it stands (``Uploading``).
+        self.artifacts_wait_s = artifacts_wait_s
 
     # ---- cluster access
     @property
@@ -250,11 +264,14 @@ class Client:
         log.info("robotjob %s: stdout/stderr are the whole output from the log stream", name)
         return result.model_copy(update={"stdout": output[0], "stderr": output[1]})
 
-    def wait_terminal(self, name: str, timeout: Optional[float]) -> tuple[RobotJob, JobResult]:
+    def wait_terminal(self, name: str, timeout: Optional[float], *,
+                      stored_output: bool = True) -> tuple[RobotJob, JobResult]:
         """Like :meth:`wait` but never reads the stream: the RobotJob and its result with the tails.
 
         A job preempted and requeued (``status.requeuedAs``) is followed to the job that runs it
-        again: the result is the last run's, the RobotJob that one.
+        again: the result is the last run's, the RobotJob that one. A job whose output the node
+        agent is still storing is waited for up to ``artifacts_wait_s`` more (and within ``timeout``),
+        so that ``result.artifacts`` says where the output went; not with ``stored_output=False``.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
@@ -262,7 +279,7 @@ class Client:
             result = result_from_robotjob(job)
             successor = requeue_of(job) if result is not None else None
             if result is not None and successor is None:
-                return job, result
+                return self._with_stored_output(name, job, result, deadline) if stored_output else (job, result)
             if successor:
                 log.info("robotjob %s was preempted; %s runs it again: waiting for that one", name, successor)
                 name = successor
@@ -273,6 +290,26 @@ class Client:
                     f"it keeps running: `armnet get {name}` or `armnet cancel {name}`"
                 )
             time.sleep(self.poll_interval_s)
+
+    def _with_stored_output(self, name: str, job: RobotJob, result: JobResult,
+                            deadline: Optional[float]) -> tuple[RobotJob, JobResult]:
+        """The ended job once its output settled (Uploaded, Failed, Discarded), or as it stands at the wait's end."""
+        until = time.monotonic() + self.artifacts_wait_s
+        if deadline is not None:
+            until = min(until, deadline)
+        said = False
+        while result.artifacts is not None and result.artifacts.phase in ARTIFACTS_IN_PROGRESS:
+            if time.monotonic() >= until:
+                log.info("robotjob %s: its output is still %s; `armnet artifacts %s` says when it is stored",
+                         name, result.artifacts.phase, name)
+                break
+            if not said:
+                log.info("robotjob %s ended; waiting for the node agent to store its output", name)
+                said = True
+            time.sleep(self.poll_interval_s)
+            job = self._read(name)
+            result = result_from_robotjob(job) or result
+        return job, result
 
     def _next_run(self, name: str) -> Optional[str]:
         """After a run's log stream ended: the job that runs it again if it was preempted and requeued."""

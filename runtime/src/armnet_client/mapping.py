@@ -15,7 +15,7 @@ from datetime import datetime
 from typing import Any, Optional
 
 from armnet_core.api import API_VERSION, FOLLOWER_TIMEOUT_ANNOTATION
-from armnet_core.models import Job, JobResult, JobSpec, JobStatus, TerminalStatus
+from armnet_core.models import Artifacts, Job, JobResult, JobSpec, JobStatus, TerminalStatus
 from armnet_core.resources import PreflightStatus
 from pydantic import ValidationError
 
@@ -121,7 +121,16 @@ def result_from_robotjob(job: RobotJob) -> Optional[JobResult]:
         return_value=found.return_value if found else None,
         started_at=job.status.started_at,
         finished_at=job.status.finished_at,
+        artifacts=artifacts_of(job),
     )
+
+
+def artifacts_of(job: RobotJob) -> Optional[Artifacts]:
+    """``status.artifacts`` as the SDK's ``Artifacts``; ``None`` when the agent wrote none (yet)."""
+    stored = job.status.artifacts
+    if stored is None or not stored.phase:
+        return None
+    return Artifacts(**stored.model_dump())  # the same fields, by their Python names
 
 
 def job_from_robotjob(job: RobotJob) -> Job:

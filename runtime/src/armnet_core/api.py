@@ -90,11 +90,18 @@ class ArtifactsPhase(_Name):
     """``RobotJob.status.artifacts.phase``: where the job's output directory is on its way to the
     object store (the node agent writes it, the client reads it)."""
 
+    #: Written with the job's terminal status: its output waits its turn in the agent's upload
+    #: queue, and a final phase follows (a client waiting for the result waits for that one too).
+    PENDING = "Pending"
     UPLOADING = "Uploading"
     UPLOADED = "Uploaded"
     RETRYING = "Retrying"
     FAILED = "Failed"
     DISCARDED = "Discarded"
+
+
+#: The phases of an output the node agent is still at: a final one (Uploaded, Failed, Discarded) follows.
+ARTIFACTS_IN_PROGRESS = frozenset({ArtifactsPhase.PENDING, ArtifactsPhase.UPLOADING, ArtifactsPhase.RETRYING})
 
 
 class PreflightPhase(_Name):
@@ -169,6 +176,7 @@ __all__ = [
     "ARTIFACTS_ACCESS_KEY_ENV",
     "ARTIFACTS_BUCKET_ENV",
     "ARTIFACTS_ENDPOINT_ENV",
+    "ARTIFACTS_IN_PROGRESS",
     "ARTIFACTS_REGION_ENV",
     "ARTIFACTS_SECRET_KEY_ENV",
     "ACTIVE_PHASES",

@@ -123,7 +123,7 @@ class RobotJobResult(Wire):
 class JobArtifacts(Wire):
     """Where the job's output directory went (``status.artifacts``, written by the node agent after the job)."""
 
-    phase: Optional[str] = None  # Uploading | Uploaded | Retrying | Failed | Discarded
+    phase: Optional[str] = None  # Pending | Uploading | Uploaded | Retrying | Failed | Discarded
     location: Optional[str] = None
     manifest: Optional[str] = None
     files: Optional[int] = None

@@ -51,3 +51,11 @@ def test_a_retry_keeps_the_store_s_error_and_says_the_output_is_kept() -> None:
     assert status["phase"] == "Retrying" and status["location"] == "s3://outputs/team-a/uid-1/"
     assert status["message"] == ("the object store did not answer; the output is kept on the robot host and the "
                                  "upload is retried")
+
+
+def test_pending_is_the_phase_written_with_the_terminal_status_and_a_client_waits_it_out() -> None:
+    from armnet_core.api import ARTIFACTS_IN_PROGRESS
+
+    assert summary.pending() == {"phase": "Pending"}
+    assert {summary.PENDING, summary.UPLOADING, summary.RETRYING} == ARTIFACTS_IN_PROGRESS
+    assert not {summary.UPLOADED, summary.FAILED, summary.DISCARDED} & ARTIFACTS_IN_PROGRESS

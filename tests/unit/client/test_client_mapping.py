@@ -114,6 +114,21 @@ def test_a_finished_job_carries_its_result_from_the_status() -> None:
     result.raise_for_status()
 
 
+def test_a_finished_job_s_result_says_where_its_output_went() -> None:
+    stored = {"phase": "Uploaded", "location": "s3://outputs/team-a/uid-1/",
+              "manifest": "s3://outputs/team-a/uid-1/manifest.json", "files": 12, "bytes": 3400,
+              "complete": False, "leftOut": 1, "message": "1 entries were not stored: a: changed"}
+    result = result_from_robotjob(RobotJob.model_validate(a_robotjob(phase="succeeded", artifacts=stored)))
+
+    assert result is not None and result.artifacts is not None
+    assert result.artifacts.model_dump() == {
+        "phase": "Uploaded", "location": "s3://outputs/team-a/uid-1/", "manifest": "s3://outputs/team-a/uid-1/manifest.json",
+        "files": 12, "bytes": 3400, "complete": False, "left_out": 1, "message": "1 entries were not stored: a: changed"}
+    # A job whose agent wrote no output summary (none yet, or no object store and nothing written).
+    bare = result_from_robotjob(RobotJob.model_validate(a_robotjob(phase="succeeded")))
+    assert bare is not None and bare.artifacts is None
+
+
 def test_a_failed_job_raises_with_its_traceback() -> None:
     body = a_robotjob(phase="failed", result={"exitCode": 1, "traceback": "Traceback...\nValueError: x"})
     result = result_from_robotjob(RobotJob.model_validate(body))

@@ -61,6 +61,8 @@ H = timedelta(hours=1)
     pytest.param("Retrying", 5 + 24 * 3600 + 1, True, id="retrying a day past the TTL: an agent gone for good"),
     pytest.param(None, 6, False, id="no upload begun yet"),
     pytest.param(None, 11 * 60, True, id="none begun 10 minutes after the end"),
+    pytest.param("Pending", 6, False, id="pending in the agent's queue"),
+    pytest.param("Pending", 11 * 60, True, id="still pending 10 minutes after the end"),
 ])
 def test_with_a_store_a_job_past_its_ttl_waits_for_its_upload_within_bounds(
         phase: str | None, ended_ago: float, deleted: bool) -> None:

@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
                   "the node agent stores it after the job ends")
             return EXIT_NOT_STORED
         if stored.phase != ArtifactsPhase.UPLOADED or not stored.location or not stored.manifest:
-            print(f"{stored.phase}: {stored.message or 'nothing stored'}")
+            waiting = "the job ended; its output waits in the node agent's upload queue"
+            print(f"{stored.phase}: {stored.message or (waiting if stored.phase == ArtifactsPhase.PENDING else 'nothing stored')}")
             return EXIT_NOT_STORED
         whole = "" if stored.complete is not False else " (incomplete: a file changed while it was stored)"
         print(f"Uploaded: {stored.files} files, {stored.bytes} bytes at {stored.location}{whole}")

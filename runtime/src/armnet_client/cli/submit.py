@@ -132,7 +132,8 @@ def run(args: argparse.Namespace) -> int:
                 printer.show(line)
         finally:
             printer.close()
-        # The stream's last line can precede the agent's status write: wait for the status.
-        return result_exit_code(client.wait_terminal(job.id, None)[1].status)
+        # The stream's last line can precede the agent's status write: wait for the status (not for
+        # the output's upload: `armnet artifacts` says where it went).
+        return result_exit_code(client.wait_terminal(job.id, None, stored_output=False)[1].status)
 
     return guarded(body)
