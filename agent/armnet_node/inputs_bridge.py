@@ -31,7 +31,7 @@ from typing import Annotated, Literal
 
 from armnet_connector.inputs import LocalOperatorInputs, OperatorInputs
 from armnet_connector.ratelog import RateLimitedLog
-from armnet_core.times import micro_time
+from armnet_core.times import micro_time, parse_time
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .sidecar_inputs import SidecarInputs
@@ -92,6 +92,16 @@ class Outcome(_Input):
     rollout: int | None = None
 
 
+class Overrule(_Input):
+    """A cell operator's outcome for a rollout the monitor judged, from the page's list of verdicts:
+    ``rollout`` and ``startedAt`` as ``status.rollouts`` has them. Recorded, never sent to the job."""
+
+    success: bool
+    by: OperatorName
+    rollout: int = Field(ge=0)
+    started_at: str = Field(alias="startedAt", min_length=1, max_length=64)
+
+
 class Stop(_Input):
     by: OperatorName
     reason: str = Field(default="", max_length=1024)
@@ -142,6 +152,7 @@ class OperatorInputsBridge:
                  active_rollout: Callable[[], int | None] | None = None,
                  on_verdict: Callable[[bool, str, int | None], None] | None = None,
                  accepts_verdict: Callable[[int | None], bool] | None = None,
+                 on_overrule: Callable[[bool, str, int, datetime], bool] | None = None,
                  reannounce_s: float = REANNOUNCE_S) -> None:
         """``active_rollout``: the index of the rollout the job is in now (None between rollouts).
 
@@ -150,11 +161,16 @@ class OperatorInputsBridge:
 
         ``on_verdict(success, by, rollout)`` is told each verdict passed to the job (the
         runner records it in ``status.rollouts``).
+
+        ``on_overrule(success, by, rollout, started_at)`` records an operator's overrule of the
+        monitor's verdict on that rollout; False when the monitor judged no such rollout.
+        Without it, overrules are dropped.
         """
         self.link = link
         self._active_rollout = active_rollout
         self._on_verdict = on_verdict
         self._accepts_verdict = accepts_verdict
+        self._on_overrule = on_overrule
         self.inputs = inputs
         self.namespace, self.job_uid = namespace, job_uid
         self.reset_requested_subject = fms_subject(cell, "reset.requested")
@@ -167,6 +183,7 @@ class OperatorInputsBridge:
             teleop_subject(namespace, job_uid, "event"): (TeleopEvent, self._teleop_event),
             fms_subject(cell, "reset.confirm"): (ResetConfirm, self._reset_confirm),
             fms_subject(cell, "outcome"): (Outcome, self._outcome),
+            fms_subject(cell, "overrule"): (Overrule, self._overrule),
             fms_subject(cell, "stop"): (Stop, self._stop),
         }
         self._subscriptions: list[Subscription] = []
@@ -328,6 +345,20 @@ class OperatorInputsBridge:
         log.info("episode outcome %s reported by %s", "success" if message.success else "failure", message.by)
         if self._on_verdict is not None:
             self._on_verdict(message.success, message.by, message.rollout)
+
+    def _overrule(self, message: _Input) -> None:
+        assert isinstance(message, Overrule)
+        started_at = parse_time(message.started_at)
+        if started_at is None:
+            log.warning("overrule by %s dropped: startedAt %r is not a time", message.by, message.started_at[:64])
+            return
+        verdict = "success" if message.success else "failure"
+        if self._on_overrule is None or not self._on_overrule(message.success, message.by, message.rollout,
+                                                               started_at):
+            log.warning("overrule by %s dropped: the monitor judged no rollout %s begun at %s",
+                        message.by, message.rollout, message.started_at)
+            return
+        log.info("the monitor's verdict on rollout %s overruled by %s: %s", message.rollout, message.by, verdict)
 
     def _stop(self, message: _Input) -> None:
         assert isinstance(message, Stop)

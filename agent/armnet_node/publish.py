@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from datetime import datetime
 from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import urlsplit
@@ -111,11 +112,12 @@ def telemetry_notifier(link: Link) -> streams.NatsLink | None:
 def inputs_bridge(link: Link, inputs: OperatorInputs | SidecarInputs, *, namespace: str, job_uid: str, cell: str,
                   active_rollout: Callable[[], int | None] | None = None,
                   on_verdict: Callable[[bool, str, int | None], None] | None = None,
-                  accepts_verdict: Callable[[int | None], bool] | None = None) -> Closable:
+                  accepts_verdict: Callable[[int | None], bool] | None = None,
+                  on_overrule: Callable[[bool, str, int, datetime], bool] | None = None) -> Closable:
     if not isinstance(link, streams.NatsLink):  # NoLink: NATS is off
         return NoBridge()
     bridge: Closable = OperatorInputsBridge(
         link, inputs, namespace=namespace, job_uid=job_uid, cell=cell, active_rollout=active_rollout,
-        on_verdict=on_verdict, accepts_verdict=accepts_verdict,
+        on_verdict=on_verdict, accepts_verdict=accepts_verdict, on_overrule=on_overrule,
     ).start()
     return bridge

@@ -20,6 +20,8 @@ The rules, each so that a replayed or late event cannot rewrite the record:
   rollout marks the open one; with no such entry it changes nothing (a job
   without ``rollout_begin`` has no rollout to record it in). A second verdict
   on one rollout replaces the first: the job reads the latest too.
+- an overrule (``Overruled``, from the page's list of verdicts) marks the one entry
+  of that index and start the monitor judged, open or ended; it never reaches the job;
 - the cell's completion monitor's verdict (``Judged``: the connector records
   one per rollout, when it told the job "complete" or at the rollout's end) is
   kept in the entry's ``monitor`` whatever else happens, and becomes the
@@ -40,6 +42,7 @@ from datetime import datetime
 from enum import StrEnum
 from typing import Any
 
+from armnet_core.api import MONITOR_MARKED_BY
 from armnet_core.times import parse_time, status_time
 
 #: The newest entries kept in ``status.rollouts`` (the CRD's ``maxItems``).
@@ -56,7 +59,7 @@ class Outcome(StrEnum):
 
 
 #: ``markedBy`` of an outcome the cell's completion monitor decided.
-MONITOR = "monitor"
+MONITOR = MONITOR_MARKED_BY
 
 
 @dataclass(frozen=True)
@@ -122,7 +125,23 @@ class Judged:
     mark: MonitorMark
 
 
-RolloutChange = Begun | Ended | Marked | Judged
+@dataclass(frozen=True)
+class Overruled:
+    """A cell operator's outcome for a rollout the monitor judged, given from the page's list of verdicts.
+
+    It may come after the rollout ended (the job has moved on and is not told): it corrects the
+    record, as a person reviewing the monitor's verdicts does. It names the rollout by index and
+    start, so a later rollout that reuses the index is never marked by it.
+    """
+
+    success: bool
+    by: str
+    at: datetime
+    rollout: int
+    started_at: datetime
+
+
+RolloutChange = Begun | Ended | Marked | Judged | Overruled
 History = tuple[RolloutEntry, ...]
 
 
@@ -142,6 +161,8 @@ def apply(history: History, change: RolloutChange, limit: int = MAX_ENTRIES) -> 
         return history
     if isinstance(change, Judged):
         return _judged(history, change)
+    if isinstance(change, Overruled):
+        return _overruled(history, change)
     return _marked(history, change)
 
 
@@ -185,6 +206,19 @@ def _judged(history: History, change: Judged) -> History:
         entry = replace(entry, outcome=Outcome.SUCCESS if change.mark.success else Outcome.FAILURE,
                         marked_by=MONITOR, marked_at=change.mark.at)
     return (*history[:position], entry, *history[position + 1:])
+
+
+def _overruled(history: History, change: Overruled) -> History:
+    for position in range(len(history) - 1, -1, -1):
+        entry = history[position]
+        # At the status's precision (milliseconds): the page names the rollout as the status shows it.
+        if entry.index == change.rollout and status_time(entry.started_at) == status_time(change.started_at):
+            if entry.monitor is None:
+                return history  # nothing to overrule: a verdict on it goes to the job (``Marked``)
+            marked = replace(entry, outcome=Outcome.SUCCESS if change.success else Outcome.FAILURE,
+                             marked_by=operator_name(change.by), marked_at=change.at)
+            return (*history[:position], marked, *history[position + 1:])
+    return history
 
 
 def overruled(entry: RolloutEntry) -> bool:

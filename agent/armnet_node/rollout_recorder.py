@@ -112,6 +112,17 @@ class RolloutRecorder:
             self._history = rh.apply(self._history, rh.Marked(success, by, self._clock(), rollout))
         self._count_overrules()
 
+    def overrule(self, success: bool, by: str, rollout: int, started_at: datetime) -> bool:
+        """A cell operator's outcome for a rollout the monitor judged (``rollout_history.Overruled``),
+        recorded only; False when no rollout of that index and start was judged by the monitor."""
+        self.sync()
+        with self._lock:
+            before = self._history
+            self._history = rh.apply(self._history, rh.Overruled(success, by, self._clock(), rollout, started_at))
+            changed = self._history is not before
+        self._count_overrules()
+        return changed
+
     def _count_overrules(self) -> None:
         with self._lock:
             now = _overruled(self._history)

@@ -374,7 +374,8 @@ class JobRunner:
                 bridge = inputs_bridge(self.deps.link, session.operator_inputs(), namespace=job.namespace, job_uid=job.uid,
                                        cell=cell.name, active_rollout=self._active_rollout,
                                        on_verdict=self._record_verdict,
-                                       accepts_verdict=self.rollouts.accepts_verdict)
+                                       accepts_verdict=self.rollouts.accepts_verdict,
+                                       on_overrule=self.rollouts.overrule)
                 try:
                     launched = session.start()
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error

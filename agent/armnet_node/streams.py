@@ -96,7 +96,7 @@ def teleop_subject(namespace: str, job_uid: str, kind: str) -> str:
 
 
 def fms_subject(cell: str, kind: str) -> str:
-    """``fms.<cell>.<kind>``; kind is reset.confirm|outcome|stop."""
+    """``fms.<cell>.<kind>``; kind is reset.confirm|outcome|overrule|stop."""
     return f"fms.{_token(cell, 'cell')}.{kind}"
 
 

@@ -25,6 +25,9 @@ class ActionKind(StrEnum):
     CONFIRM_RESET = "confirm-reset"
     SUCCESS = "success"
     FAIL = "fail"
+    #: Overrule the monitor's verdict on one rollout of the running job (from the list of verdicts).
+    OVERRULE_SUCCESS = "overrule-success"
+    OVERRULE_FAIL = "overrule-fail"
     STOP = "stop"
     CORDON = "cordon"
     UNCORDON = "uncordon"
@@ -118,6 +121,8 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
             event=_job_event(row, "RolloutMarked", f"{where} marked {verdict} by cell operator {operator}"),
             done=f"{where} marked {verdict}",
         )
+    if kind in (ActionKind.OVERRULE_SUCCESS, ActionKind.OVERRULE_FAIL):
+        return _overrule(row, operator, request, kind is ActionKind.OVERRULE_SUCCESS)
     if kind is ActionKind.STOP:
         _active_job(row, "stop")
         assert row.job is not None
@@ -141,6 +146,29 @@ def plan_action(kind: ActionKind, row: CellRow, operator: str, now: float, *, re
             done=f"cell {row.name} {verb}",
         )
     raise Refused(f"unknown action {kind}")
+
+
+def _overrule(row: CellRow, operator: str, request: str, success: bool) -> Plan:
+    """The monitor's verdict on the rollout ``request`` names (``<index>@<startedAt>``, as the page showed it)
+    replaced by the operator's: recorded by the agent in ``status.rollouts``, never sent to the job, which
+    has acted on the monitor's verdict already. Only while the job runs (its agent keeps its record)."""
+    _active_job(row, "overrule")
+    assert row.job is not None
+    judged = next((v for v in row.job.verdicts if v.request == request and v.monitor is not None), None)
+    if judged is None:
+        raise Refused(f"job {row.job.key} has no rollout the monitor judged as {request[:64]!r} among its latest "
+                      "verdicts: look at the cell again")
+    verdict = "success" if success else "failure"
+    where = f"rollout {judged.index}/{judged.total}" if judged.total else f"rollout {judged.index}"
+    monitor = f"the monitor's {judged.monitor}" + (f", score {judged.score:g}" if judged.score is not None else "")
+    return Plan(
+        messages=((_subject(row.name, "overrule"),
+                   _json({"success": success, "by": operator, "rollout": judged.index,
+                          "startedAt": judged.started_at})),),
+        event=_job_event(row, "RolloutOverruled", f"{where} marked {verdict} by cell operator {operator} "
+                                                  f"over {monitor}"),
+        done=f"{where} marked {verdict} (over {monitor})",
+    )
 
 
 def _confirm_reset(row: CellRow, operator: str, now: float, request: str) -> Plan:

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from armnet_core.api import ACTIVE_PHASES, SITE_LABEL, CellConditionType
+from armnet_core.api import ACTIVE_PHASES, MONITOR_MARKED_BY, SITE_LABEL, CellConditionType
 from armnet_core.lenient import read_leniently
 from armnet_core.resources import (
     CellSpec,
@@ -36,13 +36,29 @@ DEFAULT_RESET_TIMEOUT_S = CellSpec.model_fields["reset_timeout_seconds"].default
 
 @dataclass(frozen=True)
 class Verdict:
-    """A cell operator's verdict on one rollout, as the agent recorded it in ``status.rollouts``."""
+    """The verdict on one rollout, a cell operator's or the cell's completion monitor's, as the agent
+    recorded it in ``status.rollouts``."""
 
     index: int
     total: int
     outcome: str  # "success" | "failure"
-    by: str
+    by: str  # an operator's name, or "monitor"
     at: str
+    #: When the rollout began (as the status has it): with ``index``, what an overrule names.
+    started_at: str = ""
+    #: The monitor's own verdict ("success" | "failure") and score, kept when an operator overruled it.
+    monitor: str | None = None
+    score: float | None = None
+
+    @property
+    def overruled(self) -> bool:
+        """An operator's outcome that differs from the monitor's verdict on the same rollout."""
+        return self.monitor is not None and self.by != MONITOR_MARKED_BY and self.monitor != self.outcome
+
+    @property
+    def request(self) -> str:
+        """What an overrule of this verdict names (the action's ``request``)."""
+        return f"{self.index}@{self.started_at}"
 
 
 @dataclass(frozen=True)
@@ -219,10 +235,17 @@ def verdicts(history: Sequence[RolloutRecord], limit: int = VERDICTS_SHOWN) -> t
             continue
         found.append(Verdict(index=row.index, total=row.total, outcome=row.outcome,
                              by=(row.marked_by or "")[:128],
-                             at=status_time(row.marked_at) if row.marked_at is not None else ""))
+                             at=status_time(row.marked_at) if row.marked_at is not None else "",
+                             started_at=status_time(row.started_at),
+                             monitor=row.monitor.outcome if row.monitor is not None else None,
+                             score=_score(row.monitor.score) if row.monitor is not None else None))
         if len(found) >= limit:
             break
     return tuple(found)
+
+
+def _score(value: float) -> float | None:
+    return round(value, 4) if math.isfinite(value) else None
 
 
 def summarize_job(job: Mapping[str, Any]) -> JobSummary:
@@ -334,7 +357,8 @@ def row_json(row: CellRow, now: float) -> dict[str, Any]:
             "progress": job.progress, "rolloutIndex": job.rollout_index, "rolloutTotal": job.rollout_total,
             "active": job.phase in ACTIVE_PHASES, "rolloutActive": job.active_phase and job.rollout_active,
             "outcomeControls": job.outcome_controls,
-            "verdicts": [{"index": v.index, "total": v.total, "outcome": v.outcome, "by": v.by, "at": v.at}
+            "verdicts": [{"index": v.index, "total": v.total, "outcome": v.outcome, "by": v.by, "at": v.at,
+                          "monitor": v.monitor, "score": v.score, "overruled": v.overruled, "request": v.request}
                          for v in job.verdicts],
         },
         "queue": None if row.queue is None else row.queue.json(now),

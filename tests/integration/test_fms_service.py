@@ -62,7 +62,8 @@ class Bed:
         self.rollouts = RolloutRecorder(lambda: list(self.rollout_events))
         self.link = NatsLink(StreamSettings(url=nats_url)).start()
         self.bridge = OperatorInputsBridge(self.link, self.inputs, namespace=namespace, job_uid=self.job_id,
-                                           cell=self.cell, on_verdict=self.rollouts.verdict).start()
+                                           cell=self.cell, on_verdict=self.rollouts.verdict,
+                                           on_overrule=self.rollouts.overrule).start()
         assert self.bridge.wait_active(20)
         self.http = httpx.Client(base_url=fms.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=10)
 
@@ -171,6 +172,34 @@ def test_once_the_rollout_ended_the_page_shows_it_ended_and_a_verdict_is_refused
     wait_for(lambda: bed.row()["job"]["rolloutActive"] is False, what="the page to see the end")  # type: ignore[index]
     late = bed.act("success", request="2")
     assert late.status_code == 409 and "has ended" in late.json()["error"]
+
+
+def test_the_monitor_s_verdict_shows_on_the_page_and_an_overrule_is_recorded_and_audited(bed: Bed) -> None:
+    # The monitor judged rollout 2 a success and the job moved on to rollout 3.
+    now = time.time()
+    bed.rollout_events += [RolloutEvent("verdict", now, 2, success=True, score=0.93), RolloutEvent("end", now),
+                           RolloutEvent("begin", now + 0.01, 3, 5, True)]
+    bed.write_rollouts()
+    [judged] = wait_for(lambda: bed.row()["job"]["verdicts"], what="the monitor's verdict on the page")  # type: ignore[index]
+    assert (judged["index"], judged["outcome"], judged["by"], judged["monitor"], judged["score"]) == (
+        2, "success", "monitor", "success", 0.93)
+
+    assert bed.act("overrule-fail", request=judged["request"]).status_code == 200
+    wait_for(lambda: bed.bridge.accepted >= 1, what="the bridge to take the overrule")
+    rollouts = bed.write_rollouts()["status"]["rollouts"]
+    assert [(r["index"], r["outcome"], r.get("markedBy"), (r.get("monitor") or {}).get("outcome")) for r in rollouts] == [
+        (2, "failure", OPERATOR, "success"), (3, "unmarked", None, None)]
+    assert bed.inputs.take_outcome() is None  # the job, in rollout 3, is not told
+    overruled = wait_for(lambda: [v for v in bed.row()["job"]["verdicts"] if v["overruled"]],  # type: ignore[index]
+                         what="the overrule on the page")
+    assert overruled[0]["by"] == OPERATOR
+    events = wait_for(lambda: events_about(bed.k8s, bed.namespace, "eval-1"), what="the audit event")
+    assert events[0]["reason"] == "RolloutOverruled"
+    assert events[0]["message"] == (f"rollout 2/5 marked failure by cell operator {OPERATOR} over the monitor's "
+                                    "success, score 0.93")
+    # A rollout the monitor did not judge cannot be overruled.
+    refused = bed.act("overrule-fail", request=f"3@{rollouts[1]['startedAt']}")
+    assert refused.status_code == 409 and "no rollout the monitor judged" in refused.json()["error"]
 
 
 def test_stop_cancels_the_job_and_names_the_operator(bed: Bed) -> None:

@@ -8,12 +8,14 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from typing import Any
 
 import nats
 import pytest
 from armnet_connector.cell import RolloutEvent
 from armnet_connector.inputs import LocalOperatorInputs
+from armnet_core.times import status_time
 from armnet_node.inputs_bridge import MAX_INPUT_BYTES, OperatorInputsBridge
 from armnet_node.rollout_recorder import RolloutRecorder
 from armnet_node.streams import NatsLink, StreamSettings
@@ -111,6 +113,9 @@ def test_a_hostile_teleop_action_is_dropped_and_counted(job: Job, body: Any) -> 
     ("outcome", {"success": True, "by": ""}), ("outcome", {"success": True, "by": "ana\u001b[2J"}),
     ("stop", {"by": 7}), ("stop", {"by": "ana", "reason": "x" * 5000}),
     ("reset.confirm", {"by": {"name": "ana"}}), ("reset.confirm", []),
+    ("overrule", {"success": False, "by": "ana", "rollout": -1, "startedAt": "2027-01-15T07:58:00.000Z"}),
+    ("overrule", {"success": False, "by": "ana", "rollout": 1}),
+    ("overrule", {"success": False, "by": "ana", "rollout": 1, "startedAt": "x" * 100}),
 ])
 def test_hostile_fms_and_event_inputs_are_dropped_and_counted(job: Job, kind: str, body: Any) -> None:
     subject = f"{job.teleop}.event" if kind == "event" else f"{job.fms}.{kind}"
@@ -266,5 +271,33 @@ def test_a_verdict_for_a_rollout_begun_without_outcome_controls_never_reaches_th
         assert inputs.take_outcome() is True
         assert [(e.index, e.outcome.value, e.marked_by) for e in recorder.history] == [
             (1, "unmarked", None), (2, "success", "ana")]
+    finally:
+        bridge.close()
+
+
+def test_an_overrule_of_the_monitor_is_recorded_on_the_rollout_it_names_and_never_reaches_the_job(
+    link: NatsLink, nats_server: str
+) -> None:
+    begun = time.time() - 10
+    events = [RolloutEvent("begin", begun, index=1, total=2),
+              RolloutEvent("verdict", begun + 4, index=1, success=True, score=0.9),
+              RolloutEvent("end", begun + 5), RolloutEvent("begin", begun + 6, index=2, total=2)]
+    recorder = RolloutRecorder(lambda: list(events))
+    inputs = LocalOperatorInputs()
+    cell = f"cell-{uuid.uuid4().hex[:6]}"
+    bridge = OperatorInputsBridge(link, inputs, namespace="t-overrule", job_uid="uid-4", cell=cell,
+                                  active_rollout=lambda: 2, on_verdict=recorder.verdict,
+                                  accepts_verdict=recorder.accepts_verdict, on_overrule=recorder.overrule).start()
+    assert bridge.wait_active(20)
+    started = status_time(datetime.fromtimestamp(begun, UTC))
+    try:
+        job = Job(nats_server, bridge, inputs, "t-overrule", "uid-4", cell)
+        job.send((f"fms.{cell}.overrule", {"success": False, "by": "ana", "rollout": 1, "startedAt": "yesterday"}),
+                 (f"fms.{cell}.overrule", {"success": False, "by": "ana", "rollout": 2, "startedAt": started}))
+        assert recorder.history[0].outcome.value == "success"  # neither names a rollout the monitor judged
+        job.send((f"fms.{cell}.overrule", {"success": False, "by": "ana", "rollout": 1, "startedAt": started}))
+        assert [(e.index, e.outcome.value, e.marked_by) for e in recorder.history] == [
+            (1, "failure", "ana"), (2, "unmarked", None)]
+        assert inputs.take_outcome() is None  # the job, in rollout 2 now, is not told
     finally:
         bridge.close()

@@ -162,7 +162,7 @@
     }
     offer([document.getElementById("mark-success"), document.getElementById("mark-fail")],
       rolling ? `${jobKey}#${job.rolloutIndex}` : "");
-    renderVerdicts((job && job.verdicts) || []);
+    renderVerdicts((job && job.verdicts) || [], jobKey);
     show(document.getElementById("stop-box"), active);
     offer([document.getElementById("stop")], jobKey);
     const cordon = document.getElementById("cordon"), uncordon = document.getElementById("uncordon");
@@ -172,12 +172,44 @@
     offer([uncordon], cell.unschedulable ? "uncordon" : "");
   }
 
-  function renderVerdicts(verdicts) {
+  // The monitor's verdicts can be overruled while their job runs (jobKey: "" when it does not).
+  // Each button is kept across renders, so its arming delay runs once, not again at every update.
+  const overruleButtons = new Map();
+  function renderVerdicts(verdicts, jobKey) {
     const list = document.getElementById("verdicts");
     document.getElementById("verdicts-box").hidden = !verdicts.length;
-    list.replaceChildren(...verdicts.map((v) => el("li", `verdict ${v.outcome}`,
-      `Rollout ${v.index}${v.total ? "/" + v.total : ""}: ${v.outcome}, marked by ${v.by || "?"}` +
-      (v.at ? ` at ${new Date(v.at).toLocaleTimeString()}` : ""))));
+    const shown = new Set();
+    list.replaceChildren(...verdicts.map((v) => {
+      const by = v.by === "monitor" ? "by the monitor" + (v.score !== null ? ` (score ${v.score})` : "")
+        : `marked by ${v.by || "?"}`;
+      const item = el("li", `verdict ${v.outcome}${v.overruled ? " overruled" : ""}`,
+        `Rollout ${v.index}${v.total ? "/" + v.total : ""}: ${v.outcome}, ${by}` +
+        (v.at ? ` at ${new Date(v.at).toLocaleTimeString()}` : "") +
+        (v.overruled ? `, over the monitor's ${v.monitor}${v.score !== null ? ` (score ${v.score})` : ""}` : ""));
+      if (jobKey && v.monitor) {
+        const action = v.outcome === "success" ? "overrule-fail" : "overrule-success";
+        const key = `${jobKey}|${v.request}|${action}`;
+        shown.add(key);
+        item.append(" ", overruleButton(key, action, v.request));
+      }
+      return item;
+    }));
+    for (const key of [...overruleButtons.keys()]) if (!shown.has(key)) overruleButtons.delete(key);
+  }
+  function overruleButton(key, action, request) {
+    let button = overruleButtons.get(key);
+    if (button) return button;
+    button = el("button", "overrule", action === "overrule-fail" ? "Mark failure" : "Mark success");
+    button.type = "button";
+    button.dataset.action = action;
+    button.addEventListener("click", async () => {
+      clearTimeout(armTimers.get(button)); button.disabled = true;
+      await act(action, {request});
+      disarm(button);
+    });
+    overruleButtons.set(key, button);
+    offer([button], key);
+    return button;
   }
 
   function tickReset() {

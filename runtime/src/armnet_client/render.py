@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from armnet_core.api import ArtifactsPhase, CellPhase, PreflightPhase
+from armnet_core.api import MONITOR_MARKED_BY, ArtifactsPhase, CellPhase, PreflightPhase
 from armnet_core.models import Job, JobResult, JobStatus, TerminalStatus
 from armnet_core.times import status_time
 
@@ -101,7 +101,7 @@ def verdict_counts(job: JobView) -> str:
     success = sum(1 for r in job.rollouts if r.outcome == "success")
     failure = sum(1 for r in job.rollouts if r.outcome == "failure")
     overruled = sum(1 for r in job.rollouts
-                    if r.monitor is not None and r.marked_by not in (None, "monitor") and r.monitor.outcome != r.outcome)
+                    if r.monitor is not None and r.marked_by not in (None, MONITOR_MARKED_BY) and r.monitor.outcome != r.outcome)
     if not (success or failure):
         return ""
     return f" [marked: {success} success, {failure} failure" + (f"; {overruled} overruled]" if overruled else "]")

@@ -100,6 +100,9 @@ class ArtifactsPhase(_Name):
     DISCARDED = "Discarded"
 
 
+#: ``status.rollouts[].markedBy`` of an outcome the cell's completion monitor decided (a person's name otherwise).
+MONITOR_MARKED_BY = "monitor"
+
 #: The phases of an output the node agent is still at: a final one (Uploaded, Failed, Discarded) follows.
 ARTIFACTS_IN_PROGRESS = frozenset({ArtifactsPhase.PENDING, ArtifactsPhase.UPLOADING, ArtifactsPhase.RETRYING})
 
@@ -197,6 +200,7 @@ __all__ = [
     "MANAGED_BY_LABEL",
     "NAMESPACE_LABEL",
     "MAX_STOP_REASON",
+    "MONITOR_MARKED_BY",
     "NAME_LABEL",
     "PREEMPTED_FROM_ANNOTATION",
     "KEEP_ARTIFACTS_ANNOTATION",

@@ -48,12 +48,14 @@ def a_notice(job_id: str = "job-uid-1", at: str = "2027-01-15T07:59:59+00:00") -
     return {"namespace": "team-a", "job": job_id, "at": at}
 
 
-def a_rollout(index: int, total: int = 2, *, outcome: str = "unmarked", by: str = "", ended: bool = True
-              ) -> dict[str, Any]:
-    """One ``status.rollouts`` entry as the agent writes it."""
+def a_rollout(index: int, total: int = 2, *, outcome: str = "unmarked", by: str = "", ended: bool = True,
+              monitor: tuple[str, float] | None = None) -> dict[str, Any]:
+    """One ``status.rollouts`` entry as the agent writes it; ``monitor``: the monitor's (outcome, score)."""
     row: dict[str, Any] = {"index": index, "total": total, "outcome": outcome, "startedAt": "2027-01-15T07:58:00.000Z"}
     if by:
         row.update(markedBy=by, markedAt="2027-01-15T07:58:30.000Z")
+    if monitor is not None:
+        row["monitor"] = {"outcome": monitor[0], "score": monitor[1], "at": "2027-01-15T07:58:20.000Z"}
     if ended:
         row["endedAt"] = "2027-01-15T07:59:00.000Z"
     return row

@@ -100,3 +100,41 @@ def test_a_verdict_for_a_rollout_that_has_ended_is_refused() -> None:
     job = a_job(rollout={"index": 3, "total": 10}, rollouts=[a_rollout(3, 10, ended=True)])
     with pytest.raises(Refused, match="rollout 3 of job team-a/eval-1 has ended"):
         plan_action(ActionKind.FAIL, row(job), "maria", NOW, request="3")
+
+
+def judged_job(**job):  # noqa: ANN003, ANN201 - a_job's fields
+    history = [a_rollout(1, 3, outcome="success", by="monitor", monitor=("success", 0.93)),
+               a_rollout(2, 3, outcome="failure", by="ana", monitor=("success", 0.61)),
+               a_rollout(3, 3, ended=False)]
+    return a_job(rollout={"index": 3, "total": 3}, rollouts=history, **job)
+
+
+def test_an_overrule_of_the_monitor_names_the_rollout_by_index_and_start_and_is_audited() -> None:
+    plan = plan_action(ActionKind.OVERRULE_FAIL, row(judged_job()), "maria", NOW,
+                       request="1@2027-01-15T07:58:00.000Z")
+    (subject, data), = plan.messages
+    assert subject == "fms.so101-a.overrule"
+    assert json.loads(data) == {"success": False, "by": "maria", "rollout": 1, "startedAt": "2027-01-15T07:58:00.000Z"}
+    assert plan.event.reason == "RolloutOverruled"
+    assert plan.event.message == ("rollout 1/3 marked failure by cell operator maria over the monitor's success, "
+                                  "score 0.93")
+    # An operator's overrule can be overruled again (a slip of the finger).
+    again = plan_action(ActionKind.OVERRULE_SUCCESS, row(judged_job()), "maria", NOW,
+                        request="2@2027-01-15T07:58:00.000Z")
+    assert json.loads(again.messages[0][1])["success"] is True
+
+
+@pytest.mark.parametrize("request_, match", [
+    ("3@2027-01-15T07:58:00.000Z", "no rollout the monitor judged"),  # not judged by the monitor
+    ("1@2027-01-15T07:57:00.000Z", "no rollout the monitor judged"),  # another rollout of that index
+    ("", "no rollout the monitor judged"),
+])
+def test_an_overrule_naming_no_verdict_of_the_monitor_is_refused(request_: str, match: str) -> None:
+    with pytest.raises(Refused, match=match):
+        plan_action(ActionKind.OVERRULE_FAIL, row(judged_job()), "maria", NOW, request=request_)
+
+
+def test_an_overrule_once_the_job_ended_is_refused() -> None:
+    with pytest.raises(Refused, match="runs no job now"):
+        plan_action(ActionKind.OVERRULE_FAIL, row(judged_job(phase="succeeded")), "maria", NOW,
+                    request="1@2027-01-15T07:58:00.000Z")

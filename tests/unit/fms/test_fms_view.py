@@ -55,6 +55,18 @@ def test_the_latest_verdicts_are_listed_newest_first_with_who_marked_them() -> N
     assert verdicts[0]["at"] == "2027-01-15T07:58:30.000Z" and verdicts[0]["total"] == 9
 
 
+def test_the_monitor_s_verdicts_are_listed_with_their_score_and_an_overrule_says_what_it_overruled() -> None:
+    history = [a_rollout(1, 3, outcome="success", by="monitor", monitor=("success", 0.93)),
+               a_rollout(2, 3, outcome="failure", by="ana", monitor=("success", 0.61)),
+               a_rollout(3, 3, outcome="success", by="bo")]
+    job = a_job(rollout={"index": 3, "total": 3}, rollouts=history)
+    verdicts = row_json(only_row([a_cell()], [job]), NOW)["job"]["verdicts"]
+    assert [(v["index"], v["by"], v["monitor"], v["score"], v["overruled"]) for v in verdicts] == [
+        (3, "bo", None, None, False), (2, "ana", "success", 0.61, True), (1, "monitor", "success", 0.93, False)]
+    # What an overrule of each names: the rollout's index and start, as the status has them.
+    assert verdicts[2]["request"] == "1@2027-01-15T07:58:00.000Z"
+
+
 @pytest.mark.parametrize("rows", ["x", [None, "x", {"index": "one", "outcome": "success"},
                                         {"index": 1, "outcome": "<b>won</b>"}, a_rollout(1)]])
 def test_a_malformed_history_shows_no_verdicts(rows: object) -> None:

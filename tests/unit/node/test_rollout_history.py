@@ -19,6 +19,7 @@ from armnet_node.rollout_history import (
     Marked,
     MonitorMark,
     Outcome,
+    Overruled,
     RolloutChange,
     accepts_verdict,
     apply,
@@ -334,6 +335,36 @@ def test_the_recorder_counts_each_overrule_once_in_either_order_and_not_again_af
                                 on_overrule=lambda: overrules.append(1))
     restarted.sync()
     assert len(overrules) == 2
+
+
+def test_an_overrule_from_the_verdict_list_marks_the_judged_rollout_it_names_even_ended() -> None:
+    # Rollout 1 judged success and ended; the job reused index 1 for a later rollout.
+    history = fold(Begun(1, 3, at(0.0004)), judged(1, True, 5), Ended(at(6)), Begun(1, 3, at(7)), judged(1, True, 9))
+    # The page names it as the status shows it: milliseconds.
+    changed = apply(history, Overruled(False, "ana", at(10), 1, at(0)))
+    assert [(e.outcome, e.marked_by) for e in changed] == [(Outcome.FAILURE, "ana"), (Outcome.SUCCESS, MONITOR)]
+    assert changed[0].monitor == history[0].monitor and changed[0].ended_at == at(6) and overruled(changed[0])
+
+
+@pytest.mark.parametrize("rollout, started", [(1, 3.0), (2, 0.0)], ids=["another start", "another index"])
+def test_an_overrule_naming_no_judged_rollout_changes_nothing(rollout: int, started: float) -> None:
+    history = fold(Begun(1, 3, at(0)), judged(1, True, 5), Ended(at(6)))
+    assert apply(history, Overruled(False, "ana", at(10), rollout, at(started))) is history
+    unjudged = fold(Begun(1, 3, at(0)), Marked(True, "bo", at(2)))
+    assert apply(unjudged, Overruled(False, "ana", at(10), 1, at(0))) is unjudged  # no monitor verdict to overrule
+
+
+def test_the_recorder_records_an_overrule_counts_it_and_says_when_there_was_nothing_to_overrule() -> None:
+    connector = Connector()
+    overrules: list[int] = []
+    recorder = RolloutRecorder(connector, clock=lambda: at(9), on_overrule=lambda: overrules.append(1))
+    connector.events += [Event("begin", at(0).timestamp(), 1, 2),
+                         Event("verdict", at(5).timestamp(), 1, success=True, score=0.8),
+                         Event("end", at(6).timestamp())]
+    assert recorder.overrule(False, "ana", 1, at(0)) is True  # caught up with the connector first
+    assert [(e.outcome, e.marked_by) for e in recorder.history] == [(Outcome.FAILURE, "ana")]
+    assert recorder.overrule(False, "ana", 1, at(1)) is False
+    assert len(overrules) == 1
 
 
 def test_a_verdict_event_with_a_score_that_is_not_a_number_records_zero() -> None:
