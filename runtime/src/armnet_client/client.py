@@ -59,6 +59,7 @@ from .mapping import (
     view_of,
 )
 from .resources import Cell, RobotJob, RobotJobSpec
+from .results import ClusterJobResult
 from .statusfeed import ended, status_events
 
 log = logging.getLogger("armnet_client")
@@ -98,7 +99,7 @@ class Client:
         #: cancelled by the node agent when this client's heartbeats stop for this long.
         self.follower_timeout_s = follower_timeout_s
         #: ``wait``/``execute`` wait this long past the job's end for the node agent to store its
-        #: output (``JobResult.artifacts``); a longer upload is returned as it stands (``Uploading``).
+        #: output (``ClusterJobResult.artifacts``); a longer upload is returned as it stands (``Uploading``).
         self.artifacts_wait_s = artifacts_wait_s
 
     # ---- cluster access
@@ -265,7 +266,7 @@ class Client:
         return result.model_copy(update={"stdout": output[0], "stderr": output[1]})
 
     def wait_terminal(self, name: str, timeout: Optional[float], *,
-                      stored_output: bool = True) -> tuple[RobotJob, JobResult]:
+                      stored_output: bool = True) -> tuple[RobotJob, ClusterJobResult]:
         """Like :meth:`wait` but never reads the stream: the RobotJob and its result with the tails.
 
         A job preempted and requeued (``status.requeuedAs``) is followed to the job that runs it
@@ -291,8 +292,8 @@ class Client:
                 )
             time.sleep(self.poll_interval_s)
 
-    def _with_stored_output(self, name: str, job: RobotJob, result: JobResult,
-                            deadline: Optional[float]) -> tuple[RobotJob, JobResult]:
+    def _with_stored_output(self, name: str, job: RobotJob, result: ClusterJobResult,
+                            deadline: Optional[float]) -> tuple[RobotJob, ClusterJobResult]:
         """The ended job once its output settled (Uploaded, Failed, Discarded), or as it stands at the wait's end."""
         until = time.monotonic() + self.artifacts_wait_s
         if deadline is not None:

@@ -15,11 +15,12 @@ from datetime import datetime
 from typing import Any, Optional
 
 from armnet_core.api import API_VERSION, FOLLOWER_TIMEOUT_ANNOTATION
-from armnet_core.models import Artifacts, Job, JobResult, JobSpec, JobStatus, TerminalStatus
+from armnet_core.models import Job, JobSpec, JobStatus, TerminalStatus
 from armnet_core.resources import PreflightStatus
 from pydantic import ValidationError
 
 from .resources import Cell, CellQueue, CellQuota, JobArtifacts, RobotJob, RolloutRecord
+from .results import Artifacts, ClusterJobResult
 
 _NAME_CHARS = re.compile(r"[^a-z0-9-]+")
 _GENERATED_PREFIX_MAX = 40
@@ -101,7 +102,7 @@ def requeue_of(job: RobotJob) -> Optional[str]:
     return "" if wanted else None
 
 
-def result_from_robotjob(job: RobotJob) -> Optional[JobResult]:
+def result_from_robotjob(job: RobotJob) -> Optional[ClusterJobResult]:
     """The ``JobResult`` of a finished RobotJob; ``None`` while it has not finished.
 
     ``stdout``/``stderr`` are the status tails (the last 16 KiB the agent kept);
@@ -111,7 +112,7 @@ def result_from_robotjob(job: RobotJob) -> Optional[JobResult]:
     if status not in TerminalStatus:
         return None
     found = job.status.result
-    return JobResult(
+    return ClusterJobResult(
         status=status,
         exit_code=found.exit_code if found else None,
         stdout=found.stdout_tail if found else "",

@@ -91,26 +91,6 @@ class RemoteExecutionError(RuntimeError):
         super().__init__(str(result))
 
 
-class Artifacts(BaseModel):
-    """Where the job's output directory (``ARMNET_OUTPUT_DIR``) went: ``status.artifacts`` of its RobotJob.
-
-    The node agent stores it in the cluster's object store after the job ended
-    (docs/outputs.md); ``armnet artifacts JOB --download DIR`` fetches it. ``phase`` is
-    ``Uploaded`` when it is stored (``complete`` false: a file changed while it was sent),
-    ``Pending``, ``Uploading`` or ``Retrying`` while the agent is still at it, ``Failed`` or
-    ``Discarded`` (with ``message`` saying why) when nothing was stored.
-    """
-
-    phase: str = Field(..., description="Pending, Uploading, Uploaded, Retrying, Failed or Discarded.")
-    location: Optional[str] = Field(default=None, description="s3://<bucket>/<namespace>/<job uid>/")
-    manifest: Optional[str] = Field(default=None, description="The stored manifest: every file with its SHA-256.")
-    files: Optional[int] = Field(default=None, description="Files stored.")
-    bytes: Optional[int] = Field(default=None, description="Bytes stored.")
-    complete: Optional[bool] = Field(default=None, description="False when a file was left out.")
-    left_out: Optional[int] = Field(default=None, description="Entries not stored (the message names why).")
-    message: Optional[str] = Field(default=None, description="Why anything was left out, or nothing stored.")
-
-
 class JobResult(BaseModel):
     """The terminal outcome of a job: status, exit code, output, error or traceback, return value."""
 
@@ -129,9 +109,6 @@ class JobResult(BaseModel):
     )
     started_at: Optional[datetime] = None
     finished_at: Optional[datetime] = None
-    artifacts: Optional[Artifacts] = Field(
-        default=None, description="Where the job's output directory went (a cluster run with an object store)."
-    )
 
     def raise_for_status(self) -> None:
         """Raise :class:`RemoteExecutionError` unless the job succeeded; a no-op otherwise."""
