@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 #: The bucket `armnet dev up` makes for job outputs.
 DEV_BUCKET = "armnet-outputs"
+#: The bed's two tenants: a Kubernetes user each and, with the store, read keys to the outputs of the
+#: namespace of the same name (docs/outputs.md, "Tenants' keys").
+TENANTS = ("tenant-a", "tenant-b")
 
 
 def _import_testbed() -> Any:
@@ -81,7 +84,7 @@ def _start_all(testbed: Any, args: argparse.Namespace, stack: contextlib.ExitSta
         lines.append(f"export KUBECONFIG={plane.kubeconfig}")
         lines.append(f"export PATH={Path(plane.kubectl_path).parent}:$PATH   # kubectl "
                      f"matching the apiserver")
-        for name in ("tenant-a", "tenant-b"):
+        for name in TENANTS:
             user = plane.user(name)
             lines.append(f"# tenant {name}: KUBECONFIG={user.kubeconfig}")
         if not args.no_node:
@@ -100,12 +103,16 @@ def _start_all(testbed: Any, args: argparse.Namespace, stack: contextlib.ExitSta
         nats = stack.enter_context(testbed.NatsServer())
         lines.append(f"export NATS_URL={nats.url}")
     if not args.no_store:
-        store = stack.enter_context(testbed.SeaweedS3())
+        store = stack.enter_context(testbed.SeaweedS3(readers={name: (DEV_BUCKET, name) for name in TENANTS}))
         bucket = store.create_bucket(DEV_BUCKET)
         agent_env = " ".join(f"{key}={value}" for key, value in store.agent_env(bucket).items())
         lines.append(f"# object store for job outputs (docs/outputs.md): start the agent with {agent_env}")
         lines.append(f"# read them back: AWS_ACCESS_KEY_ID={store.access_key} AWS_SECRET_ACCESS_KEY={store.secret_key} "
                      f"armnet artifacts JOB --endpoint {store.endpoint}")
+        for reader in store.readers.values():
+            keys = " ".join(f"{key}={value}" for key, value in reader.env().items())
+            lines.append(f"# tenant {reader.name}: the outputs of namespace {reader.namespace} only: {keys} "
+                         f"armnet artifacts JOB -n {reader.namespace}")
         lines.append(f"export ARMNET_ARTIFACTS_ENDPOINT={store.endpoint}")
     if not args.no_podman:
         podman = stack.enter_context(testbed.PodmanService())

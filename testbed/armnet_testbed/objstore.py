@@ -5,18 +5,25 @@ free port (HTTP and gRPC chosen explicitly: SeaweedFS would otherwise take HTTP 
 with its data in a temporary directory and one S3 identity (access and secret key,
 admin on every bucket) from a config file. Telemetry, Iceberg and Lance endpoints are
 off, so nothing leaves loopback. ``weed`` is built by scripts/setup.d/37-seaweedfs.sh.
+
+``readers`` adds a tenant's read-only identity per namespace: it may read the objects
+under ``<bucket>/<namespace>/`` and nothing else (no listing, no writes), which is how a
+cluster hands each tenant keys to its own job outputs (docs/outputs.md, "Tenants' keys").
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 import shutil
 import tempfile
 import time
 import urllib.error
 import urllib.request
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +49,38 @@ def weed_binary() -> Path:
     return SEAWEEDFS_CACHE / current.read_text().strip() / "bin" / "weed"
 
 
-class SeaweedS3:
-    """SeaweedFS with its S3 gateway; ``endpoint`` is ``http://127.0.0.1:<port>``."""
+#: A bucket and namespace as Kubernetes and S3 spell them: a grant built from them has no wildcard.
+_BUCKET = re.compile(r"^[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]$")
+_NAMESPACE = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
 
-    def __init__(self, workdir: Path | None = None) -> None:
+
+@dataclass(frozen=True)
+class Reader:
+    """A tenant's read-only keys: the objects under ``<bucket>/<namespace>/``, nothing else."""
+
+    name: str
+    bucket: str
+    namespace: str
+    access_key: str
+    secret_key: str
+
+    @property
+    def action(self) -> str:
+        """SeaweedFS's grant: ``Read`` on every key below the namespace's prefix (the agent's layout)."""
+        return f"Read:{self.bucket}/{self.namespace}/*"
+
+    def env(self) -> dict[str, str]:
+        """What the tenant exports for ``armnet artifacts`` (boto3's credential chain)."""
+        return {"AWS_ACCESS_KEY_ID": self.access_key, "AWS_SECRET_ACCESS_KEY": self.secret_key}
+
+
+class SeaweedS3:
+    """SeaweedFS with its S3 gateway; ``endpoint`` is ``http://127.0.0.1:<port>``.
+
+    ``readers`` maps a reader's name to the (bucket, namespace) whose outputs it may read.
+    """
+
+    def __init__(self, workdir: Path | None = None, readers: Mapping[str, tuple[str, str]] | None = None) -> None:
         self._owns_workdir = workdir is None
         self.workdir = workdir or Path(tempfile.mkdtemp(prefix="armnet-s3-"))
         self.s3_port = free_port()
@@ -59,6 +94,12 @@ class SeaweedS3:
             "filer.port", "filer.port.grpc", "s3.port.grpc",
         )}
         self._proc: ManagedProcess | None = None
+        self.readers: dict[str, Reader] = {}
+        for name, (bucket, namespace) in (readers or {}).items():
+            if not (_BUCKET.match(bucket) and _NAMESPACE.match(namespace)):
+                raise ValueError(f"reader {name!r}: {bucket!r}/{namespace!r} is not a bucket and a namespace")
+            self.readers[name] = Reader(name, bucket, namespace, f"reader-{secrets.token_hex(8)}",
+                                        secrets.token_hex(20))
 
     def start(self) -> SeaweedS3:
         binary = require_tool("weed", weed_binary())
@@ -68,7 +109,11 @@ class SeaweedS3:
             "name": "armnet-testbed",
             "credentials": [{"accessKey": self.access_key, "secretKey": self.secret_key}],
             "actions": ["Admin", "Read", "List", "Tagging", "Write"],
-        }]}))
+        }, *({
+            "name": reader.name,
+            "credentials": [{"accessKey": reader.access_key, "secretKey": reader.secret_key}],
+            "actions": [reader.action],
+        } for reader in self.readers.values())]}))
         config.chmod(0o600)
         # SeaweedFS makes each bucket a collection and gives a new collection 7 volumes at its
         # first write (master.toml's copy_1); with -volume.max=32 the fifth bucket's first write
@@ -105,14 +150,16 @@ class SeaweedS3:
         except (urllib.error.URLError, TimeoutError):
             return False
 
-    def client(self) -> Any:
-        """A boto3 S3 client with the identity's keys (path-style, as the agent's)."""
+    def client(self, reader: str | None = None) -> Any:
+        """A boto3 S3 client with the admin's keys, or ``reader``'s (path-style, as the agent's)."""
         import boto3
         from botocore.config import Config
 
+        keys = self.readers[reader] if reader is not None else None
         return boto3.client(
-            "s3", endpoint_url=self.endpoint, region_name=self.region, aws_access_key_id=self.access_key,
-            aws_secret_access_key=self.secret_key,
+            "s3", endpoint_url=self.endpoint, region_name=self.region,
+            aws_access_key_id=keys.access_key if keys else self.access_key,
+            aws_secret_access_key=keys.secret_key if keys else self.secret_key,
             config=Config(s3={"addressing_style": "path"}, retries={"mode": "standard", "max_attempts": 1},
                           request_checksum_calculation="when_required",
                           response_checksum_validation="when_required"),

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 from armnet_testbed.images import BASE_IMAGE
+from botocore.exceptions import ClientError
 
 pytestmark = [pytest.mark.node, pytest.mark.integration, pytest.mark.timeout(600)]
 
@@ -115,6 +116,20 @@ def test_dev_up_starts_an_object_store_with_a_bucket_for_job_outputs(dev_up) -> 
     bucket = settings["ARMNET_ARTIFACTS_BUCKET"]
     s3.put_object(Bucket=bucket, Key="team-a/some-uid/manifest.json", Body=b"{}")
     assert s3.get_object(Bucket=bucket, Key="team-a/some-uid/manifest.json")["Body"].read() == b"{}"
+
+    # Each tenant's printed keys read its own namespace's outputs, not another's.
+    tenant_line = next(line for line in lines if line.startswith("# tenant tenant-a: the outputs of"))
+    keys = dict(item.split("=", 1) for item in tenant_line.split() if item.startswith("AWS_"))
+    tenant = boto3.session.Session().client(
+        "s3", endpoint_url=endpoint, region_name="us-east-1", aws_access_key_id=keys["AWS_ACCESS_KEY_ID"],
+        aws_secret_access_key=keys["AWS_SECRET_ACCESS_KEY"],
+        config=Config(s3={"addressing_style": "path"}, request_checksum_calculation="when_required",
+                      response_checksum_validation="when_required"))
+    for namespace in ("tenant-a", "tenant-b"):
+        s3.put_object(Bucket=bucket, Key=f"{namespace}/uid-1/manifest.json", Body=namespace.encode())
+    assert tenant.get_object(Bucket=bucket, Key="tenant-a/uid-1/manifest.json")["Body"].read() == b"tenant-a"
+    with pytest.raises(ClientError, match="AccessDenied"):
+        tenant.get_object(Bucket=bucket, Key="tenant-b/uid-1/manifest.json")
 
 
 def test_a_deployment_on_dev_up_makes_a_pod_that_runs_on_its_node(dev_up) -> None:
