@@ -274,7 +274,7 @@ def test_a_recording_stopped_at_its_timeout_keeps_every_finished_episode(
 
 
 def test_an_evaluation_nobody_watches_is_judged_by_the_cells_monitor_in_its_status(
-    bed: AgentBed, batch: dict[str, str],
+    bed: AgentBed, batch: dict[str, str], object_store: Any, outputs_bucket: str,
 ) -> None:
     st = status(bed.wait_phase(batch["evaluation"], timeout=420))
     assert st["phase"] == "succeeded", json.dumps(st, indent=1)
@@ -285,6 +285,16 @@ def test_an_evaluation_nobody_watches_is_judged_by_the_cells_monitor_in_its_stat
     reached, short = (r["monitor"] for r in rollouts)
     assert (reached["outcome"], short["outcome"]) == ("success", "failure")
     assert reached["score"] > 0 and reached["frameAt"] <= reached["at"] <= rollouts[0]["endedAt"]
+
+    # The cell's record of the job, stored with its output: each rollout's pictures and the history.
+    bed.wait(lambda: (status(bed.job(batch["evaluation"])).get("artifacts") or {}).get("phase") == "Uploaded", 120,
+             "the evaluation's output uploaded")
+    prefix = f"{bed.namespace}/{st['jobId']}/files/armnet-cell/"
+    stored = object_store.objects(outputs_bucket, prefix)
+    pictures = sorted(key[len(prefix):].split("/", 2)[2] for key in stored if key.endswith(".jpg"))
+    assert pictures == ["first.jpg", "first.jpg", "last.jpg", "last.jpg", "verdict.jpg", "verdict.jpg"], sorted(stored)
+    kept = json.loads(stored[prefix + "rollouts.json"])["rollouts"]
+    assert [(r["index"], r["outcome"], r["markedBy"]) for r in kept] == [(1, "success", "monitor"), (2, "failure", "monitor")]
 
 
 def test_a_job_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:

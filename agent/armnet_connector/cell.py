@@ -45,6 +45,7 @@ from .motion import MotionGuard
 from .rest import RestReport, cell_bus, move_to_rest, rest_pose, restore_registers, torque_off
 from .restore import RegisterLedger, RestoreOutcome, restore_block
 from .retry import with_read_retry
+from .rollout_frames import RolloutFrames
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +90,10 @@ class Counters:
     completion_camera_errors: int = 0
     #: ``is_complete(block=True)`` calls that saw no frame newer than the call scored in time.
     completion_block_timeouts: int = 0
+    #: Pictures of rollouts (first, verdict, last) kept in the cell's record of the job (``rollout_frames``).
+    rollout_frames_kept: int = 0
+    #: Pictures not kept: the writer was behind, the job ran past the cap of rollouts, or a write failed.
+    rollout_frames_dropped: int = 0
     #: Scripted resets the completion monitor judged back at their start (no person involved).
     auto_resets_worked: int = 0
     #: Tries of a scripted reset that failed (moves not made, or the scene still scored complete).
@@ -131,6 +136,8 @@ class CellState:
     counters: Counters = field(default_factory=Counters)
     # The latest rollout events only: a job may begin millions of rollouts.
     rollouts: deque[RolloutEvent] = field(default_factory=lambda: deque(maxlen=MAX_ROLLOUT_EVENTS))
+    #: The rollouts' pictures in the cell's record of the job (a cell with a monitor and a record directory).
+    rollout_frames: RolloutFrames | None = None
 
     def __post_init__(self) -> None:
         self.ranges: dict[str, dict[str, MotorRange]] = {
@@ -561,6 +568,11 @@ class CellState:
             if why is not None:
                 self._stop_at_end = None
                 self.deadline.cancel(why)
+        frames = self.rollout_frames
+        if frames is not None and event.kind == "begin":
+            frames.begun(event.index, event.at)
+        elif frames is not None and event.kind == "end":
+            frames.ended()
         log.info("rollout %s index=%s total=%s", event.kind, event.index, event.total)
         if why is not None:
             log.info("the episode ended: the stop that waited for it opened the grace window (%s)", why)
@@ -635,6 +647,8 @@ class CellState:
                 return
             self.rollouts.append(RolloutEvent("verdict", self.now(), index=index, success=success,
                                               score=audit.score, frame_at=audit.frame_at))
+        if self.rollout_frames is not None:
+            self.rollout_frames.judged()
         log.info("rollout %s: the completion monitor's verdict is %s (score %.3f)", index,
                  "success" if success else "failure", audit.score)
 

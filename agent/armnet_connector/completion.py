@@ -183,6 +183,10 @@ class CameraCompletionMonitor:
         self._scoring_since: float | None = None
         #: (capture stamp, hit, detail) of the latest frames scored (not those a scorer failed on).
         self._recent: deque[tuple[float, bool, str]] = deque(maxlen=RECENT_FRAMES)
+        #: The newest frame scored (a reference: cameras never draw on a stored frame), for the rollout's pictures.
+        self._scored_image: Any = None
+        #: Told each frame scored, on the monitor's thread (the rollouts' pictures); must not block.
+        self.on_scored: Callable[[Any], None] | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         # One rate-limited log per kind of failure: a broken camera must not hide a broken scorer.
@@ -233,6 +237,11 @@ class CameraCompletionMonitor:
         self._counters.completion_block_timeouts += 1
         self._warn_block.warning("completion: no frame newer than the call was scored in time; answering not complete")
         return False, False
+
+    def latest_frame(self) -> Any:
+        """The newest frame scored (BGR), None before the first: the scene the verdict now rests on."""
+        with self._cond:
+            return self._scored_image
 
     def audit(self) -> MonitorVerdict:
         """The verdict now with its score and when its newest frame was scored, for the rollout's record."""
@@ -344,6 +353,12 @@ class CameraCompletionMonitor:
             if failure is None and result is not None:
                 self._recent.append((frame.stamp, result.hit, result.detail))
             self._scored_stamp = frame.stamp
+            self._scored_image = frame.image
             self._scored_at = time.time()
             self._counters.completion_frames_scored += 1
             self._cond.notify_all()
+        if self.on_scored is not None:
+            try:
+                self.on_scored(frame.image)
+            except Exception as exc:  # noqa: BLE001 — a listener's bug must not stop the scoring
+                log.warning("completion monitor: a listener of scored frames failed: %r", exc)

@@ -30,6 +30,7 @@ from .interlock import Interlock, TripReason
 from .observer import OBSERVER_SOCKET, ObserverSession
 from .record import ConnectorRecord
 from .report import SafetyReport
+from .rollout_frames import RolloutFrames
 from .server import MAX_BUFFERED_BYTES, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession, Session
 from .warm_imports import start_warm_imports
@@ -75,9 +76,13 @@ class Connector:
         camera_factory: CameraFactory | None = None,
         on_grace_expired: Callable[[], None] | None = None,
         observer_dir: str | Path | None = None,
+        record_dir: str | Path | None = None,
     ) -> None:
         """``observer_dir``: where to serve the read-only ``observer.sock`` (observer.py) and the agent's
-        ``agent.sock`` (agent_inputs.py: operator inputs and the cancel of a pod job), None: nowhere."""
+        ``agent.sock`` (agent_inputs.py: operator inputs and the cancel of a pod job), None: nowhere.
+
+        ``record_dir``: the cell's record of the job, a directory the job cannot see (the node agent
+        uploads it with the job's output): the rollouts' pictures go there (``rollout_frames``)."""
         self.config = config
         self.socket_dir = Path(socket_dir)
         self.cell = CellState(
@@ -94,6 +99,10 @@ class Connector:
             source = CameraFrames(self.cell.camera_factory, name, config.cameras[name])
             self.monitor = CameraCompletionMonitor(config.completion, source, self.cell.counters)
             self.cell.completion = self.monitor
+            if record_dir is not None:
+                self.cell.rollout_frames = RolloutFrames(Path(record_dir), self.monitor.latest_frame,
+                                                         self.cell.counters)
+                self.monitor.on_scored = self.cell.rollout_frames.scored
         # Camera frames reach the job through areas in the socket directory (frames.py).
         self.frames = FrameAreas(self.socket_dir)
         # Both sockets share one cap on unfinished request bytes (server.py).
@@ -151,6 +160,8 @@ class Connector:
             self.cell.deadline.start()
         if self.monitor is not None:
             self.monitor.start()
+        if self.cell.rollout_frames is not None:
+            self.cell.rollout_frames.start()
         self._started = True
         log.info("connector serving %s and %s in %s", ROBOT_SOCKET, OPERATOR_SOCKET, self.socket_dir)
         return self
@@ -174,6 +185,8 @@ class Connector:
         reserve_s = TORQUE_OFF_RESERVE_S * max(1, len(self.config.arms))
         rest_deadline = started + stop_budget_s(self.config.grace_period_seconds) - reserve_s
         self.cell.shut_down(STOP_LOCK_WAIT_S, rest_deadline=rest_deadline)
+        if self.cell.rollout_frames is not None:
+            self.cell.rollout_frames.stop()  # after the arms are safe: pictures wait, torque off does not
         log.info("connector stopped")
 
     def __enter__(self) -> Connector:

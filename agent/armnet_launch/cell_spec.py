@@ -142,6 +142,9 @@ class CellLayout:
     arms: tuple[ArmLayout, ...]
     #: The job's own output directory (``ARMNET_OUTPUT_DIR``); the agent uploads it when the job ends.
     output_dir: Path
+    #: The cell's record of the job (the rollouts' pictures): never mounted into the job's container;
+    #: the node agent uploads it with the output under ``armnet-cell/``. None: not kept (``armnet run``).
+    record_dir: Path | None = None
 
     @property
     def robot_endpoint(self) -> str:

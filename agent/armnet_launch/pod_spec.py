@@ -75,6 +75,8 @@ SOCKETS_SIZE = "256Mi"
 OBSERVER_VOLUME = "observer"
 #: Where the connector container mounts it.
 OBSERVER_DIR = "/run/armnet-observer"
+#: The cell's record of the job (``PodInputs.record_dir``): a volume of the connector alone.
+RECORD_VOLUME = "cell-record"
 TMP_SIZE = "256Mi"
 DEVICE_DIR = "/dev/armnet"
 CONNECTOR_CPU_REQUEST = "250m"
@@ -153,6 +155,8 @@ class PodInputs:
     observer_dir: str | None = None
     #: The job's output directory on the host (``ARMNET_OUTPUT_DIR``, uploaded when the job ends), or None.
     output_dir: str | None = None
+    #: The cell's record of the job on the host (the rollouts' pictures): the connector's alone, or None.
+    record_dir: str | None = None
     #: Host files the connector alone reads, mounted read-only at the same path: the cell's
     #: completion classifier, a judge's token file (``cell_completion.host_files``).
     host_files: tuple[str, ...] = ()
@@ -265,6 +269,7 @@ def _connector(inputs: PodInputs) -> dict[str, Any]:
         *({"name": f"device-{i}", "mountPath": device_path(arm)} for i, arm in enumerate(_host_devices(inputs))),
         *_dev_mounts(inputs),
         *([{"name": OBSERVER_VOLUME, "mountPath": inputs.observer_dir}] if inputs.observer_dir else []),
+        *([{"name": RECORD_VOLUME, "mountPath": inputs.record_dir}] if inputs.record_dir else []),
         *({"name": f"host-file-{i}", "mountPath": path, "readOnly": True} for i, path in enumerate(inputs.host_files)),
     ]
     env = [{"name": SIDECAR_ENV, "value": json.dumps(dict(inputs.sidecar), sort_keys=True)}]
@@ -368,6 +373,9 @@ def _volumes(inputs: PodInputs) -> list[dict[str, Any]]:
         volumes.append({"name": "output", "hostPath": {"path": inputs.output_dir, "type": "DirectoryOrCreate"}})
     if inputs.observer_dir:
         volumes.append({"name": OBSERVER_VOLUME, "emptyDir": {"medium": "Memory", "sizeLimit": "1Mi"}})
+    if inputs.record_dir:
+        # Made by the agent and handed to the connector's uid before the pod (the job never mounts it).
+        volumes.append({"name": RECORD_VOLUME, "hostPath": {"path": inputs.record_dir, "type": "Directory"}})
     volumes += [
         {"name": f"device-{i}", "hostPath": {"path": inputs.devices[arm], "type": "CharDevice"}}
         for i, arm in enumerate(_host_devices(inputs))

@@ -66,10 +66,13 @@ class SidecarConfig:
     simulator: Mapping[str, Any] | None = None
     #: Where the read-only observer socket is served for the agent (a volume of this container only), or None.
     observer_dir: str | None = None
+    #: The cell's record of the job on the host (the rollouts' pictures), mounted in this container only, or None.
+    record_dir: str | None = None
 
     def as_data(self) -> dict[str, Any]:
         data: dict[str, Any] = {"connector": dict(self.connector), "socket_dir": self.socket_dir,
-                                "calibration": dict(self.calibration), "observer_dir": self.observer_dir}
+                                "calibration": dict(self.calibration), "observer_dir": self.observer_dir,
+                                "record_dir": self.record_dir}
         if self.simulator is not None:
             data["simulator"] = dict(self.simulator)
         return data
@@ -77,7 +80,8 @@ class SidecarConfig:
     @classmethod
     def from_data(cls, data: Mapping[str, Any]) -> SidecarConfig:
         return cls(connector=data["connector"], socket_dir=data["socket_dir"], calibration=data.get("calibration", {}),
-                   simulator=data.get("simulator"), observer_dir=data.get("observer_dir"))
+                   simulator=data.get("simulator"), observer_dir=data.get("observer_dir"),
+                   record_dir=data.get("record_dir"))
 
 
 def record_line(record: Mapping[str, Any]) -> str:
@@ -137,9 +141,11 @@ def main() -> int:
         ports = sim.ports()
         arms = {name: arm.model_copy(update={"port": ports[name]}) for name, arm in connector_config.arms.items()}
         connector = Connector(connector_config.model_copy(update={"arms": arms}), socket_dir,
-                              camera_factory=simulated_camera_factory(source=sim), observer_dir=config.observer_dir)
+                              camera_factory=simulated_camera_factory(source=sim), observer_dir=config.observer_dir,
+                              record_dir=config.record_dir)
     else:
-        connector = Connector(connector_config, socket_dir, observer_dir=config.observer_dir)
+        connector = Connector(connector_config, socket_dir, observer_dir=config.observer_dir,
+                              record_dir=config.record_dir)
     if restarted:
         connector.interlock.trip(TripReason.AGENT_RESTARTED, RESTARTED_MESSAGE)
     connector.start()

@@ -144,6 +144,7 @@ class LocalCell:
             inputs=self.inputs,
             camera_factory=simulated_camera_factory(source=self.sim),
             on_grace_expired=self._on_grace_expired,
+            record_dir=layout.record_dir,
         ).start()
         if self._tripped is not None:
             self.connector.interlock.trip(TripReason.AGENT_RESTARTED, self._tripped)

@@ -419,8 +419,9 @@ class PodLauncher:
         }
         in_pod = request.sim is not None and s.simulator_in_pod
         simulator = {"preset": plan.cell_spec.preset, "latency_ms": plan.cell_spec.latency_ms} if in_pod else None
+        record_dir = str(layout.record_dir) if layout.record_dir is not None else None
         sidecar = SidecarConfig(config.model_dump(mode="json"), str(layout.socket_dir), calibration, simulator,
-                                observer_dir=OBSERVER_DIR)
+                                observer_dir=OBSERVER_DIR, record_dir=record_dir)
         devices = dict(request.sim.ports()) if request.sim is not None and not in_pod else {}
         env = dict(plan.container.env)
         if request.secret_refs:
@@ -457,6 +458,7 @@ class PodLauncher:
             job_user=s.job_user,
             connector_user=s.connector_user,
             observer_dir=OBSERVER_DIR,
+            record_dir=record_dir,
             host_files=host_files(cell.completion),
         )
         return build_pod(inputs)
@@ -520,15 +522,19 @@ class PodSession:
             log.warning("job %s: the job_started notice did not reach its connector sidecar", request.job.key)
 
     def _own_host_dirs(self) -> None:
-        """The cache, volume and output are host directories: the job's non-root user must be able to write them."""
+        """The cache, volume and output are host directories: the job's non-root user must be able to write them;
+        the cell's record is the connector's (its uid), never the job's."""
         layout = self.request.plan.layout
-        uid = self.launcher.settings.job_user
-        for directory in (layout.cache_dir, layout.volume_dir, layout.output_dir):
+        owners = [(directory, self.launcher.settings.job_user)
+                  for directory in (layout.cache_dir, layout.volume_dir, layout.output_dir)]
+        if layout.record_dir is not None:
+            owners.append((layout.record_dir, self.launcher.settings.connector_user))
+        for directory, uid in owners:
             directory.mkdir(parents=True, exist_ok=True)
             try:
                 os.chown(directory, uid, uid)
             except PermissionError:
-                log.warning("cannot hand %s to uid %d (the agent is not root): the job cannot write it", directory, uid)
+                log.warning("cannot hand %s to uid %d (the agent is not root): it cannot write there", directory, uid)
 
     def on_deadline(self) -> None:
         """Nothing to call: the sidecar runs the job's deadline itself; the supervisor kills after grace."""

@@ -73,6 +73,10 @@ class HostPaths:
         """Apart from the run directory (removed when the job ends): kept until its upload finished."""
         return self.state_dir / "outputs" / job_uid
 
+    def record_dir(self, job_uid: str) -> Path:
+        """The cell's record of the job (the connector writes it, the job never sees it); uploaded with the output."""
+        return self.state_dir / "records" / job_uid
+
 
 @dataclass(frozen=True)
 class LaunchPlan:
@@ -148,7 +152,7 @@ def plan_launch(job: Job, cell: Cell, paths: HostPaths, secrets: Mapping[str, st
     run_dir = paths.run_dir(job.uid)
     layout = replace(
         plan_layout(spec, run_dir), cache_dir=paths.cache_dir(cell.name), volume_dir=paths.volume_dir(job.namespace),
-        output_dir=paths.output_dir(job.uid),
+        output_dir=paths.output_dir(job.uid), record_dir=paths.record_dir(job.uid),
     )
     env = build_job_env(spec, layout, job_id=job.uid, timeout_seconds=job.timeout_seconds, args=job.args)
     env.update(secrets)

@@ -26,7 +26,9 @@ job says why it ended.
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import shutil
 import threading
 import time
@@ -34,6 +36,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from armnet_connector.inputs import LocalOperatorInputs
@@ -48,6 +51,7 @@ from armnet_launch.supervise.observe import EventKind, OutputEvent
 from armnet_sim.presets import CellSimulator
 
 from armnet_node import report
+from armnet_node import rollout_history as rh
 from armnet_node.device_health import LOST_PREFIX, lost_job_error
 from armnet_node.follower import guard_follower
 from armnet_node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
@@ -356,8 +360,10 @@ class JobRunner:
             return
         # Tracked before the directory exists: an agent killed from here on still uploads it.
         self.deps.uploads.track(TrackedJob(job.namespace, job.name, job.uid))
-        for directory in (plan.layout.cache_dir, plan.layout.volume_dir, plan.layout.output_dir):
-            directory.mkdir(parents=True, exist_ok=True)
+        for directory in (plan.layout.cache_dir, plan.layout.volume_dir, plan.layout.output_dir,
+                          plan.layout.record_dir):
+            if directory is not None:
+                directory.mkdir(parents=True, exist_ok=True)
         inputs = LocalOperatorInputs()
         output = self._output
         request = SessionRequest(
@@ -406,6 +412,7 @@ class JobRunner:
                 record = session.record()
                 self.rollouts.sync()  # a pod's sidecar may stop before the sync above: its record has the last
                 self._final_auto_reset = auto_resets(record).get("latest")
+                keep_rollouts(plan.layout.record_dir, self.rollouts.history)
                 result = self.final_result(result, session.failure(), device_lost, record, limits)
                 self._flush_stop.set()  # the last progress write lands before the terminal one
                 flusher.join(PROGRESS_FLUSH_S * 2)
@@ -640,6 +647,20 @@ def auto_resets(record: report.ConnectorRecord) -> Mapping[str, Any]:
     """The scripted resets of the connector's record (its safety report's ``autoResets``), {} when none."""
     resets = record.safety.get("autoResets") if isinstance(record.safety, Mapping) else None
     return resets if isinstance(resets, Mapping) else {}
+
+
+def keep_rollouts(record_dir: Path | None, history: rh.History) -> None:
+    """The job's rollout history (``status.rollouts`` as written) in the cell's record, beside the rollouts'
+    pictures, so the stored record says which verdict each picture got and which were overruled."""
+    if record_dir is None or not history:
+        return
+    try:
+        record_dir.mkdir(parents=True, exist_ok=True)
+        partial = record_dir / ".rollouts.json.partial"
+        partial.write_text(json.dumps({"rollouts": as_status(history)}, indent=1))
+        os.replace(partial, record_dir / "rollouts.json")
+    except OSError as exc:
+        log.warning("the rollout history was not kept in the cell's record %s: %s", record_dir, exc)
 
 
 def write_progress(kube: AgentKube, job: Job, progress: str | None, rollout: dict[str, int] | None,

@@ -10,7 +10,9 @@ A job a runner of this agent still runs is never taken (one deleted while its co
 in its grace window still writes). The record and the directory are removed only after the
 output is stored and the job's status says so (or could never be: over the cap), so nothing
 a job wrote is lost to a crash; the upload itself resumes
-(a re-run skips what is stored with the same checksum).
+(a re-run skips what is stored with the same checksum). The cell's record of the job
+(``HostPaths.record_dir``: the rollouts' pictures, the rollout history) goes with it,
+under ``armnet-cell/``, and is removed with it.
 
 Without an object store the output is removed once the job ended (it would fill the robot
 host) and ``status.artifacts`` says so when the job had written something.
@@ -118,7 +120,8 @@ class UploadQueue:
         """
         if not self._record(uid).exists():
             return None
-        if self.store is None and not _has_entries(self.paths.output_dir(uid)):
+        if self.store is None and not (_has_entries(self.paths.output_dir(uid))
+                                       or _has_entries(self.paths.record_dir(uid))):
             return None
         return summary.pending()
 
@@ -198,7 +201,7 @@ class UploadQueue:
     def _take(self, job: TrackedJob) -> None:
         directory = self.paths.output_dir(job.uid)
         if self.store is None:
-            had_output = _has_entries(directory)
+            had_output = _has_entries(directory) or _has_entries(self.paths.record_dir(job.uid))
             self._done(job, directory)
             self.metrics.outputs.labels(outcome="discarded" if had_output else "empty").inc()
             if had_output:
@@ -212,7 +215,8 @@ class UploadQueue:
             return
         self._write_status(job, summary.uploading(self.store.bucket, prefix))
         try:
-            report = upload_output(directory, self.store, job.namespace, job.uid, self.limits)
+            report = upload_output(directory, self.store, job.namespace, job.uid, self.limits,
+                                   record=self.paths.record_dir(job.uid))
         except OutputTooLarge as exc:
             self._write_status(job, summary.failed(f"{exc}; nothing was stored and the output was removed"))
             self._done(job, directory)
@@ -254,6 +258,7 @@ class UploadQueue:
 
     def _done(self, job: TrackedJob, directory: Path) -> None:
         shutil.rmtree(directory, ignore_errors=True)
+        shutil.rmtree(self.paths.record_dir(job.uid), ignore_errors=True)
         self._record(job.uid).unlink(missing_ok=True)
         with self._lock:
             self._ready.discard(job.uid)

@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 from armnet_client import Client
-from armnet_core.models import Artifacts
+from armnet_client.results import Artifacts
 from armnet_node.artifacts import ObjectStore, OutputLimits, StoreConfig
 from armnet_node.kube import AgentKube
 from armnet_node.metrics import AgentMetrics
@@ -109,6 +109,32 @@ def test_an_ended_job_s_output_is_stored_and_its_status_says_where(
     assert not (paths.state_dir / "uploads" / f"{job.uid}.json").exists()
     assert metrics.outputs.labels(outcome="uploaded")._value.get() == 1
     assert metrics.output_bytes._value.get() == 5011
+
+
+def test_the_cells_record_is_stored_beside_the_output_and_a_forged_one_is_left_out(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3, tmp_path: Path,
+) -> None:
+    paths = HostPaths(tmp_path)
+    queue = UploadQueue(bucket_store, paths, kube, AgentMetrics())
+    job = a_tracked_job(k8s, namespace, "succeeded")
+    queue.track(job)
+    write_output(paths, job, {"data.parquet": b"d" * 100, "armnet-cell/rollouts.json": b'{"forged": true}'})
+    record = paths.record_dir(job.uid)
+    (record / "rollouts" / "000001-t").mkdir(parents=True)
+    (record / "rollouts" / "000001-t" / "first.jpg").write_bytes(b"\xff\xd8\xff picture")
+    (record / "rollouts.json").write_bytes(b'{"rollouts": []}')
+    queue.ready(job.uid)
+    queue.process_ready()
+
+    prefix = f"{namespace}/{job.uid}/files/"
+    stored = object_store.objects(bucket_store.bucket, prefix)
+    assert stored == {prefix + "data.parquet": b"d" * 100,
+                      prefix + "armnet-cell/rollouts.json": b'{"rollouts": []}',
+                      prefix + "armnet-cell/rollouts/000001-t/first.jpg": b"\xff\xd8\xff picture"}
+    artifacts = artifacts_of(k8s, job)
+    assert (artifacts["files"], artifacts["leftOut"]) == (3, 1)
+    assert "armnet-cell: a name reserved for the cell's record" in artifacts["message"]
+    assert not record.exists() and not paths.output_dir(job.uid).exists()
 
 
 def test_an_agent_killed_before_the_upload_leaves_it_to_the_next_agent(

@@ -21,13 +21,33 @@ from armnet_node.artifacts.model import LocalFile, OutputLimits, OutputTooLarge,
 LINK_OUT = "a symbolic link that leads out of the output directory (not followed)"
 LINK_TO_DIRECTORY = "a symbolic link to a directory (not followed)"
 NOT_A_FILE = "not a regular file (a FIFO, socket or device)"
+#: The top-level name under which the cell's record of the job is stored beside the job's own output.
+CELL_RECORD = "armnet-cell"
+RESERVED = "a name reserved for the cell's record of the job (armnet-cell/): rename it"
 
 
-def scan_output(root: Path, limits: OutputLimits, prefix: str = "") -> Scan:
+def scan_job_output(output: Path, record: Path | None, limits: OutputLimits, prefix: str = "") -> Scan:
+    """The job's output and, under ``armnet-cell/``, the cell's record of the job, as one scan.
+
+    The job's directory may not hold a top-level ``armnet-cell`` of its own (left out, with
+    the reason): a job must not pass its files off as the cell's. Each is walked within
+    ``limits`` on its own (the record is the connector's, small and bounded).
+    """
+    job = scan_output(output, limits, prefix, reserved=frozenset({CELL_RECORD}))
+    if record is None:
+        return job
+    cell = scan_output(record, limits, prefix, under=CELL_RECORD)
+    return Scan(files=tuple(sorted((*job.files, *cell.files), key=lambda f: f.path)),
+                refused=tuple(sorted((*job.refused, *cell.refused), key=lambda r: r.path)))
+
+
+def scan_output(root: Path, limits: OutputLimits, prefix: str = "", *, reserved: frozenset[str] = frozenset(),
+                under: str = "") -> Scan:
     """The files under ``root`` to upload and the entries left out; :class:`OutputTooLarge` over a cap.
 
     ``prefix`` is the job's key prefix, for the key-length check. A missing ``root``
-    (the job wrote nothing, or it was never created) is an empty scan.
+    (the job wrote nothing, or it was never created) is an empty scan. A top-level entry
+    named in ``reserved`` is left out; ``under`` is put before every path found.
     """
     try:
         top = root.resolve(strict=True)
@@ -37,7 +57,7 @@ def scan_output(root: Path, limits: OutputLimits, prefix: str = "") -> Scan:
     refused: list[Refused] = []
     entries = 0
     total = 0
-    pending: list[tuple[str, Path]] = [("", top)]
+    pending: list[tuple[str, Path]] = [(under, top)]
     while pending:
         rel_dir, directory = pending.pop()
         with os.scandir(directory) as listing:
@@ -50,7 +70,7 @@ def scan_output(root: Path, limits: OutputLimits, prefix: str = "") -> Scan:
                         "a dataset's own chunked format) or ask the cell's operator for a higher cap"
                     )
                 path = f"{rel_dir}/{entry.name}" if rel_dir else entry.name
-                why = name_refusal(prefix, path)
+                why = RESERVED if rel_dir == under and entry.name in reserved else name_refusal(prefix, path)
                 if why is not None:
                     refused.append(Refused(printable(path), why))
                     continue

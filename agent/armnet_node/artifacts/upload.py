@@ -37,7 +37,7 @@ from armnet_node.artifacts.model import (
     Scan,
     UploadReport,
 )
-from armnet_node.artifacts.scan import scan_output
+from armnet_node.artifacts.scan import scan_job_output
 from armnet_node.artifacts.store import ObjectStore
 
 HASH_CHUNK = 1 << 20
@@ -49,14 +49,16 @@ class FileChanged(Exception):
 
 def upload_output(
     root: Path, store: ObjectStore, namespace: str, job_uid: str, limits: OutputLimits | None = None,
+    record: Path | None = None,
 ) -> UploadReport:
-    """Upload the job's output directory ``root`` under ``<namespace>/<job uid>/`` in ``store``.
+    """Upload the job's output directory ``root`` under ``<namespace>/<job uid>/`` in ``store``, and the cell's
+    ``record`` of the job beside it (its paths under ``armnet-cell/``).
 
     Raises :class:`OutputTooLarge` (nothing uploaded), :class:`StoreMisconfigured` or
     :class:`StoreUnavailable` (run it again: it resumes).
     """
     prefix = job_prefix(namespace, job_uid)
-    return upload_scan(scan_output(root, limits or OutputLimits(), prefix), store, namespace, job_uid)
+    return upload_scan(scan_job_output(root, record, limits or OutputLimits(), prefix), store, namespace, job_uid)
 
 
 def upload_scan(

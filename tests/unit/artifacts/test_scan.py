@@ -98,3 +98,20 @@ def test_bytes_over_the_cap_are_refused_before_any_upload(tmp_path: Path) -> Non
     with pytest.raises(OutputTooLarge, match="more than 1000 bytes"):
         scan_output(tmp_path, OutputLimits(max_bytes=1000))
     assert scan_output(tmp_path, OutputLimits(max_bytes=1200)).total_bytes == 1200
+
+
+def test_the_cell_s_record_is_stored_under_armnet_cell_and_a_job_cannot_pass_its_files_off_as_the_cell_s(
+    tmp_path: Path,
+) -> None:
+    from armnet_node.artifacts.scan import RESERVED, scan_job_output
+
+    out = _tree(tmp_path / "out", {"data.parquet": b"d", "armnet-cell/rollouts.json": b"forged",
+                                   "deep/armnet-cell/x": b"fine below the top"})
+    record = _tree(tmp_path / "record", {"rollouts.json": b"{}", "rollouts/000001-t/first.jpg": b"j"})
+    scan = scan_job_output(out, record, OutputLimits())
+    assert [f.path for f in scan.files] == [
+        "armnet-cell/rollouts.json", "armnet-cell/rollouts/000001-t/first.jpg", "data.parquet", "deep/armnet-cell/x"]
+    assert {f.path: f.source for f in scan.files}["armnet-cell/rollouts.json"] == (record / "rollouts.json").resolve()
+    assert [(r.path, r.reason) for r in scan.refused] == [("armnet-cell", RESERVED)]
+    # Without a record (no monitor, or a local run) the job's output alone, its armnet-cell still refused.
+    assert [r.path for r in scan_job_output(out, None, OutputLimits()).refused] == ["armnet-cell"]

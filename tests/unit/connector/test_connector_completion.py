@@ -76,7 +76,9 @@ def connector(request: pytest.FixtureRequest, sim_cell: SimulatedCellProcess,
         completion = {"camera": "front", "scorer": "service", "service": {"url": judge.url, "timeoutSeconds": 1},
                       "consecutiveFrames": completion["consecutiveFrames"], "rateHz": completion["rateHz"]}
     config = cell_config(sim_cell, completion=completion)
-    yield make_connector(config, camera_factory=simulated_camera_factory(source=sim_cell))
+    # ("record"): the region scorer, keeping the rollouts' pictures in a record directory.
+    record = request.getfixturevalue("tmp_path") / "record" if getattr(request, "param", "") == "record" else None
+    yield make_connector(config, camera_factory=simulated_camera_factory(source=sim_cell), record_dir=record)
 
 
 # `bus` is the connector conftest's: LeRobot's bus through this module's `connector`.
@@ -163,6 +165,36 @@ def test_the_monitor_s_complete_is_recorded_once_on_the_open_rollout_with_its_sc
     assert 0.0 < verdict.score <= 1.0 and verdict.frame_at is not None
     assert verdict.frame_at <= verdict.at  # the frame was scored before the job was told
     assert [e.kind for e in connector.cell.rollouts] == ["begin", "verdict", "end"]
+
+
+@pytest.mark.parametrize("connector", ["record"], indirect=True)
+def test_each_rollout_keeps_its_first_verdict_and_last_frame_in_the_cell_s_record(
+    connector: Connector, bus: Any,
+) -> None:
+    import cv2
+
+    cell = a_job_cell(connector)
+    cell.rollout_begin(index=1, total=2)
+    drive_to(bus, dict(TARGET_POSE))
+    deadline = time.monotonic() + 30
+    while not cell.is_complete(block=True) and time.monotonic() < deadline:
+        pass
+    cell.rollout_end()
+    cell.rollout_begin(index=1, total=2)  # the index again: a folder of its own
+    cell.rollout_end()
+    deadline = time.monotonic() + 30  # written off the job's path, by the writer's thread
+    while connector.counters.rollout_frames_kept < 6 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    record = connector.cell.rollout_frames.directory  # type: ignore[union-attr]
+
+    folders = sorted((record / "rollouts").iterdir())
+    assert [f.name[:7] for f in folders] == ["000001-", "000001-"]
+    assert sorted(p.name for p in folders[0].iterdir()) == ["first.jpg", "last.jpg", "verdict.jpg"], [sorted(p.name for p in f.iterdir()) for f in folders]
+    verdict = cv2.imread(str(folders[0] / "verdict.jpg"))
+    assert verdict is not None and verdict.shape == (480, 640, 3)
+    # The picture the verdict rests on shows what the monitor saw: the disc on the pad.
+    assert build_scorer(CompletionConfig.model_validate(completion_of_the_target())).score(verdict).hit
+    assert connector.counters.rollout_frames_kept == 6 and connector.counters.rollout_frames_dropped == 0
 
 
 def test_a_rollout_the_monitor_never_saw_complete_ends_judged_a_failure(connector: Connector, bus: Any) -> None:

@@ -134,6 +134,17 @@ def test_the_output_directory_is_the_job_containers_only() -> None:
     assert "output" not in {m["name"] for m in connector["volumeMounts"]}
 
 
+def test_the_cells_record_of_the_job_is_the_connectors_only() -> None:
+    pod = build_pod(inputs(record_dir="/var/lib/armnet/records/uid-1"))
+    connector, job = containers(pod)
+    volumes = {v["name"]: v for v in pod["spec"]["volumes"]}
+    # The agent makes it and hands it to the connector's uid before the pod: type Directory, never created here.
+    assert volumes["cell-record"]["hostPath"] == {"path": "/var/lib/armnet/records/uid-1", "type": "Directory"}
+    assert {"name": "cell-record", "mountPath": "/var/lib/armnet/records/uid-1"} in connector["volumeMounts"]
+    assert "cell-record" not in {m["name"] for m in job["volumeMounts"]}
+    assert "cell-record" not in {v["name"] for v in build_pod(inputs())["spec"]["volumes"]}
+
+
 def test_the_completion_monitors_host_files_are_mounted_read_only_into_the_connector_only_at_their_paths() -> None:
     files = ("/var/lib/armnet/models/reach.onnx", "/var/lib/armnet/secrets/judge-token")
     pod = build_pod(inputs(host_files=files))
