@@ -108,9 +108,16 @@ def nats_server(nats_service: NatsServer) -> str:
     return nats_service.url
 
 
+#: Tenants' read-only keys on the session's store, for the tests of what a tenant's keys reach
+#: (tests/integration/test_tenant_output_keys.py): the bucket and the namespaces they name. A store's
+#: identities are fixed when it starts, and a store of their own cost those tests ~27 s (start and stop).
+TENANT_KEYS_BUCKET = "tenant-outputs"
+TENANT_KEYS_NAMESPACES = ("tenant-keys-a", "tenant-keys-b")
+
+
 @pytest.fixture(scope="session")
 def object_store(request: pytest.FixtureRequest) -> Iterator[SeaweedS3]:
-    server = SeaweedS3()
+    server = SeaweedS3(readers={ns: (TENANT_KEYS_BUCKET, ns) for ns in TENANT_KEYS_NAMESPACES})
     _start("SeaweedFS S3 object store", server.start, request)
     try:
         yield server

@@ -1,6 +1,6 @@
 """A tenant's read keys reach its own namespace's job outputs and nothing else, on a real store.
 
-SeaweedFS with one read-only identity per tenant namespace (``armnet_testbed.objstore.Reader``:
+The session's SeaweedFS, with one read-only identity per tenant namespace (``armnet_testbed.objstore.Reader``:
 ``Read`` on ``<bucket>/<namespace>/*``, as docs/outputs.md tells a cluster's operator to grant),
 outputs stored by the node agent's own upload queue, read back as a tenant does with
 ``armnet artifacts`` and with a plain S3 client.
@@ -21,29 +21,34 @@ from armnet_node.metrics import AgentMetrics
 from armnet_node.plan import HostPaths
 from armnet_node.uploads import TrackedJob, UploadQueue
 from armnet_testbed.objstore import SeaweedS3
+from armnet_testbed.plugin import TENANT_KEYS_BUCKET, TENANT_KEYS_NAMESPACES
 from botocore.exceptions import ClientError
 
 from tests.support.fms_objects import a_job, apply, patch_status
 
 pytestmark = pytest.mark.integration
 
-BUCKET = "tenant-outputs"
+BUCKET = TENANT_KEYS_BUCKET
 FILES = {"data/episode_000000.parquet": b"\x01" * 2000, "meta/info.json": b'{"fps": 30}'}
 
 
 @pytest.fixture(scope="module")
-def tenants(k8s: Any) -> list[str]:
-    return [k8s.create_namespace("tenant-a"), k8s.create_namespace("tenant-b")]
+def tenants(k8s: Any) -> Iterator[list[str]]:
+    """The two namespaces the session's store has read keys for (``armnet_testbed.plugin``)."""
+    from kubernetes import client as kclient
+
+    core = kclient.CoreV1Api(k8s.api_client())
+    for namespace in TENANT_KEYS_NAMESPACES:
+        core.create_namespace({"metadata": {"name": namespace}})
+    yield list(TENANT_KEYS_NAMESPACES)
+    for namespace in TENANT_KEYS_NAMESPACES:
+        k8s.delete_namespace(namespace)
 
 
 @pytest.fixture(scope="module")
-def store(tenants: list[str]) -> Iterator[SeaweedS3]:
-    server = SeaweedS3(readers={namespace: (BUCKET, namespace) for namespace in tenants}).start()
-    try:
-        server.create_bucket(BUCKET)
-        yield server
-    finally:
-        server.stop()
+def store(object_store: SeaweedS3, tenants: list[str]) -> SeaweedS3:
+    object_store.create_bucket(BUCKET)
+    return object_store
 
 
 def stored_job(k8s: Any, namespace: str, store: SeaweedS3, tmp_path: Path) -> tuple[str, str]:
@@ -98,6 +103,7 @@ def test_a_tenant_downloads_its_own_jobs_outputs_and_is_refused_another_tenants(
     assert denied(lambda: s3.get_object(Bucket=BUCKET, Key=f"{other}/{other_uid}/manifest.json")) == "AccessDenied"
     assert denied(lambda: s3.list_objects_v2(Bucket=BUCKET, Prefix=f"{own}/")) == "AccessDenied"
     assert denied(lambda: s3.put_object(Bucket=BUCKET, Key=f"{own}/planted.txt", Body=b"x")) == "AccessDenied"
-    assert denied(lambda: s3.delete_object(Bucket=BUCKET, Key=f"{own}/{other_uid}/manifest.json")) == "AccessDenied"
+    assert denied(lambda: s3.delete_object(Bucket=BUCKET, Key=f"{other}/{other_uid}/manifest.json")) == "AccessDenied"
+    assert denied(lambda: s3.delete_object(Bucket=BUCKET, Key=f"{own}/planted.txt")) == "AccessDenied"
     # What the other tenant's keys read is its own, and the objects are all still there.
     assert store.client(other).get_object(Bucket=BUCKET, Key=f"{other}/{other_uid}/manifest.json")["Body"].read()
