@@ -30,7 +30,7 @@ from .interlock import Interlock, TripReason
 from .observer import OBSERVER_SOCKET, ObserverSession
 from .record import ConnectorRecord
 from .report import SafetyReport
-from .rollout_frames import RolloutFrames
+from .rollout_frames import DRAIN_S, RolloutFrames
 from .server import MAX_BUFFERED_BYTES, ServerLimits, UnixServer
 from .session import OperatorSession, RobotSession, Session
 from .warm_imports import start_warm_imports
@@ -186,7 +186,10 @@ class Connector:
         rest_deadline = started + stop_budget_s(self.config.grace_period_seconds) - reserve_s
         self.cell.shut_down(STOP_LOCK_WAIT_S, rest_deadline=rest_deadline)
         if self.cell.rollout_frames is not None:
-            self.cell.rollout_frames.stop()  # after the arms are safe: pictures wait, torque off does not
+            # After the arms are safe (pictures wait, torque off does not), within what is left of the
+            # stop's budget: a pod's record line is printed after this, before the kubelet's kill.
+            left_s = started + stop_budget_s(self.config.grace_period_seconds) - time.monotonic()
+            self.cell.rollout_frames.stop(min(DRAIN_S, left_s))
         log.info("connector stopped")
 
     def __enter__(self) -> Connector:

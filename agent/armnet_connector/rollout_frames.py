@@ -21,6 +21,7 @@ import logging
 import os
 import queue
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -58,7 +59,10 @@ class RolloutFrames:
         self.directory = directory
         self._latest = latest
         self._counters = counters
-        self._queue: queue.Queue[_Picture | None] = queue.Queue(maxsize=QUEUE_SIZE)
+        self._queue: queue.Queue[_Picture] = queue.Queue(maxsize=QUEUE_SIZE)
+        #: Set by ``stop``: the writer ends once the queue is empty or the drain's time is up.
+        self._closing = threading.Event()
+        self._drain_until = 0.0
         self._lock = threading.Lock()
         self._folder: str | None = None  # the open rollout's folder
         #: The open rollout began before the monitor scored its first frame: its first picture is that frame.
@@ -72,16 +76,22 @@ class RolloutFrames:
         return self
 
     def stop(self, drain_s: float = DRAIN_S) -> None:
-        """Write what is queued (at most ``drain_s``), then stop."""
+        """Write what is queued for at most ``drain_s``, then stop; what is left is counted as dropped.
+
+        Bounded, whatever the writer does: the connector's stop must fit the grace window
+        (the pod's record line is printed after it). A write still running at the end
+        finishes on its daemon thread; no write starts after it.
+        """
         thread, self._thread = self._thread, None
         if thread is None:
             return
-        try:
-            self._queue.put(None, timeout=drain_s)
-        except queue.Full:
-            log.warning("rollout frames: the writer is behind; the last pictures are not kept")
-            return
-        thread.join(drain_s)
+        self._drain_until = time.monotonic() + max(drain_s, 0.0)
+        self._closing.set()
+        thread.join(max(drain_s, 0.0) + 0.5)
+        left = self._queue.qsize()
+        if left:
+            self._counters.rollout_frames_dropped += left
+            log.warning("rollout frames: %d pictures not kept (the writer was behind at the stop)", left)
 
     # -- the connector's rollout calls (the job's threads) ---------------------------------
 
@@ -140,7 +150,16 @@ class RolloutFrames:
     # -- the writer's thread --------------------------------------------------------------
 
     def _write_all(self) -> None:
-        while (picture := self._queue.get()) is not None:
+        while True:
+            if self._closing.is_set() and (self._queue.empty() or time.monotonic() >= self._drain_until):
+                return
+            try:
+                picture = self._queue.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if self._closing.is_set() and time.monotonic() >= self._drain_until:
+                self._counters.rollout_frames_dropped += 1
+                return
             try:
                 self._write(picture)
                 self._counters.rollout_frames_kept += 1

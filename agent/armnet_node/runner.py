@@ -381,7 +381,7 @@ class JobRunner:
                                        cell=cell.name, active_rollout=self._active_rollout,
                                        on_verdict=self._record_verdict,
                                        accepts_verdict=self.rollouts.accepts_verdict,
-                                       on_overrule=self.rollouts.overrule)
+                                       on_overrule=self._record_overrule)
                 try:
                     launched = session.start()
                 except Exception as exc:  # noqa: BLE001 - engine errors end the job failed with a short error
@@ -564,6 +564,14 @@ class JobRunner:
         except Exception:  # noqa: BLE001 - the record must never stop the bridge delivering inputs
             log.exception("job %s: the verdict by %s was not recorded", self.job.key, by[:128])
 
+    def _record_overrule(self, success: bool, by: str, rollout: int, started_at: datetime) -> bool:
+        """An overrule of the monitor from the FMS: into the history, written with the next progress write."""
+        try:
+            return self.rollouts.overrule(success, by, rollout, started_at)
+        except Exception:  # noqa: BLE001 - the record must never stop the bridge delivering inputs
+            log.exception("job %s: the overrule by %s was not recorded", self.job.key, by[:128])
+            return False
+
     def _active_rollout(self) -> int | None:
         """The index of the rollout the job is in now (operator verdicts for any other are dropped)."""
         session = self.session
@@ -593,6 +601,7 @@ class JobRunner:
 
     def _write(self, body_for: Callable[[Job], dict[str, Any]]) -> dict[str, Any] | None:
         """A terminal write on the job as it is now; never over another terminal phase. The body written, or None."""
+        announce_upload = True
         for _ in range(STATUS_RETRIES):
             try:
                 current = parse_job(self.deps.kube.read_job(self.job.namespace, self.job.name))
@@ -601,7 +610,7 @@ class JobRunner:
             if current.uid != self.job.uid or current.phase in TERMINAL_PHASES:
                 return None
             body = body_for(current)
-            pending = self.deps.uploads.pending_status(current.uid)
+            pending = self.deps.uploads.pending_status(current.uid) if announce_upload else None
             if pending is not None:
                 body["status"]["artifacts"] = pending
             try:
@@ -611,6 +620,14 @@ class JobRunner:
                 continue
             except Gone:
                 return None
+            except KubeError as exc:
+                if pending is None:
+                    raise
+                # A CRD older than this agent (an upgrade in progress) refuses the Pending phase: the terminal
+                # status matters, the announcement does not (a waiting client then returns without it).
+                log.warning("job %s: terminal status with Pending artifacts refused (%s); written without",
+                            self.job.key, exc)
+                announce_upload = False
         log.error("job %s: terminal status not written after %d conflicts", self.job.key, STATUS_RETRIES)
         return None
 
@@ -654,11 +671,24 @@ def keep_rollouts(record_dir: Path | None, history: rh.History) -> None:
     pictures, so the stored record says which verdict each picture got and which were overruled."""
     if record_dir is None or not history:
         return
+    data = json.dumps({"rollouts": as_status(history)}, indent=1).encode()
     try:
         record_dir.mkdir(parents=True, exist_ok=True)
-        partial = record_dir / ".rollouts.json.partial"
-        partial.write_text(json.dumps({"rollouts": as_status(history)}, indent=1))
-        os.replace(partial, record_dir / "rollouts.json")
+        # In a pod the directory is the connector's: nothing in it is followed (a planted link must not
+        # make the agent write elsewhere). The parent is the agent's, so the directory itself is ours to trust.
+        directory = os.open(record_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+        try:
+            partial = ".rollouts.json.partial"
+            try:
+                os.unlink(partial, dir_fd=directory)
+            except FileNotFoundError:
+                pass
+            fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644, dir_fd=directory)
+            with os.fdopen(fd, "wb") as file:
+                file.write(data)
+            os.replace(partial, "rollouts.json", src_dir_fd=directory, dst_dir_fd=directory)
+        finally:
+            os.close(directory)
     except OSError as exc:
         log.warning("the rollout history was not kept in the cell's record %s: %s", record_dir, exc)
 

@@ -120,8 +120,7 @@ class UploadQueue:
         """
         if not self._record(uid).exists():
             return None
-        if self.store is None and not (_has_entries(self.paths.output_dir(uid))
-                                       or _has_entries(self.paths.record_dir(uid))):
+        if self.store is None and not _has_entries(self.paths.output_dir(uid)):
             return None
         return summary.pending()
 
@@ -201,27 +200,34 @@ class UploadQueue:
     def _take(self, job: TrackedJob) -> None:
         directory = self.paths.output_dir(job.uid)
         if self.store is None:
-            had_output = _has_entries(directory) or _has_entries(self.paths.record_dir(job.uid))
+            had_output = _has_entries(directory)  # the job's own: the cell's record goes quietly with it
             self._done(job, directory)
             self.metrics.outputs.labels(outcome="discarded" if had_output else "empty").inc()
             if had_output:
                 self._write_status(job, summary.discarded())
             return
         prefix = job_prefix(job.namespace, job.uid)
-        if not directory.is_dir():
-            log.warning("job %s/%s: its output directory %s is gone; nothing to upload",
+        record = self.paths.record_dir(job.uid)
+        if not directory.is_dir():  # removed by hand: still a final phase, and the cell's record stored
+            log.warning("job %s/%s: its output directory %s is gone; only the cell's record is uploaded",
                         job.namespace, job.name, directory)
-            self._done(job, directory)
-            return
         self._write_status(job, summary.uploading(self.store.bucket, prefix))
         try:
-            report = upload_output(directory, self.store, job.namespace, job.uid, self.limits,
-                                   record=self.paths.record_dir(job.uid))
-        except OutputTooLarge as exc:
-            self._write_status(job, summary.failed(f"{exc}; nothing was stored and the output was removed"))
-            self._done(job, directory)
-            self.metrics.outputs.labels(outcome="too_large").inc()
-            return
+            try:
+                report = upload_output(directory, self.store, job.namespace, job.uid, self.limits, record=record)
+            except OutputTooLarge as exc:
+                # The job's output over the cap must not take the cell's record with it (a job could
+                # otherwise erase the pictures of its own evaluation): the record alone is stored.
+                if _has_entries(record):
+                    stored = upload_output(None, self.store, job.namespace, job.uid, self.limits, record=record)
+                    self._write_status(job, summary.failed(
+                        f"{exc}; the job's output was removed and only the cell's record was stored",
+                        location=summary.location(stored.bucket, stored.prefix)))
+                else:
+                    self._write_status(job, summary.failed(f"{exc}; nothing was stored and the output was removed"))
+                self._done(job, directory)
+                self.metrics.outputs.labels(outcome="too_large").inc()
+                return
         except (StoreUnavailable, StoreMisconfigured) as exc:
             self._retry_later(job, prefix, str(exc),
                               "misconfigured" if isinstance(exc, StoreMisconfigured) else "unavailable")

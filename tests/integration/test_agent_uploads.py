@@ -285,6 +285,30 @@ def test_an_output_over_the_cap_is_not_stored_and_the_job_is_told_why(
     assert metrics.outputs.labels(outcome="too_large")._value.get() == 1
 
 
+def test_an_output_over_the_cap_does_not_take_the_cells_record_with_it(
+    k8s: Any, namespace: str, kube: AgentKube, bucket_store: ObjectStore, object_store: SeaweedS3,
+    tmp_path: Path,
+) -> None:
+    """A job must not erase the pictures of its own evaluation by writing too much."""
+    paths = HostPaths(tmp_path)
+    queue = UploadQueue(bucket_store, paths, kube, AgentMetrics(), OutputLimits(max_files=10))
+    job = a_tracked_job(k8s, namespace, "succeeded")
+    queue.track(job)
+    write_output(paths, job, {f"f{i}": b"x" for i in range(50)})
+    paths.record_dir(job.uid).mkdir(parents=True)
+    (paths.record_dir(job.uid) / "rollouts.json").write_bytes(b'{"rollouts": []}')
+    queue.ready(job.uid)
+    queue.process_ready()
+
+    artifacts = artifacts_of(k8s, job)
+    assert artifacts["phase"] == "Failed" and "only the cell's record was stored" in artifacts["message"]
+    prefix = f"{namespace}/{job.uid}/"
+    assert artifacts["location"] == f"s3://{bucket_store.bucket}/{prefix}"  # the operator removes it at the TTL
+    stored = object_store.objects(bucket_store.bucket, prefix)
+    assert sorted(stored) == [prefix + "files/armnet-cell/rollouts.json", prefix + "manifest.json"]
+    assert not paths.output_dir(job.uid).exists() and not paths.record_dir(job.uid).exists()
+
+
 def test_without_a_store_the_output_is_removed_and_a_job_that_wrote_something_is_told(
     k8s: Any, namespace: str, kube: AgentKube, tmp_path: Path,
 ) -> None:

@@ -26,14 +26,16 @@ CELL_RECORD = "armnet-cell"
 RESERVED = "a name reserved for the cell's record of the job (armnet-cell/): rename it"
 
 
-def scan_job_output(output: Path, record: Path | None, limits: OutputLimits, prefix: str = "") -> Scan:
+def scan_job_output(output: Path | None, record: Path | None, limits: OutputLimits, prefix: str = "") -> Scan:
     """The job's output and, under ``armnet-cell/``, the cell's record of the job, as one scan.
 
     The job's directory may not hold a top-level ``armnet-cell`` of its own (left out, with
     the reason): a job must not pass its files off as the cell's. Each is walked within
-    ``limits`` on its own (the record is the connector's, small and bounded).
+    ``limits`` on its own (the record is the connector's, small and bounded). ``output`` None:
+    the record alone (the job's output was over the cap).
     """
-    job = scan_output(output, limits, prefix, reserved=frozenset({CELL_RECORD}))
+    job = (scan_output(output, limits, prefix, reserved=frozenset({CELL_RECORD})) if output is not None
+           else Scan(files=(), refused=()))
     if record is None:
         return job
     cell = scan_output(record, limits, prefix, under=CELL_RECORD)
@@ -70,7 +72,9 @@ def scan_output(root: Path, limits: OutputLimits, prefix: str = "", *, reserved:
                         "a dataset's own chunked format) or ask the cell's operator for a higher cap"
                     )
                 path = f"{rel_dir}/{entry.name}" if rel_dir else entry.name
-                why = RESERVED if rel_dir == under and entry.name in reserved else name_refusal(prefix, path)
+                # Case-blind: a download onto a case-insensitive disk would merge Armnet-Cell/ into armnet-cell/.
+                why = (RESERVED if rel_dir == under and entry.name.casefold() in reserved
+                       else name_refusal(prefix, path))
                 if why is not None:
                     refused.append(Refused(printable(path), why))
                     continue

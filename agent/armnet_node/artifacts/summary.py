@@ -71,8 +71,9 @@ def retrying(bucket: str, prefix: str, error: str) -> dict[str, Any]:
             "message": _cut(f"{error}; the output is kept on the robot host and the upload is retried")}
 
 
-def failed(error: str) -> dict[str, Any]:
-    return {"phase": FAILED, "message": _cut(error)}
+def failed(error: str, location: str | None = None) -> dict[str, Any]:
+    """Nothing of the job's output stored; ``location``: where the cell's record of the job was (it goes at the TTL)."""
+    return {"phase": FAILED, "message": _cut(error), **({"location": location} if location else {})}
 
 
 def discarded() -> dict[str, Any]:

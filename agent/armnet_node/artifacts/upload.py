@@ -48,11 +48,11 @@ class FileChanged(Exception):
 
 
 def upload_output(
-    root: Path, store: ObjectStore, namespace: str, job_uid: str, limits: OutputLimits | None = None,
+    root: Path | None, store: ObjectStore, namespace: str, job_uid: str, limits: OutputLimits | None = None,
     record: Path | None = None,
 ) -> UploadReport:
     """Upload the job's output directory ``root`` under ``<namespace>/<job uid>/`` in ``store``, and the cell's
-    ``record`` of the job beside it (its paths under ``armnet-cell/``).
+    ``record`` of the job beside it (its paths under ``armnet-cell/``); ``root`` None: the record alone.
 
     Raises :class:`OutputTooLarge` (nothing uploaded), :class:`StoreMisconfigured` or
     :class:`StoreUnavailable` (run it again: it resumes).

@@ -308,8 +308,14 @@ class Client:
                 log.info("robotjob %s ended; waiting for the node agent to store its output", name)
                 said = True
             time.sleep(self.poll_interval_s)
-            job = self._read(name)
-            result = result_from_robotjob(job) or result
+            try:
+                fresh = self._read(name)
+            except ClientError as exc:  # the result is in hand: an API hiccup or a delete does not lose it
+                log.info("robotjob %s: its output's upload not followed further: %s", name, exc)
+                break
+            if fresh.metadata.uid != job.metadata.uid:
+                break  # deleted and re-created under the name: another job's status from here
+            job, result = fresh, result_from_robotjob(fresh) or result
         return job, result
 
     def _next_run(self, name: str) -> Optional[str]:

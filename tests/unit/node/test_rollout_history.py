@@ -375,3 +375,28 @@ def test_a_verdict_event_with_a_score_that_is_not_a_number_records_zero() -> Non
     recorder.sync()
     [entry] = recorder.history
     assert entry.monitor is not None and entry.monitor.score == 0.0
+
+
+def test_the_history_is_kept_in_the_cells_record_and_no_link_planted_there_is_followed(tmp_path) -> None:  # noqa: ANN001
+    import json
+
+    from armnet_node.runner import keep_rollouts
+
+    record = tmp_path / "record"
+    record.mkdir()
+    target, other = tmp_path / "host-file", tmp_path / "another-host-file"
+    target.write_text("host data")
+    other.write_text("more host data")
+    # What a compromised connector (the directory's owner in a pod) could plant for the agent, root.
+    (record / "rollouts.json").symlink_to(target)
+    (record / ".rollouts.json.partial").symlink_to(other)
+    history = fold(Begun(1, 2, at(0)), judged(1, True, 5), Ended(at(6)))
+
+    keep_rollouts(record, history)
+
+    assert not (record / "rollouts.json").is_symlink()
+    assert json.loads((record / "rollouts.json").read_text()) == {"rollouts": as_status(history)}
+    assert (target.read_text(), other.read_text()) == ("host data", "more host data")
+    keep_rollouts(record, ())  # a job without rollouts: nothing written, nothing removed
+    keep_rollouts(None, history)
+    assert json.loads((record / "rollouts.json").read_text()) == {"rollouts": as_status(history)}
