@@ -144,6 +144,15 @@ def test_a_cell_without_completion_settings_never_completes_on_its_own(
     assert a_job_cell(plain).is_complete(block=True) == (False, False)
 
 
+def a_rollout_onto_the_target(cell: Cell, bus: Any) -> None:
+    """Rollout 1 of 2: the arm driven onto the target until the monitor says complete (K frames in a row)."""
+    cell.rollout_begin(index=1, total=2)
+    drive_to(bus, dict(TARGET_POSE))
+    deadline = time.monotonic() + 30
+    while not cell.is_complete(block=True) and time.monotonic() < deadline:
+        pass
+
+
 def verdicts(connector: Connector) -> list[Any]:
     return [e for e in connector.cell.rollouts if e.kind == "verdict"]
 
@@ -152,11 +161,7 @@ def test_the_monitor_s_complete_is_recorded_once_on_the_open_rollout_with_its_sc
     connector: Connector, bus: Any,
 ) -> None:
     cell = a_job_cell(connector)
-    cell.rollout_begin(index=1, total=2)
-    drive_to(bus, dict(TARGET_POSE))
-    deadline = time.monotonic() + 30
-    while not cell.is_complete(block=True) and time.monotonic() < deadline:
-        pass
+    a_rollout_onto_the_target(cell, bus)
     assert cell.is_complete(block=True).complete  # asked again: still one verdict
     cell.rollout_end()
 
@@ -174,11 +179,7 @@ def test_each_rollout_keeps_its_first_verdict_and_last_frame_in_the_cell_s_recor
     import cv2
 
     cell = a_job_cell(connector)
-    cell.rollout_begin(index=1, total=2)
-    drive_to(bus, dict(TARGET_POSE))
-    deadline = time.monotonic() + 30
-    while not cell.is_complete(block=True) and time.monotonic() < deadline:
-        pass
+    a_rollout_onto_the_target(cell, bus)
     cell.rollout_end()
     cell.rollout_begin(index=1, total=2)  # the index again: a folder of its own
     cell.rollout_end()

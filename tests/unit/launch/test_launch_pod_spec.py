@@ -125,24 +125,23 @@ def test_the_observer_socket_volume_is_mounted_into_the_connector_only() -> None
     assert "observer" not in {m["name"] for m in job["volumeMounts"]}
 
 
-def test_the_output_directory_is_the_job_containers_only() -> None:
-    pod = build_pod(inputs(output_dir="/var/lib/armnet/outputs/uid-1"))
+@pytest.mark.parametrize(("field", "path", "volume", "kind", "owner"), [
+    # The job's output: the job writes it, the connector never sees it.
+    ("output_dir", "/var/lib/armnet/outputs/uid-1", "output", "DirectoryOrCreate", "job"),
+    # The cell's record of the job: the connector's alone (the agent makes it and hands it to the
+    # connector's uid before the pod: type Directory, never created by the kubelet).
+    ("record_dir", "/var/lib/armnet/records/uid-1", "cell-record", "Directory", "connector"),
+])
+def test_a_host_directory_of_one_container_is_mounted_into_that_container_only(
+        field: str, path: str, volume: str, kind: str, owner: str) -> None:
+    pod = build_pod(inputs(**{field: path}))
     connector, job = containers(pod)
+    mine, other = (job, connector) if owner == "job" else (connector, job)
     volumes = {v["name"]: v for v in pod["spec"]["volumes"]}
-    assert volumes["output"]["hostPath"] == {"path": "/var/lib/armnet/outputs/uid-1", "type": "DirectoryOrCreate"}
-    assert {"name": "output", "mountPath": "/var/lib/armnet/outputs/uid-1"} in job["volumeMounts"]
-    assert "output" not in {m["name"] for m in connector["volumeMounts"]}
-
-
-def test_the_cells_record_of_the_job_is_the_connectors_only() -> None:
-    pod = build_pod(inputs(record_dir="/var/lib/armnet/records/uid-1"))
-    connector, job = containers(pod)
-    volumes = {v["name"]: v for v in pod["spec"]["volumes"]}
-    # The agent makes it and hands it to the connector's uid before the pod: type Directory, never created here.
-    assert volumes["cell-record"]["hostPath"] == {"path": "/var/lib/armnet/records/uid-1", "type": "Directory"}
-    assert {"name": "cell-record", "mountPath": "/var/lib/armnet/records/uid-1"} in connector["volumeMounts"]
-    assert "cell-record" not in {m["name"] for m in job["volumeMounts"]}
-    assert "cell-record" not in {v["name"] for v in build_pod(inputs())["spec"]["volumes"]}
+    assert volumes[volume]["hostPath"] == {"path": path, "type": kind}
+    assert {"name": volume, "mountPath": path} in mine["volumeMounts"]
+    assert volume not in {m["name"] for m in other["volumeMounts"]}
+    assert volume not in {v["name"] for v in build_pod(inputs())["spec"]["volumes"]}
 
 
 def test_the_completion_monitors_host_files_are_mounted_read_only_into_the_connector_only_at_their_paths() -> None:
