@@ -195,7 +195,9 @@ class PoseMover:
         present = self.positions(motors)
         # Hold where it is before torque comes on, so a stale goal cannot make the arm jump.
         self._call("sync_write", ["Goal_Position", dict(present)], {"normalize": False})
-        self._call("enable_torque", [motors], {})
+        # Acknowledged writes: a lost reply is asked again past its late answer, as every bus call of a job is.
+        with_read_retry(self.handle, "enable_torque", lambda: self._call("enable_torque", [motors], {}),
+                        on_retry=self._on_lost_reply, before_retry=self._stop_if_refused)
         walk = RestWalk(present, dict(goal), self.speed)
         done, last = 0.0, time.monotonic()
         while done < 1.0:

@@ -135,6 +135,16 @@ def torque_off(bus: Any) -> bool:
     return False
 
 
+def switch_torque_on(bus: Any, motors: list[str], *, on_lost_reply: Callable[[], None],
+                     before_retry: Callable[[], None] | None = None) -> None:
+    """Torque on for ``motors``: acknowledged writes, asked again the connector's way when a servo's reply is
+    lost (``retry``: past the late reply). LeRobot's ``num_retry`` alone asks at once: a starved host lost
+    all four of its tries on one servo, and a scripted reset failed its return to rest (CI run 20).
+    The writes are absolute (``Torque_Enable``, ``Lock`` = 1): asking again changes nothing twice."""
+    retry_lost_replies(bus, "rest's enable_torque", lambda: bus.enable_torque(motors, num_retry=RETRIES),
+                       on_retry=on_lost_reply, before_retry=before_retry)
+
+
 def move_to_rest(
     bus: Any, arm_name: str, target: dict[str, int], speed_ticks_per_s: float, *, deadline: float | None = None,
     on_lost_reply: Callable[[], None] = lambda: None,
@@ -152,11 +162,11 @@ def move_to_rest(
     if not motors:
         return RestReport(arm_name, True)
 
-    def positions() -> dict[str, int]:
-        def in_time() -> None:
-            if _past(deadline):
-                raise TimeoutError("the stop's time for a rest ran out while a servo reply was lost")
+    def in_time() -> None:
+        if _past(deadline):
+            raise TimeoutError("the stop's time for a rest ran out while a servo reply was lost")
 
+    def positions() -> dict[str, int]:
         read = retry_lost_replies(
             bus, "rest's sync_read", lambda: bus.sync_read("Present_Position", motors, normalize=False),
             on_retry=on_lost_reply, before_retry=in_time,
@@ -168,7 +178,7 @@ def move_to_rest(
     present = positions()
     # Hold where we are before torque comes on, so a stale goal cannot make the arm jump.
     bus.sync_write("Goal_Position", present, normalize=False, num_retry=RETRIES)
-    bus.enable_torque(motors, num_retry=RETRIES)
+    switch_torque_on(bus, motors, on_lost_reply=on_lost_reply, before_retry=in_time)
     walk = RestWalk(present, {m: target[m] for m in motors}, speed_ticks_per_s)
     last_tick = time.monotonic()
     done = 0.0

@@ -129,6 +129,25 @@ def test_a_rest_whose_position_reads_lose_servo_replies_asks_again_and_reaches_r
     assert len(lost) >= 2  # both dropped replies counted; a loaded host may lose one more on its own
 
 
+def test_the_rests_torque_on_asks_again_past_lost_acknowledgements(connector, sim_cell) -> None:
+    """CI run 20: a scripted reset's rest failed on "Failed to write 'Torque_Enable' ... after 4 tries":
+    LeRobot's num_retry asks at once, and one servo's four acknowledgements were lost on a starved host."""
+    from armnet_connector.rest import cell_bus, switch_torque_on
+
+    arm, ranges = connector.config.arms["arm"], connector.cell.ranges["arm"]
+    lost: list[int] = []
+    with cell_bus(arm, ranges) as bus:
+        bus.disable_torque(num_retry=3)
+        sim_cell.arm.drop_replies("shoulder_pan", 5)  # more than LeRobot's four quick tries
+        try:
+            switch_torque_on(bus, list(bus.motors), on_lost_reply=lambda: lost.append(1))
+            state = bus.sync_read("Torque_Enable", normalize=False, num_retry=3)
+        finally:
+            sim_cell.arm.clear_faults()
+    assert all(int(v) == 1 for v in state.values()), state
+    assert lost  # asked again, and counted
+
+
 def test_the_cells_own_bus_connects_through_as_many_lost_pings_as_a_jobs_connect(connector, sim_cell) -> None:
     """A scripted reset's rest failed on "Missing motor IDs" after three quick attempts (CI under load)."""
     from armnet_connector.rest import CONNECT_ATTEMPTS, cell_bus
