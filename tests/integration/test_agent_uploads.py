@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 from armnet_client import Client
-from armnet_client.results import Artifacts
+from armnet_core.resources import JobArtifacts
 from armnet_node.artifacts import ObjectStore, OutputLimits, StoreConfig
 from armnet_node.kube import AgentKube
 from armnet_node.metrics import AgentMetrics
@@ -347,9 +347,9 @@ def test_a_client_waiting_for_a_result_marked_pending_gets_where_the_output_was_
     client = Client(kubeconfig=str(k8s.kubeconfig), namespace=namespace, env={}, poll_interval_s=0.1)
 
     # Not waited for where only the exit status matters (`armnet submit`), nor past artifacts_wait_s.
-    assert client.wait_terminal(job.name, None, stored_output=False)[1].artifacts == Artifacts(phase="Pending")
+    assert client.wait_terminal(job.name, None, stored_output=False)[1].artifacts == JobArtifacts(phase="Pending")
     client.artifacts_wait_s = 0.3
-    assert client.wait(job.name).artifacts == Artifacts(phase="Pending")
+    assert client.wait(job.name).artifacts == JobArtifacts(phase="Pending")
 
     # The upload is let go only once the client says it waits for it.
     client.artifacts_wait_s = 120.0

@@ -20,7 +20,7 @@ from armnet_core.resources import PreflightStatus
 from pydantic import ValidationError
 
 from .resources import Cell, CellQueue, CellQuota, JobArtifacts, RobotJob, RolloutRecord
-from .results import Artifacts, ClusterJobResult
+from .results import ClusterJobResult
 
 _NAME_CHARS = re.compile(r"[^a-z0-9-]+")
 _GENERATED_PREFIX_MAX = 40
@@ -126,12 +126,10 @@ def result_from_robotjob(job: RobotJob) -> Optional[ClusterJobResult]:
     )
 
 
-def artifacts_of(job: RobotJob) -> Optional[Artifacts]:
-    """``status.artifacts`` as the SDK's ``Artifacts``; ``None`` when the agent wrote none (yet)."""
+def artifacts_of(job: RobotJob) -> Optional[JobArtifacts]:
+    """``status.artifacts``; ``None`` when the agent wrote none (yet)."""
     stored = job.status.artifacts
-    if stored is None or not stored.phase:
-        return None
-    return Artifacts(**stored.model_dump())  # the same fields, by their Python names
+    return stored if stored is not None and stored.phase else None
 
 
 def job_from_robotjob(job: RobotJob) -> Job:
