@@ -16,6 +16,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from .auto_reset import (
     FELL_BACK,
@@ -27,6 +28,7 @@ from .auto_reset import (
     pose_targets,
     step_limits,
 )
+from .camera_video import CameraVideo
 from .config import ConnectorConfig, MotorRange, read_calibration_file
 from .deadline import Deadline
 from .errors import RequestError, bounded
@@ -46,6 +48,7 @@ from .rest import RestReport, cell_bus, move_to_rest, rest_pose, restore_registe
 from .restore import RegisterLedger, RestoreOutcome, restore_block
 from .retry import with_read_retry
 from .rollout_frames import RolloutFrames
+from .servo_trace import ServoTrace
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +97,14 @@ class Counters:
     rollout_frames_kept: int = 0
     #: Pictures not kept: the writer was behind, the job ran past the cap of rollouts, or a write failed.
     rollout_frames_dropped: int = 0
+    #: Rows of the cell's servo trace written to its record of the job (``servo_trace``).
+    trace_rows_written: int = 0
+    #: Rows not kept: the writer was behind, or a part could not be written.
+    trace_rows_dropped: int = 0
+    #: Camera frames encoded into the cell's video of the job (``camera_video``; at most its rate).
+    video_frames_written: int = 0
+    #: Frames not kept: the encoder was behind, a frame was no picture, or the encoder failed.
+    video_frames_dropped: int = 0
     #: Scripted resets the completion monitor judged back at their start (no person involved).
     auto_resets_worked: int = 0
     #: Tries of a scripted reset that failed (moves not made, or the scene still scored complete).
@@ -138,6 +149,9 @@ class CellState:
     rollouts: deque[RolloutEvent] = field(default_factory=lambda: deque(maxlen=MAX_ROLLOUT_EVENTS))
     #: The rollouts' pictures in the cell's record of the job (a cell with a monitor and a record directory).
     rollout_frames: RolloutFrames | None = None
+    #: The cell's servo trace and camera video of the job (a host that gives a record directory).
+    servo_trace: ServoTrace | None = None
+    camera_video: CameraVideo | None = None
 
     def __post_init__(self) -> None:
         self.ranges: dict[str, dict[str, MotorRange]] = {
@@ -409,14 +423,18 @@ class CellState:
         confirmation; on timeout trip the interlock."""
         with self._reset_lock:
             self.counters.resets += 1
+            self.trace_event("reset_begin")
             self.return_to_rest()
             if self.config.reset is not None and self.config.reset.scripted and self._scripted_reset():
+                self.trace_event("reset_end", detail="scripted")
                 return
             timeout = self.config.reset_timeout_seconds
             if self.inputs.wait_reset_confirmation(timeout):
                 log.info("reset confirmed by the operator")
+                self.trace_event("reset_end", detail="confirmed by the operator")
                 return
             message = f"no operator confirmed the reset within {timeout:g} s"
+            self.trace_event("reset_end", detail=message)
             self.interlock.trip(TripReason.RESET_TIMEOUT, message)
             raise RequestError(
                 "ResetTimeoutException",
@@ -568,6 +586,8 @@ class CellState:
             if why is not None:
                 self._stop_at_end = None
                 self.deadline.cancel(why)
+        self.trace_event(f"rollout_{event.kind}", rollout=event.index,
+                         detail=f"of {event.total}" if event.total is not None else None)
         frames = self.rollout_frames
         if frames is not None and event.kind == "begin":
             frames.begun(event.index, event.at)
@@ -647,10 +667,17 @@ class CellState:
                 return
             self.rollouts.append(RolloutEvent("verdict", self.now(), index=index, success=success,
                                               score=audit.score, frame_at=audit.frame_at))
+        self.trace_event("monitor_verdict", rollout=index, value=audit.score,
+                         detail="success" if success else "failure")
         if self.rollout_frames is not None:
             self.rollout_frames.judged()
         log.info("rollout %s: the completion monitor's verdict is %s (score %.3f)", index,
                  "success" if success else "failure", audit.score)
+
+    def trace_event(self, kind: str, **facts: Any) -> None:
+        """An event in the cell's servo trace of the job (``servo_trace.ServoTrace.event``), if it keeps one."""
+        if self.servo_trace is not None:
+            self.servo_trace.event(kind, **facts)
 
     @staticmethod
     def now() -> float:

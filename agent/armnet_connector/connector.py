@@ -20,6 +20,8 @@ from armnet_core.framing import BufferBudget
 from armnet_runtime.endpoints import OPERATOR_SOCKET, ROBOT_SOCKET
 
 from .agent_inputs import AGENT_SOCKET, AgentSession
+from .camera_video import DRAIN_S as VIDEO_DRAIN_S
+from .camera_video import CameraVideo
 from .cell import CellState, Counters
 from .completion import CameraCompletionMonitor, CameraFrames
 from .config import ConnectorConfig
@@ -32,6 +34,8 @@ from .record import ConnectorRecord
 from .report import SafetyReport
 from .rollout_frames import DRAIN_S, RolloutFrames
 from .server import MAX_BUFFERED_BYTES, ServerLimits, UnixServer
+from .servo_trace import DRAIN_S as TRACE_DRAIN_S
+from .servo_trace import ServoTrace
 from .session import OperatorSession, RobotSession, Session
 from .warm_imports import start_warm_imports
 
@@ -49,6 +53,14 @@ STOP_LOCK_WAIT_S = 1.0
 TORQUE_OFF_RESERVE_S = 1.5
 """What ``stop`` keeps of its budget, per arm, for torque off after the rest walk: a
 device-lock wait and a few writes and read-backs, with room for a loaded host."""
+
+
+#: The parts of the cell's record of a job -> their counters (kept, dropped).
+CELL_RECORD_PARTS = {
+    "trace_rows": ("trace_rows_written", "trace_rows_dropped"),
+    "video_frames": ("video_frames_written", "video_frames_dropped"),
+    "rollout_pictures": ("rollout_frames_kept", "rollout_frames_dropped"),
+}
 
 
 def stop_budget_s(grace_period_seconds: float) -> float:
@@ -82,7 +94,8 @@ class Connector:
         ``agent.sock`` (agent_inputs.py: operator inputs and the cancel of a pod job), None: nowhere.
 
         ``record_dir``: the cell's record of the job, a directory the job cannot see (the node agent
-        uploads it with the job's output): the rollouts' pictures go there (``rollout_frames``)."""
+        uploads it with the job's output): the servo trace (``servo_trace``), a video of each camera
+        the job used (``camera_video``) and the rollouts' pictures (``rollout_frames``) go there."""
         self.config = config
         self.socket_dir = Path(socket_dir)
         self.cell = CellState(
@@ -103,6 +116,8 @@ class Connector:
                 self.cell.rollout_frames = RolloutFrames(Path(record_dir), self.monitor.latest_frame,
                                                          self.cell.counters)
                 self.monitor.on_scored = self.cell.rollout_frames.scored
+        if record_dir is not None:
+            self._keep_record(Path(record_dir))
         # Camera frames reach the job through areas in the socket directory (frames.py).
         self.frames = FrameAreas(self.socket_dir)
         # Both sockets share one cap on unfinished request bytes (server.py).
@@ -133,6 +148,14 @@ class Connector:
             ))
         self._started = False
 
+    def _keep_record(self, directory: Path) -> None:
+        """The cell's flight recorder of the job: its servo trace and its cameras' video."""
+        cell = self.cell
+        trace = cell.servo_trace = ServoTrace(directory, cell.counters)
+        cell.guard.recorder.trace = trace
+        cell.interlock.on_trip = lambda trip: trace.event("interlock_trip", detail=f"{trip.reason}: {trip.message}")
+        cell.camera_video = CameraVideo(directory, cell.counters)
+
     def _job_starts(self, make: Callable[[], S]) -> Callable[[], S]:
         """A session factory for the job's sockets: the job's first connection starts its clock, if not yet
         (``clock_starts_with_job``: the job cannot move an arm before it connects)."""
@@ -160,8 +183,9 @@ class Connector:
             self.cell.deadline.start()
         if self.monitor is not None:
             self.monitor.start()
-        if self.cell.rollout_frames is not None:
-            self.cell.rollout_frames.start()
+        for recorder in (self.cell.rollout_frames, self.cell.servo_trace, self.cell.camera_video):
+            if recorder is not None:
+                recorder.start()
         self._started = True
         log.info("connector serving %s and %s in %s", ROBOT_SOCKET, OPERATOR_SOCKET, self.socket_dir)
         return self
@@ -185,11 +209,14 @@ class Connector:
         reserve_s = TORQUE_OFF_RESERVE_S * max(1, len(self.config.arms))
         rest_deadline = started + stop_budget_s(self.config.grace_period_seconds) - reserve_s
         self.cell.shut_down(STOP_LOCK_WAIT_S, rest_deadline=rest_deadline)
-        if self.cell.rollout_frames is not None:
-            # After the arms are safe (pictures wait, torque off does not), within what is left of the
-            # stop's budget: a pod's record line is printed after this, before the kubelet's kill.
-            left_s = started + stop_budget_s(self.config.grace_period_seconds) - time.monotonic()
-            self.cell.rollout_frames.stop(min(DRAIN_S, left_s))
+        # After the arms are safe (the record waits, torque off does not), within what is left of the
+        # stop's budget: a pod's record line is printed after this, before the kubelet's kill. The
+        # trace first (its last part takes milliseconds and says what the job's last calls did).
+        budget_end = started + stop_budget_s(self.config.grace_period_seconds)
+        for recorder, drain_s in ((self.cell.servo_trace, TRACE_DRAIN_S), (self.cell.camera_video, VIDEO_DRAIN_S),
+                                  (self.cell.rollout_frames, DRAIN_S)):
+            if recorder is not None:
+                recorder.stop(min(drain_s, budget_end - time.monotonic()))
         log.info("connector stopped")
 
     def __enter__(self) -> Connector:
@@ -247,6 +274,12 @@ class Connector:
         report = self.cell.guard.recorder.snapshot()
         confirmed = {**report.torque_off_confirmed, **self.cell.torque_confirmed}
         return dataclasses.replace(report, torque_off_confirmed=confirmed)
+
+    def cell_record_counts(self) -> dict[str, dict[str, int]]:
+        """What the cell's record of the job kept and dropped, per part (``CELL_RECORD_PARTS``): the agent's metric."""
+        counters = self.cell.counters
+        return {part: {"kept": getattr(counters, kept), "dropped": getattr(counters, dropped)}
+                for part, (kept, dropped) in CELL_RECORD_PARTS.items()}
 
     def record(self) -> ConnectorRecord:
         """The job's account so far (interlock, safety, rest, torque off, counters, calibration, restores) as frozen data."""

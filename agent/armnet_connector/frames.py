@@ -23,6 +23,7 @@ import secrets
 import struct
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -168,11 +169,17 @@ class FramePublisher:
         self._lock = threading.Lock()
         self._broken = False
         self._connected = False
+        #: Also hands each frame to the cell's video of the job (``camera_video``), with its wall time.
+        self.tap: Callable[[Any, float], None] | None = None
 
     def publish(self, frame: Any, timestamp: float | None = None) -> dict[str, Any] | None:
         import numpy as np
 
-        if self._broken or type(frame) is not np.ndarray:
+        if type(frame) is not np.ndarray:
+            return None
+        if self.tap is not None:
+            self.tap(frame, time.time())
+        if self._broken:
             return None
         if frame.dtype.kind not in FRAME_DTYPE_KINDS or frame.ndim > MAX_DIMS or frame.nbytes > MAX_FRAME_BYTES:
             return None
@@ -249,6 +256,7 @@ class FramePublisher:
 
     def close(self) -> None:
         """The camera object is gone: readers fall back to asking (and learn it is gone); no more frames."""
+        self.tap = None
         with self._lock:
             self._broken = True
             if self._area is not None:

@@ -45,6 +45,8 @@ class Handle:
     #: Attribute values shown to the customer instead of the real ones (``port``, ``config``).
     overrides: dict[str, Any] = field(default_factory=dict)
     arm: str | None = None
+    #: The cell's name of a camera object's camera (its video in the cell's record is named so).
+    camera: str | None = None
     arm_config: ArmConfig | None = None
     cell_ranges: dict[str, MotorRange] = field(default_factory=dict)
     #: The cell's motors of this bus (a job's ``motors`` are checked to be exactly these).
@@ -295,7 +297,7 @@ def create_camera(
     obj = factory(name, camera, requested)
     return Handle(
         "OpenCVCamera", obj, locks.get(f"camera:{name}"),
-        overrides={"config": requested, "index_or_path": requested.index_or_path},
+        overrides={"config": requested, "index_or_path": requested.index_or_path}, camera=name,
     )
 
 

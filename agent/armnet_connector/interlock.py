@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -36,6 +37,8 @@ class Interlock:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._trip: Trip | None = None
+        #: Told of the trip, once, after it latched (the cell's servo trace); must not raise.
+        self.on_trip: Callable[[Trip], None] | None = None
 
     @property
     def tripped(self) -> bool:
@@ -47,13 +50,16 @@ class Interlock:
 
     def trip(self, reason: TripReason, message: str) -> bool:
         """Trip the interlock; True if this call tripped it (False if it already held)."""
+        trip = Trip(reason, message)
         with self._lock:
             if self._trip is not None:
                 return False
-            self._trip = Trip(reason, message)
+            self._trip = trip
         # Tripping on shutdown is teardown, not news; every other trip is.
         level = logging.INFO if reason is TripReason.SHUTDOWN else logging.WARNING
         log.log(level, "interlock tripped (%s): %s", reason, message)
+        if self.on_trip is not None:
+            self.on_trip(trip)
         return True
 
     def refusal(self) -> tuple[str, str] | None:

@@ -456,13 +456,13 @@ class MotionGuard:
         violation = decision.violation
         if violation is None:
             for motor in decision.clamped:
-                self.recorder.record_clamp(motor)
+                self.recorder.record_clamp(motor, arm=handle.arm, goal=decision.goals[motor])
             return {m: decision.goals[m] for m in decision.clamped}
         self.counters.safety_violations += 1
         message = violation.message()
         tripped = self.interlock.trip(TripReason.SAFETY, message)
         kind = "out_of_range" if violation.kind == "absolute" else "relative"
-        self.recorder.record_refusal(kind, violation.motor, message, tripped=tripped)
+        self.recorder.record_refusal(kind, violation.motor, message, tripped=tripped, arm=handle.arm)
         raise RequestError(
             "SafetyViolation", message, motor=violation.motor, step=violation.step,
             limit=violation.limit, requested=violation.requested,

@@ -127,7 +127,7 @@ class BusPolicy:
         self._refuse(name, why)
 
     def _refuse(self, motor: str | None, why: str, error_type: str = "NotAllowed") -> NoReturn:
-        self.recorder.record_refusal("register", motor, why, tripped=False)
+        self.recorder.record_refusal("register", motor, why, tripped=False, arm=self.arm)
         raise RequestError(error_type, why)
 
 

@@ -19,6 +19,7 @@ from itertools import repeat
 from typing import Any
 
 from .restore import RestoreOutcome
+from .servo_trace import ServoTrace
 
 #: Refusals kept with their reason; later ones are only counted.
 MAX_REFUSALS_KEPT = 50
@@ -112,6 +113,8 @@ class SafetyRecorder:
         self._restore_failures: dict[str, tuple[str, ...]] = {}
         self._auto_resets: dict[str, Any] = {}
         self._device_calls = 0
+        #: The cell's servo trace of the job (``servo_trace``): each clamp and refusal, with its time.
+        self.trace: ServoTrace | None = None
 
     def record_steps(self, steps: dict[str, float]) -> None:
         """Keep each motor's largest step (signed steps: ``decide_goals``'s)."""
@@ -139,11 +142,16 @@ class SafetyRecorder:
         with self._lock:
             self._device_calls += 1
 
-    def record_clamp(self, motor: str) -> None:
+    def record_clamp(self, motor: str, *, arm: str | None = None, goal: float | None = None) -> None:
+        """One goal the policy clamped; ``goal``: the goal written instead."""
         with self._lock:
             self._clamps[motor] = self._clamps.get(motor, 0) + 1
+        if self.trace is not None:
+            self.trace.event("clamp", arm=arm, motor=motor, value=goal)
 
-    def record_refusal(self, kind: str, motor: str | None, reason: str, *, tripped: bool) -> None:
+    def record_refusal(self, kind: str, motor: str | None, reason: str, *, tripped: bool, arm: str | None = None) -> None:
+        if self.trace is not None:
+            self.trace.event("refusal", arm=arm, motor=motor, detail=f"{kind}: {reason}")
         with self._lock:
             self._refusals_total += 1
             if len(self._refusals) < MAX_REFUSALS_KEPT:

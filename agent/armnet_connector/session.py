@@ -24,6 +24,7 @@ from .frames import FrameAreas, FramePublisher
 from .hardware import Handle, create_arx5, create_camera, create_feetech
 from .introspection import answer as answer_outside_allowlist
 from .retry import is_read, is_retried, with_read_retry
+from .servo_trace import TRACED_METHODS, trace_call
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +147,8 @@ class _CallPlan:
     capped_from: int = 0
     #: A bus's ``disconnect``: the job lets go of the arm (``CellState.bus_let_go``).
     lets_go: bool = False
+    #: A bus call whose positions go to the cell's servo trace (``servo_trace.trace_call``): its arm.
+    trace_arm: str | None = None
 
 
 class RobotSession(Session):
@@ -272,6 +275,7 @@ class RobotSession(Session):
             handle, is_retried(handle.class_name, method), camera, camera and method in FRAME_READS,
             capped, first_capped(handle.class_name, capped),
             lets_go=handle.class_name == "FeetechMotorsBus" and method == "disconnect",
+            trace_arm=handle.arm if handle.class_name == "FeetechMotorsBus" and method in TRACED_METHODS else None,
         )
         if len(self._plans) < MAX_OBJECTS_PER_CONNECTION * 4:
             self._plans[(request["object_id"], method)] = plan
@@ -309,6 +313,8 @@ class RobotSession(Session):
                     result = bound(*args, **kwargs)
                 if method == "sync_read":
                     self.cell.guard.remember_present(handle, args, kwargs, result)
+                if plan.trace_arm is not None and self.cell.servo_trace is not None:
+                    trace_call(self.cell.servo_trace, plan.trace_arm, method, args, kwargs, result)
         finally:
             if plan.lets_go:  # the job's own disconnect, even one that failed half-way
                 self.cell.bus_let_go(handle)
@@ -333,6 +339,8 @@ class RobotSession(Session):
         if self._frame_areas is None:
             return
         publisher = self._frame_areas.publisher(str(handle.overrides.get("index_or_path", "")))
+        if self.cell.camera_video is not None and handle.camera is not None:
+            publisher.tap = self.cell.camera_video.tap(handle.camera)
         publisher.attach(handle.obj)
         self._publishers[id(handle)] = publisher
 
@@ -501,6 +509,8 @@ class OperatorSession(Session):
 
     def op_get_completion(self, request: dict[str, Any]) -> Reply:
         outcome = self.cell.inputs.take_outcome()
+        if outcome is not None:
+            self.cell.trace_event("operator_verdict", detail="success" if outcome else "failure")
         return {"ok": True, "reported": outcome is not None, "success": bool(outcome)}
 
     def op_shutdown_status(self, request: dict[str, Any]) -> Reply:

@@ -15,14 +15,14 @@ import os
 import stat
 from pathlib import Path
 
+from armnet_core.cell_record import CELL_RECORD
+
 from armnet_node.artifacts.keys import name_refusal, printable
 from armnet_node.artifacts.model import LocalFile, OutputLimits, OutputTooLarge, Refused, Scan
 
 LINK_OUT = "a symbolic link that leads out of the output directory (not followed)"
 LINK_TO_DIRECTORY = "a symbolic link to a directory (not followed)"
 NOT_A_FILE = "not a regular file (a FIFO, socket or device)"
-#: The top-level name under which the cell's record of the job is stored beside the job's own output.
-CELL_RECORD = "armnet-cell"
 RESERVED = "a name reserved for the cell's record of the job (armnet-cell/): rename it"
 
 
