@@ -158,6 +158,7 @@ def main() -> int:
         record = _record(connector)
         connector.stop()
         record["safety"] = connector.safety_report().as_status()
+        record["cell_record"] = connector.cell_record_counts()
         record["restarted"] = restarted
         print(record_line(record), flush=True)
         if sim is not None:

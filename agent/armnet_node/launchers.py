@@ -317,6 +317,7 @@ class ContainerSession:
             rollout_index=rollout["index"] if rollout else None,
             rollout_total=rollout["total"] if rollout else None,
             safety=connector.safety_report().as_status(),
+            cell_record=connector.cell_record_counts(),
         )
 
     def remove(self) -> None:
@@ -683,5 +684,6 @@ def _connector_record(data: Mapping[str, Any] | None) -> report.ConnectorRecord:
         rollout_index=data.get("rollout_index"),
         rollout_total=data.get("rollout_total"),
         safety=dict(data.get("safety") or {}),
+        cell_record=report.cell_record_counts(data.get("cell_record")),
     )
 

@@ -67,6 +67,12 @@ class AgentMetrics:
             "rollouts whose cell operator's outcome differs from the completion monitor's verdict (status.rollouts: "
             "markedBy an operator, monitor.outcome the other): the monitor's misses, kept for retraining", registry=r,
         )
+        self.cell_record_items = Counter(
+            "armnet_agent_cell_record_items_total",
+            "what the connectors kept in the cell's record of ended jobs, by part (trace_rows: servo trace rows, "
+            "video_frames: camera video frames, rollout_pictures) and outcome (kept, dropped: the writer was behind, "
+            "a cap was reached or a write failed; alert on a rising dropped)", ["part", "outcome"], registry=r,
+        )
         self.lines_dropped = Counter(
             "armnet_agent_lines_dropped_total", "output lines the publisher refused", registry=r
         )

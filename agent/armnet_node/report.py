@@ -36,6 +36,26 @@ class ConnectorRecord:
     #: The connector's safety report (``connector.report.SafetyReport.as_status()``): clamps,
     #: largest requested step, refusals, trips, torque off confirmed, calibration checks.
     safety: Mapping[str, Any] = field(default_factory=dict)
+    #: The cell's record of the job (servo trace, video, rollout pictures): per part, what it kept
+    #: and dropped (``Connector.cell_record_counts``); empty when the connector kept none.
+    cell_record: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
+
+
+#: The parts of the cell's record a connector counts (``armnet_connector.connector.CELL_RECORD_PARTS``).
+CELL_RECORD_PARTS = ("trace_rows", "video_frames", "rollout_pictures")
+
+
+def cell_record_counts(data: Any) -> dict[str, dict[str, int]]:
+    """The counts of a connector sidecar's record line, known parts and non-negative integers only."""
+    if not isinstance(data, Mapping):
+        return {}
+    counts: dict[str, dict[str, int]] = {}
+    for part in CELL_RECORD_PARTS:
+        entry = data.get(part)
+        if isinstance(entry, Mapping):
+            counts[part] = {key: value for key in ("kept", "dropped")
+                            if type(value := entry.get(key)) is int and value >= 0}
+    return counts
 
 
 def json_safe(value: Any) -> Any:

@@ -644,6 +644,7 @@ class JobRunner:
         if record.trip_reason is not None:
             metrics.interlock_trips.labels(reason=record.trip_reason).inc()
         count_auto_resets(metrics, record)
+        count_cell_record(metrics, record)
 
 
 #: ``armnet_agent_auto_resets_total``'s outcome label -> the key of the record's ``autoResets`` that counts it.
@@ -658,6 +659,14 @@ def count_auto_resets(metrics: AgentMetrics, record: report.ConnectorRecord) -> 
         count = resets.get(key)
         if isinstance(count, int) and count > 0:
             metrics.auto_resets.labels(outcome=outcome).inc(count)
+
+
+def count_cell_record(metrics: AgentMetrics, record: report.ConnectorRecord) -> None:
+    """Add what an ended job's cell record kept and dropped, per part, to ``armnet_agent_cell_record_items_total``."""
+    for part, counts in record.cell_record.items():
+        for outcome, count in counts.items():
+            if count > 0:
+                metrics.cell_record_items.labels(part=part, outcome=outcome).inc(count)
 
 
 def auto_resets(record: report.ConnectorRecord) -> Mapping[str, Any]:

@@ -100,3 +100,24 @@ def test_the_streams_end_message_carries_the_error_the_status_has() -> None:
     assert end_detail(failed_before_start("1", "image x not found on this node", T0)) == {
         "error": "image x not found on this node"}
     assert end_detail(terminal_patch("1", result())) == {"exitCode": 0}
+
+
+def test_the_cell_record_s_counts_of_a_sidecar_s_record_line_keep_known_parts_and_counts_only() -> None:
+    from armnet_connector.connector import CELL_RECORD_PARTS
+    from armnet_node.metrics import AgentMetrics
+    from armnet_node.report import CELL_RECORD_PARTS as PARTS_READ
+    from armnet_node.report import ConnectorRecord, cell_record_counts
+    from armnet_node.runner import count_cell_record
+
+    assert set(PARTS_READ) == set(CELL_RECORD_PARTS)  # the agent reads every part the connector counts
+    line = {"trace_rows": {"kept": 120, "dropped": 3}, "video_frames": {"kept": True, "dropped": -1},
+            "rollout_pictures": "many", "somethingElse": {"kept": 5}}
+    counts = cell_record_counts(line)
+    assert counts == {"trace_rows": {"kept": 120, "dropped": 3}, "video_frames": {}}
+    assert cell_record_counts(None) == {} and cell_record_counts([1, 2]) == {}
+
+    metrics = AgentMetrics()
+    count_cell_record(metrics, ConnectorRecord(cell_record=counts))
+    sample = metrics.registry.get_sample_value
+    assert sample("armnet_agent_cell_record_items_total", {"part": "trace_rows", "outcome": "kept"}) == 120
+    assert sample("armnet_agent_cell_record_items_total", {"part": "trace_rows", "outcome": "dropped"}) == 3
