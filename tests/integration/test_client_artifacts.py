@@ -15,14 +15,10 @@ from typing import Any
 
 import pytest
 from armnet_cli.main import main as armnet
-from armnet_node.artifacts import ObjectStore, StoreConfig
-from armnet_node.kube import AgentKube
-from armnet_node.metrics import AgentMetrics
-from armnet_node.plan import HostPaths
-from armnet_node.uploads import TrackedJob, UploadQueue
 from armnet_testbed.objstore import SeaweedS3
 
-from tests.support.fms_objects import a_job, apply, patch_status
+from tests.support import stored_outputs
+from tests.support.fms_objects import a_job, apply
 
 pytestmark = pytest.mark.integration
 
@@ -38,25 +34,10 @@ def env(object_store: SeaweedS3, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("ARMNET_ARTIFACTS_ENDPOINT", object_store.endpoint)
 
 
-def stored_job(k8s: Any, namespace: str, object_store: SeaweedS3, tmp_path: Path) -> tuple[str, str, str]:
-    """A succeeded job whose output the agent's queue stored; (job name, bucket, uid)."""
-    bucket = object_store.create_bucket(f"cli-{uuid.uuid4().hex[:10]}")
-    store = ObjectStore(StoreConfig(bucket=bucket, access_key_id=object_store.access_key,
-                                    secret_access_key=object_store.secret_key, endpoint_url=object_store.endpoint))
-    created = apply(k8s, a_job(f"rec-{uuid.uuid4().hex[:6]}", namespace))
-    meta = created["metadata"]
-    job = TrackedJob(namespace, meta["name"], meta["uid"])
-    paths = HostPaths(tmp_path / "agent")
-    queue = UploadQueue(store, paths, AgentKube(k8s.api_client()), AgentMetrics())
-    queue.track(job)
-    for name, data in FILES.items():
-        target = paths.output_dir(job.uid) / name
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_bytes(data)
-    patch_status(k8s, "job", job.name, {"phase": "succeeded"}, namespace)
-    queue.ready(job.uid)
-    queue.process_ready()
-    return job.name, bucket, job.uid
+def stored_job(k8s: Any, namespace: str, object_store: SeaweedS3, tmp_path: Path,
+               record: Path | None = None) -> tuple[str, str, str]:
+    """A succeeded job whose output (``FILES``) the agent's queue stored; (job name, bucket, uid)."""
+    return stored_outputs.stored_job(k8s, namespace, object_store, tmp_path, FILES, record=record)
 
 
 def where(k8s: Any, namespace: str) -> list[str]:
@@ -132,3 +113,36 @@ def test_wrong_credentials_say_what_to_give(
     monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "not-the-key")
     assert armnet(["artifacts", name, "--files", *where(k8s, namespace)]) == 1
     assert "give your read credentials" in capsys.readouterr().err
+
+
+def test_armnet_view_plays_the_cell_s_video_of_the_job_in_step_with_its_clock(
+    k8s: Any, namespace: str, object_store: SeaweedS3, env: None, nats_server: str, tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import rerun.dataframe
+
+    first = stored_outputs.a_cell_record_with_a_video(tmp_path / "record", frames=12)
+    name, _, _ = stored_job(k8s, namespace, object_store, tmp_path, record=tmp_path / "record")
+    out = tmp_path / "out.rrd"
+
+    assert armnet(["view", name, "--cell-video", "--save", str(out), "--nats-url", nats_server,
+                   *where(k8s, namespace)]) == 0
+    assert "the cell's videos: front" in capsys.readouterr().err
+
+    recording = rerun.dataframe.load_recording(str(out))
+    table = recording.view(index="time", contents="/armnet-cell/video/front").select().read_all()
+    times = [t.timestamp() for t in table.column("time").to_pylist()]
+    assert len(times) == 12 and times[0] == pytest.approx(first, abs=1e-3)
+    assert times[-1] - times[0] == pytest.approx(1.1, abs=0.01)  # the frames' own spacing, 0.1 s
+    static = recording.view(index=None, contents="/armnet-cell/video/front").select().read_all()  # the asset
+    blob = next(c for c in static.column_names if c.endswith("AssetVideo:blob"))
+    assert bytes(static.column(blob).to_pylist()[0][0]) == (tmp_path / "record" / "videos" / "front.mp4").read_bytes()
+
+
+def test_armnet_view_of_a_job_whose_output_is_not_stored_says_what_to_wait_for(
+    k8s: Any, namespace: str, env: None, nats_server: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
+    created = apply(k8s, a_job(f"fresh-{uuid.uuid4().hex[:6]}", namespace))
+    assert armnet(["view", created["metadata"]["name"], "--cell-video", "--save", str(tmp_path / "x.rrd"),
+                   "--nats-url", nats_server, *where(k8s, namespace)]) == 1
+    assert "the cell's videos come with it once the node agent stored it" in capsys.readouterr().err

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import tempfile
 from collections.abc import Iterator, Mapping
@@ -25,8 +26,11 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Optional
 
 from armnet_core.api import ARTIFACTS_ENDPOINT_ENV, ARTIFACTS_REGION_ENV
+from armnet_core.object_store import split_s3_location
 
 from .errors import ClientError
+
+logger = logging.getLogger(__name__)
 
 CHUNK = 1 << 20
 #: A manifest larger than this is not read (10,000 files of long names are ~3 MB).
@@ -56,10 +60,10 @@ class Manifest:
 
 def split_location(location: str) -> tuple[str, str]:
     """``s3://bucket/prefix/`` -> (bucket, prefix)."""
-    if not location.startswith("s3://") or "/" not in location[5:]:
+    split = split_s3_location(location)
+    if split is None:
         raise ArtifactsError(f"status.artifacts.location {location[:200]!r} is not an s3://bucket/prefix/ address")
-    bucket, _, prefix = location[5:].partition("/")
-    return bucket, prefix
+    return split
 
 
 def safe_relative(name: str) -> PurePosixPath:
@@ -135,6 +139,16 @@ class OutputStore:
                 raise ArtifactsError(f"{where} does not exist ({code}): the output was removed, or this is "
                                      "another store (--endpoint)") from exc
             raise ArtifactsError(f"could not read {where}: {code}: {str(exc)[:300]}") from exc
+
+
+def open_manifest(location: str, manifest: str, *, endpoint_url: Optional[str] = None) -> tuple[OutputStore, Manifest]:
+    """The store of a job's stored output (``status.artifacts``' ``location`` and ``manifest``) and its manifest."""
+    bucket, _ = split_location(location)
+    manifest_bucket, manifest_key = split_location(manifest)
+    store = OutputStore(manifest_bucket, endpoint_url=endpoint_url)
+    if bucket != manifest_bucket:
+        logger.warning("the manifest is in bucket %s, the output in %s", manifest_bucket, bucket)
+    return store, parse_manifest(store.read(manifest_key, MAX_MANIFEST_BYTES))
 
 
 @dataclass(frozen=True)

@@ -10,16 +10,20 @@ timelines: ``time`` (the job's clock when the frame was taken) and ``frame``
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Optional
 
 from armnet_runtime.rerun import Packet
 
+from .cell_videos import CellVideo
 from .errors import RerunMissing
 from .viewer import Jpeg, RawImage, Scalar, Skipped, entity_logs, timelines
 
 logger = logging.getLogger(__name__)
+
+#: Where the cell's videos of the job go in the recording: ``armnet-cell/video/<camera>``.
+CELL_VIDEO_ENTITY = "armnet-cell/video"
 
 @dataclass(frozen=True)
 class Replayed:
@@ -28,6 +32,8 @@ class Replayed:
     packets: int
     skipped: int
     dropped: int
+    #: The cell's videos logged beside the packets (``--cell-video``).
+    videos: int = 0
 
 
 def _rerun() -> Any:
@@ -38,11 +44,15 @@ def _rerun() -> Any:
     return rerun
 
 
-def replay(packets: Iterable[Packet], *, app_id: str, save: Optional[str]) -> Replayed:
+def replay(packets: Iterable[Packet], *, app_id: str, save: Optional[str],
+           videos: Sequence[CellVideo] = ()) -> Replayed:
     """Log every packet into Rerun: into ``save`` (an ``.rrd``) if given, else a spawned viewer.
 
-    The recording is finalized before returning, so the file is complete (and
-    readable by ``rerun.chunk.RrdReader`` or ``rerun out.rrd``) once this returns.
+    ``videos``: the cell's videos of the job, each logged as a video asset at
+    ``armnet-cell/video/<camera>`` with a frame reference per frame on the ``time``
+    timeline, so it plays in step with the job's own data. The recording is finalized
+    before returning, so the file is complete (and readable by ``rerun.chunk.RrdReader``
+    or ``rerun out.rrd``) once this returns.
     """
     rr = _rerun()
     count = skipped = dropped = 0
@@ -52,6 +62,8 @@ def replay(packets: Iterable[Packet], *, app_id: str, save: Optional[str]) -> Re
             rec.save(save)
         else:
             rec.spawn()
+        for video in videos:
+            _log_video(rr, rec, video)
         for packet in packets:
             seconds, frame = timelines(packet)
             rec.set_time("time", timestamp=seconds)
@@ -70,7 +82,20 @@ def replay(packets: Iterable[Packet], *, app_id: str, save: Optional[str]) -> Re
                     _say_once(logged, said)
             count += 1
             dropped += packet.dropped
-    return Replayed(count, skipped, dropped)
+    return Replayed(count, skipped, dropped, len(videos))
+
+
+def _log_video(rr: Any, rec: Any, video: CellVideo) -> None:
+    """The video as one asset, and a reference to each of its frames at the time it was taken."""
+    import numpy as np
+
+    entity = f"{CELL_VIDEO_ENTITY}/{video.camera}"
+    asset = rr.AssetVideo(path=str(video.path))
+    rec.log(entity, asset, static=True)
+    nanos = np.asarray(asset.read_frame_timestamps_nanos(), dtype=np.int64)
+    seconds = (video.first_frame_at or 0.0) + nanos / 1e9
+    rr.send_columns(entity, indexes=[rr.TimeColumn("time", timestamp=seconds)],
+                    columns=rr.VideoFrameReference.columns_nanos(nanos), recording=rec)
 
 
 def _say_once(skipped: Skipped, said: set[str]) -> None:

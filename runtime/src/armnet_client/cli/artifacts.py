@@ -7,7 +7,7 @@ from pathlib import Path
 
 from armnet_core.api import ArtifactsPhase, JobPhase
 
-from ..artifacts import MAX_MANIFEST_BYTES, OutputStore, download, parse_manifest, split_location
+from ..artifacts import download, open_manifest
 from .common import add_cluster_options, client_from, guarded
 
 #: Exit codes: 0 read (or fetched), 1 an error, 2 nothing stored (yet).
@@ -51,16 +51,11 @@ def run(args: argparse.Namespace) -> int:
             print(stored.message)
         if not (args.files or args.download):
             return 0
-        bucket, _ = split_location(stored.location)
-        manifest_bucket, manifest_key = split_location(stored.manifest)
-        store = OutputStore(manifest_bucket, endpoint_url=args.endpoint)
-        manifest = parse_manifest(store.read(manifest_key, MAX_MANIFEST_BYTES))
+        store, manifest = open_manifest(stored.location, stored.manifest, endpoint_url=args.endpoint)
         if args.files:
             for item in manifest.files:
                 print(f"{item.bytes:>12}  {item.sha256}  {item.path}")
             return 0
-        if bucket != manifest_bucket:
-            print(f"warning: the manifest is in bucket {manifest_bucket}, the output in {bucket}")
         done = download(store, manifest, args.download)
         print(f"downloaded {len(done.written)} files to {args.download}"
               + (f" ({len(done.unchanged)} already there)" if done.unchanged else ""))
