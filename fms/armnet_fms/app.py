@@ -17,6 +17,7 @@ import contextlib
 import html
 import json
 import logging
+import re
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -27,6 +28,7 @@ from prometheus_client.core import CounterMetricFamily
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 from prometheus_client.registry import Collector
 from starlette.applications import Starlette
+from starlette.concurrency import iterate_in_threadpool
 from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import (
@@ -43,6 +45,7 @@ from starlette.staticfiles import StaticFiles
 from . import auth
 from .actions import ActionKind, Plan, Refused, plan_action
 from .bus import BusUnavailable, OperatorBus
+from .cell_video import CellVideos
 from .guard import SESSION_COOKIE, CellOperatorsOnly, SecurityHeaders, caller_of
 from .state import FleetState
 from .telemetry import TelemetryStore
@@ -54,6 +57,8 @@ log = logging.getLogger(__name__)
 PUBLIC_PATHS = frozenset({"/login", "/logout", "/metrics", "/healthz"})
 
 STATIC = Path(__file__).parent / "static"
+#: A download's file name: the job's and camera's names, in letters every browser keeps.
+_SAFE_FILE = re.compile(r"[^A-Za-z0-9._-]")
 
 
 class Metrics:
@@ -64,6 +69,8 @@ class Metrics:
         self.actions = Counter("armnet_fms_actions", "Cell operator actions by action and result",
                                ["action", "result"], registry=self.registry)
         self.logins = Counter("armnet_fms_logins", "Login attempts by result", ["result"], registry=self.registry)
+        self.videos = Counter("armnet_fms_last_video_requests", "Requests for a cell's last job's video by result "
+                              "(served, none: no stored job or video, store_error)", ["result"], registry=self.registry)
         self.live_clients = Gauge("armnet_fms_live_clients", "Pages following the live feed",
                                   registry=self.registry)
         Gauge("armnet_fms_pending_resets", "Resets waiting for a cell operator's confirmation",
@@ -100,11 +107,13 @@ def _page(name: str, **values: str) -> HTMLResponse:
 
 def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, *, site: str = "",
               secure_cookies: bool = True, live_interval_s: float = 0.5,
-              clock: Callable[[], float] = time.time, telemetry: TelemetryStore | None = None) -> Starlette:
+              clock: Callable[[], float] = time.time, telemetry: TelemetryStore | None = None,
+              videos: CellVideos | None = None) -> Starlette:
     """The Starlette app; its lifespan starts the NATS subscription and the poller.
 
     ``telemetry`` is filled by the bus (``Bus(on_telemetry=...)``); without one (a local run) the
-    cell page has no camera or servo section and polls nothing.
+    cell page has no camera or servo section and polls nothing. ``videos`` reads the last job's
+    video of a cell from the object store; without one the cell page offers none.
     """
     metrics = Metrics(state, bus)
     store = telemetry if telemetry is not None else TelemetryStore()
@@ -144,7 +153,8 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
     async def cell_page(request: Request) -> Response:
         who = caller_of(request)
         return _page("cell.html", operator=who.operator, csrf=auth.csrf_token(settings, who.credential),
-                     cell=request.path_params["name"], telemetry="on" if telemetry is not None else "off")
+                     cell=request.path_params["name"], telemetry="on" if telemetry is not None else "off",
+                     video="on" if videos is not None else "off")
 
     def snapshot(request: Request) -> dict[str, Any]:
         now = clock()
@@ -185,6 +195,27 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         if frame is None:
             return JSONResponse({"error": "no frame from this camera yet"}, status_code=404)
         return Response(frame.jpeg, media_type="image/jpeg")
+
+    async def last_video(request: Request) -> Response:
+        cell = request.path_params["name"]
+        if videos is None:
+            return JSONResponse({"error": "this FMS reads no object store (the chart's artifacts.*: docs/fms.md)"},
+                                status_code=404)
+        try:
+            found = await asyncio.to_thread(videos.open_last, cell, request.query_params.get("camera") or None)
+        except Exception as error:  # noqa: BLE001 - botocore's and the API's errors: the operator sees why
+            metrics.videos.labels("store_error").inc()
+            log.warning("cell %s: the last job's video could not be read: %s", cell, str(error)[:300])
+            return JSONResponse({"error": f"the object store could not be read ({type(error).__name__}); "
+                                          "the FMS's log says more"}, status_code=502)
+        if isinstance(found, str):
+            metrics.videos.labels("none").inc()
+            return JSONResponse({"error": found}, status_code=404)
+        metrics.videos.labels("served").inc()
+        name = _SAFE_FILE.sub("_", f"{found.job.name}-{found.camera}")
+        return StreamingResponse(iterate_in_threadpool(found.chunks), media_type="video/mp4", headers={
+            "Content-Length": str(found.length), "Content-Disposition": f'inline; filename="{name}.mp4"',
+            "X-Armnet-Job": f"{found.job.namespace}/{found.job.name}", "Cache-Control": "no-store"})
 
     async def cell_telemetry(request: Request) -> Response:
         return JSONResponse(store.view(request.path_params["name"], clock()))
@@ -276,6 +307,7 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
         Route("/live", live),
         Route("/api/cells/{name}/camera/{camera}.jpg", camera_frame, methods=["GET"]),
         Route("/api/cells/{name}/telemetry", cell_telemetry, methods=["GET"]),
+        Route("/api/cells/{name}/last-video.mp4", last_video, methods=["GET"]),
         Route("/api/cells/{name}/{action}", act, methods=["POST"]),
     ]
     app = Starlette(routes=routes, lifespan=lifespan, middleware=[

@@ -59,9 +59,11 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
     from armnet_client.errors import ClientError
     from armnet_client.kube import ClusterTarget, connect
+    from armnet_core.object_store import StoreConfig, StoreSettingsError
 
     from .app import build_app
     from .bus import Bus
+    from .cell_video import CellVideos
     from .kube import KubeGateway
     from .state import FleetState
     from .telemetry import TelemetryStore
@@ -73,11 +75,18 @@ def run(args: argparse.Namespace) -> int:
     except (AuthConfigError, OSError, ClientError) as error:
         print(f"armnet fms: {error}", file=sys.stderr)
         return 2
-    state = FleetState(KubeGateway(connection.api_client), poll_s=args.poll_interval)
+    gateway = KubeGateway(connection.api_client)
+    state = FleetState(gateway, poll_s=args.poll_interval)
+    try:
+        store = StoreConfig.from_env()
+    except StoreSettingsError as error:
+        print(f"armnet fms: {error}", file=sys.stderr)
+        return 2
+    videos = CellVideos(store, gateway.list_jobs) if store is not None else None
     telemetry = TelemetryStore(known_cells=state.cell_names)
     bus = Bus(args.nats_url, on_telemetry=lambda subject, data: telemetry.accept(subject, data, time.time()),
               on_dropped=telemetry.count_dropped)
     app = build_app(state, bus, settings, site=args.site, secure_cookies=not args.insecure_cookies,
-                    telemetry=telemetry)
+                    telemetry=telemetry, videos=videos)
     uvicorn.run(app, host=args.host, port=args.port, log_level="info", access_log=False)
     return 0

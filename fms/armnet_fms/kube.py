@@ -33,6 +33,11 @@ class KubeGateway:
         listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, CELLS))
         return list(listed.get("items", []))
 
+    def list_jobs(self) -> list[dict[str, Any]]:
+        """Every RobotJob, in every namespace (the cell page's last-job video asks, on a click)."""
+        listed = cast(dict[str, Any], self.custom.list_cluster_custom_object(GROUP, VERSION, ROBOTJOBS))
+        return list(listed.get("items", []))
+
     def get_cell(self, name: str) -> dict[str, Any] | None:
         return self._get(lambda: self.custom.get_cluster_custom_object(GROUP, VERSION, CELLS, name))
 

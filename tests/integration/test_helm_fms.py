@@ -392,3 +392,13 @@ def test_an_upgrade_keeps_the_generated_session_key_and_takes_the_new_operators(
 
     assert after["session-key"] == before["session-key"]
     assert after["operators"] == f"{TOKENS[0]['name']}:{TOKENS[0]['token']}\n"
+
+
+def test_the_fms_gets_read_keys_to_the_outputs_bucket_for_the_last_job_s_video() -> None:
+    bucket = {"bucket": "outputs", "endpoint": "http://s3.lab:8333", "credentialsSecret": "agent-keys"}
+    assert "ARMNET_ARTIFACTS_BUCKET" not in env_of(render(values=ENABLED))  # no bucket: no video link
+    for extra, secret in (({}, "agent-keys"), ({"operatorCredentialsSecret": "ops-keys"}, "ops-keys"),
+                          ({"operatorCredentialsSecret": "ops-keys", "fmsCredentialsSecret": "fms-keys"}, "fms-keys")):
+        env = env_of(render(values={**ENABLED, "artifacts": {**bucket, **extra}}))
+        assert (env["ARMNET_ARTIFACTS_BUCKET"], env["ARMNET_ARTIFACTS_ENDPOINT"]) == ("outputs", "http://s3.lab:8333")
+        assert env["ARMNET_ARTIFACTS_ACCESS_KEY_ID"] == {"secretKeyRef": {"name": secret, "key": "accessKeyId"}}

@@ -29,7 +29,8 @@ ARTIFACTS = REPO / "test-artifacts"
 class FmsServer:
     """One ``armnet fms`` process; ``.url``; ``.log()`` for failure messages."""
 
-    def __init__(self, kubeconfig: str | Path, nats_url: str, *extra: str) -> None:
+    def __init__(self, kubeconfig: str | Path, nats_url: str, *extra: str, env: dict[str, str] | None = None) -> None:
+        """``env``: more of the service's environment (the object store's ``ARMNET_ARTIFACTS_*``)."""
         self.dir = Path(tempfile.mkdtemp(prefix="armnet-fms-"))
         (self.dir / "operators").write_text(f"# the auth Secret\n{OPERATOR}:{TOKEN}\n")
         (self.dir / "session-key").write_text("0123456789abcdef0123456789abcdef")
@@ -41,7 +42,7 @@ class FmsServer:
                 "--poll-interval", "0.5", "--insecure-cookies", *extra]
         self._log = open(self.dir / "fms.log", "ab")  # noqa: SIM115 - kept open for the process
         self.process = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT,
-                                        env={**os.environ, "PYTHONPATH": PYTHONPATH})
+                                        env={**os.environ, **(env or {}), "PYTHONPATH": PYTHONPATH})
         self._wait_up()
 
     def _wait_up(self, timeout: float = 60) -> None:

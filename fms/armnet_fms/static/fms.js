@@ -140,6 +140,12 @@
     if (!cell) { card.replaceChildren(el("p", "", "This cell does not exist (or is not yours to see).")); return; }
     card.replaceChildren(el("h2", "", cell.name), ...cardFacts(cell));
     card.className = `card big phase-${cell.phase}`;
+    // The FMS streams the last ended job's video from the store (it says why when there is none).
+    const videoBox = document.getElementById("last-video-box");
+    if (videoBox && meta("video") === "on" && videoBox.hidden) {
+      document.getElementById("last-video").href = `/api/cells/${encodeURIComponent(cellName)}/last-video.mp4`;
+      videoBox.hidden = false;
+    }
     const job = cell.job, active = !!(job && job.active);
     const jobKey = active ? `${job.namespace}/${job.name}` : "";
     const resetBox = document.getElementById("reset-box");
