@@ -27,6 +27,9 @@ Modes:
 - default: a 100 Hz tick of one SO-101 arm;
 - ``--camera``: a 100 Hz tick of one arm and one camera;
 - ``--bimanual``: a 30 Hz tick of a bimanual SO-101 (both arms) and two cameras;
+- ``--record``: the connector keeps the cell's record of the job (the servo trace of every
+  tick's positions, the camera's video) while the same connector without it ticks beside it as
+  the baseline, in the same ticks: the ratio and the ticks on time say what the record costs;
 - ``--completion region|classifier`` (with ``--camera``): the connector's completion
   monitor scores the camera at 30 Hz, its fastest rate, with that scorer (the arm on
   the target region, or the simulated cells' learned classifier) while the ticks run:
@@ -92,13 +95,14 @@ def monitor_settings(scorer: str) -> Any:
     return CompletionConfig.model_validate({"camera": "front", "scorer": scorer, "rateHz": MAX_RATE_HZ, **settings})
 
 
-def serve_cell(preset: str, completion: str | None = None) -> None:
+def serve_cell(preset: str, completion: str | None = None, record: bool = False) -> None:
     """Child mode: the connector of a local cell, as its own process; runs until stdin closes.
 
     The topology of a real cell: the simulated servos live in a third process
     (``SimulatedCellProcess``, standing in for the hardware), this process is the
     connector sidecar, and the bench's main process is the job. Nothing shares a GIL.
     The socket directory is on a tmpfs (/dev/shm), as a pod's ``emptyDir: {medium: Memory}``.
+    ``record``: the connector keeps the cell's record of the job (servo trace, camera video) on disk.
     """
     from armnet_connector import Connector
     from armnet_connector.hardware import simulated_camera_factory
@@ -109,7 +113,8 @@ def serve_cell(preset: str, completion: str | None = None) -> None:
     from armnet_sim.presets import PRESETS
 
     spec = resolve_spec(embodiment=None, preset=preset, task=None, grace_seconds=None)
-    with tempfile.TemporaryDirectory(prefix="armnet-bench-", dir="/dev/shm") as run_dir:
+    with tempfile.TemporaryDirectory(prefix="armnet-bench-", dir="/dev/shm") as run_dir, \
+            tempfile.TemporaryDirectory(prefix="armnet-bench-record-") as record_dir:
         layout = plan_layout(spec, Path(run_dir))
         for directory in (layout.socket_dir, layout.calibration_dir):
             directory.mkdir(parents=True, exist_ok=True)
@@ -123,7 +128,8 @@ def serve_cell(preset: str, completion: str | None = None) -> None:
             config = build_connector_config(spec, layout, ports)
             if completion is not None:
                 config = config.model_copy(update={"completion": monitor_settings(completion)})
-            with Connector(config, layout.socket_dir, camera_factory=simulated_camera_factory(source=sim)) as connector:
+            with Connector(config, layout.socket_dir, camera_factory=simulated_camera_factory(source=sim),
+                           record_dir=record_dir if record else None) as connector:
                 arms = [
                     {"port": ports[arm.name], "endpoint": arm.endpoint, "calibration_file": str(arm.calibration_file)}
                     for arm in layout.arms
@@ -131,9 +137,12 @@ def serve_cell(preset: str, completion: str | None = None) -> None:
                 print(json.dumps({"arms": arms, "endpoint": layout.robot_endpoint}), flush=True)
                 sys.stdin.read()
                 counters = connector.counters
-                print(json.dumps({"scored": counters.completion_frames_scored,
-                                  "scorer_errors": counters.completion_scorer_errors,
-                                  "scorer_slow": counters.completion_scorer_slow}), flush=True)
+            print(json.dumps({"scored": counters.completion_frames_scored,
+                              "scorer_errors": counters.completion_scorer_errors,
+                              "scorer_slow": counters.completion_scorer_slow,
+                              "trace_rows": counters.trace_rows_written, "trace_dropped": counters.trace_rows_dropped,
+                              "video_frames": counters.video_frames_written,
+                              "video_dropped": counters.video_frames_dropped}), flush=True)
 
 
 # ----------------------------------------------------------------- clients
@@ -454,19 +463,22 @@ def verdict(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
 
-def report_baseline(totals: dict[str, Samples], raw_p50: float) -> None:
-    """``--compare-with``: the same calls through the other tree's proxy and connector, in the same ticks."""
+def report_baseline(totals: dict[str, Samples], raw_p50: float, label: str, cameras: int) -> None:
+    """``--compare-with``/``--record``: the same calls through the baseline's proxy and connector, in the same ticks."""
     direct, proxy, baseline = totals["direct"], totals["proxy"], totals.get("baseline")
     if baseline is None or not baseline.ticks:
         return
-    for call in ("sync_read", "sync_write"):
+    for call in ("sync_read", "sync_write") + (("camera",) if cameras else ()):
         d50 = us(direct.calls[call], 50)
         b50, p50 = us(baseline.calls[call], 50), us(proxy.calls[call], 50)
-        print(f"{call}: baseline tree's proxy p50 {b50:.0f} us (share {b50 - d50 - raw_p50:.0f} us), "
-              f"this tree's {p50:.0f} us (share {p50 - d50 - raw_p50:.0f} us): this tree saves {b50 - p50:.0f} us")
+        print(f"{call}: {label}: p50 {b50:.0f} us (share {b50 - d50 - raw_p50:.0f} us), "
+              f"this one {p50:.0f} us (share {p50 - d50 - raw_p50:.0f} us): ratio {p50 / b50:.2f}, "
+              f"this one saves {b50 - p50:.0f} us")
+    print(f"ticks on time: {label} {baseline.on_time / baseline.ticks:.2%}, "
+          f"this one {proxy.on_time / proxy.ticks:.2%}")
 
 
-def report(totals: dict[str, Samples], *, cameras: int, hz: float) -> bool:
+def report(totals: dict[str, Samples], *, cameras: int, hz: float, baseline: str) -> bool:
     direct, proxy = totals["direct"], totals["proxy"]
     raw, hello, copy = totals["raw"].calls["raw"], totals["hello"].calls["hello"], totals["copy"].calls["copy"]
     print(f"ticks per mode: {direct.ticks} ({hz:g} Hz, paced)")
@@ -498,7 +510,7 @@ def report(totals: dict[str, Samples], *, cameras: int, hz: float) -> bool:
         ok = ok and camera_ok
         print(f"camera read_latest: proxy overhead {overhead:.0f} us p50 = {overhead / c50:.2f}x the frame copy "
               f"(target <= {TARGET_CAMERA_US:.0f} us and <= {TARGET_COPY_RATIO:g}x: {verdict(camera_ok)})")
-    report_baseline(totals, r50)
+    report_baseline(totals, r50, baseline, cameras)
     print(f"failed ticks (bus reply lost): direct {direct.failed}, proxy {proxy.failed}")
     direct_share, proxy_share = direct.on_time / direct.ticks, proxy.on_time / proxy.ticks
     ok = ok and proxy_share >= TARGET_ON_TIME
@@ -522,6 +534,9 @@ def main() -> int:
     )
     parser.add_argument("--completion", choices=("region", "classifier"),
                         help="with --camera: the connector's completion monitor scores the camera at 30 Hz meanwhile")
+    parser.add_argument("--record", action="store_true",
+                        help="the connector keeps the cell's record of the job (servo trace, camera video); the "
+                             "same connector without it ticks beside it, in the same ticks, as the baseline")
     parser.add_argument("--serve-cell", metavar="PRESET", help=argparse.SUPPRESS)
     parser.add_argument("--serve-echo", metavar="PATH", help=argparse.SUPPRESS)
     parser.add_argument("--serve-client", metavar="ARMS", type=int, help=argparse.SUPPRESS)
@@ -532,8 +547,10 @@ def main() -> int:
         serve_client(sys.stdin.readline(), args.serve_client, args.client_cameras, args.client_way)
         return 0
     if args.serve_cell:
-        serve_cell(args.serve_cell, args.completion)
+        serve_cell(args.serve_cell, args.completion, args.record)
         return 0
+    if args.record and args.compare_with:
+        parser.error("--record brings its own baseline (this tree without the record): leave out --compare-with")
     if args.completion and not args.camera:
         parser.error("--completion needs --camera: the monitor scores the cell's one camera")
     if args.serve_echo:
@@ -541,10 +558,12 @@ def main() -> int:
         return 0
     preset, arms, cameras, hz = ("bimanual_so101", 2, 2, 30.0) if args.bimanual else ("so101", 1, int(args.camera), 100.0)
     cell_process = subprocess.Popen(
-        [sys.executable, __file__, "--serve-cell", preset, *(["--completion", args.completion] if args.completion else [])],
+        [sys.executable, __file__, "--serve-cell", preset, *(["--completion", args.completion] if args.completion else []),
+         *(["--record"] if args.record else [])],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
     )
-    baseline_process = serve_baseline(args.compare_with, preset) if args.compare_with else None
+    baseline_tree = Path(__file__).resolve().parent.parent if args.record else args.compare_with
+    baseline_process = serve_baseline(baseline_tree, preset) if baseline_tree else None
     try:
         assert cell_process.stdout is not None
         cell_line = cell_process.stdout.readline()
@@ -556,9 +575,9 @@ def main() -> int:
             clients.append(ClientProcessProbe("direct", cell_line, arms, cameras))
             clients.append(proxy_client(cell, arms, cameras))
             if baseline_process is not None:
-                assert baseline_process.stdout is not None and args.compare_with is not None
+                assert baseline_process.stdout is not None and baseline_tree is not None
                 clients.append(ClientProcessProbe("baseline", baseline_process.stdout.readline(), arms,
-                                                  tree=args.compare_with))
+                                                  cameras if args.record else 0, tree=baseline_tree))
             clients += [HelloProbe(cell), RawEchoProbe(echo_dir.name), CopyProbe()]
             run_ticks(clients, 20, 1.0 / hz)  # warm-up: caches, first frames
             for _ in range(args.rounds):
@@ -569,16 +588,21 @@ def main() -> int:
             for client in clients:
                 client.close()
             echo_dir.cleanup()
-        report(totals, cameras=cameras, hz=hz)
+        report(totals, cameras=cameras, hz=hz,
+               baseline="the same connector without the record" if args.record else "the baseline tree's proxy")
     finally:
         for process in (cell_process, baseline_process):
             if process is not None and process.stdin is not None:
                 process.stdin.close()
                 process.wait(timeout=30)
-    if args.completion and cell_process.stdout is not None:
-        monitor = json.loads(cell_process.stdout.readline() or "{}")
-        print(f"completion monitor ({args.completion}, 30 Hz) meanwhile: {monitor.get('scored')} frames scored, "
-              f"{monitor.get('scorer_errors')} scorer errors, {monitor.get('scorer_slow')} slow scores")
+    final = json.loads(cell_process.stdout.readline() or "{}") if cell_process.stdout is not None else {}
+    if args.record:
+        print(f"the cell's record meanwhile: {final.get('trace_rows')} servo trace rows kept "
+              f"({final.get('trace_dropped')} dropped), {final.get('video_frames')} video frames kept "
+              f"({final.get('video_dropped')} dropped)")
+    if args.completion:
+        print(f"completion monitor ({args.completion}, 30 Hz) meanwhile: {final.get('scored')} frames scored, "
+              f"{final.get('scorer_errors')} scorer errors, {final.get('scorer_slow')} slow scores")
     return 0
 
 
@@ -590,7 +614,8 @@ def tree_env(tree: Path) -> dict[str, str]:
 
 
 def serve_baseline(tree: Path, preset: str) -> subprocess.Popen[str]:
-    """The cell of another checkout (its own simulator and connector), for ``--compare-with``."""
+    """The cell of another checkout (its own simulator and connector), for ``--compare-with``; of this
+    one, without the record, for ``--record``."""
     return subprocess.Popen(
         [sys.executable, str(tree.resolve() / "bench" / "proxy_overhead.py"), "--serve-cell", preset],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=tree_env(tree),

@@ -13,6 +13,7 @@ takes the kubelet's kill and the pod's exit being seen.
 
 from __future__ import annotations
 
+import json
 from datetime import datetime
 from typing import Any
 
@@ -53,6 +54,31 @@ def a_bus_loop_job_succeeds_with_its_return_value(bed: AgentBed, name: str, *,
     assert st["result"]["exitCode"] == 0
     assert st["startedAt"] <= st["finishedAt"]
     return st
+
+
+def a_bus_loop_job_s_servo_trace_is_stored_and_agrees_with_it(
+    st: dict[str, Any], object_store: Any, bucket: str, prefix: str,
+) -> list[str]:
+    """The cell's servo trace of the bus-loop job, read from the store: the job's last read of each motor is
+    the positions it returned, and its goals are there. Returns every path the job's manifest lists."""
+    import io
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import pytest
+
+    s3 = object_store.client()
+    manifest = json.loads(s3.get_object(Bucket=bucket, Key=prefix + "manifest.json")["Body"].read())
+    paths = sorted(f["path"] for f in manifest["files"])
+    parts = [pq.read_table(io.BytesIO(s3.get_object(Bucket=bucket, Key=prefix + "files/" + path)["Body"].read()))
+             for path in paths if path.startswith("armnet-cell/servo-trace/")]
+    assert parts, paths
+    trace = pa.concat_tables(parts).to_pylist()
+    finals = st["result"]["returnValue"]["final_positions"]
+    last = {r["motor"]: r["value"] for r in trace if r["kind"] == "present_position" and r["motor"] in finals}
+    assert last == pytest.approx(finals, abs=0.01), (last, finals)  # the job rounds to 2 places
+    assert any(r["kind"] == "goal_position" for r in trace)
+    return paths
 
 
 def a_job_that_raises_fails_with_its_traceback(bed: AgentBed, name: str, *, within_s: float = 300) -> dict[str, Any]:

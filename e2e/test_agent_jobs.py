@@ -159,7 +159,9 @@ def batch(bed: AgentBed) -> dict[str, str]:
     return jobs
 
 
-def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, batch: dict[str, str]) -> None:
+def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(
+    bed: AgentBed, batch: dict[str, str], object_store: Any, outputs_bucket: str,
+) -> None:
     st = scenarios.a_bus_loop_job_succeeds_with_its_return_value(bed, batch["success"])
     assert st["progress"]
     # Every output line also went to the job's log subject on NATS, once and in order.
@@ -177,11 +179,14 @@ def test_a_bus_loop_job_succeeds_with_its_return_value_in_status(bed: AgentBed, 
     assert len(progress) == len(printed) - len(plain) > 0
     phases = [json.loads(text)["phase"] for text in stream_lines(bed.nats_url, f"logs.{bed.namespace}.{uid}.status", 2)]
     assert phases[0] == "running" and phases[-1] == "succeeded", phases
-    # The job wrote nothing to its output directory: the store says so (a manifest of no files),
-    # and the directory leaves the robot host.
+    # The job wrote nothing to its output directory: what is stored is the cell's record of it
+    # alone, its servo trace, and the directory leaves the robot host.
     bed.wait(lambda: not (bed.state_dir / "outputs" / uid).exists(), 60, "the job's output directory removed")
     artifacts = status(bed.job(batch["success"]))["artifacts"]
-    assert (artifacts["phase"], artifacts["files"], artifacts["complete"]) == ("Uploaded", 0, True), artifacts
+    assert (artifacts["phase"], artifacts["complete"]) == ("Uploaded", True), artifacts
+    paths = scenarios.a_bus_loop_job_s_servo_trace_is_stored_and_agrees_with_it(st, object_store, outputs_bucket,
+                                                                               f"{bed.namespace}/{uid}/")
+    assert artifacts["files"] == len(paths) and all(p.startswith("armnet-cell/servo-trace/") for p in paths)
 
 
 def test_what_a_job_writes_to_its_output_directory_is_stored_with_its_checksums(
@@ -196,12 +201,19 @@ def test_what_a_job_writes_to_its_output_directory_is_stored_with_its_checksums(
     uid = st["jobId"]
     assert result.artifacts is not None and result.artifacts.phase == "Uploaded", result.artifacts
     artifacts = st["artifacts"]
+    prefix = f"{bed.namespace}/{uid}/"
+    # The job's two files, and the cell's record of the job beside them (its servo trace).
+    s3 = object_store.client()
+    listed = json.loads(s3.get_object(Bucket=outputs_bucket, Key=prefix + "manifest.json")["Body"].read())["files"]
+    own = [f for f in listed if not f["path"].startswith("armnet-cell/")]
+    assert (len(own), sum(f["bytes"] for f in own)) == (2, 4096 + 26), own
+    record_bytes = sum(f["bytes"] for f in listed) - (4096 + 26)
     assert result.artifacts.model_dump(exclude_none=True) == {
         "phase": "Uploaded", "location": artifacts["location"], "manifest": artifacts["manifest"],
-        "files": 2, "bytes": 4096 + 26, "complete": True, "left_out": 1, "message": artifacts["message"]}
-    prefix = f"{bed.namespace}/{uid}/"
+        "files": len(listed), "bytes": 4096 + 26 + record_bytes, "complete": True, "left_out": 1,
+        "message": artifacts["message"]}
     assert artifacts["location"] == f"s3://{outputs_bucket}/{prefix}"
-    assert (artifacts["files"], artifacts["bytes"], artifacts["leftOut"]) == (2, 4096 + 26, 1), artifacts
+    assert (artifacts["files"], artifacts["leftOut"]) == (len(listed), 1), artifacts
     assert "host-hostname: a symbolic link that leads out of the output directory" in artifacts["message"]
     s3 = object_store.client()
     manifest = json.loads(s3.get_object(Bucket=outputs_bucket, Key=prefix + "manifest.json")["Body"].read())
@@ -248,6 +260,16 @@ def test_lerobots_own_recording_in_a_job_downloads_with_armnet_artifacts_as_a_da
     with av.open(str(video)) as container:
         frames = list(container.decode(video=0))
     assert len(frames) == recorded["frames"] and (frames[0].width, frames[0].height) == (640, 480)
+    # The cell's own record came down with it: the camera the job used, as a video that plays,
+    # and the servo trace of the arm the recording drove.
+    [cell_video] = (tmp_path / "armnet-cell" / "videos").glob("*.mp4")
+    with av.open(str(cell_video)) as container:
+        cell_frames = list(container.decode(video=0))
+    assert cell_frames and (cell_frames[0].width, cell_frames[0].height) == (640, 480), cell_video
+    import pyarrow.parquet as pq
+
+    kinds = set(pq.read_table(tmp_path / "armnet-cell" / "servo-trace").column("kind").to_pylist())
+    assert {"present_position", "goal_position"} <= kinds, kinds
 
 
 def test_a_recording_stopped_at_its_timeout_keeps_every_finished_episode(

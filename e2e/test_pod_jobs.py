@@ -281,10 +281,15 @@ def pod_of(bed: AgentBed, job: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def test_a_bus_loop_job_in_a_pod_moves_the_arm_through_the_sidecar_and_succeeds(
-    bed: AgentBed, batch: dict[str, str]
+    bed: AgentBed, batch: dict[str, str], object_store: Any, pod_outputs: str,
 ) -> None:
     st = scenarios.a_bus_loop_job_succeeds_with_its_return_value(bed, batch["success"])
     assert st["result"]["safety"]["policy"] == "clamp"  # the sidecar's record reached the status
+    # The sidecar's servo trace of the job, in the cell's record the agent stored with the output.
+    bed.wait(lambda: (status(bed.job(batch["success"])).get("artifacts") or {}).get("phase") == "Uploaded", 120,
+             "the pod job's cell record uploaded")
+    scenarios.a_bus_loop_job_s_servo_trace_is_stored_and_agrees_with_it(st, object_store, pod_outputs,
+                                                                       f"{bed.namespace}/{st['jobId']}/")
 
 
 def test_a_job_pod_that_raises_fails_with_its_traceback(bed: AgentBed, batch: dict[str, str]) -> None:
