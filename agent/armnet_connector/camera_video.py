@@ -6,13 +6,15 @@ run; RoboArena and AutoEval keep each episode's videos). The connector already h
 frame its cameras capture for the job, so it keeps them: ``videos/<camera>.mp4`` in the
 cell's record of the job (``record_dir``, which the job cannot see), uploaded with the
 job's output under ``armnet-cell/`` (docs/outputs.md, "The cell's record"). Beside each video,
-``<camera>.json`` says when its first frame was taken, so a viewer can put it on the job's clock.
+``<camera>.json`` says when its first frame reached the connector (wall clock), so a viewer can
+put it on the job's clock.
 
 Off the job's path: a camera's capture thread hands a reference to each stored frame
 (cameras store a new array per frame and never draw on a stored one) to a bounded queue,
 at most ``MAX_FPS`` frames a second per camera; one thread encodes (H.264 in a fragmented
 MP4, so a file cut short by a crash still plays up to its last fragment; each frame's time
-is when it reached the connector, so a camera that slowed down plays at its real speed). A full queue
+is when it reached the connector, on the monotonic clock, so a camera that slowed down plays
+at its real speed and a step of the wall clock changes nothing). A full queue
 drops the frame and counts it, never waits; so does one past ``MAX_BYTES`` of video. A camera whose frame size changes (a job that
 reconnects it at another resolution) starts a new file, ``<camera>-2.mp4``.
 """
@@ -32,6 +34,8 @@ from typing import Any, Protocol
 
 from armnet_core.cell_record import VIDEO_INFO_SUFFIX, VIDEOS, video_info
 
+from .record_writer import RecordWriter
+
 log = logging.getLogger(__name__)
 
 #: Frames kept per camera and second: enough to see the motion, a bounded share of a core to encode.
@@ -45,13 +49,15 @@ CODEC = "libx264"
 #: Fast and small: a record to look at, not a dataset (the job's own recording keeps its frames).
 CODEC_OPTIONS = {"preset": "ultrafast", "crf": "28", "tune": "zerolatency"}
 #: Fragments as the file grows: a file cut short by a crash plays up to its last fragment.
-CONTAINER_OPTIONS = {"movflags": "frag_keyframe+empty_moov+default_base_moof"}
+CONTAINER_OPTIONS = {"movflags": "frag_keyframe+empty_moov+default_base_moof", "flush_packets": "1"}
 #: A keyframe (and so a fragment) at least this often, in frames.
 KEYFRAME_INTERVAL = 30
 #: Bytes of video one job may leave, all cameras together (hours at 640x480); past it frames are dropped.
 MAX_BYTES = 4 * 1024**3
 #: Frames between looks at the files' sizes.
 SIZE_CHECK_FRAMES = 30
+#: Files one camera may leave (a new one per frame size): a job reconnecting at ever new sizes stays bounded.
+MAX_FILES_PER_CAMERA = 8
 
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]")
 
@@ -69,6 +75,7 @@ class _Stream:
     container: Any
     stream: Any
     shape: tuple[int, ...]
+    #: The first frame's ``time.monotonic()``: presentation times count from it.
     first_at: float
     last_pts: int = -1
 
@@ -76,33 +83,36 @@ class _Stream:
 @dataclass
 class _Camera:
     name: str
-    #: When the next frame is due (wall time); a frame up to a quarter period early counts as on time.
+    #: When the next frame is due (``time.monotonic()``); a frame up to a quarter period early counts as on time.
     due: float = 0.0
     files: int = 0
     open: _Stream | None = None
     problems: set[str] = field(default_factory=set)
 
 
-class CameraVideo:
-    """``tap(camera)`` gives a camera's capture thread its frame sink; ``start``/``stop`` with the connector."""
+class CameraVideo(RecordWriter):
+    """``tap(camera)`` gives a camera's capture thread its frame sink; ``start``/``stop`` with the connector
+    (``record_writer``: the stop encodes what is queued within its drain time and closes every file)."""
+
+    thread_name = "armnet-camera-video"
+    default_drain_s = DRAIN_S
 
     def __init__(self, directory: Path, counters: VideoCounters, *, max_fps: float = MAX_FPS) -> None:
+        super().__init__()
         self.directory = directory / FOLDER
         self._counters = counters
         self._period = 1.0 / max_fps if max_fps > 0 else 0.0
         self._queue: queue.Queue[tuple[_Camera, Any, float]] = queue.Queue(maxsize=QUEUE_SIZE)
         self._cameras: dict[str, _Camera] = {}
         self._guard = threading.Lock()
-        self._closing = threading.Event()
-        self._drain_until = 0.0
-        self._thread: threading.Thread | None = None
         #: Bytes of the files closed so far, and frames since the last look at the open ones.
         self._closed_bytes = 0
         self._since_check = 0
         self._full = False
 
     def tap(self, camera: str) -> Callable[[Any, float], None]:
-        """The sink for ``camera``'s frames (the cell's camera name): call it with each frame and its wall time."""
+        """The sink for ``camera``'s frames (the cell's camera name): call it with each frame the camera
+        captured and the ``time.monotonic()`` it arrived."""
         with self._guard:
             state = self._cameras.get(camera)
             if state is None:
@@ -121,30 +131,17 @@ class CameraVideo:
                 self._counters.video_frames_dropped += 1
         return take
 
-    def start(self) -> CameraVideo:
-        self._thread = threading.Thread(target=self._encode_all, name="armnet-camera-video", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self, drain_s: float = DRAIN_S) -> None:
-        """Encode what is queued (within ``drain_s``), close every file; bounded, whatever the encoder does."""
-        thread, self._thread = self._thread, None
-        if thread is None:
-            return
-        self._drain_until = time.monotonic() + max(drain_s, 0.0)
-        self._closing.set()
-        thread.join(max(drain_s, 0.0) + 0.5)
-        if thread.is_alive():
-            log.warning("camera video: the files were not closed within %.1f s of the stop (each plays to its "
-                        "last fragment)", drain_s)
+    def _cameras_now(self) -> list[_Camera]:
+        with self._guard:  # a job may open another camera while the encoder looks
+            return list(self._cameras.values())
 
     # -- the encoder's thread -----------------------------------------------------------------
 
-    def _encode_all(self) -> None:
+    def _run(self) -> None:
+        import av  # noqa: F401 — at the start, off the job's path, not at the first frame
+
         try:
-            while True:
-                if self._closing.is_set() and (self._queue.empty() or time.monotonic() >= self._drain_until):
-                    break
+            while not (self.draining() or (self.closing.is_set() and self._queue.empty())):
                 try:
                     camera, frame, at = self._queue.get(timeout=0.1)
                 except queue.Empty:
@@ -154,14 +151,14 @@ class CameraVideo:
             if left:
                 self._counters.video_frames_dropped += left
         finally:
-            for camera in list(self._cameras.values()):
+            for camera in self._cameras_now():
                 self._close(camera)
 
     def _encode(self, camera: _Camera, frame: Any, at: float) -> None:
-        if self._full or self._over_budget():
-            self._counters.video_frames_dropped += 1
-            return
         try:
+            if self._full or self._over_budget():
+                self._counters.video_frames_dropped += 1
+                return
             image = _picture(frame)
             if image is None:
                 self._problem(camera, "its frames are not 8-bit RGB or grey pictures")
@@ -170,6 +167,10 @@ class CameraVideo:
             stream = camera.open
             if stream is None or stream.shape != image.shape:
                 self._close(camera)
+                if camera.files >= MAX_FILES_PER_CAMERA:
+                    self._problem(camera, f"its frame size changed past {MAX_FILES_PER_CAMERA} files")
+                    self._counters.video_frames_dropped += 1
+                    return
                 stream = camera.open = self._open(camera, image.shape, at)
             pts = round((at - stream.first_at) * 1000)
             if pts <= stream.last_pts:
@@ -187,13 +188,13 @@ class CameraVideo:
         if self._since_check < SIZE_CHECK_FRAMES:
             return False
         self._since_check = 0
-        open_bytes = sum(c.open.path.stat().st_size for c in self._cameras.values() if c.open is not None)
+        open_bytes = sum(c.open.path.stat().st_size for c in self._cameras_now() if c.open is not None)
         if self._closed_bytes + open_bytes < MAX_BYTES:
             return False
         self._full = True
         log.warning("camera video: %d bytes written, the most one job keeps; the files are closed and later "
                     "frames counted, not kept", self._closed_bytes + open_bytes)
-        for camera in list(self._cameras.values()):
+        for camera in self._cameras_now():
             self._close(camera)
         return True
 
@@ -204,7 +205,9 @@ class CameraVideo:
         camera.files += 1
         stem = _SAFE_NAME.sub("_", camera.name) or "camera"
         path = self.directory / (f"{stem}.mp4" if camera.files == 1 else f"{stem}-{camera.files}.mp4")
-        _write_atomically(path.with_suffix(VIDEO_INFO_SUFFIX), video_info(camera.name, at, shape[1], shape[0]))
+        # The info says when the first frame arrived on the wall clock (the frames' own times are monotonic).
+        arrived = time.time() - (time.monotonic() - at)
+        _write_atomically(path.with_suffix(VIDEO_INFO_SUFFIX), video_info(camera.name, arrived, shape[1], shape[0]))
         container = av.open(str(path), mode="w", format="mp4", options=dict(CONTAINER_OPTIONS))
         try:
             stream: Any = container.add_stream(CODEC, rate=round(1.0 / self._period) if self._period else 30,

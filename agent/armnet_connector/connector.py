@@ -31,11 +31,12 @@ from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, Opera
 from .interlock import Interlock, TripReason
 from .observer import OBSERVER_SOCKET, ObserverSession
 from .record import ConnectorRecord
+from .record_writer import stop_writers
 from .report import SafetyReport
 from .rollout_frames import DRAIN_S, RolloutFrames
 from .server import MAX_BUFFERED_BYTES, ServerLimits, UnixServer
 from .servo_trace import DRAIN_S as TRACE_DRAIN_S
-from .servo_trace import ServoTrace
+from .servo_trace import JOB_END, ServoTrace
 from .session import OperatorSession, RobotSession, Session
 from .warm_imports import start_warm_imports
 
@@ -153,7 +154,8 @@ class Connector:
         cell = self.cell
         trace = cell.servo_trace = ServoTrace(directory, cell.counters)
         cell.guard.recorder.trace = trace
-        cell.interlock.on_trip = lambda trip: trace.event("interlock_trip", detail=f"{trip.reason}: {trip.message}")
+        cell.interlock.on_trip = lambda trip: trace.event(
+            JOB_END if trip.reason is TripReason.SHUTDOWN else "interlock_trip", detail=f"{trip.reason}: {trip.message}")
         cell.camera_video = CameraVideo(directory, cell.counters)
 
     def _job_starts(self, make: Callable[[], S]) -> Callable[[], S]:
@@ -211,12 +213,10 @@ class Connector:
         self.cell.shut_down(STOP_LOCK_WAIT_S, rest_deadline=rest_deadline)
         # After the arms are safe (the record waits, torque off does not), within what is left of the
         # stop's budget: a pod's record line is printed after this, before the kubelet's kill. The
-        # trace first (its last part takes milliseconds and says what the job's last calls did).
-        budget_end = started + stop_budget_s(self.config.grace_period_seconds)
-        for recorder, drain_s in ((self.cell.servo_trace, TRACE_DRAIN_S), (self.cell.camera_video, VIDEO_DRAIN_S),
-                                  (self.cell.rollout_frames, DRAIN_S)):
-            if recorder is not None:
-                recorder.stop(min(drain_s, budget_end - time.monotonic()))
+        # record's writers finish side by side (record_writer).
+        stop_writers(((self.cell.servo_trace, TRACE_DRAIN_S), (self.cell.camera_video, VIDEO_DRAIN_S),
+                      (self.cell.rollout_frames, DRAIN_S)),
+                     until=started + stop_budget_s(self.config.grace_period_seconds))
         log.info("connector stopped")
 
     def __enter__(self) -> Connector:

@@ -169,16 +169,18 @@ class FramePublisher:
         self._lock = threading.Lock()
         self._broken = False
         self._connected = False
-        #: Also hands each frame to the cell's video of the job (``camera_video``), with its wall time.
+        #: Also hands each captured frame to the cell's video of the job (``camera_video``), with its ``monotonic`` time.
         self.tap: Callable[[Any, float], None] | None = None
 
-    def publish(self, frame: Any, timestamp: float | None = None) -> dict[str, Any] | None:
+    def publish(self, frame: Any, timestamp: float | None = None, *, captured: bool = False) -> dict[str, Any] | None:
+        """``captured``: a frame the camera's capture thread just stored (each goes to ``tap`` once; a read's
+        reply publishes a stored frame again)."""
         import numpy as np
 
         if type(frame) is not np.ndarray:
             return None
-        if self.tap is not None:
-            self.tap(frame, time.time())
+        if captured and self.tap is not None:
+            self.tap(frame, time.monotonic())
         if self._broken:
             return None
         if frame.dtype.kind not in FRAME_DTYPE_KINDS or frame.ndim > MAX_DIMS or frame.nbytes > MAX_FRAME_BYTES:
@@ -234,7 +236,7 @@ class FramePublisher:
         finally:
             lock.release()
         if frame is not None:
-            self.publish(frame, stamp if isinstance(stamp, float) else None)
+            self.publish(frame, stamp if isinstance(stamp, float) else None, captured=True)
 
     def _replace_area(self, nbytes: int) -> FrameArea | None:
         if self._area is not None:

@@ -456,7 +456,8 @@ class MotionGuard:
         violation = decision.violation
         if violation is None:
             for motor in decision.clamped:
-                self.recorder.record_clamp(motor, arm=handle.arm, goal=decision.goals[motor])
+                self.recorder.record_clamp(motor, arm=handle.arm, goal=decision.goals[motor],
+                                           units="normalized" if normalize else "raw")
             return {m: decision.goals[m] for m in decision.clamped}
         self.counters.safety_violations += 1
         message = violation.message()

@@ -142,12 +142,13 @@ class SafetyRecorder:
         with self._lock:
             self._device_calls += 1
 
-    def record_clamp(self, motor: str, *, arm: str | None = None, goal: float | None = None) -> None:
-        """One goal the policy clamped; ``goal``: the goal written instead."""
+    def record_clamp(self, motor: str, *, arm: str | None = None, goal: float | None = None,
+                     units: str | None = None) -> None:
+        """One goal the policy clamped; ``goal``: the goal written instead, in ``units``."""
         with self._lock:
             self._clamps[motor] = self._clamps.get(motor, 0) + 1
         if self.trace is not None:
-            self.trace.event("clamp", arm=arm, motor=motor, value=goal)
+            self.trace.event("clamp", arm=arm, motor=motor, value=goal, units=units)
 
     def record_refusal(self, kind: str, motor: str | None, reason: str, *, tripped: bool, arm: str | None = None) -> None:
         if self.trace is not None:

@@ -21,12 +21,13 @@ import logging
 import os
 import queue
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
+
+from .record_writer import RecordWriter
 
 log = logging.getLogger(__name__)
 
@@ -51,47 +52,25 @@ class _Picture:
     image: Any
 
 
-class RolloutFrames:
-    """``begun``/``judged``/``ended`` from the connector's rollout calls; ``start``/``stop`` with the connector."""
+class RolloutFrames(RecordWriter):
+    """``begun``/``judged``/``ended`` from the connector's rollout calls; ``start``/``stop`` with the connector
+    (``record_writer``: the stop writes what is queued within its drain time; the rest is counted dropped)."""
+
+    thread_name = "armnet-rollout-frames"
+    default_drain_s = DRAIN_S
 
     def __init__(self, directory: Path, latest: Callable[[], Any | None], counters: FrameCounters) -> None:
         """``latest()``: the monitor's newest scored frame (a BGR array), or None before its first."""
+        super().__init__()
         self.directory = directory
         self._latest = latest
         self._counters = counters
         self._queue: queue.Queue[_Picture] = queue.Queue(maxsize=QUEUE_SIZE)
-        #: Set by ``stop``: the writer ends once the queue is empty or the drain's time is up.
-        self._closing = threading.Event()
-        self._drain_until = 0.0
         self._lock = threading.Lock()
         self._folder: str | None = None  # the open rollout's folder
         #: The open rollout began before the monitor scored its first frame: its first picture is that frame.
         self._first_pending = False
         self._rollouts = 0
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> RolloutFrames:
-        self._thread = threading.Thread(target=self._write_all, name="armnet-rollout-frames", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self, drain_s: float = DRAIN_S) -> None:
-        """Write what is queued for at most ``drain_s``, then stop; what is left is counted as dropped.
-
-        Bounded, whatever the writer does: the connector's stop must fit the grace window
-        (the pod's record line is printed after it). A write still running at the end
-        finishes on its daemon thread; no write starts after it.
-        """
-        thread, self._thread = self._thread, None
-        if thread is None:
-            return
-        self._drain_until = time.monotonic() + max(drain_s, 0.0)
-        self._closing.set()
-        thread.join(max(drain_s, 0.0) + 0.5)
-        left = self._queue.qsize()
-        if left:
-            self._counters.rollout_frames_dropped += left
-            log.warning("rollout frames: %d pictures not kept (the writer was behind at the stop)", left)
 
     # -- the connector's rollout calls (the job's threads) ---------------------------------
 
@@ -149,17 +128,15 @@ class RolloutFrames:
 
     # -- the writer's thread --------------------------------------------------------------
 
-    def _write_all(self) -> None:
-        while True:
-            if self._closing.is_set() and (self._queue.empty() or time.monotonic() >= self._drain_until):
-                return
+    def _run(self) -> None:
+        while not (self.draining() or (self.closing.is_set() and self._queue.empty())):
             try:
                 picture = self._queue.get(timeout=0.1)
             except queue.Empty:
                 continue
-            if self._closing.is_set() and time.monotonic() >= self._drain_until:
+            if self.draining():
                 self._counters.rollout_frames_dropped += 1
-                return
+                break
             try:
                 self._write(picture)
                 self._counters.rollout_frames_kept += 1
@@ -167,6 +144,10 @@ class RolloutFrames:
                 self._counters.rollout_frames_dropped += 1
                 log.warning("rollout frames: %s/%s.jpg not kept: %s: %s", picture.folder, picture.name,
                             type(exc).__name__, str(exc)[:200])
+        left = self._queue.qsize()
+        if left:
+            self._counters.rollout_frames_dropped += left
+            log.warning("rollout frames: %d pictures not kept (the writer was behind at the stop)", left)
 
     def _write(self, picture: _Picture) -> None:
         import cv2

@@ -37,6 +37,8 @@ from typing import Any, Protocol
 
 from armnet_core.cell_record import SERVO_TRACE
 
+from .record_writer import RecordWriter
+
 log = logging.getLogger(__name__)
 
 #: Seconds between parts in a job's first hour: what a connector that dies can lose at most. The
@@ -50,6 +52,10 @@ MAX_BYTES = 1024**3
 MAX_PENDING = 200_000
 #: How long ``stop`` writes what is still pending (the job has ended: the upload follows).
 DRAIN_S = 3.0
+#: Seconds between the writer's turns of pending entries into Arrow batches (a part gathers several).
+GATHER_S = 1.0
+#: Room for events past ``MAX_PENDING``: clamps, trips and verdicts are kept when positions are dropped.
+EVENT_ROOM = 10_000
 #: A detail longer than this is cut (a refusal's reason; the safety report keeps the whole first ones).
 MAX_DETAIL_CHARS = 300
 FOLDER = SERVO_TRACE
@@ -57,11 +63,13 @@ FOLDER = SERVO_TRACE
 #: The bus methods whose calls carry positions (``trace_call``).
 TRACED_METHODS = frozenset({"sync_read", "sync_write", "write"})
 PRESENT = "present_position"
+#: The connector's stop (its own ``shutdown`` latch of the interlock): where the job's record ends.
+JOB_END = "job_end"
 GOAL = "goal_position"
 #: Every kind of row, for readers: positions, then the connector's events.
 KINDS = (
     PRESENT, GOAL, "clamp", "refusal", "interlock_trip", "reset_begin", "reset_end",
-    "rollout_begin", "rollout_end", "monitor_verdict", "operator_verdict",
+    "rollout_begin", "rollout_end", "monitor_verdict", "operator_verdict", JOB_END,
 )
 
 
@@ -70,37 +78,28 @@ class TraceCounters(Protocol):
     trace_rows_dropped: int
 
 
-class ServoTrace:
-    """``positions``/``event`` from the connector's threads; ``start``/``stop`` with the connector."""
+class ServoTrace(RecordWriter):
+    """``positions``/``event`` from the connector's threads; ``start``/``stop`` with the connector
+    (``record_writer``: the stop writes what is pending within its drain time)."""
+
+    thread_name = "armnet-servo-trace"
+    default_drain_s = DRAIN_S
 
     def __init__(self, directory: Path, counters: TraceCounters) -> None:
         """``directory``: the cell's record of the job; the parts go to its ``servo-trace/``."""
+        super().__init__()
         self.directory = directory / FOLDER
         self._counters = counters
-        #: Tagged tuples: ("p", time, kind, arm, values, normalized) or ("e", time, kind, arm, motor, value, rollout, detail).
+        #: Tagged tuples: ("p", time, kind, arm, values, normalized) or
+        #: ("e", time, kind, arm, motor, value, units, rollout, detail).
         self._pending: deque[tuple[Any, ...]] = deque()
         self._dropped = 0
         self._drop_lock = threading.Lock()
-        self._closing = threading.Event()
+        #: What the writer gathered since the last part: Arrow batches, one per ``GATHER_S``.
+        self._batches: list[Any] = []
         self._parts = 0
         self._bytes = 0
         self._full = False
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> ServoTrace:
-        self._thread = threading.Thread(target=self._write_all, name="armnet-servo-trace", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self, drain_s: float = DRAIN_S) -> None:
-        """Write what is pending (within ``drain_s``), then stop; bounded, whatever the writer does."""
-        thread, self._thread = self._thread, None
-        if thread is None:
-            return
-        self._closing.set()
-        thread.join(max(drain_s, 0.0))
-        if thread.is_alive():
-            log.warning("servo trace: the last part was not written within %.1f s of the stop", drain_s)
 
     # -- the connector's threads ---------------------------------------------------------
 
@@ -113,15 +112,19 @@ class ServoTrace:
 
     def event(
         self, kind: str, *, arm: str | None = None, motor: str | None = None, value: float | None = None,
-        rollout: int | None = None, detail: str | None = None,
+        units: str | None = None, rollout: int | None = None, detail: str | None = None,
     ) -> None:
-        """One event of the connector's (a clamp, a trip, a reset, a rollout, a verdict)."""
-        if len(self._pending) >= MAX_PENDING:
+        """One event of the connector's (a clamp, a trip, a reset, a rollout, a verdict).
+
+        Events have room of their own past ``MAX_PENDING`` (``EVENT_ROOM``): a job flooding the
+        bus does not push its clamps and trips out of the trace.
+        """
+        if len(self._pending) >= MAX_PENDING + EVENT_ROOM:
             self._drop(1)
             return
         if detail is not None and len(detail) > MAX_DETAIL_CHARS:
             detail = detail[:MAX_DETAIL_CHARS]
-        self._pending.append(("e", time.time(), kind, arm, motor, value, rollout, detail))
+        self._pending.append(("e", time.time(), kind, arm, motor, value, units, rollout, detail))
 
     def _drop(self, rows: int) -> None:
         with self._drop_lock:
@@ -129,13 +132,21 @@ class ServoTrace:
 
     # -- the writer's thread --------------------------------------------------------------
 
-    def _write_all(self) -> None:
-        started = time.monotonic()
-        while not self._closing.wait(part_period_s(time.monotonic() - started)):
-            self._write_part()
+    def _run(self) -> None:
+        # Arrow's first array imports pandas (seconds on a loaded host; in a connector LeRobot's modules
+        # usually have): here, at the start, off the job's path, not at the first part.
+        _batch(_columns([]))
+        started = last_part = time.monotonic()
+        while not self.closing.wait(GATHER_S):
+            self._gather()  # small steps: the conversion never holds the interpreter for long
+            if time.monotonic() - last_part >= part_period_s(time.monotonic() - started):
+                self._write_part()
+                last_part = time.monotonic()
+        self._gather()
         self._write_part()  # the stop: what the job's last calls left
 
-    def _write_part(self) -> None:
+    def _gather(self) -> None:
+        """Turn what is pending into an Arrow batch (kept until the next part)."""
         pending = self._pending
         items = [pending.popleft() for _ in range(len(pending))]
         with self._drop_lock:
@@ -145,8 +156,17 @@ class ServoTrace:
             log.warning("servo trace: %d rows not kept (the writer was behind)", dropped)
         if not items:
             return
-        columns = _columns(items)
-        rows = len(columns["time"])
+        try:
+            self._batches.append(_batch(_columns(items)))
+        except Exception as exc:  # noqa: BLE001 — rows lost are counted; the trace goes on
+            self._counters.trace_rows_dropped += len(items)
+            log.warning("servo trace: %d entries not kept: %s: %s", len(items), type(exc).__name__, str(exc)[:200])
+
+    def _write_part(self) -> None:
+        batches, self._batches = self._batches, []
+        rows = sum(batch.num_rows for batch in batches)
+        if not rows:
+            return
         if self._bytes >= MAX_BYTES:
             self._counters.trace_rows_dropped += rows
             if not self._full:
@@ -156,7 +176,7 @@ class ServoTrace:
             return
         try:
             self._parts += 1
-            self._bytes += self._write_table(columns, self._parts)
+            self._bytes += self._write_table(batches, self._parts)
         except Exception as exc:  # noqa: BLE001 — a part lost is counted; the job goes on
             self._counters.trace_rows_dropped += rows
             log.warning("servo trace: part %d (%d rows) not kept: %s: %s", self._parts, rows,
@@ -164,25 +184,15 @@ class ServoTrace:
             return
         self._counters.trace_rows_written += rows
 
-    def _write_table(self, columns: dict[str, list[Any]], number: int) -> int:
+    def _write_table(self, batches: list[Any], number: int) -> int:
         """Write part ``number``; its size in bytes."""
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        table = pa.table({
-            "time": pa.array(columns["time"], pa.timestamp("us", tz="UTC")),
-            "kind": pa.array(columns["kind"], pa.string()).dictionary_encode(),
-            "arm": pa.array(columns["arm"], pa.string()),
-            "motor": pa.array(columns["motor"], pa.string()),
-            "value": pa.array(columns["value"], pa.float64()),
-            "units": pa.array(columns["units"], pa.string()),
-            "rollout": pa.array(columns["rollout"], pa.int64()),
-            "detail": pa.array(columns["detail"], pa.string()),
-        })
         self.directory.mkdir(parents=True, exist_ok=True)
         name = f"part-{number:06d}.parquet"
         partial = self.directory / f".{name}.partial"
-        pq.write_table(table, partial, compression="zstd")
+        pq.write_table(pa.Table.from_batches(batches), partial, compression="zstd")
         size = partial.stat().st_size
         os.replace(partial, self.directory / name)  # the upload never takes a half-written part
         return size
@@ -201,7 +211,7 @@ def _columns(items: list[tuple[Any, ...]]) -> dict[str, list[Any]]:
     for item in items:
         if item[0] == "p":
             _tag, at, kind, arm, values, normalized = item
-            units = "normalized" if normalized else "raw"
+            units = _units(normalized)
             stamp = int(at * 1e6)
             for motor, value in values.items():
                 time_.append(stamp)
@@ -213,16 +223,36 @@ def _columns(items: list[tuple[Any, ...]]) -> dict[str, list[Any]]:
                 rollout_.append(None)
                 detail_.append(None)
         else:
-            _tag, at, kind, arm, motor, value, rollout, detail = item
+            _tag, at, kind, arm, motor, value, units, rollout, detail = item
             time_.append(int(at * 1e6))
             kind_.append(kind)
             arm_.append(arm)
             motor_.append(motor)
             value_.append(_number(value))
-            units_.append(None)
+            units_.append(units)
             rollout_.append(rollout)
             detail_.append(detail)
     return columns
+
+
+def _batch(columns: dict[str, list[Any]]) -> Any:
+    """The columns as an Arrow record batch of the trace's schema."""
+    import pyarrow as pa
+
+    return pa.RecordBatch.from_arrays([pa.array(columns[name], kind) for name, kind in _schema()],
+                                      names=[name for name, _kind in _schema()])
+
+
+def _schema() -> list[tuple[str, Any]]:
+    import pyarrow as pa
+
+    return [("time", pa.timestamp("us", tz="UTC")), ("kind", pa.string()), ("arm", pa.string()),
+            ("motor", pa.string()), ("value", pa.float64()), ("units", pa.string()), ("rollout", pa.int64()),
+            ("detail", pa.string())]
+
+
+def _units(normalized: bool) -> str:
+    return "normalized" if normalized else "raw"
 
 
 def _number(value: Any) -> float | None:
@@ -251,7 +281,8 @@ def trace_call(trace: ServoTrace, arm: str, method: str, args: list[Any], kwargs
             if isinstance(values, dict):
                 trace.positions(GOAL, arm, values, normalized)
             elif values is not None:
-                trace.event(GOAL, arm=arm, motor=None, value=_number(values), detail="every motor")
+                trace.event(GOAL, arm=arm, motor=None, value=_number(values), units=_units(normalized),
+                            detail="every motor")
         elif method == "write":
             motor = args[1] if len(args) > 1 else kwargs.get("motor")
             value = args[2] if len(args) > 2 else kwargs.get("value")

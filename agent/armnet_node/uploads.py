@@ -35,6 +35,7 @@ from typing import Any
 
 from armnet_core.api import TERMINAL_PHASES
 from armnet_core.backoff import Backoff, BackoffPolicy
+from armnet_core.output_keys import job_prefix
 
 from armnet_node.artifacts import (
     ObjectStore,
@@ -45,7 +46,6 @@ from armnet_node.artifacts import (
     summary,
     upload_output,
 )
-from armnet_node.artifacts.keys import job_prefix
 from armnet_node.kube import AgentKube, Gone, KubeError
 from armnet_node.metrics import AgentMetrics
 from armnet_node.plan import HostPaths

@@ -213,9 +213,11 @@ def build_app(state: FleetState, bus: OperatorBus, settings: auth.AuthSettings, 
             return JSONResponse({"error": found}, status_code=404)
         metrics.videos.labels("served").inc()
         name = _SAFE_FILE.sub("_", f"{found.job.name}-{found.camera}")
-        return StreamingResponse(iterate_in_threadpool(found.chunks), media_type="video/mp4", headers={
-            "Content-Length": str(found.length), "Content-Disposition": f'inline; filename="{name}.mp4"',
-            "X-Armnet-Job": f"{found.job.namespace}/{found.job.name}", "Cache-Control": "no-store"})
+        headers = {"Content-Disposition": f'inline; filename="{name}.mp4"',
+                   "X-Armnet-Job": f"{found.job.namespace}/{found.job.name}", "Cache-Control": "no-store"}
+        if found.length is not None:
+            headers["Content-Length"] = str(found.length)
+        return StreamingResponse(iterate_in_threadpool(found.chunks), media_type="video/mp4", headers=headers)
 
     async def cell_telemetry(request: Request) -> Response:
         return JSONResponse(store.view(request.path_params["name"], clock()))

@@ -14,6 +14,8 @@ does the reads. Nothing in a manifest is trusted beyond picking a key under the 
 from __future__ import annotations
 
 import json
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -21,11 +23,10 @@ from typing import Any
 from armnet_core.api import ArtifactsPhase
 from armnet_core.cell_record import cell_video_camera
 from armnet_core.lenient import read_leniently
-from armnet_core.object_store import StoreConfig, s3_client, split_s3_location
+from armnet_core.object_store import StoreConfig, s3_client
+from armnet_core.output_keys import MANIFEST_NAME, MAX_MANIFEST_BYTES, job_prefix
 from armnet_core.resources import Metadata, RobotJobStatus
 
-#: A manifest larger than this is not read (10,000 files of long names are ~3 MB).
-MAX_MANIFEST_BYTES = 32 * 1024 * 1024
 CHUNK = 1 << 20
 
 
@@ -35,10 +36,10 @@ class StoredJob:
 
     namespace: str
     name: str
+    uid: str
     finished_at: float
-    #: ``s3://bucket/<namespace>/<uid>/`` and its ``manifest.json``, as the job's status says.
+    #: ``s3://bucket/<namespace>/<uid>/``, as the job's status says (checked against the job's own prefix).
     location: str
-    manifest: str
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,8 @@ class OpenVideo:
 
     job: StoredJob
     camera: str
-    length: int
+    #: Its size in bytes, as the store says (None: it did not).
+    length: int | None
     chunks: Iterator[bytes]
 
 
@@ -70,15 +72,18 @@ def last_stored_job(jobs: Iterable[Mapping[str, Any]], cell: str) -> StoredJob |
         if stored is None or stored.phase != ArtifactsPhase.UPLOADED or not stored.location or not stored.manifest:
             continue
         meta = read_leniently(Metadata, job.get("metadata")) or Metadata()
-        candidate = StoredJob(meta.namespace or "", meta.name, status.finished_at.timestamp(), stored.location,
-                              stored.manifest)
+        candidate = StoredJob(meta.namespace or "", meta.name, meta.uid or "", status.finished_at.timestamp(),
+                              stored.location)
         if best is None or candidate.finished_at > best.finished_at:
             best = candidate
     return best
 
 
 def video_in_manifest(manifest: bytes, prefix: str, camera: str | None = None) -> CameraVideo | None:
-    """The video of ``camera`` (None: the first camera by name) the manifest lists under the job's ``prefix``."""
+    """The video of ``camera`` (None: the first camera by name) the manifest lists under the job's ``prefix``
+    (a non-empty ``<namespace>/<uid>/``: no key elsewhere is taken)."""
+    if not prefix.endswith("/") or prefix == "/":
+        return None
     try:
         files = json.loads(manifest).get("files")
     except (ValueError, AttributeError):
@@ -99,30 +104,63 @@ def video_in_manifest(manifest: bytes, prefix: str, camera: str | None = None) -
 
 
 class CellVideos:
-    """Reads the last job's video of a cell from the store, with the FMS's keys (blocking: call it in a thread)."""
+    """Reads the last job's video of a cell from the store, with the FMS's keys (blocking: call it in a thread).
 
-    def __init__(self, config: StoreConfig, list_jobs: Callable[[], list[dict[str, Any]]]) -> None:
+    Only the configured bucket, and only below the job's own prefix (``<namespace>/<uid>/``, from the
+    job's metadata): a status that names another place is not followed. The RobotJobs are listed at
+    most once every ``JOBS_TTL_S`` (the list is cluster-wide; a page reloaded in a loop must not
+    become a load on the API server).
+    """
+
+    JOBS_TTL_S = 5.0
+
+    def __init__(self, config: StoreConfig, list_jobs: Callable[[], list[dict[str, Any]]],
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._bucket = config.bucket
         self._s3 = s3_client(config, max_attempts=3, connect_timeout=5, read_timeout=30)
         self._list_jobs = list_jobs
+        self._clock = clock
+        self._jobs: tuple[float, list[dict[str, Any]]] | None = None
+        self._lock = threading.Lock()
+
+    def _listed_jobs(self) -> list[dict[str, Any]]:
+        with self._lock:
+            if self._jobs is None or self._clock() - self._jobs[0] > self.JOBS_TTL_S:
+                self._jobs = (self._clock(), self._list_jobs())
+            return self._jobs[1]
 
     def open_last(self, cell: str, camera: str | None = None) -> OpenVideo | str:
         """The video, or why there is none (a sentence for the operator)."""
-        job = last_stored_job(self._list_jobs(), cell)
+        job = last_stored_job(self._listed_jobs(), cell)
         if job is None:
             return f"no ended job on cell {cell} has its output stored yet"
-        manifest_at, output_at = split_s3_location(job.manifest), split_s3_location(job.location)
-        if manifest_at is None or output_at is None or manifest_at[0] != output_at[0]:
-            return f"robotjob {job.namespace}/{job.name}'s status.artifacts does not say where its output is"
-        bucket, prefix = output_at
-        body = self._s3.get_object(Bucket=bucket, Key=manifest_at[1])["Body"]
-        manifest = body.read(MAX_MANIFEST_BYTES + 1)
+        try:
+            prefix = job_prefix(job.namespace, job.uid)
+        except ValueError:
+            prefix = ""
+        if not prefix or job.location != f"s3://{self._bucket}/{prefix}":
+            return (f"robotjob {job.namespace}/{job.name}'s output is not where this FMS reads "
+                    f"(s3://{self._bucket}/<namespace>/<uid>/): no video")
+        body = self._s3.get_object(Bucket=self._bucket, Key=prefix + MANIFEST_NAME)["Body"]
+        try:
+            manifest = body.read(MAX_MANIFEST_BYTES + 1)
+        finally:
+            body.close()
         if len(manifest) > MAX_MANIFEST_BYTES:
             return f"robotjob {job.namespace}/{job.name}'s manifest is larger than {MAX_MANIFEST_BYTES} bytes"
         video = video_in_manifest(manifest, prefix, camera)
         if video is None:
             which = f"camera {camera}" if camera else "a camera"
             return f"robotjob {job.namespace}/{job.name} (the last on cell {cell}) used no {which}: no video"
-        stored = self._s3.get_object(Bucket=bucket, Key=video.key)
-        stream = stored["Body"]
-        return OpenVideo(job, video.camera, int(stored.get("ContentLength") or 0),
-                         iter(lambda: bytes(stream.read(CHUNK)), b""))
+        stored = self._s3.get_object(Bucket=self._bucket, Key=video.key)
+        length = stored.get("ContentLength")
+        return OpenVideo(job, video.camera, length if isinstance(length, int) else None, _chunks(stored["Body"]))
+
+
+def _chunks(body: Any) -> Iterator[bytes]:
+    """The object's bytes; the connection goes back whether the browser read it all or left."""
+    try:
+        while chunk := body.read(CHUNK):
+            yield bytes(chunk)
+    finally:
+        body.close()

@@ -12,10 +12,10 @@ job's namespace and uid, in the bucket the operator was given.
 
 from __future__ import annotations
 
-import re
 from datetime import datetime, timedelta
 
 from armnet_core.api import ArtifactsPhase
+from armnet_core.output_keys import job_prefix
 
 from .model import Job
 
@@ -27,9 +27,6 @@ UPLOAD_START_WAIT = timedelta(minutes=10)
 #: gone for good, or a store that refuses for ever, never settles it.
 UPLOAD_SETTLE_CAP = timedelta(hours=24)
 
-#: Kubernetes' syntax of a namespace and a uid: a prefix built from them never reaches another's objects.
-_NAMESPACE = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
-_UID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9-]{0,127}$")
 
 
 def outputs_prefix(job: Job, bucket: str | None) -> str | None:
@@ -37,9 +34,10 @@ def outputs_prefix(job: Job, bucket: str | None) -> str | None:
     or a location that is not this job's own prefix in this bucket."""
     if bucket is None or job.keep_artifacts or not job.artifacts_location:
         return None
-    if not (_NAMESPACE.match(job.namespace) and _UID.match(job.uid)):
+    try:
+        prefix = job_prefix(job.namespace, job.uid)
+    except ValueError:
         return None
-    prefix = f"{job.namespace}/{job.uid}/"
     return prefix if job.artifacts_location == f"s3://{bucket}/{prefix}" else None
 
 

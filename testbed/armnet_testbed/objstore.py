@@ -66,8 +66,9 @@ class Reader:
 
     @property
     def action(self) -> str:
-        """SeaweedFS's grant: ``Read`` on every key below the namespace's prefix (the agent's layout)."""
-        return f"Read:{self.bucket}/{self.namespace}/*"
+        """SeaweedFS's grant: ``Read`` on every key below the namespace's prefix (the agent's layout), or
+        on the whole bucket when the namespace is empty (the FMS's keys)."""
+        return f"Read:{self.bucket}/{self.namespace}/*" if self.namespace else f"Read:{self.bucket}"
 
     def env(self) -> dict[str, str]:
         """What the tenant exports for ``armnet artifacts`` (boto3's credential chain)."""
@@ -77,7 +78,8 @@ class Reader:
 class SeaweedS3:
     """SeaweedFS with its S3 gateway; ``endpoint`` is ``http://127.0.0.1:<port>``.
 
-    ``readers`` maps a reader's name to the (bucket, namespace) whose outputs it may read.
+    ``readers`` maps a reader's name to the (bucket, namespace) whose outputs it may read (namespace
+    ``""``: the whole bucket).
     """
 
     def __init__(self, workdir: Path | None = None, readers: Mapping[str, tuple[str, str]] | None = None) -> None:
@@ -96,7 +98,7 @@ class SeaweedS3:
         self._proc: ManagedProcess | None = None
         self.readers: dict[str, Reader] = {}
         for name, (bucket, namespace) in (readers or {}).items():
-            if not (_BUCKET.match(bucket) and _NAMESPACE.match(namespace)):
+            if not (_BUCKET.match(bucket) and (namespace == "" or _NAMESPACE.match(namespace))):
                 raise ValueError(f"reader {name!r}: {bucket!r}/{namespace!r} is not a bucket and a namespace")
             self.readers[name] = Reader(name, bucket, namespace, f"reader-{secrets.token_hex(8)}",
                                         secrets.token_hex(20))
@@ -164,6 +166,14 @@ class SeaweedS3:
                           request_checksum_calculation="when_required",
                           response_checksum_validation="when_required"),
         )
+
+    def reader_env(self, reader: str) -> dict[str, str]:
+        """A service's env for reading job outputs with ``reader``'s keys (the FMS's, say)."""
+        from armnet_core import api
+
+        keys = self.readers[reader]
+        return {**self.agent_env(keys.bucket), api.ARTIFACTS_ACCESS_KEY_ENV: keys.access_key,
+                api.ARTIFACTS_SECRET_KEY_ENV: keys.secret_key}
 
     def agent_env(self, bucket: str) -> dict[str, str]:
         """The node agent's env for storing job outputs in ``bucket`` here (docs/outputs.md)."""

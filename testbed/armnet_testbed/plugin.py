@@ -113,11 +113,14 @@ def nats_server(nats_service: NatsServer) -> str:
 #: identities are fixed when it starts, and a store of their own cost those tests ~27 s (start and stop).
 TENANT_KEYS_BUCKET = "tenant-outputs"
 TENANT_KEYS_NAMESPACES = ("tenant-keys-a", "tenant-keys-b")
+#: A read-only identity for the whole of one bucket: the FMS's keys (tests/integration/test_fms_last_video.py).
+FMS_READER, FMS_VIDEO_BUCKET = "fms-reader", "fms-videos"
 
 
 @pytest.fixture(scope="session")
 def object_store(request: pytest.FixtureRequest) -> Iterator[SeaweedS3]:
-    server = SeaweedS3(readers={ns: (TENANT_KEYS_BUCKET, ns) for ns in TENANT_KEYS_NAMESPACES})
+    server = SeaweedS3(readers={**{ns: (TENANT_KEYS_BUCKET, ns) for ns in TENANT_KEYS_NAMESPACES},
+                                FMS_READER: (FMS_VIDEO_BUCKET, "")})
     _start("SeaweedFS S3 object store", server.start, request)
     try:
         yield server

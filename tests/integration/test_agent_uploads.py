@@ -171,7 +171,7 @@ from pathlib import Path
 from armnet_node.artifacts import ObjectStore, StoreConfig
 from armnet_node.artifacts.scan import scan_output
 from armnet_node.artifacts.model import OutputLimits
-from armnet_node.artifacts.keys import job_prefix
+from armnet_core.output_keys import job_prefix
 from armnet_node.artifacts.upload import upload_scan
 
 root, namespace, uid, hold_after = Path(sys.argv[1]), sys.argv[2], sys.argv[3], int(sys.argv[4])

@@ -132,7 +132,7 @@ def test_armnet_view_plays_the_cell_s_video_of_the_job_in_step_with_its_clock(
     recording = rerun.dataframe.load_recording(str(out))
     table = recording.view(index="time", contents="/armnet-cell/video/front").select().read_all()
     times = [t.timestamp() for t in table.column("time").to_pylist()]
-    assert len(times) == 12 and times[0] == pytest.approx(first, abs=1e-3)
+    assert len(times) == 12 and times[0] == pytest.approx(first, abs=0.05)
     assert times[-1] - times[0] == pytest.approx(1.1, abs=0.01)  # the frames' own spacing, 0.1 s
     static = recording.view(index=None, contents="/armnet-cell/video/front").select().read_all()  # the asset
     blob = next(c for c in static.column_names if c.endswith("AssetVideo:blob"))

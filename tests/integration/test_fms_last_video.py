@@ -13,6 +13,7 @@ import httpx
 import pytest
 from armnet_core.times import kube_time
 from armnet_testbed.objstore import SeaweedS3
+from armnet_testbed.plugin import FMS_READER, FMS_VIDEO_BUCKET
 
 from tests.support.fms_objects import a_cell, apply, grant_fms
 from tests.support.fms_server import TOKEN, FmsServer
@@ -23,14 +24,15 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
 @pytest.fixture(scope="module")
 def bucket(object_store: SeaweedS3) -> str:
-    return object_store.create_bucket(f"fms-{uuid.uuid4().hex[:8]}")
+    return str(object_store.create_bucket(FMS_VIDEO_BUCKET))
 
 
 @pytest.fixture(scope="module")
 def fms(k8s: Any, nats_server: str, object_store: SeaweedS3, bucket: str) -> Iterator[FmsServer]:
+    """The FMS with least privilege on the apiserver and read-only keys to the whole bucket (the chart's)."""
     user = k8s.user("armnet-fms-video", groups=())
     grant_fms(k8s, "armnet-fms-video")
-    server = FmsServer(user.kubeconfig, nats_server, env=object_store.agent_env(bucket))
+    server = FmsServer(user.kubeconfig, nats_server, env=object_store.reader_env(FMS_READER))
     yield server
     server.stop()
 
@@ -67,6 +69,25 @@ def test_the_cell_page_streams_the_video_of_the_job_that_ended_last_on_the_cell(
     assert f'filename="{newer}-wrist.mp4"' in reply.headers["content-disposition"]
     missing = http.get(f"/api/cells/{cell}/last-video.mp4", params={"camera": "front"})
     assert missing.status_code == 404 and "used no camera front" in missing.json()["error"]
+
+
+def test_a_status_naming_another_place_in_the_bucket_is_not_followed(
+    k8s: Any, namespace: str, object_store: SeaweedS3, bucket: str, http: httpx.Client, tmp_path: Path,
+) -> None:
+    from tests.support.fms_objects import patch_status
+
+    cell = f"vid-{uuid.uuid4().hex[:6]}"
+    apply(k8s, a_cell(cell))
+    a_cell_record_with_a_video(tmp_path / "rec", frames=3)
+    _, _, victim = stored_job(k8s, namespace, object_store, tmp_path, {}, record=tmp_path / "rec", bucket=bucket,
+                              status=ended_on(f"{cell}-victim", 10))
+    forger, _, _ = stored_job(k8s, namespace, object_store, tmp_path, {}, bucket=bucket, status=ended_on(cell, 1))
+    # The job's status (a tenant cannot write it, but the FMS must not depend on that) points at another job's output.
+    patch_status(k8s, "job", forger, {"artifacts": {"phase": "Uploaded", "location": f"s3://{bucket}/{namespace}/{victim}/",
+                                                    "manifest": f"s3://{bucket}/{namespace}/{victim}/manifest.json"}},
+                 namespace)
+    reply = http.get(f"/api/cells/{cell}/last-video.mp4")
+    assert reply.status_code == 404 and "is not where this FMS reads" in reply.json()["error"], reply.text
 
 
 def test_a_cell_whose_jobs_stored_nothing_says_so(k8s: Any, http: httpx.Client) -> None:

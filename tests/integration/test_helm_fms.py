@@ -394,11 +394,13 @@ def test_an_upgrade_keeps_the_generated_session_key_and_takes_the_new_operators(
     assert after["operators"] == f"{TOKENS[0]['name']}:{TOKENS[0]['token']}\n"
 
 
-def test_the_fms_gets_read_keys_to_the_outputs_bucket_for_the_last_job_s_video() -> None:
-    bucket = {"bucket": "outputs", "endpoint": "http://s3.lab:8333", "credentialsSecret": "agent-keys"}
-    assert "ARMNET_ARTIFACTS_BUCKET" not in env_of(render(values=ENABLED))  # no bucket: no video link
-    for extra, secret in (({}, "agent-keys"), ({"operatorCredentialsSecret": "ops-keys"}, "ops-keys"),
-                          ({"operatorCredentialsSecret": "ops-keys", "fmsCredentialsSecret": "fms-keys"}, "fms-keys")):
-        env = env_of(render(values={**ENABLED, "artifacts": {**bucket, **extra}}))
-        assert (env["ARMNET_ARTIFACTS_BUCKET"], env["ARMNET_ARTIFACTS_ENDPOINT"]) == ("outputs", "http://s3.lab:8333")
-        assert env["ARMNET_ARTIFACTS_ACCESS_KEY_ID"] == {"secretKeyRef": {"name": secret, "key": "accessKeyId"}}
+def test_the_fms_gets_read_keys_to_the_outputs_bucket_only_from_its_own_secret() -> None:
+    bucket = {"bucket": "outputs", "endpoint": "http://s3.lab:8333", "credentialsSecret": "agent-keys",
+              "operatorCredentialsSecret": "ops-keys"}
+    # Never the agent's (write) or the operator's (delete) keys: without its own, no video link.
+    assert "ARMNET_ARTIFACTS_BUCKET" not in env_of(render(values={**ENABLED, "artifacts": bucket}))
+    env = env_of(render(values={**ENABLED, "artifacts": {**bucket, "fmsCredentialsSecret": "fms-read-keys"}}))
+    assert (env["ARMNET_ARTIFACTS_BUCKET"], env["ARMNET_ARTIFACTS_ENDPOINT"]) == ("outputs", "http://s3.lab:8333")
+    assert env["ARMNET_ARTIFACTS_ACCESS_KEY_ID"] == {"secretKeyRef": {"name": "fms-read-keys", "key": "accessKeyId"}}
+    assert env["ARMNET_ARTIFACTS_SECRET_ACCESS_KEY"] == {
+        "secretKeyRef": {"name": "fms-read-keys", "key": "secretAccessKey"}}

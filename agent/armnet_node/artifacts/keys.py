@@ -16,9 +16,10 @@ import json
 import re
 from collections.abc import Iterable, Sequence
 
+from armnet_core.output_keys import MANIFEST_NAME
+
 from armnet_node.artifacts.model import Artifact, Refused
 
-MANIFEST_NAME = "manifest.json"
 FILES_DIR = "files"
 MANIFEST_VERSION = 1
 #: S3 refuses keys over 1024 bytes (UTF-8).
@@ -28,18 +29,7 @@ SHA256_METADATA = "sha256"
 #: At most this many refused entries are named in the manifest (the rest are counted).
 MAX_REFUSED_LISTED = 200
 
-_NAMESPACE = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
-_UID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9-]{0,127}$")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
-
-
-def job_prefix(namespace: str, job_uid: str) -> str:
-    """``<namespace>/<job uid>/``; a namespace or uid outside Kubernetes' syntax is a ValueError."""
-    if not _NAMESPACE.match(namespace):
-        raise ValueError(f"{namespace!r} is not a Kubernetes namespace name")
-    if not _UID.match(job_uid):
-        raise ValueError(f"{job_uid!r} is not a Kubernetes uid")
-    return f"{namespace}/{job_uid}/"
 
 
 def manifest_key(prefix: str) -> str:

@@ -23,6 +23,8 @@ from armnet_node.artifacts.model import LocalFile, OutputLimits, OutputTooLarge,
 LINK_OUT = "a symbolic link that leads out of the output directory (not followed)"
 LINK_TO_DIRECTORY = "a symbolic link to a directory (not followed)"
 NOT_A_FILE = "not a regular file (a FIFO, socket or device)"
+#: The connector writes each file of the record under ``.<name>.partial`` and renames it whole.
+PARTIAL_SUFFIX = ".partial"
 RESERVED = "a name reserved for the cell's record of the job (armnet-cell/): rename it"
 
 
@@ -31,25 +33,29 @@ def scan_job_output(output: Path | None, record: Path | None, limits: OutputLimi
 
     The job's directory may not hold a top-level ``armnet-cell`` of its own (left out, with
     the reason): a job must not pass its files off as the cell's. Each is walked within
-    ``limits`` on its own (the record is the connector's, small and bounded). ``output`` None:
+    ``limits`` on its own (the record is the connector's, bounded by its writers: docs/connector.md;
+    a file it is still writing is not stored). ``output`` None:
     the record alone (the job's output was over the cap).
     """
     job = (scan_output(output, limits, prefix, reserved=frozenset({CELL_RECORD})) if output is not None
            else Scan(files=(), refused=()))
     if record is None:
         return job
-    cell = scan_output(record, limits, prefix, under=CELL_RECORD)
+    cell = scan_output(record, limits, prefix, under=CELL_RECORD, skip_partial=True)
     return Scan(files=tuple(sorted((*job.files, *cell.files), key=lambda f: f.path)),
                 refused=tuple(sorted((*job.refused, *cell.refused), key=lambda r: r.path)))
 
 
 def scan_output(root: Path, limits: OutputLimits, prefix: str = "", *, reserved: frozenset[str] = frozenset(),
-                under: str = "") -> Scan:
+                under: str = "", skip_partial: bool = False) -> Scan:
     """The files under ``root`` to upload and the entries left out; :class:`OutputTooLarge` over a cap.
 
     ``prefix`` is the job's key prefix, for the key-length check. A missing ``root``
     (the job wrote nothing, or it was never created) is an empty scan. A top-level entry
     named in ``reserved`` is left out; ``under`` is put before every path found.
+    ``skip_partial``: files a writer is still writing under a temporary name
+    (``.<name>.partial``, the connector's) are not stored, silently: the whole file is,
+    once renamed.
     """
     try:
         top = root.resolve(strict=True)
@@ -71,6 +77,8 @@ def scan_output(root: Path, limits: OutputLimits, prefix: str = "", *, reserved:
                         "directories and links); nothing was uploaded. Write fewer, larger files (an archive, "
                         "a dataset's own chunked format) or ask the cell's operator for a higher cap"
                     )
+                if skip_partial and entry.name.startswith(".") and entry.name.endswith(PARTIAL_SUFFIX):
+                    continue
                 path = f"{rel_dir}/{entry.name}" if rel_dir else entry.name
                 # Case-blind: a download onto a case-insensitive disk would merge Armnet-Cell/ into armnet-cell/.
                 why = (RESERVED if rel_dir == under and entry.name.casefold() in reserved

@@ -21,11 +21,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
+from armnet_core.output_keys import job_prefix
+
 from armnet_node.artifacts.keys import (
     already_stored,
     build_manifest,
     files_prefix,
-    job_prefix,
     manifest_key,
     object_key,
 )

@@ -26,15 +26,13 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Optional
 
 from armnet_core.api import ARTIFACTS_ENDPOINT_ENV, ARTIFACTS_REGION_ENV
-from armnet_core.object_store import split_s3_location
+from armnet_core.output_keys import MAX_MANIFEST_BYTES, split_s3_location
 
 from .errors import ClientError
 
 logger = logging.getLogger(__name__)
 
 CHUNK = 1 << 20
-#: A manifest larger than this is not read (10,000 files of long names are ~3 MB).
-MAX_MANIFEST_BYTES = 32 * 1024 * 1024
 
 
 class ArtifactsError(ClientError):

@@ -2,7 +2,7 @@
 
 The connector keeps a video of each camera the job used in the cell's record of the job
 (``armnet-cell/videos/<camera>.mp4``, with ``<camera>.json`` saying when its first frame
-was taken: docs/outputs.md, "The cell's record"); the node agent stores it beside the
+reached the connector: docs/outputs.md, "The cell's record"); the node agent stores it beside the
 job's output. This module picks those files out of the output's manifest, downloads them
 (each checked against its SHA-256, as ``armnet artifacts`` does) and says where each
 video sits on the job's clock, so a viewer shows it beside the job's own Rerun data.
@@ -33,7 +33,7 @@ class CellVideo:
 
     camera: str
     path: Path
-    #: When its first frame was taken (seconds since the epoch); None when its info file is missing.
+    #: When its first frame reached the connector (seconds since the epoch); None: its info file is missing.
     first_frame_at: Optional[float]
 
 
@@ -49,6 +49,6 @@ def fetch_cell_videos(store: OutputStore, manifest: Manifest, destination: Path)
         info = local.with_suffix(VIDEO_INFO_SUFFIX)
         started = first_frame_at(info.read_bytes()[:MAX_VIDEO_INFO_BYTES]) if info.is_file() else None
         if started is None:
-            logger.warning("%s does not say when it began: it is shown from the start of the job's clock", stored.path)
+            logger.warning("%s does not say when it began: it plays on a timeline of its own ('video')", stored.path)
         found.append(CellVideo(str(cell_video_camera(stored.path)), local, started))
     return found

@@ -24,6 +24,8 @@ logger = logging.getLogger(__name__)
 
 #: Where the cell's videos of the job go in the recording: ``armnet-cell/video/<camera>``.
 CELL_VIDEO_ENTITY = "armnet-cell/video"
+#: The timeline of a video whose info file is missing (not known when it began on the job's clock).
+UNPLACED_VIDEO_TIMELINE = "video"
 
 @dataclass(frozen=True)
 class Replayed:
@@ -93,9 +95,11 @@ def _log_video(rr: Any, rec: Any, video: CellVideo) -> None:
     asset = rr.AssetVideo(path=str(video.path))
     rec.log(entity, asset, static=True)
     nanos = np.asarray(asset.read_frame_timestamps_nanos(), dtype=np.int64)
-    seconds = (video.first_frame_at or 0.0) + nanos / 1e9
-    rr.send_columns(entity, indexes=[rr.TimeColumn("time", timestamp=seconds)],
-                    columns=rr.VideoFrameReference.columns_nanos(nanos), recording=rec)
+    if video.first_frame_at is not None:
+        index = rr.TimeColumn("time", timestamp=video.first_frame_at + nanos / 1e9)
+    else:  # not known when it began: on a timeline of its own, from its first frame
+        index = rr.TimeColumn(UNPLACED_VIDEO_TIMELINE, duration=nanos / 1e9)
+    rr.send_columns(entity, indexes=[index], columns=rr.VideoFrameReference.columns_nanos(nanos), recording=rec)
 
 
 def _say_once(skipped: Skipped, said: set[str]) -> None:

@@ -31,7 +31,7 @@ def video_info(camera: str, first_frame_at: float, width: int, height: int) -> b
 
 
 def first_frame_at(info: bytes) -> float | None:
-    """When a video's first frame was taken, from its info file; None when the file does not say."""
+    """When a video's first frame reached the connector, from its info file; None when the file does not say."""
     try:
         value = json.loads(info).get("firstFrameAt")
     except (ValueError, AttributeError):

@@ -90,10 +90,3 @@ def s3_client(config: StoreConfig, *, max_attempts: int = 5, connect_timeout: fl
 
 __all__ = ["StoreConfig", "StoreSettingsError", "s3_client"]
 
-
-def split_s3_location(location: str) -> tuple[str, str] | None:
-    """``s3://bucket/key`` (a ``status.artifacts`` location or manifest) -> (bucket, key); None when it is not one."""
-    if not location.startswith("s3://"):
-        return None
-    bucket, slash, key = location[5:].partition("/")
-    return (bucket, key) if bucket and slash else None

@@ -6,11 +6,11 @@ import json
 import os
 
 import pytest
+from armnet_core.output_keys import job_prefix
 from armnet_node.artifacts.keys import (
     MAX_KEY_BYTES,
     already_stored,
     build_manifest,
-    job_prefix,
     manifest_key,
     name_refusal,
     object_key,

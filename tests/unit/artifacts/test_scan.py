@@ -106,11 +106,14 @@ def test_the_cell_s_record_is_stored_under_armnet_cell_and_a_job_cannot_pass_its
     from armnet_node.artifacts.scan import RESERVED, scan_job_output
 
     out = _tree(tmp_path / "out", {"data.parquet": b"d", "armnet-cell/rollouts.json": b"forged",
-                                   "deep/armnet-cell/x": b"fine below the top"})
-    record = _tree(tmp_path / "record", {"rollouts.json": b"{}", "rollouts/000001-t/first.jpg": b"j"})
+                                   "deep/armnet-cell/x": b"fine below the top", ".job.partial": b"the job's own"})
+    # A part the connector was still writing when the scan came (a connector killed mid-write): not stored.
+    record = _tree(tmp_path / "record", {"rollouts.json": b"{}", "rollouts/000001-t/first.jpg": b"j",
+                                         "servo-trace/.part-000002.parquet.partial": b"half"})
     scan = scan_job_output(out, record, OutputLimits())
     assert [f.path for f in scan.files] == [
-        "armnet-cell/rollouts.json", "armnet-cell/rollouts/000001-t/first.jpg", "data.parquet", "deep/armnet-cell/x"]
+        ".job.partial", "armnet-cell/rollouts.json", "armnet-cell/rollouts/000001-t/first.jpg", "data.parquet",
+        "deep/armnet-cell/x"]
     assert {f.path: f.source for f in scan.files}["armnet-cell/rollouts.json"] == (record / "rollouts.json").resolve()
     assert [(r.path, r.reason) for r in scan.refused] == [("armnet-cell", RESERVED)]
     # Without a record (no monitor, or a local run) the job's output alone, its armnet-cell still refused.

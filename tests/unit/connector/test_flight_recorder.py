@@ -13,10 +13,16 @@ import av
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from armnet_connector import Connector, ConnectorConfig, LocalOperatorInputs
+from armnet_connector import Connector, ConnectorConfig, LocalOperatorInputs, camera_video
 from armnet_runtime import Cell
 from armnet_runtime.lerobot.remote_camera import RemoteOpenCVCamera
 from armnet_sim import SimulatedCellProcess
+
+
+@pytest.fixture(autouse=True)
+def roomy_video_queue(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The encoder's queue holds every frame here: what the video keeps must not hang on the machine's load."""
+    monkeypatch.setattr(camera_video, "QUEUE_SIZE", 1000)
 
 
 @pytest.fixture
@@ -81,7 +87,7 @@ def test_the_trace_holds_what_the_job_read_and_wrote_and_what_the_connector_did(
     assert goals[0] == ("elbow_flex", pytest.approx(small["elbow_flex"]))
     # The goal the arm got is the clamped one, and the clamp says so.
     [clamp] = [r for r in rows if r["kind"] == "clamp"]
-    assert clamp["motor"] == "shoulder_pan" and clamp["arm"] == "arm"
+    assert (clamp["motor"], clamp["arm"], clamp["units"]) == ("shoulder_pan", "arm", "normalized")
     assert goals[1] == ("shoulder_pan", pytest.approx(clamp["value"]))
     assert abs(clamp["value"] - present["shoulder_pan"]) <= 30.0 + 1e-6
     kinds = [r["kind"] for r in rows if r["kind"] not in ("present_position", "goal_position")]
@@ -171,7 +177,8 @@ def test_the_host_reads_what_the_record_kept_and_dropped(connector: Connector, b
     bus.disconnect(disable_torque=False)
     connector.stop()
     counts = connector.cell_record_counts()
-    # One read of six motors, and the stop's own trip (``shutdown``: where the job's record ends).
+    # One read of six motors, and the stop's own latch of the interlock: where the job's record ends.
     assert counts["trace_rows"] == {"kept": 7, "dropped": 0}
+    assert trace_rows(connector.cell.servo_trace.directory.parent)[-1]["kind"] == "job_end"  # type: ignore[union-attr]
     assert counts["video_frames"] == {"kept": 0, "dropped": 0}
     assert set(counts) == {"trace_rows", "video_frames", "rollout_pictures"}
