@@ -4,7 +4,7 @@ against the real apiserver and a real store (SeaweedFS), over outputs the agent'
 from __future__ import annotations
 
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -18,6 +18,7 @@ from armnet_testbed.plugin import FMS_READER, FMS_VIDEO_BUCKET
 from tests.support.fms_objects import a_cell, apply, grant_fms
 from tests.support.fms_server import TOKEN, FmsServer
 from tests.support.stored_outputs import a_cell_record_with_a_video, stored_job
+from tests.support.waiting import wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -43,6 +44,18 @@ def http(fms: FmsServer) -> Iterator[httpx.Client]:
         yield client
 
 
+def last_video(http: httpx.Client, cell: str, expect: Callable[[httpx.Response], bool], **params: str) -> httpx.Response:
+    """The cell's last-job video once the FMS's list of jobs (read at most every 5 s) has the test's jobs."""
+    replies: list[httpx.Response] = []
+
+    def asked() -> bool:
+        replies.append(http.get(f"/api/cells/{cell}/last-video.mp4", params=params))
+        return expect(replies[-1])
+
+    wait_for(asked, timeout=30, what=f"the FMS's answer for cell {cell} to change", every=0.5)
+    return replies[-1]
+
+
 def ended_on(cell: str, minutes_ago: float) -> dict[str, Any]:
     return {"cellName": cell, "finishedAt": kube_time(datetime.now(UTC) - timedelta(minutes=minutes_ago))}
 
@@ -62,8 +75,7 @@ def test_the_cell_page_streams_the_video_of_the_job_that_ended_last_on_the_cell(
                status=ended_on(f"{cell}-other", 1))  # a later job, on another cell
 
     assert '<meta name="video" content="on">' in http.get(f"/cells/{cell}").text
-    reply = http.get(f"/api/cells/{cell}/last-video.mp4")
-    assert reply.status_code == 200, reply.text
+    reply = last_video(http, cell, lambda r: r.status_code == 200)
     assert reply.headers["content-type"] == "video/mp4" and reply.headers["x-armnet-job"] == f"{namespace}/{newer}"
     assert reply.content == (tmp_path / "newer" / "videos" / "wrist.mp4").read_bytes()
     assert f'filename="{newer}-wrist.mp4"' in reply.headers["content-disposition"]
@@ -86,8 +98,8 @@ def test_a_status_naming_another_place_in_the_bucket_is_not_followed(
     patch_status(k8s, "job", forger, {"artifacts": {"phase": "Uploaded", "location": f"s3://{bucket}/{namespace}/{victim}/",
                                                     "manifest": f"s3://{bucket}/{namespace}/{victim}/manifest.json"}},
                  namespace)
-    reply = http.get(f"/api/cells/{cell}/last-video.mp4")
-    assert reply.status_code == 404 and "is not where this FMS reads" in reply.json()["error"], reply.text
+    reply = last_video(http, cell, lambda r: "is not where this FMS reads" in r.text)
+    assert reply.status_code == 404, reply.text
 
 
 def test_a_cell_whose_jobs_stored_nothing_says_so(k8s: Any, http: httpx.Client) -> None:
