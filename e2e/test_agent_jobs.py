@@ -144,7 +144,11 @@ def batch(bed: AgentBed) -> dict[str, str]:
         # record()'s setup can take 90 s, leaving the job in SO101Follower.configure() at such a
         # deadline; at least one episode must finish before the cut.
         "recording-timeout": bed.submit("records-until-timeout", bed.image("records", EXAMPLES / "record.py", (EXAMPLES / "_so101_moves.py",)),
-                                        task="recording", timeout=180,
+                                        # The job's own start (LeRobot's record() and torch imported in
+                                        # its container) counts against its timeout: 160 s to its first
+                                        # camera read in a clean-clone run at load ~12 (2026-12-01), and
+                                        # a 180 s timeout cut it before any episode. 300 s leaves room.
+                                        task="recording", timeout=300,
                                         args={"episodes": 1000, "episode_seconds": 2,
                                                           "reset_seconds": 0.5, "fps": 10}),
         "secret": bed.submit("with-secret", bed.image("echo", JOBS / "echo.py"), args={"size": "x" * 60_000},
