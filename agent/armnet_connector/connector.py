@@ -31,7 +31,7 @@ from .inputs import CompletionMonitor, LocalOperatorInputs, NeverComplete, Opera
 from .interlock import Interlock, TripReason
 from .observer import OBSERVER_SOCKET, ObserverSession
 from .record import ConnectorRecord
-from .record_writer import stop_writers
+from .record_writer import RecordWriter, stop_writers
 from .report import SafetyReport
 from .rollout_frames import DRAIN_S, RolloutFrames
 from .server import MAX_BUFFERED_BYTES, ServerLimits, UnixServer
@@ -158,6 +158,11 @@ class Connector:
             JOB_END if trip.reason is TripReason.SHUTDOWN else "interlock_trip", detail=f"{trip.reason}: {trip.message}")
         cell.camera_video = CameraVideo(directory, cell.counters)
 
+    def _record_writers(self) -> tuple[tuple[RecordWriter | None, float], ...]:
+        """The cell's record of the job, each writer with the time its stop may take (None: not kept)."""
+        cell = self.cell
+        return ((cell.servo_trace, TRACE_DRAIN_S), (cell.camera_video, VIDEO_DRAIN_S), (cell.rollout_frames, DRAIN_S))
+
     def _job_starts(self, make: Callable[[], S]) -> Callable[[], S]:
         """A session factory for the job's sockets: the job's first connection starts its clock, if not yet
         (``clock_starts_with_job``: the job cannot move an arm before it connects)."""
@@ -185,9 +190,9 @@ class Connector:
             self.cell.deadline.start()
         if self.monitor is not None:
             self.monitor.start()
-        for recorder in (self.cell.rollout_frames, self.cell.servo_trace, self.cell.camera_video):
-            if recorder is not None:
-                recorder.start()
+        for writer, _drain_s in self._record_writers():
+            if writer is not None:
+                writer.start()
         self._started = True
         log.info("connector serving %s and %s in %s", ROBOT_SOCKET, OPERATOR_SOCKET, self.socket_dir)
         return self
@@ -214,9 +219,7 @@ class Connector:
         # After the arms are safe (the record waits, torque off does not), within what is left of the
         # stop's budget: a pod's record line is printed after this, before the kubelet's kill. The
         # record's writers finish side by side (record_writer).
-        stop_writers(((self.cell.servo_trace, TRACE_DRAIN_S), (self.cell.camera_video, VIDEO_DRAIN_S),
-                      (self.cell.rollout_frames, DRAIN_S)),
-                     until=started + stop_budget_s(self.config.grace_period_seconds))
+        stop_writers(self._record_writers(), until=started + stop_budget_s(self.config.grace_period_seconds))
         log.info("connector stopped")
 
     def __enter__(self) -> Connector:

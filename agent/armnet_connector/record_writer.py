@@ -10,12 +10,13 @@ waits past its budget for a file.
 
 from __future__ import annotations
 
+import abc
 import threading
 import time
 from collections.abc import Iterable
 
 
-class RecordWriter:
+class RecordWriter(abc.ABC):
     """A daemon thread running ``_run``; ``closing`` is set by ``close``, ``drain_until`` is when to give up."""
 
     thread_name = "armnet-record"
@@ -33,8 +34,9 @@ class RecordWriter:
         self._thread.start()
         return self
 
+    @abc.abstractmethod
     def _run(self) -> None:
-        raise NotImplementedError
+        """The writer's loop: until ``closing``, then what is pending within the drain time."""
 
     def draining(self) -> bool:
         """The stop asked to finish and the drain's time is up: start nothing more."""

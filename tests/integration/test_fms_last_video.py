@@ -56,15 +56,21 @@ def last_video(http: httpx.Client, cell: str, expect: Callable[[httpx.Response],
     return replies[-1]
 
 
+@pytest.fixture
+def cell(k8s: Any) -> str:
+    """A new Cell of the test's own."""
+    name = f"vid-{uuid.uuid4().hex[:6]}"
+    apply(k8s, a_cell(name))
+    return name
+
+
 def ended_on(cell: str, minutes_ago: float) -> dict[str, Any]:
     return {"cellName": cell, "finishedAt": kube_time(datetime.now(UTC) - timedelta(minutes=minutes_ago))}
 
 
 def test_the_cell_page_streams_the_video_of_the_job_that_ended_last_on_the_cell(
-    k8s: Any, namespace: str, object_store: SeaweedS3, bucket: str, http: httpx.Client, tmp_path: Path,
+    k8s: Any, namespace: str, object_store: SeaweedS3, bucket: str, http: httpx.Client, tmp_path: Path, cell: str,
 ) -> None:
-    cell = f"vid-{uuid.uuid4().hex[:6]}"
-    apply(k8s, a_cell(cell))
     a_cell_record_with_a_video(tmp_path / "older", frames=4)
     a_cell_record_with_a_video(tmp_path / "newer", frames=9, camera="wrist")
     stored_job(k8s, namespace, object_store, tmp_path, {"a.txt": b"a"}, record=tmp_path / "older", bucket=bucket,
@@ -84,12 +90,10 @@ def test_the_cell_page_streams_the_video_of_the_job_that_ended_last_on_the_cell(
 
 
 def test_a_status_naming_another_place_in_the_bucket_is_not_followed(
-    k8s: Any, namespace: str, object_store: SeaweedS3, bucket: str, http: httpx.Client, tmp_path: Path,
+    k8s: Any, namespace: str, object_store: SeaweedS3, bucket: str, http: httpx.Client, tmp_path: Path, cell: str,
 ) -> None:
     from tests.support.fms_objects import patch_status
 
-    cell = f"vid-{uuid.uuid4().hex[:6]}"
-    apply(k8s, a_cell(cell))
     a_cell_record_with_a_video(tmp_path / "rec", frames=3)
     _, _, victim = stored_job(k8s, namespace, object_store, tmp_path, {}, record=tmp_path / "rec", bucket=bucket,
                               status=ended_on(f"{cell}-victim", 10))
@@ -102,9 +106,7 @@ def test_a_status_naming_another_place_in_the_bucket_is_not_followed(
     assert reply.status_code == 404, reply.text
 
 
-def test_a_cell_whose_jobs_stored_nothing_says_so(k8s: Any, http: httpx.Client) -> None:
-    cell = f"vid-{uuid.uuid4().hex[:6]}"
-    apply(k8s, a_cell(cell))
+def test_a_cell_whose_jobs_stored_nothing_says_so(http: httpx.Client, cell: str) -> None:
     reply = http.get(f"/api/cells/{cell}/last-video.mp4")
     assert reply.status_code == 404 and f"no ended job on cell {cell} has its output stored" in reply.json()["error"]
 
