@@ -100,13 +100,18 @@ removes a job's outputs with the job at its TTL. Both get the same variables; th
 "secret" (the agent's artifacts.credentialsSecret, which needs only to write; the operator's
 artifacts.operatorCredentialsSecret, which needs to list and delete, else the same Secret). */}}
 {{- define "armnet.artifacts.env" -}}
-{{- with .artifacts }}
+{{- $root := .root }}
+{{- with $root.Values.artifacts }}
 {{- if .bucket }}
 {{- if not .credentialsSecret }}
 {{- fail "artifacts.bucket is set but artifacts.credentialsSecret is not: name the Secret (keys accessKeyId, secretAccessKey) with the keys to the bucket" }}
 {{- end }}
+{{- $endpoint := .endpoint }}
+{{- if .deploy.enabled }}
+{{- $endpoint = printf "http://%s-store.%s.svc:8333" (include "armnet.fullname" $root) $root.Release.Namespace }}
+{{- end }}
 - {name: ARMNET_ARTIFACTS_BUCKET, value: {{ .bucket | quote }}}
-- {name: ARMNET_ARTIFACTS_ENDPOINT, value: {{ .endpoint | quote }}}
+- {name: ARMNET_ARTIFACTS_ENDPOINT, value: {{ $endpoint | quote }}}
 - {name: ARMNET_ARTIFACTS_REGION, value: {{ .region | quote }}}
 - name: ARMNET_ARTIFACTS_ACCESS_KEY_ID
   valueFrom: {secretKeyRef: {name: {{ $.secret }}, key: accessKeyId}}
@@ -114,4 +119,73 @@ artifacts.operatorCredentialsSecret, which needs to list and delete, else the sa
   valueFrom: {secretKeyRef: {name: {{ $.secret }}, key: secretAccessKey}}
 {{- end }}
 {{- end }}
+{{- end -}}
+{{- /* The bundled store's identities (templates/object-store.yaml), as a YAML list of
+{name, env (the prefix of its variables), secret, actions}: the agent's keys read, list and
+write the bucket (SeaweedFS's Write includes delete), the operator's the same (when a Secret
+of their own), the FMS's and each tenant reader's only read (a tenant's, only below its
+namespace). Each Secret is one identity: the FMS and the tenants never share another's keys. */}}
+{{- define "armnet.store.identities" -}}
+{{- $a := .Values.artifacts -}}
+{{- $b := $a.bucket -}}
+{{- if not (regexMatch "^[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]$" $b) -}}
+{{- fail (printf "artifacts.bucket %q is not an S3 bucket name (3-63 of a-z, 0-9, '.', '-'; starting and ending with a letter or digit)" $b) -}}
+{{- end -}}
+{{- $write := list (printf "Read:%s" $b) (printf "List:%s" $b) (printf "Write:%s" $b) -}}
+{{- $ids := list (dict "name" "agent" "env" "AGENT" "secret" $a.credentialsSecret "actions" $write) -}}
+{{- if and $a.operatorCredentialsSecret (ne $a.operatorCredentialsSecret $a.credentialsSecret) -}}
+{{- $ids = append $ids (dict "name" "operator" "env" "OPERATOR" "secret" $a.operatorCredentialsSecret "actions" $write) -}}
+{{- end -}}
+{{- with $a.fmsCredentialsSecret -}}
+{{- $ids = append $ids (dict "name" "fms" "env" "FMS" "secret" . "actions" (list (printf "Read:%s" $b))) -}}
+{{- end -}}
+{{- range $a.deploy.tenantReaders -}}
+{{- $ids = append $ids (dict "name" (printf "tenant-%s" .namespace) "env" (printf "TENANT_%s" (.namespace | upper | replace "-" "_")) "secret" .credentialsSecret "actions" (list (printf "Read:%s/%s/*" $b .namespace))) -}}
+{{- end -}}
+{{- $seen := dict -}}
+{{- range $ids -}}
+{{- if hasKey $seen .name -}}
+{{- fail (printf "artifacts.deploy.tenantReaders names namespace %s twice" (trimPrefix "tenant-" .name)) -}}
+{{- end -}}
+{{- if hasKey $seen .secret -}}
+{{- fail (printf "the bundled store's identities %s and %s share the Secret %s: give each its own keys (the FMS's and tenants' read only)" (get $seen .secret) .name .secret) -}}
+{{- end -}}
+{{- $_ := set $seen .secret .name -}}
+{{- $_ := set $seen .name .secret -}}
+{{- end -}}
+{{- toYaml $ids -}}
+{{- end -}}
+{{- /* The bundled store's init script: SeaweedFS's identities file ($S3_CONFIG) from the
+Secrets' values in the environment. A key must be one the JSON can hold as is (letters,
+digits, + / = . _ ~ -), and no two identities may share an access key; the file appears
+whole or not at all. */}}
+{{- define "armnet.store.configScript" -}}
+{{- $ids := include "armnet.store.identities" . | fromYamlArray -}}
+set -eu
+umask 077
+key() {
+  case "$1" in
+    "" | *[!A-Za-z0-9+/=._~-]*)
+      echo "armnet store: $2 is empty or holds a character other than letters, digits and + / = . _ ~ - (SeaweedFS reads its keys from JSON): put such a key in that Secret" >&2
+      exit 1;;
+  esac
+}
+{{- range $ids }}
+key "${{ .env }}_ACCESS_KEY_ID" "key accessKeyId of Secret {{ .secret }}"
+key "${{ .env }}_SECRET_ACCESS_KEY" "key secretAccessKey of Secret {{ .secret }}"
+{{- end }}
+shared=$(printf '%s\n' {{ range $ids }}"${{ .env }}_ACCESS_KEY_ID" {{ end }}| sort | uniq -d)
+if [ -n "$shared" ]; then
+  echo "armnet store: two of the Secrets {{ range $i, $id := $ids }}{{ if $i }}, {{ end }}{{ $id.secret }}{{ end }} hold the same accessKeyId: give each identity keys of its own" >&2
+  exit 1
+fi
+cat > "$S3_CONFIG.partial" <<EOF
+{"identities": [
+{{- range $i, $id := $ids }}
+{{ if $i }},{{ end }}{"name": "{{ $id.name }}", "credentials": [{"accessKey": "${{ $id.env }}_ACCESS_KEY_ID", "secretKey": "${{ $id.env }}_SECRET_ACCESS_KEY"}], "actions": {{ toJson $id.actions }}}
+{{- end }}
+]}
+EOF
+mv "$S3_CONFIG.partial" "$S3_CONFIG"
+echo "armnet store: {{ len $ids }} identities written to $S3_CONFIG"
 {{- end -}}
