@@ -10,7 +10,8 @@ connector in its own process. ``observer.sock`` carries that knowledge out:
 - ``frames``: the latest frame of each camera the job opened
   (``telemetry.latest_frames``), subsampled to at most ``MAX_SENT_WIDTH`` pixels
   wide (the agent scales and encodes them as for an in-process connector);
-- ``rollouts``: the rollout begins, ends and monitor verdicts recorded after a given time.
+- ``rollouts``: the rollout begins, ends and monitor verdicts recorded after a given time;
+- ``monitor``: the completion monitor's verdict now (``telemetry.monitor_now``), for the page.
 
 Why a socket of its own, in a directory of its own: the customer container
 shares the pod's network namespace and the sockets volume, so anything served
@@ -33,7 +34,7 @@ from typing import Any
 from .cell import CellState
 from .errors import RequestError, failure_reply, protocol_error
 from .session import Reply, Session
-from .telemetry import CameraFrame, job_servos, latest_frames
+from .telemetry import CameraFrame, job_servos, latest_frames, monitor_now
 from .telemetry_decode import ServoSample
 
 OBSERVER_SOCKET = "observer.sock"
@@ -71,13 +72,14 @@ def frame_data(frame: CameraFrame) -> dict[str, Any]:
 
 
 class ObserverSession(Session):
-    """One agent connection on ``observer.sock``: three read ops, nothing else."""
+    """One agent connection on ``observer.sock``: four read ops, nothing else."""
 
     socket_name = "observer"
 
     def __init__(self, cell: CellState) -> None:
         super().__init__(cell)
-        self.ops.update(servos=self.op_servos, frames=self.op_frames, rollouts=self.op_rollouts)
+        self.ops.update(servos=self.op_servos, frames=self.op_frames, rollouts=self.op_rollouts,
+                        monitor=self.op_monitor)
 
     def handle(self, request: dict[str, Any]) -> Reply:
         """As every session, but not counted among the job's requests and errors (the agent's polls are not the job's)."""
@@ -97,6 +99,11 @@ class ObserverSession(Session):
         if self.cell.stopping.is_set():
             return {"ok": True, "frames": {}}
         return {"ok": True, "frames": {name: frame_data(f) for name, f in latest_frames(self.cell).items()}}
+
+    def op_monitor(self, request: dict[str, Any]) -> Reply:
+        verdict = monitor_now(self.cell)
+        return {"ok": True, "monitor": None if verdict is None else {
+            "complete": verdict.complete, "score": verdict.score, "frame_at": verdict.frame_at}}
 
     def op_rollouts(self, request: dict[str, Any]) -> Reply:
         """The events recorded after ``after`` (a connector time; absent: all it keeps), oldest first."""

@@ -14,7 +14,8 @@ Two ways, never mixed:
   reply can leave the handle marked busy forever.
 
 Frames are the job's camera objects' latest captures (the same picture the job
-sees); nothing here opens a camera a job may open.
+sees); nothing here opens a camera a job may open. ``monitor_now`` is the cell's
+completion monitor's verdict at this moment (the page shows it live while a rollout runs).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from .telemetry_decode import (
 
 if TYPE_CHECKING:
     from .cell import CellState
+    from .inputs import MonitorVerdict
 
 log = logging.getLogger(__name__)
 
@@ -188,3 +190,11 @@ def latest_frames(cell: CellState) -> dict[str, CameraFrame]:
             mode = getattr(getattr(handle.obj, "color_mode", None), "value", getattr(handle.obj, "color_mode", ""))
             frames[name] = CameraFrame(frame.copy(), bgr=str(mode).lower() == "bgr")
     return frames
+
+
+def monitor_now(cell: CellState) -> MonitorVerdict | None:
+    """The completion monitor's verdict now (complete, score, when its newest frame was scored); None on a cell
+    that scores nothing, and once the job is stopping. Reads the monitor's state only: never a frame or a bus."""
+    if cell.stopping.is_set():
+        return None
+    return cell.completion.audit()

@@ -9,8 +9,8 @@ directory mounted read-only with ``HostToContainer`` propagation) connects.
 
 ``SidecarObserver`` gives the same two things as a connector in the agent's
 process, so one path serves both launchers: a ``JobView`` (servo positions of
-the job's reads, frames of the cameras it opened) for ``JobSource``, and the
-connector's rollout events for the ``RolloutRecorder``.
+the job's reads, frames of the cameras it opened, the completion monitor's verdict
+now) for ``JobSource``, and the connector's rollout events for the ``RolloutRecorder``.
 
 Why this cannot be forged by the tenant: the customer container mounts neither
 this volume nor the host directory; sharing the pod's network namespace gives
@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from armnet_connector.cell import MAX_ROLLOUT_EVENTS, RolloutEvent
+from armnet_connector.inputs import MonitorVerdict
 from armnet_connector.observer import OBSERVER_SOCKET
 from armnet_connector.ratelog import RateLimitedLog
 from armnet_connector.telemetry import CameraFrame
@@ -111,6 +112,25 @@ def parse_frame(data: Any) -> CameraFrame:
     return CameraFrame(np.frombuffer(pixels, dtype=np.uint8).reshape(shape), bgr=data.get("bgr") is True)
 
 
+def parse_monitor(data: Any) -> MonitorVerdict | None:
+    """The observer's ``monitor`` reply's verdict (None: the cell scores nothing); ValueError when it is not one."""
+    if data is None:
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("complete"), bool):
+        raise ValueError("a monitor verdict is an object with a boolean complete")
+    score, frame_at = data.get("score"), data.get("frame_at")
+    for name, value in (("score", score), ("frame_at", frame_at)):
+        if value is not None and not _finite(value):
+            raise ValueError(f"a monitor verdict's {name} is a finite number")
+    if score is None:
+        raise ValueError("a monitor verdict has a score")
+    return MonitorVerdict(data["complete"], float(score), None if frame_at is None else float(frame_at))
+
+
+def _finite(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
+
+
 def parse_event(data: Any) -> RolloutEvent:
     """One rollout event of the observer's ``rollouts`` reply; ValueError when it is not one."""
     if not isinstance(data, dict) or data.get("kind") not in ("begin", "end", "verdict"):
@@ -128,8 +148,7 @@ def parse_event(data: Any) -> RolloutEvent:
     if success is not None and not isinstance(success, bool):
         raise ValueError("a rollout event's success is a boolean")
     for name, value in (("score", score), ("frame_at", frame_at)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)
-                                  or not math.isfinite(value)):
+        if value is not None and not _finite(value):
             raise ValueError(f"a rollout event's {name} is a finite number")
     return RolloutEvent(data["kind"], float(at), index, total, controls, success,
                         None if score is None else float(score), None if frame_at is None else float(frame_at))
@@ -167,6 +186,16 @@ class SidecarObserver:
             return parse_servos(reply.get("servos"))
         except ValueError as exc:
             self._count("invalid", f"servos: {exc}")
+            return None
+
+    def monitor(self) -> MonitorVerdict | None:
+        reply = self._call({"op": "monitor"})
+        if reply is None:
+            return None
+        try:
+            return parse_monitor(reply.get("monitor"))
+        except ValueError as exc:
+            self._count("invalid", f"monitor: {exc}")
             return None
 
     def frames(self) -> Mapping[str, CameraFrame]:

@@ -10,8 +10,10 @@ the worker for the cell's current source of readings:
   (``connector.telemetry.job_servos``: the positions the job's own reads left
   in the connector, no traffic on the job's bus, so no load or temperature;
   frames are the job's cameras' latest captures);
-- a job runs in a pod: the connector is in the pod and nothing is read (the page
-  shows no fresh readings).
+- a job runs in a pod: the same, through the sidecar's observer socket.
+
+With each servo reading of a job on a cell with a completion monitor, the monitor's
+verdict now (``telemetry.<cell>.monitor``): the page shows it live while a rollout runs.
 
 Everything is best effort: a failing camera or read is counted and logged at
 most once a minute, and never stops the other readings nor the job.
@@ -30,6 +32,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
+from armnet_connector.inputs import MonitorVerdict
 from armnet_connector.ratelog import RateLimitedLog
 from armnet_connector.telemetry import CameraFrame
 from armnet_connector.telemetry_decode import ServoSample
@@ -41,6 +44,8 @@ from armnet_node.telemetry_wire import (
     MAX_FRAME_BYTES,
     Cadence,
     camera_subject,
+    monitor_payload,
+    monitor_subject,
     scaled_size,
     servos_payload,
     servos_subject,
@@ -62,6 +67,10 @@ class TelemetrySource(Protocol):
 
     def frames(self) -> Mapping[str, CameraFrame | str]:
         """camera -> its latest frame, or why there is none."""
+        ...
+
+    def monitor(self) -> MonitorVerdict | None:
+        """The cell's completion monitor's verdict now; None when no monitor scores (idle, or a cell without one)."""
         ...
 
 
@@ -197,6 +206,10 @@ class CellTelemetry:
         payload = servos_payload(self._clock(), source.name, readings)
         self._link.notify(servos_subject(self.cell), payload)
         self._metrics.telemetry_reads.labels(result="published").inc()
+        verdict = source.monitor()
+        if verdict is not None:
+            self._link.notify(monitor_subject(self.cell), monitor_payload(
+                self._clock(), verdict.complete, verdict.score, verdict.frame_at))
 
     def publish_frames(self, source: TelemetrySource) -> None:
         for camera, frame in list(sorted(source.frames().items()))[:MAX_CAMERAS]:

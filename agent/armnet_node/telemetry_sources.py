@@ -10,7 +10,8 @@ device is opened); a real cell's cameras are opened by the agent while idle
 launch nor heartbeat. A launch closes them with a bounded wait.
 
 ``JobSource`` publishes what the job's connector already knows (a ``JobView``):
-the positions of the job's own reads, and its cameras' latest frames. The view
+the positions of the job's own reads, its cameras' latest frames, and the cell's
+completion monitor's verdict now. The view
 is ``InProcessView`` for a connector in this process and the pod sidecar's
 observer socket (``node.sidecar_observer``) for a pod job: one path for both.
 """
@@ -26,7 +27,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from armnet_connector.config import DEFAULT_MOTOR_MODEL, read_calibration_file
-from armnet_connector.telemetry import ArmReader, CameraFrame, job_servos, latest_frames
+from armnet_connector.inputs import MonitorVerdict
+from armnet_connector.telemetry import (
+    ArmReader,
+    CameraFrame,
+    job_servos,
+    latest_frames,
+    monitor_now,
+)
 from armnet_connector.telemetry_decode import ServoSample, feetech_protocol, name_samples
 from armnet_core import BIMANUAL_SO101_EMBODIMENT, SO101_EMBODIMENT
 from armnet_core.backoff import BackoffPolicy
@@ -249,6 +257,9 @@ class IdleSource:
     def servos(self) -> Mapping[str, Mapping[str, ServoSample | None] | str] | None:
         return self._turns.probe(self._read_servos, bus_held=self._bus_held)
 
+    def monitor(self) -> MonitorVerdict | None:
+        return None  # the completion monitor runs in a job's connector only
+
     def _read_servos(self) -> dict[str, Mapping[str, ServoSample | None] | str]:
         return {name: self._handles.read(arm, servo_ids(arm.calibration)) for name, arm in self._arms.items()}
 
@@ -274,6 +285,10 @@ class JobView(Protocol):
         """camera -> the latest frame of each camera the job opened."""
         ...
 
+    def monitor(self) -> MonitorVerdict | None:
+        """The cell's completion monitor's verdict now; None on a cell that scores nothing, or once stopping."""
+        ...
+
 
 class InProcessView:
     """A connector in this process (the container launcher, ``armnet run``): read from its memory."""
@@ -286,6 +301,9 @@ class InProcessView:
 
     def frames(self) -> Mapping[str, CameraFrame]:
         return latest_frames(self._cell)
+
+    def monitor(self) -> MonitorVerdict | None:
+        return monitor_now(self._cell)
 
 
 class JobSource:
@@ -300,6 +318,9 @@ class JobSource:
 
     def servos(self) -> Mapping[str, Mapping[str, ServoSample | None] | str] | None:
         return self._view.servos()
+
+    def monitor(self) -> MonitorVerdict | None:
+        return self._view.monitor()
 
     def frames(self) -> Mapping[str, CameraFrame | str]:
         frames: dict[str, CameraFrame | str] = dict(self._view.frames())

@@ -6,6 +6,8 @@ Subjects (core NATS, not stored: a page wants the present, not a replay):
   a few times a second;
 - ``telemetry.<cell>.camera.<camera>``: the camera's latest frame as JPEG bytes,
   about twice a second, scaled to at most ``MAX_FRAME_WIDTH`` pixels wide.
+- ``telemetry.<cell>.monitor``: the completion monitor's verdict now (``monitor_payload``),
+  with each servo reading while a job runs on a cell with a monitor.
 
 Every size is bounded here, so a cell with hostile names or many motors cannot
 make a message the FMS has to hold large.
@@ -56,6 +58,18 @@ def servos_subject(cell: str) -> str:
 
 def camera_subject(cell: str, camera: str) -> str:
     return f"{SUBJECT_PREFIX}.{subject_token(cell, 'cell')}.camera.{subject_token(camera, 'camera')}"
+
+
+def monitor_subject(cell: str) -> str:
+    return f"{SUBJECT_PREFIX}.{subject_token(cell, 'cell')}.monitor"
+
+
+def monitor_payload(at: float, complete: bool, score: float, frame_at: float | None) -> bytes:
+    """The monitor's verdict as JSON: ``{"t", "complete", "score", "frameAt"}`` (``frameAt``: when the newest
+    frame it rests on was scored, wall clock; null before the first)."""
+    body = {"t": round(at, 3), "complete": complete, "score": round(score, 4),
+            "frameAt": None if frame_at is None else round(frame_at, 3)}
+    return json.dumps(body, separators=(",", ":")).encode()
 
 
 def servos_payload(

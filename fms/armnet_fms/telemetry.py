@@ -1,7 +1,8 @@
 """The latest camera frames and the last ~30 s of servo telemetry per cell, as the agents publish them. Pure.
 
 The agents publish on core NATS (``telemetry.<cell>.servos``: JSON;
-``telemetry.<cell>.camera.<camera>``: JPEG bytes; docs/fms.md). Every message
+``telemetry.<cell>.camera.<camera>``: JPEG bytes; ``telemetry.<cell>.monitor``: the
+completion monitor's verdict now, JSON; docs/fms.md). Every message
 is hostile input until checked here: subjects must name a cell the fleet knows
 (``known_cells``: the Cells the FMS reads from Kubernetes) and a camera with
 plain tokens, frames must be JPEG under ``MAX_FRAME_BYTES``, servo readings are
@@ -32,6 +33,9 @@ from typing import Any
 
 MAX_FRAME_BYTES = 256 * 1024
 MAX_SERVOS_BYTES = 64 * 1024
+MAX_MONITOR_BYTES = 1024
+MONITOR_STALE_S = 5.0
+"""A monitor verdict older than this is not shown: the job ended, or its agent stopped publishing."""
 MAX_CAMERAS = 8
 MAX_ARMS = 4
 """Arms per cell kept in a reading (a bimanual cell has 2)."""
@@ -70,10 +74,20 @@ class ServoReading:
     errors: tuple[tuple[str, str], ...] = ()
 
 
+@dataclass(frozen=True)
+class MonitorReading:
+    """The completion monitor's verdict as an agent last published it (``at``: the FMS's clock at arrival)."""
+
+    at: float
+    complete: bool
+    score: float
+
+
 @dataclass
 class CellTelemetry:
     frames: dict[str, Frame] = field(default_factory=dict)
     readings: deque[ServoReading] = field(default_factory=lambda: deque(maxlen=MAX_SAMPLES))
+    monitor: MonitorReading | None = None
     heard_at: float = 0.0
 
 
@@ -86,6 +100,30 @@ def parse_subject(subject: str) -> tuple[str, str | None] | None:
             and _TOKEN.match(parts[1]) and _TOKEN.match(parts[3])):
         return parts[1], parts[3]
     return None
+
+
+def parse_monitor_subject(subject: str) -> str | None:
+    """The cell of ``telemetry.<cell>.monitor``; else None."""
+    parts = subject.split(".")
+    if len(parts) == 3 and parts[0] == "telemetry" and parts[2] == "monitor" and _TOKEN.match(parts[1]):
+        return parts[1]
+    return None
+
+
+def parse_monitor(data: bytes, at: float) -> MonitorReading | None:
+    """The verdict in an agent's ``monitor`` message, or None when it is not one (a score is within 0..1)."""
+    if len(data) > MAX_MONITOR_BYTES:
+        return None
+    try:
+        body = json.loads(data)
+    except ValueError:
+        return None
+    if not isinstance(body, dict) or not isinstance(body.get("complete"), bool):
+        return None
+    score = body.get("score")
+    if isinstance(score, bool) or not isinstance(score, int | float) or not 0.0 <= score <= 1.0:
+        return None
+    return MonitorReading(at, body["complete"], float(score))
 
 
 def _number(value: Any) -> int | None:
@@ -160,10 +198,18 @@ class TelemetryStore:
     def accept(self, subject: str, data: bytes, now: float) -> bool:
         """Keep the message if it is a valid frame or reading of a known cell; False (and counted) when refused."""
         target = parse_subject(subject)
-        if target is not None and self._known_cells is not None and target[0] not in self._known_cells():
-            target = None  # not a cell of the fleet: anyone on NATS could name thousands
+        monitored = parse_monitor_subject(subject)
+        if self._known_cells is not None:  # not a cell of the fleet: anyone on NATS could name thousands
+            known = self._known_cells()
+            target = target if target is not None and target[0] in known else None
+            monitored = monitored if monitored in known else None
         kept = False
-        if target is not None:
+        if monitored is not None:
+            verdict = parse_monitor(data, now)
+            if verdict is not None:
+                self._entry(monitored, now).monitor = verdict
+                kept = True
+        elif target is not None:
             cell, camera = target
             if camera is not None:
                 kept = self._keep_frame(cell, camera, data, now)
@@ -228,7 +274,8 @@ class TelemetryStore:
         return sum(len(entry.frames) for entry in self._cells.values())
 
     def view(self, cell: str, now: float) -> dict[str, Any]:
-        """The page's telemetry of ``cell``: cameras with their frame age, and each motor's series.
+        """The page's telemetry of ``cell``: cameras with their frame age, each motor's series, and the
+        completion monitor's verdict now (``monitor``: complete, score, ``ageS``; null without a fresh one).
 
         ``series`` is ``[{"arm", "motor", "points": [[age_s, position, load, temperature], ...]}]``,
         oldest first, ``age_s`` in seconds before ``now`` (a silent motor has no point at that read).
@@ -239,7 +286,7 @@ class TelemetryStore:
         entry = self._cells.get(cell)
         if entry is None:
             return {"cell": cell, "cameras": [], "series": [], "source": None, "ageS": None, "unread": [],
-                    "errors": []}
+                    "errors": [], "monitor": None}
         readings = [r for r in entry.readings if r.at >= now - self.history_s]
         last = readings[-1] if readings else None
         unread = unread_fields(last)
@@ -262,7 +309,15 @@ class TelemetryStore:
             "ageS": round(now - last.at, 2) if last is not None else None,
             "unread": list(unread),
             "errors": [{"arm": arm, "error": error} for arm, error in (last.errors if last is not None else ())],
+            "monitor": _monitor_view(entry.monitor, now),
         }
+
+
+def _monitor_view(monitor: MonitorReading | None, now: float) -> dict[str, Any] | None:
+    """The monitor's verdict for the page (``ageS``: since it arrived); None when none came in ``MONITOR_STALE_S``."""
+    if monitor is None or now - monitor.at > MONITOR_STALE_S:
+        return None
+    return {"complete": monitor.complete, "score": round(monitor.score, 3), "ageS": round(now - monitor.at, 2)}
 
 
 def unread_fields(last: ServoReading | None) -> tuple[str, ...]:

@@ -119,6 +119,9 @@
     }
     // The arm's name in quotes, first: an arm is often named "arm" (never "arm arm: …").
     for (const e of t.errors || []) parts.push(`“${e.arm}” not plotted: ${e.error}`);
+    // The completion monitor's verdict now, while a job runs on a cell with one (docs/fms.md).
+    const m = t.monitor;
+    if (m) parts.push(`completion monitor: ${m.complete ? "complete" : "not complete"} (score ${m.score.toFixed(2)})`);
     state.textContent = parts.join("; ");
   }
 

@@ -226,3 +226,54 @@ def test_no_verdict_is_recorded_outside_a_rollout_or_on_a_cell_without_a_monitor
     plain_cell.rollout_begin(index=1, total=1)
     plain_cell.rollout_end()
     assert verdicts(plain) == []
+
+
+class Published:
+    """The agent's NATS link as the telemetry thread sees it: what it was given to publish, in order."""
+
+    def __init__(self) -> None:
+        self.messages: list[tuple[str, bytes]] = []
+
+    def notify(self, subject: str, payload: bytes) -> None:
+        self.messages.append((subject, payload))
+
+
+def test_the_monitor_s_verdict_now_reaches_the_cell_page_while_the_job_runs(
+    sim_cell: SimulatedCellProcess, make_connector: Callable[..., Connector],
+    cell_config: Callable[..., ConnectorConfig], connector: Connector, bus: Any,
+) -> None:
+    """The agent's telemetry (in process, and through a pod sidecar's observer op) carries the monitor's verdict
+    to the FMS's telemetry store, which the cell page polls; a cell without a monitor publishes none."""
+    from armnet_connector.observer import ObserverSession
+    from armnet_fms.telemetry import TelemetryStore
+    from armnet_node.metrics import AgentMetrics
+    from armnet_node.sidecar_observer import parse_monitor
+    from armnet_node.telemetry import CellTelemetry, TelemetrySettings
+    from armnet_node.telemetry_sources import InProcessView, JobSource
+
+    def published_by(view: Any) -> list[tuple[str, bytes]]:
+        link = Published()
+        CellTelemetry("cell-1", lambda: JobSource(view, (), None), link, AgentMetrics(),
+                      TelemetrySettings()).publish_servos(JobSource(view, (), None))
+        return link.messages
+
+    cell = a_job_cell(connector)
+    [(_, before)] = [m for m in published_by(InProcessView(connector.cell)) if m[0] == "telemetry.cell-1.monitor"]
+    assert json.loads(before)["complete"] is False
+    drive_to(bus, dict(TARGET_POSE))
+    deadline = time.monotonic() + 30
+    while not cell.is_complete(block=True) and time.monotonic() < deadline:
+        pass
+
+    [(subject, payload)] = [m for m in published_by(InProcessView(connector.cell)) if m[0].endswith(".monitor")]
+    page = TelemetryStore(known_cells=lambda: {"cell-1"})
+    assert page.accept(subject, payload, now=100.0)
+    seen = page.view("cell-1", now=100.5)["monitor"]
+    assert seen is not None and seen["complete"] is True and 0.0 < seen["score"] <= 1.0
+    assert page.view("cell-1", now=110.0)["monitor"] is None  # stale: the job ended, the line goes
+    through_sidecar = parse_monitor(ObserverSession(connector.cell).handle({"op": "monitor"})["monitor"])
+    assert through_sidecar is not None and through_sidecar.complete is True
+
+    plain = make_connector(cell_config(sim_cell), camera_factory=simulated_camera_factory(source=sim_cell))
+    assert [s for s, _ in published_by(InProcessView(plain.cell)) if s.endswith(".monitor")] == []
+    assert ObserverSession(plain.cell).handle({"op": "monitor"}) == {"ok": True, "monitor": None}

@@ -88,7 +88,8 @@ def test_the_cameras_are_listed_with_their_frame_age() -> None:
 
 def test_a_cell_never_heard_has_an_empty_view() -> None:
     assert TelemetryStore().view("nobody", 1.0) == {
-        "cell": "nobody", "cameras": [], "series": [], "source": None, "ageS": None, "unread": [], "errors": []}
+        "cell": "nobody", "cameras": [], "series": [], "source": None, "ageS": None, "unread": [], "errors": [],
+        "monitor": None}
 
 
 def test_a_silent_motor_has_no_point_at_that_read() -> None:
@@ -190,3 +191,33 @@ def test_a_jobs_position_only_reading_keeps_the_position_with_no_load_or_tempera
     body = json.dumps({"source": "job", "arms": {"arm": {"motors": {"gripper": {"position": 2100}}}}}).encode()
     assert store.accept("telemetry.c.servos", body, 1.0)
     assert store.view("c", 1.0)["series"] == [{"arm": "arm", "motor": "gripper", "points": [[0.0, 2100, None, None]]}]
+
+
+def monitor(complete: Any = True, score: Any = 0.93) -> bytes:
+    return json.dumps({"t": 0, "complete": complete, "score": score, "frameAt": 1.0}).encode()
+
+
+def test_the_monitors_verdict_now_is_shown_until_it_is_stale() -> None:
+    store = TelemetryStore(known_cells=lambda: {"c"})
+    assert store.view("c", 0.0)["monitor"] is None
+    assert store.accept("telemetry.c.monitor", monitor(False, 0.2), 1.0)
+    assert store.accept("telemetry.c.monitor", monitor(True, 0.93), 2.0)
+
+    assert store.view("c", 2.5)["monitor"] == {"complete": True, "score": 0.93, "ageS": 0.5}
+    assert store.view("c", 8.0)["monitor"] is None  # no word for 5 s: the job ended
+
+
+@pytest.mark.parametrize("subject, data", [
+    ("telemetry.other.monitor", monitor()),  # a cell the fleet does not know
+    ("telemetry.c.monitor", monitor(complete="yes")),
+    ("telemetry.c.monitor", monitor(score=1.5)),
+    ("telemetry.c.monitor", monitor(score=float("nan"))),
+    ("telemetry.c.monitor", monitor(score=True)),
+    ("telemetry.c.monitor", b"[1, 2]"),
+    ("telemetry.c.monitor", b"{" + b" " * 2000 + b"}"),
+    ("telemetry.c.monitor.extra", monitor()),
+])
+def test_a_monitor_message_that_is_not_a_verdict_of_a_known_cell_is_refused(subject: str, data: bytes) -> None:
+    store = TelemetryStore(known_cells=lambda: {"c"})
+    assert not store.accept(subject, data, 1.0)
+    assert store.view("c", 1.0)["monitor"] is None and store.refused == 1

@@ -17,6 +17,7 @@ from armnet_node.sidecar_observer import (
     observer_socket,
     parse_event,
     parse_frame,
+    parse_monitor,
     parse_servos,
 )
 
@@ -94,3 +95,15 @@ def test_a_recorder_made_from_a_read_back_history_skips_the_events_it_already_ho
     assert [(e.index, e.started_at, e.open) for e in again.history] == [
         (0, datetime(1970, 1, 1, 0, 1, 40, tzinfo=UTC), False),
         (1, datetime(1970, 1, 1, 0, 1, 42, tzinfo=UTC), True)]
+
+
+@pytest.mark.parametrize("bad", [[], {"complete": "yes", "score": 1.0}, {"complete": True},
+                                 {"complete": True, "score": float("nan")}, {"complete": True, "score": True},
+                                 {"complete": True, "score": 0.5, "frame_at": "now"}])
+def test_a_monitor_verdict_of_another_shape_is_refused(bad: object) -> None:
+    with pytest.raises(ValueError):
+        parse_monitor(bad)
+
+
+def test_no_monitor_is_no_verdict() -> None:
+    assert parse_monitor(None) is None

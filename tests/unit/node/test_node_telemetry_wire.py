@@ -11,6 +11,8 @@ from armnet_node.telemetry_wire import (
     MAX_MOTORS,
     Cadence,
     camera_subject,
+    monitor_payload,
+    monitor_subject,
     scaled_size,
     servos_payload,
     servos_subject,
@@ -104,3 +106,10 @@ def test_a_telemetry_block_decodes_feetech_sign_magnitude_values() -> None:
 def test_a_short_block_is_not_a_reading() -> None:
     with pytest.raises(ValueError, match="8 bytes"):
         decode_block(b"\x00\x08")
+
+
+def test_the_monitor_payload_says_complete_its_score_and_when_its_frame_was_scored() -> None:
+    assert monitor_subject("cell-1") == "telemetry.cell-1.monitor"
+    assert json.loads(monitor_payload(10.12345, True, 0.876543, 9.5)) == {
+        "t": 10.123, "complete": True, "score": 0.8765, "frameAt": 9.5}
+    assert json.loads(monitor_payload(1.0, False, 0.0, None))["frameAt"] is None
