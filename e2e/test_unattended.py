@@ -19,24 +19,16 @@ import pytest
 
 from e2e.agent_bed import EXAMPLES, JOBS, AgentBed
 from e2e.scenarios import explain, status
+from tests.support.unattended import (
+    CAMERAS,
+    SCRIPTED_RESET,
+    check_scored_reset_scored,
+    target_completion,
+)
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
 
 ROLLOUTS = 10
-TARGET = {"shoulder_lift": 20.0, "elbow_flex": 40.0, "wrist_flex": 0.0}  # armnet_sim.render.TARGET_POSE
-SHORT = {**TARGET, "elbow_flex": 25.0}  # e2e/jobs/unattended_eval.py's even rollouts
-AWAY = {"shoulder_lift": -25.0, "elbow_flex": 10.0, "wrist_flex": 15.0}  # the cell's reset pose
-NEAR = 3.0  # degrees: where the simulated arm settles around a goal
-
-
-def target_completion() -> dict[str, Any]:
-    """The cell's monitor looks for the simulator's end-effector disc on its target pad."""
-    from armnet_sim.render import target_region
-
-    left, top, width, height = target_region(640, 480)
-    return {"camera": "front", "region": {"left": left, "top": top, "width": width, "height": height},
-            "colour": {"hueMin": 170, "hueMax": 8, "saturationMin": 120, "valueMin": 80},
-            "consecutiveFrames": 3, "rateHz": 15}
 
 
 @pytest.fixture(scope="module")
@@ -44,9 +36,7 @@ def bed(k8s: Any, podman: Any, base_image: str) -> Iterator[AgentBed]:
     namespace = k8s.create_namespace("unattended")
     bed = AgentBed(k8s, podman, base_image, namespace)  # no NATS: no operator input can reach the cell
     bed.unattended = bed.add_cell(  # type: ignore[attr-defined]
-        "unattended", completion=target_completion(),
-        cameras={"front": {"indexOrPath": 0, "width": 640, "height": 480, "fps": 30}},
-        reset={"mode": "Scripted", "poses": [AWAY], "attempts": 2, "settleSeconds": 0.5})
+        "unattended", completion=target_completion(), cameras=CAMERAS, reset=SCRIPTED_RESET)
     bed.start_operator()
     bed.start_agent()
     try:
@@ -55,10 +45,6 @@ def bed(k8s: Any, podman: Any, base_image: str) -> Iterator[AgentBed]:
     finally:
         bed.stop()
         k8s.delete_namespace(namespace)
-
-
-def near(where: dict[str, float], goal: dict[str, float]) -> bool:
-    return all(abs(where[joint] - angle) < NEAR for joint, angle in goal.items())
 
 
 def metric(bed: AgentBed, name: str, labels: str) -> float:
@@ -76,22 +62,7 @@ def test_an_evaluation_of_ten_rollouts_runs_scored_reset_scored_with_no_operator
     st = status(bed.wait_phase("unattended-eval", timeout=240))
 
     assert st["phase"] == "succeeded", explain(st)
-    seen = st["result"]["returnValue"]
-    drove_onto_target = [index % 2 == 1 for index in range(1, ROLLOUTS + 1)]
-    # What the arm really did: every reset left it at the cell's reset pose, every rollout ended where it drove.
-    assert all(near(r["afterReset"], AWAY) for r in seen), seen
-    assert all(near(r["ended"], TARGET if onto else SHORT) for r, onto in zip(seen, drove_onto_target, strict=True))
-    # The monitor's answers to the job, and its verdicts on record, agree with that.
-    assert [r["complete"] for r in seen] == drove_onto_target
-    rollouts = st["rollouts"]
-    assert [(r["index"], r["outcome"], r.get("markedBy")) for r in rollouts] == [
-        (index, "success" if onto else "failure", "monitor")
-        for index, onto in zip(range(1, ROLLOUTS + 1), drove_onto_target, strict=True)], rollouts
-    assert [r["monitor"]["outcome"] for r in rollouts] == ["success" if onto else "failure"
-                                                           for onto in drove_onto_target]
-    # Every reset was the connector's, judged by the monitor; none asked a person.
-    resets = st["result"]["safety"]["autoResets"]
-    assert (resets.get("worked"), resets.get("fell_back"), resets["latest"]["outcome"]) == (ROLLOUTS, None, "worked")
+    check_scored_reset_scored(st, ROLLOUTS)
     assert bed.wait(lambda: metric(bed, "armnet_agent_auto_resets_total", 'outcome="worked"') == ROLLOUTS, 15,
                     "the agent's metric of the scripted resets")
 

@@ -2,8 +2,9 @@
 
 tests/images/test_helm_install_node.py installs the chart with ``pullPolicy: Never``, so the
 node's containerd must hold the operator and agent images under one tag (the chart has one
-``image.tag``), the example customer image (images/example-job, on the runtime image) and the
-bus-loop example (on the runtime's LeRobot variant). The LeRobot images are ~6 GB each, and
+``image.tag``), the example customer image (images/example-job, on the runtime image), and two
+customer images on the runtime's LeRobot variant: the bus-loop example and the unattended
+evaluation (e2e/jobs/unattended_eval.py: scored, reset, scored with nobody at the cell). The LeRobot images are ~6 GB each, and
 saving them out of Podman and importing them takes 4 minutes alone and 12 beside the other test
 sessions, which it slows twofold (docs/testing.md, "A loaded host"). So setup does
 it (scripts/setup.d/55-node-images.sh runs ``python -m armnet_testbed.release_images``), after
@@ -11,7 +12,7 @@ the image builds and before any session starts; the fixture then finds every ima
 and its own import, the same call, is the path for a run with pytest arguments.
 
 Every name here is built from content: the shipped images' tags are content hashes, the
-common tag joins them, the two customer images are Podman layer-cached builds of fixed
+common tag joins them, the customer images are Podman layer-cached builds of fixed
 files, and an import is skipped when the store's image came from the same Podman image id.
 """
 
@@ -34,6 +35,8 @@ from armnet_testbed.shipped_images import AGENT, OPERATOR, RUNTIME, RUNTIME_LERO
 TAG_PREFIX = "it-"
 EXAMPLE_JOB_IMAGE = "localhost/armnet-example-job:it"
 BUS_LOOP_IMAGE = "localhost/armnet-bus-loop:it"
+UNATTENDED_EVAL_IMAGE = "localhost/armnet-unattended-eval:it"
+EXAMPLES = REPO_ROOT / "runtime" / "examples"
 
 
 def repository(image: str) -> str:
@@ -49,9 +52,10 @@ class ReleaseImages:
     tag: str
     example_job: str
     bus_loop: str
+    unattended_eval: str
 
     def all(self) -> tuple[str, ...]:
-        return self.operator, self.agent, self.example_job, self.bus_loop
+        return self.operator, self.agent, self.example_job, self.bus_loop, self.unattended_eval
 
     def is_superseded(self, name: str) -> bool:
         """An earlier run's common tag of the operator or agent repository (each holds a ~6 GB build)."""
@@ -75,15 +79,15 @@ def build_on_runtime(client: Any, tag: str, runtime_image: str, context: Path) -
     return tag
 
 
-def build_bus_loop_image(client: Any, runtime_lerobot_image: str) -> str:
-    """The bus-loop example as a customer would ship it: on the runtime's LeRobot variant."""
-    examples = REPO_ROOT / "runtime" / "examples"
-    context = Path(tempfile.mkdtemp(prefix="armnet-bus-loop-"))
+def build_so101_job_image(client: Any, tag: str, script: Path, runtime_lerobot_image: str) -> str:
+    """A customer's SO-101 job (``script`` as its main.py, with the examples' move helpers) as a customer
+    would ship it: on the runtime's LeRobot variant."""
+    context = Path(tempfile.mkdtemp(prefix="armnet-so101-job-"))
     try:
-        shutil.copy(examples / "bus_loop.py", context / "main.py")
-        shutil.copy(examples / "_so101_moves.py", context / "_so101_moves.py")
+        shutil.copy(script, context / "main.py")
+        shutil.copy(EXAMPLES / "_so101_moves.py", context / "_so101_moves.py")
         (context / "Containerfile").write_text("ARG RUNTIME\nFROM ${RUNTIME}\nCOPY main.py _so101_moves.py /app/\n")
-        return build_on_runtime(client, BUS_LOOP_IMAGE, runtime_lerobot_image, context)
+        return build_on_runtime(client, tag, runtime_lerobot_image, context)
     finally:
         shutil.rmtree(context, ignore_errors=True)
 
@@ -96,9 +100,11 @@ def release_images(client: Any) -> ReleaseImages:
     runtime_lerobot = ensure_image(RUNTIME_LEROBOT, client=client)  # after the agent: their shared layer
     tag = common_tag(client, [operator, agent])
     example_job = build_on_runtime(client, EXAMPLE_JOB_IMAGE, runtime, REPO_ROOT / "images" / "example-job")
-    bus_loop = build_bus_loop_image(client, runtime_lerobot)
+    bus_loop = build_so101_job_image(client, BUS_LOOP_IMAGE, EXAMPLES / "bus_loop.py", runtime_lerobot)
+    unattended_eval = build_so101_job_image(client, UNATTENDED_EVAL_IMAGE,
+                                            REPO_ROOT / "e2e" / "jobs" / "unattended_eval.py", runtime_lerobot)
     return ReleaseImages(operator=f"{repository(operator)}:{tag}", agent=f"{repository(agent)}:{tag}",
-                         tag=tag, example_job=example_job, bus_loop=bus_loop)
+                         tag=tag, example_job=example_job, bus_loop=bus_loop, unattended_eval=unattended_eval)
 
 
 def forget_superseded_tags(client: Any, images: ReleaseImages) -> None:

@@ -18,8 +18,9 @@ reachable from a pod; the operator and agent run with ``hostNetwork: true`` and
 ``KUBERNETES_SERVICE_HOST/PORT`` set to the apiserver's loopback address.
 
 One release per module, its tests in order (they share the ~minute of setup): a
-tenant's job runs; an upgrade rolls the operator under a running job; the uninstall
-keeps the CRDs and the jobs.
+tenant's job runs; an evaluation of ten rollouts runs with nobody at the cell (the
+completion monitor and the scripted reset in the job pod's sidecar); an upgrade rolls
+the operator under a running job; the uninstall keeps the CRDs and the jobs.
 """
 
 from __future__ import annotations
@@ -48,10 +49,17 @@ from armnet_testbed.procs import free_port
 from armnet_testbed.release_images import forget_superseded_tags, release_images, repository
 
 from tests.support.helm import CHART, CRDS, adopt_crds, helm_binary, helm_on
+from tests.support.unattended import (
+    CAMERAS,
+    SCRIPTED_RESET,
+    check_scored_reset_scored,
+    target_completion,
+)
 
 pytestmark = [pytest.mark.node, pytest.mark.container, pytest.mark.timeout(1800)]
 
 ROBOT_HOST_LABEL = "armnet.io/robot-host"
+EVALUATION_ROLLOUTS = 10
 
 
 def wait_for(what: str, predicate: Callable[[], Any], timeout: float, on_timeout: Callable[[], str]) -> Any:
@@ -161,7 +169,8 @@ def release(k8s: ControlPlane, k8s_node: Node, podman: Podman) -> Iterator[dict[
     }
     k8s.kubectl("label", "node", k8s_node.name, f"{ROBOT_HOST_LABEL}=true", "--overwrite")
     controllers = WorkloadControllers(plane=k8s).start()
-    state = {"job_image": images.example_job, "bus_loop_image": images.bus_loop, "k8s": k8s,
+    state = {"job_image": images.example_job, "bus_loop_image": images.bus_loop,
+             "unattended_eval_image": images.unattended_eval, "k8s": k8s,
              "node": k8s_node, "system": system, "tenant": tenant, "name": name, "values": values,
              "controllers": controllers, "host": host, "connector_image": images.agent}
     try:
@@ -222,11 +231,12 @@ def diagnose(state: dict[str, Any]) -> str:
     return "\n".join(parts)
 
 
-def submit(state: dict[str, Any], name: str, args: dict[str, Any], timeout: int = 60, image: str | None = None) -> None:
+def submit(state: dict[str, Any], name: str, args: dict[str, Any], timeout: int = 60, image: str | None = None,
+           task: str | None = None) -> None:
+    spec = {"image": image or state["job_image"], "args": args, "embodiment": "lerobot/so-101", "timeoutSeconds": timeout}
     state["k8s"].kubectl("apply", "-n", state["tenant"], "-f", "-", input=yaml.safe_dump({
         "apiVersion": "armnet.io/v1alpha1", "kind": "RobotJob", "metadata": {"name": name},
-        "spec": {"image": image or state["job_image"], "args": args, "embodiment": "lerobot/so-101",
-                 "timeoutSeconds": timeout}}))
+        "spec": {**spec, **({"task": task} if task else {})}}))
 
 
 def job_of(state: dict[str, Any], name: str) -> dict[str, Any] | None:
@@ -298,6 +308,29 @@ def observer_requests(metrics: str, result: str) -> float:
     return sum(float(line[len(prefix):]) for line in metrics.splitlines() if line.startswith(prefix))
 
 
+def test_an_evaluation_pod_runs_scored_reset_scored_with_nobody_at_the_cell(release: dict[str, Any]) -> None:
+    """The pod launcher's unattended evaluation: the cell's completion monitor and scripted reset in the job
+    pod's connector sidecar (with the simulator, so its camera draws the arm), ten rollouts, no operator input
+    (this release has no NATS: none can reach the cell)."""
+    k8s: ControlPlane = release["k8s"]
+    cell = f"{release['name']}-eval"
+    k8s.kubectl("apply", "-f", "-", input=yaml.safe_dump({
+        "apiVersion": "armnet.io/v1alpha1", "kind": "Cell", "metadata": {"name": cell},
+        "spec": {"nodeName": release["node"].name, "simulated": True, "embodiment": "lerobot/so-101",
+                 "task": "evaluation", "robot": {"robotId": f"{cell}-arm", "safetyLimit": 10},
+                 "cameras": CAMERAS, "completion": target_completion(), "reset": SCRIPTED_RESET}}))
+    wait_for(f"cell {cell} Ready", lambda: ((get_json(k8s, "cell", cell) or {}).get("status") or {})
+             .get("phase") == "Ready", 180, lambda: diagnose(release))
+
+    submit(release, "unattended-eval", {"rollouts": EVALUATION_ROLLOUTS}, timeout=300,
+           image=release["unattended_eval_image"], task="evaluation")
+    done = wait_finished(release, "unattended-eval", 420)
+
+    assert done["status"]["phase"] == "succeeded", json.dumps(done["status"])[:3000]
+    assert done["status"]["cellName"] == cell
+    check_scored_reset_scored(done["status"], EVALUATION_ROLLOUTS)
+
+
 def test_helm_upgrade_rolls_the_operator_while_a_job_runs_and_the_job_still_succeeds(
         release: dict[str, Any]) -> None:
     k8s: ControlPlane = release["k8s"]
@@ -339,6 +372,7 @@ def test_helm_uninstall_keeps_the_crds_the_cells_and_the_tenants_robotjobs(relea
     jobs = (get_json(k8s, "robotjobs", "-n", release["tenant"]) or {"items": []})["items"]
     assert k8s.kubectl("get", "crd", *CRDS, check=False).returncode == 0
     assert get_json(k8s, "cell", f"{release['name']}-sim") is not None  # the platform team's Cells too
-    assert {j["metadata"]["name"]: phase(j) for j in jobs} == {"bus-loop": "succeeded", "through-upgrade": "succeeded"}
+    assert {j["metadata"]["name"]: phase(j) for j in jobs} == {
+        "bus-loop": "succeeded", "unattended-eval": "succeeded", "through-upgrade": "succeeded"}
     assert all(j["status"]["result"]["returnValue"] for j in jobs)  # their results kept with them
     assert get_json(k8s, "deployment", f"{release['name']}-armnet-operator", "-n", release["system"]) is None

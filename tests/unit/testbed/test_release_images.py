@@ -9,7 +9,8 @@ pytestmark = pytest.mark.unit
 
 IMAGES = ReleaseImages(operator="localhost/armnet-operator:it-aaaaaabbbbbb",
                        agent="localhost/armnet-agent:it-aaaaaabbbbbb", tag="it-aaaaaabbbbbb",
-                       example_job="localhost/armnet-example-job:it", bus_loop="localhost/armnet-bus-loop:it")
+                       example_job="localhost/armnet-example-job:it", bus_loop="localhost/armnet-bus-loop:it",
+                       unattended_eval="localhost/armnet-unattended-eval:it")
 
 
 @pytest.mark.parametrize("name", ["localhost/armnet-operator:it-111111222222",
