@@ -9,7 +9,8 @@ as its own answer) and repeats the call.
 
 Register writes that wait for an acknowledgement are asked again too: ``write``
 (one register of one motor), the torque switches (``enable_torque`` /
-``disable_torque``) and ``configure_motors`` set absolute values, so a write applied twice leaves the servo
+``disable_torque``), ``configure_motors`` and a calibration job's ``write_calibration`` /
+``reset_calibration`` set absolute values, so a write applied twice leaves the servo
 exactly as applied once, and the device lock keeps every other request off the bus
 between the attempts. The write's policy check ran once, before the first attempt,
 on the same arguments. Loaded hosts failed jobs on "Failed to write 'Torque_Enable'
@@ -74,7 +75,12 @@ READ_METHODS: dict[str, frozenset[str]] = {
 IDEMPOTENT_CALLS: dict[str, frozenset[str]] = {
     # configure_motors (LeRobot's robots call it in connect): Return_Delay_Time, Maximum_Acceleration
     # and Acceleration set to fixed values, one write each per motor, so all of it may run again.
-    "FeetechMotorsBus": frozenset({"write", "enable_torque", "disable_torque", "configure_motors"}),
+    # write_calibration and reset_calibration (a calibration job's): Homing_Offset and the position
+    # limits set to the values given (or the factory ones), one write each per motor; a loaded host
+    # failed a calibration job's write_calibration on a lost acknowledgement. Not
+    # set_half_turn_homings: it reads positions that its own first writes have moved.
+    "FeetechMotorsBus": frozenset({"write", "enable_torque", "disable_torque", "configure_motors",
+                                   "write_calibration", "reset_calibration"}),
 }
 #: Properties that read the servos when they are read.
 READ_PROPERTIES: dict[str, frozenset[str]] = {

@@ -146,12 +146,32 @@ def test_configure_motors_that_lost_an_acknowledgement_is_run_again_and_configur
     assert all(sim_cell.arm.register(m, "Acceleration") == 254 for m in sim_cell.arm.motors)
 
 
+def test_a_calibration_jobs_write_calibration_that_lost_an_acknowledgement_is_run_again(
+        sim_cell, make_connector, cell_config, motors, calibration) -> None:
+    """Absolute values, one write each per motor: a loaded CI run failed a calibration job on a lost ack."""
+    import dataclasses
+
+    connector = make_connector(cell_config(sim_cell, allowCalibrationJobs=True))
+    job = RemoteFeetechMotorsBus(port=connector.robot_endpoint, motors=motors, calibration=calibration)
+    job.connect()
+    moved = {name: dataclasses.replace(c, range_max=c.range_max - 10) for name, c in calibration.items()}
+    before = connector.counters.bus_retries
+    sim_cell.arm.drop_replies("elbow_flex", 1)
+    job.write_calibration(moved)
+    assert connector.counters.bus_retries - before >= 1
+    assert job.read_calibration() == moved
+    job.disconnect()  # the connector puts the cell's calibration back
+
+
 def test_which_calls_and_failures_are_retried() -> None:
     assert is_retried("FeetechMotorsBus", "configure_motors")
     assert is_retried("FeetechMotorsBus", "enable_torque")
     assert is_retried("FeetechMotorsBus", "disable_torque")
     assert is_retried("FeetechMotorsBus", "sync_read")
     assert is_retried("FeetechMotorsBus", "write")
+    assert is_retried("FeetechMotorsBus", "write_calibration")
+    assert is_retried("FeetechMotorsBus", "reset_calibration")
+    assert not is_retried("FeetechMotorsBus", "set_half_turn_homings")  # reads what its own writes moved
     assert not is_retried("FeetechMotorsBus", "sync_write")
     assert is_read("FeetechMotorsBus", "sync_read", kind="call")
     assert is_read("FeetechMotorsBus", "is_calibrated", kind="get")
