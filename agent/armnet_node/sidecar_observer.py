@@ -175,6 +175,8 @@ class SidecarObserver:
         self._events: deque[RolloutEvent] = deque(maxlen=MAX_ROLLOUT_EVENTS)
         self._events_lock = threading.Lock()
         self._problems = RateLimitedLog(log, 60.0)
+        #: The connector serves no ``monitor`` op (its image predates it): the page shows no live verdict.
+        self._monitor_unknown = False
 
     # -- JobView --------------------------------------------------------------------------
 
@@ -189,6 +191,8 @@ class SidecarObserver:
             return None
 
     def monitor(self) -> MonitorVerdict | None:
+        if self._monitor_unknown:
+            return None
         reply = self._call({"op": "monitor"})
         if reply is None:
             return None
@@ -265,6 +269,9 @@ class SidecarObserver:
                 return None
         if not isinstance(reply, dict) or reply.get("ok") is not True:
             error = reply.get("error") if isinstance(reply, dict) else None
+            if request["op"] == "monitor" and isinstance(reply, dict) and reply.get("error_type") == "UnknownOp":
+                self._monitor_unknown = True  # a sidecar of an image before the op: never asked again
+                return None
             self._count("failed", f"the connector refused {request['op']}: {str(error)[:200]}")
             return None
         self._metrics.observer_requests.labels(result="ok").inc()

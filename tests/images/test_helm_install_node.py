@@ -324,7 +324,10 @@ def test_an_evaluation_pod_runs_scored_reset_scored_with_nobody_at_the_cell(rele
 
     submit(release, "unattended-eval", {"rollouts": EVALUATION_ROLLOUTS}, timeout=300,
            image=release["unattended_eval_image"], task="evaluation")
-    done = wait_finished(release, "unattended-eval", 420)
+    try:
+        done = wait_finished(release, "unattended-eval", 420)
+    finally:
+        k8s.kubectl("delete", "cell", cell, "--wait=false", check=False)  # the later jobs go to the -sim cell
 
     assert done["status"]["phase"] == "succeeded", json.dumps(done["status"])[:3000]
     assert done["status"]["cellName"] == cell

@@ -32,6 +32,7 @@ from tests.support.helm_store import (
     rendered,
     run_config_script,
     store_config,
+    store_pod,
 )
 
 pytestmark = pytest.mark.integration
@@ -165,9 +166,16 @@ def test_the_agent_operator_and_fms_are_pointed_at_the_store_service() -> None:
     assert [p["port"] for p in service["spec"]["ports"]] == [8333]
 
 
-def test_only_the_s3_port_is_open_to_other_pods() -> None:
+def test_only_the_s3_gateway_listens_beyond_the_pods_loopback() -> None:
+    """The master, volume and filer ports take no credentials: they listen on loopback whatever the network
+    enforces; the NetworkPolicy fences the gateway's port too."""
+    pod = store_pod(rendered())
+    store, s3 = (next(c for c in pod["containers"] if c["name"] == name) for name in ("store", "s3"))
     policy = find(rendered(), "NetworkPolicy", "-store")
 
+    assert {"-ip=127.0.0.1", "-ip.bind=127.0.0.1", "-s3=false", "-webdav=false", "-admin.ui=false"} <= set(store["args"])
+    assert "ports" not in store
+    assert "-ip.bind=0.0.0.0" in s3["args"] and [p["containerPort"] for p in s3["ports"]] == [8333]
     assert policy["spec"]["policyTypes"] == ["Ingress"]
     assert [[p["port"] for p in rule["ports"]] for rule in policy["spec"]["ingress"]] == [[8333]]
 

@@ -1,11 +1,12 @@
 """The chart's bundled object store (artifacts.deploy) run for real: its init script and its `weed mini`.
 
 The test bed cannot pull the store's image, and pods on its node cannot reach a Service (no
-kube-proxy), so the pod's two steps run here as the pod would run them: the init
-container's script in ``sh`` with the environment the rendered pod gets from its Secrets
-(:data:`KEYS`), then the rendered container's ``weed`` arguments with the SeaweedFS the test
-bed built. What changes is only where it runs: its data directory, the identities file's
-path, loopback instead of every address, free ports instead of SeaweedFS's defaults.
+kube-proxy), so the pod's steps run here as the pod would run them: the init container's
+script in ``sh`` with the environment the rendered pod gets from its Secrets (:data:`KEYS`),
+then its two containers' ``weed`` arguments with the SeaweedFS the test bed built: the
+store (master, volume server, filer; on loopback as rendered) and its S3 gateway. What
+changes is only where they run: the data directory, the identities file's path, the
+gateway on loopback instead of every address, free ports instead of SeaweedFS's defaults.
 """
 
 from __future__ import annotations
@@ -38,9 +39,11 @@ VALUES: dict[str, Any] = {"artifacts": {
         {"namespace": "team-a", "credentialsSecret": "team-a-outputs"},
         {"namespace": "team-b", "credentialsSecret": "team-b-outputs"}]},
 }, "fms": {"enabled": True, "existingSecret": "fms-login"}}
-#: The rendered flags a local run changes (where it listens and keeps its files); the rest run as rendered.
-LOCAL_FLAGS = ("dir", "ip.bind", "s3.config", "s3.port", "s3.port.grpc", "master.port", "master.port.grpc",
-               "volume.port", "volume.port.grpc", "filer.port", "filer.port.grpc", "admin.port", "admin.port.grpc")
+#: The rendered flags a local run changes, per container (where it listens and keeps its files); the rest
+#: run as rendered.
+STORE_FLAGS = ("dir", "master.port", "master.port.grpc", "volume.port", "volume.port.grpc", "filer.port",
+               "filer.port.grpc", "admin.port", "admin.port.grpc")
+S3_FLAGS = ("ip.bind", "port", "port.grpc", "filer", "config")
 START_TIMEOUT_S = 120
 
 
@@ -86,37 +89,50 @@ def store_config(objects: list[dict[str, Any]], kind: str, name_suffix: str, con
 
 @dataclass
 class ChartStore:
-    """The rendered store container's ``weed`` on loopback; ``endpoint`` is its S3 URL."""
+    """The rendered pod's two ``weed`` processes on loopback; ``endpoint`` is its S3 gateway's URL."""
 
     workdir: Path
     objects: list[dict[str, Any]]
     ports: dict[str, int] = field(default_factory=lambda: {
-        flag: free_port() for flag in LOCAL_FLAGS if flag.endswith("port") or flag.endswith(".grpc")})
-    _proc: ManagedProcess | None = None
+        name: free_port() for name in (*STORE_FLAGS[1:], "s3", "s3.grpc")})
+    _procs: list[ManagedProcess] = field(default_factory=list)
 
     @property
     def endpoint(self) -> str:
-        return f"http://127.0.0.1:{self.ports['s3.port']}"
+        return f"http://127.0.0.1:{self.ports['s3']}"
 
-    def argv(self) -> list[str]:
-        container = store_pod(self.objects)["containers"][0]
-        assert container["command"] == ["weed"], container["command"]
-        local = {"dir": str(self.workdir / "data"), "ip.bind": "127.0.0.1",
-                 "s3.config": str(self.workdir / "s3.json"), **{k: str(v) for k, v in self.ports.items()}}
-        args = [arg for arg in container["args"] if arg.lstrip("-").split("=", 1)[0] not in local]
+    def container(self, name: str) -> dict[str, Any]:
+        found: dict[str, Any] = next(c for c in store_pod(self.objects)["containers"] if c["name"] == name)
+        assert found["command"] == ["weed"], found["command"]
+        return found
+
+    def argv(self, container: str, local: dict[str, str]) -> list[str]:
+        args = [arg for arg in self.container(container)["args"] if arg.lstrip("-").split("=", 1)[0] not in local]
         return [str(require_tool("weed", weed_binary())), *args, *(f"-{k}={v}" for k, v in local.items())]
 
     def start(self) -> ChartStore:
         result = run_config_script(self.objects, KEYS, self.workdir / "s3.json")
         assert result.returncode == 0, result.stderr
         (self.workdir / "data").mkdir(exist_ok=True)
-        self._proc = ManagedProcess("chart-store", self.argv(), self.workdir / "weed.log", cwd=self.workdir)
+        store = {"dir": str(self.workdir / "data"), **{k: str(self.ports[k]) for k in STORE_FLAGS[1:]}}
+        s3 = {"ip.bind": "127.0.0.1", "port": str(self.ports["s3"]), "port.grpc": str(self.ports["s3.grpc"]),
+              "filer": f"127.0.0.1:{self.ports['filer.port']}.{self.ports['filer.port.grpc']}",
+              "config": str(self.workdir / "s3.json")}
+        env = {**os.environ, "TMPDIR": str(self.workdir)}
+        self._procs = [ManagedProcess("chart-store", self.argv("store", store), self.workdir / "store.log",
+                                      env=env, cwd=self.workdir),
+                       ManagedProcess("chart-store-s3", self.argv("s3", s3), self.workdir / "s3.log",
+                                      env=env, cwd=self.workdir)]
         wait_until(self._ready, timeout=START_TIMEOUT_S, what=f"the chart's store on {self.endpoint}",
-                   interval=0.5, alive=self._proc.ensure_running)
+                   interval=0.5, alive=self._alive)
         return self
 
+    def _alive(self) -> None:
+        for proc in self._procs:
+            proc.ensure_running()
+
     def _ready(self) -> bool:
-        # Ready once the agent's keys find the bucket: `weed mini` makes it after its S3 gateway answers.
+        # Ready once the agent's keys find the bucket: `weed mini` makes it once its filer runs.
         from armnet_core.object_store import s3_client
         from botocore.exceptions import BotoCoreError, ClientError
 
@@ -129,6 +145,6 @@ class ChartStore:
         return True
 
     def stop(self) -> None:
-        if self._proc is not None:
-            self._proc.stop()
-            self._proc = None
+        for proc in reversed(self._procs):
+            proc.stop()
+        self._procs = []

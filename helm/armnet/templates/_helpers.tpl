@@ -142,16 +142,17 @@ namespace). Each Secret is one identity: the FMS and the tenants never share ano
 {{- range $a.deploy.tenantReaders -}}
 {{- $ids = append $ids (dict "name" (printf "tenant-%s" .namespace) "env" (printf "TENANT_%s" (.namespace | upper | replace "-" "_")) "secret" .credentialsSecret "actions" (list (printf "Read:%s/%s/*" $b .namespace))) -}}
 {{- end -}}
-{{- $seen := dict -}}
+{{- $names := dict -}}
+{{- $secrets := dict -}}
 {{- range $ids -}}
-{{- if hasKey $seen .name -}}
+{{- if hasKey $names .name -}}
 {{- fail (printf "artifacts.deploy.tenantReaders names namespace %s twice" (trimPrefix "tenant-" .name)) -}}
 {{- end -}}
-{{- if hasKey $seen .secret -}}
-{{- fail (printf "the bundled store's identities %s and %s share the Secret %s: give each its own keys (the FMS's and tenants' read only)" (get $seen .secret) .name .secret) -}}
+{{- if hasKey $secrets .secret -}}
+{{- fail (printf "the bundled store's identities %s and %s share the Secret %s: give each its own keys (the FMS's and tenants' read only)" (get $secrets .secret) .name .secret) -}}
 {{- end -}}
-{{- $_ := set $seen .secret .name -}}
-{{- $_ := set $seen .name .secret -}}
+{{- $_ := set $names .name .secret -}}
+{{- $_ := set $secrets .secret .name -}}
 {{- end -}}
 {{- toYaml $ids -}}
 {{- end -}}
