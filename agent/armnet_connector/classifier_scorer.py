@@ -63,6 +63,10 @@ def load_model(config: ClassifierConfig) -> Any:
     """The model as an OpenCV DNN network, checked to answer one finite number for a blank frame."""
     import cv2
 
+    if config.model is None:
+        raise ClassifierModelError(
+            "completion.classifier.modelFrom names a ConfigMap, which only a node agent in the cluster reads "
+            "(it writes the model to a file for the connector); give completion.classifier.model, a file, here")
     data = read_model_bytes(config.model)
     try:
         net = cv2.dnn.readNetFromONNX(np.frombuffer(data, dtype=np.uint8))

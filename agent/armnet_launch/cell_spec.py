@@ -214,6 +214,10 @@ def resolve_spec(
     )
     problem = unknown_camera(file.completion, {camera.name for camera in cameras}) or reset_problem(
         file.reset, file.completion, PRESET_ARMS[chosen_preset])
+    classifier = file.completion.classifier if file.completion is not None else None
+    if problem is None and classifier is not None and classifier.model_from is not None:
+        problem = ("completion.classifier.modelFrom names a ConfigMap, which only a node agent in a cluster reads; "
+                   "a local run's cell file gives completion.classifier.model, the .onnx file's path")
     if problem is not None:
         raise LocalCellError(problem)
     return LocalCellSpec(

@@ -23,11 +23,12 @@ from armnet_core.cell_completion import DEFAULT_COMPLETION_DIRS
 from armnet_launch.plan import LABEL_CELL, LABEL_NAMESPACE
 
 from armnet_node.artifacts import ObjectStore
+from armnet_node.completion_configmap import ConfigMapModels, resolved_cell
 from armnet_node.deviceplugin.server import DevicePlugins
 from armnet_node.kube import AgentKube, KubeError
 from armnet_node.launchers import JobLauncher, PodLauncher
 from armnet_node.metrics import AgentMetrics
-from armnet_node.model import Cell, Job, parse_cell, parse_job
+from armnet_node.model import Cell, Job, parse_job
 from armnet_node.plan import HostPaths
 from armnet_node.publish import Link
 from armnet_node.runner import RunnerDeps
@@ -54,6 +55,8 @@ class AgentSettings:
     dev_mounts: tuple[str, ...] = ()
     dev_env: dict[str, str] = field(default_factory=dict)
     completion_dirs: tuple[str, ...] = DEFAULT_COMPLETION_DIRS
+    #: The namespace of the ConfigMaps Cells name (classifier models): the agent's own; None: it has none.
+    config_namespace: str | None = None
 
 
 class NodeAgent:
@@ -71,8 +74,9 @@ class NodeAgent:
         self.link = link
         paths = HostPaths(settings.state_dir, settings.dev_mounts, settings.dev_env or None, settings.completion_dirs)
         self.uploads = UploadQueue(store, paths, kube, metrics)
+        models = ConfigMapModels(kube, settings.config_namespace, paths.completion_models_dir)
         self.deps = RunnerDeps(kube=kube, launcher=launcher, paths=paths, metrics=metrics, link=link,
-                               uploads=self.uploads)
+                               uploads=self.uploads, completion_models=models)
         self.workers: dict[str, CellWorker] = {}
         self._wake = threading.Event()
         self._rows: dict[str, Any] | None = None
@@ -102,6 +106,8 @@ class NodeAgent:
 
     def pass_once(self) -> None:
         cells = self._my_cells()
+        if self.deps.completion_models is not None:
+            self.deps.completion_models.retain(cells)
         for name, cell in cells.items():
             worker = self.workers.get(name)
             if worker is None:
@@ -131,7 +137,7 @@ class NodeAgent:
             if (obj.get("spec") or {}).get("nodeName") != self.settings.node_name:
                 continue
             try:
-                cell = parse_cell(obj)
+                cell = resolved_cell(obj, self.deps.completion_models)
             except ValueError as exc:
                 log.warning("%s", exc)
                 continue

@@ -78,6 +78,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--state-dir", type=Path,
                         default=Path(_env("STATE_DIR") or Path(tempfile.gettempdir()) / "armnet-agent"),
                         help="job sockets, calibration copies, caches and volumes (keep the path short)")
+    parser.add_argument("--config-namespace", default=_env("CONFIG_NAMESPACE") or os.environ.get("POD_NAMESPACE"),
+                        help="where the ConfigMaps a Cell names live (a classifier's model): the platform's "
+                             "namespace (default: the agent pod's own, POD_NAMESPACE)")
     parser.add_argument("--heartbeat-period", type=float, default=float(_env("HEARTBEAT_PERIOD", "5") or 5),
                         help="seconds between heartbeats (keep well under the operator's --heartbeat-timeout)")
     parser.add_argument("--pass-period", type=float, default=float(_env("PASS_PERIOD", "2") or 2),
@@ -172,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
         dev_mounts=tuple(args.dev_mount),
         dev_env=dev_env,
         completion_dirs=completion_dirs(args.completion_files_dir, _env("COMPLETION_FILES_DIRS")),
+        config_namespace=args.config_namespace or None,
     )
     try:
         store_config = StoreConfig.from_env()

@@ -45,17 +45,18 @@ def file_identity(path: str) -> FileIdentity:
 
 
 def files_problem(completion: CompletionConfig, dirs: tuple[str, ...] = DEFAULT_COMPLETION_DIRS,
-                  reader_uid: int | None = None) -> str | None:
+                  reader_uid: int | None = None, model_dirs: tuple[str, ...] = ()) -> str | None:
     """Why the monitor cannot use its host files (the model, the token file), None when it can.
 
-    ``dirs``: where the agent lets a Cell point (``HostPaths.completion_dirs``);
+    ``dirs``: where the agent lets a Cell point (``HostPaths.completion_dirs``); ``model_dirs``: where a
+    classifier's model may lie besides (the agent's own copies of ConfigMaps' models: never a token file);
     ``reader_uid``: the uid the connector reads them as (a pod's sidecar), None when it
     is this process (the container launcher's in-process connector). Never raises: a
     check that fails in an unforeseen way is the problem it reports.
     """
     paths = host_files(completion)
     try:
-        refused = outside_dirs(paths, dirs)
+        refused = outside_dirs(paths, (*dirs, *model_dirs) if completion.classifier is not None else dirs)
         if refused is not None:
             return refused
         if reader_uid is not None:
@@ -81,6 +82,7 @@ class CompletionFilesCheck:
 
     dirs: tuple[str, ...] = DEFAULT_COMPLETION_DIRS
     reader_uid: int | None = None
+    model_dirs: tuple[str, ...] = ()
     _key: tuple[CompletionConfig, tuple[FileIdentity, ...]] | None = None
     _problem: str | None = None
     checks: int = field(default=0)
@@ -88,7 +90,7 @@ class CompletionFilesCheck:
     def problem(self, completion: CompletionConfig) -> str | None:
         key = (completion, tuple(file_identity(path) for path in host_files(completion)))
         if key != self._key:
-            self._problem = files_problem(completion, self.dirs, self.reader_uid)
+            self._problem = files_problem(completion, self.dirs, self.reader_uid, self.model_dirs)
             self._key = key
             self.checks += 1
         return self._problem

@@ -1,7 +1,8 @@
 """The agent's reads and writes on the API server (the official ``kubernetes`` client).
 
 Reads: Cells (cluster-wide), RobotJobs (all namespaces or the configured
-ones), Secrets in a job's own namespace. Writes: Cell status (heartbeat,
+ones), Secrets in a job's own namespace, a ConfigMap key a Cell names (in the
+agent's own namespace). Writes: Cell status (heartbeat,
 conditions), RobotJob status (run-time fields). Errors become the small set
 the agent acts on: :class:`Conflict` (re-read and decide again),
 :class:`Gone`, :class:`KubeError`.
@@ -35,6 +36,14 @@ class Gone(KubeError):
 
 class SecretMissing(KubeError):
     """A Secret or a key of it that a job names is not in the job's namespace."""
+
+
+class ConfigMapKeyMissing(KubeError):
+    """A ConfigMap or a key of it that a Cell names is not in the agent's namespace."""
+
+
+class ConfigMapForbidden(KubeError):
+    """The agent may not read the ConfigMap a Cell names (it is not among the ones its RBAC lists)."""
 
 
 def make_client(kubeconfig: str | None) -> client.ApiClient:
@@ -132,6 +141,33 @@ class AgentKube:
                 GROUP, VERSION, CELLS, name, body))
         except ApiException as exc:
             raise _error(exc, f"cell {name} status") from exc
+
+    def read_config_map_key(self, namespace: str, name: str, key: str) -> bytes:
+        """The bytes of ``key`` of ConfigMap ``namespace/name`` (``binaryData``, or ``data`` as UTF-8).
+
+        A missing ConfigMap or key is :class:`ConfigMapKeyMissing`, saying how to make it.
+        """
+        try:
+            found = self.core.read_namespaced_config_map(name, namespace)
+        except ApiException as exc:
+            if exc.status == 404:
+                raise ConfigMapKeyMissing(
+                    f"ConfigMap {namespace}/{name} does not exist; create it there: kubectl -n {namespace} "
+                    f"create configmap {name} --from-file={key}=<the model file>") from exc
+            if exc.status in (401, 403):
+                raise ConfigMapForbidden(
+                    f"the node agent may not read ConfigMap {namespace}/{name} ({exc.reason}); list it in the Helm "
+                    "chart's agent.completionFiles.configMaps (the agent may get exactly those)") from exc
+            raise _error(exc, f"configmap {namespace}/{name}") from exc
+        binary, text = found.binary_data or {}, found.data or {}
+        if key in binary:
+            return base64.b64decode(binary[key])
+        if key in text:
+            return str(text[key]).encode("utf-8")
+        raise ConfigMapKeyMissing(
+            f"ConfigMap {namespace}/{name} has no key {key!r} (keys: {sorted([*binary, *text])[:20]}); "
+            f"add it: kubectl -n {namespace} create configmap {name} --from-file={key}=<the model file> "
+            "--dry-run=client -o yaml | kubectl apply -f -")
 
     def resolve_secrets(self, namespace: str, wanted: dict[str, str]) -> dict[str, str]:
         """Env var -> value from Secrets in ``namespace`` only.

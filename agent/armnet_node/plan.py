@@ -16,7 +16,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from armnet_core.cell_completion import DEFAULT_COMPLETION_DIRS, host_files, outside_dirs
+from armnet_core.cell_completion import (
+    DEFAULT_COMPLETION_DIRS,
+    CompletionConfig,
+    host_files,
+    outside_dirs,
+)
 from armnet_launch.cell_spec import (
     EMBODIMENT_PRESET,
     CellLayout,
@@ -77,6 +82,18 @@ class HostPaths:
         """The cell's record of the job (the connector writes it, the job never sees it); uploaded with the output."""
         return self.state_dir / "records" / job_uid
 
+    @property
+    def completion_models_dir(self) -> Path:
+        """Where the agent writes the classifier models Cells name by ConfigMap (``completion_configmap``)."""
+        return self.state_dir / "completion-models"
+
+    def completion_dirs_for(self, completion: CompletionConfig | None) -> tuple[str, ...]:
+        """Where ``completion``'s files may lie: the configured directories, and for a classifier's model the
+        agent's own copies of ConfigMaps' models too (never a judge's token file: its bytes go to the judge)."""
+        if completion is not None and completion.classifier is not None:
+            return (*self.completion_dirs, str(self.completion_models_dir))
+        return self.completion_dirs
+
 
 @dataclass(frozen=True)
 class LaunchPlan:
@@ -130,14 +147,19 @@ def _bimanual_id(cell: Cell) -> str:
 
 
 def completion_files_refused(cell: Cell, paths: HostPaths) -> str | None:
-    """Why a new job must not launch on ``cell``: its monitor names a file outside the agent's directories.
+    """Why a new job must not launch on ``cell``: its monitor names a file outside the agent's directories,
+    or a model from a ConfigMap the agent could not write to a file (``completion_configmap``).
 
     Asked before a launch only, never of a job the agent adopts (it runs already: a change
     of the directories must not fail it mid-run). The heartbeat's ``CompletionReady`` says
     the same earlier, so the operator does not bind such a cell; this closes the window of
     a Cell edited between the binding and the launch.
     """
-    refused = outside_dirs(host_files(cell.completion), paths.completion_dirs)
+    classifier = cell.completion.classifier if cell.completion is not None else None
+    if classifier is not None and classifier.model_from is not None:
+        ref = classifier.model_from.config_map_key_ref
+        return f"cell {cell.name}: its classifier's model (ConfigMap {ref.name}, key {ref.key}) is not on this host"
+    refused = outside_dirs(host_files(cell.completion), paths.completion_dirs_for(cell.completion))
     return f"cell {cell.name}: {refused}" if refused is not None else None
 
 

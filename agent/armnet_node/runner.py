@@ -52,6 +52,7 @@ from armnet_sim.presets import CellSimulator
 
 from armnet_node import report
 from armnet_node import rollout_history as rh
+from armnet_node.completion_configmap import ConfigMapModels
 from armnet_node.device_health import LOST_PREFIX, lost_job_error
 from armnet_node.follower import guard_follower
 from armnet_node.kube import AgentKube, Conflict, Gone, KubeError, SecretMissing
@@ -92,6 +93,8 @@ class RunnerDeps:
     link: Link
     #: Takes each job's output directory to the object store once the job ended (docs/outputs.md).
     uploads: UploadQueue
+    #: Writes the classifier models Cells name by ConfigMap to files (None: a Cell naming one is refused).
+    completion_models: ConfigMapModels | None = None
 
 
 class JobRunner:
@@ -345,7 +348,9 @@ class JobRunner:
             return
         files_refused = None if adopted else completion_files_refused(cell, self.deps.paths)
         if files_refused is not None:
-            self._fail_before_start(files_refused)
+            models = self.deps.completion_models
+            why = models.problem(cell.name) if models is not None else None
+            self._fail_before_start(f"{files_refused}: {why}" if why else files_refused)
             return
         launcher = self.deps.launcher
         try:

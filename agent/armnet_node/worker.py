@@ -42,6 +42,7 @@ from armnet_sim.process import SimulatedCellProcess
 
 from armnet_node import device_health, health, report
 from armnet_node.bus_turns import BusTurns
+from armnet_node.completion_configmap import resolved_cell
 from armnet_node.completion_model import CompletionFilesCheck
 from armnet_node.device_watch import DeviceWatch
 from armnet_node.deviceplugin.decide import DevicePath, cell_device_paths
@@ -49,7 +50,6 @@ from armnet_node.kube import Conflict, Gone, KubeError
 from armnet_node.model import (
     Cell,
     Job,
-    parse_cell,
     should_launch,
 )
 from armnet_node.plan import LaunchError, cell_spec_for
@@ -104,7 +104,8 @@ class CellWorker:
         self._auto_reset: Mapping[str, Any] | None = None
         # The uid the connector reads the cell's completion files as: a pod's sidecar's, or this process's.
         reader_uid = getattr(deps.launcher, "connector_uid", None)
-        self._completion_files = CompletionFilesCheck(deps.paths.completion_dirs, reader_uid)
+        self._completion_files = CompletionFilesCheck(deps.paths.completion_dirs, reader_uid,
+                                                      (str(deps.paths.completion_models_dir),))
         self._cameras_draw_the_arm = bool(getattr(deps.launcher, "simulated_cameras_draw_the_arm", True))
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
 
@@ -237,6 +238,9 @@ class CellWorker:
                     self._vanished(job)
                     continue
                 if should_launch(job, self.cell):
+                    models = self.deps.completion_models
+                    if models is not None and models.pending(self.cell.name):
+                        continue  # the model's ConfigMap could not be read just now: the next pass asks again
                     self._begin(job, None)
                     return
 
@@ -405,8 +409,18 @@ class CellWorker:
             return None
         if self.cell.simulated and not self._cameras_draw_the_arm:
             return health.MONITOR_SEES_NO_ARM, "CannotSeeTheArm"
+        models = self.deps.completion_models
+        classifier = completion.classifier
+        if classifier is not None and classifier.model_from is not None:  # not written to a file (yet)
+            ref = classifier.model_from.config_map_key_ref
+            why = models.problem(self.cell.name) if models is not None else None
+            return why or f"ConfigMap {ref.name}: this node agent reads no ConfigMaps", "ConfigMapUnusable"
         if host_files(completion):
-            return self._completion_files.problem(completion), "FileUnusable"
+            problem = self._completion_files.problem(completion)
+            source = models.source(self.cell.name) if models is not None else None
+            if problem is not None and source is not None:
+                problem = f"the model of {source} (the agent's copy; fix the ConfigMap): {problem}"
+            return problem, "FileUnusable"
         return None
 
     def _heartbeat(self) -> None:
@@ -438,7 +452,7 @@ class CellWorker:
             }
             try:
                 updated = self.deps.kube.patch_cell_status(self.cell.name, body)
-                self.cell = parse_cell(updated)
+                self.cell = resolved_cell(updated, self.deps.completion_models)
                 return
             except Conflict:
                 continue

@@ -43,6 +43,7 @@ RBAC_KINDS = {"ServiceAccount", "ClusterRole", "ClusterRoleBinding", "Role", "Ro
 CLUSTER_KINDS = {"ClusterRole", "ClusterRoleBinding", "ValidatingAdmissionPolicy", "ValidatingAdmissionPolicyBinding"}
 JOB_SECRET = "job-token"
 OTHER_SECRET = "other-token"
+MODEL_CONFIGMAP = "reach-classifier"
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ def release(k8s: ControlPlane, tmp_path_factory: pytest.TempPathFactory) -> Iter
         "crds": {"install": False},
         "jobNamespaces": [{"name": team_a, "secrets": [JOB_SECRET]}, {"name": team_b}],
         "rbac": {"tenants": {"cellReaderGroups": [tenants]}},
-        "agent": {"nodeBoundPods": True},
+        "agent": {"nodeBoundPods": True, "completionFiles": {"configMaps": [MODEL_CONFIGMAP]}},
     }) if o["kind"] in RBAC_KINDS]
     manifest = yaml.safe_dump_all(objects)
     fullname = f"rbac-{suffix}-armnet"
@@ -182,6 +183,14 @@ def test_agent_account_reads_a_secret_a_job_references(release: Release) -> None
 
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["metadata"]["name"] == JOB_SECRET
+
+
+def test_agent_account_reads_only_the_listed_model_configmaps_and_only_in_the_release_namespace(
+        release: Release) -> None:
+    assert release.can(release.agent, "get", f"configmaps/{MODEL_CONFIGMAP}", release.namespace)
+    assert not release.can(release.agent, "get", "configmaps/kube-root-ca.crt", release.namespace)
+    assert not release.can(release.agent, "list", "configmaps", release.namespace)
+    assert not release.can(release.agent, "get", f"configmaps/{MODEL_CONFIGMAP}", release.team_a)
 
 
 def test_agent_account_cannot_read_another_secret(release: Release) -> None:

@@ -172,6 +172,8 @@ def test_a_cell_with_a_completion_monitor_is_accepted_with_its_defaults(k8s: Any
 @pytest.mark.parametrize(("scorer", "setting", "defaults"), [
     ("service", {"url": "http://judge.lab.internal:8080/score"}, {"timeoutSeconds": 0.5, "threshold": 0.5}),
     ("classifier", {"model": "/var/lib/armnet/models/reach.onnx"}, {"threshold": 0.5, "inputSize": 64}),
+    ("classifier", {"modelFrom": {"configMapKeyRef": {"name": "reach-classifier", "key": "reach.onnx"}}},
+     {"threshold": 0.5, "inputSize": 64}),
 ])
 def test_a_cell_with_a_scoring_service_or_a_classifier_is_accepted_with_its_defaults(
     k8s: Any, scorer: str, setting: dict[str, Any], defaults: dict[str, Any],
@@ -205,6 +207,14 @@ CLASSIFIER = {"model": "/var/lib/armnet/models/reach.onnx"}
      "spec.completion.classifier.model"),
     (a_completion(scorer="classifier", region=None, colour=None, classifier={**CLASSIFIER, "inputSize": 4}),
      "spec.completion.classifier.inputSize"),
+    (a_completion(scorer="classifier", region=None, colour=None, classifier={
+        **CLASSIFIER, "modelFrom": {"configMapKeyRef": {"name": "reach", "key": "reach.onnx"}}}),
+     "spec.completion.classifier needs exactly one model"),
+    (a_completion(scorer="classifier", region=None, colour=None, classifier={"inputSize": 96}),
+     "spec.completion.classifier needs exactly one model"),
+    (a_completion(scorer="classifier", region=None, colour=None, classifier={
+        "modelFrom": {"configMapKeyRef": {"name": "reach", "key": "../reach.pt"}}}),
+     "spec.completion.classifier.modelFrom.configMapKeyRef.key"),
     (a_completion(scorer="classifier", region=None, colour=None,
                   classifier={"model": "/var/lib/armnet/models/../../../etc/x.onnx"}), "give a normalized absolute path"),
     (a_completion(scorer="service", region=None, colour=None,

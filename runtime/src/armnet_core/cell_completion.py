@@ -172,17 +172,41 @@ class ServiceConfig(_Model):
         return _finite(value, "completion.service.threshold")
 
 
+#: A ConfigMap's name (a DNS subdomain) and one of its keys, as Kubernetes spells them.
+_CONFIGMAP_NAME = r"^[a-z0-9]([-a-z0-9.]*[a-z0-9])?$"
+_CONFIGMAP_KEY = r"^[-._a-zA-Z0-9]+[.]onnx$"
+
+
+class ConfigMapKeyRef(_Model):
+    """One key of a ConfigMap in the node agent's own namespace (the platform's, never a tenant's)."""
+
+    name: str = Field(min_length=1, max_length=253, pattern=_CONFIGMAP_NAME, description="the ConfigMap's name")
+    key: str = Field(min_length=6, max_length=253, pattern=_CONFIGMAP_KEY,
+                     description="the key holding the model (binaryData, ending in .onnx)")
+
+
+class ModelSource(_Model):
+    """Where a classifier's model comes from when it is not a file on the robot host."""
+
+    config_map_key_ref: ConfigMapKeyRef
+
+
 class ClassifierConfig(_Model):
-    """A learned success classifier: an ONNX model file on the robot host, run by OpenCV's DNN module.
+    """A learned success classifier: an ONNX model, run by OpenCV's DNN module.
 
     The contract (docs/connector.md, "Scoring by a learned classifier"): one input of
     ``1 x 3 x inputSize x inputSize`` float32, the frame resized to that square, RGB,
-    scaled to 0..1; one output, a single logit, whose sigmoid is the score. The path is
-    the cell owner's (in the Cell, never a job's); the file is checked where the cell's
-    connector runs (``CompletionReady`` on the Cell says why it cannot be used).
+    scaled to 0..1; one output, a single logit, whose sigmoid is the score. The model is
+    the cell owner's (in the Cell, never a job's): a file on the robot host (``model``),
+    or a key of a ConfigMap in the node agent's namespace (``modelFrom``), which the agent
+    writes to a file of its own (``with_model_file``) before anything reads it. It is
+    checked where the cell's connector runs (``CompletionReady`` on the Cell says why it
+    cannot be used).
     """
 
-    model: str = Field(min_length=2, max_length=1024, description="absolute path of the .onnx model file on the robot host")
+    model: str | None = Field(default=None, min_length=2, max_length=1024,
+                              description="absolute path of the .onnx model file on the robot host")
+    model_from: ModelSource | None = Field(default=None, description="the model from a ConfigMap of the platform's")
     threshold: float = Field(default=0.5, ge=0, le=1, description="a frame scored at least this is a hit")
     input_size: int = Field(default=64, description="side of the square picture the model sees, in pixels")
 
@@ -197,9 +221,22 @@ class ClassifierConfig(_Model):
         return _bounded(value, "completion.classifier.inputSize", MIN_INPUT_SIZE, MAX_INPUT_SIZE, (int,),
                         f"{MIN_INPUT_SIZE} to {MAX_INPUT_SIZE} pixels (the side the model was trained on)")
 
+    @model_validator(mode="after")
+    def _one_model(self) -> ClassifierConfig:
+        if (self.model is None) == (self.model_from is None):
+            raise ValueError("completion.classifier needs exactly one model: model (a file on the robot host) or "
+                             "modelFrom.configMapKeyRef (a ConfigMap in the node agent's namespace)")
+        return self
+
+    def with_model_file(self, path: str) -> ClassifierConfig:
+        """This classifier reading its model from the file ``path`` (where the agent wrote ``modelFrom``'s)."""
+        return self.model_copy(update={"model": self._normal_path(path), "model_from": None})
+
     @field_validator("model")
     @classmethod
-    def _normal_path(cls, value: str) -> str:
+    def _normal_path(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
         if not value.endswith(".onnx"):
             raise ValueError(f"completion.classifier.model {value[:80]!r}: give the absolute path of an ONNX "
                              "model file on the robot host, ending in .onnx (e.g. /var/lib/armnet/models/reach.onnx)")
@@ -289,7 +326,8 @@ def host_files(completion: CompletionConfig | None) -> tuple[str, ...]:
     if completion is None:
         return ()
     if completion.classifier is not None:
-        return (completion.classifier.model,)
+        # A model from a ConfigMap is no host file until the node agent wrote it (``with_model_file``).
+        return () if completion.classifier.model is None else (completion.classifier.model,)
     if completion.service is not None and completion.service.token_file is not None:
         return (completion.service.token_file,)
     return ()

@@ -86,6 +86,15 @@ HOSTILE: list[tuple[str, dict[str, Any], str]] = [
     ("a NaN classifier threshold", {"scorer": "classifier", "region": None, "colour": None,
                                     "classifier": {"model": "/m/reach.onnx", "threshold": float("nan")}},
      "finite number"),
+    ("a classifier with two models", {"scorer": "classifier", "region": None, "colour": None, "classifier": {
+        "model": "/m/reach.onnx", "modelFrom": {"configMapKeyRef": {"name": "reach", "key": "reach.onnx"}}}},
+     "needs exactly one model: model (a file on the robot host) or modelFrom.configMapKeyRef"),
+    ("a classifier with no model", {"scorer": "classifier", "region": None, "colour": None,
+                                    "classifier": {"inputSize": 96}}, "needs exactly one model"),
+    ("a model ConfigMap that is no name", {"scorer": "classifier", "region": None, "colour": None, "classifier": {
+        "modelFrom": {"configMapKeyRef": {"name": "../etc", "key": "reach.onnx"}}}}, "configMapKeyRef.name"),
+    ("a model key that is not .onnx", {"scorer": "classifier", "region": None, "colour": None, "classifier": {
+        "modelFrom": {"configMapKeyRef": {"name": "reach", "key": "reach.pt"}}}}, "configMapKeyRef.key"),
     ("a region scorer without its region", {"region": None}, "scorer region needs completion.region"),
     ("a region scorer given a service", {"service": {"url": "http://judge.lab:8080/score"}}, "is for scorer service"),
     ("a service scorer without its service", {"scorer": "service"}, "needs completion.service (its url)"),
@@ -124,3 +133,17 @@ def test_the_connector_refuses_a_completion_on_a_camera_the_cell_lacks(
 def test_a_cell_without_completion_has_no_monitor_settings(cell_config: Callable[..., ConnectorConfig]) -> None:
     assert cell_config(None).completion is None
     assert cell_config(None, completion=a_completion()).completion == CompletionConfig.model_validate(a_completion())
+
+
+def test_a_classifier_from_a_configmap_reads_no_host_file_until_the_agent_wrote_one() -> None:
+    from armnet_core.cell_completion import host_files
+
+    completion = CompletionConfig.model_validate(a_completion(scorer="classifier", region=None, colour=None, classifier={
+        "modelFrom": {"configMapKeyRef": {"name": "reach", "key": "reach.onnx"}}, "inputSize": 96}))
+    assert completion.classifier is not None and host_files(completion) == ()
+    from armnet_connector.classifier_scorer import model_problem
+
+    assert "only a node agent in the cluster reads" in str(model_problem(completion.classifier))
+    written = completion.classifier.with_model_file("/var/lib/armnet/cache/completion-models/c/ab.onnx")
+    assert (written.model, written.model_from, written.input_size) == (
+        "/var/lib/armnet/cache/completion-models/c/ab.onnx", None, 96)

@@ -147,3 +147,13 @@ def test_a_cell_file_whose_completion_names_a_camera_the_cell_lacks_is_refused(t
     )
     with pytest.raises(LocalCellError, match="completion.camera 'wrist' is not a camera of this cell"):
         spec_for(cell_file=load_cell_file(path))
+
+
+def test_a_cell_file_whose_classifier_names_a_configmap_is_refused_saying_to_give_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "cell.yaml"
+    path.write_text(
+        "completion:\n  camera: front\n  scorer: classifier\n"
+        "  classifier: {modelFrom: {configMapKeyRef: {name: reach, key: reach.onnx}}}\n"
+    )
+    with pytest.raises(LocalCellError, match="a local run's cell file gives completion.classifier.model"):
+        spec_for(cell_file=load_cell_file(path))
