@@ -110,15 +110,21 @@ def parse_monitor_subject(subject: str) -> str | None:
     return None
 
 
-def parse_monitor(data: bytes, at: float) -> MonitorReading | None:
-    """The verdict in an agent's ``monitor`` message, or None when it is not one (a score is within 0..1)."""
-    if len(data) > MAX_MONITOR_BYTES:
+def _json_object(data: bytes, cap: int) -> dict[str, Any] | None:
+    """``data`` as a JSON object when it is one of at most ``cap`` bytes, else None."""
+    if len(data) > cap:
         return None
     try:
         body = json.loads(data)
     except ValueError:
         return None
-    if not isinstance(body, dict) or not isinstance(body.get("complete"), bool):
+    return body if isinstance(body, dict) else None
+
+
+def parse_monitor(data: bytes, at: float) -> MonitorReading | None:
+    """The verdict in an agent's ``monitor`` message, or None when it is not one (a score is within 0..1)."""
+    body = _json_object(data, MAX_MONITOR_BYTES)
+    if body is None or not isinstance(body.get("complete"), bool):
         return None
     score = body.get("score")
     if isinstance(score, bool) or not isinstance(score, int | float) or not 0.0 <= score <= 1.0:
@@ -145,13 +151,8 @@ def _sample(sample: Any) -> tuple[int, int | None, int | None] | None:
 
 def parse_servos(data: bytes, at: float) -> ServoReading | None:
     """The reading in an agent's ``servos`` message, or None when it is not one."""
-    if len(data) > MAX_SERVOS_BYTES:
-        return None
-    try:
-        body = json.loads(data)
-    except ValueError:
-        return None
-    if not isinstance(body, dict) or not isinstance(body.get("arms"), dict):
+    body = _json_object(data, MAX_SERVOS_BYTES)
+    if body is None or not isinstance(body.get("arms"), dict):
         return None
     source = body.get("source")
     motors: list[tuple[str, str, tuple[int, int | None, int | None] | None]] = []

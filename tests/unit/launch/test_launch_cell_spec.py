@@ -139,21 +139,15 @@ def test_a_cell_file_sets_the_completion_monitor_of_a_local_run(tmp_path: Path) 
     assert config.completion is not None and config.completion.consecutive_frames == 2
 
 
-def test_a_cell_file_whose_completion_names_a_camera_the_cell_lacks_is_refused(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("completion", "says"), [
+    ("  camera: wrist\n  region: {left: 0.7, top: 0.1, width: 0.1, height: 0.1}\n  colour: {hueMin: 170, hueMax: 8}\n",
+     "completion.camera 'wrist' is not a camera of this cell"),
+    ("  camera: front\n  scorer: classifier\n  classifier: {modelFrom: {configMapKeyRef: {name: reach, key: reach.onnx}}}\n",
+     "a local run's cell file gives completion.classifier.model"),
+], ids=["a camera the cell lacks", "a classifier model from a ConfigMap"])
+def test_a_cell_file_whose_completion_a_local_run_cannot_serve_is_refused(
+        tmp_path: Path, completion: str, says: str) -> None:
     path = tmp_path / "cell.yaml"
-    path.write_text(
-        "completion:\n  camera: wrist\n  region: {left: 0.7, top: 0.1, width: 0.1, height: 0.1}\n"
-        "  colour: {hueMin: 170, hueMax: 8}\n"
-    )
-    with pytest.raises(LocalCellError, match="completion.camera 'wrist' is not a camera of this cell"):
-        spec_for(cell_file=load_cell_file(path))
-
-
-def test_a_cell_file_whose_classifier_names_a_configmap_is_refused_saying_to_give_the_file(tmp_path: Path) -> None:
-    path = tmp_path / "cell.yaml"
-    path.write_text(
-        "completion:\n  camera: front\n  scorer: classifier\n"
-        "  classifier: {modelFrom: {configMapKeyRef: {name: reach, key: reach.onnx}}}\n"
-    )
-    with pytest.raises(LocalCellError, match="a local run's cell file gives completion.classifier.model"):
+    path.write_text("completion:\n" + completion)
+    with pytest.raises(LocalCellError, match=says):
         spec_for(cell_file=load_cell_file(path))
