@@ -155,7 +155,7 @@ def main() -> int:
         while not stop.wait(SIGNAL_POLL_S):
             pass
     finally:
-        record = _record(connector)
+        record = connector_record(connector)
         connector.stop()
         record["safety"] = connector.safety_report().as_status()
         record["cell_record"] = connector.cell_record_counts()
@@ -177,7 +177,7 @@ def _start_simulator(simulator: Mapping[str, Any], connector_config: Any) -> Any
                                 latency_ms=float(simulator.get("latency_ms", 0.0))).start()
 
 
-def _record(connector: Any) -> dict[str, Any]:
+def connector_record(connector: Any) -> dict[str, Any]:
     """The connector's account before its own stop trips the interlock (``shutdown`` is teardown, not news)."""
     trip = connector.interlock.trip_info
     rollout = None
@@ -187,8 +187,11 @@ def _record(connector: Any) -> dict[str, Any]:
             break
     events = list(connector.cell.rollouts)[-RECORD_ROLLOUT_EVENTS:]
     return {
+        # Every field of an event (the observer socket's ``rollouts`` op gives the same): a verdict the
+        # monitor records at the last rollout's end is read from here once the job has exited.
         "rollouts": [{"kind": e.kind, "at": e.at, "index": e.index, "total": e.total,
-                      "outcome_controls": e.outcome_controls} for e in events],
+                      "outcome_controls": e.outcome_controls, "success": e.success, "score": e.score,
+                      "frame_at": e.frame_at} for e in events],
         "trip_reason": trip.reason.value if trip is not None else None,
         "trip_message": trip.message if trip is not None else None,
         "safety_violations": connector.counters.safety_violations,

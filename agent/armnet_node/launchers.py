@@ -634,7 +634,7 @@ class PodSession:
             data = self.job.connector_record() if self.job is not None else None
             self._record = _connector_record(data)
             if self.observer is not None and data:
-                self.observer.take_events(_record_events(data))
+                self.observer.take_events(record_events(data))
         return self._record
 
     def _observer_path(self) -> Path | None:
@@ -654,7 +654,7 @@ class PodSession:
             self.job.remove()
 
 
-def _record_events(data: Mapping[str, Any]) -> list[Any]:
+def record_events(data: Mapping[str, Any]) -> list[Any]:
     """The rollout events in a sidecar's record (its last ones: the observer may have missed the final end)."""
     events = []
     for item in data.get("rollouts") or []:

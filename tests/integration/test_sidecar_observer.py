@@ -142,3 +142,25 @@ def test_the_jobs_sockets_serve_no_observer_op_so_a_job_cannot_pose_as_the_obser
     for name in ("robot.sock", "operator.sock"):
         reply = request(pod.sockets / name, {"op": "rollouts"})
         assert reply["ok"] is False and reply["error_type"] == "UnknownOp"
+
+
+def test_the_sidecars_final_record_carries_the_monitors_verdict_on_the_last_rollout(pod: Pod) -> None:
+    """The monitor records its verdict on the last rollout at its end, and the job exits right after: the agent
+    reads that verdict from the sidecar's final record (the chart's evaluation lost it before)."""
+    from armnet_connector.cell import RolloutEvent
+    from armnet_launch.sidecar import connector_record, parse_record, record_line
+    from armnet_node.launchers import record_events
+
+    pod.operator_op("rollout_begin", index=1, total=1, outcome_controls=False)
+    begun = pod.connector.cell.rollouts[-1].at
+    pod.connector.cell.record_rollout(RolloutEvent("verdict", begun + 0.001, index=1, success=False, score=0.125,
+                                                   frame_at=time.time()))  # what the monitor appends at the end
+    pod.operator_op("rollout_end")
+    record = parse_record(record_line(connector_record(pod.connector)))
+    assert record is not None
+    recorder = RolloutRecorder(lambda: record_events(record))
+    recorder.sync()
+
+    [rollout] = as_status(recorder.history)
+    assert (rollout["index"], rollout["outcome"], rollout["markedBy"]) == (1, "failure", "monitor")
+    assert rollout["monitor"]["score"] == 0.125 and "endedAt" in rollout
