@@ -106,8 +106,6 @@ class NodeAgent:
 
     def pass_once(self) -> None:
         cells = self._my_cells()
-        if self.deps.completion_models is not None:
-            self.deps.completion_models.retain(cells)
         for name, cell in cells.items():
             worker = self.workers.get(name)
             if worker is None:
@@ -118,6 +116,8 @@ class NodeAgent:
         for name in [n for n in self.workers if n not in cells]:
             log.info("cell %s is gone or moved to another node; its worker stops", name)
             self.workers.pop(name).stop()
+        if self.deps.completion_models is not None:  # after the stops: no heartbeat of a gone cell writes again
+            self.deps.completion_models.retain(cells)
         if self.device_plugins is not None:
             # Before any launch: a job pod's connector requests the resource the plugin registers.
             # The plugin reports each cell's device watch verdict: the kubelet, the Cell's

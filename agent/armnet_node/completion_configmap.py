@@ -5,7 +5,7 @@ namespace, the node agent's own (``kubectl -n armnet-system create configmap rea
 --from-file=reach.onnx``), instead of copying a file onto every robot host. A tenant
 cannot reach it: Cells are cluster-scoped and the namespace is the platform's. The
 connector, and a job pod's sidecar, read files only, so the agent reads the ConfigMap's
-key and writes its bytes to ``<state>/completion-models/<cell>/<sha256>.onnx``, then
+key and writes its bytes to ``<state>/completion-models/<cell>/<sha256, first 32 hex digits>.onnx``, then
 hands the Cell on with ``classifier.model`` set to that file: the checks
 (``CompletionReady``), the launch (a pod's ``hostPath`` mount) and the connector are
 those of a host file from there on.
@@ -19,12 +19,13 @@ cannot be read leaves the Cell's classifier unresolved and says why (``problem``
 Cell's ``CompletionReady`` is False with it, and no job launches on the cell. An API
 server that does not answer changes nothing a model was written for already (the file
 stays the cell's until the ConfigMap itself says otherwise), and a launch waits for the
-next read rather than fail the job; a read the agent is refused (its RBAC) is a problem
+next read (at most ``PENDING_LIMIT_S``) rather than fail the job; a read the agent is refused (its RBAC) is a problem
 like a missing ConfigMap. A cell that leaves the node takes its files with it (``retain``).
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import logging
 import os
@@ -38,9 +39,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Protocol
 
+import urllib3
 from armnet_core.cell_completion import MAX_MODEL_BYTES, ConfigMapKeyRef
 
-from armnet_node.kube import ConfigMapForbidden, ConfigMapKeyMissing
+from armnet_node.kube import ConfigMapForbidden, ConfigMapKeyMissing, KubeError
 from armnet_node.model import Cell, parse_cell
 
 log = logging.getLogger(__name__)
@@ -49,6 +51,8 @@ REFRESH_S = 10.0
 """A cell's ConfigMap is read again at most this often: an edit reaches the cell within it."""
 KEEP = 3
 """Model files kept per cell (the newest): a running job's connector may still be loading an older one."""
+PENDING_LIMIT_S = 60.0
+"""How long a launch waits for a model whose ConfigMap cannot be read just now before the job fails."""
 _CELL_NAME = re.compile(r"^[a-z0-9]([-a-z0-9.]{0,251}[a-z0-9])?$")
 
 
@@ -66,6 +70,8 @@ class Written:
     at: float
     #: The read failed for a reason of the API server's (not a missing ConfigMap or key): try again.
     transient: bool = False
+    #: When the transient failures in a row began (``at`` for the first).
+    failing_since: float = 0.0
 
 
 class ConfigMapModels:
@@ -114,10 +120,12 @@ class ConfigMapModels:
         return latest.problem if latest is not None else None
 
     def pending(self, cell: str) -> bool:
-        """The cell's model could not be read for a reason of the API server's, and none was written before: a
-        launch waits for the next read rather than fail the job over a hiccup."""
+        """The cell's model could not be read for a reason that may pass (the API server away, a full disk),
+        and none was written before: a launch waits for the next read rather than fail the job over a hiccup,
+        for at most ``PENDING_LIMIT_S`` (then the job fails, saying why)."""
         latest = self._latest(cell)
-        return latest is not None and latest.path is None and latest.transient
+        return (latest is not None and latest.path is None and latest.transient
+                and self._clock() - latest.failing_since < PENDING_LIMIT_S)
 
     def source(self, cell: str) -> str | None:
         """"ConfigMap <ns>/<name>, key <key>" for a cell whose model comes from one (for messages), else None."""
@@ -154,6 +162,9 @@ class ConfigMapModels:
                 # The API server did not answer: the model written before is still the ConfigMap's last word.
                 log.warning("cell %s: %s; keeping the model written before", cell, written.problem)
                 written = replace(known, at=now)
+            elif written.transient:
+                since = known.failing_since if known is not None and known.transient else now
+                written = replace(written, failing_since=since)
             with self._lock:
                 self._written[cell] = (ref, written)
             return written
@@ -171,7 +182,7 @@ class ConfigMapModels:
             data = self._reader.read_config_map_key(namespace, ref.name, ref.key)
         except (ConfigMapKeyMissing, ConfigMapForbidden) as exc:
             return Written(source, None, str(exc), now)
-        except Exception as exc:  # noqa: BLE001 - the API server away (HTTP or transport): asked again later
+        except (KubeError, OSError, urllib3.exceptions.HTTPError) as exc:  # the API server away: asked again
             return Written(source, None, f"{source} could not be read ({type(exc).__name__}: {str(exc)[:200]})",
                            now, transient=True)
         if not data:
@@ -180,16 +191,16 @@ class ConfigMapModels:
             return Written(source, None, f"{source} holds {len(data)} bytes, over the {MAX_MODEL_BYTES}-byte cap", now)
         try:
             path = self._store(cell, data)
-        except OSError as exc:
+        except OSError as exc:  # a full or failing disk may recover; a refused or read-only directory will not
             return Written(source, None, f"{source} could not be written to {self.directory / cell} ({exc})", now,
-                           transient=True)
+                           transient=exc.errno in (errno.ENOSPC, errno.EIO))
         return Written(source, str(path), None, now)
 
     def _store(self, cell: str, data: bytes) -> Path:
         """The model's file (written whole and synced, readable by every uid: a pod's connector runs as its own),
         and at most ``KEEP`` files of the cell. A file of that name whose bytes are not these (a write a power
         loss cut short) is written again."""
-        folder = self.directory / cell
+        folder = self.directory / cell  # HostPaths.completion_models_of(cell)
         folder.mkdir(parents=True, exist_ok=True)
         os.chmod(self.directory, 0o755)
         os.chmod(folder, 0o755)

@@ -154,7 +154,7 @@ class AgentKube:
                 raise ConfigMapKeyMissing(
                     f"ConfigMap {namespace}/{name} does not exist; create it there: kubectl -n {namespace} "
                     f"create configmap {name} --from-file={key}=<the model file>") from exc
-            if exc.status in (401, 403):
+            if exc.status == 403:
                 raise ConfigMapForbidden(
                     f"the node agent may not read ConfigMap {namespace}/{name} ({exc.reason}); list it in the Helm "
                     "chart's agent.completionFiles.configMaps (the agent may get exactly those)") from exc

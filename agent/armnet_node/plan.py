@@ -87,11 +87,16 @@ class HostPaths:
         """Where the agent writes the classifier models Cells name by ConfigMap (``completion_configmap``)."""
         return self.state_dir / "completion-models"
 
-    def completion_dirs_for(self, completion: CompletionConfig | None) -> tuple[str, ...]:
-        """Where ``completion``'s files may lie: the configured directories, and for a classifier's model the
-        agent's own copies of ConfigMaps' models too (never a judge's token file: its bytes go to the judge)."""
+    def completion_models_of(self, cell: str) -> Path:
+        """Where the agent writes the model of ``cell``'s ConfigMap: a folder of that cell's alone."""
+        return self.completion_models_dir / cell
+
+    def completion_dirs_for(self, completion: CompletionConfig | None, cell: str) -> tuple[str, ...]:
+        """Where ``cell``'s completion files may lie: the configured directories, and for a classifier's model
+        the agent's copy of that cell's ConfigMap too (never another cell's, whose pruning could remove it; never
+        for a judge's token file, whose bytes go to the judge)."""
         if completion is not None and completion.classifier is not None:
-            return (*self.completion_dirs, str(self.completion_models_dir))
+            return (*self.completion_dirs, str(self.completion_models_of(cell)))
         return self.completion_dirs
 
 
@@ -159,7 +164,7 @@ def completion_files_refused(cell: Cell, paths: HostPaths) -> str | None:
     if classifier is not None and classifier.model_from is not None:
         ref = classifier.model_from.config_map_key_ref
         return f"cell {cell.name}: its classifier's model (ConfigMap {ref.name}, key {ref.key}) is not on this host"
-    refused = outside_dirs(host_files(cell.completion), paths.completion_dirs_for(cell.completion))
+    refused = outside_dirs(host_files(cell.completion), paths.completion_dirs_for(cell.completion, cell.name))
     return f"cell {cell.name}: {refused}" if refused is not None else None
 
 

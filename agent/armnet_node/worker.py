@@ -105,7 +105,7 @@ class CellWorker:
         # The uid the connector reads the cell's completion files as: a pod's sidecar's, or this process's.
         reader_uid = getattr(deps.launcher, "connector_uid", None)
         self._completion_files = CompletionFilesCheck(deps.paths.completion_dirs, reader_uid,
-                                                      (str(deps.paths.completion_models_dir),))
+                                                      (str(deps.paths.completion_models_of(cell.name)),))
         self._cameras_draw_the_arm = bool(getattr(deps.launcher, "simulated_cameras_draw_the_arm", True))
         self._thread = threading.Thread(target=self._heartbeat_loop, name=f"armnet-cell-{cell.name}", daemon=True)
 

@@ -20,6 +20,7 @@ deleted pod comes back with the bucket and the objects on its volume.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -47,6 +48,8 @@ from tests.support.helm_store import BUCKET, KEYS
 pytestmark = [pytest.mark.node, pytest.mark.container, pytest.mark.timeout(900)]
 
 STORE_IMAGE = "localhost/armnet-seaweedfs:it"
+#: The last probe's error output (a store that answers wrongly, not slowly, says so in the timeout's message).
+LAST_PROBE_ERROR: list[str] = []
 STORAGE_CLASS = "armnet-store-it"
 DROP_PROBES = Path(__file__).resolve().parents[1] / "support" / "drop_probes.py"
 #: What runs in the pod's network namespace: the product's S3 client settings, plain boto3 and sockets.
@@ -76,7 +79,7 @@ def open_port(host, port):
     except OSError:
         return False
 agent, tenant = s3("agent-keys"), s3("team-a-outputs")
-out = {"ports_on_pod_ip": {p: open_port(ip, p) for p in (8333, 8888, 9333, 9340, 18888, 19333, 19340)},
+out = {"ports_on_pod_ip": {p: open_port(ip, p) for p in (8333, 18333, 8888, 9333, 9340, 18888, 19333, 19340)},
        "filer_on_loopback": open_port("127.0.0.1", 8888)}
 if sys.argv[5] == "write":
     agent.put_object(Bucket=bucket, Key=key, Body=b"episode")
@@ -138,6 +141,7 @@ def probe(ip: str, key: str, write: bool) -> dict[str, Any] | None:
          "write" if write else "read"], capture_output=True, text=True, timeout=60, check=False,
         env={**os.environ, "AWS_EC2_METADATA_DISABLED": "true"})
     if result.returncode != 0:
+        LAST_PROBE_ERROR[:] = [result.stderr[-2000:]]
         return None
     answers: dict[str, Any] = json.loads(result.stdout.strip().splitlines()[-1])
     return answers
@@ -155,53 +159,61 @@ def wait_for(what: str, check: Any, timeout: float, why: Any) -> Any:
 
 @pytest.fixture(scope="module")
 def store(k8s: ControlPlane, k8s_node: Node, podman: Podman) -> Iterator[dict[str, Any]]:
-    image = store_image(podman)
-    k8s_node.import_images(image)
-    namespace = k8s.create_namespace("armnet-store")
+    k8s_node.import_images(store_image(podman))
     release = f"st-{uuid.uuid4().hex[:6]}"
-    volume = Path(tempfile.mkdtemp(prefix="armnet-store-pv-"))
-    volume.chmod(0o777)  # the store runs as uid 1000; a hostPath volume gets no fsGroup
-    # The node-lifecycle controller lifts the taint a node is registered with once it is Ready.
-    controllers = WorkloadControllers(plane=k8s, controllers=(
-        "statefulset-controller", "persistentvolume-binder-controller", "node-lifecycle-controller")).start()
-    for secret, keys in KEYS.items():
-        k8s.kubectl("create", "secret", "generic", secret, "-n", namespace,
-                    f"--from-literal=accessKeyId={keys['accessKeyId']}",
-                    f"--from-literal=secretAccessKey={keys['secretAccessKey']}")
-    apply(k8s, {"apiVersion": "v1", "kind": "PersistentVolume", "metadata": {"name": f"{release}-data"},
-                "spec": {"capacity": {"storage": "1Gi"}, "accessModes": ["ReadWriteOnce"],
-                         "storageClassName": STORAGE_CLASS, "persistentVolumeReclaimPolicy": "Retain",
-                         "hostPath": {"path": str(volume), "type": "Directory"}}})
-    values = {
-        "crds": {"install": False}, "operator": {"enabled": False}, "agent": {"enabled": False},
-        "admissionWebhook": {"enabled": False},
-        "artifacts": {"bucket": BUCKET, "credentialsSecret": "agent-keys",
-                      "operatorCredentialsSecret": "operator-keys", "fmsCredentialsSecret": "fms-keys",
-                      "deploy": {"enabled": True, "storageClassName": STORAGE_CLASS, "storageSize": "1Gi",
-                                 "image": {"repository": STORE_IMAGE.rsplit(":", 1)[0], "tag": "it",
-                                           "pullPolicy": "Never"},
-                                 "tenantReaders": [{"namespace": "team-a", "credentialsSecret": "team-a-outputs"},
-                                                   {"namespace": "team-b", "credentialsSecret": "team-b-outputs"}]}},
-    }
-    state = {"k8s": k8s, "namespace": namespace, "release": release, "controllers": controllers}
-    # Helm runs a post-renderer as a program: this interpreter (it has PyYAML), on the module.
-    renderer = volume.parent / f"{release}-drop-probes"
-    renderer.write_text(f"#!/bin/sh\nexec {sys.executable} {DROP_PROBES}\n")
-    renderer.chmod(0o755)
-    try:
+    claim = f"data-{release}-armnet-store-0"  # the StatefulSet's volumeClaimTemplate "data", its pod 0
+    with contextlib.ExitStack() as cleanup:  # every step undone, in reverse, whichever one fails
+        namespace = k8s.create_namespace("armnet-store")
+        cleanup.callback(k8s.delete_namespace, namespace)
+        volume = Path(tempfile.mkdtemp(prefix="armnet-store-pv-"))
+        cleanup.callback(shutil.rmtree, volume, ignore_errors=True)
+        volume.chmod(0o777)  # the store runs as uid 1000; a hostPath volume gets no fsGroup
+        # The node-lifecycle controller lifts the taint a node is registered with once it is Ready.
+        controllers = WorkloadControllers(plane=k8s, controllers=(
+            "statefulset-controller", "persistentvolume-binder-controller", "node-lifecycle-controller")).start()
+        cleanup.callback(controllers.stop)
+        for secret, keys in KEYS.items():
+            k8s.kubectl("create", "secret", "generic", secret, "-n", namespace,
+                        f"--from-literal=accessKeyId={keys['accessKeyId']}",
+                        f"--from-literal=secretAccessKey={keys['secretAccessKey']}")
+        cleanup.callback(forget_volume, k8s, namespace, claim, f"{release}-data")
+        apply(k8s, {"apiVersion": "v1", "kind": "PersistentVolume", "metadata": {"name": f"{release}-data"},
+                    "spec": {"capacity": {"storage": "1Gi"}, "accessModes": ["ReadWriteOnce"],
+                             "storageClassName": STORAGE_CLASS, "persistentVolumeReclaimPolicy": "Retain",
+                             "hostPath": {"path": str(volume), "type": "Directory"}}})
+        values = {
+            "crds": {"install": False}, "operator": {"enabled": False}, "agent": {"enabled": False},
+            "admissionWebhook": {"enabled": False},
+            "artifacts": {"bucket": BUCKET, "credentialsSecret": "agent-keys",
+                          "operatorCredentialsSecret": "operator-keys", "fmsCredentialsSecret": "fms-keys",
+                          "deploy": {"enabled": True, "storageClassName": STORAGE_CLASS, "storageSize": "1Gi",
+                                     "image": {"repository": STORE_IMAGE.rsplit(":", 1)[0], "tag": "it",
+                                               "pullPolicy": "Never"},
+                                     "tenantReaders": [
+                                         {"namespace": "team-a", "credentialsSecret": "team-a-outputs"},
+                                         {"namespace": "team-b", "credentialsSecret": "team-b-outputs"}]}},
+        }
+        # Helm runs a post-renderer as a program: this interpreter (it has PyYAML), on the module.
+        renderer = volume.parent / f"{release}-drop-probes"
+        cleanup.callback(renderer.unlink, missing_ok=True)
+        renderer.write_text(f"#!/bin/sh\nexec {sys.executable} {DROP_PROBES}\n")
+        renderer.chmod(0o755)
+        cleanup.callback(subprocess.run, [
+            str(helm_binary()), "uninstall", release, "-n", namespace, "--wait", "--timeout", "60s",
+            f"--kubeconfig={k8s.kubeconfig}"], capture_output=True, timeout=120, check=False)
         helm_on(k8s, "install", release, str(CHART), "-n", namespace, "--post-renderer", str(renderer),
                 values=values)
-        yield state
-    finally:
-        subprocess.run([str(helm_binary()), "uninstall", release, "-n", namespace, "--wait", "--timeout", "60s",
-                        f"--kubeconfig={k8s.kubeconfig}"], capture_output=True, timeout=120, check=False)
-        k8s.kubectl("delete", "pods", "--all", "-n", namespace, "--grace-period=1", check=False)
-        k8s.kubectl("delete", "pvc", "--all", "-n", namespace, "--wait=false", check=False)
-        k8s.kubectl("delete", "pv", f"{release}-data", "--wait=false", check=False)
-        controllers.stop()
-        k8s.delete_namespace(namespace)
-        shutil.rmtree(volume, ignore_errors=True)
-        renderer.unlink(missing_ok=True)
+        yield {"k8s": k8s, "namespace": namespace, "release": release, "controllers": controllers}
+
+
+def forget_volume(k8s: ControlPlane, namespace: str, claim: str, volume: str) -> None:
+    """The store's pods, claim and volume gone, whatever protection finalizers the apiserver put on them
+    (no controller here takes those off)."""
+    k8s.kubectl("delete", "pods", "--all", "-n", namespace, "--grace-period=1", "--wait=false", check=False)
+    for kind, name, scope in (("pvc", claim, ["-n", namespace]), ("pv", volume, [])):
+        k8s.kubectl("delete", kind, name, *scope, "--wait=false", "--ignore-not-found", check=False)
+        k8s.kubectl("patch", kind, name, *scope, "--type=merge", "-p", '{"metadata":{"finalizers":null}}',
+                    check=False)
 
 
 def diagnose(state: dict[str, Any]) -> str:
@@ -215,6 +227,7 @@ def diagnose(state: dict[str, Any]) -> str:
                                check=False)
             parts.append(f"--- {container}:\n{logs.stdout}{logs.stderr}")
     parts.append(k8s.kubectl("get", "events", "-n", namespace, check=False).stdout[-3000:])
+    parts.append(f"--- the last probe from the pod's network:\n{''.join(LAST_PROBE_ERROR)}")
     return "\n".join(parts)
 
 
@@ -226,7 +239,8 @@ def test_the_charts_store_pod_serves_s3_with_each_secrets_keys_and_keeps_its_oth
     seen = wait_for("the store answering S3 on the pod's address", lambda: probe(ip, key, write=True), 120,
                     lambda: diagnose(store))
 
-    assert seen["ports_on_pod_ip"] == {"8333": True, "8888": False, "9333": False, "9340": False,
+    # S3 and its gRPC (whose admin calls answer local peers only) on the pod's address; nothing of the store.
+    assert seen["ports_on_pod_ip"] == {"8333": True, "18333": True, "8888": False, "9333": False, "9340": False,
                                        "18888": False, "19333": False, "19340": False}, seen
     assert seen["filer_on_loopback"] is True  # inside the pod, where only its own containers reach it
     assert (seen["read_back"], seen["tenant_reads_own"]) == ("episode", "episode")

@@ -10,6 +10,7 @@ taken out of the Cell takes its condition with it.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import tempfile
 import time
@@ -121,36 +122,44 @@ def test_a_classifier_model_from_a_configmap_is_written_for_the_connector_and_fo
     from armnet_node.completion_configmap import ConfigMapModels, resolved_cell
     from armnet_node.plan import completion_files_refused
 
-    platform = k8s.create_namespace("armnet-platform")
-    core = client.CoreV1Api(k8s.api_client())
+    with contextlib.ExitStack() as cleanup:  # every step undone, in reverse, whichever one fails
+        platform = k8s.create_namespace("armnet-platform")
+        cleanup.callback(k8s.delete_namespace, platform)
+        core = client.CoreV1Api(k8s.api_client())
 
-    def ship(data: bytes) -> None:
-        body = {"metadata": {"name": "reach"}, "binaryData": {"reach.onnx": base64.b64encode(data).decode()}}
-        try:
-            core.replace_namespaced_config_map("reach", platform, body)
-        except client.exceptions.ApiException:
-            core.create_namespaced_config_map(platform, body)
+        def ship(data: bytes) -> None:
+            body = {"metadata": {"name": "reach"}, "binaryData": {"reach.onnx": base64.b64encode(data).decode()}}
+            try:
+                core.replace_namespaced_config_map("reach", platform, body)
+            except client.exceptions.ApiException:
+                core.create_namespaced_config_map(platform, body)
 
-    ship(SHIPPED_CLASSIFIER.read_bytes())
-    name = f"classifier-cm-{uuid.uuid4().hex[:8]}"
-    spec = classifier_cell(name, SHIPPED_CLASSIFIER)
-    spec["spec"]["completion"]["classifier"] = {"modelFrom": {"configMapKeyRef": {"name": "reach", "key": "reach.onnx"}},
-                                                "inputSize": SHIPPED_CLASSIFIER_INPUT}
-    state_dir = Path(tempfile.mkdtemp(prefix="ant-", dir="/tmp"))
-    paths = HostPaths(state_dir, completion_dirs=())  # the agent's own models' directory only
-    kube = AgentKube(k8s.api_client())
-    models = ConfigMapModels(kube, platform, paths.completion_models_dir, refresh_s=0.5)
-    cell = resolved_cell(apply(k8s, spec), models)
-    deps = RunnerDeps(kube=kube, launcher=None,  # type: ignore[arg-type]  # no job here
-                      paths=paths, metrics=AgentMetrics(), link=NoLink(), uploads=None,  # type: ignore[arg-type]
-                      completion_models=models)
-    worker = CellWorker(cell, deps, WorkerSettings(heartbeat_period=1, telemetry=TelemetrySettings(0, 0))).start()
-    try:
+        ship(SHIPPED_CLASSIFIER.read_bytes())
+        name = f"classifier-cm-{uuid.uuid4().hex[:8]}"
+        spec = classifier_cell(name, SHIPPED_CLASSIFIER)
+        spec["spec"]["completion"]["classifier"] = {
+            "modelFrom": {"configMapKeyRef": {"name": "reach", "key": "reach.onnx"}}, "inputSize": SHIPPED_CLASSIFIER_INPUT}
+        state_dir = Path(tempfile.mkdtemp(prefix="ant-", dir="/tmp"))
+        cleanup.callback(shutil.rmtree, state_dir, ignore_errors=True)
+        paths = HostPaths(state_dir, completion_dirs=())  # the agent's own models' directory only
+        kube = AgentKube(k8s.api_client())
+        models = ConfigMapModels(kube, platform, paths.completion_models_dir, refresh_s=0.5)
+        created = apply(k8s, spec)
+        cleanup.callback(client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object,
+                         GROUP, VERSION, CELLS, name)
+        cell = resolved_cell(created, models)
+        deps = RunnerDeps(kube=kube, launcher=None,  # type: ignore[arg-type]  # no job here
+                          paths=paths, metrics=AgentMetrics(), link=NoLink(), uploads=None,  # type: ignore[arg-type]
+                          completion_models=models)
+        worker = CellWorker(cell, deps, WorkerSettings(heartbeat_period=1, telemetry=TelemetrySettings(0, 0))).start()
+        cleanup.callback(worker.stop)
+
         condition = completion_ready(k8s, name, "True")
         assert condition is not None and condition["reason"] == "FilesUsable"
         assert cell.completion is not None and cell.completion.classifier is not None
         written = Path(str(cell.completion.classifier.model))
-        assert written.parent.parent == paths.completion_models_dir and written.read_bytes() == SHIPPED_CLASSIFIER.read_bytes()
+        assert written.parent == paths.completion_models_of(name)  # a folder of this cell's alone
+        assert written.read_bytes() == SHIPPED_CLASSIFIER.read_bytes()
         assert written.stat().st_mode & 0o777 == 0o644  # a pod's connector reads it as its own uid
         assert completion_files_refused(cell, paths) is None
 
@@ -159,6 +168,8 @@ def test_a_classifier_model_from_a_configmap_is_written_for_the_connector_and_fo
         assert condition is not None
         assert f"the model of ConfigMap {platform}/reach, key reach.onnx" in condition["message"]
         assert "is not an ONNX model OpenCV can run" in condition["message"]
+        wrong = resolved_cell(get(k8s, "cell", name), models).completion.classifier.model  # type: ignore[union-attr]
+        assert wrong != str(written) and Path(str(wrong)).read_bytes().startswith(b"the wrong file")
         assert written.read_bytes() == SHIPPED_CLASSIFIER.read_bytes()  # a running job's model is never rewritten
 
         core.delete_namespaced_config_map("reach", platform)
@@ -176,7 +187,7 @@ def test_a_classifier_model_from_a_configmap_is_written_for_the_connector_and_fo
 
         # The API server away: the model written before stays the cell's; a cell with none waits, not fails.
         away = ConfigMapModels(AgentKube(unreachable_api()), platform, paths.completion_models_dir, refresh_s=0)
-        assert away.resolve(parse_cell(get(k8s, "cell", name))).completion is not None
+        assert away.resolve(parse_cell(get(k8s, "cell", name))).completion.classifier.model is None  # type: ignore[union-attr]
         assert away.pending(name) and "could not be read" in str(away.problem(name))
         models._reader = AgentKube(unreachable_api())  # the worker's own: its next reads fail
         time.sleep(1.0)
@@ -188,10 +199,6 @@ def test_a_classifier_model_from_a_configmap_is_written_for_the_connector_and_fo
         assert nowhere.resolve(parse_cell(get(k8s, "cell", name))).completion.classifier.model is None  # type: ignore[union-attr]
         assert "--config-namespace" in str(nowhere.problem(name)) and not nowhere.pending(name)
 
+        worker.stop()
         models.retain([])  # the cell left this node: its models go
         assert not written.parent.exists()
-    finally:
-        worker.stop()
-        shutil.rmtree(state_dir, ignore_errors=True)
-        client.CustomObjectsApi(k8s.api_client()).delete_cluster_custom_object(GROUP, VERSION, CELLS, name)
-        k8s.delete_namespace(platform)
