@@ -27,7 +27,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -44,6 +43,7 @@ from armnet_testbed.plugin import Podman
 
 from tests.support.helm import CHART, helm_binary, helm_on
 from tests.support.helm_store import BUCKET, KEYS
+from tests.support.waiting import wait_for
 
 pytestmark = [pytest.mark.node, pytest.mark.container, pytest.mark.timeout(900)]
 
@@ -147,16 +147,6 @@ def probe(ip: str, key: str, write: bool) -> dict[str, Any] | None:
     return answers
 
 
-def wait_for(what: str, check: Any, timeout: float, why: Any) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = check()
-        if value:
-            return value
-        time.sleep(1.0)
-    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}\n{why()}")
-
-
 @pytest.fixture(scope="module")
 def store(k8s: ControlPlane, k8s_node: Node, podman: Podman) -> Iterator[dict[str, Any]]:
     k8s_node.import_images(store_image(podman))
@@ -234,9 +224,9 @@ def diagnose(state: dict[str, Any]) -> str:
 def test_the_charts_store_pod_serves_s3_with_each_secrets_keys_and_keeps_its_other_ports_inside(
         store: dict[str, Any]) -> None:
     k8s, namespace = store["k8s"], store["namespace"]
-    ip = wait_for("the store pod running", lambda: running(pod_of(k8s, namespace)), 240, lambda: diagnose(store))
+    ip = wait_for(lambda: running(pod_of(k8s, namespace)), 240, "the store pod running", 1.0, lambda: diagnose(store))
     key = "team-a/0f2b7c1e-8d4a-4f3e-9b6a-1c2d3e4f5a6b/files/data/episode.parquet"
-    seen = wait_for("the store answering S3 on the pod's address", lambda: probe(ip, key, write=True), 120,
+    seen = wait_for(lambda: probe(ip, key, write=True), 120, "the store answering S3 on the pod's address", 1.0,
                     lambda: diagnose(store))
 
     # S3 and its gRPC (whose admin calls answer local peers only) on the pod's address; nothing of the store.
@@ -265,7 +255,7 @@ def test_a_deleted_store_pod_comes_back_with_its_bucket_and_objects(store: dict[
         pod = pod_of(k8s, namespace)
         return running(pod) if pod and pod["metadata"]["uid"] != before["metadata"]["uid"] else None
 
-    ip = wait_for("the store pod recreated", recreated, 180, lambda: diagnose(store))
-    seen = wait_for("the recreated store answering", lambda: probe(ip, key, write=False), 120,
+    ip = wait_for(recreated, 180, "the store pod recreated", 1.0, lambda: diagnose(store))
+    seen = wait_for(lambda: probe(ip, key, write=False), 120, "the recreated store answering", 1.0,
                     lambda: diagnose(store))
     assert seen["read_back"] == "episode"
