@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import select
 import signal
 import threading
 import time
@@ -97,7 +98,9 @@ class ContainerJob:
         if self._log_file is None:
             log.info("following container %s's output through the engine API (slower, and an exit "
                      "burst may arrive out of order): %s", str(container.id)[:12], why_not)
-        threading.Thread(target=self._wait, name="armnet-container-wait", daemon=True).start()
+        # The waiter gets a descriptor of its own: remove() may close the job's meanwhile.
+        exit_watch = os.dup(self._pidfd) if self._pidfd is not None else None
+        threading.Thread(target=self._wait, args=(exit_watch,), name="armnet-container-wait", daemon=True).start()
 
     @classmethod
     def start(
@@ -177,8 +180,20 @@ class ContainerJob:
         except Exception:  # noqa: BLE001 - the container is gone: we cannot tell
             return False
 
-    def _wait(self) -> None:
+    def _wait(self, exit_watch: int | None) -> None:
+        """The container's exit code, asked of the engine only once its init process has ended.
+
+        Why not the engine's wait alone: Podman 4.3's Docker API (Debian 12's) answers
+        ``POST /containers/{id}/wait`` by polling the container's state in a loop, half a
+        core to a core of the engine's CPU for as long as the job runs (podman#18150).
+        With a pidfd of the container's init (the engine on this host) the wait blocks
+        in the kernel until that process ends; the engine's wait then only reads the
+        exit code conmon recorded. Without one (an engine elsewhere) the engine's wait
+        is all there is.
+        """
         try:
+            if exit_watch is not None:
+                _block_until_exited(exit_watch)
             status = self._container.wait()
             self._exit_code = int(status.get("StatusCode", -1))
         except Exception:  # noqa: BLE001 - the engine went away: report an unknown exit
@@ -374,13 +389,50 @@ def _log_file(client: Any, container: Any) -> tuple[Path | None, str]:
 
 
 def _open_pidfd(container: Any) -> int | None:
-    """A pidfd of the container's init process, or None (engine elsewhere, exited, no pidfd support)."""
+    """A pidfd of the container's init process, or None (engine elsewhere, exited, no pidfd support).
+
+    The engine reports the pid in its own host's pid namespace: with an engine on
+    another host (``DOCKER_HOST=tcp://...``) or an agent in a pid namespace of its
+    own, that number names some unrelated process here, which a kill must never hit.
+    So the pid is taken only when the process it names, once held by the pidfd, is
+    in the container's cgroup.
+    """
     try:
         container.reload()
         pid = int(container.attrs.get("State", {}).get("Pid") or 0)
-        return os.pidfd_open(pid) if pid > 0 else None
+        pidfd = os.pidfd_open(pid) if pid > 0 else None
     except Exception:  # noqa: BLE001 - the fast kill path is optional; the engine's kill remains
         return None
+    if pidfd is not None and not process_in_container(pid, str(container.id)):
+        os.close(pidfd)
+        return None
+    return pidfd
+
+
+def process_in_container(pid: int, container_id: str) -> bool:
+    """Whether process ``pid`` of this host is in the cgroup of container ``container_id``.
+
+    Podman (``libpod-<id>``) and Docker (``docker-<id>.scope``, ``/docker/<id>``) name a
+    container's cgroup after its full id, whatever the cgroup manager.
+    """
+    if len(container_id) < 32:
+        return False  # a short or empty id would match too much
+    try:
+        groups = Path(f"/proc/{pid}/cgroup").read_text()
+    except OSError:
+        return False
+    return container_id in groups
+
+
+def _block_until_exited(pidfd: int) -> None:
+    """Block, using no CPU, until the process behind ``pidfd`` has ended (a pidfd polls readable then); close it."""
+    try:
+        poller = select.poll()
+        poller.register(pidfd, select.POLLIN)
+        while not poller.poll():
+            pass
+    finally:
+        os.close(pidfd)
 
 
 def _remove_quietly(container: Any) -> None:

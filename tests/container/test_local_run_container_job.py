@@ -9,6 +9,7 @@ run directory bind-mounted, host network), the real connector and simulator of a
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import textwrap
@@ -23,6 +24,7 @@ from armnet_launch.container import ContainerJob
 from armnet_launch.sim_cell import LocalCell
 from armnet_launch.supervise import JobHooks, SupervisorLimits, supervise
 from armnet_testbed.plugin import Podman
+from armnet_testbed.podman import ulimits
 
 pytestmark = [pytest.mark.container, pytest.mark.timeout(600)]
 
@@ -188,3 +190,52 @@ def test_the_engine_is_asked_what_it_is_once_per_client_and_reads_its_log_file(p
         del podman.client.version
     assert kinds == [("podman", "")] * 3
     assert asked["version"] == 1
+
+
+def test_the_engine_is_asked_for_the_exit_code_only_once_the_containers_init_has_ended(
+    podman: Podman, base_image: str, tmp_path: Path
+) -> None:
+    """Podman 4.3's Docker API answers a wait by polling in a loop (a core of its CPU while the job
+    runs): the launcher blocks on a pidfd of the container's init and asks the engine afterwards."""
+    from armnet_launch.plan import ContainerSpec, Mount
+
+    asked = threading.Event()
+    real_wait = podman.client.api.wait
+
+    def watched_wait(container: str, *args: object, **kwargs: object) -> dict[str, object]:
+        asked.set()
+        return dict(real_wait(container, *args, **kwargs))
+
+    podman.client.api.wait = watched_wait
+    try:
+        held = "while [ ! -e /hold/go ]; do sleep 0.1; done; exit 7"
+        spec = ContainerSpec(image=base_image, env={}, command=("sh", "-c", held),
+                             mounts=(Mount(str(tmp_path), "/hold"),))
+        job = ContainerJob.launch(podman.client, spec)
+        try:
+            # Before the change the waiting thread asked the engine at once.
+            assert not asked.wait(2.0), "the engine was asked to wait while the job ran"
+            (tmp_path / "go").write_text("")
+            assert job.wait(60) == 7
+            assert asked.is_set()
+        finally:
+            job.remove()
+    finally:
+        del podman.client.api.wait
+
+
+def test_a_pid_is_a_containers_only_when_the_process_is_in_its_cgroup(podman: Podman, base_image: str) -> None:
+    """The engine's pid is taken for a kill only when it names the container's own process here."""
+    from armnet_launch.container import process_in_container
+
+    container = podman.client.containers.run(base_image, ["sleep", "30"], detach=True, ulimits=ulimits(),
+                                             network_mode="host")
+    try:
+        container.reload()
+        pid = int(container.attrs["State"]["Pid"])
+        assert process_in_container(pid, container.id)
+        assert not process_in_container(os.getpid(), container.id)
+        assert not process_in_container(pid, container.id[:12]), "a short id would match too much"
+        assert not process_in_container(pid, "f" * 64)
+    finally:
+        container.remove(force=True)
