@@ -52,7 +52,8 @@ side_groups=(
   "e2e/test_agent_jobs.py e2e/test_tenants.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container tests/integration/test_helm_chart.py tests/integration/test_helm_rbac.py tests/integration/test_helm_lifecycle.py tests/unit/runtime tests/unit/testbed"
   "tests/integration/test_dev_up.py tests/integration/test_node_store.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py e2e/test_preflight.py e2e/test_unattended.py"
 )
-# Each session prints its slowest tests (--durations): where the suite's time budget goes.
+# Each session prints its slowest tests (--durations) and test files (--file-durations, summed
+# over their tests' phases: what moves when the groups are rebalanced): where the time goes.
 # Every session's output is also kept in one directory; a failed run keeps it (its path is
 # printed last, with each session's failures), a passing one removes it.
 logs="$(mktemp -d /tmp/armnet-test-logs.XXXXXX)"
@@ -63,7 +64,7 @@ for group in "${side_groups[@]}"; do
   read -r -a files <<<"$group"
   log="$logs/side-${#side_logs[@]}.log"
   side_logs+=("$log")
-  "$venv/bin/python" -m pytest --durations=15 "${files[@]}" >"$log" 2>&1 &
+  "$venv/bin/python" -m pytest --durations=15 --file-durations=10 "${files[@]}" >"$log" 2>&1 &
   side_pids+=("$!")
   for f in "${files[@]}"; do ignores+=("--ignore=$f"); done
 done
@@ -73,7 +74,7 @@ lint_log="$logs/lint.log"
 lint >"$lint_log" 2>&1 &
 lint_pid=$!
 main_rc=0
-"$venv/bin/python" -m pytest --durations=25 "${ignores[@]}" 2>&1 | tee "$logs/main.log" || main_rc=$?
+"$venv/bin/python" -m pytest --durations=25 --file-durations=15 "${ignores[@]}" 2>&1 | tee "$logs/main.log" || main_rc=$?
 lint_rc=0
 wait "$lint_pid" || lint_rc=$?
 cat "$lint_log"
