@@ -93,14 +93,33 @@ class ContainerJob:
         self._container = container
         self._exit_code: int | None = None
         self._done = threading.Event()
+        self._pidfd_lock = threading.Lock()
         self._pidfd = _open_pidfd(container)
-        self._log_file, why_not = _log_file(client, container)
-        if self._log_file is None:
-            log.info("following container %s's output through the engine API (slower, and an exit "
-                     "burst may arrive out of order): %s", str(container.id)[:12], why_not)
-        # The waiter gets a descriptor of its own: remove() may close the job's meanwhile.
-        exit_watch = os.dup(self._pidfd) if self._pidfd is not None else None
-        threading.Thread(target=self._wait, args=(exit_watch,), name="armnet-container-wait", daemon=True).start()
+        if self._pidfd is None:
+            log.info("container %s: no pidfd of its init here (an engine on another host, a pid namespace "
+                     "of the agent's own, or it already ended): its exit is waited for and its kill sent "
+                     "through the engine (Podman 4.3's wait costs the engine about a core meanwhile)",
+                     str(container.id)[:12])
+        exit_watch: int | None = None
+        try:
+            self._log_file, why_not = _log_file(client, container)
+            if self._log_file is None:
+                log.info("following container %s's output through the engine API (slower, and an exit "
+                         "burst may arrive out of order): %s", str(container.id)[:12], why_not)
+            # The waiter gets a descriptor of its own: remove() may close the job's meanwhile.
+            exit_watch = os.dup(self._pidfd) if self._pidfd is not None else None
+            threading.Thread(target=self._wait, args=(exit_watch,), name="armnet-container-wait",
+                             daemon=True).start()
+        except BaseException:
+            for fd in (exit_watch, self._pidfd):
+                if fd is not None:
+                    os.close(fd)
+            raise
+
+    @property
+    def waits_on_pidfd(self) -> bool:
+        """The exit is seen through a pidfd of the container's init (no engine CPU while the job runs)."""
+        return self._pidfd is not None
 
     @classmethod
     def start(
@@ -152,10 +171,10 @@ class ContainerJob:
         )
         try:
             container.start()
+            return cls(client, container)
         except Exception:
             _remove_quietly(container)
             raise
-        return cls(client, container)
 
     @classmethod
     def adopt(cls, client: Any, container: Any) -> ContainerJob:
@@ -319,12 +338,13 @@ class ContainerJob:
         for it when the signal was already sent.
         """
         sent = False
-        if self._pidfd is not None:
-            try:
-                signal.pidfd_send_signal(self._pidfd, signal.SIGKILL)
-                sent = True
-            except OSError:
-                pass  # already exited
+        with self._pidfd_lock:
+            if self._pidfd is not None:
+                try:
+                    signal.pidfd_send_signal(self._pidfd, signal.SIGKILL)
+                    sent = True
+                except OSError:
+                    pass  # already exited
         if sent:
             threading.Thread(target=self._kill_via_engine, name="armnet-container-kill", daemon=True).start()
         else:
@@ -339,9 +359,10 @@ class ContainerJob:
             pass  # already gone
 
     def remove(self) -> None:
-        if self._pidfd is not None:
-            os.close(self._pidfd)
-            self._pidfd = None
+        with self._pidfd_lock:
+            if self._pidfd is not None:
+                os.close(self._pidfd)
+                self._pidfd = None
         _remove_quietly(self._container)
 
 
@@ -400,13 +421,37 @@ def _open_pidfd(container: Any) -> int | None:
     try:
         container.reload()
         pid = int(container.attrs.get("State", {}).get("Pid") or 0)
-        pidfd = os.pidfd_open(pid) if pid > 0 else None
     except Exception:  # noqa: BLE001 - the fast kill path is optional; the engine's kill remains
         return None
-    if pidfd is not None and not process_in_container(pid, str(container.id)):
-        os.close(pidfd)
+    return container_pidfd(pid, str(container.id))
+
+
+def container_pidfd(pid: int, container_id: str) -> int | None:
+    """A pidfd of process ``pid`` if it is, here and now, a process of container ``container_id``; else None.
+
+    The cgroup is read after the pidfd is opened, and the pidfd is then checked to
+    still hold a live process of that number: a live process had it all along, so the
+    cgroup read was of the process the pidfd holds, not of a later one given the pid.
+    """
+    if pid <= 0:
         return None
-    return pidfd
+    try:
+        pidfd = os.pidfd_open(pid)
+    except OSError:
+        return None  # gone, or no pidfd support
+    if process_in_container(pid, container_id) and _pidfd_holds(pidfd, pid):
+        return pidfd
+    os.close(pidfd)
+    return None
+
+
+def _pidfd_holds(pidfd: int, pid: int) -> bool:
+    """Whether ``pidfd`` holds the live process ``pid`` (its fdinfo's ``Pid:`` line; -1 once it ended)."""
+    try:
+        info = Path(f"/proc/self/fdinfo/{pidfd}").read_text()
+    except OSError:
+        return False
+    return any(line.split() == ["Pid:", str(pid)] for line in info.splitlines())
 
 
 def process_in_container(pid: int, container_id: str) -> bool:

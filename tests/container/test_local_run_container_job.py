@@ -14,6 +14,7 @@ import sys
 import tempfile
 import textwrap
 import threading
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -199,11 +200,11 @@ def test_the_engine_is_asked_for_the_exit_code_only_once_the_containers_init_has
     runs): the launcher blocks on a pidfd of the container's init and asks the engine afterwards."""
     from armnet_launch.plan import ContainerSpec, Mount
 
-    asked = threading.Event()
+    asked_for: list[str] = []
     real_wait = podman.client.api.wait
 
     def watched_wait(container: str, *args: object, **kwargs: object) -> dict[str, object]:
-        asked.set()
+        asked_for.append(container)
         return dict(real_wait(container, *args, **kwargs))
 
     podman.client.api.wait = watched_wait
@@ -213,11 +214,12 @@ def test_the_engine_is_asked_for_the_exit_code_only_once_the_containers_init_has
                              mounts=(Mount(str(tmp_path), "/hold"),))
         job = ContainerJob.launch(podman.client, spec)
         try:
-            # Before the change the waiting thread asked the engine at once.
-            assert not asked.wait(2.0), "the engine was asked to wait while the job ran"
+            assert job.waits_on_pidfd
+            time.sleep(2.0)  # the old launcher's waiting thread asked the engine at once
+            assert job.container_id not in asked_for, "the engine was asked to wait while the job ran"
             (tmp_path / "go").write_text("")
             assert job.wait(60) == 7
-            assert asked.is_set()
+            assert job.container_id in asked_for
         finally:
             job.remove()
     finally:
@@ -226,7 +228,7 @@ def test_the_engine_is_asked_for_the_exit_code_only_once_the_containers_init_has
 
 def test_a_pid_is_a_containers_only_when_the_process_is_in_its_cgroup(podman: Podman, base_image: str) -> None:
     """The engine's pid is taken for a kill only when it names the container's own process here."""
-    from armnet_launch.container import process_in_container
+    from armnet_launch.container import container_pidfd, process_in_container
 
     container = podman.client.containers.run(base_image, ["sleep", "30"], detach=True, ulimits=ulimits(),
                                              network_mode="host")
@@ -237,5 +239,10 @@ def test_a_pid_is_a_containers_only_when_the_process_is_in_its_cgroup(podman: Po
         assert not process_in_container(os.getpid(), container.id)
         assert not process_in_container(pid, container.id[:12]), "a short id would match too much"
         assert not process_in_container(pid, "f" * 64)
+        held = container_pidfd(pid, container.id)
+        assert held is not None
+        os.close(held)
+        assert container_pidfd(os.getpid(), container.id) is None, "a process outside the container"
+        assert container_pidfd(0, container.id) is None
     finally:
         container.remove(force=True)

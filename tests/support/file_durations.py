@@ -23,9 +23,9 @@ class FileDurations:
         self.totals[path] = self.totals.get(path, 0.0) + report.duration
 
     def pytest_terminal_summary(self, terminalreporter: pytest.TerminalReporter) -> None:
-        if not self.totals:
-            return
         whole = sum(self.totals.values())
+        if whole <= 0:
+            return
         terminalreporter.write_sep("=", f"slowest {self.wanted} test files (of {whole:.0f} s in tests)")
         for path, seconds in sorted(self.totals.items(), key=lambda item: -item[1])[:self.wanted]:
             terminalreporter.write_line(f"{seconds:8.1f}s {seconds / whole:6.1%}  {path}")
