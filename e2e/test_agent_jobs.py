@@ -276,29 +276,6 @@ def test_lerobots_own_recording_in_a_job_downloads_with_armnet_artifacts_as_a_da
     assert {"present_position", "goal_position"} <= kinds, kinds
 
 
-def test_a_recording_stopped_at_its_timeout_keeps_every_finished_episode(
-    bed: AgentBed, batch: dict[str, str], object_store: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    import re
-
-    st = status(bed.wait_phase(batch["recording-timeout"], timeout=600))
-    assert st["phase"] == "timeout", json.dumps(st, indent=1)
-    # At the deadline the interlock refuses the next action; record() closes the dataset on its
-    # way out, and the job ends on its own within the grace window.
-    assert "ShuttingDown" in st["result"].get("traceback", ""), json.dumps(st, indent=1)[-6000:]
-    assert st["result"]["exitCode"] == 1, json.dumps(st, indent=1)[-6000:]
-    assert f"stopped within the {RECORDING_GRACE} s grace window" in st["result"]["error"], st["result"]["error"]
-    started = [int(n) for n in re.findall(r"Recording episode (\d+)", st["result"]["stderrTail"])]
-    assert started, st["result"]["stderrTail"][-2000:]
-    dataset = downloaded_dataset(bed, batch["recording-timeout"], "armnet/recording", object_store, tmp_path,
-                                 monkeypatch)
-    cut_short = max(started)  # the episode the deadline cut: LeRobot never saved it
-    assert dataset.num_episodes == cut_short >= 1
-    lengths = list(dataset.meta.episodes["length"])
-    assert list(dataset.meta.episodes["episode_index"]) == list(range(cut_short))
-    assert all(n > 0 for n in lengths) and sum(lengths) == dataset.num_frames == len(dataset.hf_dataset)
-
-
 def test_an_evaluation_nobody_watches_is_judged_by_the_cells_monitor_in_its_status(
     bed: AgentBed, batch: dict[str, str], object_store: Any, outputs_bucket: str,
 ) -> None:
@@ -401,8 +378,9 @@ def test_a_cancelled_job_ends_cancelled_within_grace_and_the_cell_takes_the_next
 
 
 def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, batch: dict[str, str]) -> None:
-    for name in batch.values():
-        bed.wait_phase(name, timeout=400)  # the batch is done: the two so101 cells are free
+    for key, name in batch.items():
+        if key != "recording-timeout":  # on a cell of its own; its test waits for it
+            bed.wait_phase(name, timeout=400)  # the batch is done: the two so101 cells are free
     image = bed.image("counts", JOBS / "counts_slowly.py")
     # Created in this order (one apply after the other), one priority: FIFO is this order.
     names = [bed.submit(f"queued-{i}", image, args={"lines": 4, "pause": 0.2}, timeout=120) for i in range(6)]
@@ -429,6 +407,32 @@ def test_six_jobs_on_two_cells_all_finish_and_never_share_a_cell(bed: AgentBed, 
     # On each cell the jobs started in the order they were created.
     assert all(on_cell == sorted(on_cell, key=names.index) for on_cell in by_cell.values()), by_cell
     assert len(by_cell) == 2, by_cell
+
+
+# Its job runs on a cell of its own until its 300 s timeout, so its test comes late: the
+# tests before it check the batch meanwhile. It must end before the agent is killed below
+# (the container launcher's connector lives in the agent's process).
+def test_a_recording_stopped_at_its_timeout_keeps_every_finished_episode(
+    bed: AgentBed, batch: dict[str, str], object_store: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import re
+
+    st = status(bed.wait_phase(batch["recording-timeout"], timeout=600))
+    assert st["phase"] == "timeout", json.dumps(st, indent=1)
+    # At the deadline the interlock refuses the next action; record() closes the dataset on its
+    # way out, and the job ends on its own within the grace window.
+    assert "ShuttingDown" in st["result"].get("traceback", ""), json.dumps(st, indent=1)[-6000:]
+    assert st["result"]["exitCode"] == 1, json.dumps(st, indent=1)[-6000:]
+    assert f"stopped within the {RECORDING_GRACE} s grace window" in st["result"]["error"], st["result"]["error"]
+    started = [int(n) for n in re.findall(r"Recording episode (\d+)", st["result"]["stderrTail"])]
+    assert started, st["result"]["stderrTail"][-2000:]
+    dataset = downloaded_dataset(bed, batch["recording-timeout"], "armnet/recording", object_store, tmp_path,
+                                 monkeypatch)
+    cut_short = max(started)  # the episode the deadline cut: LeRobot never saved it
+    assert dataset.num_episodes == cut_short >= 1
+    lengths = list(dataset.meta.episodes["length"])
+    assert list(dataset.meta.episodes["episode_index"]) == list(range(cut_short))
+    assert all(n > 0 for n in lengths) and sum(lengths) == dataset.num_frames == len(dataset.hf_dataset)
 
 
 def test_an_agent_killed_mid_job_readopts_it_and_reports_every_line_once(

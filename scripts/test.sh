@@ -42,15 +42,17 @@ fi
 # that runs on alone uses one core of two. That is why the container tier and the Helm
 # chart's rendering, RBAC and lifecycle tests sit beside the agent's scenarios, and the
 # local-run e2e beside the node's tests, and the unit tests of the SDK and the test bed (108 s
-# alone, LeRobot's commands started in fresh interpreters) at the end of the agent's scenarios
-# (a warm run: main 19 min 37 s, agent scenarios 14 min 21 s, node 16 min 21 s).
+# alone, LeRobot's commands started in fresh interpreters) at the end of the agent's scenarios,
+# and two operator process tests (the fuzzer 31 s, the operator command 28 s) beside the e2e
+# (warm runs of 2026-12-02 before that move: main 14:53, agent scenarios 14:22, node 13:25;
+# main 15:56, 15:00, 14:04: the main session ended last by 0.5 to 1.5 min every time).
 # Three sessions, not four: the unit tests as a session of their own end the run sooner, but
 # the extra CPU demand delays the kernel worker a pty hands its bytes on through, and the
 # simulated servos then answer past LeRobot's 50 ms reply window (docs/testing.md, "Why three
 # sessions").
 side_groups=(
-  "e2e/test_agent_jobs.py e2e/test_tenants.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container tests/integration/test_helm_chart.py tests/integration/test_helm_rbac.py tests/integration/test_helm_lifecycle.py tests/unit/runtime tests/unit/testbed"
-  "tests/integration/test_dev_up.py tests/integration/test_node_store.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py e2e/test_preflight.py e2e/test_unattended.py"
+  "e2e/test_agent_jobs.py e2e/test_tenants.py e2e/test_client_jobs.py e2e/test_fms_local.py tests/container tests/integration/test_helm_chart.py tests/integration/test_helm_rbac.py tests/integration/test_helm_lifecycle.py tests/integration/test_operator_fuzz_manifests.py tests/unit/runtime tests/unit/testbed"
+  "tests/integration/test_dev_up.py tests/integration/test_node_store.py tests/images e2e/test_pod_jobs.py tests/integration/test_testbed_node.py tests/integration/test_deviceplugin_node.py e2e/test_fms_browser.py e2e/test_local_run.py e2e/test_lerobot_robot_classes.py e2e/test_preflight.py e2e/test_unattended.py tests/integration/test_operator_cli_process.py"
 )
 # Each session prints its slowest tests (--durations) and test files (--file-durations, summed
 # over their tests' phases: what moves when the groups are rebalanced): where the time goes.
