@@ -29,6 +29,28 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$lock_key" ]; then
   echo "$lock_key" >"$stamp"
 fi
 
+# Bytecode for every module of the venv and of this clone, compiled once here (uv installs
+# none, and with PYTHONDONTWRITEBYTECODE=1, as on CI's machines, no process ever writes one):
+# without it every process compiles what it imports, each time it starts (the LeRobot bus
+# import: 8.5 s of CPU against 3.0 s; an agent's imports 2.5 s against 0.8 s), and the
+# suite starts ~400 of them. The images compile theirs at install (pip's default). compileall
+# skips a module whose bytecode is current, so a run after the first compiles only what
+# changed (the clone's edited files); the venv's is redone when the lock was synced. Before
+# the editable install: its import checks below then load bytecode too.
+bytecode_stamp="$venv/.armnet-bytecode"
+site="$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
+if [ "$(cat "$bytecode_stamp" 2>/dev/null)" != "$lock_key" ]; then
+  echo "[setup/python] compiling the venv's bytecode (cold: ~1 min on 2 cores)"
+  started=$SECONDS
+  # A module in another Python's syntax (torch's py312_intrinsics.py) does not compile:
+  # compileall goes on past it, and it is never imported. The suite checks that every
+  # other module got its bytecode (tests/unit/testbed/test_lock_environment.py).
+  "$venv/bin/python" -m compileall -q -j 0 "$site" >/dev/null 2>&1 || true
+  echo "$lock_key" >"$bytecode_stamp"
+  echo "[setup/python] compiled the venv's bytecode in $((SECONDS - started)) s"
+fi
+(cd "$here" && "$venv/bin/python" -m compileall -q -j 0 runtime/src operator agent cli fms testbed >/dev/null) \
+  || { echo "[setup/python] this clone's sources do not compile: run 'python -m compileall runtime/src operator agent cli fms testbed' to see where" >&2; exit 1; }
 # The editable install points the venv at this clone; it is redone (~5 s) only when the
 # clone, its package metadata or its top-level packages changed since the last one
 # (another clone ran setup, a package was added), or the lock was synced; the import checks
@@ -49,26 +71,6 @@ if [ "$(cat "$editable_stamp" 2>/dev/null)" != "$editable_key" ]; then
 else
   echo "[setup/python] armnet already installed (editable) from $here"
 fi
-# Bytecode for every module of the venv and of this clone, compiled once here (uv installs
-# none, and with PYTHONDONTWRITEBYTECODE=1, as on CI's machines, no process ever writes one):
-# without it every process compiles what it imports, each time it starts (the LeRobot bus
-# import: 8.5 s of CPU against 3.0 s; an agent's imports 2.5 s against 0.8 s), and the
-# suite starts ~400 of them. The images compile theirs at install (pip's default). compileall
-# skips a module whose bytecode is current, so a run after the first compiles only what
-# changed (the clone's edited files); the venv's is redone when the lock was synced.
-bytecode_stamp="$venv/.armnet-bytecode"
-site="$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
-if [ "$(cat "$bytecode_stamp" 2>/dev/null)" != "$lock_key" ]; then
-  echo "[setup/python] compiling the venv's bytecode (cold: ~1 min on 2 cores)"
-  started=$SECONDS
-  # A few modules of the locked packages do not compile (test data, other Pythons' syntax):
-  # compileall says which and goes on; they are never imported.
-  "$venv/bin/python" -m compileall -q -j 0 "$site" >/dev/null 2>&1 || true
-  echo "$lock_key" >"$bytecode_stamp"
-  echo "[setup/python] compiled the venv's bytecode in $((SECONDS - started)) s"
-fi
-(cd "$here" && "$venv/bin/python" -m compileall -q -j 0 runtime/src operator agent cli fms testbed >/dev/null) \
-  || { echo "[setup/python] this clone's sources do not compile: run 'python -m compileall runtime/src operator agent cli fms testbed' to see where" >&2; exit 1; }
 # The runtime image's interpreter start hook, in this venv too: a local run's job that starts
 # LeRobot's own commands (lerobot-record ...) reaches the cell through its connector, and
 # lerobot-calibrate is refused, as in a job's container (armnet_runtime/lerobot/in_job.py).

@@ -3,15 +3,18 @@
 ``pip check`` is clean but for the exceptions lock/overrides.txt declares, every locked
 package is installed at its locked version, and LeRobot's own commands start: they import
 what LeRobot's pins bring (imageio, gymnasium, rerun, ...), which a ``--no-deps`` install
-of LeRobot would leave out.
+of LeRobot would leave out. Every module of the venv has its bytecode: setup compiles it,
+since no process of the suite writes any where PYTHONDONTWRITEBYTECODE is set.
 """
 
 from __future__ import annotations
 
 import importlib.metadata
+import importlib.util
 import json
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import pytest
@@ -27,6 +30,22 @@ def test_pip_check_finds_no_conflict_but_the_declared_exceptions() -> None:
                             capture_output=True, text=True, check=False)
 
     assert unexcused(result.stdout + result.stderr, overridden(OVERRIDES.read_text())) == [], RERUN_SETUP
+
+
+def test_every_module_of_the_venv_has_its_bytecode_but_those_this_python_cannot_compile() -> None:
+    site = Path(sysconfig.get_paths()["purelib"])
+    without = [source for source in site.rglob("*.py")
+               if not Path(importlib.util.cache_from_source(str(source))).exists()]
+
+    def compiles(source: Path) -> bool:
+        try:
+            compile(source.read_bytes(), str(source), "exec")
+        except SyntaxError:  # e.g. torch's test module in a newer Python's syntax
+            return False
+        return True
+
+    assert [str(source.relative_to(site)) for source in without if compiles(source)] == [], RERUN_SETUP
+    assert len(without) < 10, without  # the few modules in another Python's syntax, never imported
 
 
 def test_every_locked_package_is_installed_at_its_locked_version() -> None:
