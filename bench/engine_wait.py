@@ -39,10 +39,7 @@ TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 
 def engine_cpu_s(service: PodmanService) -> float:
     """The Podman API service's CPU seconds so far (user + system)."""
-    if service._proc is None:
-        raise RuntimeError("the Podman API service is not running")
-    pid = service._proc.proc.pid
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    fields = Path(f"/proc/{service.pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / TICKS_PER_S
 
 

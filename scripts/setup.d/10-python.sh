@@ -49,8 +49,9 @@ if [ "$(cat "$bytecode_stamp" 2>/dev/null)" != "$lock_key" ]; then
   echo "$lock_key" >"$bytecode_stamp"
   echo "[setup/python] compiled the venv's bytecode in $((SECONDS - started)) s"
 fi
-(cd "$here" && "$venv/bin/python" -m compileall -q -j 0 runtime/src operator agent cli fms testbed >/dev/null) \
-  || { echo "[setup/python] this clone's sources do not compile: run 'python -m compileall runtime/src operator agent cli fms testbed' to see where" >&2; exit 1; }
+sources=(runtime/src operator agent cli fms testbed)
+(cd "$here" && "$venv/bin/python" -m compileall -q -j 0 "${sources[@]}" >/dev/null) \
+  || { echo "[setup/python] this clone's sources do not compile: run 'python -m compileall ${sources[*]}' to see where" >&2; exit 1; }
 # The editable install points the venv at this clone; it is redone (~5 s) only when the
 # clone, its package metadata or its top-level packages changed since the last one
 # (another clone ran setup, a package was added), or the lock was synced; the import checks

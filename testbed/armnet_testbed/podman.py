@@ -58,6 +58,13 @@ class PodmanService:
         progress(f"podman API ready at {self.base_url} in {time.monotonic() - started:.1f} s")
         return self
 
+    @property
+    def pid(self) -> int:
+        """The API service's process id (a benchmark reads its CPU time from /proc)."""
+        if self._proc is None:
+            raise RuntimeError("the Podman API service is not running: start() it first")
+        return self._proc.proc.pid
+
     def stop(self) -> None:
         if self.client is not None:
             self.client.close()
